@@ -1,0 +1,243 @@
+//! OpenCV pinhole camera with Brown–Conrady distortion `[k1, k2, p1, p2, k3]`.
+//!
+//! Camera frame: x right, y down, z forward. Pixel (0, 0) is the centre of the top-left pixel.
+//! Lens distortion is independent of refraction: pixels are undistorted before back-projection and
+//! distorted after projection.
+
+use nalgebra::{Matrix2, Point2, Point3, Unit, Vector2, Vector3};
+
+use super::error::{ModelError, check_finite};
+
+/// Largest number of Newton steps [`PinholeCamera::undistort_normalized`] takes.
+pub const UNDISTORT_MAX_ITERATIONS: usize = 30;
+
+/// Intrinsics of an OpenCV pinhole camera.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PinholeCamera {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Focal length in x, pixels.
+    pub fx: f64,
+    /// Focal length in y, pixels.
+    pub fy: f64,
+    /// Principal point x, pixels.
+    pub cx: f64,
+    /// Principal point y, pixels.
+    pub cy: f64,
+    /// OpenCV distortion `[k1, k2, p1, p2, k3]`.
+    pub distortion: [f64; 5],
+}
+
+impl PinholeCamera {
+    /// Builds and validates intrinsics (`name` only labels errors). Focal lengths must be > 0 and
+    /// every value finite.
+    pub fn new(
+        name: &str,
+        width: u32,
+        height: u32,
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+        distortion: [f64; 5],
+    ) -> Result<Self, ModelError> {
+        for (field, value) in [("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)] {
+            check_finite(&format!("camera '{name}' {field}"), value)?;
+        }
+        for (i, k) in distortion.iter().enumerate() {
+            check_finite(&format!("camera '{name}' distortion[{i}]"), *k)?;
+        }
+        for (field, value) in [("fx", fx), ("fy", fy)] {
+            if value <= 0.0 {
+                return Err(ModelError::BadIntrinsics {
+                    camera: name.to_string(),
+                    field,
+                    requirement: "> 0",
+                    value,
+                });
+            }
+        }
+        for (field, value) in [("width", width), ("height", height)] {
+            if value == 0 {
+                return Err(ModelError::BadIntrinsics {
+                    camera: name.to_string(),
+                    field,
+                    requirement: "> 0",
+                    value: 0.0,
+                });
+            }
+        }
+        Ok(Self { width, height, fx, fy, cx, cy, distortion })
+    }
+
+    /// True when any distortion coefficient is non-zero.
+    pub fn has_distortion(&self) -> bool {
+        self.distortion.iter().any(|&k| k != 0.0)
+    }
+
+    /// Applies the OpenCV distortion to normalised coordinates (x, y) = (X/Z, Y/Z):
+    ///
+    /// R = 1 + k1 r² + k2 r⁴ + k3 r⁶, r² = x² + y²,
+    /// x′ = x R + 2 p1 x y + p2 (r² + 2x²), y′ = y R + p1 (r² + 2y²) + 2 p2 x y.
+    #[inline]
+    pub fn distort_normalized(&self, p: &Vector2<f64>) -> Vector2<f64> {
+        self.distort_with_jacobian(p).0
+    }
+
+    /// Distortion and its 2×2 Jacobian ∂(x′, y′)/∂(x, y).
+    #[inline]
+    fn distort_with_jacobian(&self, p: &Vector2<f64>) -> (Vector2<f64>, Matrix2<f64>) {
+        let [k1, k2, p1, p2, k3] = self.distortion;
+        let (x, y) = (p.x, p.y);
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+        // dR/d(r²)
+        let radial_d = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2);
+        let xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+        let yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+        let dxx = radial + 2.0 * x * x * radial_d + 2.0 * p1 * y + 6.0 * p2 * x;
+        let dxy = 2.0 * x * y * radial_d + 2.0 * p1 * x + 2.0 * p2 * y;
+        let dyy = radial + 2.0 * y * y * radial_d + 6.0 * p1 * y + 2.0 * p2 * x;
+        (Vector2::new(xd, yd), Matrix2::new(dxx, dxy, dxy, dyy))
+    }
+
+    /// Inverts [`distort_normalized`](Self::distort_normalized) by Newton's method with the analytic
+    /// Jacobian, started at the distorted point.
+    ///
+    /// Returns `None` when the iteration does not reach a residual of 1e-14 (normalised units, about
+    /// 1e-11 px) within [`UNDISTORT_MAX_ITERATIONS`] steps, or meets a fold of the distortion map
+    /// (Jacobian determinant ≤ 0): the pixel lies outside the region where the lens model is
+    /// invertible.
+    pub fn undistort_normalized(&self, distorted: &Vector2<f64>) -> Option<Vector2<f64>> {
+        if !self.has_distortion() {
+            return Some(*distorted);
+        }
+        let tolerance = 1e-14 * (1.0 + distorted.norm());
+        let mut p = *distorted;
+        for _ in 0..UNDISTORT_MAX_ITERATIONS {
+            let (d, jac) = self.distort_with_jacobian(&p);
+            let residual = d - distorted;
+            if residual.norm() <= tolerance {
+                return Some(p);
+            }
+            let det = jac.determinant();
+            if !(det > 0.0) {
+                return None;
+            }
+            // 2×2 inverse written out: cheaper than a general solve.
+            let step = Vector2::new(
+                (jac.m22 * residual.x - jac.m12 * residual.y) / det,
+                (jac.m11 * residual.y - jac.m21 * residual.x) / det,
+            );
+            p -= step;
+            if !p.x.is_finite() || !p.y.is_finite() {
+                return None;
+            }
+        }
+        let residual = self.distort_normalized(&p) - distorted;
+        (residual.norm() <= tolerance).then_some(p)
+    }
+
+    /// Pixel of a point in the camera frame: pinhole, then distortion. `None` when z ≤ 0.
+    #[inline]
+    pub fn img_from_cam(&self, point_in_cam: &Point3<f64>) -> Option<Point2<f64>> {
+        if !(point_in_cam.z > 0.0) {
+            return None;
+        }
+        let normalized = Vector2::new(point_in_cam.x / point_in_cam.z, point_in_cam.y / point_in_cam.z);
+        Some(self.img_from_normalized(&normalized))
+    }
+
+    /// Pixel of normalised (undistorted) coordinates: distortion, then the intrinsic matrix.
+    #[inline]
+    pub fn img_from_normalized(&self, normalized: &Vector2<f64>) -> Point2<f64> {
+        let d = if self.has_distortion() { self.distort_normalized(normalized) } else { *normalized };
+        Point2::new(self.fx * d.x + self.cx, self.fy * d.y + self.cy)
+    }
+
+    /// Undistorted normalised coordinates of a pixel. `None` when undistortion fails.
+    #[inline]
+    pub fn normalized_from_img(&self, pixel: &Point2<f64>) -> Option<Vector2<f64>> {
+        let distorted = Vector2::new((pixel.x - self.cx) / self.fx, (pixel.y - self.cy) / self.fy);
+        self.undistort_normalized(&distorted)
+    }
+
+    /// Unit viewing direction (camera frame) of a pixel. `None` when undistortion fails.
+    #[inline]
+    pub fn cam_from_img(&self, pixel: &Point2<f64>) -> Option<Unit<Vector3<f64>>> {
+        let n = self.normalized_from_img(pixel)?;
+        Some(Unit::new_normalize(Vector3::new(n.x, n.y, 1.0)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn camera(distortion: [f64; 5]) -> PinholeCamera {
+        PinholeCamera::new("test", 1280, 1024, 864.91, 870.0, 640.0, 512.0, distortion).unwrap()
+    }
+
+    #[test]
+    fn principal_point_looks_down_the_axis() {
+        let c = camera([0.0; 5]);
+        let d = c.cam_from_img(&Point2::new(640.0, 512.0)).unwrap();
+        assert!((d.into_inner() - Vector3::z()).norm() < 1e-15);
+        let px = c.img_from_cam(&Point3::new(0.0, 0.0, 2.0)).unwrap();
+        assert_eq!(px, Point2::new(640.0, 512.0));
+    }
+
+    #[test]
+    fn pinhole_matches_hand_values() {
+        let c = camera([0.0; 5]);
+        // X/Z = 0.1, Y/Z = -0.05 → u = 864.91·0.1 + 640, v = 870·(−0.05) + 512.
+        let px = c.img_from_cam(&Point3::new(0.2, -0.1, 2.0)).unwrap();
+        assert!((px.x - 726.491).abs() < 1e-12);
+        assert!((px.y - 468.5).abs() < 1e-12);
+        assert!(c.img_from_cam(&Point3::new(0.2, -0.1, -2.0)).is_none());
+    }
+
+    #[test]
+    fn distortion_matches_hand_values() {
+        let c = camera([0.1, 0.01, 0.001, 0.002, 0.0005]);
+        let (x, y) = (0.3f64, -0.2f64);
+        let r2: f64 = 0.13;
+        let radial = 1.0 + 0.1 * r2 + 0.01 * r2 * r2 + 0.0005 * r2 * r2 * r2;
+        let xd = x * radial + 2.0 * 0.001 * x * y + 0.002 * (r2 + 2.0 * x * x);
+        let yd = y * radial + 0.001 * (r2 + 2.0 * y * y) + 2.0 * 0.002 * x * y;
+        let d = c.distort_normalized(&Vector2::new(x, y));
+        assert!((d.x - xd).abs() < 1e-15 && (d.y - yd).abs() < 1e-15);
+    }
+
+    #[test]
+    fn undistort_inverts_distort_over_the_image() {
+        // Strong barrel distortion, typical of wide-angle underwater housings.
+        let c = camera([-0.28, 0.09, 0.0012, -0.0007, -0.012]);
+        for i in 0..=16 {
+            for j in 0..=16 {
+                let px = Point2::new(i as f64 * 1279.0 / 16.0, j as f64 * 1023.0 / 16.0);
+                let n = c.normalized_from_img(&px).expect("inside the image the lens model inverts");
+                let back = c.img_from_normalized(&n);
+                assert!((back - px).norm() < 1e-9, "pixel {px:?} came back as {back:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn undistort_reports_failure_beyond_the_fold() {
+        // k1 < 0 folds the radial map at r² = −1/(3 k1): distorted radii beyond its maximum have no preimage.
+        let c = camera([-0.5, 0.0, 0.0, 0.0, 0.0]);
+        // Maximum distorted radius is r(1 + k1 r²) at r² = 2/3: ≈ 0.544. Ask for 0.8.
+        assert!(c.undistort_normalized(&Vector2::new(0.8, 0.0)).is_none());
+        assert!(c.undistort_normalized(&Vector2::new(0.3, 0.0)).is_some());
+    }
+
+    #[test]
+    fn bad_intrinsics_are_rejected() {
+        assert!(PinholeCamera::new("c", 10, 10, 0.0, 1.0, 0.0, 0.0, [0.0; 5]).is_err());
+        assert!(PinholeCamera::new("c", 0, 10, 1.0, 1.0, 0.0, 0.0, [0.0; 5]).is_err());
+        assert!(PinholeCamera::new("c", 10, 10, 1.0, 1.0, f64::NAN, 0.0, [0.0; 5]).is_err());
+    }
+}

@@ -1,0 +1,170 @@
+//! The flat refractive interface stack: system axis, air layer, layers, media.
+
+use nalgebra::{Unit, Vector3};
+
+use super::error::{ModelError, check_finite};
+
+/// One parallel layer of the port (glass, acrylic, …): its thickness along the normal and its index.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Layer {
+    /// Thickness along the system axis, metres (> 0).
+    pub thickness: f64,
+    /// Refractive index (≥ 1).
+    pub index: f64,
+}
+
+/// A flat port: parallel planes with a common unit normal n (the *system axis*), in the master frame.
+///
+/// Interface i (0-based) lies on the plane n·X = d + t₀ + … + t_(i−1), with d the air layer
+/// thickness ([`air_distance`](Self::air_distance)). The cameras sit in a medium of index
+/// `index_air`; after the last layer comes the medium of index `index_water`. Zero layers is a single
+/// interface air → water; a tank seen from outside is air → glass → water → glass → air.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Interface {
+    normal: Unit<Vector3<f64>>,
+    air_distance: f64,
+    layers: Vec<Layer>,
+    index_air: f64,
+    index_water: f64,
+}
+
+/// Default index of the medium around the cameras.
+pub const DEFAULT_INDEX_AIR: f64 = 1.0;
+/// Default index of the last medium.
+pub const DEFAULT_INDEX_WATER: f64 = 1.333;
+
+impl Interface {
+    /// Builds and validates an interface stack.
+    ///
+    /// `normal` may be unnormalised; it is normalised here. Errors: a zero or non-finite normal, a
+    /// normal with n·z ≤ 0 (pointing away from the water for a forward-looking master camera),
+    /// `air_distance` ≤ 0, a thickness ≤ 0, an index < 1.
+    pub fn new(
+        normal: Vector3<f64>,
+        air_distance: f64,
+        layers: Vec<Layer>,
+        index_air: f64,
+        index_water: f64,
+    ) -> Result<Self, ModelError> {
+        for (axis, v) in ["normal[0]", "normal[1]", "normal[2]"].iter().zip(normal.iter()) {
+            check_finite(axis, *v)?;
+        }
+        let norm = normal.norm();
+        if norm == 0.0 {
+            return Err(ModelError::ZeroNormal);
+        }
+        if normal.z <= 0.0 {
+            return Err(ModelError::NormalAwayFromWater { x: normal.x, y: normal.y, z: normal.z });
+        }
+        check_finite("interface distance", air_distance)?;
+        if air_distance <= 0.0 {
+            return Err(ModelError::NonPositiveAirDistance { value: air_distance });
+        }
+        check_index("index_air", index_air)?;
+        check_index("index_water", index_water)?;
+        for (i, layer) in layers.iter().enumerate() {
+            check_finite(&format!("layer {i} thickness"), layer.thickness)?;
+            if layer.thickness <= 0.0 {
+                return Err(ModelError::NonPositiveThickness { layer: i, value: layer.thickness });
+            }
+            check_index(&format!("layer {i}"), layer.index)?;
+        }
+        Ok(Self {
+            normal: Unit::new_normalize(normal),
+            air_distance,
+            layers,
+            index_air,
+            index_water,
+        })
+    }
+
+    /// The system axis n: unit normal of the interfaces, master frame, pointing into the water.
+    pub fn normal(&self) -> &Unit<Vector3<f64>> {
+        &self.normal
+    }
+
+    /// Air layer thickness d: distance along n from the master camera centre to the first interface.
+    pub fn air_distance(&self) -> f64 {
+        self.air_distance
+    }
+
+    /// The layers between the air and the water, in the order light from the camera crosses them.
+    pub fn layers(&self) -> &[Layer] {
+        &self.layers
+    }
+
+    /// Index of the medium around the cameras.
+    pub fn index_air(&self) -> f64 {
+        self.index_air
+    }
+
+    /// Index of the last medium.
+    pub fn index_water(&self) -> f64 {
+        self.index_water
+    }
+
+    /// Total thickness of the layers, Σ tᵢ.
+    pub fn layers_thickness(&self) -> f64 {
+        self.layers.iter().map(|l| l.thickness).sum()
+    }
+
+    /// Distance along n from the master camera centre to the outer (last) interface, d + Σ tᵢ.
+    pub fn outer_distance(&self) -> f64 {
+        self.air_distance + self.layers_thickness()
+    }
+
+    /// The same stack with another system axis and air layer (validated as in [`new`](Self::new)).
+    pub fn with_pose(&self, normal: Vector3<f64>, air_distance: f64) -> Result<Self, ModelError> {
+        Self::new(normal, air_distance, self.layers.clone(), self.index_air, self.index_water)
+    }
+}
+
+fn check_index(medium: &str, value: f64) -> Result<(), ModelError> {
+    check_finite(medium, value)?;
+    if value < 1.0 {
+        return Err(ModelError::IndexBelowOne { medium: medium.to_string(), value });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn glass() -> Vec<Layer> {
+        vec![Layer { thickness: 0.014, index: 1.473 }]
+    }
+
+    #[test]
+    fn normal_is_normalised() {
+        let i = Interface::new(Vector3::new(0.1, 0.1, 1.0), 0.02, glass(), 1.0, 1.333).unwrap();
+        assert!((i.normal().norm() - 1.0).abs() < 1e-15);
+        assert!((i.outer_distance() - 0.034).abs() < 1e-15);
+    }
+
+    #[test]
+    fn invalid_stacks_are_rejected() {
+        let z = Vector3::z();
+        assert_eq!(Interface::new(Vector3::zeros(), 0.02, glass(), 1.0, 1.333), Err(ModelError::ZeroNormal));
+        assert!(matches!(
+            Interface::new(Vector3::new(0.0, 0.0, -1.0), 0.02, glass(), 1.0, 1.333),
+            Err(ModelError::NormalAwayFromWater { .. })
+        ));
+        assert!(matches!(
+            Interface::new(z, 0.0, glass(), 1.0, 1.333),
+            Err(ModelError::NonPositiveAirDistance { .. })
+        ));
+        assert!(matches!(
+            Interface::new(z, 0.02, vec![Layer { thickness: -1.0, index: 1.5 }], 1.0, 1.333),
+            Err(ModelError::NonPositiveThickness { layer: 0, .. })
+        ));
+        assert!(matches!(
+            Interface::new(z, 0.02, glass(), 0.9, 1.333),
+            Err(ModelError::IndexBelowOne { .. })
+        ));
+        assert!(matches!(
+            Interface::new(z, f64::NAN, glass(), 1.0, 1.333),
+            Err(ModelError::NotFinite { .. })
+        ));
+    }
+}

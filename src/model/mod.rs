@@ -1,0 +1,84 @@
+//! The refractive model in f64: pure functions of parameters and inputs. No I/O, no GPU.
+//!
+//! Dependency order: [`snell`] and [`vop`] (formulas) → [`interface`], [`camera`] (parameters) →
+//! [`rig`] → [`RefractiveCamera`] (back-projection, forward projection, VOPs) → [`stereo`]
+//! (binocular VOPs, triangulation).
+
+pub mod camera;
+pub mod error;
+pub mod interface;
+pub mod refractive_camera;
+pub mod rig;
+pub mod snell;
+pub mod stereo;
+pub mod vop;
+
+pub use camera::PinholeCamera;
+pub use error::ModelError;
+pub use interface::{Interface, Layer};
+pub use refractive_camera::{AirPath, Ray, RefractiveCamera, Vop};
+pub use rig::{Rig, RigCamera};
+pub use stereo::{BinocularVop, Triangulation, binocular_vop, triangulate_rays};
+
+/// Why a point, pixel or ray has no answer. Not an error: batches report these per element (as a
+/// NaN row in CSV output, as a status code on the GPU).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u32)]
+pub enum NoSolution {
+    /// The pixel lies outside the region where the lens distortion can be inverted.
+    Undistortion = 1,
+    /// The air ray travels parallel to or away from the interface.
+    MissesInterface = 2,
+    /// Light cannot pass into a layer or the water at this angle.
+    TotalInternalReflection = 3,
+    /// The point is not beyond the outer interface (it is in the air, in a layer, or behind).
+    NotInWater = 4,
+    /// The point projects behind the camera.
+    BehindCamera = 5,
+    /// Nearly parallel rays or a point in the degenerate plane of a stereo pair.
+    Degenerate = 6,
+    /// The forward-projection root finder hit its iteration bound.
+    NoConvergence = 7,
+}
+
+impl NoSolution {
+    /// Every variant, in code order.
+    pub const ALL: [NoSolution; 7] = [
+        Self::Undistortion,
+        Self::MissesInterface,
+        Self::TotalInternalReflection,
+        Self::NotInWater,
+        Self::BehindCamera,
+        Self::Degenerate,
+        Self::NoConvergence,
+    ];
+
+    /// Stable status code (non-zero; 0 means success in per-element status buffers).
+    pub fn code(self) -> u32 {
+        self as u32
+    }
+
+    /// The variant with this status code.
+    pub fn from_code(code: u32) -> Option<Self> {
+        Self::ALL.into_iter().find(|v| v.code() == code)
+    }
+
+    /// Short human description.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::Undistortion => "pixel outside the invertible lens region",
+            Self::MissesInterface => "ray misses the interface",
+            Self::TotalInternalReflection => "total internal reflection",
+            Self::NotInWater => "point not in the water (in the air or a layer)",
+            Self::BehindCamera => "point behind the camera",
+            Self::Degenerate => "degenerate geometry (parallel rays)",
+            Self::NoConvergence => "root finder did not converge",
+        }
+    }
+}
+
+impl std::fmt::Display for NoSolution {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.describe())
+    }
+}

@@ -1,0 +1,342 @@
+//! One camera of a rig prepared for refraction: back-projection (pixel → ray in the water) and
+//! forward projection (point in the water → pixel), both in the master frame.
+
+use nalgebra::{Isometry3, Matrix3, Point2, Point3, Unit, Vector3};
+
+use super::NoSolution;
+use super::camera::PinholeCamera;
+use super::interface::{Interface, Layer};
+use super::snell::refract;
+
+/// A ray `origin + s·dir`, s ≥ 0.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ray {
+    /// Start point.
+    pub origin: Point3<f64>,
+    /// Unit direction.
+    pub dir: Unit<Vector3<f64>>,
+}
+
+impl Ray {
+    /// The point `origin + s·dir`.
+    #[inline]
+    pub fn point_at(&self, s: f64) -> Point3<f64> {
+        self.origin + self.dir.into_inner() * s
+    }
+}
+
+/// Largest number of iterations of the forward-projection root finder before it reports
+/// [`NoSolution::NoConvergence`]. Newton from the paraxial start needs 2–6; the bound only matters
+/// if rounding forces bisection steps, each of which halves the bracket.
+pub const PROJECT_MAX_ITERATIONS: u32 = 100;
+
+/// Relative step size |Δτ|/τ at which the forward-projection Newton iteration stops. The
+/// convergence is quadratic, so the error after that last step is far below it.
+pub const PROJECT_TOLERANCE: f64 = 1e-13;
+
+/// How light from a point in the water reaches a camera: the solution of the forward projection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AirPath {
+    /// Unit direction of the ray in the air, from the camera centre toward the interface, master frame.
+    pub dir_in_air: Unit<Vector3<f64>>,
+    /// tan a, a the angle of incidence in the air.
+    pub tan_incidence: f64,
+    /// x: distance of the point from the outer interface along the axis, metres.
+    pub depth: f64,
+    /// Root-finder iterations used (0 for a point on the camera's axis line).
+    pub iterations: u32,
+}
+
+/// The Virtual Object Point of a point in the water as seen from one camera (thesis ch. 4).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Vop {
+    /// x: distance of the real point from the outer interface along the axis, metres (> 0).
+    pub depth: f64,
+    /// x̌: signed distance from A1 (object axis ∩ outer interface) to the VOP, positive toward the
+    /// water, negative inside the layers, metres.
+    pub vop_distance: f64,
+    /// The VOP Ǒ = A1 + x̌·n, master frame.
+    pub vop: Point3<f64>,
+    /// Angle of incidence in the air, radians.
+    pub incidence: f64,
+}
+
+/// Camera k of a rig with the interface expressed in its terms: centre C_k, own air layer
+/// d_k = d − n·C_k, and the index ratios ρ = μ/μ_air. Build it once with
+/// [`Rig::refractive_camera`](super::Rig::refractive_camera) and reuse it for every point.
+#[derive(Debug, Clone)]
+pub struct RefractiveCamera {
+    intrinsics: PinholeCamera,
+    cam_from_master: Matrix3<f64>,
+    master_from_cam: Matrix3<f64>,
+    centre: Point3<f64>,
+    normal: Unit<Vector3<f64>>,
+    air_distance: f64,
+    layers: Vec<Layer>,
+    /// (tᵢ, ρᵢ²) per layer, ρᵢ = μᵢ/μ_air.
+    layer_terms: Vec<(f64, f64)>,
+    layers_thickness: f64,
+    index_air: f64,
+    index_water: f64,
+    /// ρ_w² = (μ_w/μ_air)².
+    rho2_water: f64,
+    /// Largest tan a for which light still enters every medium (∞ when all ρ ≥ 1).
+    tan_max: f64,
+    /// Σ tᵢ/ρᵢ, for the paraxial start of the forward projection.
+    paraxial_layers: f64,
+}
+
+impl RefractiveCamera {
+    /// Prepares a camera with OpenCV extrinsics `cam_from_master` behind `interface`.
+    pub fn new(intrinsics: PinholeCamera, cam_from_master: &Isometry3<f64>, interface: &Interface) -> Self {
+        let rotation = cam_from_master.rotation.to_rotation_matrix().into_inner();
+        let centre = cam_from_master.inverse_transform_point(&Point3::origin());
+        let normal = *interface.normal();
+        let index_air = interface.index_air();
+        let rho2 = |index: f64| (index / index_air) * (index / index_air);
+        let layer_terms: Vec<(f64, f64)> =
+            interface.layers().iter().map(|l| (l.thickness, rho2(l.index))).collect();
+        let rho2_water = rho2(interface.index_water());
+        // h(τ; ρ) is defined while ρ² + (ρ² − 1)τ² > 0; only ρ < 1 bounds τ.
+        let tan_max = layer_terms
+            .iter()
+            .map(|&(_, r2)| r2)
+            .chain(std::iter::once(rho2_water))
+            .filter(|&r2| r2 < 1.0)
+            .map(|r2| (r2 / (1.0 - r2)).sqrt())
+            .fold(f64::INFINITY, f64::min);
+        Self {
+            intrinsics,
+            cam_from_master: rotation,
+            master_from_cam: rotation.transpose(),
+            centre,
+            normal,
+            air_distance: interface.air_distance() - normal.dot(&centre.coords),
+            layers: interface.layers().to_vec(),
+            paraxial_layers: layer_terms.iter().map(|&(t, r2)| t / r2.sqrt()).sum(),
+            layer_terms,
+            layers_thickness: interface.layers_thickness(),
+            index_air,
+            index_water: interface.index_water(),
+            rho2_water,
+            tan_max,
+        }
+    }
+
+    /// Camera centre C_k in the master frame.
+    pub fn centre(&self) -> &Point3<f64> {
+        &self.centre
+    }
+
+    /// This camera's air layer d_k = d − n·C_k, metres.
+    pub fn air_distance(&self) -> f64 {
+        self.air_distance
+    }
+
+    /// The intrinsics.
+    pub fn intrinsics(&self) -> &PinholeCamera {
+        &self.intrinsics
+    }
+
+    /// Unit viewing direction of a (distorted) pixel in the master frame.
+    #[inline]
+    pub fn dir_in_air_from_img(&self, pixel: &Point2<f64>) -> Result<Unit<Vector3<f64>>, NoSolution> {
+        let dir_in_cam = self.intrinsics.cam_from_img(pixel).ok_or(NoSolution::Undistortion)?;
+        Ok(Unit::new_unchecked(self.master_from_cam * dir_in_cam.into_inner()))
+    }
+
+    /// Back-projects a (distorted) pixel into the water with the closed form of
+    /// [`ray_in_water`](Self::ray_in_water).
+    #[inline]
+    pub fn backproject(&self, pixel: &Point2<f64>) -> Result<Ray, NoSolution> {
+        self.ray_in_water(&self.dir_in_air_from_img(pixel)?)
+    }
+
+    /// Back-projects a (distorted) pixel by tracing, see [`trace_ray_in_water`](Self::trace_ray_in_water).
+    pub fn backproject_traced(&self, pixel: &Point2<f64>) -> Result<Ray, NoSolution> {
+        self.trace_ray_in_water(&self.dir_in_air_from_img(pixel)?)
+    }
+
+    /// The ray in the water for a ray leaving the camera centre with `dir_in_air` (master frame),
+    /// closed form (thesis 5.2.2).
+    ///
+    /// With c = n·v = cos a, λ1 and λ2,ᵢ at that angle, the backward extension of the water ray
+    /// crosses the line C_k + s·n at
+    /// c_axis = C_k + [d_k (1 − λ1) + Σ tᵢ (1 − λ1 λ2,ᵢ)]·n,
+    /// and its direction is w = (μa/μw)·(v + cos a (λ1 − 1)·n) (Snell across the whole stack). The
+    /// returned origin is where c_axis + λ·w meets the outer interface,
+    /// c_axis + (d_k + Σ tᵢ λ2,ᵢ)/cos a · (v + cos a (λ1 − 1)·n). Master frame, metres.
+    ///
+    /// Errors: [`NoSolution::MissesInterface`] when n·v ≤ 0, [`NoSolution::TotalInternalReflection`]
+    /// when the light cannot enter a layer or the water.
+    #[inline]
+    pub fn ray_in_water(&self, dir_in_air: &Unit<Vector3<f64>>) -> Result<Ray, NoSolution> {
+        let v = dir_in_air.into_inner();
+        let n = self.normal.into_inner();
+        let cos_a = n.dot(&v);
+        if !(cos_a > 0.0) {
+            return Err(NoSolution::MissesInterface);
+        }
+        let sin2_a = (1.0 - cos_a * cos_a).max(0.0);
+        let water_radicand = self.rho2_water - sin2_a;
+        if !(water_radicand > 0.0) {
+            return Err(NoSolution::TotalInternalReflection);
+        }
+        let lambda1 = water_radicand.sqrt() / cos_a;
+        let mut axis_shift = self.air_distance * (1.0 - lambda1);
+        let mut lateral_length = self.air_distance;
+        for &(thickness, rho2) in &self.layer_terms {
+            let radicand = rho2 - sin2_a;
+            if !(radicand > 0.0) {
+                return Err(NoSolution::TotalInternalReflection);
+            }
+            let lambda2 = cos_a / radicand.sqrt();
+            axis_shift += thickness * (1.0 - lambda1 * lambda2);
+            lateral_length += thickness * lambda2;
+        }
+        let bent = v + n * (cos_a * (lambda1 - 1.0));
+        let axis_point = self.centre + n * axis_shift;
+        let origin = axis_point + bent * (lateral_length / cos_a);
+        Ok(Ray { origin, dir: Unit::new_normalize(bent) })
+    }
+
+    /// The ray in the water by tracing: intersect each plane in turn and apply vector Snell
+    /// ([`refract`]). Independent of the λ relations; same result and errors as
+    /// [`ray_in_water`](Self::ray_in_water).
+    pub fn trace_ray_in_water(&self, dir_in_air: &Unit<Vector3<f64>>) -> Result<Ray, NoSolution> {
+        let n = &self.normal;
+        if !(n.dot(dir_in_air) > 0.0) {
+            return Err(NoSolution::MissesInterface);
+        }
+        let mut point = self.centre;
+        let mut dir = *dir_in_air;
+        let mut index = self.index_air;
+        let mut plane = self.air_distance; // offset of the next plane along n, from C_k
+        let media = self.layers.iter().map(|l| (l.thickness, l.index)).chain(std::iter::once((0.0, self.index_water)));
+        for (thickness, next_index) in media {
+            // Refraction keeps n·dir > 0, so every later plane is reached.
+            point += dir.into_inner() * ((plane - n.dot(&(point - self.centre))) / n.dot(&dir));
+            dir = refract(&dir, n, index / next_index).ok_or(NoSolution::TotalInternalReflection)?;
+            index = next_index;
+            plane += thickness;
+        }
+        Ok(Ray { origin: point, dir })
+    }
+
+    /// Solves how light from `point_in_master` reaches the camera centre.
+    ///
+    /// With z = n·(O − C_k), x = z − d_k − Σ tᵢ (the depth, must be > 0), r the distance of O from
+    /// the line C_k + s·n and e the unit vector toward O across it, the angle of incidence a solves
+    /// DESIGN.md's monotone equation, written in τ = tan a:
+    ///
+    /// f(τ) = d_k τ + Σ tᵢ h(τ; ρᵢ) + x h(τ; ρ_w) − r = 0, h(τ; ρ) = τ / √(ρ² + (ρ² − 1) τ²).
+    ///
+    /// This is DESIGN's f(u) with u = sin a: the air term becomes linear and, when every ρ ≥ 1, f is
+    /// increasing and concave, with h(τ) ≤ τ/ρ. So the paraxial value τ₀ = r / (d_k + Σ tᵢ/ρᵢ + x/ρ_w)
+    /// has f(τ₀) ≤ 0, and Newton from it climbs monotonically to the unique root without overshoot.
+    /// The iteration keeps the bracket [0, min(r/d_k, τ_max)] (f(r/d_k) ≥ 0; τ_max is the critical
+    /// angle when some ρ < 1) and bisects whenever a step would leave it, stops when
+    /// |Δτ| ≤ [`PROJECT_TOLERANCE`]·τ, and gives up after [`PROJECT_MAX_ITERATIONS`]. r = 0 gives τ = 0.
+    ///
+    /// Errors: [`NoSolution::NotInWater`] when x ≤ 0 (the point is in the air or a layer, or behind
+    /// the camera); [`NoSolution::NoConvergence`] if the iteration bound is hit.
+    pub fn air_path_to(&self, point_in_master: &Point3<f64>) -> Result<AirPath, NoSolution> {
+        let n = self.normal.into_inner();
+        let offset = point_in_master - self.centre;
+        let z = n.dot(&offset);
+        let depth = z - self.air_distance - self.layers_thickness;
+        if !(depth > 0.0) {
+            return Err(NoSolution::NotInWater);
+        }
+        let lateral = offset - n * z;
+        let r = lateral.norm();
+        if r == 0.0 {
+            return Ok(AirPath { dir_in_air: self.normal, tan_incidence: 0.0, depth, iterations: 0 });
+        }
+        let (tau, iterations) = self.solve_tan_incidence(depth, r)?;
+        let dir = (n + lateral * (tau / r)) / (1.0 + tau * tau).sqrt();
+        Ok(AirPath { dir_in_air: Unit::new_unchecked(dir), tan_incidence: tau, depth, iterations })
+    }
+
+    /// f(τ) and f′(τ) of [`air_path_to`](Self::air_path_to);
+    /// h′(τ; ρ) = ρ² / (ρ² + (ρ² − 1) τ²)^(3/2).
+    #[inline]
+    fn incidence_equation(&self, tau: f64, depth: f64, r: f64) -> (f64, f64) {
+        let tau2 = tau * tau;
+        let term = |rho2: f64| {
+            let q = rho2 + (rho2 - 1.0) * tau2;
+            let inv_sqrt = 1.0 / q.sqrt();
+            (tau * inv_sqrt, rho2 * inv_sqrt * inv_sqrt * inv_sqrt)
+        };
+        let (hw, dhw) = term(self.rho2_water);
+        let mut f = self.air_distance * tau + depth * hw - r;
+        let mut df = self.air_distance + depth * dhw;
+        for &(thickness, rho2) in &self.layer_terms {
+            let (h, dh) = term(rho2);
+            f += thickness * h;
+            df += thickness * dh;
+        }
+        (f, df)
+    }
+
+    /// Root τ of the incidence equation and the iterations used.
+    #[inline]
+    fn solve_tan_incidence(&self, depth: f64, r: f64) -> Result<(f64, u32), NoSolution> {
+        let mut lo = 0.0;
+        let mut hi = (r / self.air_distance).min(self.tan_max);
+        let paraxial = r / (self.air_distance + self.paraxial_layers + depth / self.rho2_water.sqrt());
+        let mut tau = if paraxial > lo && paraxial < hi { paraxial } else { 0.5 * (lo + hi) };
+        for iteration in 1..=PROJECT_MAX_ITERATIONS {
+            let (f, df) = self.incidence_equation(tau, depth, r);
+            if f < 0.0 {
+                lo = tau;
+            } else if f > 0.0 {
+                hi = tau;
+            } else {
+                return Ok((tau, iteration));
+            }
+            let mut next = tau - f / df;
+            if !(next > lo && next < hi) {
+                next = 0.5 * (lo + hi);
+            }
+            if (next - tau).abs() <= PROJECT_TOLERANCE * next || hi - lo <= PROJECT_TOLERANCE * hi {
+                return Ok((next, iteration));
+            }
+            tau = next;
+        }
+        Err(NoSolution::NoConvergence)
+    }
+
+    /// Forward projection: the (distorted) pixel at which `point_in_master` appears through the
+    /// interface. Solves [`air_path_to`](Self::air_path_to), rotates the air ray into the camera,
+    /// then pinhole and distortion.
+    ///
+    /// Errors: those of `air_path_to`, and [`NoSolution::BehindCamera`] when the air ray points
+    /// behind the image plane of a rotated camera.
+    #[inline]
+    pub fn project(&self, point_in_master: &Point3<f64>) -> Result<Point2<f64>, NoSolution> {
+        let path = self.air_path_to(point_in_master)?;
+        let dir_in_cam = self.cam_from_master * path.dir_in_air.into_inner();
+        self.intrinsics.img_from_cam(&Point3::from(dir_in_cam)).ok_or(NoSolution::BehindCamera)
+    }
+
+    /// The Virtual Object Point of `point_in_master` for this camera (thesis eq 4.8 at the angle
+    /// of incidence found by [`air_path_to`](Self::air_path_to)): x̌ = x/λ1 − Σ tᵢ (1 − λ2,ᵢ),
+    /// Ǒ = A1 + x̌·n with A1 = O − x·n.
+    pub fn vop(&self, point_in_master: &Point3<f64>) -> Result<Vop, NoSolution> {
+        let path = self.air_path_to(point_in_master)?;
+        let tau = path.tan_incidence;
+        let cos_a = 1.0 / (1.0 + tau * tau).sqrt();
+        let sin2_a = tau * tau * cos_a * cos_a;
+        let index_air = self.index_air;
+        let lambda1 = super::vop::lambda_ratio(sin2_a, cos_a, self.index_water / index_air)
+            .ok_or(NoSolution::TotalInternalReflection)?
+            / cos_a;
+        let shift = super::vop::layer_shift(sin2_a, cos_a, index_air, &self.layers)
+            .ok_or(NoSolution::TotalInternalReflection)?;
+        let vop_distance = path.depth / lambda1 - shift;
+        let n = self.normal.into_inner();
+        let vop = point_in_master + n * (vop_distance - path.depth);
+        Ok(Vop { depth: path.depth, vop_distance, vop, incidence: tau.atan() })
+    }
+}
