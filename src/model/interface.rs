@@ -113,10 +113,28 @@ impl Interface {
         self.air_distance + self.layers_thickness()
     }
 
+    /// Tilt of the system axis: the angle between n and the master camera's z axis, radians.
+    pub fn tilt(&self) -> f64 {
+        self.normal.z.clamp(-1.0, 1.0).acos()
+    }
+
+    /// Azimuth of the system axis: atan2(n_y, n_x), radians (0 for an untilted axis).
+    pub fn azimuth(&self) -> f64 {
+        self.normal.y.atan2(self.normal.x)
+    }
+
     /// The same stack with another system axis and air layer (validated as in [`new`](Self::new)).
     pub fn with_pose(&self, normal: Vector3<f64>, air_distance: f64) -> Result<Self, ModelError> {
         Self::new(normal, air_distance, self.layers.clone(), self.index_air, self.index_water)
     }
+}
+
+/// Unit axis with the given tilt from the master z axis and azimuth atan2(n_y, n_x), radians:
+/// n = (sin t cos φ, sin t sin φ, cos t).
+pub fn normal_from_tilt_azimuth(tilt: f64, azimuth: f64) -> Unit<Vector3<f64>> {
+    let (st, ct) = tilt.sin_cos();
+    let (sa, ca) = azimuth.sin_cos();
+    Unit::new_normalize(Vector3::new(st * ca, st * sa, ct))
 }
 
 fn check_index(medium: &str, value: f64) -> Result<(), ModelError> {
@@ -140,6 +158,17 @@ mod tests {
         let i = Interface::new(Vector3::new(0.1, 0.1, 1.0), 0.02, glass(), 1.0, 1.333).unwrap();
         assert!((i.normal().norm() - 1.0).abs() < 1e-15);
         assert!((i.outer_distance() - 0.034).abs() < 1e-15);
+    }
+
+    #[test]
+    fn tilt_and_azimuth_round_trip() {
+        let n = normal_from_tilt_azimuth(0.3, -2.0);
+        let i = Interface::new(n.into_inner(), 0.02, vec![], 1.0, 1.333).unwrap();
+        assert!((i.tilt() - 0.3).abs() < 1e-15 && (i.azimuth() + 2.0).abs() < 1e-15);
+        // DESIGN.md example normal (0.1, 0.1, 1): tilt = atan(√0.02) ≈ 8.05°, azimuth 45°.
+        let i = Interface::new(Vector3::new(0.1, 0.1, 1.0), 0.02, vec![], 1.0, 1.333).unwrap();
+        assert!((i.tilt() - 0.02f64.sqrt().atan()).abs() < 1e-15);
+        assert!((i.azimuth().to_degrees() - 45.0).abs() < 1e-12);
     }
 
     #[test]

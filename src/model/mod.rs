@@ -15,7 +15,7 @@ pub mod vop;
 
 pub use camera::PinholeCamera;
 pub use error::ModelError;
-pub use interface::{Interface, Layer};
+pub use interface::{Interface, Layer, normal_from_tilt_azimuth};
 pub use refractive_camera::{AirPath, Ray, RefractiveCamera, Vop};
 pub use rig::{Rig, RigCamera};
 pub use stereo::{BinocularVop, Triangulation, binocular_vop, triangulate_rays};

@@ -73,17 +73,13 @@ pub struct RefractiveCamera {
     normal: Unit<Vector3<f64>>,
     air_distance: f64,
     layers: Vec<Layer>,
-    /// (tᵢ, ρᵢ²) per layer, ρᵢ = μᵢ/μ_air.
+    /// (tᵢ, ρᵢ) per layer, ρᵢ = μᵢ/μ_air.
     layer_terms: Vec<(f64, f64)>,
     layers_thickness: f64,
     index_air: f64,
     index_water: f64,
-    /// ρ_w² = (μ_w/μ_air)².
-    rho2_water: f64,
-    /// Largest tan a for which light still enters every medium (∞ when all ρ ≥ 1).
-    tan_max: f64,
-    /// Σ tᵢ/ρᵢ, for the paraxial start of the forward projection.
-    paraxial_layers: f64,
+    /// ρ_w = μ_w/μ_air.
+    rho_water: f64,
 }
 
 impl RefractiveCamera {
@@ -93,18 +89,7 @@ impl RefractiveCamera {
         let centre = cam_from_master.inverse_transform_point(&Point3::origin());
         let normal = *interface.normal();
         let index_air = interface.index_air();
-        let rho2 = |index: f64| (index / index_air) * (index / index_air);
-        let layer_terms: Vec<(f64, f64)> =
-            interface.layers().iter().map(|l| (l.thickness, rho2(l.index))).collect();
-        let rho2_water = rho2(interface.index_water());
-        // h(τ; ρ) is defined while ρ² + (ρ² − 1)τ² > 0; only ρ < 1 bounds τ.
-        let tan_max = layer_terms
-            .iter()
-            .map(|&(_, r2)| r2)
-            .chain(std::iter::once(rho2_water))
-            .filter(|&r2| r2 < 1.0)
-            .map(|r2| (r2 / (1.0 - r2)).sqrt())
-            .fold(f64::INFINITY, f64::min);
+        let layer_terms = interface.layers().iter().map(|l| (l.thickness, l.index / index_air)).collect();
         Self {
             intrinsics,
             cam_from_master: rotation,
@@ -113,13 +98,11 @@ impl RefractiveCamera {
             normal,
             air_distance: interface.air_distance() - normal.dot(&centre.coords),
             layers: interface.layers().to_vec(),
-            paraxial_layers: layer_terms.iter().map(|&(t, r2)| t / r2.sqrt()).sum(),
             layer_terms,
             layers_thickness: interface.layers_thickness(),
             index_air,
             index_water: interface.index_water(),
-            rho2_water,
-            tan_max,
+            rho_water: interface.index_water() / index_air,
         }
     }
 
@@ -178,15 +161,15 @@ impl RefractiveCamera {
             return Err(NoSolution::MissesInterface);
         }
         let sin2_a = (1.0 - cos_a * cos_a).max(0.0);
-        let water_radicand = self.rho2_water - sin2_a;
+        let water_radicand = self.rho_water * self.rho_water - sin2_a;
         if !(water_radicand > 0.0) {
             return Err(NoSolution::TotalInternalReflection);
         }
         let lambda1 = water_radicand.sqrt() / cos_a;
         let mut axis_shift = self.air_distance * (1.0 - lambda1);
         let mut lateral_length = self.air_distance;
-        for &(thickness, rho2) in &self.layer_terms {
-            let radicand = rho2 - sin2_a;
+        for &(thickness, rho) in &self.layer_terms {
+            let radicand = rho * rho - sin2_a;
             if !(radicand > 0.0) {
                 return Err(NoSolution::TotalInternalReflection);
             }
@@ -226,17 +209,23 @@ impl RefractiveCamera {
     /// Solves how light from `point_in_master` reaches the camera centre.
     ///
     /// With z = n·(O − C_k), x = z − d_k − Σ tᵢ (the depth, must be > 0), r the distance of O from
-    /// the line C_k + s·n and e the unit vector toward O across it, the angle of incidence a solves
-    /// DESIGN.md's monotone equation, written in τ = tan a:
+    /// the line C_k + s·n and e the unit vector toward O across it, the path crosses the media
+    /// m ∈ {air (d_k), layers (tᵢ), water (x)} and its lateral offsets add up to r. This is
+    /// DESIGN.md's monotone equation f(u) = 0, u = sin a, written in the tangent v = tan θ_ref of the
+    /// angle in one *reference* medium: with kₘ = μ_ref/μₘ (so sin θₘ = kₘ sin θ_ref),
     ///
-    /// f(τ) = d_k τ + Σ tᵢ h(τ; ρᵢ) + x h(τ; ρ_w) − r = 0, h(τ; ρ) = τ / √(ρ² + (ρ² − 1) τ²).
+    /// f(v) = Σₘ Lₘ T(v; kₘ) − r = 0,  T(v; k) = tan θₘ = k v / √(1 + (1 − k²) v²).
     ///
-    /// This is DESIGN's f(u) with u = sin a: the air term becomes linear and, when every ρ ≥ 1, f is
-    /// increasing and concave, with h(τ) ≤ τ/ρ. So the paraxial value τ₀ = r / (d_k + Σ tᵢ/ρᵢ + x/ρ_w)
-    /// has f(τ₀) ≤ 0, and Newton from it climbs monotonically to the unique root without overshoot.
-    /// The iteration keeps the bracket [0, min(r/d_k, τ_max)] (f(r/d_k) ≥ 0; τ_max is the critical
-    /// angle when some ρ < 1) and bisects whenever a step would leave it, stops when
-    /// |Δτ| ≤ [`PROJECT_TOLERANCE`]·τ, and gives up after [`PROJECT_MAX_ITERATIONS`]. r = 0 gives τ = 0.
+    /// Every T is increasing, so the root is unique. The reference is the medium whose term
+    /// dominates f′, re-chosen at every iterate: its term is linear in v, so f is close to linear
+    /// around the root. (With a fixed tan a, deep points seen at steep incidence need tens of
+    /// Newton steps because the water term saturates; with a fixed water angle, near-grazing air
+    /// rays do, because the air term blows up.) f is the lateral miss in metres whatever the
+    /// variable, so switching only rescales f′ and the bracket. Bracket: [0, min(r / L_ref, v_max)]
+    /// (f(r / L_ref) ≥ 0; v_max = 1/√(k² − 1) over media with k > 1, the critical angle). Start:
+    /// the paraxial root, in the medium of largest L/μ. Newton keeps the bracket and bisects
+    /// whenever a step would leave it, stops when |Δv| ≤ [`PROJECT_TOLERANCE`]·v, and gives up after
+    /// [`PROJECT_MAX_ITERATIONS`]. r = 0 gives a = 0. Finally tan a = T(v; k_air).
     ///
     /// Errors: [`NoSolution::NotInWater`] when x ≤ 0 (the point is in the air or a layer, or behind
     /// the camera); [`NoSolution::NoConvergence`] if the iteration bound is hit.
@@ -258,53 +247,113 @@ impl RefractiveCamera {
         Ok(AirPath { dir_in_air: Unit::new_unchecked(dir), tan_incidence: tau, depth, iterations })
     }
 
-    /// f(τ) and f′(τ) of [`air_path_to`](Self::air_path_to);
-    /// h′(τ; ρ) = ρ² / (ρ² + (ρ² − 1) τ²)^(3/2).
+    /// f(v), f′(v) of [`air_path_to`](Self::air_path_to) in the variable of the reference medium
+    /// of relative index `rho_ref` (T′(v; k) = k / (1 + (1 − k²) v²)^(3/2)), and the medium whose
+    /// term contributes most to f′ as (length, ρ).
     #[inline]
-    fn incidence_equation(&self, tau: f64, depth: f64, r: f64) -> (f64, f64) {
-        let tau2 = tau * tau;
-        let term = |rho2: f64| {
-            let q = rho2 + (rho2 - 1.0) * tau2;
-            let inv_sqrt = 1.0 / q.sqrt();
-            (tau * inv_sqrt, rho2 * inv_sqrt * inv_sqrt * inv_sqrt)
-        };
-        let (hw, dhw) = term(self.rho2_water);
-        let mut f = self.air_distance * tau + depth * hw - r;
-        let mut df = self.air_distance + depth * dhw;
-        for &(thickness, rho2) in &self.layer_terms {
-            let (h, dh) = term(rho2);
-            f += thickness * h;
-            df += thickness * dh;
+    fn incidence_equation(&self, v: f64, rho_ref: f64, depth: f64, r: f64) -> (f64, f64, (f64, f64)) {
+        let v2 = v * v;
+        let (mut f, mut df) = (-r, 0.0);
+        let mut dominant = (0.0, 1.0, 0.0); // (length, ρ, its f′ term)
+        for (length, rho) in self.media(depth) {
+            let k = rho_ref / rho;
+            let inv_sqrt = 1.0 / (1.0 + (1.0 - k * k) * v2).sqrt();
+            let lk = length * k * inv_sqrt;
+            let slope = lk * inv_sqrt * inv_sqrt;
+            f += lk * v;
+            df += slope;
+            if slope > dominant.2 {
+                dominant = (length, rho, slope);
+            }
         }
-        (f, df)
+        (f, df, (dominant.0, dominant.1))
     }
 
-    /// Root τ of the incidence equation and the iterations used.
+    /// The media a path crosses as (length along the axis, index relative to the air): air d_k,
+    /// water at `depth`, then the layers.
+    #[inline]
+    fn media(&self, depth: f64) -> impl Iterator<Item = (f64, f64)> + '_ {
+        [(self.air_distance, 1.0), (depth, self.rho_water)].into_iter().chain(self.layer_terms.iter().copied())
+    }
+
+    /// Upper end of the bracket in the variable of the reference medium (length, ρ):
+    /// f(r / L_ref) ≥ 0, and light must enter every medium (v < 1/√(k² − 1) where k > 1).
+    #[inline]
+    fn bracket_top(&self, depth: f64, r: f64, (length_ref, rho_ref): (f64, f64)) -> f64 {
+        let mut hi = r / length_ref;
+        for (_, rho) in self.media(depth) {
+            let k = rho_ref / rho;
+            if k > 1.0 {
+                hi = hi.min(1.0 / (k * k - 1.0).sqrt());
+            }
+        }
+        hi
+    }
+
+    /// tan a of the path to a point at `depth` and lateral distance `r` > 0, and the iterations used.
     #[inline]
     fn solve_tan_incidence(&self, depth: f64, r: f64) -> Result<(f64, u32), NoSolution> {
-        let mut lo = 0.0;
-        let mut hi = (r / self.air_distance).min(self.tan_max);
-        let paraxial = r / (self.air_distance + self.paraxial_layers + depth / self.rho2_water.sqrt());
-        let mut tau = if paraxial > lo && paraxial < hi { paraxial } else { 0.5 * (lo + hi) };
-        for iteration in 1..=PROJECT_MAX_ITERATIONS {
-            let (f, df) = self.incidence_equation(tau, depth, r);
-            if f < 0.0 {
-                lo = tau;
-            } else if f > 0.0 {
-                hi = tau;
-            } else {
-                return Ok((tau, iteration));
+        // Start in the medium with the largest paraxial weight L/ρ, from the paraxial root.
+        let mut reference = (self.air_distance, 1.0);
+        let mut paraxial_slope = 0.0;
+        for (length, rho) in self.media(depth) {
+            paraxial_slope += length / rho;
+            if length / rho > reference.0 / reference.1 {
+                reference = (length, rho);
             }
-            let mut next = tau - f / df;
+        }
+        let mut v = r / (paraxial_slope * reference.1);
+        let mut lo = 0.0;
+        let mut hi = self.bracket_top(depth, r, reference);
+        if !(v > lo && v < hi) {
+            v = 0.5 * (lo + hi);
+        }
+        for iteration in 1..=PROJECT_MAX_ITERATIONS {
+            let (f, mut df, dominant) = self.incidence_equation(v, reference.1, depth, r);
+            if f < 0.0 {
+                lo = v;
+            } else if f > 0.0 {
+                hi = v;
+            } else {
+                return Ok((self.tan_incidence_from(v, reference.1), iteration));
+            }
+            if dominant.1 != reference.1 {
+                // Re-parametrise in the dominant medium's angle, where its term is linear. f is the
+                // lateral miss, the same in every variable; f′ and the bracket map through T.
+                let k = reference.1 / dominant.1;
+                let map = |x: f64| {
+                    let q = 1.0 + (1.0 - k * k) * x * x;
+                    if q > 0.0 { k * x / q.sqrt() } else { f64::INFINITY }
+                };
+                let dv = k / (1.0 + (1.0 - k * k) * v * v).powf(1.5);
+                df /= dv;
+                (v, lo) = (map(v), map(lo));
+                hi = map(hi).min(self.bracket_top(depth, r, dominant));
+                reference = dominant;
+            }
+            let step = f / df;
+            // Converged: test before the bracket, since a step below half an ulp leaves v unchanged
+            // and would otherwise read as a step outside the open bracket.
+            if step.abs() <= PROJECT_TOLERANCE * v {
+                return Ok((self.tan_incidence_from(v - step, reference.1), iteration));
+            }
+            let mut next = v - step;
             if !(next > lo && next < hi) {
                 next = 0.5 * (lo + hi);
             }
-            if (next - tau).abs() <= PROJECT_TOLERANCE * next || hi - lo <= PROJECT_TOLERANCE * hi {
-                return Ok((next, iteration));
+            if hi - lo <= PROJECT_TOLERANCE * hi {
+                return Ok((self.tan_incidence_from(next, reference.1), iteration));
             }
-            tau = next;
+            v = next;
         }
         Err(NoSolution::NoConvergence)
+    }
+
+    /// tan a = T(v; k_air) from the tangent v of the angle in the reference medium.
+    #[inline]
+    fn tan_incidence_from(&self, v: f64, rho_ref: f64) -> f64 {
+        let k = rho_ref;
+        k * v / (1.0 + (1.0 - k * k) * v * v).sqrt()
     }
 
     /// Forward projection: the (distorted) pixel at which `point_in_master` appears through the

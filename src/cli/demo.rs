@@ -1,0 +1,167 @@
+//! `flatport demo`: the built-in example end to end.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::Args;
+use nalgebra::{Point2, Point3};
+
+use flatport::io::{rig_from_json_str, write_rig, write_table};
+use flatport::model::{NoSolution, Rig, triangulate_rays};
+
+use super::rig::describe;
+
+/// The example stereo rig: DESIGN.md §1's rig with mild lens distortion and the right camera
+/// turned 1° toward the left one.
+pub const EXAMPLE_RIG: &str = include_str!("../../data/example_rig.json");
+
+/// `flatport demo`
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Folder to write the example files into (created if missing)
+    #[arg(long, short, value_name = "DIR", default_value = "flatport-demo")]
+    output: PathBuf,
+}
+
+/// A grid of points in the water: 21 × 15 per depth plane, spanning a bit more than the view.
+fn example_points() -> Vec<[f64; 3]> {
+    let mut points = Vec::new();
+    for &z in &[0.3, 1.0, 2.5, 6.0] {
+        for j in 0..15 {
+            for i in 0..21 {
+                let x = z * (-0.75 + 1.5 * i as f64 / 20.0);
+                let y = z * (-0.6 + 1.2 * j as f64 / 14.0);
+                points.push([x, y, z]);
+            }
+        }
+    }
+    points
+}
+
+fn inside(rig: &Rig, camera: usize, pixel: &Point2<f64>) -> bool {
+    let i = &rig.cameras()[camera].intrinsics;
+    (-0.5..i.width as f64 - 0.5).contains(&pixel.x) && (-0.5..i.height as f64 - 0.5).contains(&pixel.y)
+}
+
+fn write(dir: &Path, name: &str, header: [&str; 2], rows: &[Result<Point2<f64>, NoSolution>]) -> anyhow::Result<()> {
+    write_table(Some(&dir.join(name)), header, rows.iter().map(|r| r.ok().map(|p| [p.x, p.y])))?;
+    Ok(())
+}
+
+pub fn run(args: DemoArgs) -> anyhow::Result<()> {
+    let dir = &args.output;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let rig = rig_from_json_str(EXAMPLE_RIG, Path::new("<built-in example rig>"))?;
+    write_rig(&dir.join("rig.json"), &rig)?;
+    println!("flatport demo: a stereo camera behind a 14 mm glass port, looking into water\n");
+    print!("{}", describe(&rig));
+
+    let points = example_points();
+    let (left, right) = (rig.refractive_camera(0), rig.refractive_camera(1));
+    write_table(Some(&dir.join("points.csv")), ["x", "y", "z"], points.iter().map(|&p| Some(p)))?;
+
+    // Forward projection into both cameras.
+    let started = Instant::now();
+    let paths: Vec<_> = points.iter().map(|p| left.air_path_to(&Point3::from(*p))).collect();
+    let pixels_left: Vec<_> = points.iter().map(|p| left.project(&Point3::from(*p))).collect();
+    let pixels_right: Vec<_> = points.iter().map(|p| right.project(&Point3::from(*p))).collect();
+    let project_time = started.elapsed();
+    write(dir, "pixels_left.csv", ["u", "v"], &pixels_left)?;
+    write(dir, "pixels_right.csv", ["u", "v"], &pixels_right)?;
+    let mut iterations: Vec<u32> = paths.iter().filter_map(|p| p.ok()).map(|p| p.iterations).collect();
+    iterations.sort_unstable();
+
+    // Back-projection of the left pixels: each ray must pass through its point.
+    let started = Instant::now();
+    let rays: Vec<_> = pixels_left.iter().map(|p| p.and_then(|p| left.backproject(&p))).collect();
+    let backproject_time = started.elapsed();
+    write_table(
+        Some(&dir.join("rays_left.csv")),
+        ["ox", "oy", "oz", "dx", "dy", "dz"],
+        rays.iter().map(|r| r.ok().map(|r| [r.origin.x, r.origin.y, r.origin.z, r.dir.x, r.dir.y, r.dir.z])),
+    )?;
+    let miss = points
+        .iter()
+        .zip(&rays)
+        .filter_map(|(p, r)| r.ok().map(|r| (Point3::from(*p) - r.origin).cross(&r.dir).norm()))
+        .fold(0.0, f64::max);
+
+    // Triangulation of the matches seen by both cameras.
+    let matches: Vec<Option<[f64; 4]>> = pixels_left
+        .iter()
+        .zip(&pixels_right)
+        .map(|(l, r)| match (l, r) {
+            (Ok(l), Ok(r)) => Some([l.x, l.y, r.x, r.y]),
+            _ => None,
+        })
+        .collect();
+    write_table(Some(&dir.join("matches.csv")), ["ul", "vl", "ur", "vr"], matches.iter().copied())?;
+    let started = Instant::now();
+    let triangulated: Vec<_> = matches
+        .iter()
+        .map(|m| {
+            let [ul, vl, ur, vr] = m.ok_or(NoSolution::NotInWater)?;
+            let a = left.backproject(&Point2::new(ul, vl))?;
+            let b = right.backproject(&Point2::new(ur, vr))?;
+            triangulate_rays(&a, &b)
+        })
+        .collect();
+    let triangulate_time = started.elapsed();
+    write_table(
+        Some(&dir.join("triangulated.csv")),
+        ["x", "y", "z", "residual"],
+        triangulated.iter().map(|t| t.ok().map(|t| [t.point.x, t.point.y, t.point.z, t.residual])),
+    )?;
+    let triangulation_error = points
+        .iter()
+        .zip(&triangulated)
+        .filter_map(|(p, t)| t.ok().map(|t| (Point3::from(*p) - t.point).norm()))
+        .fold(0.0, f64::max);
+
+    // Virtual Object Points for the left camera.
+    let vops: Vec<_> = points.iter().map(|p| left.vop(&Point3::from(*p))).collect();
+    write_table(
+        Some(&dir.join("vops_left.csv")),
+        ["depth", "vop_distance", "vop_x", "vop_y", "vop_z", "incidence"],
+        vops.iter().map(|v| v.ok().map(|v| [v.depth, v.vop_distance, v.vop.x, v.vop.y, v.vop.z, v.incidence])),
+    )?;
+
+    let visible = pixels_left
+        .iter()
+        .zip(&pixels_right)
+        .filter(|(l, r)| matches!((l, r), (Ok(l), Ok(r)) if inside(&rig, 0, l) && inside(&rig, 1, r)))
+        .count();
+    let projected = pixels_left.iter().filter(|p| p.is_ok()).count();
+    let median = iterations.get(iterations.len() / 2).copied().unwrap_or(0);
+    let max = iterations.last().copied().unwrap_or(0);
+    let micros = |d: std::time::Duration| d.as_secs_f64() * 1e6;
+
+    println!("\n{} points on 4 planes 0.3–6 m away ({} inside both images)", points.len(), visible);
+    println!(
+        "forward projection: {projected} of {} points, Newton iterations median {median}, max {max}, {:.0} µs for both cameras",
+        points.len(),
+        micros(project_time)
+    );
+    println!(
+        "back-projection:    largest distance from a point to its pixel's water ray {miss:.1e} m, {:.0} µs",
+        micros(backproject_time)
+    );
+    println!(
+        "triangulation:      largest error {triangulation_error:.1e} m over {} matches, {:.0} µs",
+        triangulated.iter().filter(|t| t.is_ok()).count(),
+        micros(triangulate_time)
+    );
+    if let Some(v) = vops.iter().filter_map(|v| v.ok()).min_by(|a, b| a.vop_distance.total_cmp(&b.vop_distance)) {
+        println!(
+            "virtual object points: nearest VOP {:.4} m beyond the glass for a point {:.3} m deep",
+            v.vop_distance, v.depth
+        );
+    }
+    println!("\nwrote {}/: rig.json points.csv pixels_left.csv pixels_right.csv rays_left.csv matches.csv triangulated.csv vops_left.csv", dir.display());
+    println!(
+        "try:  flatport triangulate --rig {0}/rig.json --matches {0}/matches.csv | head",
+        dir.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,124 @@
+//! Subcommands of the `flatport` binary (clap). No math here: every command reads its inputs,
+//! calls the library row by row, and writes the CSV contract of DESIGN.md §1.
+
+mod batch;
+mod demo;
+mod geometry;
+mod info;
+mod rig;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+/// Refraction through flat ports: exact projection, back-projection, VOPs and triangulation for
+/// cameras in air behind glass in water.
+#[derive(Debug, Parser)]
+#[command(name = "flatport", version, about, long_about = None, after_help = "\
+Conventions: metres, OpenCV camera frames (x right, y down, z forward), the first camera of the rig
+defines the world (master) frame. CSV files have a header row; rows without an answer are written
+as NaN and counted on stderr.
+
+Start with:  flatport demo")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Project 3-D points (master frame) through the interface to pixels: x,y,z → u,v
+    #[command(after_help = "\
+Examples:
+  flatport project --rig rig.json --points points.csv > pixels.csv
+  flatport project --rig rig.json --points points.csv --camera right --output right.csv")]
+    Project(geometry::ProjectArgs),
+    /// Back-project pixels to rays in the water: u,v → ox,oy,oz,dx,dy,dz
+    #[command(after_help = "\
+The ray origin lies on the outer interface, the direction is a unit vector in the water, both in
+the master frame.
+
+Examples:
+  flatport backproject --rig rig.json --pixels pixels.csv > rays.csv
+  flatport backproject --rig rig.json --pixels pixels.csv --camera 1 --output rays.csv")]
+    Backproject(geometry::BackprojectArgs),
+    /// Triangulate stereo matches refractively: ul,vl,ur,vr → x,y,z,residual
+    #[command(after_help = "\
+Both pixels are back-projected into the water; the point is the midpoint of the rays' closest
+approach and the residual is their distance (metres). Nearly parallel rays give a NaN row.
+
+Examples:
+  flatport triangulate --rig rig.json --matches matches.csv > points.csv
+  flatport triangulate --rig rig.json --matches matches.csv --cameras left,right")]
+    Triangulate(geometry::TriangulateArgs),
+    /// Virtual Object Points of 3-D points: x,y,z → depth,vop_distance,vop_x,vop_y,vop_z,incidence
+    #[command(after_help = "\
+depth is the point's distance x from the outer interface along the axis (thesis eq 4.7),
+vop_distance the signed distance x̌ from the outer interface to the VOP along the axis (negative
+inside the glass, eq 4.8), vop_x..z the VOP in the master frame, incidence the angle in air (rad).
+
+Example:
+  flatport vop --rig rig.json --points points.csv --camera left")]
+    Vop(geometry::VopArgs),
+    /// Rig files: import OpenCV stereoCalibrate output, show a rig
+    #[command(subcommand)]
+    Rig(rig::RigCommand),
+    /// Run the built-in example end to end: write a rig, project and back-project a grid, triangulate
+    #[command(after_help = "\
+Example:
+  flatport demo --output flatport-demo")]
+    Demo(demo::DemoArgs),
+    /// Version, build and the compute devices found
+    Info,
+}
+
+/// Where the computation runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Device {
+    /// The f64 CPU reference.
+    Cpu,
+}
+
+/// Arguments every geometry command shares.
+#[derive(Debug, Args)]
+pub struct CommonArgs {
+    /// Rig file (JSON, see DESIGN.md §1)
+    #[arg(long, value_name = "RIG.json")]
+    pub rig: PathBuf,
+    /// Output CSV file (default: standard output); written only when every input row parsed
+    #[arg(long, short, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+    /// Compute device
+    #[arg(long, value_enum, default_value_t = Device::Cpu)]
+    pub device: Device,
+}
+
+/// Parses `A,B` (two names).
+pub fn parse_pair(text: &str) -> Result<(String, String), String> {
+    match text.split(',').map(str::trim).collect::<Vec<_>>()[..] {
+        [a, b] if !a.is_empty() && !b.is_empty() => Ok((a.to_string(), b.to_string())),
+        _ => Err(format!("expected two names A,B, got '{text}'")),
+    }
+}
+
+/// Entry point: runs the command, prints errors as `error: …` with their causes, exit code 1.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Project(args) => geometry::project(args),
+        Command::Backproject(args) => geometry::backproject(args),
+        Command::Triangulate(args) => geometry::triangulate(args),
+        Command::Vop(args) => geometry::vop(args),
+        Command::Rig(command) => rig::run(command),
+        Command::Demo(args) => demo::run(args),
+        Command::Info => info::run(),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("error: {error:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

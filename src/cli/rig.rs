@@ -1,0 +1,155 @@
+//! `flatport rig from-opencv`, `flatport rig show`.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use clap::{Args, Subcommand};
+use nalgebra::Vector3;
+
+use flatport::io::{read_opencv_stereo, read_rig, rig_to_json_string, write_atomic};
+use flatport::model::{Interface, Layer, Rig, interface};
+
+/// `flatport rig …`
+#[derive(Debug, Subcommand)]
+pub enum RigCommand {
+    /// Build a rig from OpenCV stereoCalibrate output (FileStorage YAML) and an interface
+    #[command(after_help = "\
+The YAML must hold M1 D1 M2 D2 R T (or K1 … K2 …) as written by cv::FileStorage, with %YAML:1.0.
+The first camera becomes the master; R, T map master coordinates into the second camera.
+
+Examples:
+  flatport rig from-opencv stereo.yml --distance 0.02 --layer 0.014:1.473 --output rig.json
+  flatport rig from-opencv stereo.yml --normal 0.1,0.1,1 --distance 0.02 --layer 0.014:1.473 \\
+      --index-air 1.003 --index-water 1.333 --names left,right --size 1280x1024")]
+    FromOpencv(FromOpencvArgs),
+    /// Print a rig: cameras, centres, air layers, axis tilt and azimuth
+    #[command(after_help = "Example:\n  flatport rig show rig.json")]
+    Show {
+        /// Rig file (JSON)
+        rig: PathBuf,
+    },
+}
+
+/// `flatport rig from-opencv`
+#[derive(Debug, Args)]
+pub struct FromOpencvArgs {
+    /// OpenCV FileStorage YAML from stereoCalibrate
+    yaml: PathBuf,
+    /// System axis in the master frame (normalised on load), pointing into the water
+    #[arg(long, value_name = "X,Y,Z", default_value = "0,0,1", value_parser = parse_vector, allow_hyphen_values = true)]
+    normal: Vector3<f64>,
+    /// Air layer: distance from the master camera centre to the first interface along the normal (m)
+    #[arg(long, value_name = "METRES")]
+    distance: f64,
+    /// A layer between air and water as THICKNESS:INDEX, in order from the camera (repeatable)
+    #[arg(long = "layer", value_name = "THICKNESS:INDEX", value_parser = parse_layer)]
+    layers: Vec<Layer>,
+    /// Refractive index of the medium around the cameras
+    #[arg(long, default_value_t = interface::DEFAULT_INDEX_AIR)]
+    index_air: f64,
+    /// Refractive index of the last medium
+    #[arg(long, default_value_t = interface::DEFAULT_INDEX_WATER)]
+    index_water: f64,
+    /// Camera names, master first
+    #[arg(long, value_name = "A,B", default_value = "left,right", value_parser = super::parse_pair)]
+    names: (String, String),
+    /// Image size WIDTHxHEIGHT when the YAML has no image_width/image_height
+    #[arg(long, value_name = "WxH", value_parser = parse_size)]
+    size: Option<(u32, u32)>,
+    /// Output rig file (default: standard output)
+    #[arg(long, short, value_name = "RIG.json")]
+    output: Option<PathBuf>,
+}
+
+fn parse_layer(text: &str) -> Result<Layer, String> {
+    let (t, n) = text.split_once(':').ok_or_else(|| format!("expected THICKNESS:INDEX, got '{text}'"))?;
+    let thickness = t.trim().parse().map_err(|_| format!("thickness '{t}' is not a number"))?;
+    let index = n.trim().parse().map_err(|_| format!("index '{n}' is not a number"))?;
+    Ok(Layer { thickness, index })
+}
+
+fn parse_vector(text: &str) -> Result<Vector3<f64>, String> {
+    let values: Vec<&str> = text.split(',').collect();
+    if values.len() != 3 {
+        return Err(format!("expected X,Y,Z, got '{text}'"));
+    }
+    let parse = |s: &str| s.trim().parse::<f64>().map_err(|_| format!("'{s}' is not a number"));
+    Ok(Vector3::new(parse(values[0])?, parse(values[1])?, parse(values[2])?))
+}
+
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{text}'"))?;
+    let parse = |s: &str| s.trim().parse::<u32>().map_err(|_| format!("'{s}' is not a pixel count"));
+    Ok((parse(w)?, parse(h)?))
+}
+
+pub fn run(command: RigCommand) -> anyhow::Result<()> {
+    match command {
+        RigCommand::FromOpencv(args) => from_opencv(args),
+        RigCommand::Show { rig } => {
+            print!("{}", describe(&read_rig(&rig)?));
+            Ok(())
+        }
+    }
+}
+
+fn from_opencv(args: FromOpencvArgs) -> anyhow::Result<()> {
+    let stereo = read_opencv_stereo(&args.yaml)?;
+    let interface = Interface::new(args.normal, args.distance, args.layers, args.index_air, args.index_water)
+        .context("invalid interface flags")?;
+    let (first, second) = &args.names;
+    if first == second {
+        bail!("--names gives the same name twice ('{first}')");
+    }
+    let rig = stereo.to_rig([first, second], args.size, interface, &args.yaml)?;
+    let json = rig_to_json_string(&rig);
+    match &args.output {
+        Some(path) => {
+            write_atomic(path, json.as_bytes())?;
+            eprintln!("wrote {}", path.display());
+        }
+        None => println!("{json}"),
+    }
+    Ok(())
+}
+
+/// Human summary of a rig.
+pub fn describe(rig: &Rig) -> String {
+    let interface = rig.interface();
+    let n = interface.normal();
+    let mut text = format!(
+        "interface: normal [{:.6}, {:.6}, {:.6}] (tilt {:.4}°, azimuth {:.4}°), air layer {} m\n",
+        n.x,
+        n.y,
+        n.z,
+        interface.tilt().to_degrees(),
+        interface.azimuth().to_degrees(),
+        interface.air_distance()
+    );
+    text += &format!("  index_air {}\n", interface.index_air());
+    for (i, layer) in interface.layers().iter().enumerate() {
+        text += &format!("  layer {i}: {} m, index {}\n", layer.thickness, layer.index);
+    }
+    text += &format!("  index_water {}\n", interface.index_water());
+    for (k, camera) in rig.cameras().iter().enumerate() {
+        let view = rig.refractive_camera(k);
+        let c = view.centre();
+        let i = &camera.intrinsics;
+        text += &format!(
+            "camera {k} '{}'{}: {}x{} px, fx {} fy {} cx {} cy {}, centre [{:.6}, {:.6}, {:.6}] m, own air layer {:.6} m\n",
+            camera.name,
+            if k == 0 { " (master)" } else { "" },
+            i.width,
+            i.height,
+            i.fx,
+            i.fy,
+            i.cx,
+            i.cy,
+            c.x,
+            c.y,
+            c.z,
+            view.air_distance()
+        );
+    }
+    text
+}

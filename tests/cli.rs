@@ -1,0 +1,282 @@
+//! The `flatport` binary on files: the CSV contract, every malformed-input case, help texts.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn flatport(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_flatport")).args(args).output().expect("binary runs")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+const RIG: &str = r#"{
+  "cameras": [
+    {"name": "left",  "width": 1280, "height": 1024, "fx": 864.91, "fy": 864.91, "cx": 640.0, "cy": 512.0,
+     "distortion": [0, 0, 0, 0, 0]},
+    {"name": "right", "width": 1280, "height": 1024, "fx": 864.91, "fy": 864.91, "cx": 640.0, "cy": 512.0,
+     "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "translation": [-0.06, 0, 0]}
+  ],
+  "interface": {"normal": [0.1, 0.1, 1.0], "distance": 0.02,
+                "layers": [{"thickness": 0.014, "index": 1.473}],
+                "index_air": 1.003, "index_water": 1.333}
+}"#;
+
+/// Parses a CSV output into its header and rows of numbers.
+fn table(text: &str) -> (String, Vec<Vec<f64>>) {
+    let mut lines = text.lines();
+    let header = lines.next().expect("header").to_string();
+    let rows = lines.map(|l| l.split(',').map(|v| v.trim().parse::<f64>().unwrap()).collect()).collect();
+    (header, rows)
+}
+
+fn run_ok(args: &[&str]) -> String {
+    let o = flatport(args);
+    assert!(o.status.success(), "flatport {args:?} failed: {}", stderr(&o));
+    stdout(&o)
+}
+
+fn run_err(args: &[&str]) -> String {
+    let o = flatport(args);
+    assert!(!o.status.success(), "flatport {args:?} should fail");
+    assert!(o.stdout.is_empty(), "a failing command writes nothing to stdout");
+    stderr(&o)
+}
+
+#[test]
+fn project_backproject_and_triangulate_agree_with_the_points() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = write(dir.path(), "rig.json", RIG);
+    let rig = rig.to_str().unwrap();
+    let truth = [[0.2, -0.1, 1.5], [-0.3, 0.25, 0.8], [0.0, 0.0, 3.0], [0.5, 0.4, 2.2]];
+    let mut text = String::from("x,y,z\n");
+    for p in &truth {
+        text += &format!("{},{},{}\n", p[0], p[1], p[2]);
+    }
+    let points = write(dir.path(), "points.csv", &text);
+    let points = points.to_str().unwrap();
+
+    let left = run_ok(&["project", "--rig", rig, "--points", points]);
+    let right = run_ok(&["project", "--rig", rig, "--points", points, "--camera", "right"]);
+    let (header, left) = table(&left);
+    assert_eq!(header, "u,v");
+    let (_, right) = table(&right);
+    assert_eq!(left.len(), truth.len());
+
+    // Back-projected rays pass through their points.
+    let mut pixels = String::from("u,v\n");
+    for p in &left {
+        pixels += &format!("{},{}\n", p[0], p[1]);
+    }
+    let pixels = write(dir.path(), "pixels.csv", &pixels);
+    let rays = run_ok(&["backproject", "--rig", rig, "--pixels", pixels.to_str().unwrap()]);
+    let (header, rays) = table(&rays);
+    assert_eq!(header, "ox,oy,oz,dx,dy,dz");
+    for (ray, p) in rays.iter().zip(&truth) {
+        let (o, d) = ([ray[0], ray[1], ray[2]], [ray[3], ray[4], ray[5]]);
+        let w = [p[0] - o[0], p[1] - o[1], p[2] - o[2]];
+        let cross = [w[1] * d[2] - w[2] * d[1], w[2] * d[0] - w[0] * d[2], w[0] * d[1] - w[1] * d[0]];
+        let miss = cross.iter().map(|c| c * c).sum::<f64>().sqrt();
+        // CSV carries shortest round-trip f64 text, so only model rounding remains.
+        assert!(miss < 1e-9, "ray misses its point by {miss} m");
+        // Origin on the outer interface: n·o = d + t = 0.034 with n = (0.1, 0.1, 1)/|n|.
+        let n_dot_o = (0.1 * o[0] + 0.1 * o[1] + o[2]) / 1.02f64.sqrt();
+        assert!((n_dot_o - 0.034).abs() < 1e-12);
+    }
+
+    // Triangulation returns the points.
+    let mut matches = String::from("ul,vl,ur,vr\n");
+    for (l, r) in left.iter().zip(&right) {
+        matches += &format!("{},{},{},{}\n", l[0], l[1], r[0], r[1]);
+    }
+    let matches = write(dir.path(), "matches.csv", &matches);
+    let out = dir.path().join("tri.csv");
+    let o = flatport(&[
+        "triangulate", "--rig", rig, "--matches", matches.to_str().unwrap(), "--output", out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(o.stdout.is_empty(), "with --output nothing goes to stdout");
+    let (header, tri) = table(&std::fs::read_to_string(&out).unwrap());
+    assert_eq!(header, "x,y,z,residual");
+    for (t, p) in tri.iter().zip(&truth) {
+        let err = ((t[0] - p[0]).powi(2) + (t[1] - p[1]).powi(2) + (t[2] - p[2]).powi(2)).sqrt();
+        assert!(err < 1e-7, "triangulated {t:?} vs {p:?}");
+        assert!(t[3] < 1e-9);
+    }
+}
+
+#[test]
+fn rows_without_answer_are_nan_and_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = write(dir.path(), "rig.json", RIG);
+    // Row 2 lies inside the glass (z ≈ 0.025 m), row 3 in the air.
+    let points = write(dir.path(), "p.csv", "x,y,z\n0.1,0.1,1.0\n0,0,0.025\n0,0,0.01\n0.2,0,2\n");
+    let o = flatport(&["project", "--rig", rig.to_str().unwrap(), "--points", points.to_str().unwrap()]);
+    assert!(o.status.success());
+    let lines: Vec<&str> = std::str::from_utf8(&o.stdout).unwrap().lines().collect();
+    assert_eq!(lines.len(), 5, "one row per input row");
+    assert_eq!(lines[2], "NaN,NaN");
+    assert_eq!(lines[3], "NaN,NaN");
+    assert!(!lines[1].contains("NaN") && !lines[4].contains("NaN"));
+    let err = stderr(&o);
+    assert!(err.contains("2 of 4 rows"), "{err}");
+    assert!(err.contains("not in the water"), "{err}");
+
+    let vops = run_ok(&["vop", "--rig", rig.to_str().unwrap(), "--points", points.to_str().unwrap()]);
+    let lines: Vec<&str> = vops.lines().collect();
+    assert_eq!(lines[0], "depth,vop_distance,vop_x,vop_y,vop_z,incidence");
+    assert_eq!(lines[2], "NaN,NaN,NaN,NaN,NaN,NaN");
+}
+
+#[test]
+fn malformed_csv_names_file_line_and_column_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = write(dir.path(), "rig.json", RIG);
+    let rig = rig.to_str().unwrap();
+    let out = dir.path().join("out.csv");
+    let cases = [
+        ("header.csv", "x,y,w\n1,2,3\n", vec!["header.csv", "x,y,z"]),
+        ("text.csv", "x,y,z\n0,0,1\n0.1,abc,2\n", vec!["text.csv", ":3", "y", "abc"]),
+        ("count.csv", "x,y,z\n0,0,1\n0,0\n", vec!["count.csv", ":3"]),
+        ("nan.csv", "x,y,z\n0,0,NaN\n", vec!["nan.csv", ":2", "z"]),
+        ("empty.csv", "", vec!["empty.csv"]),
+    ];
+    for (name, text, needles) in cases {
+        let path = write(dir.path(), name, text);
+        let err = run_err(&["project", "--rig", rig, "--points", path.to_str().unwrap(), "--output", out.to_str().unwrap()]);
+        for needle in needles {
+            assert!(err.contains(needle), "error for {name} should mention {needle:?}: {err}");
+        }
+        assert!(!out.exists(), "nothing is written on malformed input ({name})");
+    }
+}
+
+#[test]
+fn bad_rigs_and_arguments_give_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let points = write(dir.path(), "p.csv", "x,y,z\n0,0,1\n");
+    let points = points.to_str().unwrap();
+    let cases = [
+        ("typo.json", RIG.replace("\"index_water\"", "\"index_watr\""), vec!["index_watr"]),
+        ("fx.json", RIG.replacen("\"fx\": 864.91, ", "", 1), vec!["fx"]),
+        ("back.json", RIG.replace("[0.1, 0.1, 1.0]", "[0.1, 0.1, -1.0]"), vec!["normal"]),
+        ("zero.json", RIG.replace("[0.1, 0.1, 1.0]", "[0, 0, 0]"), vec!["normal"]),
+        ("notair.json", RIG.replace("[-0.06, 0, 0]", "[0, 0, -0.5]"), vec!["right", "air"]),
+        ("syntax.json", RIG.replace("\"cameras\": [", "\"cameras\": [,"), vec!["syntax.json"]),
+    ];
+    for (name, text, needles) in cases {
+        let rig = write(dir.path(), name, &text);
+        let err = run_err(&["project", "--rig", rig.to_str().unwrap(), "--points", points]);
+        for needle in needles {
+            assert!(err.contains(needle), "error for {name} should mention {needle:?}: {err}");
+        }
+    }
+    let rig = write(dir.path(), "rig.json", RIG);
+    let rig = rig.to_str().unwrap();
+    let err = run_err(&["project", "--rig", rig, "--points", points, "--camera", "middle"]);
+    assert!(err.contains("middle") && err.contains("left, right"), "{err}");
+    let err = run_err(&["project", "--rig", rig, "--points", "missing.csv"]);
+    assert!(err.contains("missing.csv"), "{err}");
+    let err = run_err(&["project", "--rig", "nope.json", "--points", points]);
+    assert!(err.contains("nope.json"), "{err}");
+    let mono = write(dir.path(), "mono.json", &RIG.replace(
+        r#",
+    {"name": "right", "width": 1280, "height": 1024, "fx": 864.91, "fy": 864.91, "cx": 640.0, "cy": 512.0,
+     "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "translation": [-0.06, 0, 0]}"#, ""));
+    let matches = write(dir.path(), "m.csv", "ul,vl,ur,vr\n1,2,3,4\n");
+    let err = run_err(&["triangulate", "--rig", mono.to_str().unwrap(), "--matches", matches.to_str().unwrap()]);
+    assert!(err.contains("two cameras"), "{err}");
+}
+
+#[test]
+fn every_command_has_help_with_an_example() {
+    for command in ["project", "backproject", "triangulate", "vop", "demo"] {
+        let help = run_ok(&[command, "--help"]);
+        assert!(help.contains("Example"), "{command} --help has no example:\n{help}");
+        assert!(help.contains("flatport"), "{command}");
+    }
+    let help = run_ok(&["rig", "from-opencv", "--help"]);
+    assert!(help.contains("Example") && help.contains("--distance"));
+    let info = run_ok(&["info"]);
+    assert!(info.contains(env!("CARGO_PKG_VERSION")) && info.contains("cpu"));
+}
+
+#[test]
+fn rig_from_opencv_yaml() {
+    let dir = tempfile::tempdir().unwrap();
+    let yaml = write(dir.path(), "stereo.yml", "%YAML:1.0
+---
+image_width: 1280
+image_height: 1024
+M1: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 8.6491000000000003e+02, 0., 640., 0., 8.6491000000000003e+02,
+       512., 0., 0., 1. ]
+D1: !!opencv-matrix
+   rows: 1
+   cols: 5
+   dt: d
+   data: [ -0.1, 0.01, 0., 0., 0. ]
+M2: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 870., 0., 630., 0., 870., 500., 0., 0., 1. ]
+D2: !!opencv-matrix
+   rows: 1
+   cols: 5
+   dt: d
+   data: [ -0.09, 0.011, 0., 0., 0. ]
+R: !!opencv-matrix
+   rows: 3
+   cols: 3
+   dt: d
+   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]
+T: !!opencv-matrix
+   rows: 3
+   cols: 1
+   dt: d
+   data: [ -0.06, 0., 0. ]
+");
+    let out = dir.path().join("rig.json");
+    let o = flatport(&[
+        "rig", "from-opencv", yaml.to_str().unwrap(), "--distance", "0.02", "--layer", "0.014:1.473",
+        "--normal", "0.1,0.1,1", "--output", out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let shown = run_ok(&["rig", "show", out.to_str().unwrap()]);
+    assert!(shown.contains("'right'") && shown.contains("fx 870"), "{shown}");
+    assert!(shown.contains("azimuth 45.0000°"), "{shown}");
+    // Camera right sits 0.06 m to the +x side of the master: C = −Rᵀt.
+    assert!(shown.contains("centre [0.060000, 0.000000, 0.000000]"), "{shown}");
+    let err = run_err(&["rig", "from-opencv", yaml.to_str().unwrap(), "--distance", "-1"]);
+    assert!(err.contains("distance"), "{err}");
+}
+
+#[test]
+fn demo_runs_end_to_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let text = run_ok(&["demo", "--output", out.to_str().unwrap()]);
+    for file in ["rig.json", "points.csv", "pixels_left.csv", "pixels_right.csv", "rays_left.csv", "matches.csv", "triangulated.csv", "vops_left.csv"] {
+        assert!(out.join(file).exists(), "demo wrote no {file}");
+    }
+    assert!(text.contains("triangulation"), "{text}");
+    // The demo's own files feed the other commands.
+    let rig = out.join("rig.json");
+    let tri = run_ok(&["triangulate", "--rig", rig.to_str().unwrap(), "--matches", out.join("matches.csv").to_str().unwrap()]);
+    assert_eq!(tri.lines().count(), std::fs::read_to_string(out.join("points.csv")).unwrap().lines().count());
+}
