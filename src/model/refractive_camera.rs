@@ -325,7 +325,8 @@ impl RefractiveCamera {
                     let q = 1.0 + (1.0 - k * k) * x * x;
                     if q > 0.0 { k * x / q.sqrt() } else { f64::INFINITY }
                 };
-                let dv = k / (1.0 + (1.0 - k * k) * v * v).powf(1.5);
+                let q = 1.0 + (1.0 - k * k) * v * v;
+                let dv = k / (q * q.sqrt());
                 df /= dv;
                 (v, lo) = (map(v), map(lo));
                 hi = map(hi).min(self.bracket_top(depth, r, dominant));
