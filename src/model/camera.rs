@@ -140,6 +140,30 @@ impl PinholeCamera {
         (residual.norm() <= tolerance).then_some(p)
     }
 
+    /// r²_fold: the squared normalised radius at which the radial distortion r·(1 + k1 r² + k2 r⁴ +
+    /// k3 r⁶) stops increasing, i.e. the smallest s > 0 with 1 + 3k1 s + 5k2 s² + 7k3 s³ = 0
+    /// (∞ when there is none below s = 100, i.e. 84° off axis). Beyond it the lens model is not
+    /// one-to-one: a pixel there has several preimages, so neither direction is trustworthy.
+    pub fn fold_radius2(&self) -> f64 {
+        let [k1, k2, _, _, k3] = self.distortion;
+        let slope = |s: f64| 1.0 + s * (3.0 * k1 + s * (5.0 * k2 + s * 7.0 * k3));
+        // March on a fine geometric grid to the first sign change, then bisect.
+        let mut lo = 0.0;
+        let mut hi = 1e-4;
+        while hi <= 100.0 {
+            if slope(hi) <= 0.0 {
+                for _ in 0..100 {
+                    let mid = 0.5 * (lo + hi);
+                    if slope(mid) > 0.0 { lo = mid } else { hi = mid }
+                }
+                return lo;
+            }
+            lo = hi;
+            hi *= 1.05;
+        }
+        f64::INFINITY
+    }
+
     /// Pixel of a point in the camera frame: pinhole, then distortion. `None` when z ≤ 0.
     #[inline]
     pub fn img_from_cam(&self, point_in_cam: &Point3<f64>) -> Option<Point2<f64>> {
@@ -232,6 +256,21 @@ mod tests {
         // Maximum distorted radius is r(1 + k1 r²) at r² = 2/3: ≈ 0.544. Ask for 0.8.
         assert!(c.undistort_normalized(&Vector2::new(0.8, 0.0)).is_none());
         assert!(c.undistort_normalized(&Vector2::new(0.3, 0.0)).is_some());
+    }
+
+    #[test]
+    fn fold_radius_is_where_the_radial_map_turns() {
+        // k1 < 0 only: 1 + 3 k1 s = 0 at s = −1/(3 k1).
+        let c = camera([-0.5, 0.0, 0.0, 0.0, 0.0]);
+        assert!((c.fold_radius2() - 2.0 / 3.0).abs() < 1e-12);
+        assert_eq!(camera([0.1, 0.01, 0.0, 0.0, 0.0]).fold_radius2(), f64::INFINITY);
+        assert_eq!(camera([0.0; 5]).fold_radius2(), f64::INFINITY);
+        // The radial map really is one-to-one up to the fold and turns back after it.
+        let c = camera([-0.28, 0.09, 0.0, 0.0, -0.012]);
+        let s = c.fold_radius2();
+        let radial = |r: f64| c.distort_normalized(&Vector2::new(r, 0.0)).x;
+        let r = s.sqrt();
+        assert!(radial(r * 0.999) < radial(r) && radial(r * 1.001) < radial(r));
     }
 
     #[test]

@@ -25,8 +25,9 @@ pub use stereo::{BinocularVop, Triangulation, binocular_vop, triangulate_rays};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[repr(u32)]
 pub enum NoSolution {
-    /// The pixel lies outside the region where the lens distortion can be inverted.
-    Undistortion = 1,
+    /// Outside the lens model's valid region: beyond the first fold of the radial distortion, where
+    /// the polynomial stops being one-to-one (or undistortion did not converge).
+    OutsideLens = 1,
     /// The air ray travels parallel to or away from the interface.
     MissesInterface = 2,
     /// Light cannot pass into a layer or the water at this angle.
@@ -44,7 +45,7 @@ pub enum NoSolution {
 impl NoSolution {
     /// Every variant, in code order.
     pub const ALL: [NoSolution; 7] = [
-        Self::Undistortion,
+        Self::OutsideLens,
         Self::MissesInterface,
         Self::TotalInternalReflection,
         Self::NotInWater,
@@ -66,7 +67,7 @@ impl NoSolution {
     /// Short human description.
     pub fn describe(self) -> &'static str {
         match self {
-            Self::Undistortion => "pixel outside the invertible lens region",
+            Self::OutsideLens => "outside the lens model's one-to-one region",
             Self::MissesInterface => "ray misses the interface",
             Self::TotalInternalReflection => "total internal reflection",
             Self::NotInWater => "point not in the water (in the air or a layer)",

@@ -1,7 +1,7 @@
 //! One camera of a rig prepared for refraction: back-projection (pixel → ray in the water) and
 //! forward projection (point in the water → pixel), both in the master frame.
 
-use nalgebra::{Isometry3, Matrix3, Point2, Point3, Unit, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point2, Point3, Unit, Vector2, Vector3};
 
 use super::NoSolution;
 use super::camera::PinholeCamera;
@@ -80,6 +80,8 @@ pub struct RefractiveCamera {
     index_water: f64,
     /// ρ_w = μ_w/μ_air.
     rho_water: f64,
+    /// Squared normalised radius of the lens model's fold ([`PinholeCamera::fold_radius2`]).
+    fold_radius2: f64,
 }
 
 impl RefractiveCamera {
@@ -103,6 +105,7 @@ impl RefractiveCamera {
             index_air,
             index_water: interface.index_water(),
             rho_water: interface.index_water() / index_air,
+            fold_radius2: intrinsics.fold_radius2(),
         }
     }
 
@@ -122,10 +125,17 @@ impl RefractiveCamera {
     }
 
     /// Unit viewing direction of a (distorted) pixel in the master frame.
+    ///
+    /// Errors: [`NoSolution::OutsideLens`] when undistortion fails or lands beyond the fold of the
+    /// radial distortion ([`PinholeCamera::fold_radius2`]), where the pixel has several preimages.
     #[inline]
     pub fn dir_in_air_from_img(&self, pixel: &Point2<f64>) -> Result<Unit<Vector3<f64>>, NoSolution> {
-        let dir_in_cam = self.intrinsics.cam_from_img(pixel).ok_or(NoSolution::Undistortion)?;
-        Ok(Unit::new_unchecked(self.master_from_cam * dir_in_cam.into_inner()))
+        let normalized = self.intrinsics.normalized_from_img(pixel).ok_or(NoSolution::OutsideLens)?;
+        if !(normalized.norm_squared() < self.fold_radius2) {
+            return Err(NoSolution::OutsideLens);
+        }
+        let dir_in_cam = Vector3::new(normalized.x, normalized.y, 1.0).normalize();
+        Ok(Unit::new_unchecked(self.master_from_cam * dir_in_cam))
     }
 
     /// Back-projects a (distorted) pixel into the water with the closed form of
@@ -361,13 +371,21 @@ impl RefractiveCamera {
     /// interface. Solves [`air_path_to`](Self::air_path_to), rotates the air ray into the camera,
     /// then pinhole and distortion.
     ///
-    /// Errors: those of `air_path_to`, and [`NoSolution::BehindCamera`] when the air ray points
-    /// behind the image plane of a rotated camera.
+    /// Errors: those of `air_path_to`; [`NoSolution::BehindCamera`] when the air ray points behind
+    /// the image plane of a rotated camera; [`NoSolution::OutsideLens`] beyond the fold of the radial
+    /// distortion, where the pixel would back-project to another ray.
     #[inline]
     pub fn project(&self, point_in_master: &Point3<f64>) -> Result<Point2<f64>, NoSolution> {
         let path = self.air_path_to(point_in_master)?;
         let dir_in_cam = self.cam_from_master * path.dir_in_air.into_inner();
-        self.intrinsics.img_from_cam(&Point3::from(dir_in_cam)).ok_or(NoSolution::BehindCamera)
+        if !(dir_in_cam.z > 0.0) {
+            return Err(NoSolution::BehindCamera);
+        }
+        let normalized = Vector2::new(dir_in_cam.x / dir_in_cam.z, dir_in_cam.y / dir_in_cam.z);
+        if !(normalized.norm_squared() < self.fold_radius2) {
+            return Err(NoSolution::OutsideLens);
+        }
+        Ok(self.intrinsics.img_from_normalized(&normalized))
     }
 
     /// The Virtual Object Point of `point_in_master` for this camera (thesis eq 4.8 at the angle
