@@ -37,6 +37,8 @@
 //! ```
 
 #![deny(missing_docs)]
+// `!(x > 0.0)` is deliberate throughout: unlike `x <= 0.0` it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod io;
 pub mod model;

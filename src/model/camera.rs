@@ -31,7 +31,8 @@ pub struct PinholeCamera {
 }
 
 impl PinholeCamera {
-    /// Builds and validates intrinsics (`name` only labels errors). Focal lengths must be > 0 and
+    /// Builds and validates intrinsics (`name` only labels errors).
+    #[allow(clippy::too_many_arguments)] // OpenCV's own parameter list: size, fx, fy, cx, cy, distortion Focal lengths must be > 0 and
     /// every value finite.
     pub fn new(
         name: &str,
