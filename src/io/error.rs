@@ -1,6 +1,6 @@
 //! Errors of the I/O layer. Every variant names the file and where in it the problem is.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// A file that could not be read, parsed or written.
 #[derive(Debug, thiserror::Error)]
@@ -22,21 +22,21 @@ pub enum IoError {
         source: std::io::Error,
     },
     /// JSON syntax or schema error (unknown key, missing field, wrong type).
-    #[error("{}:{line}:{column}: {}{reason}", path.display(), if field.is_empty() { String::new() } else { format!("{field}: ") })]
+    #[error("{}{}{reason}", located(path, &[*line, *column]), prefix(field))]
     Json {
         /// The file.
         path: PathBuf,
         /// JSON path of the offending value (`cameras[1].fx`), empty when unknown.
         field: String,
-        /// 1-based line.
+        /// 1-based line (0 when unknown).
         line: usize,
-        /// 1-based column.
+        /// 1-based column (0 when unknown).
         column: usize,
         /// What is wrong.
         reason: String,
     },
     /// Well-formed input whose values describe no valid rig.
-    #[error("{}: {field}: {reason}", path.display())]
+    #[error("{}: {}{reason}", path.display(), prefix(field))]
     Invalid {
         /// The file.
         path: PathBuf,
@@ -46,7 +46,7 @@ pub enum IoError {
         reason: String,
     },
     /// OpenCV FileStorage YAML that cannot be used.
-    #[error("{}:{line}: {reason}", path.display())]
+    #[error("{}{reason}", located(path, &[*line]))]
     OpenCv {
         /// The file.
         path: PathBuf,
@@ -56,15 +56,76 @@ pub enum IoError {
         reason: String,
     },
     /// Malformed CSV.
-    #[error("{}:{line}: column '{column}': {reason}", path.display())]
+    #[error("{}column '{column}': {reason}", located(path, &[*line]))]
     Csv {
         /// The file (`-` for standard input).
         path: PathBuf,
-        /// 1-based line of the file.
+        /// 1-based line of the file (0 when unknown).
         line: usize,
         /// Column name (or number when the header itself is wrong).
         column: String,
         /// What is wrong.
         reason: String,
     },
+}
+
+/// `path:line:column: `, leaving out positions that are unknown (0).
+fn located(path: &Path, position: &[usize]) -> String {
+    let mut text = path.display().to_string();
+    for p in position.iter().take_while(|&&p| p > 0) {
+        text.push_str(&format!(":{p}"));
+    }
+    text.push_str(": ");
+    text
+}
+
+/// `field: `, or nothing for an empty field.
+fn prefix(field: &str) -> String {
+    if field.is_empty() {
+        String::new()
+    } else {
+        format!("{field}: ")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn messages_leave_out_unknown_positions() {
+        let path = PathBuf::from("rig.json");
+        let json = |line, column, field: &str| IoError::Json {
+            path: path.clone(),
+            field: field.into(),
+            line,
+            column,
+            reason: "missing field `fx`".into(),
+        };
+        assert_eq!(
+            json(3, 7, "cameras[1]").to_string(),
+            "rig.json:3:7: cameras[1]: missing field `fx`"
+        );
+        assert_eq!(json(0, 0, "").to_string(), "rig.json: missing field `fx`");
+        let opencv = |line| IoError::OpenCv {
+            path: "s.yml".into(),
+            line,
+            reason: "missing key T".into(),
+        };
+        assert_eq!(opencv(0).to_string(), "s.yml: missing key T");
+        assert_eq!(opencv(4).to_string(), "s.yml:4: missing key T");
+        let csv = IoError::Csv {
+            path: "-".into(),
+            line: 7,
+            column: "y".into(),
+            reason: "not a number: \"abc\"".into(),
+        };
+        assert_eq!(csv.to_string(), "-:7: column 'y': not a number: \"abc\"");
+        let invalid = IoError::Invalid {
+            path: path.clone(),
+            field: "cameras[1].fx".into(),
+            reason: "must be > 0".into(),
+        };
+        assert_eq!(invalid.to_string(), "rig.json: cameras[1].fx: must be > 0");
+    }
 }

@@ -1,6 +1,11 @@
 //! Import of OpenCV `stereoCalibrate` results saved with `cv::FileStorage` as YAML
-//! (`%YAML:1.0`, `!!opencv-matrix` entries). Only that subset of YAML is read: top-level keys with
-//! scalars, flow sequences or `!!opencv-matrix` blocks. Other keys (E, F, R1, P1, Q, …) are ignored.
+//! (`%YAML:1.0`, `!!opencv-matrix` entries).
+//!
+//! Only the subset of YAML that `cv::FileStorage` writes at the top level is read: `key: scalar`,
+//! `key: [flow, sequence]` and `key: !!opencv-matrix` blocks (`rows`, `cols`, `dt`, `data`), where a
+//! flow sequence may span lines. Everything else (nested mappings, `!!opencv-nd-matrix`, E, F, R1,
+//! P1, Q, per-view errors, …) is skipped without being interpreted, so it cannot make the import
+//! fail. Several documents in one file (`cat intrinsics.yml extrinsics.yml`) are read as one.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -13,241 +18,465 @@ use crate::model::{Interface, PinholeCamera, Rig, RigCamera};
 /// The two cameras of an OpenCV stereo calibration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OpenCvStereo {
-    /// Camera matrices K of the first (master) and second camera.
+    /// Camera matrices K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] of the first (master) and second camera.
     pub camera_matrix: [Matrix3<f64>; 2],
     /// Distortion `[k1, k2, p1, p2, k3]` of both cameras.
     pub distortion: [[f64; 5]; 2],
     /// R: rotation from the first camera's frame to the second's.
     pub rotation: Matrix3<f64>,
-    /// T: X₂ = R·X₁ + T, metres (in the unit the calibration board was given in).
+    /// T: X₂ = R·X₁ + T, in the unit the calibration board was given in (flatport expects metres).
     pub translation: Vector3<f64>,
     /// Image size (width, height) when the file has one.
     pub image_size: Option<(u32, u32)>,
 }
 
+/// Text of a flow sequence `[ … ]`, as (line, text) pieces without the brackets.
+type Flow = Vec<(usize, String)>;
+
+#[derive(Debug, Default)]
+struct RawMatrix {
+    rows: Option<(usize, String)>,
+    cols: Option<(usize, String)>,
+    dt: Option<(usize, String)>,
+    data: Option<Flow>,
+}
+
 #[derive(Debug)]
 enum Value {
     Scalar(String),
-    Numbers(Vec<f64>),
-    Matrix { rows: usize, cols: usize, data: Vec<f64> },
+    Sequence(Flow),
+    Matrix(RawMatrix),
+    /// Anything else (a nested mapping, another type tag): not interpreted.
     Other,
 }
 
 #[derive(Debug)]
 struct Entry {
+    /// 1-based line of the key.
     line: usize,
     value: Value,
 }
 
-/// Reads and parses an OpenCV FileStorage YAML file.
+/// Where the lines of an unclosed flow sequence go.
+enum Open {
+    /// The top-level key's own value.
+    Sequence,
+    /// The `data` of the current matrix.
+    MatrixData,
+    /// A sequence inside something that is skipped.
+    Skipped,
+}
+
+/// Reads and parses an OpenCV FileStorage YAML file (`-` = standard input).
 pub fn read_opencv_stereo(path: &Path) -> Result<OpenCvStereo, IoError> {
     parse_opencv_stereo(&read_text(path)?, path)
 }
 
-fn parse_numbers(text: &str, line: usize, path: &Path) -> Result<Vec<f64>, IoError> {
-    text.split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            s.parse::<f64>().map_err(|_| IoError::OpenCv {
-                path: path.to_path_buf(),
-                line,
-                reason: format!("'{s}' is not a number"),
-            })
-        })
-        .collect()
+/// The line without its comment (a `#` outside quotes).
+fn strip_comment(line: &str) -> &str {
+    let mut quote = None;
+    for (i, c) in line.char_indices() {
+        match (c, quote) {
+            ('"' | '\'', None) => quote = Some(c),
+            (c, Some(q)) if c == q => quote = None,
+            ('#', None) => return &line[..i],
+            _ => {}
+        }
+    }
+    line
+}
+
+/// Splits the start of a flow sequence: `[ a, b` → ("a, b", closed = false).
+fn open_flow(text: &str) -> (String, bool) {
+    let inner = text.trim().trim_start_matches('[');
+    match inner.find(']') {
+        Some(end) => (inner[..end].to_string(), true),
+        None => (inner.to_string(), false),
+    }
 }
 
 fn parse_entries(text: &str, path: &Path) -> Result<HashMap<String, Entry>, IoError> {
-    let err = |line: usize, reason: String| IoError::OpenCv { path: path.to_path_buf(), line, reason };
-    let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l));
-    let first = lines.by_ref().find(|(_, l)| !l.trim().is_empty());
-    match first {
+    let err = |line: usize, reason: String| IoError::OpenCv {
+        path: path.to_path_buf(),
+        line,
+        reason,
+    };
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, strip_comment(l)));
+    match lines.by_ref().find(|(_, l)| !l.trim().is_empty()) {
         Some((_, l)) if l.trim_start().starts_with("%YAML") => {}
-        Some((n, _)) => return Err(err(n, "not an OpenCV FileStorage YAML file: it must start with %YAML:1.0".into())),
-        None => return Err(err(1, "file is empty".into())),
+        Some((n, _)) => {
+            return Err(err(
+                n,
+                "not an OpenCV FileStorage YAML file: it must start with %YAML:1.0".into(),
+            ));
+        }
+        None => {
+            return Err(err(
+                0,
+                "file is empty: expected an OpenCV FileStorage YAML file (%YAML:1.0)".into(),
+            ));
+        }
     }
     let mut entries: HashMap<String, Entry> = HashMap::new();
-    // (key, line, rows, cols, data text) of the !!opencv-matrix being read.
-    let mut matrix: Option<(String, usize, Option<usize>, Option<usize>, Option<String>)> = None;
-    let mut collecting_data = false;
-    let finish = |m: (String, usize, Option<usize>, Option<usize>, Option<String>),
-                  entries: &mut HashMap<String, Entry>|
-     -> Result<(), IoError> {
-        let (key, line, rows, cols, data) = m;
-        let missing = |what: &str| err(line, format!("{key}: opencv-matrix without '{what}'"));
-        let (rows, cols) = (rows.ok_or_else(|| missing("rows"))?, cols.ok_or_else(|| missing("cols"))?);
-        let data = data.ok_or_else(|| missing("data"))?;
-        let inner = data.trim().trim_start_matches('[').trim_end_matches(']');
-        let numbers = parse_numbers(inner, line, path)?;
-        if numbers.len() != rows * cols {
-            return Err(err(line, format!("{key}: {rows}x{cols} matrix with {} values", numbers.len())));
-        }
-        entries.insert(key, Entry { line, value: Value::Matrix { rows, cols, data: numbers } });
-        Ok(())
-    };
-    for (n, raw) in lines {
-        let line = raw.split('#').next().unwrap_or("");
-        if collecting_data {
-            let m = matrix.as_mut().expect("collecting data only inside a matrix");
-            let data = m.4.get_or_insert_with(String::new);
-            data.push(' ');
-            data.push_str(line.trim());
-            if line.contains(']') {
-                collecting_data = false;
+    // The top-level key being read, and the flow sequence still open, if any.
+    let mut current: Option<(String, Entry)> = None;
+    let mut open: Option<Open> = None;
+    for (n, line) in lines {
+        if let Some(target) = &open {
+            // FileStorage indents continuation lines: a top-level line means the ']' is missing.
+            if !line.starts_with([' ', '\t', ']']) && !line.trim().is_empty() {
+                let key = current.as_ref().map_or("", |(k, _)| k.as_str());
+                return Err(err(
+                    n,
+                    format!("{key}: '[' is never closed with ']' before this line"),
+                ));
+            }
+            let (piece, closed) = match line.find(']') {
+                Some(end) => (&line[..end], true),
+                None => (line, false),
+            };
+            let flow = match (target, current.as_mut().map(|c| &mut c.1.value)) {
+                (Open::Sequence, Some(Value::Sequence(flow))) => Some(flow),
+                (Open::MatrixData, Some(Value::Matrix(m))) => m.data.as_mut(),
+                _ => None,
+            };
+            if let Some(flow) = flow {
+                flow.push((n, piece.to_string()));
+            }
+            if closed {
+                open = None;
             }
             continue;
         }
-        if line.trim().is_empty() || line.trim() == "---" {
+        let trimmed = line.trim();
+        if trimmed.is_empty() || trimmed == "---" || trimmed == "..." || trimmed.starts_with('%') {
             continue;
         }
-        let indented = line.starts_with(' ') || line.starts_with('\t');
-        let (key, rest) = line
-            .trim()
-            .split_once(':')
-            .ok_or_else(|| err(n, format!("expected 'key: value', found '{}'", line.trim())))?;
-        let (key, rest) = (key.trim().to_string(), rest.trim());
+        let indented = line.starts_with([' ', '\t']);
         if indented {
-            let Some(m) = matrix.as_mut() else { continue }; // inside a mapping we do not read
-            let parse_count = |s: &str| s.parse::<usize>().map_err(|_| err(n, format!("{key}: '{s}' is not a count")));
-            match key.as_str() {
-                "rows" => m.2 = Some(parse_count(rest)?),
-                "cols" => m.3 = Some(parse_count(rest)?),
-                "dt" if rest != "d" && rest != "f" => {
-                    return Err(err(n, format!("{}: element type '{rest}' (expected d or f)", m.0)));
+            // Inside the current key's value: only the fields of an !!opencv-matrix are read.
+            let field = trimmed.split_once(':').map(|(k, v)| (k.trim(), v.trim()));
+            let matrix = match current.as_mut().map(|c| &mut c.1.value) {
+                Some(Value::Matrix(m)) => Some(m),
+                _ => None,
+            };
+            match (matrix, field) {
+                (Some(m), Some(("rows", v))) => m.rows = Some((n, v.to_string())),
+                (Some(m), Some(("cols", v))) => m.cols = Some((n, v.to_string())),
+                (Some(m), Some(("dt", v))) => m.dt = Some((n, v.trim_matches('"').to_string())),
+                (Some(m), Some(("data", v))) => {
+                    let (inner, closed) = open_flow(v);
+                    m.data = Some(vec![(n, inner)]);
+                    if !closed {
+                        open = Some(Open::MatrixData);
+                    }
                 }
-                "data" => {
-                    m.4 = Some(rest.to_string());
-                    collecting_data = !rest.contains(']');
+                (_, Some((_, v))) if v.starts_with('[') && !open_flow(v).1 => {
+                    open = Some(Open::Skipped)
+                }
+                _ if trimmed.starts_with('[') && !open_flow(trimmed).1 => {
+                    open = Some(Open::Skipped)
                 }
                 _ => {}
             }
             continue;
         }
-        if let Some(m) = matrix.take() {
-            finish(m, &mut entries)?;
+        let (key, rest) = trimmed.split_once(':').ok_or_else(|| {
+            err(
+                n,
+                format!("expected 'key: value' at the top level, found '{trimmed}'"),
+            )
+        })?;
+        let (key, rest) = (key.trim().trim_matches('"').to_string(), rest.trim());
+        if let Some((key, entry)) = current.take() {
+            insert(&mut entries, key, entry, path)?;
         }
-        if rest.starts_with("!!opencv-matrix") {
-            matrix = Some((key, n, None, None, None));
+        let value = if rest.starts_with("!!opencv-matrix") {
+            Value::Matrix(RawMatrix::default())
         } else if rest.starts_with('[') {
-            let inner = rest.trim_start_matches('[').trim_end_matches(']');
-            entries.insert(key, Entry { line: n, value: Value::Numbers(parse_numbers(inner, n, path)?) });
-        } else if rest.is_empty() || rest.starts_with('!') || rest.starts_with('{') {
-            entries.insert(key, Entry { line: n, value: Value::Other });
+            let (inner, closed) = open_flow(rest);
+            if !closed {
+                open = Some(Open::Sequence);
+            }
+            Value::Sequence(vec![(n, inner)])
+        } else if rest.is_empty() || rest.starts_with(['!', '{', '&', '*', '|', '>']) {
+            if rest.starts_with('{') && !rest.contains('}') {
+                return Err(err(
+                    n,
+                    format!("{key}: flow mappings spanning lines are not supported"),
+                ));
+            }
+            Value::Other
         } else {
-            entries.insert(key, Entry { line: n, value: Value::Scalar(rest.trim_matches('"').to_string()) });
-        }
+            Value::Scalar(rest.trim_matches('"').to_string())
+        };
+        current = Some((key, Entry { line: n, value }));
     }
-    if collecting_data {
-        let key = matrix.as_ref().map(|m| m.0.clone()).unwrap_or_default();
-        return Err(err(0, format!("{key}: data list is not closed with ']'")));
+    if open.is_some() {
+        let (key, line) = current
+            .as_ref()
+            .map_or((String::new(), 0), |(k, e)| (k.clone(), e.line));
+        return Err(err(line, format!("{key}: '[' is never closed with ']'")));
     }
-    if let Some(m) = matrix.take() {
-        finish(m, &mut entries)?;
+    if let Some((key, entry)) = current.take() {
+        insert(&mut entries, key, entry, path)?;
     }
     Ok(entries)
 }
 
+fn insert(
+    entries: &mut HashMap<String, Entry>,
+    key: String,
+    entry: Entry,
+    path: &Path,
+) -> Result<(), IoError> {
+    if let Some(first) = entries.get(&key) {
+        return Err(IoError::OpenCv {
+            path: path.to_path_buf(),
+            line: entry.line,
+            reason: format!("key {key} appears twice (first on line {})", first.line),
+        });
+    }
+    entries.insert(key, entry);
+    Ok(())
+}
+
+/// The finite numbers of a flow sequence; errors name the line of the bad value.
+fn numbers(key: &str, flow: &Flow, path: &Path) -> Result<Vec<f64>, IoError> {
+    let mut values = Vec::new();
+    for (line, text) in flow {
+        for s in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+            let err = |reason: String| IoError::OpenCv {
+                path: path.to_path_buf(),
+                line: *line,
+                reason,
+            };
+            // OpenCV writes non-finite values as .Nan, .Inf, -.Inf.
+            let word = s.trim_start_matches(['+', '-', '.']).to_ascii_lowercase();
+            if word == "nan" || word == "inf" || word == "infinity" {
+                return Err(err(format!("{key}: '{s}' is not finite")));
+            }
+            let value: f64 = s
+                .parse()
+                .map_err(|_| err(format!("{key}: '{s}' is not a number")))?;
+            values.push(value);
+        }
+    }
+    Ok(values)
+}
+
+/// A used `!!opencv-matrix`: its shape (rows, cols) and values (row-major), checked.
+fn matrix(key: &str, entry: &Entry, path: &Path) -> Result<(usize, usize, Vec<f64>), IoError> {
+    let err = |line: usize, reason: String| IoError::OpenCv {
+        path: path.to_path_buf(),
+        line,
+        reason,
+    };
+    let Value::Matrix(m) = &entry.value else {
+        return Err(err(entry.line, format!("{key} is not an !!opencv-matrix")));
+    };
+    let count = |field: &Option<(usize, String)>, name: &str| match field {
+        None => Err(err(
+            entry.line,
+            format!("{key}: !!opencv-matrix without '{name}'"),
+        )),
+        Some((line, text)) => text
+            .parse::<usize>()
+            .map_err(|_| err(*line, format!("{key}: {name} '{text}' is not a count"))),
+    };
+    let (rows, cols) = (count(&m.rows, "rows")?, count(&m.cols, "cols")?);
+    match &m.dt {
+        Some((_, dt)) if dt == "d" || dt == "f" => {}
+        Some((line, dt)) => {
+            return Err(err(
+                *line,
+                format!("{key}: element type dt '{dt}' (expected d or f)"),
+            ));
+        }
+        None => {
+            return Err(err(
+                entry.line,
+                format!("{key}: !!opencv-matrix without 'dt'"),
+            ));
+        }
+    }
+    let data = m
+        .data
+        .as_ref()
+        .ok_or_else(|| err(entry.line, format!("{key}: !!opencv-matrix without 'data'")))?;
+    let values = numbers(key, data, path)?;
+    if values.len() != rows * cols {
+        return Err(err(
+            entry.line,
+            format!("{key}: {rows}x{cols} matrix with {} values", values.len()),
+        ));
+    }
+    Ok((rows, cols, values))
+}
+
+/// A positive whole number of pixels.
+fn pixels(value: f64) -> Option<u32> {
+    (value >= 1.0 && value.fract() == 0.0 && value <= f64::from(u32::MAX)).then_some(value as u32)
+}
+
 /// Parses the text of an OpenCV FileStorage YAML file; `path` labels errors.
 ///
-/// Keys: `M1 D1 M2 D2 R T`, or `K1`/`K2`, or `cameraMatrix1`/`distCoeffs1`/…; image size from
-/// `image_width` + `image_height`, or `imageSize`. Distortion may have 4, 5, 8, 12 or 14
-/// coefficients; coefficients past the fifth must be zero (flatport models `[k1, k2, p1, p2, k3]`).
+/// Keys: `M1 D1 M2 D2 R T`, or `K1`/`K2` for `M1`/`M2`, or `cameraMatrix1 distCoeffs1
+/// cameraMatrix2 distCoeffs2`; matrices must have `dt` d or f. Image size from `image_width` +
+/// `image_height`, or `imageSize` (`[w, h]` or a 2-element matrix), else `None`. Distortion may
+/// have 4, 5, 8, 12 or 14 coefficients in OpenCV order; coefficients past the fifth must be zero
+/// (flatport models `[k1, k2, p1, p2, k3]`). K must have zero skew.
 pub fn parse_opencv_stereo(text: &str, path: &Path) -> Result<OpenCvStereo, IoError> {
     let entries = parse_entries(text, path)?;
-    let err = |line: usize, reason: String| IoError::OpenCv { path: path.to_path_buf(), line, reason };
-    fn find<'a>(entries: &'a HashMap<String, Entry>, names: &[&'static str]) -> Option<(&'static str, &'a Entry)> {
-        names.iter().find_map(|n| entries.get(*n).map(|e| (*n, e)))
-    }
-    let find = |names: &[&'static str]| find(&entries, names);
-    let matrix = |names: &[&'static str], rows: usize, cols: usize| -> Result<Vec<f64>, IoError> {
-        let (name, entry) = find(names).ok_or_else(|| err(0, format!("missing key {}", names.join(" or "))))?;
-        match &entry.value {
-            Value::Matrix { rows: r, cols: c, data } if r * c == rows * cols && (*r == rows || *r == cols) => {
-                Ok(data.clone())
-            }
-            Value::Matrix { rows: r, cols: c, .. } => {
-                Err(err(entry.line, format!("{name} is {r}x{c}, expected {rows}x{cols}")))
-            }
-            _ => Err(err(entry.line, format!("{name} is not an !!opencv-matrix"))),
+    let err = |line: usize, reason: String| IoError::OpenCv {
+        path: path.to_path_buf(),
+        line,
+        reason,
+    };
+    let find = |names: &[&'static str]| -> Result<(&'static str, &Entry), IoError> {
+        names
+            .iter()
+            .find_map(|n| entries.get(*n).map(|e| (*n, e)))
+            .ok_or_else(|| err(0, format!("missing key {}", names.join(" or "))))
+    };
+    let shaped = |names: &[&'static str], rows: usize, cols: usize| -> Result<Vec<f64>, IoError> {
+        let (name, entry) = find(names)?;
+        let (r, c, values) = matrix(name, entry, path)?;
+        // A vector may be stored as a row or a column.
+        if (r, c) == (rows, cols) || (cols == 1 && (r, c) == (1, rows)) {
+            Ok(values)
+        } else {
+            Err(err(
+                entry.line,
+                format!("{name} is {r}x{c}, expected {rows}x{cols}"),
+            ))
         }
     };
     let distortion = |names: &[&'static str]| -> Result<[f64; 5], IoError> {
-        let (name, entry) = find(names).ok_or_else(|| err(0, format!("missing key {}", names.join(" or "))))?;
-        let Value::Matrix { data, .. } = &entry.value else {
-            return Err(err(entry.line, format!("{name} is not an !!opencv-matrix")));
-        };
-        if ![4, 5, 8, 12, 14].contains(&data.len()) {
-            return Err(err(entry.line, format!("{name} has {} coefficients (OpenCV uses 4, 5, 8, 12 or 14)", data.len())));
-        }
-        if let Some(i) = data.iter().skip(5).position(|&k| k != 0.0) {
+        let (name, entry) = find(names)?;
+        let (r, c, values) = matrix(name, entry, path)?;
+        if r.min(c) != 1 || ![4, 5, 8, 12, 14].contains(&values.len()) {
             return Err(err(
                 entry.line,
                 format!(
-                    "{name}: coefficient {} is {} but flatport supports only [k1, k2, p1, p2, k3]",
+                    "{name} is {r}x{c}; OpenCV distortion has 4, 5, 8, 12 or 14 coefficients in one row or column"
+                ),
+            ));
+        }
+        if let Some(i) = values.iter().skip(5).position(|&k| k != 0.0) {
+            return Err(err(
+                entry.line,
+                format!(
+                    "{name}: coefficient {} is {} but flatport supports only the 5-term model [k1, k2, p1, p2, k3]",
                     i + 6,
-                    data[i + 5]
+                    values[i + 5]
                 ),
             ));
         }
         let mut d = [0.0; 5];
-        for (slot, k) in d.iter_mut().zip(data) {
-            *slot = *k;
+        for (slot, k) in d.iter_mut().zip(values) {
+            *slot = k;
         }
         Ok(d)
     };
     let camera_matrix = |names: &[&'static str]| -> Result<Matrix3<f64>, IoError> {
-        let data = matrix(names, 3, 3)?;
-        let k = Matrix3::from_row_slice(&data);
-        let line = find(names).map_or(0, |(_, e)| e.line);
+        let k = Matrix3::from_row_slice(&shaped(names, 3, 3)?);
+        let (name, entry) = find(names)?;
         if k[(0, 1)] != 0.0 {
-            return Err(err(line, format!("{}: skew {} is not supported", names[0], k[(0, 1)])));
+            return Err(err(
+                entry.line,
+                format!(
+                    "{name}: skew K[0][1] = {} is not supported (must be 0)",
+                    k[(0, 1)]
+                ),
+            ));
         }
         if k[(1, 0)] != 0.0 || k[(2, 0)] != 0.0 || k[(2, 1)] != 0.0 || k[(2, 2)] != 1.0 {
-            return Err(err(line, format!("{}: not a camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]", names[0])));
+            return Err(err(
+                entry.line,
+                format!("{name}: not a camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]"),
+            ));
         }
         Ok(k)
-    };
-    let image_size = match (entries.get("image_width"), entries.get("image_height"), entries.get("imageSize")) {
-        (Some(w), Some(h), _) => Some((size(w, "image_width", path)?, size(h, "image_height", path)?)),
-        (_, _, Some(Entry { value: Value::Numbers(v), line })) | (_, _, Some(Entry { value: Value::Matrix { data: v, .. }, line }))
-            if v.len() == 2 =>
-        {
-            let whole = |x: f64| (x >= 1.0 && x.fract() == 0.0 && x <= u32::MAX as f64).then_some(x as u32);
-            Some((
-                whole(v[0]).ok_or_else(|| err(*line, format!("imageSize width {} is not a pixel count", v[0])))?,
-                whole(v[1]).ok_or_else(|| err(*line, format!("imageSize height {} is not a pixel count", v[1])))?,
-            ))
-        }
-        _ => None,
     };
     Ok(OpenCvStereo {
         camera_matrix: [
             camera_matrix(&["M1", "K1", "cameraMatrix1"])?,
             camera_matrix(&["M2", "K2", "cameraMatrix2"])?,
         ],
-        distortion: [distortion(&["D1", "distCoeffs1"])?, distortion(&["D2", "distCoeffs2"])?],
-        rotation: Matrix3::from_row_slice(&matrix(&["R"], 3, 3)?),
-        translation: Vector3::from_column_slice(&matrix(&["T"], 3, 1)?),
-        image_size,
+        distortion: [
+            distortion(&["D1", "distCoeffs1"])?,
+            distortion(&["D2", "distCoeffs2"])?,
+        ],
+        rotation: Matrix3::from_row_slice(&shaped(&["R"], 3, 3)?),
+        translation: Vector3::from_column_slice(&shaped(&["T"], 3, 1)?),
+        image_size: image_size(&entries, path)?,
     })
 }
 
-fn size(entry: &Entry, name: &str, path: &Path) -> Result<u32, IoError> {
-    match &entry.value {
-        Value::Scalar(s) => s.parse::<u32>().ok().filter(|&v| v > 0),
-        _ => None,
-    }
-    .ok_or_else(|| IoError::OpenCv {
+/// `image_width` + `image_height`, or `imageSize`, or none.
+fn image_size(
+    entries: &HashMap<String, Entry>,
+    path: &Path,
+) -> Result<Option<(u32, u32)>, IoError> {
+    let err = |line: usize, reason: String| IoError::OpenCv {
         path: path.to_path_buf(),
-        line: entry.line,
-        reason: format!("{name} must be a positive whole number of pixels"),
-    })
+        line,
+        reason,
+    };
+    let scalar = |name: &str, entry: &Entry| {
+        match &entry.value {
+            Value::Scalar(s) => s.parse::<f64>().ok().and_then(pixels),
+            _ => None,
+        }
+        .ok_or_else(|| {
+            err(
+                entry.line,
+                format!("{name} must be a positive whole number of pixels"),
+            )
+        })
+    };
+    match (
+        entries.get("image_width"),
+        entries.get("image_height"),
+        entries.get("imageSize"),
+    ) {
+        (Some(w), Some(h), _) => Ok(Some((
+            scalar("image_width", w)?,
+            scalar("image_height", h)?,
+        ))),
+        (Some(e), None, _) | (None, Some(e), _) => Err(err(
+            e.line,
+            "image_width and image_height must be given together".into(),
+        )),
+        (None, None, Some(entry)) => {
+            let values = match &entry.value {
+                Value::Sequence(flow) => numbers("imageSize", flow, path)?,
+                Value::Matrix(_) => matrix("imageSize", entry, path)?.2,
+                _ => vec![],
+            };
+            match values[..] {
+                [w, h] => match (pixels(w), pixels(h)) {
+                    (Some(w), Some(h)) => Ok(Some((w, h))),
+                    _ => Err(err(
+                        entry.line,
+                        format!("imageSize [{w}, {h}] is not a positive whole number of pixels"),
+                    )),
+                },
+                _ => Err(err(entry.line, "imageSize must be [width, height]".into())),
+            }
+        }
+        (None, None, None) => Ok(None),
+    }
 }
 
 impl OpenCvStereo {
-    /// A rig with cameras `names[0]` (the master, identity) and `names[1]` (R, T) behind
-    /// `interface`. `image_size` overrides the file's; one of them must be given.
+    /// A rig with cameras `names[0]` (the master, identity extrinsics) and `names[1]` (R, T) behind
+    /// `interface`. `image_size` (width, height) overrides the file's; one of them must be given.
+    /// `path` labels errors.
     pub fn to_rig(
         &self,
         names: [&str; 2],
@@ -255,16 +484,22 @@ impl OpenCvStereo {
         interface: Interface,
         path: &Path,
     ) -> Result<Rig, IoError> {
-        let invalid = |field: String, reason: String| IoError::Invalid { path: path.to_path_buf(), field, reason };
+        let invalid = |field: String, reason: String| IoError::Invalid {
+            path: path.to_path_buf(),
+            field,
+            reason,
+        };
         let (width, height) = image_size.or(self.image_size).ok_or_else(|| {
             invalid(
                 "image size".into(),
-                "the file has no image_width/image_height or imageSize; give --size WIDTHxHEIGHT".into(),
+                "the file has no image_width/image_height or imageSize; give --size WIDTHxHEIGHT"
+                    .into(),
             )
         })?;
         let mut cameras = Vec::with_capacity(2);
         for (i, name) in names.iter().enumerate() {
             let k = &self.camera_matrix[i];
+            let field = format!("camera {} ('{name}')", i + 1);
             let intrinsics = PinholeCamera::new(
                 name,
                 width,
@@ -275,26 +510,36 @@ impl OpenCvStereo {
                 k[(1, 2)],
                 self.distortion[i],
             )
-            .map_err(|e| invalid(format!("camera {}", i + 1), e.to_string()))?;
-            let (rotation, translation) =
-                if i == 0 { (Matrix3::identity(), Vector3::zeros()) } else { (self.rotation, self.translation) };
-            cameras.push(
-                RigCamera::new(name, intrinsics, rotation, translation)
-                    .map_err(|e| invalid("R, T".into(), e.to_string()))?,
-            );
+            .map_err(|e| invalid(field.clone(), e.to_string()))?;
+            let (rotation, translation) = if i == 0 {
+                (Matrix3::identity(), Vector3::zeros())
+            } else {
+                (self.rotation, self.translation)
+            };
+            let camera = RigCamera::new(name, intrinsics, rotation, translation)
+                .map_err(|e| invalid(format!("{field} R, T"), e.to_string()))?;
+            cameras.push(camera);
         }
         Rig::new(cameras, interface).map_err(|e| invalid("rig".into(), e.to_string()))
     }
 }
 
 #[cfg(test)]
+// The expected values are written as OpenCV writes them (17 significant digits).
+#[allow(clippy::excessive_precision)]
 mod tests {
     use super::*;
+    use nalgebra::Point3;
 
+    /// What `cv::FileStorage` writes for a stereo calibration, with the extras calibration tools add.
     const STEREO: &str = "%YAML:1.0
 ---
+calibration_time: \"Sun 22 Nov 2026 01:07:57 # not a comment: inside quotes\"
+# image size of both cameras
 image_width: 1280
 image_height: 1024
+board_width: 9
+flags: 0
 M1: !!opencv-matrix
    rows: 3
    cols: 3
@@ -305,22 +550,24 @@ D1: !!opencv-matrix
    rows: 1
    cols: 5
    dt: d
-   data: [ -1.0e-01, 1.0000000000000000e-02, 0., 0., 0. ]
+   data: [ -1.0e-01, 1.0000000000000000e-02, .5e-3, -2.5e-03, 0. ]
 M2: !!opencv-matrix
    rows: 3
    cols: 3
    dt: d
    data: [ 870., 0., 630., 0., 870., 500., 0., 0., 1. ]
 D2: !!opencv-matrix
-   rows: 1
-   cols: 8
+   rows: 8
+   cols: 1
    dt: d
-   data: [ -0.09, 0.011, 0., 0., 0., 0., 0., 0. ]
+   data: [ -0.09, 0.011, 0., 0., 0., 0., 0.,
+       0. ]
 R: !!opencv-matrix
    rows: 3
    cols: 3
    dt: d
-   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]
+   data: [ 9.9984769515639127e-01, 0., 1.7452406437283512e-02, 0., 1.,
+       0., -1.7452406437283512e-02, 0., 9.9984769515639127e-01 ]
 T: !!opencv-matrix
    rows: 3
    cols: 1
@@ -330,53 +577,289 @@ E: !!opencv-matrix
    rows: 3
    cols: 3
    dt: d
-   data: [ 0., 0., 0., 0., 0., 0.06, 0., -0.06, 0. ]
+   data: [ .Nan, 0., 0., 0., 0., 0.06, 0., -0.06, 0. ]
+per_view_errors: [ 0.21, 0.19, 0.25,
+    0.30, 0.18 ]
+image_points: !!opencv-nd-matrix
+   sizes: [ 2, 54,
+       1 ]
+   dt: \"2f\"
+   data: [ 1., 2.,
+      3., 4. ]
+nested:
+   inner: [ 1,
+      2 ]
 ";
 
     fn parse(text: &str) -> Result<OpenCvStereo, IoError> {
         parse_opencv_stereo(text, Path::new("stereo.yml"))
     }
 
+    /// The example with `from` replaced by `to` (which must occur).
+    fn edited(from: &str, to: &str) -> String {
+        assert!(STEREO.contains(from), "test edit {from:?} does not apply");
+        STEREO.replacen(from, to, 1)
+    }
+
+    /// (line, message) of an OpenCV error.
+    fn failure(text: &str) -> (usize, String) {
+        match parse(text) {
+            Err(e @ IoError::OpenCv { .. }) => {
+                let message = e.to_string();
+                let IoError::OpenCv { line, .. } = e else {
+                    unreachable!()
+                };
+                (line, message)
+            }
+            other => panic!("expected IoError::OpenCv, got {other:?}"),
+        }
+    }
+
+    fn interface() -> Interface {
+        Interface::new(Vector3::new(0.1, 0.1, 1.0), 0.02, vec![], 1.0, 1.333).unwrap()
+    }
+
     #[test]
     fn reads_a_stereo_calibration() {
         let s = parse(STEREO).unwrap();
         // The file's 17-digit text, not the literal 864.91.
-        assert_eq!(s.camera_matrix[0][(0, 0)], 8.6491000000000003e+02);
-        assert_eq!(s.camera_matrix[0][(1, 2)], 512.0);
+        assert_eq!(
+            s.camera_matrix[0],
+            Matrix3::new(
+                8.6491000000000003e+02,
+                0.0,
+                640.0,
+                0.0,
+                8.6491000000000003e+02,
+                512.0,
+                0.0,
+                0.0,
+                1.0
+            )
+        );
         assert_eq!(s.camera_matrix[1][(0, 2)], 630.0);
-        assert_eq!(s.distortion[0], [-0.1, 0.01, 0.0, 0.0, 0.0]);
-        assert_eq!(s.distortion[1][1], 0.011);
+        assert_eq!(s.camera_matrix[1][(1, 2)], 500.0);
+        assert_eq!(s.distortion[0], [-0.1, 0.01, 0.0005, -0.0025, 0.0]);
+        assert_eq!(s.distortion[1], [-0.09, 0.011, 0.0, 0.0, 0.0]);
+        // Row-major data: R[0][2] = +sin 1°.
+        assert_eq!(s.rotation[(0, 2)], 1.7452406437283512e-02);
+        assert_eq!(s.rotation[(2, 0)], -1.7452406437283512e-02);
         assert_eq!(s.translation, Vector3::new(-0.06, 0.0, 0.0));
         assert_eq!(s.image_size, Some((1280, 1024)));
-        let interface = Interface::new(Vector3::z(), 0.02, vec![], 1.0, 1.333).unwrap();
-        let rig = s.to_rig(["left", "right"], None, interface, Path::new("stereo.yml")).unwrap();
-        assert_eq!(rig.cameras()[1].intrinsics.fx, 870.0);
-        assert!((rig.cameras()[1].centre_in_master() - nalgebra::Point3::new(0.06, 0.0, 0.0)).norm() < 1e-15);
+
+        let rig = s
+            .to_rig(
+                ["left", "right"],
+                None,
+                interface(),
+                Path::new("stereo.yml"),
+            )
+            .unwrap();
+        let (left, right) = (&rig.cameras()[0], &rig.cameras()[1]);
+        assert_eq!((left.name.as_str(), right.name.as_str()), ("left", "right"));
+        assert_eq!(
+            (
+                right.intrinsics.fx,
+                right.intrinsics.cx,
+                right.intrinsics.width
+            ),
+            (870.0, 630.0, 1280)
+        );
+        assert_eq!(left.intrinsics.distortion, s.distortion[0]);
+        // C = −Rᵀ T = 0.06 · Rᵀ x̂ = 0.06 · (first row of R) = 0.06 · (cos 1°, 0, sin 1°).
+        let expected = Point3::new(
+            0.06 * 9.9984769515639127e-01,
+            0.0,
+            0.06 * 1.7452406437283512e-02,
+        );
+        assert!((right.centre_in_master() - expected).norm() < 1e-15);
+        let sized = s
+            .to_rig(
+                ["a", "b"],
+                Some((640, 480)),
+                interface(),
+                Path::new("stereo.yml"),
+            )
+            .unwrap();
+        assert_eq!(
+            (
+                sized.cameras()[1].intrinsics.width,
+                sized.cameras()[1].intrinsics.height
+            ),
+            (640, 480)
+        );
     }
 
     #[test]
-    fn k_names_and_image_size_sequence_are_accepted() {
-        let text = STEREO.replace("M1:", "K1:").replace("M2:", "K2:").replace(
+    fn other_key_names_and_size_forms_are_accepted() {
+        let k = STEREO.replacen("M1:", "K1:", 1).replacen("M2:", "K2:", 1);
+        assert_eq!(parse(&k).unwrap(), parse(STEREO).unwrap());
+        let long = STEREO
+            .replacen("M1:", "cameraMatrix1:", 1)
+            .replacen("D1:", "distCoeffs1:", 1)
+            .replacen("M2:", "cameraMatrix2:", 1)
+            .replacen("D2:", "distCoeffs2:", 1);
+        assert_eq!(parse(&long).unwrap(), parse(STEREO).unwrap());
+        let sequence = edited(
             "image_width: 1280\nimage_height: 1024\n",
             "imageSize: [ 640, 480 ]\n",
         );
-        assert_eq!(parse(&text).unwrap().image_size, Some((640, 480)));
+        assert_eq!(parse(&sequence).unwrap().image_size, Some((640, 480)));
+        let matrix = edited(
+            "image_width: 1280\nimage_height: 1024\n",
+            "imageSize: !!opencv-matrix\n   rows: 2\n   cols: 1\n   dt: d\n   data: [ 800., 600. ]\n",
+        );
+        assert_eq!(parse(&matrix).unwrap().image_size, Some((800, 600)));
+        // Four coefficients (k3 = 0), single precision, a row vector T, CRLF line ends.
+        let four = edited(
+            "data: [ -0.09, 0.011, 0., 0., 0., 0., 0.,\n       0. ]",
+            "data: [ -0.09, 0.011, 0., 0. ]",
+        )
+        .replacen("rows: 8", "rows: 4", 1)
+        .replace("dt: d", "dt: f")
+        .replacen(
+            "rows: 3\n   cols: 1\n   dt: f\n   data: [ -6.0e-02",
+            "rows: 1\n   cols: 3\n   dt: f\n   data: [ -6.0e-02",
+            1,
+        )
+        .replace('\n', "\r\n");
+        let s = parse(&four).unwrap();
+        assert_eq!(s.distortion[1], [-0.09, 0.011, 0.0, 0.0, 0.0]);
+        assert_eq!(s.translation, Vector3::new(-0.06, 0.0, 0.0));
     }
 
     #[test]
-    fn problems_are_named() {
-        let m = parse(&STEREO.replace("T: !!", "T_other: !!")).unwrap_err().to_string();
-        assert!(m.contains("missing key T"), "{m}");
-        let m = parse(&STEREO.replace("0., 0., 0., 0., 0., 0. ]", "0., 0., 0., 0.1, 0., 0. ]")).unwrap_err().to_string();
-        assert!(m.contains("D2") && m.contains("coefficient 6"), "{m}");
-        let m = parse(&STEREO.replace("%YAML:1.0\n", "")).unwrap_err().to_string();
-        assert!(m.contains("%YAML"), "{m}");
-        let m = parse(&STEREO.replace("0., 1. ]", "0., x ]")).unwrap_err().to_string();
-        assert!(m.contains("'x' is not a number"), "{m}");
-        let no_size = parse(&STEREO.replace("image_width: 1280\nimage_height: 1024\n", "")).unwrap();
+    fn split_files_can_be_concatenated() {
+        // OpenCV's stereo_calib sample writes intrinsics.yml and extrinsics.yml.
+        let (intrinsics, extrinsics) = STEREO.split_at(STEREO.find("R: !!").unwrap());
+        let joined = format!("{intrinsics}%YAML:1.0\n---\n{extrinsics}");
+        assert_eq!(parse(&joined).unwrap(), parse(STEREO).unwrap());
+    }
+
+    #[test]
+    fn missing_and_unsupported_content_is_named() {
+        let (line, m) = failure(&edited("T: !!", "T_other: !!"));
+        assert_eq!(line, 0);
+        assert_eq!(m, "stereo.yml: missing key T");
+        let (_, m) = failure(&edited("M1: !!", "Mx: !!"));
+        assert!(m.contains("missing key M1 or K1 or cameraMatrix1"), "{m}");
+        // k4 (coefficient 6 of OpenCV's 8) is not in flatport's model.
+        let (line, m) = failure(&edited(
+            "0., 0., 0., 0., 0.,\n       0. ]",
+            "0., 0., 0., 0.1, 0.,\n       0. ]",
+        ));
+        assert_eq!(line, 25);
+        assert!(
+            m.contains("D2: coefficient 6 is 0.1") && m.contains("5-term"),
+            "{m}"
+        );
+        let (line, m) = failure(&edited("%YAML:1.0\n", ""));
+        assert_eq!(line, 1);
+        assert!(m.contains("%YAML:1.0"), "{m}");
+        let (line, m) = failure("");
+        assert!(line == 0 && m.contains("empty"), "{m}");
+        let (line, m) = failure(&edited(
+            "[ 8.6491000000000003e+02, 0., 640.",
+            "[ 8.6491000000000003e+02, 0.1, 640.",
+        ));
+        assert_eq!(line, 9);
+        assert!(m.contains("M1: skew K[0][1] = 0.1"), "{m}");
+        let (_, m) = failure(&edited(
+            "0., 8.6491000000000003e+02,",
+            "0.1, 8.6491000000000003e+02,",
+        ));
+        assert!(m.contains("M1: not a camera matrix"), "{m}");
+        let (line, m) = failure(&edited(
+            "       512., 0., 0., 1. ]",
+            "       512., 0., 0., x ]",
+        ));
+        assert_eq!(line, 14, "the line of the bad value, not of the key");
+        assert!(m.contains("M1: 'x' is not a number"), "{m}");
+        let (line, m) = failure(&edited(
+            "data: [ -6.0e-02, 0., 0. ]",
+            "data: [ -6.0e-02, .Inf, 0. ]",
+        ));
+        assert_eq!(line, 41);
+        assert!(m.contains("T: '.Inf' is not finite"), "{m}");
+        let (_, m) = failure(&edited(
+            "data: [ -6.0e-02, 0., 0. ]",
+            "data: [ -6.0e-02, 0. ]",
+        ));
+        assert!(m.contains("T: 3x1 matrix with 2 values"), "{m}");
+        let (_, m) = failure(
+            &edited("rows: 3\n   cols: 1", "rows: 1\n   cols: 3\n   extra: 1").replacen(
+                "rows: 3\n   cols: 3\n   dt: d\n   data: [ 9.99",
+                "rows: 9\n   cols: 1\n   dt: d\n   data: [ 9.99",
+                1,
+            ),
+        );
+        assert!(m.contains("R is 9x1, expected 3x3"), "{m}");
+        let (_, m) = failure(&edited(
+            "rows: 1\n   cols: 5\n   dt: d",
+            "rows: 1\n   cols: 5\n   dt: u",
+        ));
+        assert!(m.contains("D1: element type dt 'u'"), "{m}");
+        let (line, m) = failure(&edited("       0. ]\nR:", "       0. \nR:"));
+        assert_eq!(line, 31);
+        assert!(m.contains("D2: '[' is never closed"), "{m}");
+        let (line, m) = failure(&format!("{STEREO}last: [ 1, 2\n"));
+        assert_eq!(line, 58);
+        assert!(m.contains("last: '[' is never closed"), "{m}");
+        let (_, m) = failure(&format!("{STEREO}T: 1\n"));
+        assert!(m.contains("key T appears twice (first on line 37)"), "{m}");
+        let (_, m) = failure(&edited("image_height: 1024\n", ""));
+        assert!(
+            m.contains("image_width and image_height must be given together"),
+            "{m}"
+        );
+        let (_, m) = failure(&edited("image_width: 1280", "image_width: 12.5"));
+        assert!(
+            m.contains("image_width must be a positive whole number"),
+            "{m}"
+        );
+        let (line, m) = failure(&edited("flags: 0", "just some words"));
+        assert_eq!(line, 8);
+        assert!(m.contains("expected 'key: value'"), "{m}");
+    }
+
+    #[test]
+    fn rig_needs_a_size_and_valid_extrinsics() {
+        let no_size = parse(&edited("image_width: 1280\nimage_height: 1024\n", "")).unwrap();
         assert_eq!(no_size.image_size, None);
-        let interface = Interface::new(Vector3::z(), 0.02, vec![], 1.0, 1.333).unwrap();
-        let m = no_size.to_rig(["l", "r"], None, interface, Path::new("stereo.yml")).unwrap_err().to_string();
-        assert!(m.contains("--size"), "{m}");
+        let error = no_size
+            .to_rig(["l", "r"], None, interface(), Path::new("stereo.yml"))
+            .unwrap_err();
+        assert!(matches!(error, IoError::Invalid { .. }));
+        assert!(error.to_string().contains("--size"), "{error}");
+        assert!(
+            no_size
+                .to_rig(
+                    ["l", "r"],
+                    Some((1280, 1024)),
+                    interface(),
+                    Path::new("stereo.yml")
+                )
+                .is_ok()
+        );
+
+        let mut far = parse(STEREO).unwrap();
+        far.translation = Vector3::new(0.0, 0.0, -1.0);
+        let error = far
+            .to_rig(["l", "r"], None, interface(), Path::new("stereo.yml"))
+            .unwrap_err();
+        assert!(
+            error.to_string().contains("'r' is not in the air"),
+            "{error}"
+        );
+        let mut skewed = parse(STEREO).unwrap();
+        skewed.rotation[(0, 1)] = 0.1;
+        let error = skewed
+            .to_rig(["l", "r"], None, interface(), Path::new("stereo.yml"))
+            .unwrap_err();
+        assert!(
+            error.to_string().contains("camera 2 ('r') R, T")
+                && error.to_string().contains("not a rotation"),
+            "{error}"
+        );
     }
 }
