@@ -83,7 +83,7 @@ pub enum Device {
 /// Arguments every geometry command shares.
 #[derive(Debug, Args)]
 pub struct CommonArgs {
-    /// Rig file (JSON, see DESIGN.md §1)
+    /// Rig file (JSON: cameras and interface, see the README)
     #[arg(long, value_name = "RIG.json")]
     pub rig: PathBuf,
     /// Output CSV file (default: standard output); written only when every input row parsed
