@@ -73,8 +73,8 @@ pub struct RefractiveCamera {
     normal: Unit<Vector3<f64>>,
     air_distance: f64,
     layers: Vec<Layer>,
-    /// (tᵢ, ρᵢ) per layer, ρᵢ = μᵢ/μ_air.
-    layer_terms: Vec<(f64, f64)>,
+    /// (tᵢ, ρᵢ, 1/ρᵢ) per layer, ρᵢ = μᵢ/μ_air.
+    layer_terms: Vec<(f64, f64, f64)>,
     layers_thickness: f64,
     index_air: f64,
     index_water: f64,
@@ -91,7 +91,8 @@ impl RefractiveCamera {
         let centre = cam_from_master.inverse_transform_point(&Point3::origin());
         let normal = *interface.normal();
         let index_air = interface.index_air();
-        let layer_terms = interface.layers().iter().map(|l| (l.thickness, l.index / index_air)).collect();
+        let layer_terms =
+            interface.layers().iter().map(|l| (l.thickness, l.index / index_air, index_air / l.index)).collect();
         Self {
             intrinsics,
             cam_from_master: rotation,
@@ -178,7 +179,7 @@ impl RefractiveCamera {
         let lambda1 = water_radicand.sqrt() / cos_a;
         let mut axis_shift = self.air_distance * (1.0 - lambda1);
         let mut lateral_length = self.air_distance;
-        for &(thickness, rho) in &self.layer_terms {
+        for &(thickness, rho, _) in &self.layer_terms {
             let radicand = rho * rho - sin2_a;
             if !(radicand > 0.0) {
                 return Err(NoSolution::TotalInternalReflection);
@@ -265,8 +266,8 @@ impl RefractiveCamera {
         let v2 = v * v;
         let (mut f, mut df) = (-r, 0.0);
         let mut dominant = (0.0, 1.0, 0.0); // (length, ρ, its f′ term)
-        for (length, rho) in self.media(depth) {
-            let k = rho_ref / rho;
+        for (length, rho, inv_rho) in self.media(depth) {
+            let k = rho_ref * inv_rho;
             let inv_sqrt = 1.0 / (1.0 + (1.0 - k * k) * v2).sqrt();
             let lk = length * k * inv_sqrt;
             let slope = lk * inv_sqrt * inv_sqrt;
@@ -282,8 +283,10 @@ impl RefractiveCamera {
     /// The media a path crosses as (length along the axis, index relative to the air): air d_k,
     /// water at `depth`, then the layers.
     #[inline]
-    fn media(&self, depth: f64) -> impl Iterator<Item = (f64, f64)> + '_ {
-        [(self.air_distance, 1.0), (depth, self.rho_water)].into_iter().chain(self.layer_terms.iter().copied())
+    fn media(&self, depth: f64) -> impl Iterator<Item = (f64, f64, f64)> + '_ {
+        [(self.air_distance, 1.0, 1.0), (depth, self.rho_water, 1.0 / self.rho_water)]
+            .into_iter()
+            .chain(self.layer_terms.iter().copied())
     }
 
     /// Upper end of the bracket in the variable of the reference medium (length, ρ):
@@ -291,7 +294,7 @@ impl RefractiveCamera {
     #[inline]
     fn bracket_top(&self, depth: f64, r: f64, (length_ref, rho_ref): (f64, f64)) -> f64 {
         let mut hi = r / length_ref;
-        for (_, rho) in self.media(depth) {
+        for (_, rho, _) in self.media(depth) {
             let k = rho_ref / rho;
             if k > 1.0 {
                 hi = hi.min(1.0 / (k * k - 1.0).sqrt());
@@ -306,7 +309,7 @@ impl RefractiveCamera {
         // Start in the medium with the largest paraxial weight L/ρ, from the paraxial root.
         let mut reference = (self.air_distance, 1.0);
         let mut paraxial_slope = 0.0;
-        for (length, rho) in self.media(depth) {
+        for (length, rho, _) in self.media(depth) {
             paraxial_slope += length / rho;
             if length / rho > reference.0 / reference.1 {
                 reference = (length, rho);
