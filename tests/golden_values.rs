@@ -345,7 +345,6 @@ fn golden_vop_relations() {
 /// points 0.1 mm behind the port near the critical angle). See oracle_projection's test of the
 /// same name: the model evaluates eq 4.8 there, whose condition number in the angle is ~1/cos²θw.
 #[test]
-#[ignore = "fails: vop() loses up to ~1e-8 m where the water ray grazes (see report)"]
 fn golden_vop_where_the_water_ray_grazes() {
     let rigs = rigs();
     let mut worst: f64 = 0.0;

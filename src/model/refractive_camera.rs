@@ -321,6 +321,8 @@ impl RefractiveCamera {
         if !(v > lo && v < hi) {
             v = 0.5 * (lo + hi);
         }
+        // The slowest medium (smallest index) sets the critical-angle top of every other bracket.
+        let slowest = self.media(depth).fold((0.0, f64::INFINITY), |a, (l, rho, _)| if rho < a.1 { (l, rho) } else { a });
         for iteration in 1..=PROJECT_MAX_ITERATIONS {
             let (f, mut df, dominant) = self.incidence_equation(v, reference.1, depth, r);
             if f < 0.0 {
@@ -331,21 +333,15 @@ impl RefractiveCamera {
                 return Ok((self.tan_incidence_from(v, reference.1), iteration));
             }
             if dominant.1 != reference.1 {
-                // Re-parametrise in the dominant medium's angle, where its term is linear. f is the
-                // lateral miss, the same in every variable; f′ and the bracket map through T.
-                let k = reference.1 / dominant.1;
-                let map = |x: f64| {
-                    let q = 1.0 + (1.0 - k * k) * x * x;
-                    if q > 0.0 { k * x / q.sqrt() } else { f64::INFINITY }
-                };
-                let q = 1.0 + (1.0 - k * k) * v * v;
-                let dv = k / (q * q.sqrt());
-                df /= dv;
-                (v, lo) = (map(v), map(lo));
-                hi = map(hi).min(self.bracket_top(depth, r, dominant));
-                reference = dominant;
+                self.reparametrise(&mut reference, dominant, [&mut v, &mut lo, &mut hi], &mut df, depth, r);
             }
-            let step = f / df;
+            let mut step = f / df;
+            if v - step >= hi && slowest.1 != reference.1 {
+                // The step leaves through the critical angle of the slowest medium: its term is
+                // about to dominate, so continue in its angle, where that term is linear.
+                self.reparametrise(&mut reference, slowest, [&mut v, &mut lo, &mut hi], &mut df, depth, r);
+                step = f / df;
+            }
             // Converged: test before the bracket, since a step below half an ulp leaves v unchanged
             // and would otherwise read as a step outside the open bracket.
             if step.abs() <= PROJECT_TOLERANCE * v {
@@ -361,6 +357,31 @@ impl RefractiveCamera {
             v = next;
         }
         Err(NoSolution::NoConvergence)
+    }
+
+    /// Moves the iteration from the angle of medium `reference` to that of `to` (length, ρ): f is
+    /// the lateral miss in every variable; v and the bracket map through T(·; ρ_ref/ρ_to), and f′
+    /// is divided by T′ (chain rule). The mapped bracket top is capped by `to`'s own bound.
+    #[inline]
+    fn reparametrise(
+        &self,
+        reference: &mut (f64, f64),
+        to: (f64, f64),
+        [v, lo, hi]: [&mut f64; 3],
+        df: &mut f64,
+        depth: f64,
+        r: f64,
+    ) {
+        let k = reference.1 / to.1;
+        let map = |x: f64| {
+            let q = 1.0 + (1.0 - k * k) * x * x;
+            if q > 0.0 { k * x / q.sqrt() } else { f64::INFINITY }
+        };
+        let q = 1.0 + (1.0 - k * k) * *v * *v;
+        *df /= k / (q * q.sqrt());
+        (*v, *lo) = (map(*v), map(*lo));
+        *hi = map(*hi).min(self.bracket_top(depth, r, to));
+        *reference = to;
     }
 
     /// tan a = T(v; k_air) from the tangent v of the angle in the reference medium.
@@ -391,21 +412,29 @@ impl RefractiveCamera {
         Ok(self.intrinsics.img_from_normalized(&normalized))
     }
 
-    /// The Virtual Object Point of `point_in_master` for this camera (thesis eq 4.8 at the angle
-    /// of incidence found by [`air_path_to`](Self::air_path_to)): x̌ = x/λ1 − Σ tᵢ (1 − λ2,ᵢ),
-    /// Ǒ = A1 + x̌·n with A1 = O − x·n.
+    /// The Virtual Object Point of `point_in_master` for this camera (thesis ch. 4): where the
+    /// backward extension of the air ray meets the object axis O + s·n. With a the angle of
+    /// incidence found by [`air_path_to`](Self::air_path_to) and r the distance of O from the line
+    /// C_k + s·n, the air ray reaches that axis at r / tan a along n from C_k, so
+    /// x̌ = r / tan a − d_k − Σ tᵢ and Ǒ = A1 + x̌·n with A1 = O − x·n.
+    ///
+    /// This equals eq 4.8, x̌ = x/λ1 − Σ tᵢ (1 − λ2,ᵢ) (tested against it), but stays exact where
+    /// the water ray grazes the port, where eq 4.8 amplifies the rounding of a; eq 4.8 is used on
+    /// the axis line (r = 0), where it is the apparent depth.
     pub fn vop(&self, point_in_master: &Point3<f64>) -> Result<Vop, NoSolution> {
         let path = self.air_path_to(point_in_master)?;
         let tau = path.tan_incidence;
-        let cos_a = 1.0 / (1.0 + tau * tau).sqrt();
-        let sin2_a = tau * tau * cos_a * cos_a;
-        let index_air = self.index_air;
-        let lambda1 = super::vop::lambda_ratio(sin2_a, cos_a, self.index_water / index_air)
-            .ok_or(NoSolution::TotalInternalReflection)?
-            / cos_a;
-        let shift = super::vop::layer_shift(sin2_a, cos_a, index_air, &self.layers)
-            .ok_or(NoSolution::TotalInternalReflection)?;
-        let vop_distance = path.depth / lambda1 - shift;
+        let vop_distance = if tau > 0.0 {
+            let n = self.normal.into_inner();
+            let offset = point_in_master - self.centre;
+            let r = (offset - n * n.dot(&offset)).norm();
+            r / tau - self.air_distance - self.layers_thickness
+        } else {
+            // a = 0: x̌ = (μa/μw)·x − Σ tᵢ (1 − μa/μᵢ).
+            let shift = super::vop::layer_shift(0.0, 1.0, self.index_air, &self.layers)
+                .ok_or(NoSolution::TotalInternalReflection)?;
+            path.depth / self.rho_water - shift
+        };
         let n = self.normal.into_inner();
         let vop = point_in_master + n * (vop_distance - path.depth);
         Ok(Vop { depth: path.depth, vop_distance, vop, incidence: tau.atan() })
