@@ -9,12 +9,12 @@ use nalgebra::{Point2, Point3};
 use flatport::io::{read_rig, read_table};
 use flatport::model::{Rig, triangulate_rays};
 
-use super::CommonArgs;
+use super::{CommonArgs, Device};
 use super::batch::Batch;
 
-/// `flatport project`
+/// `flatport project` and `flatport vop`: points in, one camera.
 #[derive(Debug, Args)]
-pub struct ProjectArgs {
+pub struct PointsArgs {
     #[command(flatten)]
     common: CommonArgs,
     /// Points CSV with header x,y,z (master frame, metres)
@@ -51,19 +51,6 @@ pub struct TriangulateArgs {
     cameras: Option<(String, String)>,
 }
 
-/// `flatport vop`
-#[derive(Debug, Args)]
-pub struct VopArgs {
-    #[command(flatten)]
-    common: CommonArgs,
-    /// Points CSV with header x,y,z (master frame, metres)
-    #[arg(long, value_name = "POINTS.csv")]
-    points: PathBuf,
-    /// Camera by name or index (default: the master camera)
-    #[arg(long, value_name = "NAME|INDEX")]
-    camera: Option<String>,
-}
-
 /// Index of `--camera` in the rig, the master when absent.
 pub fn camera_index(rig: &Rig, camera: Option<&str>) -> anyhow::Result<usize> {
     let Some(name) = camera else { return Ok(0) };
@@ -77,13 +64,14 @@ pub fn camera_index(rig: &Rig, camera: Option<&str>) -> anyhow::Result<usize> {
     })
 }
 
+/// Says on stderr which device computes, so a user knows which path produced the numbers.
 fn announce(common: &CommonArgs) {
-    // One line so a user knows which path produced the numbers (the GPU engine adds more).
-    let _ = common.device;
-    eprintln!("device: cpu (f64 reference)");
+    match common.device {
+        Device::Cpu => eprintln!("device: cpu (f64 reference)"),
+    }
 }
 
-pub fn project(args: ProjectArgs) -> anyhow::Result<()> {
+pub fn project(args: PointsArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
     let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref())?);
     let points = read_table(&args.points, ["x", "y", "z"])?;
@@ -138,7 +126,7 @@ pub fn triangulate(args: TriangulateArgs) -> anyhow::Result<()> {
     batch.write(args.common.output.as_deref(), ["x", "y", "z", "residual"])
 }
 
-pub fn vop(args: VopArgs) -> anyhow::Result<()> {
+pub fn vop(args: PointsArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
     let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref())?);
     let points = read_table(&args.points, ["x", "y", "z"])?;

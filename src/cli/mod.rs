@@ -33,7 +33,7 @@ enum Command {
 Examples:
   flatport project --rig rig.json --points points.csv > pixels.csv
   flatport project --rig rig.json --points points.csv --camera right --output right.csv")]
-    Project(geometry::ProjectArgs),
+    Project(geometry::PointsArgs),
     /// Back-project pixels to rays in the water: u,v → ox,oy,oz,dx,dy,dz
     #[command(after_help = "\
 The ray origin lies on the outer interface, the direction is a unit vector in the water, both in
@@ -60,7 +60,7 @@ inside the glass, eq 4.8), vop_x..z the VOP in the master frame, incidence the a
 
 Example:
   flatport vop --rig rig.json --points points.csv --camera left")]
-    Vop(geometry::VopArgs),
+    Vop(geometry::PointsArgs),
     /// Rig files: import OpenCV stereoCalibrate output, show a rig
     #[command(subcommand)]
     Rig(rig::RigCommand),

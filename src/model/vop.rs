@@ -53,10 +53,8 @@ pub fn virtual_from_real(
     index_air: f64,
     index_water: f64,
 ) -> Option<f64> {
-    let (sin_a, cos_a) = incidence.sin_cos();
-    let sin2_a = sin_a * sin_a;
-    let lambda1 = lambda_ratio(sin2_a, cos_a, index_water / index_air)? / cos_a;
-    Some(depth / lambda1 - layer_shift(sin2_a, cos_a, index_air, layers)?)
+    let (lambda1, shift) = lambda1_and_shift(incidence, layers, index_air, index_water)?;
+    Some(depth / lambda1 - shift)
 }
 
 /// Real-from-virtual (thesis eq 4.7, generalised to N layers):
@@ -70,10 +68,16 @@ pub fn real_from_virtual(
     index_air: f64,
     index_water: f64,
 ) -> Option<f64> {
+    let (lambda1, shift) = lambda1_and_shift(incidence, layers, index_air, index_water)?;
+    Some(lambda1 * (vop_distance + shift))
+}
+
+/// λ1 and T = Σ tᵢ (1 − λ2,ᵢ) at angle of incidence a: the two quantities of eqs 4.7 and 4.8.
+fn lambda1_and_shift(incidence: f64, layers: &[Layer], index_air: f64, index_water: f64) -> Option<(f64, f64)> {
     let (sin_a, cos_a) = incidence.sin_cos();
     let sin2_a = sin_a * sin_a;
     let lambda1 = lambda_ratio(sin2_a, cos_a, index_water / index_air)? / cos_a;
-    Some(lambda1 * (vop_distance + layer_shift(sin2_a, cos_a, index_air, layers)?))
+    Some((lambda1, layer_shift(sin2_a, cos_a, index_air, layers)?))
 }
 
 #[cfg(test)]
