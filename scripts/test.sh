@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Runs flatport's whole test suite: unit tests, integration tests against independent oracles,
-# property tests, CLI tests, benches compiled and run once, doc examples.
-# Release mode: nalgebra code is ~100x slower unoptimised.
+# golden values, property tests, CLI tests, GPU-vs-CPU parity on Vulkan (lavapipe when there is
+# no GPU), benches compiled and run once, doc examples. Release mode: nalgebra code is ~100x
+# slower unoptimised.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -9,6 +10,25 @@ if ! command -v cargo >/dev/null 2>&1; then
     echo "error: cargo not found. Install Rust (https://rustup.rs), then run: scripts/test.sh" >&2
     exit 1
 fi
+
+# A Vulkan loader and driver for the GPU tests: Mesa's lavapipe (software Vulkan) on Debian.
+have_vulkan() {
+    ldconfig -p 2>/dev/null | grep -q 'libvulkan\.so\.1' && ls /usr/share/vulkan/icd.d/*.json >/dev/null 2>&1
+}
+if ! have_vulkan; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        echo "installing the Vulkan loader and Mesa's lavapipe driver (mesa-vulkan-drivers)..." >&2
+        export DEBIAN_FRONTEND=noninteractive
+        apt-get update -qq
+        apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null
+    else
+        echo "error: no Vulkan driver. Install one, e.g. on Debian/Ubuntu:" >&2
+        echo "  sudo apt-get install mesa-vulkan-drivers libvulkan1" >&2
+        exit 1
+    fi
+fi
+# Mesa warns on headless machines unless this is set.
+export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 
 cargo test --release --all-targets "$@"
 cargo test --release --doc "$@"

@@ -41,4 +41,5 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod io;
+pub mod gpu;
 pub mod model;

@@ -1,5 +1,7 @@
 //! `flatport info`.
 
+use flatport::gpu::adapters;
+
 pub fn run() -> anyhow::Result<()> {
     let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     println!("flatport {}", env!("CARGO_PKG_VERSION"));
@@ -11,6 +13,28 @@ pub fn run() -> anyhow::Result<()> {
     );
     println!("devices:");
     println!("  cpu: f64 reference, {threads} hardware threads");
-    println!("  gpu: not in this version (the wgpu engine is planned; --device accepts only cpu)");
+    let found = adapters();
+    if found.is_empty() {
+        println!(
+            "  gpu: no Vulkan adapter found (install mesa-vulkan-drivers for the lavapipe software adapter, \
+             or your GPU's Vulkan driver)"
+        );
+    }
+    for a in &found {
+        let yes = |b: bool| if b { "yes" } else { "no" };
+        println!("  gpu: {} [{} {}, {}]", a.name, a.backend, a.device_type, a.driver);
+        println!(
+            "       features used: SHADER_F64 {}, SUBGROUP {}, TIMESTAMP_QUERY {}",
+            yes(a.f64),
+            yes(a.subgroup),
+            yes(a.timestamp)
+        );
+        println!(
+            "       limits used: storage binding {} MiB, {} workgroups per dimension",
+            a.max_storage_binding >> 20,
+            a.max_workgroups_per_dimension
+        );
+    }
+    println!("  (the GPU kernels are reachable from the library, flatport::gpu; --device accepts cpu for now)");
     Ok(())
 }

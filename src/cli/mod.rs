@@ -104,6 +104,11 @@ pub fn parse_pair(text: &str) -> Result<(String, String), String> {
 
 /// Entry point: runs the command, prints errors as `error: …` with their causes, exit code 1.
 pub fn main() -> ExitCode {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        // SAFETY: first statement of main, before any thread exists. Keeps Mesa's Vulkan driver
+        // from warning about a missing runtime directory on headless machines.
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Project(args) => geometry::project(args),

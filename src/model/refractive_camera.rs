@@ -125,6 +125,36 @@ impl RefractiveCamera {
         &self.intrinsics
     }
 
+    /// R_kᵀ: rotation from this camera's frame to the master frame.
+    pub fn master_from_cam(&self) -> &Matrix3<f64> {
+        &self.master_from_cam
+    }
+
+    /// The system axis n, master frame.
+    pub fn normal(&self) -> &Unit<Vector3<f64>> {
+        &self.normal
+    }
+
+    /// The layers, in the order light from the camera crosses them.
+    pub fn layers(&self) -> &[Layer] {
+        &self.layers
+    }
+
+    /// ρ_w = μ_w/μ_air.
+    pub fn relative_index_water(&self) -> f64 {
+        self.rho_water
+    }
+
+    /// Index of the medium around the cameras.
+    pub fn index_air(&self) -> f64 {
+        self.index_air
+    }
+
+    /// Squared normalised radius of the lens model's fold ([`PinholeCamera::fold_radius2`]).
+    pub fn fold_radius2(&self) -> f64 {
+        self.fold_radius2
+    }
+
     /// Unit viewing direction of a (distorted) pixel in the master frame.
     ///
     /// Errors: [`NoSolution::OutsideLens`] when undistortion fails or lands beyond the fold of the
