@@ -62,8 +62,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     write_table(Some(&dir.join("points.csv")), ["x", "y", "z"], points.iter().map(|&p| Some(p)))?;
 
     // Forward projection into both cameras.
-    let started = Instant::now();
     let paths: Vec<_> = points.iter().map(|p| left.air_path_to(&Point3::from(*p))).collect();
+    let started = Instant::now();
     let pixels_left: Vec<_> = points.iter().map(|p| left.project(&Point3::from(*p))).collect();
     let pixels_right: Vec<_> = points.iter().map(|p| right.project(&Point3::from(*p))).collect();
     let project_time = started.elapsed();

@@ -79,7 +79,7 @@ fn summary(adapter: &wgpu::Adapter) -> AdapterSummary {
         f64: features.contains(wgpu::Features::SHADER_F64),
         subgroup: features.contains(wgpu::Features::SUBGROUP),
         timestamp: features.contains(wgpu::Features::TIMESTAMP_QUERY),
-        max_storage_binding: limits.max_storage_buffer_binding_size as u64,
+        max_storage_binding: limits.max_storage_buffer_binding_size,
         max_workgroups_per_dimension: limits.max_compute_workgroups_per_dimension,
     }
 }

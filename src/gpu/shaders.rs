@@ -1,8 +1,5 @@
 //! WGSL sources, composed at build time: `shaders/common.wgsl` in front of each kernel file.
 
-/// Shared structs and helpers.
-pub const COMMON: &str = include_str!("../../shaders/common.wgsl");
-
 /// Back-projection kernel (f32), composed.
 pub const BACKPROJECT: &str = concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/backproject.wgsl"));
 

@@ -43,6 +43,8 @@ pub struct AirPath {
     pub tan_incidence: f64,
     /// x: distance of the point from the outer interface along the axis, metres.
     pub depth: f64,
+    /// r: distance of the point from the camera's axis line C_k + s·n, metres.
+    pub lateral_distance: f64,
     /// Root-finder iterations used (0 for a point on the camera's axis line).
     pub iterations: u32,
 }
@@ -281,11 +283,11 @@ impl RefractiveCamera {
         let lateral = offset - n * z;
         let r = lateral.norm();
         if r == 0.0 {
-            return Ok(AirPath { dir_in_air: self.normal, tan_incidence: 0.0, depth, iterations: 0 });
+            return Ok(AirPath { dir_in_air: self.normal, tan_incidence: 0.0, depth, lateral_distance: r, iterations: 0 });
         }
         let (tau, iterations) = self.solve_tan_incidence(depth, r)?;
         let dir = (n + lateral * (tau / r)) / (1.0 + tau * tau).sqrt();
-        Ok(AirPath { dir_in_air: Unit::new_unchecked(dir), tan_incidence: tau, depth, iterations })
+        Ok(AirPath { dir_in_air: Unit::new_unchecked(dir), tan_incidence: tau, depth, lateral_distance: r, iterations })
     }
 
     /// f(v), f′(v) of [`air_path_to`](Self::air_path_to) in the variable of the reference medium
@@ -455,15 +457,10 @@ impl RefractiveCamera {
         let path = self.air_path_to(point_in_master)?;
         let tau = path.tan_incidence;
         let vop_distance = if tau > 0.0 {
-            let n = self.normal.into_inner();
-            let offset = point_in_master - self.centre;
-            let r = (offset - n * n.dot(&offset)).norm();
-            r / tau - self.air_distance - self.layers_thickness
+            path.lateral_distance / tau - self.air_distance - self.layers_thickness
         } else {
-            // a = 0: x̌ = (μa/μw)·x − Σ tᵢ (1 − μa/μᵢ).
-            let shift = super::vop::layer_shift(0.0, 1.0, self.index_air, &self.layers)
-                .ok_or(NoSolution::TotalInternalReflection)?;
-            path.depth / self.rho_water - shift
+            super::vop::virtual_from_real(path.depth, 0.0, &self.layers, self.index_air, self.index_water)
+                .ok_or(NoSolution::TotalInternalReflection)?
         };
         let n = self.normal.into_inner();
         let vop = point_in_master + n * (vop_distance - path.depth);

@@ -23,14 +23,14 @@ pub fn lambda2(incidence: f64, index_air: f64, index_glass: f64) -> Option<f64> 
 
 /// √(ρ² − sin²a) when positive and cos a > 0.
 #[inline]
-pub(crate) fn lambda_ratio(sin2_a: f64, cos_a: f64, rho: f64) -> Option<f64> {
+fn lambda_ratio(sin2_a: f64, cos_a: f64, rho: f64) -> Option<f64> {
     let radicand = rho * rho - sin2_a;
     (radicand > 0.0 && cos_a > 0.0).then(|| radicand.sqrt())
 }
 
 /// The thickness term T = Σ tᵢ (1 − λ2(a, μa, μᵢ)) of the N-layer VOP relations.
 #[inline]
-pub(crate) fn layer_shift(sin2_a: f64, cos_a: f64, index_air: f64, layers: &[Layer]) -> Option<f64> {
+fn layer_shift(sin2_a: f64, cos_a: f64, index_air: f64, layers: &[Layer]) -> Option<f64> {
     let mut shift = 0.0;
     for layer in layers {
         let root = lambda_ratio(sin2_a, cos_a, layer.index / index_air)?;
