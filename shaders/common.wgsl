@@ -1,30 +1,67 @@
-// Shared structs of every flatport kernel. Composed in front of each kernel file at build time.
-// Mirrors `GpuCamera` in src/gpu/layout.rs: keep in sync (a test checks the sizes).
+// Shared structs, status codes and indexing of every flatport kernel.
+//
+// A kernel module is composed (src/gpu/shaders.rs) from: a precision prelude that defines
+// `real` (f32 or f64), `vec2r`..`vec4r` and the tolerances; this file; the relations in
+// shaders/lib/; one kernel from shaders/kernels/. `Camera` and `Params` are mirrored by the host
+// packer in src/gpu/layout.rs: keep them in sync (a test compares sizes and offsets with naga's
+// layouter for both precisions).
 
-// Per-element status codes: 0 = answer, otherwise `NoSolution::code()` of the CPU path.
+// Per-element status: 0 = answer, otherwise `NoSolution::code()` of the CPU path.
 const STATUS_OK: u32 = 0u;
 const STATUS_OUTSIDE_LENS: u32 = 1u;
 const STATUS_MISSES_INTERFACE: u32 = 2u;
 const STATUS_TOTAL_INTERNAL_REFLECTION: u32 = 3u;
+const STATUS_NOT_IN_WATER: u32 = 4u;
+const STATUS_BEHIND_CAMERA: u32 = 5u;
+const STATUS_DEGENERATE: u32 = 6u;
+const STATUS_NO_CONVERGENCE: u32 = 7u;
 
 const MAX_LAYERS: u32 = 8u;
-const UNDISTORT_MAX_ITERATIONS: u32 = 20u;
+const WORKGROUP_SIZE: u32 = 64u;
 
-// One camera behind the interface, master frame, f32. vec4 slots avoid vec3 padding surprises.
+// One camera behind the interface, master frame. vec4 slots keep the layout identical in f32 and
+// f64 apart from the element size.
 struct Camera {
-    intrinsics: vec4<f32>,      // fx, fy, cx, cy
-    distortion: vec4<f32>,      // k1, k2, p1, p2
-    extra: vec4<f32>,           // k3, fold radius² (1e30 when none), ρ_w = μ_w/μ_air, d_k
-    master_from_cam0: vec4<f32>,// rows of R_kᵀ (w unused)
-    master_from_cam1: vec4<f32>,
-    master_from_cam2: vec4<f32>,
-    centre: vec4<f32>,          // C_k (w unused)
-    normal: vec4<f32>,          // n (w unused)
-    layers: array<vec4<f32>, 8>,// (tᵢ, ρᵢ, 0, 0)
-    counts: vec4<u32>,          // layer count, item count, has distortion, unused
+    intrinsics: vec4r,       // fx, fy, cx, cy
+    distortion: vec4r,       // k1, k2, p1, p2
+    extra: vec4r,            // k3, fold radius² (REAL_HUGE when none), ρ_w = μ_w/μ_air, d_k
+    master_from_cam0: vec4r, // rows of R_kᵀ (w unused)
+    master_from_cam1: vec4r,
+    master_from_cam2: vec4r,
+    centre: vec4r,           // C_k, w = Σ tᵢ
+    normal: vec4r,           // n, w unused
+    layers: array<vec4r, 8>, // (tᵢ, ρᵢ = μᵢ/μ_air, 0, 0)
+    counts: vec4<u32>,       // layer count, has distortion, 0, 0
 }
 
-// Linear item index of a 2-D dispatch of 64-wide workgroups.
+// Uniform of every kernel: one or two cameras and the dispatch description.
+struct Params {
+    a: Camera,
+    b: Camera,
+    info: vec4<u32>, // items in this dispatch, grid width, first grid row, 0
+}
+
+// A value that may not exist (total internal reflection, …).
+struct Maybe {
+    value: real,
+    ok: bool,
+}
+
+// Linear item index of a 2-D dispatch of WORKGROUP_SIZE-wide workgroups.
 fn item_index(gid: vec3<u32>, groups: vec3<u32>) -> u32 {
-    return gid.y * groups.x * 64u + gid.x;
+    return gid.y * groups.x * WORKGROUP_SIZE + gid.x;
+}
+
+fn cross3(a: vec3r, b: vec3r) -> vec3r {
+    return vec3r(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+
+// R_k · v from the rows of R_kᵀ: camera frame from master frame.
+fn cam_from_master(cam: Camera, v: vec3r) -> vec3r {
+    return cam.master_from_cam0.xyz * v.x + cam.master_from_cam1.xyz * v.y + cam.master_from_cam2.xyz * v.z;
+}
+
+// R_kᵀ · v: master frame from camera frame.
+fn master_from_cam(cam: Camera, v: vec3r) -> vec3r {
+    return vec3r(dot(cam.master_from_cam0.xyz, v), dot(cam.master_from_cam1.xyz, v), dot(cam.master_from_cam2.xyz, v));
 }

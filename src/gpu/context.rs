@@ -100,7 +100,7 @@ impl GpuContext {
     /// Opens the adapter whose name contains `name` (case-insensitive), else the one named by
     /// `FLATPORT_ADAPTER`, else the first hardware GPU, else the first adapter (lavapipe).
     pub fn new(name: Option<&str>) -> Result<Self, GpuError> {
-            let wanted = name.map(str::to_string).or_else(|| std::env::var(ADAPTER_ENV).ok());
+        let wanted = name.map(str::to_string).or_else(|| std::env::var(ADAPTER_ENV).ok());
         let all = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::VULKAN));
         let names: Vec<String> = all.iter().map(|a| a.get_info().name).collect();
         let chosen = match &wanted {
@@ -163,39 +163,45 @@ impl GpuContext {
     }
 
     /// Submits `encoder` after copying each `(source, staging, bytes)` into its staging buffer,
-    /// waits, and returns the bytes of each in order.
-    pub(crate) fn read_back(
+    /// waits, and hands the mapped bytes of every staging buffer, in order, to `read`.
+    pub(crate) fn read_back<T>(
         &self,
         mut encoder: wgpu::CommandEncoder,
         copies: &[(&wgpu::Buffer, &wgpu::Buffer, u64)],
-    ) -> Result<Vec<Vec<u8>>, GpuError> {
+        read: impl FnOnce(&[&[u8]]) -> T,
+    ) -> Result<T, GpuError> {
         for &(source, staging, bytes) in copies {
             encoder.copy_buffer_to_buffer(source, 0, staging, 0, bytes);
         }
         self.queue.submit([encoder.finish()]);
         let (sender, receiver) = std::sync::mpsc::channel();
-        for (k, &(_, staging, bytes)) in copies.iter().enumerate() {
+        for &(_, staging, bytes) in copies {
             let sender = sender.clone();
             staging.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
-                let _ = sender.send((k, r));
+                let _ = sender.send(r);
             });
         }
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.wait()?;
         for _ in copies {
-            let (_, result) = receiver.recv().map_err(|e| GpuError::Readback(e.to_string()))?;
-            result.map_err(|e| GpuError::Readback(e.to_string()))?;
+            receiver.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
         }
-        copies
+        let views = copies
             .iter()
-            .map(|&(_, staging, bytes)| {
-                let data = staging
-                    .get_mapped_range(..bytes)
-                    .map_err(|e| GpuError::Readback(e.to_string()))?
-                    .to_vec();
-                staging.unmap();
-                Ok(data)
-            })
-            .collect()
+            .map(|&(_, staging, bytes)| staging.get_mapped_range(..bytes).map_err(|e| GpuError::Readback(e.to_string())))
+            .collect::<Result<Vec<_>, _>>()?;
+        let slices: Vec<&[u8]> = views.iter().map(|v| &v[..]).collect();
+        let result = read(&slices);
+        drop(slices);
+        drop(views);
+        for &(_, staging, _) in copies {
+            staging.unmap();
+        }
+        Ok(result)
+    }
+
+    /// Blocks until every submitted command has finished.
+    pub(crate) fn wait(&self) -> Result<(), GpuError> {
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map(drop).map_err(|e| GpuError::Readback(e.to_string()))
     }
 }
 

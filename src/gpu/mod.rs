@@ -1,13 +1,17 @@
-//! The GPU engine: wgpu compute kernels (WGSL in `shaders/`) over batches, checked against the f64
-//! CPU reference. This module holds no geometry beyond indexing and buffer layout; every kernel
-//! has a CPU twin of the same name in [`crate::model`].
+//! The GPU backend: WGSL compute kernels (`shaders/`) run through wgpu over batches of any size,
+//! checked against the f64 CPU reference. This module holds no geometry beyond indexing and
+//! buffer layout; every kernel function has a CPU twin of the same name in [`crate::model`].
 //!
-//! Version-sensitive wgpu calls live in [`context`].
+//! - [`context`]: adapter choice, device, read-back (all version-sensitive wgpu calls);
+//! - [`shaders`]: composition of the WGSL sources per kernel and precision;
+//! - [`layout`]: host packing of the kernels' uniform;
+//! - [`engine`]: chunked batches, buffer reuse, f32/f64 conversion.
 
-pub mod backproject;
 pub mod context;
+pub mod engine;
 pub mod layout;
 pub mod shaders;
 
-pub use backproject::GpuBackproject;
 pub use context::{AdapterSummary, GpuContext, GpuError, adapters};
+pub use engine::GpuEngine;
+pub use shaders::{Kernel, Precision, Reduction};

@@ -1,7 +1,161 @@
-//! WGSL sources, composed at build time: `shaders/common.wgsl` in front of each kernel file.
+//! WGSL sources and their composition. A kernel module is: a precision prelude (generated here
+//! from the crate's constants, so the CPU and GPU stop at the same bounds), `shaders/common.wgsl`,
+//! the relations in `shaders/lib/`, and one kernel from `shaders/kernels/` (plus, for costs, a
+//! reduction entry point from `shaders/reduce/`).
 
-/// Back-projection kernel (f32), composed.
-pub const BACKPROJECT: &str = concat!(include_str!("../../shaders/common.wgsl"), include_str!("../../shaders/backproject.wgsl"));
+use crate::model::camera::UNDISTORT_MAX_ITERATIONS;
+use crate::model::refractive_camera::{PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE};
+use crate::model::stereo::{MIN_BINOCULAR_CONDITIONING, MIN_RAY_ANGLE_SIN2};
 
-/// Every composed kernel with its name, for validation.
-pub const ALL: &[(&str, &str)] = &[("backproject", BACKPROJECT)];
+/// Floating-point type of a kernel's arithmetic and buffers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Precision {
+    /// 32-bit: every adapter, fastest.
+    F32,
+    /// 64-bit: adapters with SHADER_F64 (lavapipe has it); agrees with the CPU to ~1e-12.
+    F64,
+}
+
+impl Precision {
+    /// Bytes per value.
+    pub fn size(self) -> usize {
+        match self {
+            Self::F32 => 4,
+            Self::F64 => 8,
+        }
+    }
+
+    /// `f32` or `f64`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::F32 => "f32",
+            Self::F64 => "f64",
+        }
+    }
+}
+
+impl std::fmt::Display for Precision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// How a cost kernel sums its terms within a workgroup.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Reduction {
+    /// Tree in workgroup memory: every adapter.
+    Workgroup,
+    /// `subgroupAdd`, then workgroup memory across subgroups: adapters with SUBGROUP.
+    Subgroup,
+}
+
+/// One compute kernel (entry point `main`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Kernel {
+    /// u,v → ray in the water.
+    Backproject,
+    /// Every pixel of an image → ray in the water, pixels generated in the shader.
+    BackprojectGrid,
+    /// x,y,z → u,v.
+    Project,
+    /// x,y,z → depth, VOP distance, VOP, tan a.
+    Vop,
+    /// ul,vl,ur,vr → x,y,z, residual.
+    Triangulate,
+    /// ul,vl,ur,vr → both VOPs, axis offset, conditioning.
+    BinocularVop,
+    /// Candidate interfaces × air-ray pairs → Σ triangulation residual², reduced per workgroup.
+    RayGapCost,
+}
+
+impl Kernel {
+    /// Every kernel.
+    pub const ALL: [Kernel; 7] = [
+        Self::Backproject,
+        Self::BackprojectGrid,
+        Self::Project,
+        Self::Vop,
+        Self::Triangulate,
+        Self::BinocularVop,
+        Self::RayGapCost,
+    ];
+
+    /// Name (file name in `shaders/kernels/`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Backproject => "backproject",
+            Self::BackprojectGrid => "backproject_grid",
+            Self::Project => "project",
+            Self::Vop => "vop",
+            Self::Triangulate => "triangulate",
+            Self::BinocularVop => "binocular_vop",
+            Self::RayGapCost => "ray_gap_cost",
+        }
+    }
+
+    fn file(self) -> &'static str {
+        match self {
+            Self::Backproject => include_str!("../../shaders/kernels/backproject.wgsl"),
+            Self::BackprojectGrid => include_str!("../../shaders/kernels/backproject_grid.wgsl"),
+            Self::Project => include_str!("../../shaders/kernels/project.wgsl"),
+            Self::Vop => include_str!("../../shaders/kernels/vop.wgsl"),
+            Self::Triangulate => include_str!("../../shaders/kernels/triangulate.wgsl"),
+            Self::BinocularVop => include_str!("../../shaders/kernels/binocular_vop.wgsl"),
+            Self::RayGapCost => include_str!("../../shaders/kernels/ray_gap_cost.wgsl"),
+        }
+    }
+
+    /// True for kernels whose entry point is a reduction.
+    pub fn is_cost(self) -> bool {
+        matches!(self, Self::RayGapCost)
+    }
+}
+
+const COMMON: &str = include_str!("../../shaders/common.wgsl");
+/// The relation files, in dependency order.
+const LIBRARY: [&str; 5] = [
+    include_str!("../../shaders/lib/lens.wgsl"),
+    include_str!("../../shaders/lib/lambda.wgsl"),
+    include_str!("../../shaders/lib/ray.wgsl"),
+    include_str!("../../shaders/lib/air_path.wgsl"),
+    include_str!("../../shaders/lib/stereo.wgsl"),
+];
+
+/// The precision prelude: type aliases and the stopping rules of the CPU path. f32 kernels stop
+/// at tolerances a few ulps above f32 rounding instead of the CPU's f64 ones. (Naga 30 takes
+/// subgroup operations without WGSL's `enable subgroups;`, which it does not parse yet.)
+pub fn prelude(precision: Precision) -> String {
+    let (undistort_tolerance, project_tolerance, huge) = match precision {
+        Precision::F32 => (4e-7, 2.5e-7, 1e30),
+        Precision::F64 => (1e-14, PROJECT_TOLERANCE, 1e300),
+    };
+    let real = precision.name();
+    format!(
+        "alias real = {real};\nalias vec2r = vec2<{real}>;\nalias vec3r = vec3<{real}>;\nalias vec4r = vec4<{real}>;\n\
+         const REAL_HUGE: real = {huge:e};\n\
+         const UNDISTORT_TOLERANCE: real = {undistort_tolerance:e};\n\
+         const UNDISTORT_MAX_ITERATIONS: u32 = {UNDISTORT_MAX_ITERATIONS}u;\n\
+         const PROJECT_TOLERANCE: real = {project_tolerance:e};\n\
+         const PROJECT_MAX_ITERATIONS: u32 = {PROJECT_MAX_ITERATIONS}u;\n\
+         const MIN_RAY_ANGLE_SIN2: real = {MIN_RAY_ANGLE_SIN2:e};\n\
+         const MIN_BINOCULAR_CONDITIONING: real = {MIN_BINOCULAR_CONDITIONING:e};\n"
+    )
+}
+
+/// The composed WGSL module of `kernel` at `precision`; `reduction` picks the entry point of cost
+/// kernels (ignored by the others).
+pub fn source(kernel: Kernel, precision: Precision, reduction: Reduction) -> String {
+    let reduction = if kernel.is_cost() { reduction } else { Reduction::Workgroup };
+    let mut text = prelude(precision);
+    for part in [COMMON].into_iter().chain(LIBRARY).chain([kernel.file()]) {
+        text.push_str(part);
+        text.push('\n');
+    }
+    if kernel.is_cost() {
+        text.push_str(match reduction {
+            Reduction::Workgroup => include_str!("../../shaders/reduce/workgroup.wgsl"),
+            Reduction::Subgroup => include_str!("../../shaders/reduce/subgroup.wgsl"),
+        });
+    }
+    text
+}

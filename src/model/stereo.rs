@@ -83,7 +83,9 @@ pub fn triangulate_rays(a: &Ray, b: &Ray) -> Result<Triangulation, NoSolution> {
     let (da, db) = (a.dir.into_inner(), b.dir.into_inner());
     let w0 = a.origin - b.origin;
     let cos = da.dot(&db);
-    let sin2 = 1.0 - cos * cos;
+    // |da × db|² rather than 1 − cos²: exact to rounding for nearly parallel rays, where 1 − cos²
+    // cancels (the f32 kernel lost 1e-3 relative there).
+    let sin2 = da.cross(&db).norm_squared();
     if !(sin2 >= MIN_RAY_ANGLE_SIN2) {
         return Err(NoSolution::Degenerate);
     }

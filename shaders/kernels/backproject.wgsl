@@ -1,0 +1,25 @@
+// Back-projection of a pixel buffer: u,v → ox,oy,oz,dx,dy,dz (ray in the water, master frame).
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> input: array<real>;        // 2 per item
+@group(0) @binding(2) var<storage, read_write> output: array<real>; // 6 per item
+@group(0) @binding(3) var<storage, read_write> status: array<u32>;
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let i = item_index(gid, groups);
+    if (i >= params.info.x) {
+        return;
+    }
+    let ray = backproject(params.a, vec2r(input[2u * i], input[2u * i + 1u]));
+    status[i] = ray.status;
+    if (ray.status == STATUS_OK) {
+        let o = 6u * i;
+        output[o] = ray.origin.x;
+        output[o + 1u] = ray.origin.y;
+        output[o + 2u] = ray.origin.z;
+        output[o + 3u] = ray.dir.x;
+        output[o + 4u] = ray.dir.y;
+        output[o + 5u] = ray.dir.z;
+    }
+}

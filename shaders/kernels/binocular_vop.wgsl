@@ -1,0 +1,39 @@
+// Binocular VOPs from the system axis alone: ul,vl,ur,vr (raw pixels in cameras a and b) →
+// left VOP xyz, right VOP xyz, axis offset m, conditioning |det|.
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> input: array<real>;        // 4 per item
+@group(0) @binding(2) var<storage, read_write> output: array<real>; // 8 per item
+@group(0) @binding(3) var<storage, read_write> status: array<u32>;
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let i = item_index(gid, groups);
+    if (i >= params.info.x) {
+        return;
+    }
+    let j = 4u * i;
+    let v_l = dir_in_air_from_img(params.a, vec2r(input[j], input[j + 1u]));
+    if (v_l.status != STATUS_OK) {
+        status[i] = v_l.status;
+        return;
+    }
+    let v_r = dir_in_air_from_img(params.b, vec2r(input[j + 2u], input[j + 3u]));
+    if (v_r.status != STATUS_OK) {
+        status[i] = v_r.status;
+        return;
+    }
+    let b = binocular_vop(params.a.centre.xyz, v_l.dir, params.b.centre.xyz, v_r.dir, params.a.normal.xyz);
+    status[i] = b.status;
+    if (b.status == STATUS_OK) {
+        let o = 8u * i;
+        output[o] = b.vop_left.x;
+        output[o + 1u] = b.vop_left.y;
+        output[o + 2u] = b.vop_left.z;
+        output[o + 3u] = b.vop_right.x;
+        output[o + 4u] = b.vop_right.y;
+        output[o + 5u] = b.vop_right.z;
+        output[o + 6u] = b.axis_offset;
+        output[o + 7u] = b.conditioning;
+    }
+}

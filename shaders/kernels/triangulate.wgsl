@@ -1,0 +1,33 @@
+// Refractive triangulation: ul,vl,ur,vr (raw pixels in cameras a and b) → x,y,z,residual.
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> input: array<real>;        // 4 per item
+@group(0) @binding(2) var<storage, read_write> output: array<real>; // 4 per item
+@group(0) @binding(3) var<storage, read_write> status: array<u32>;
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let i = item_index(gid, groups);
+    if (i >= params.info.x) {
+        return;
+    }
+    let j = 4u * i;
+    let ray_a = backproject(params.a, vec2r(input[j], input[j + 1u]));
+    if (ray_a.status != STATUS_OK) {
+        status[i] = ray_a.status;
+        return;
+    }
+    let ray_b = backproject(params.b, vec2r(input[j + 2u], input[j + 3u]));
+    if (ray_b.status != STATUS_OK) {
+        status[i] = ray_b.status;
+        return;
+    }
+    let t = triangulate_rays(ray_a, ray_b);
+    status[i] = t.status;
+    if (t.status == STATUS_OK) {
+        output[j] = t.point.x;
+        output[j + 1u] = t.point.y;
+        output[j + 2u] = t.point.z;
+        output[j + 3u] = t.residual;
+    }
+}

@@ -1,0 +1,239 @@
+// Forward projection: how light from a point in the water reaches the camera, the pixel it lands
+// on, and the point's VOP. Twin of `RefractiveCamera::{air_path_to, project, vop}`
+// (src/model/refractive_camera.rs): the same equation, reference-medium switching, bracket,
+// bisection fallback and stopping rules, with the precision's tolerance.
+//
+// f(v) = Σₘ Lₘ T(v; kₘ) − r, T(v; k) = k v / √(1 + (1 − k²) v²), v = tan θ in the reference
+// medium, kₘ = ρ_ref / ρₘ, over the media m = air (d_k), water (depth), layers (tᵢ).
+
+const MAX_MEDIA: u32 = 10u; // air, water, MAX_LAYERS layers
+
+// The media a path crosses as (length along the axis, ρ = μ/μ_air).
+struct Media {
+    m: array<vec2r, 10>,
+    count: u32,
+}
+
+fn media_of(cam: Camera, depth: real) -> Media {
+    var media: Media;
+    media.m[0] = vec2r(cam.extra.w, 1.0);
+    media.m[1] = vec2r(depth, cam.extra.z);
+    let layers = min(cam.counts.x, MAX_LAYERS);
+    for (var l = 0u; l < layers; l++) {
+        media.m[l + 2u] = cam.layers[l].xy;
+    }
+    media.count = layers + 2u;
+    return media;
+}
+
+// f, f′ in the variable of the reference medium of index rho_ref, and the medium whose term
+// contributes most to f′ as (length, ρ).
+struct Equation {
+    f: real,
+    df: real,
+    dominant: vec2r,
+}
+
+fn incidence_equation(media: ptr<function, Media>, v: real, rho_ref: real, r: real) -> Equation {
+    let v2 = v * v;
+    var f = -r;
+    var df: real = 0.0;
+    var dominant = vec2r(0.0, 1.0);
+    var dominant_slope: real = 0.0;
+    for (var i = 0u; i < (*media).count; i++) {
+        let medium = (*media).m[i];
+        let k = rho_ref / medium.y;
+        let inv_sqrt = 1.0 / sqrt(1.0 + (1.0 - k * k) * v2);
+        let lk = medium.x * k * inv_sqrt;
+        let slope = lk * inv_sqrt * inv_sqrt;
+        f += lk * v;
+        df += slope;
+        if (slope > dominant_slope) {
+            dominant = medium;
+            dominant_slope = slope;
+        }
+    }
+    return Equation(f, df, dominant);
+}
+
+// Upper end of the bracket in the variable of the reference medium: f(r / L_ref) ≥ 0, and light
+// must enter every medium (v < 1/√(k² − 1) where k > 1).
+fn bracket_top(media: ptr<function, Media>, r: real, reference: vec2r) -> real {
+    var hi = r / reference.x;
+    for (var i = 0u; i < (*media).count; i++) {
+        let k = reference.y / (*media).m[i].y;
+        if (k > 1.0) {
+            hi = min(hi, 1.0 / sqrt(k * k - 1.0));
+        }
+    }
+    return hi;
+}
+
+// T(x; k): the tangent in another medium; REAL_HUGE past its critical angle.
+fn map_tangent(x: real, k: real) -> real {
+    let q = 1.0 + (1.0 - k * k) * x * x;
+    if (q > 0.0) {
+        return k * x / sqrt(q);
+    }
+    return REAL_HUGE;
+}
+
+// The iteration state: v, bracket [lo, hi], f′ and the reference medium (length, ρ).
+struct Newton {
+    v: real,
+    lo: real,
+    hi: real,
+    df: real,
+    reference: vec2r,
+}
+
+// Moves the iteration to the angle of medium `to`: v and the bracket map through T(·; ρ_ref/ρ_to),
+// f′ is divided by T′, and the mapped top is capped by `to`'s own bound.
+fn reparametrise(media: ptr<function, Media>, s: Newton, to: vec2r, r: real) -> Newton {
+    let k = s.reference.y / to.y;
+    let q = 1.0 + (1.0 - k * k) * s.v * s.v;
+    let df = s.df / (k / (q * sqrt(q)));
+    let hi = min(map_tangent(s.hi, k), bracket_top(media, r, to));
+    return Newton(map_tangent(s.v, k), map_tangent(s.lo, k), hi, df, to);
+}
+
+// tan a from the tangent v in the reference medium of index rho_ref.
+fn tan_incidence_from(v: real, rho_ref: real) -> real {
+    return rho_ref * v / sqrt(1.0 + (1.0 - rho_ref * rho_ref) * v * v);
+}
+
+// tan a of the path to a point at `depth` and lateral distance r > 0; `ok` false if the
+// iteration bound is hit.
+fn solve_tan_incidence(cam: Camera, depth: real, r: real) -> Maybe {
+    var media = media_of(cam, depth);
+    // Start in the medium with the largest paraxial weight L/ρ, from the paraxial root.
+    var reference = vec2r(cam.extra.w, 1.0);
+    var paraxial_slope: real = 0.0;
+    var slowest = vec2r(0.0, REAL_HUGE);
+    for (var i = 0u; i < media.count; i++) {
+        let medium = media.m[i];
+        paraxial_slope += medium.x / medium.y;
+        if (medium.x / medium.y > reference.x / reference.y) {
+            reference = medium;
+        }
+        if (medium.y < slowest.y) {
+            slowest = medium;
+        }
+    }
+    var s = Newton(r / (paraxial_slope * reference.y), 0.0, 0.0, 0.0, reference);
+    s.hi = bracket_top(&media, r, reference);
+    if (!(s.v > s.lo && s.v < s.hi)) {
+        s.v = 0.5 * (s.lo + s.hi);
+    }
+    for (var iteration = 1u; iteration <= PROJECT_MAX_ITERATIONS; iteration++) {
+        let e = incidence_equation(&media, s.v, s.reference.y, r);
+        if (e.f < 0.0) {
+            s.lo = s.v;
+        } else if (e.f > 0.0) {
+            s.hi = s.v;
+        } else {
+            return Maybe(tan_incidence_from(s.v, s.reference.y), true);
+        }
+        s.df = e.df;
+        if (e.dominant.y != s.reference.y) {
+            s = reparametrise(&media, s, e.dominant, r);
+        }
+        var step = e.f / s.df;
+        if (s.v - step >= s.hi && slowest.y != s.reference.y) {
+            // The step leaves through the slowest medium's critical angle: continue in its angle.
+            s = reparametrise(&media, s, slowest, r);
+            step = e.f / s.df;
+        }
+        if (abs(step) <= PROJECT_TOLERANCE * s.v) {
+            return Maybe(tan_incidence_from(s.v - step, s.reference.y), true);
+        }
+        var next = s.v - step;
+        if (!(next > s.lo && next < s.hi)) {
+            next = 0.5 * (s.lo + s.hi);
+        }
+        if (s.hi - s.lo <= PROJECT_TOLERANCE * s.hi) {
+            return Maybe(tan_incidence_from(next, s.reference.y), true);
+        }
+        s.v = next;
+    }
+    return Maybe(0.0, false);
+}
+
+struct AirPath {
+    dir: vec3r,   // unit air ray from the camera centre, master frame
+    tan_a: real,  // tan a
+    depth: real,  // x
+    r: real,      // distance from the line C_k + s·n
+    status: u32,
+}
+
+fn air_path_to(cam: Camera, point: vec3r) -> AirPath {
+    let n = cam.normal.xyz;
+    let offset = point - cam.centre.xyz;
+    let z = dot(n, offset);
+    let depth = z - cam.extra.w - cam.centre.w;
+    if (!(depth > 0.0)) {
+        return AirPath(vec3r(0.0), 0.0, depth, 0.0, STATUS_NOT_IN_WATER);
+    }
+    let lateral = offset - n * z;
+    let r = length(lateral);
+    if (r == 0.0) {
+        return AirPath(n, 0.0, depth, 0.0, STATUS_OK);
+    }
+    let tau = solve_tan_incidence(cam, depth, r);
+    if (!tau.ok) {
+        return AirPath(vec3r(0.0), 0.0, depth, r, STATUS_NO_CONVERGENCE);
+    }
+    let dir = (n + lateral * (tau.value / r)) / sqrt(1.0 + tau.value * tau.value);
+    return AirPath(dir, tau.value, depth, r, STATUS_OK);
+}
+
+struct Pixel {
+    pixel: vec2r,
+    status: u32,
+}
+
+// Forward projection: the raw pixel at which a point in the water appears.
+fn project(cam: Camera, point: vec3r) -> Pixel {
+    let path = air_path_to(cam, point);
+    if (path.status != STATUS_OK) {
+        return Pixel(vec2r(0.0), path.status);
+    }
+    let d = cam_from_master(cam, path.dir);
+    if (!(d.z > 0.0)) {
+        return Pixel(vec2r(0.0), STATUS_BEHIND_CAMERA);
+    }
+    let normalized = d.xy / d.z;
+    if (!(dot(normalized, normalized) < cam.extra.y)) {
+        return Pixel(vec2r(0.0), STATUS_OUTSIDE_LENS);
+    }
+    return Pixel(img_from_normalized(cam, normalized), STATUS_OK);
+}
+
+struct VirtualPoint {
+    depth: real,
+    vop_distance: real,
+    vop: vec3r,
+    tan_a: real,
+    status: u32,
+}
+
+// The VOP: x̌ = r / tan a − d_k − Σ tᵢ (eq 4.8 on the camera's axis line, r = 0), Ǒ = O + (x̌ − x)·n.
+fn vop(cam: Camera, point: vec3r) -> VirtualPoint {
+    let path = air_path_to(cam, point);
+    if (path.status != STATUS_OK) {
+        return VirtualPoint(path.depth, 0.0, vec3r(0.0), 0.0, path.status);
+    }
+    var vop_distance: real = 0.0;
+    if (path.tan_a > 0.0) {
+        vop_distance = path.r / path.tan_a - cam.extra.w - cam.centre.w;
+    } else {
+        let axial = virtual_from_real(cam, path.depth, 0.0, 1.0);
+        if (!axial.ok) {
+            return VirtualPoint(path.depth, 0.0, vec3r(0.0), 0.0, STATUS_TOTAL_INTERNAL_REFLECTION);
+        }
+        vop_distance = axial.value;
+    }
+    let v = point + cam.normal.xyz * (vop_distance - path.depth);
+    return VirtualPoint(path.depth, vop_distance, v, path.tan_a, STATUS_OK);
+}

@@ -1,0 +1,184 @@
+//! One batch API over two backends: [`cpu`] (the f64 reference of [`crate::model`], parallel
+//! over all cores) and [`gpu`](crate::gpu) (WGSL kernels through wgpu, f32 or f64).
+//!
+//! Every call takes input rows as f64 slices and writes into caller-provided output slices of
+//! the same length, so a pipeline embeds it without copies. `status[i]` is 0 where row i has an
+//! answer, otherwise the [`NoSolution`](crate::model::NoSolution) code, and the output row is NaN.
+//!
+//! ```no_run
+//! use flatport::engine::{Device, Engine, EngineOptions};
+//! # let rig: flatport::model::Rig = unimplemented!();
+//! let engine = Engine::new(&EngineOptions { device: Device::Auto, ..Default::default() })?;
+//! eprintln!("device: {}", engine.describe());
+//! let camera = rig.refractive_camera(0);
+//! let pixels = vec![[640.0, 512.0], [10.0, 20.0]];
+//! let mut rays = vec![[0.0; 6]; pixels.len()];
+//! let mut status = vec![0; pixels.len()];
+//! engine.backproject(&camera, &pixels, &mut rays, &mut status)?;
+//! # Ok::<(), flatport::engine::EngineError>(())
+//! ```
+
+pub mod cpu;
+
+pub use cpu::CpuEngine;
+
+use crate::gpu::{GpuContext, GpuEngine, GpuError, Precision};
+use crate::model::{RefractiveCamera, Rig};
+
+/// Where a batch runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Device {
+    /// The f64 reference on the CPU.
+    Cpu,
+    /// A Vulkan adapter (a GPU, or lavapipe when that is all there is).
+    Gpu,
+    /// A hardware GPU adapter if there is one, otherwise the CPU.
+    #[default]
+    Auto,
+}
+
+/// How to build an [`Engine`].
+#[derive(Debug, Clone, Default)]
+pub struct EngineOptions {
+    /// Backend choice.
+    pub device: Device,
+    /// Kernel precision on the GPU (default f32). The CPU is always f64.
+    pub precision: Option<Precision>,
+    /// Part of the adapter's name (else `FLATPORT_ADAPTER`, else the first hardware GPU, else lavapipe).
+    pub adapter: Option<String>,
+    /// CPU threads (default: all cores).
+    pub threads: Option<usize>,
+}
+
+/// Why an engine could not be built or a batch could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum EngineError {
+    /// A GPU failure (no adapter, device lost, unsupported input).
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    /// Options that contradict each other.
+    #[error("{0}")]
+    Options(String),
+}
+
+/// The backend that runs batches.
+pub enum Engine {
+    /// The f64 reference.
+    Cpu(CpuEngine),
+    /// The WGSL kernels.
+    Gpu(GpuEngine),
+}
+
+impl Engine {
+    /// Builds the backend `options` ask for. `Device::Auto` takes a hardware GPU adapter when the
+    /// machine has one (never lavapipe, which runs on the same cores as the CPU path) and falls
+    /// back to the CPU otherwise.
+    pub fn new(options: &EngineOptions) -> Result<Self, EngineError> {
+        let precision = options.precision.unwrap_or(Precision::F32);
+        match options.device {
+            Device::Cpu => {
+                if options.precision == Some(Precision::F32) {
+                    return Err(EngineError::Options("the CPU path is f64 only: drop --precision f32 or use --device gpu".into()));
+                }
+                Ok(Self::Cpu(CpuEngine::new(options.threads)))
+            }
+            Device::Gpu => Ok(Self::Gpu(GpuEngine::new(GpuContext::new(options.adapter.as_deref())?, precision)?)),
+            Device::Auto => {
+                let hardware = crate::gpu::adapters().into_iter().any(|a| a.device_type != "Cpu");
+                if hardware || options.adapter.is_some() {
+                    if let Ok(context) = GpuContext::new(options.adapter.as_deref()) {
+                        if let Ok(gpu) = GpuEngine::new(context, precision) {
+                            return Ok(Self::Gpu(gpu));
+                        }
+                    }
+                }
+                Ok(Self::Cpu(CpuEngine::new(options.threads)))
+            }
+        }
+    }
+
+    /// One line saying what runs: `cpu (f64 reference, 16 threads)` or
+    /// `gpu: NVIDIA H100 (Vulkan, NVIDIA 550.54), f32`.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Cpu(cpu) => format!("cpu (f64 reference, {} threads)", cpu.threads()),
+            Self::Gpu(gpu) => {
+                let a = gpu.context().adapter();
+                format!("gpu: {} ({}, {}), {}", a.name, a.backend, a.driver, gpu.precision())
+            }
+        }
+    }
+
+    /// Back-projects raw pixels (u, v) of `camera` to rays in the water: origin xyz on the outer
+    /// interface and unit direction xyz, master frame.
+    ///
+    /// Panics if the slices differ in length.
+    pub fn backproject(&self, camera: &RefractiveCamera, pixels: &[[f64; 2]], rays: &mut [[f64; 6]], status: &mut [u32]) -> Result<(), EngineError> {
+        match self {
+            Self::Cpu(cpu) => Ok(cpu.backproject(camera, pixels, rays, status)),
+            Self::Gpu(gpu) => Ok(gpu.backproject(camera, pixels, rays, status)?),
+        }
+    }
+
+    /// Projects points (x, y, z, master frame) through the interface to raw pixels (u, v).
+    pub fn project(&self, camera: &RefractiveCamera, points: &[[f64; 3]], pixels: &mut [[f64; 2]], status: &mut [u32]) -> Result<(), EngineError> {
+        match self {
+            Self::Cpu(cpu) => Ok(cpu.project(camera, points, pixels, status)),
+            Self::Gpu(gpu) => Ok(gpu.project(camera, points, pixels, status)?),
+        }
+    }
+
+    /// VOPs of points: depth, vop_distance, vop_x, vop_y, vop_z, incidence (radians), as
+    /// [`RefractiveCamera::vop`].
+    pub fn vop(&self, camera: &RefractiveCamera, points: &[[f64; 3]], vops: &mut [[f64; 6]], status: &mut [u32]) -> Result<(), EngineError> {
+        match self {
+            Self::Cpu(cpu) => Ok(cpu.vop(camera, points, vops, status)),
+            Self::Gpu(gpu) => Ok(gpu.vop(camera, points, vops, status)?),
+        }
+    }
+
+    /// Triangulates matches (ul, vl, ur, vr: raw pixels in `a` and `b`): x, y, z, residual.
+    pub fn triangulate(
+        &self,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        matches: &[[f64; 4]],
+        points: &mut [[f64; 4]],
+        status: &mut [u32],
+    ) -> Result<(), EngineError> {
+        match self {
+            Self::Cpu(cpu) => Ok(cpu.triangulate(a, b, matches, points, status)),
+            Self::Gpu(gpu) => Ok(gpu.triangulate(a, b, matches, points, status)?),
+        }
+    }
+
+    /// Binocular VOPs of matches (ul, vl, ur, vr) from `a`'s system axis: left VOP xyz, right
+    /// VOP xyz, axis offset m, conditioning, as [`binocular_vop`](crate::model::binocular_vop).
+    pub fn binocular_vop(
+        &self,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        matches: &[[f64; 4]],
+        vops: &mut [[f64; 8]],
+        status: &mut [u32],
+    ) -> Result<(), EngineError> {
+        match self {
+            Self::Cpu(cpu) => Ok(cpu.binocular_vop(a, b, matches, vops, status)),
+            Self::Gpu(gpu) => Ok(gpu.binocular_vop(a, b, matches, vops, status)?),
+        }
+    }
+
+    /// The ray-gap cost of candidate interfaces for cameras `a` and `b` of `rig`. Each candidate
+    /// is (n_x, n_y, n_z, d): a system axis (normalised here) and the master's air layer, the
+    /// layers and indices staying those of the rig. For every pair of air rays (v_a xyz, v_b
+    /// xyz, master frame: [`RefractiveCamera::dir_in_air_from_img`] of a correspondence) both
+    /// water rays are formed behind the candidate and triangulated; `costs[c] = [Σ residual²,
+    /// number of pairs with an answer]`. A candidate the rig rejects (a camera outside the air)
+    /// gets `[0, 0]`.
+    pub fn ray_gap_cost(&self, rig: &Rig, a: usize, b: usize, air_rays: &[[f64; 6]], candidates: &[[f64; 4]], costs: &mut [[f64; 2]]) -> Result<(), EngineError> {
+        match self {
+            Self::Cpu(cpu) => Ok(cpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs)),
+            Self::Gpu(gpu) => Ok(gpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs)?),
+        }
+    }
+}

@@ -1,0 +1,490 @@
+//! The GPU backend: runs the kernels of [`shaders`](super::shaders) over batches of any size.
+//!
+//! Batches are cut into chunks that fit the adapter's storage-binding cap (128 MiB on lavapipe)
+//! and dispatch limits; buffers are kept and reused across chunks and calls, growing only when a
+//! larger chunk needs it. Inputs and outputs are f64 slices whatever the kernel precision: f32
+//! kernels convert on upload and read-back. Rows with no answer get their status code and NaN.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use super::context::{GpuContext, GpuError};
+use super::layout::{MAX_LAYERS, pack_params, set_info};
+use super::shaders::{Kernel, Precision, Reduction, source};
+use crate::model::{RefractiveCamera, Rig};
+
+/// Largest number of items per dispatch whatever the binding cap: bounds the device and staging
+/// memory (4 Mi items: 96 MiB of f32 rays, 192 MiB in f64 split over two chunks by the cap).
+pub const MAX_CHUNK_ITEMS: usize = 1 << 22;
+
+/// Largest workgroup count per dispatch dimension every Vulkan adapter supports.
+const MAX_GROUPS_PER_DIMENSION: usize = 65_535;
+
+/// A buffer that is replaced by a larger one when a call needs more.
+#[derive(Default)]
+struct Slot(Option<wgpu::Buffer>);
+
+impl Slot {
+    fn get(&mut self, device: &wgpu::Device, label: &str, bytes: usize, usage: wgpu::BufferUsages) -> &wgpu::Buffer {
+        let bytes = (bytes.max(16) as u64).next_multiple_of(16);
+        if self.0.as_ref().is_none_or(|b| b.size() < bytes) {
+            self.0 = Some(device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: bytes, usage, mapped_at_creation: false }));
+        }
+        self.0.as_ref().expect("just set")
+    }
+}
+
+/// Device and staging buffers, reused across chunks and calls.
+#[derive(Default)]
+struct Buffers {
+    uniform: Slot,
+    input: Slot,
+    candidates: Slot,
+    output: Slot,
+    status: Slot,
+    output_staging: Slot,
+    status_staging: Slot,
+    /// Host bytes of an f32 chunk before upload.
+    scratch: Vec<u8>,
+}
+
+/// The GPU backend on one adapter at one precision.
+pub struct GpuEngine {
+    context: GpuContext,
+    precision: Precision,
+    reduction: Reduction,
+    pipelines: Mutex<HashMap<Kernel, Arc<wgpu::ComputePipeline>>>,
+    buffers: Mutex<Buffers>,
+}
+
+/// Bytes of `values` in `precision`, appended to `bytes`.
+fn extend_reals(bytes: &mut Vec<u8>, precision: Precision, values: &[f64]) {
+    match precision {
+        Precision::F64 => bytes.extend_from_slice(bytemuck::cast_slice(values)),
+        Precision::F32 => bytes.extend(values.iter().flat_map(|&v| (v as f32).to_le_bytes())),
+    }
+}
+
+/// Reads value `k` of mapped real data.
+#[inline]
+fn real_at(bytes: &[u8], precision: Precision, k: usize) -> f64 {
+    match precision {
+        Precision::F64 => f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().expect("8 bytes")),
+        Precision::F32 => f32::from_le_bytes(bytes[4 * k..4 * k + 4].try_into().expect("4 bytes")) as f64,
+    }
+}
+
+/// Copies mapped rows into `output` where `status` is 0, NaN elsewhere.
+fn rows_from<const M: usize>(bytes: &[u8], precision: Precision, status: &[u32], output: &mut [[f64; M]]) {
+    match precision {
+        Precision::F64 => {
+            let values: &[f64] = bytemuck::cast_slice(&bytes[..output.len() * M * 8]);
+            for ((row, chunk), s) in output.iter_mut().zip(values.chunks_exact(M)).zip(status) {
+                *row = if *s == 0 { chunk.try_into().expect("M values") } else { [f64::NAN; M] };
+            }
+        }
+        Precision::F32 => {
+            let values: &[f32] = bytemuck::cast_slice(&bytes[..output.len() * M * 4]);
+            for ((row, chunk), s) in output.iter_mut().zip(values.chunks_exact(M)).zip(status) {
+                *row = if *s == 0 { std::array::from_fn(|k| chunk[k] as f64) } else { [f64::NAN; M] };
+            }
+        }
+    }
+}
+
+impl GpuEngine {
+    /// The backend on `context` at `precision`, with the subgroup reduction where the adapter has
+    /// SUBGROUP. Errors when f64 is asked of an adapter without SHADER_F64.
+    pub fn new(context: GpuContext, precision: Precision) -> Result<Self, GpuError> {
+        if precision == Precision::F64 && !context.adapter().f64 {
+            return Err(GpuError::Unsupported(format!(
+                "adapter '{}' has no SHADER_F64: use --precision f32 or the CPU",
+                context.adapter().name
+            )));
+        }
+        let reduction = if context.adapter().subgroup { Reduction::Subgroup } else { Reduction::Workgroup };
+        Ok(Self { context, precision, reduction, pipelines: Mutex::default(), buffers: Mutex::default() })
+    }
+
+    /// The context (adapter, device).
+    pub fn context(&self) -> &GpuContext {
+        &self.context
+    }
+
+    /// The kernels' precision.
+    pub fn precision(&self) -> Precision {
+        self.precision
+    }
+
+    /// The reduction cost kernels use.
+    pub fn reduction(&self) -> Reduction {
+        self.reduction
+    }
+
+    /// Chooses the reduction of cost kernels (the portable one always works; the subgroup one
+    /// needs SUBGROUP). For tests and benchmarks.
+    pub fn set_reduction(&mut self, reduction: Reduction) -> Result<(), GpuError> {
+        if reduction == Reduction::Subgroup && !self.context.adapter().subgroup {
+            return Err(GpuError::Unsupported(format!("adapter '{}' has no SUBGROUP", self.context.adapter().name)));
+        }
+        self.reduction = reduction;
+        self.pipelines.lock().expect("pipeline cache").remove(&Kernel::RayGapCost);
+        Ok(())
+    }
+
+    /// The compiled pipeline of `kernel`, compiled on first use.
+    fn pipeline(&self, kernel: Kernel) -> Arc<wgpu::ComputePipeline> {
+        let mut cache = self.pipelines.lock().expect("pipeline cache");
+        cache
+            .entry(kernel)
+            .or_insert_with(|| Arc::new(self.context.pipeline(kernel.name(), &source(kernel, self.precision, self.reduction))))
+            .clone()
+    }
+
+    fn buffers(&self) -> MutexGuard<'_, Buffers> {
+        self.buffers.lock().expect("buffer cache")
+    }
+
+    /// Items per chunk when each item needs at most `bytes_per_item` of one binding.
+    fn chunk_items(&self, bytes_per_item: usize) -> usize {
+        let cap = (self.context.max_storage_binding() as usize / bytes_per_item.max(1)).min(MAX_CHUNK_ITEMS);
+        (cap / 64 * 64).max(64)
+    }
+
+    fn check_layers(camera: &RefractiveCamera) -> Result<(), GpuError> {
+        if camera.layers().len() > MAX_LAYERS {
+            return Err(GpuError::Unsupported(format!(
+                "the GPU kernels take at most {MAX_LAYERS} layers, this interface has {}",
+                camera.layers().len()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Runs a kernel mapping N reals to M reals per item with cameras `a` and `b`.
+    fn run_map<const N: usize, const M: usize>(
+        &self,
+        kernel: Kernel,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        input: &[[f64; N]],
+        output: &mut [[f64; M]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
+        assert!(input.len() == output.len() && input.len() == status.len(), "input, output and status of equal length");
+        Self::check_layers(a)?;
+        Self::check_layers(b)?;
+        let s = self.precision.size();
+        let chunk = self.chunk_items(N.max(M) * s).min(input.len().max(1));
+        let pipeline = self.pipeline(kernel);
+        let device = &self.context.device;
+        let mut params = pack_params(self.precision, a, b, [0; 4]);
+        let mut guard = self.buffers();
+        let buffers = &mut *guard;
+        use wgpu::BufferUsages as U;
+        let uniform = buffers.uniform.get(device, "params", params.len(), U::UNIFORM | U::COPY_DST).clone();
+        let in_buf = buffers.input.get(device, "input", chunk * N * s, U::STORAGE | U::COPY_DST).clone();
+        let out_buf = buffers.output.get(device, "output", chunk * M * s, U::STORAGE | U::COPY_SRC).clone();
+        let status_buf = buffers.status.get(device, "status", chunk * 4, U::STORAGE | U::COPY_SRC).clone();
+        let out_staging = buffers.output_staging.get(device, "output staging", chunk * M * s, U::MAP_READ | U::COPY_DST).clone();
+        let status_staging = buffers.status_staging.get(device, "status staging", chunk * 4, U::MAP_READ | U::COPY_DST).clone();
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(kernel.name()),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: in_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: out_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: status_buf.as_entire_binding() },
+            ],
+        });
+        for start in (0..input.len()).step_by(chunk) {
+            let end = (start + chunk).min(input.len());
+            let items = end - start;
+            set_info(&mut params, self.precision, [items as u32, 0, 0, 0]);
+            self.context.queue.write_buffer(&uniform, 0, &params);
+            let values: &[f64] = bytemuck::cast_slice(&input[start..end]);
+            match self.precision {
+                Precision::F64 => self.context.queue.write_buffer(&in_buf, 0, bytemuck::cast_slice(values)),
+                Precision::F32 => {
+                    buffers.scratch.clear();
+                    extend_reals(&mut buffers.scratch, self.precision, values);
+                    self.context.queue.write_buffer(&in_buf, 0, &buffers.scratch);
+                }
+            }
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(kernel.name()) });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(kernel.name()), timestamp_writes: None });
+                pass.set_pipeline(&pipeline);
+                pass.set_bind_group(0, &bind_group, &[]);
+                let (x, y) = self.context.dispatch_size(items as u32);
+                pass.dispatch_workgroups(x, y, 1);
+            }
+            let copies = [(&out_buf, &out_staging, (items * M * s) as u64), (&status_buf, &status_staging, (items * 4) as u64)];
+            let (out_rows, out_status) = (&mut output[start..end], &mut status[start..end]);
+            self.context.read_back(encoder, &copies, |data| {
+                out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
+                rows_from(data[0], self.precision, out_status, out_rows);
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Seconds per dispatch of `kernel` over `input` (one chunk at most), the data already on the
+    /// device: the kernel-only time, without upload or read-back. Runs `repeats` dispatches after
+    /// one warm-up and returns the fastest.
+    pub fn kernel_seconds<const N: usize, const M: usize>(
+        &self,
+        kernel: Kernel,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        input: &[[f64; N]],
+        repeats: usize,
+    ) -> Result<f64, GpuError> {
+        let mut output = vec![[0.0; M]; input.len()];
+        let mut status = vec![0; input.len()];
+        let chunk = self.chunk_items(N.max(M) * self.precision.size());
+        assert!(input.len() <= chunk, "kernel_seconds takes one chunk ({chunk} items) at most");
+        // Uploads the data and leaves it resident in the reused buffers.
+        self.run_map(kernel, a, b, input, &mut output, &mut status)?;
+        let pipeline = self.pipeline(kernel);
+        let buffers = self.buffers();
+        let device = &self.context.device;
+        let entries: Vec<wgpu::BindGroupEntry> = [&buffers.uniform, &buffers.input, &buffers.output, &buffers.status]
+            .iter()
+            .enumerate()
+            .map(|(k, slot)| wgpu::BindGroupEntry { binding: k as u32, resource: slot.0.as_ref().expect("allocated").as_entire_binding() })
+            .collect();
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(kernel.name()),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        });
+        let mut best = f64::INFINITY;
+        for _ in 0..=repeats {
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(kernel.name()) });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(kernel.name()), timestamp_writes: None });
+                pass.set_pipeline(&pipeline);
+                pass.set_bind_group(0, &bind_group, &[]);
+                let (x, y) = self.context.dispatch_size(input.len() as u32);
+                pass.dispatch_workgroups(x, y, 1);
+            }
+            let started = std::time::Instant::now();
+            self.context.queue.submit([encoder.finish()]);
+            self.context.wait()?;
+            best = best.min(started.elapsed().as_secs_f64());
+        }
+        Ok(best)
+    }
+
+    /// Back-projects raw pixels of `camera` into `rays` (origin xyz on the outer interface, unit
+    /// direction xyz, master frame). `status[i]` is 0 or the [`NoSolution`](crate::model::NoSolution)
+    /// code, and the row NaN, exactly where the CPU path has no answer (up to rounding at the
+    /// boundaries in f32).
+    ///
+    /// Panics if the slices differ in length.
+    pub fn backproject(&self, camera: &RefractiveCamera, pixels: &[[f64; 2]], rays: &mut [[f64; 6]], status: &mut [u32]) -> Result<(), GpuError> {
+        self.run_map(Kernel::Backproject, camera, camera, pixels, rays, status)
+    }
+
+    /// Forward projection of points (master frame) to raw pixels; status as in
+    /// [`backproject`](Self::backproject).
+    pub fn project(&self, camera: &RefractiveCamera, points: &[[f64; 3]], pixels: &mut [[f64; 2]], status: &mut [u32]) -> Result<(), GpuError> {
+        self.run_map(Kernel::Project, camera, camera, points, pixels, status)
+    }
+
+    /// VOPs of points: depth, vop_distance, vop xyz, incidence (radians), as
+    /// [`RefractiveCamera::vop`].
+    pub fn vop(&self, camera: &RefractiveCamera, points: &[[f64; 3]], vops: &mut [[f64; 6]], status: &mut [u32]) -> Result<(), GpuError> {
+        self.run_map(Kernel::Vop, camera, camera, points, vops, status)?;
+        // The kernel returns tan a: WGSL has no f64 arctangent.
+        for row in vops.iter_mut() {
+            row[5] = row[5].atan();
+        }
+        Ok(())
+    }
+
+    /// Triangulates matches (ul, vl, ur, vr: raw pixels in `a` and `b`) into x, y, z, residual.
+    pub fn triangulate(
+        &self,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        matches: &[[f64; 4]],
+        points: &mut [[f64; 4]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
+        self.run_map(Kernel::Triangulate, a, b, matches, points, status)
+    }
+
+    /// Binocular VOPs of matches (ul, vl, ur, vr): left VOP xyz, right VOP xyz, axis offset m,
+    /// conditioning, as [`binocular_vop`](crate::model::binocular_vop) with `a`'s axis.
+    pub fn binocular_vop(
+        &self,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        matches: &[[f64; 4]],
+        vops: &mut [[f64; 8]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
+        self.run_map(Kernel::BinocularVop, a, b, matches, vops, status)
+    }
+
+    /// Back-projects every pixel (u, v) = (column, row) of a `width` × `height` image, pixels
+    /// generated in the shader; `rays` and `status` are row-major, `width · height` long.
+    pub fn backproject_grid(
+        &self,
+        camera: &RefractiveCamera,
+        width: u32,
+        height: u32,
+        rays: &mut [[f64; 6]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
+        let (w, h) = (width as usize, height as usize);
+        assert!(rays.len() == w * h && status.len() == w * h, "rays and status of width · height");
+        if w == 0 || h == 0 {
+            return Ok(());
+        }
+        Self::check_layers(camera)?;
+        let s = self.precision.size();
+        let rows = (self.chunk_items(6 * s) / w).clamp(1, MAX_GROUPS_PER_DIMENSION);
+        let pipeline = self.pipeline(Kernel::BackprojectGrid);
+        let device = &self.context.device;
+        let mut params = pack_params(self.precision, camera, camera, [0; 4]);
+        let mut guard = self.buffers();
+        let buffers = &mut *guard;
+        use wgpu::BufferUsages as U;
+        let uniform = buffers.uniform.get(device, "params", params.len(), U::UNIFORM | U::COPY_DST).clone();
+        let out_buf = buffers.output.get(device, "output", rows * w * 6 * s, U::STORAGE | U::COPY_SRC).clone();
+        let status_buf = buffers.status.get(device, "status", rows * w * 4, U::STORAGE | U::COPY_SRC).clone();
+        let out_staging = buffers.output_staging.get(device, "output staging", rows * w * 6 * s, U::MAP_READ | U::COPY_DST).clone();
+        let status_staging = buffers.status_staging.get(device, "status staging", rows * w * 4, U::MAP_READ | U::COPY_DST).clone();
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("backproject_grid"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: out_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: status_buf.as_entire_binding() },
+            ],
+        });
+        for first in (0..h).step_by(rows) {
+            let count = rows.min(h - first);
+            let items = count * w;
+            set_info(&mut params, self.precision, [items as u32, width, first as u32, 0]);
+            self.context.queue.write_buffer(&uniform, 0, &params);
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("backproject_grid") });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("backproject_grid"), timestamp_writes: None });
+                pass.set_pipeline(&pipeline);
+                pass.set_bind_group(0, &bind_group, &[]);
+                pass.dispatch_workgroups(width.div_ceil(64), count as u32, 1);
+            }
+            let copies = [(&out_buf, &out_staging, (items * 6 * s) as u64), (&status_buf, &status_staging, (items * 4) as u64)];
+            let range = first * w..first * w + items;
+            let (out_rows, out_status) = (&mut rays[range.clone()], &mut status[range]);
+            self.context.read_back(encoder, &copies, |data| {
+                out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
+                rows_from(data[0], self.precision, out_status, out_rows);
+            })?;
+        }
+        Ok(())
+    }
+
+    /// See [`Engine::ray_gap_cost`](crate::engine::Engine::ray_gap_cost). The terms are summed
+    /// on the device per workgroup (subgroup operations where available); the host adds the
+    /// workgroup sums.
+    pub fn ray_gap_cost(
+        &self,
+        rig: &Rig,
+        a: usize,
+        b: usize,
+        air_rays: &[[f64; 6]],
+        candidates: &[[f64; 4]],
+        costs: &mut [[f64; 2]],
+    ) -> Result<(), GpuError> {
+        assert_eq!(candidates.len(), costs.len(), "one cost per candidate");
+        let (a, b) = (&rig.refractive_camera(a), &rig.refractive_camera(b));
+        // Unit normals; a candidate the rig rejects (a camera outside the air) gets d = −1, which
+        // the kernel counts as no term, as the CPU path does.
+        let candidates: Vec<[f64; 4]> = candidates
+            .iter()
+            .map(|c| match rig.interface().with_pose(nalgebra::Vector3::new(c[0], c[1], c[2]), c[3]).and_then(|i| rig.with_interface(i)) {
+                Ok(moved) => {
+                    let n = moved.interface().normal();
+                    [n.x, n.y, n.z, c[3]]
+                }
+                Err(_) => [0.0, 0.0, 1.0, -1.0],
+            })
+            .collect();
+        Self::check_layers(a)?;
+        Self::check_layers(b)?;
+        costs.iter_mut().for_each(|c| *c = [0.0; 2]);
+        if air_rays.is_empty() || candidates.is_empty() {
+            return Ok(());
+        }
+        let s = self.precision.size();
+        let pairs_per_chunk = (self.chunk_items(6 * s)).min(64 * MAX_GROUPS_PER_DIMENSION).min(air_rays.len());
+        let groups_x = pairs_per_chunk.div_ceil(64);
+        let candidates_per_chunk = (MAX_CHUNK_ITEMS / groups_x).clamp(1, MAX_GROUPS_PER_DIMENSION).min(candidates.len());
+        let pipeline = self.pipeline(Kernel::RayGapCost);
+        let device = &self.context.device;
+        let mut params = pack_params(self.precision, a, b, [0; 4]);
+        let mut guard = self.buffers();
+        let buffers = &mut *guard;
+        use wgpu::BufferUsages as U;
+        let partial_bytes = candidates_per_chunk * groups_x * 2 * s;
+        let uniform = buffers.uniform.get(device, "params", params.len(), U::UNIFORM | U::COPY_DST).clone();
+        let in_buf = buffers.input.get(device, "input", pairs_per_chunk * 6 * s, U::STORAGE | U::COPY_DST).clone();
+        let cand_buf = buffers.candidates.get(device, "candidates", candidates_per_chunk * 4 * s, U::STORAGE | U::COPY_DST).clone();
+        let out_buf = buffers.output.get(device, "output", partial_bytes, U::STORAGE | U::COPY_SRC).clone();
+        let out_staging = buffers.output_staging.get(device, "output staging", partial_bytes, U::MAP_READ | U::COPY_DST).clone();
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("ray_gap_cost"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: in_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: out_buf.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: cand_buf.as_entire_binding() },
+            ],
+        });
+        for pair_start in (0..air_rays.len()).step_by(pairs_per_chunk) {
+            let pair_end = (pair_start + pairs_per_chunk).min(air_rays.len());
+            let pairs = pair_end - pair_start;
+            let groups = pairs.div_ceil(64);
+            set_info(&mut params, self.precision, [pairs as u32, 0, 0, 0]);
+            self.context.queue.write_buffer(&uniform, 0, &params);
+            buffers.scratch.clear();
+            extend_reals(&mut buffers.scratch, self.precision, bytemuck::cast_slice(&air_rays[pair_start..pair_end]));
+            self.context.queue.write_buffer(&in_buf, 0, &buffers.scratch);
+            for cand_start in (0..candidates.len()).step_by(candidates_per_chunk) {
+                let cand_end = (cand_start + candidates_per_chunk).min(candidates.len());
+                let count = cand_end - cand_start;
+                buffers.scratch.clear();
+                extend_reals(&mut buffers.scratch, self.precision, bytemuck::cast_slice(&candidates[cand_start..cand_end]));
+                self.context.queue.write_buffer(&cand_buf, 0, &buffers.scratch);
+                let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("ray_gap_cost") });
+                {
+                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("ray_gap_cost"), timestamp_writes: None });
+                    pass.set_pipeline(&pipeline);
+                    pass.set_bind_group(0, &bind_group, &[]);
+                    pass.dispatch_workgroups(groups as u32, count as u32, 1);
+                }
+                let copies = [(&out_buf, &out_staging, (count * groups * 2 * s) as u64)];
+                let precision = self.precision;
+                let out = &mut costs[cand_start..cand_end];
+                self.context.read_back(encoder, &copies, |data| {
+                    for (c, cost) in out.iter_mut().enumerate() {
+                        for g in 0..groups {
+                            let k = 2 * (c * groups + g);
+                            cost[0] += real_at(data[0], precision, k);
+                            cost[1] += real_at(data[0], precision, k + 1);
+                        }
+                    }
+                })?;
+            }
+        }
+        Ok(())
+    }
+}
