@@ -6,13 +6,16 @@ pub mod rig_json;
 pub mod tabular;
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 pub use error::IoError;
 pub use opencv::{OpenCvStereo, parse_opencv_stereo, read_opencv_stereo};
 pub use rig_json::{read_rig, rig_from_json_str, rig_to_json_string, write_rig};
-pub use tabular::{TableWriteSummary, read_table, read_table_from, write_table};
+pub use tabular::{
+    TableReader, TableSource, TableWriteSummary, TableWriter, read_table, read_table_from,
+    validate_table, write_table,
+};
 
 /// Writes `bytes` to `path` atomically: a temporary file in the same folder, flushed to disk, then
 /// renamed over `path`. A failed or interrupted write leaves no half-written file under `path` (an
@@ -22,18 +25,7 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
         path: path.to_path_buf(),
         source,
     };
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    // Unique per process and call, so concurrent writers never share a temporary file.
-    static COUNTER: AtomicUsize = AtomicUsize::new(0);
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let call = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let temporary = dir.join(format!(".{name}.{}.{call}.tmp", std::process::id()));
+    let temporary = temporary_path(path);
     let result = std::fs::File::create(&temporary)
         .and_then(|mut file| {
             file.write_all(bytes)?;
@@ -45,6 +37,22 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
         return Err(err(source));
     }
     Ok(())
+}
+
+/// A fresh name for a temporary file beside `path` (same folder, so a rename onto `path` is
+/// atomic): `.NAME.PID.N.tmp`, unique per process and call, so concurrent writers never share one.
+pub(crate) fn temporary_path(path: &Path) -> PathBuf {
+    static COUNTER: AtomicUsize = AtomicUsize::new(0);
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let call = COUNTER.fetch_add(1, Ordering::Relaxed);
+    dir.join(format!(".{name}.{}.{call}.tmp", std::process::id()))
 }
 
 /// Reads a whole file (`-` = standard input) into a string.

@@ -4,11 +4,23 @@
 //! Input: the header must be exactly the expected names (spaces around names and values are
 //! ignored); every data line must have one finite number per column. Output keeps input order, one
 //! row per input row, `NaN` in every column of a row without an answer.
+//!
+//! Two ways to use them, with the same parser, the same errors and the same number format:
+//! - whole tables in memory: [`read_table`], [`write_table`];
+//! - streaming in bounded memory, for inputs larger than memory: [`TableReader`] hands out rows
+//!   chunk by chunk, [`TableWriter`] takes them chunk by chunk and puts a file in place only when
+//!   [`TableWriter::finish`] succeeds, and [`validate_table`] checks a whole input without keeping
+//!   it (to report malformed input before anything reaches standard output).
 
-use std::io::Write;
-use std::path::Path;
+use std::fs::File;
+use std::io::{BufRead, BufReader, BufWriter, Read, Stdout, Write};
+use std::path::{Path, PathBuf};
 
-use super::{IoError, write_atomic};
+use super::{IoError, temporary_path};
+
+/// Buffer size of the readers and writers opened here: large enough that system calls cost
+/// nothing next to parsing and formatting.
+const BUFFER_BYTES: usize = 1 << 16;
 
 /// Reads a CSV file (`-` = standard input) whose header row must be exactly `header` (after
 /// trimming spaces around names). Returns one row of N numbers per data line, in file order.
@@ -16,112 +28,340 @@ use super::{IoError, write_atomic};
 /// Spaces around values are allowed; blank lines are skipped. Errors name the file, the 1-based
 /// line and the column: a missing or different header, a line with another number of values, a
 /// value that is not a number or not finite (NaN and infinities are not valid input).
+///
+/// This holds the whole table in memory; [`TableReader`] reads the same files chunk by chunk.
 pub fn read_table<const N: usize>(
     path: &Path,
     header: [&str; N],
 ) -> Result<Vec<[f64; N]>, IoError> {
-    if path.as_os_str() == "-" {
-        return read_table_from(std::io::stdin().lock(), path, header);
-    }
-    let file = std::fs::File::open(path).map_err(|source| IoError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    read_table_from(std::io::BufReader::new(file), path, header)
+    TableReader::open(path, header)?.read_to_end()
 }
 
 /// [`read_table`] from any reader (standard input, a byte slice in tests); `path` labels errors.
-pub fn read_table_from<R: std::io::Read, const N: usize>(
+pub fn read_table_from<R: Read, const N: usize>(
     reader: R,
     path: &Path,
     header: [&str; N],
 ) -> Result<Vec<[f64; N]>, IoError> {
-    // The tables hold numbers only, so this reads lines itself rather than through the `csv` crate,
-    // whose record positions are off after blank lines (BurntSushi/rust-csv#208).
-    let csv_error = |line: usize, column: String, reason: String| IoError::Csv {
+    TableReader::from_reader(BufReader::new(reader), path, header)?.read_to_end()
+}
+
+/// Parses a whole CSV file (`-` = standard input) as [`read_table`] does, with the same errors,
+/// keeping nothing: returns the number of data rows.
+///
+/// For a command that writes to standard output, which cannot be taken back: validating first
+/// keeps the contract that malformed input writes nothing, and the count sizes a progress report.
+/// Standard input can be read only once, so it cannot be validated and then read again.
+pub fn validate_table<const N: usize>(path: &Path, header: [&str; N]) -> Result<u64, IoError> {
+    let mut reader = TableReader::open(path, header)?;
+    while reader.next_row()?.is_some() {}
+    Ok(reader.rows_read())
+}
+
+/// The byte source of a [`TableReader`] opened by path: a buffered file or standard input.
+pub type TableSource = Box<dyn BufRead + Send>;
+
+/// Reads a CSV table chunk by chunk in bounded memory: the streaming form of [`read_table`], with
+/// the same header check, parsing and errors (file, 1-based line, column).
+///
+/// ```no_run
+/// # fn main() -> Result<(), flatport::io::IoError> {
+/// use flatport::io::TableReader;
+/// let mut points = TableReader::open("points.csv".as_ref(), ["x", "y", "z"])?;
+/// let mut chunk = Vec::new();
+/// while points.next_chunk(1 << 16, &mut chunk)? > 0 {
+///     // … process `chunk` (at most 65 536 rows) …
+/// }
+/// # Ok(()) }
+/// ```
+pub struct TableReader<const N: usize, R = TableSource> {
+    lines: Lines<R>,
+    /// Data rows returned so far.
+    rows: u64,
+    /// Labels errors (`-` for standard input).
+    path: PathBuf,
+    header: [String; N],
+    /// The header names joined by commas, for messages.
+    expected: String,
+}
+
+impl<const N: usize> TableReader<N> {
+    /// Opens a CSV file (`-` = standard input) and checks its header row, which must be exactly
+    /// `header` after trimming spaces around names (a UTF-8 byte-order mark is ignored).
+    ///
+    /// Errors: [`IoError::Read`] when the file cannot be opened or read; [`IoError::Csv`] when the
+    /// file is empty (line 1) or its header differs (its line, the first differing column by
+    /// number).
+    pub fn open(path: &Path, header: [&str; N]) -> Result<Self, IoError> {
+        let source: TableSource = if path.as_os_str() == "-" {
+            // `Stdin` rather than its lock, so the reader can move to another thread.
+            Box::new(BufReader::with_capacity(BUFFER_BYTES, std::io::stdin()))
+        } else {
+            let file = File::open(path).map_err(|source| IoError::Read {
+                path: path.to_path_buf(),
+                source,
+            })?;
+            Box::new(BufReader::with_capacity(BUFFER_BYTES, file))
+        };
+        TableReader::from_reader(source, path, header)
+    }
+}
+
+impl<const N: usize, R: BufRead> TableReader<N, R> {
+    /// [`TableReader::open`] over any buffered reader (a byte slice in tests); `path` labels
+    /// errors. Reads up to and including the header line.
+    pub fn from_reader(reader: R, path: &Path, header: [&str; N]) -> Result<Self, IoError> {
+        let mut table = TableReader {
+            lines: Lines {
+                reader,
+                buffer: Vec::new(),
+                number: 0,
+                finished: false,
+            },
+            rows: 0,
+            path: path.to_path_buf(),
+            header: header.map(str::to_owned),
+            expected: header.join(","),
+        };
+        table.check_header()?;
+        Ok(table)
+    }
+
+    /// Clears `rows` and fills it with the next data rows, at most `max_rows` of them (0 is taken
+    /// as 1), in file order. Returns how many it read: 0 only at the end of the input.
+    ///
+    /// Blank lines are skipped; every other line must hold N finite numbers. Errors:
+    /// [`IoError::Csv`] naming the file, the 1-based line of the file and the column (its header
+    /// name, or the number of the first extra value) for a line with another number of values, a
+    /// value that is not a number or not finite, or text that is not UTF-8; [`IoError::Read`] when
+    /// reading fails. After an error `rows` holds the good rows before the bad line; stop reading
+    /// there (a further call would go on after the bad line).
+    pub fn next_chunk(
+        &mut self,
+        max_rows: usize,
+        rows: &mut Vec<[f64; N]>,
+    ) -> Result<usize, IoError> {
+        rows.clear();
+        let max_rows = max_rows.max(1);
+        rows.reserve(max_rows.min(BUFFER_BYTES));
+        while rows.len() < max_rows {
+            match self.next_row()? {
+                Some(row) => rows.push(row),
+                None => break,
+            }
+        }
+        Ok(rows.len())
+    }
+
+    /// The next data row, `None` at the end of the input; the errors of
+    /// [`next_chunk`](Self::next_chunk).
+    pub fn next_row(&mut self) -> Result<Option<[f64; N]>, IoError> {
+        loop {
+            let Some((line, text)) = self.lines.next_line(&self.path, &self.header)? else {
+                return Ok(None);
+            };
+            if text.trim().is_empty() {
+                continue;
+            }
+            let row = parse_row(text, line, &self.path, &self.header, &self.expected)?;
+            self.rows += 1;
+            return Ok(Some(row));
+        }
+    }
+
+    /// Data rows returned so far.
+    pub fn rows_read(&self) -> u64 {
+        self.rows
+    }
+
+    /// 1-based number of the last line read (the header and blank lines count).
+    pub fn line(&self) -> usize {
+        self.lines.number
+    }
+
+    /// All remaining rows.
+    fn read_to_end(mut self) -> Result<Vec<[f64; N]>, IoError> {
+        let mut rows = Vec::new();
+        while let Some(row) = self.next_row()? {
+            rows.push(row);
+        }
+        Ok(rows)
+    }
+
+    /// Reads the first line that is not blank and checks it against the expected header.
+    fn check_header(&mut self) -> Result<(), IoError> {
+        let found = loop {
+            match self.lines.next_line(&self.path, &self.header)? {
+                None => {
+                    return Err(csv_error(
+                        &self.path,
+                        1,
+                        "1".into(),
+                        format!("file is empty; expected the header '{}'", self.expected),
+                    ));
+                }
+                Some((_, text)) if text.trim().is_empty() => {}
+                Some((_, text)) => {
+                    break text
+                        .trim_start_matches('\u{feff}')
+                        .split(',')
+                        .map(field)
+                        .collect::<Vec<_>>()
+                        .join(",");
+                }
+            }
+        };
+        if found == self.expected {
+            return Ok(());
+        }
+        let found: Vec<&str> = found.split(',').collect();
+        let column = (0..N.max(found.len()))
+            .find(|&i| found.get(i).copied() != self.header.get(i).map(String::as_str))
+            .unwrap_or(0)
+            + 1;
+        Err(csv_error(
+            &self.path,
+            self.lines.number,
+            column.to_string(),
+            format!(
+                "header is '{}', expected '{}'",
+                found.join(","),
+                self.expected
+            ),
+        ))
+    }
+}
+
+/// Lines of a reader, counted from 1, with `\n` or `\r\n` ends removed.
+struct Lines<R> {
+    reader: R,
+    /// The bytes of the line last read, reused for every line.
+    buffer: Vec<u8>,
+    /// 1-based number of the line last read.
+    number: usize,
+    /// The end of the input was reached.
+    finished: bool,
+}
+
+impl<R: BufRead> Lines<R> {
+    /// The next line and its number, `None` at the end; `path` and `header` label errors.
+    fn next_line(
+        &mut self,
+        path: &Path,
+        header: &[String],
+    ) -> Result<Option<(usize, &str)>, IoError> {
+        if self.finished {
+            return Ok(None);
+        }
+        self.buffer.clear();
+        let read = self
+            .reader
+            .read_until(b'\n', &mut self.buffer)
+            .map_err(|source| IoError::Read {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        if read == 0 {
+            self.finished = true;
+            return Ok(None);
+        }
+        self.number += 1;
+        let mut bytes = &self.buffer[..];
+        bytes = bytes.strip_suffix(b"\n").unwrap_or(bytes);
+        bytes = bytes.strip_suffix(b"\r").unwrap_or(bytes);
+        match std::str::from_utf8(bytes) {
+            Ok(text) => Ok(Some((self.number, text))),
+            Err(e) => {
+                let index = bytes[..e.valid_up_to()]
+                    .iter()
+                    .filter(|&&b| b == b',')
+                    .count();
+                Err(csv_error(
+                    path,
+                    self.number,
+                    column_name(header, index),
+                    "not valid UTF-8 text".into(),
+                ))
+            }
+        }
+    }
+}
+
+impl<const N: usize, R> std::fmt::Debug for TableReader<N, R> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TableReader")
+            .field("path", &self.path)
+            .field("header", &self.expected)
+            .field("line", &self.lines.number)
+            .field("rows", &self.rows)
+            .finish_non_exhaustive()
+    }
+}
+
+/// One data line (not blank) as N finite numbers; `line` and `path` label errors.
+///
+/// The tables hold numbers only, so lines are split here rather than through the `csv` crate,
+/// whose record positions are off after blank lines (BurntSushi/rust-csv#208).
+fn parse_row<const N: usize>(
+    text: &str,
+    line: usize,
+    path: &Path,
+    header: &[String; N],
+    expected: &str,
+) -> Result<[f64; N], IoError> {
+    let mut row = [0.0; N];
+    let mut count = 0;
+    for value in text.split(',').map(field) {
+        if let (Some(slot), Some(name)) = (row.get_mut(count), header.get(count)) {
+            let number: f64 = value.parse().map_err(|_| {
+                csv_error(
+                    path,
+                    line,
+                    name.clone(),
+                    format!("not a number: \"{value}\""),
+                )
+            })?;
+            if !number.is_finite() {
+                return Err(csv_error(
+                    path,
+                    line,
+                    name.clone(),
+                    format!("must be a finite number, got \"{value}\""),
+                ));
+            }
+            *slot = number;
+        }
+        count += 1;
+    }
+    if count != N {
+        // Name the first missing column, or the number of the first extra one.
+        let column = header
+            .get(count)
+            .map_or_else(|| (N + 1).to_string(), String::clone);
+        return Err(csv_error(
+            path,
+            line,
+            column,
+            format!("line has {count} values, expected {N} ({expected})"),
+        ));
+    }
+    Ok(row)
+}
+
+/// The header name of the 0-based column `index`, or its 1-based number past the header.
+fn column_name(header: &[String], index: usize) -> String {
+    header
+        .get(index)
+        .map_or_else(|| (index + 1).to_string(), String::clone)
+}
+
+fn csv_error(path: &Path, line: usize, column: String, reason: String) -> IoError {
+    IoError::Csv {
         path: path.to_path_buf(),
         line,
         column,
         reason,
-    };
-    let mut lines = Lines {
-        reader: std::io::BufReader::new(reader),
-        buffer: Vec::new(),
-        number: 0,
-        path,
-        header: &header,
-    };
-    let expected = header.join(",");
-    // The header: the first line that is not blank.
-    let found = loop {
-        match lines.next_line()? {
-            None => {
-                return Err(csv_error(
-                    1,
-                    "1".into(),
-                    format!("file is empty; expected the header '{expected}'"),
-                ));
-            }
-            Some((_, text)) if text.trim().is_empty() => {}
-            Some((_, text)) => {
-                break text
-                    .trim_start_matches('\u{feff}')
-                    .split(',')
-                    .map(field)
-                    .collect::<Vec<_>>()
-                    .join(",");
-            }
-        }
-    };
-    if found != expected {
-        let found: Vec<&str> = found.split(',').collect();
-        let column = (0..N.max(found.len()))
-            .find(|&i| found.get(i) != header.get(i))
-            .unwrap_or(0)
-            + 1;
-        return Err(csv_error(
-            lines.number,
-            column.to_string(),
-            format!("header is '{}', expected '{expected}'", found.join(",")),
-        ));
     }
-    let mut rows = Vec::new();
-    while let Some((line, text)) = lines.next_line()? {
-        if text.trim().is_empty() {
-            continue;
-        }
-        let mut row = [0.0; N];
-        let mut count = 0;
-        for value in text.split(',').map(field) {
-            if let (Some(slot), Some(name)) = (row.get_mut(count), header.get(count)) {
-                let number: f64 = value.parse().map_err(|_| {
-                    csv_error(line, name.to_string(), format!("not a number: \"{value}\""))
-                })?;
-                if !number.is_finite() {
-                    return Err(csv_error(
-                        line,
-                        name.to_string(),
-                        format!("must be a finite number, got \"{value}\""),
-                    ));
-                }
-                *slot = number;
-            }
-            count += 1;
-        }
-        if count != N {
-            // Name the first missing column, or the number of the first extra one.
-            let column = header
-                .get(count)
-                .map_or_else(|| (N + 1).to_string(), |name| name.to_string());
-            return Err(csv_error(
-                line,
-                column,
-                format!("line has {count} values, expected {N} ({expected})"),
-            ));
-        }
-        rows.push(row);
-    }
-    Ok(rows)
 }
 
 /// A value without the spaces around it and without enclosing double quotes.
@@ -132,53 +372,7 @@ fn field(text: &str) -> &str {
         .unwrap_or(text)
 }
 
-/// Lines of a reader, counted from 1, with `\n` or `\r\n` ends removed.
-struct Lines<'a, R> {
-    reader: std::io::BufReader<R>,
-    buffer: Vec<u8>,
-    /// 1-based number of the line last returned.
-    number: usize,
-    path: &'a Path,
-    header: &'a [&'a str],
-}
-
-impl<R: std::io::Read> Lines<'_, R> {
-    /// The next line and its number, `None` at the end.
-    fn next_line(&mut self) -> Result<Option<(usize, &str)>, IoError> {
-        self.buffer.clear();
-        let read = std::io::BufRead::read_until(&mut self.reader, b'\n', &mut self.buffer)
-            .map_err(|source| IoError::Read {
-                path: self.path.to_path_buf(),
-                source,
-            })?;
-        if read == 0 {
-            return Ok(None);
-        }
-        self.number += 1;
-        let mut bytes = &self.buffer[..];
-        bytes = bytes.strip_suffix(b"\n").unwrap_or(bytes);
-        bytes = bytes.strip_suffix(b"\r").unwrap_or(bytes);
-        std::str::from_utf8(bytes)
-            .map(|text| Some((self.number, text)))
-            .map_err(|e| {
-                let index = bytes[..e.valid_up_to()]
-                    .iter()
-                    .filter(|&&b| b == b',')
-                    .count();
-                IoError::Csv {
-                    path: self.path.to_path_buf(),
-                    line: self.number,
-                    column: self
-                        .header
-                        .get(index)
-                        .map_or_else(|| (index + 1).to_string(), |n| n.to_string()),
-                    reason: "not valid UTF-8 text".into(),
-                }
-            })
-    }
-}
-
-/// What [`write_table`] wrote.
+/// What [`write_table`] or [`TableWriter`] wrote.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct TableWriteSummary {
     /// Data rows written.
@@ -188,54 +382,231 @@ pub struct TableWriteSummary {
 }
 
 /// Writes the header and one line per row, `None` as `NaN` in every column, to `path` atomically
-/// (see [`write_atomic`]), or to standard output when `path` is `None` or `-`. Numbers are written
-/// with Rust's `{}` for f64: the shortest text that reads back to the same f64.
+/// (a temporary file renamed into place, as [`write_atomic`](super::write_atomic) does), or to
+/// standard output when `path` is `None` or `-`. Numbers are written with Rust's `{}` for f64: the
+/// shortest text that reads back to the same f64.
+///
+/// Errors: [`IoError::Write`] naming `path` (or `-`); a failed write to a file leaves neither
+/// `path` changed nor a temporary file. The rows are written as they come: [`TableWriter`] does
+/// the same chunk by chunk.
 pub fn write_table<const M: usize>(
     path: Option<&Path>,
     header: [&str; M],
     rows: impl IntoIterator<Item = Option<[f64; M]>>,
 ) -> Result<TableWriteSummary, IoError> {
-    let mut text = String::with_capacity(64);
-    text.push_str(&header.join(","));
-    text.push('\n');
-    let nan_row = vec!["NaN"; M].join(",");
-    let mut summary = TableWriteSummary {
-        rows: 0,
-        nan_rows: 0,
-    };
+    let mut writer = TableWriter::create(path, header)?;
+    writer.write_rows(rows)?;
+    writer.finish()
+}
+
+/// Writes a CSV table chunk by chunk in bounded memory: the streaming form of [`write_table`],
+/// with the same bytes for the same rows.
+///
+/// To a file: the lines go through a buffer into a temporary file beside the target (unique per
+/// process and writer), which [`finish`](Self::finish) flushes to disk and renames onto the target.
+/// Until then the target is untouched (an existing file keeps its old content); a writer dropped
+/// without `finish` (an error, a panic, an interrupted command) removes its temporary file. To
+/// standard output: the lines go through a buffer as they come, and cannot be taken back.
+///
+/// ```no_run
+/// # fn main() -> Result<(), flatport::io::IoError> {
+/// use flatport::io::TableWriter;
+/// let mut pixels = TableWriter::create(Some("pixels.csv".as_ref()), ["u", "v"])?;
+/// pixels.write_rows([Some([320.5, 240.25]), None])?;
+/// let summary = pixels.finish()?; // pixels.csv appears here, whole
+/// assert_eq!((summary.rows, summary.nan_rows), (2, 1));
+/// # Ok(()) }
+/// ```
+#[derive(Debug)]
+pub struct TableWriter<const M: usize> {
+    output: Output,
+    /// The text of the row being written, reused for every row.
+    line: String,
+    /// `NaN,…,NaN\n`.
+    nan_line: String,
+    summary: TableWriteSummary,
+}
+
+#[derive(Debug)]
+enum Output {
+    File {
+        // Declared before `temporary`: the file is closed before it is removed (Windows needs it).
+        writer: BufWriter<File>,
+        temporary: TemporaryFile,
+        target: PathBuf,
+    },
+    // `Stdout` locks once per buffer flush; unlike its lock it lets the writer move to a thread.
+    Stdout(BufWriter<Stdout>),
+}
+
+impl<const M: usize> TableWriter<M> {
+    /// Starts a table with the header row `header`: into a temporary file beside `output`, or to
+    /// standard output when `output` is `None` or `-`.
+    ///
+    /// Errors: [`IoError::Write`] naming `output` when the temporary file cannot be created (a
+    /// missing folder, no permission).
+    pub fn create(output: Option<&Path>, header: [&str; M]) -> Result<Self, IoError> {
+        let output = match output {
+            Some(target) if target.as_os_str() != "-" => {
+                let temporary = TemporaryFile {
+                    path: temporary_path(target),
+                    keep: false,
+                };
+                let file = File::create(&temporary.path).map_err(|source| IoError::Write {
+                    path: target.to_path_buf(),
+                    source,
+                })?;
+                Output::File {
+                    writer: BufWriter::with_capacity(BUFFER_BYTES, file),
+                    temporary,
+                    target: target.to_path_buf(),
+                }
+            }
+            _ => Output::Stdout(BufWriter::with_capacity(BUFFER_BYTES, std::io::stdout())),
+        };
+        let mut nan_line = vec!["NaN"; M].join(",");
+        nan_line.push('\n');
+        let mut writer = TableWriter {
+            output,
+            line: header.join(","),
+            nan_line,
+            summary: TableWriteSummary {
+                rows: 0,
+                nan_rows: 0,
+            },
+        };
+        writer.line.push('\n');
+        let Self { output, line, .. } = &mut writer;
+        let result = match output {
+            Output::File { writer, .. } => writer.write_all(line.as_bytes()),
+            Output::Stdout(writer) => writer.write_all(line.as_bytes()),
+        };
+        result.map_err(|source| writer.write_error(source))?;
+        Ok(writer)
+    }
+
+    /// Appends one line per row, in order: the numbers of `Some` with Rust's `{}` for f64 (the
+    /// shortest text that reads back to the same f64), `NaN` in every column for `None`.
+    ///
+    /// Errors: [`IoError::Write`] naming the output (`-` for standard output) when writing fails.
+    pub fn write_rows(
+        &mut self,
+        rows: impl IntoIterator<Item = Option<[f64; M]>>,
+    ) -> Result<(), IoError> {
+        let Self {
+            output,
+            line,
+            nan_line,
+            summary,
+        } = self;
+        // Match once per call, so the loop is compiled for each sink without dynamic dispatch.
+        let result = match output {
+            Output::File { writer, .. } => write_lines(writer, rows, line, nan_line, summary),
+            Output::Stdout(writer) => write_lines(writer, rows, line, nan_line, summary),
+        };
+        result.map_err(|source| self.write_error(source))
+    }
+
+    /// Rows written so far.
+    pub fn summary(&self) -> TableWriteSummary {
+        self.summary
+    }
+
+    /// Completes the table: flushes it and, for a file, syncs the temporary file to disk and
+    /// renames it onto the target, so the target appears whole or not at all. Returns the rows
+    /// written.
+    ///
+    /// Errors: [`IoError::Write`] naming the output when flushing, syncing or renaming fails (for
+    /// instance when the target is a folder); the temporary file is then removed and the target
+    /// left as it was.
+    pub fn finish(self) -> Result<TableWriteSummary, IoError> {
+        match self.output {
+            Output::File {
+                writer,
+                temporary,
+                target,
+            } => {
+                let error = |source| IoError::Write {
+                    path: target.clone(),
+                    source,
+                };
+                let file = writer.into_inner().map_err(|e| error(e.into_error()))?;
+                file.sync_all().map_err(error)?;
+                drop(file);
+                std::fs::rename(&temporary.path, &target).map_err(error)?;
+                temporary.keep();
+            }
+            Output::Stdout(mut writer) => writer.flush().map_err(|source| IoError::Write {
+                path: "-".into(),
+                source,
+            })?,
+        }
+        Ok(self.summary)
+    }
+
+    fn write_error(&self, source: std::io::Error) -> IoError {
+        let path = match &self.output {
+            Output::File { target, .. } => target.clone(),
+            Output::Stdout(_) => "-".into(),
+        };
+        IoError::Write { path, source }
+    }
+}
+
+/// Writes `rows` to `sink`, one line each, counting them in `summary`; `line` is scratch space.
+fn write_lines<W: Write, const M: usize>(
+    sink: &mut W,
+    rows: impl IntoIterator<Item = Option<[f64; M]>>,
+    line: &mut String,
+    nan_line: &str,
+    summary: &mut TableWriteSummary,
+) -> std::io::Result<()> {
     for row in rows {
         summary.rows += 1;
-        match row {
+        let text = match row {
             Some(values) => {
+                line.clear();
                 for (i, v) in values.iter().enumerate() {
                     if i > 0 {
-                        text.push(',');
+                        line.push(',');
                     }
                     // Display for f64 is the shortest round-trip representation.
-                    std::fmt::Write::write_fmt(&mut text, format_args!("{v}"))
+                    std::fmt::Write::write_fmt(line, format_args!("{v}"))
                         .expect("writing to a String");
                 }
+                line.push('\n');
+                line.as_str()
             }
             None => {
                 summary.nan_rows += 1;
-                text.push_str(&nan_row);
+                nan_line
             }
-        }
-        text.push('\n');
+        };
+        sink.write_all(text.as_bytes())?;
     }
-    match path {
-        Some(path) if path.as_os_str() != "-" => write_atomic(path, text.as_bytes())?,
-        _ => {
-            let mut out = std::io::stdout().lock();
-            out.write_all(text.as_bytes())
-                .and_then(|()| out.flush())
-                .map_err(|source| IoError::Write {
-                    path: "-".into(),
-                    source,
-                })?;
+    Ok(())
+}
+
+/// A temporary file that is removed when dropped, unless kept.
+#[derive(Debug)]
+struct TemporaryFile {
+    path: PathBuf,
+    keep: bool,
+}
+
+impl TemporaryFile {
+    /// Forgets the file: it was renamed into place.
+    fn keep(mut self) {
+        self.keep = true;
+    }
+}
+
+impl Drop for TemporaryFile {
+    fn drop(&mut self) {
+        if !self.keep {
+            let _ = std::fs::remove_file(&self.path);
         }
     }
-    Ok(summary)
 }
 
 #[cfg(test)]
