@@ -280,3 +280,89 @@ fn demo_runs_end_to_end() {
     let tri = run_ok(&["triangulate", "--rig", rig.to_str().unwrap(), "--matches", out.join("matches.csv").to_str().unwrap()]);
     assert_eq!(tri.lines().count(), std::fs::read_to_string(out.join("points.csv")).unwrap().lines().count());
 }
+
+/// The GPU path gives the CPU's answers within the f32 and f64 tolerances, NaN rows at the same
+/// places, and says which device ran. Needs a Vulkan adapter (lavapipe in CI).
+#[test]
+fn gpu_device_agrees_with_cpu_device() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = write(dir.path(), "rig.json", RIG);
+    let mut points = String::from("x,y,z\n");
+    for i in 0..400 {
+        let (x, y, z) = ((i % 20) as f64 * 0.07 - 0.7, (i / 20) as f64 * 0.06 - 0.6, 0.2 + (i % 7) as f64 * 0.8);
+        points.push_str(&format!("{x},{y},{z}\n"));
+    }
+    points.push_str("0,0,0.01\n"); // in the air: NaN row
+    let points = write(dir.path(), "points.csv", &points);
+    let rig = rig.to_str().unwrap();
+    let points = points.to_str().unwrap();
+    let cpu = flatport(&["project", "--rig", rig, "--points", points, "--device", "cpu"]);
+    assert!(stderr(&cpu).contains("device: cpu"), "{}", stderr(&cpu));
+    let (_, expected) = table(&stdout(&cpu));
+    for (precision, tolerance) in [("f32", 1e-3), ("f64", 1e-9)] {
+        let gpu = flatport(&["project", "--rig", rig, "--points", points, "--device", "gpu", "--precision", precision]);
+        if !gpu.status.success() && std::env::var_os("CI").is_none() && stderr(&gpu).contains("no GPU adapter") {
+            eprintln!("SKIPPED (no Vulkan adapter; CI fails here instead)");
+            return;
+        }
+        assert!(gpu.status.success(), "{}", stderr(&gpu));
+        assert!(stderr(&gpu).contains(&format!("device: gpu: ")) && stderr(&gpu).contains(precision), "{}", stderr(&gpu));
+        assert!(stderr(&gpu).contains("1 of 401 rows have no answer"), "{}", stderr(&gpu));
+        let (_, rows) = table(&stdout(&gpu));
+        assert_eq!(rows.len(), expected.len());
+        for (g, c) in rows.iter().zip(&expected) {
+            for (a, b) in g.iter().zip(c) {
+                assert!(a.is_nan() == b.is_nan() && (a.is_nan() || (a - b).abs() <= tolerance * b.abs().max(1.0)), "{precision}: {g:?} vs {c:?}");
+            }
+        }
+    }
+    let refused = run_err(&["project", "--rig", rig, "--points", points, "--device", "cpu", "--precision", "f32"]);
+    assert!(refused.contains("f64 only"), "{refused}");
+}
+
+/// Six million rows through the CLI on the GPU: streamed in chunks, every row written in order.
+#[test]
+fn six_million_rows_through_the_cli() {
+    use std::io::{BufRead, Write};
+    let dir = tempfile::tempdir().unwrap();
+    let rig = write(dir.path(), "rig.json", RIG);
+    let pixels = dir.path().join("pixels.csv");
+    let n = 6_000_000usize;
+    {
+        let mut f = std::io::BufWriter::new(std::fs::File::create(&pixels).unwrap());
+        writeln!(f, "u,v").unwrap();
+        for i in 0..n {
+            writeln!(f, "{},{}", (i % 1280) as f64 + 0.5, ((i / 1280) % 1024) as f64).unwrap();
+        }
+    }
+    let out = dir.path().join("rays.csv");
+    let o = flatport(&[
+        "backproject", "--rig", rig.to_str().unwrap(), "--pixels", pixels.to_str().unwrap(), "--device", "gpu", "-o", out.to_str().unwrap(),
+    ]);
+    if !o.status.success() && std::env::var_os("CI").is_none() && stderr(&o).contains("no GPU adapter") {
+        eprintln!("SKIPPED (no Vulkan adapter; CI fails here instead)");
+        return;
+    }
+    assert!(o.status.success(), "{}", stderr(&o));
+    let camera = flatport::io::rig_from_json_str(RIG, Path::new("rig.json")).unwrap().refractive_camera(0);
+    let file = std::io::BufReader::new(std::fs::File::open(&out).unwrap());
+    let mut lines = 0usize;
+    for (k, line) in file.lines().enumerate() {
+        let line = line.unwrap();
+        if k == 0 {
+            assert_eq!(line, "ox,oy,oz,dx,dy,dz");
+            continue;
+        }
+        let i = k - 1;
+        if i % 100_003 == 0 || i == n - 1 {
+            // Row i is pixel i, in order: its direction is the CPU's within the f32 tolerance.
+            let v: Vec<f64> = line.split(',').map(|x| x.parse().unwrap()).collect();
+            let pixel = nalgebra::Point2::new((i % 1280) as f64 + 0.5, ((i / 1280) % 1024) as f64);
+            let cpu = camera.backproject(&pixel).unwrap();
+            let dir = nalgebra::Vector3::new(v[3], v[4], v[5]);
+            assert!((dir - cpu.dir.into_inner()).norm() < 2e-6, "row {i}: {line}");
+        }
+        lines += 1;
+    }
+    assert_eq!(lines, n, "every row, none lost or added");
+}

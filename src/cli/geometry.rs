@@ -4,13 +4,12 @@ use std::path::PathBuf;
 
 use anyhow::{Context, bail};
 use clap::Args;
-use nalgebra::{Point2, Point3};
 
-use flatport::io::{read_rig, read_table};
-use flatport::model::{Rig, triangulate_rays};
+use flatport::io::read_rig;
+use flatport::model::Rig;
 
-use super::{CommonArgs, Device};
-use super::batch::Batch;
+use super::CommonArgs;
+use super::batch::stream;
 
 /// `flatport project` and `flatport vop`: points in, one camera.
 #[derive(Debug, Args)]
@@ -64,36 +63,23 @@ pub fn camera_index(rig: &Rig, camera: Option<&str>) -> anyhow::Result<usize> {
     })
 }
 
-/// Says on stderr which device computes, so a user knows which path produced the numbers.
-fn announce(common: &CommonArgs) {
-    match common.device {
-        Device::Cpu => eprintln!("device: cpu (f64 reference)"),
-    }
-}
-
 pub fn project(args: PointsArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
     let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref())?);
-    let points = read_table(&args.points, ["x", "y", "z"])?;
-    announce(&args.common);
-    let batch = Batch::map(&points, |&[x, y, z]| {
-        camera.project(&Point3::new(x, y, z)).map(|p| [p.x, p.y])
-    });
-    batch.write(args.common.output.as_deref(), ["u", "v"])
+    let engine = args.common.engine.engine()?;
+    stream(&engine, &args.points, ["x", "y", "z"], args.common.output.as_deref(), ["u", "v"], |e, points, pixels, status| {
+        e.project(&camera, points, pixels, status)
+    })
 }
 
 pub fn backproject(args: BackprojectArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
     let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref())?);
-    let pixels = read_table(&args.pixels, ["u", "v"])?;
-    announce(&args.common);
-    let batch = Batch::map(&pixels, |&[u, v]| {
-        camera.backproject(&Point2::new(u, v)).map(|ray| {
-            let (o, d) = (ray.origin, ray.dir);
-            [o.x, o.y, o.z, d.x, d.y, d.z]
-        })
-    });
-    batch.write(args.common.output.as_deref(), ["ox", "oy", "oz", "dx", "dy", "dz"])
+    let engine = args.common.engine.engine()?;
+    let header = ["ox", "oy", "oz", "dx", "dy", "dz"];
+    stream(&engine, &args.pixels, ["u", "v"], args.common.output.as_deref(), header, |e, pixels, rays, status| {
+        e.backproject(&camera, pixels, rays, status)
+    })
 }
 
 pub fn triangulate(args: TriangulateArgs) -> anyhow::Result<()> {
@@ -115,29 +101,19 @@ pub fn triangulate(args: TriangulateArgs) -> anyhow::Result<()> {
         bail!("--cameras names the same camera twice ('{}')", rig.cameras()[a].name);
     }
     let (first, second) = (rig.refractive_camera(a), rig.refractive_camera(b));
-    let matches = read_table(&args.matches, ["ul", "vl", "ur", "vr"])?;
-    announce(&args.common);
-    let batch = Batch::map(&matches, |&[ul, vl, ur, vr]| {
-        let ray_a = first.backproject(&Point2::new(ul, vl))?;
-        let ray_b = second.backproject(&Point2::new(ur, vr))?;
-        let t = triangulate_rays(&ray_a, &ray_b)?;
-        Ok([t.point.x, t.point.y, t.point.z, t.residual])
-    });
-    batch.write(args.common.output.as_deref(), ["x", "y", "z", "residual"])
+    let engine = args.common.engine.engine()?;
+    let output = args.common.output.as_deref();
+    stream(&engine, &args.matches, ["ul", "vl", "ur", "vr"], output, ["x", "y", "z", "residual"], |e, matches, points, status| {
+        e.triangulate(&first, &second, matches, points, status)
+    })
 }
 
 pub fn vop(args: PointsArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
     let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref())?);
-    let points = read_table(&args.points, ["x", "y", "z"])?;
-    announce(&args.common);
-    let batch = Batch::map(&points, |&[x, y, z]| {
-        camera.vop(&Point3::new(x, y, z)).map(|v| {
-            [v.depth, v.vop_distance, v.vop.x, v.vop.y, v.vop.z, v.incidence]
-        })
-    });
-    batch.write(
-        args.common.output.as_deref(),
-        ["depth", "vop_distance", "vop_x", "vop_y", "vop_z", "incidence"],
-    )
+    let engine = args.common.engine.engine()?;
+    let header = ["depth", "vop_distance", "vop_x", "vop_y", "vop_z", "incidence"];
+    stream(&engine, &args.points, ["x", "y", "z"], args.common.output.as_deref(), header, |e, points, vops, status| {
+        e.vop(&camera, points, vops, status)
+    })
 }

@@ -18,7 +18,11 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 #[command(name = "flatport", version, about, long_about = None, after_help = "\
 Conventions: metres, OpenCV camera frames (x right, y down, z forward), the first camera of the rig
 defines the world (master) frame. CSV files have a header row; rows without an answer are written
-as NaN and counted on stderr.
+as NaN and counted on stderr. Inputs of any size are streamed in chunks.
+
+Devices: --device cpu runs the f64 reference on all cores, --device gpu the WGSL kernels on a
+Vulkan adapter (--precision f32|f64), --device auto (default) a hardware GPU if there is one. The
+device used is printed on stderr.
 
 Start with:  flatport demo")]
 struct Cli {
@@ -32,7 +36,8 @@ enum Command {
     #[command(after_help = "\
 Examples:
   flatport project --rig rig.json --points points.csv > pixels.csv
-  flatport project --rig rig.json --points points.csv --camera right --output right.csv")]
+  flatport project --rig rig.json --points points.csv --camera right --output right.csv
+  flatport project --rig rig.json --points points.csv --device gpu --precision f64 -o pixels.csv")]
     Project(geometry::PointsArgs),
     /// Back-project pixels to rays in the water: u,v → ox,oy,oz,dx,dy,dz
     #[command(after_help = "\
@@ -41,7 +46,8 @@ the master frame.
 
 Examples:
   flatport backproject --rig rig.json --pixels pixels.csv > rays.csv
-  flatport backproject --rig rig.json --pixels pixels.csv --camera 1 --output rays.csv")]
+  flatport backproject --rig rig.json --pixels pixels.csv --camera 1 --output rays.csv
+  flatport backproject --rig rig.json --pixels pixels.csv --device gpu -o rays.csv")]
     Backproject(geometry::BackprojectArgs),
     /// Triangulate stereo matches refractively: ul,vl,ur,vr → x,y,z,residual
     #[command(after_help = "\
@@ -76,8 +82,62 @@ Example:
 /// Where the computation runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Device {
-    /// The f64 CPU reference.
+    /// The f64 reference on all CPU cores
     Cpu,
+    /// The WGSL kernels on a Vulkan adapter (a GPU, or lavapipe when there is none)
+    Gpu,
+    /// A hardware GPU when the machine has one, otherwise the CPU
+    Auto,
+}
+
+/// Arithmetic of the GPU kernels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PrecisionArg {
+    /// 32-bit floats: fastest; pixels within 1e-3 px, directions within 2e-6 of the f64 reference
+    F32,
+    /// 64-bit floats (adapters with SHADER_F64): agrees with the CPU reference to 1e-9 relative
+    F64,
+}
+
+/// Where and how batches run (`--device`, `--precision`, `--adapter`).
+#[derive(Debug, Args)]
+pub struct EngineArgs {
+    /// Compute device
+    #[arg(long, value_enum, default_value_t = Device::Auto)]
+    pub device: Device,
+    /// Precision of the GPU kernels (default f32; the CPU is always f64)
+    #[arg(long, value_enum, value_name = "f32|f64")]
+    pub precision: Option<PrecisionArg>,
+    /// GPU adapter: part of its name as `flatport info` lists it (else $FLATPORT_ADAPTER)
+    #[arg(long, value_name = "NAME")]
+    pub adapter: Option<String>,
+}
+
+impl EngineArgs {
+    /// Builds the engine and says on stderr which device runs.
+    pub fn engine(&self) -> anyhow::Result<flatport::engine::Engine> {
+        use flatport::engine::{Device as D, Engine, EngineOptions};
+        use flatport::gpu::Precision;
+        let options = EngineOptions {
+            device: match self.device {
+                Device::Cpu => D::Cpu,
+                Device::Gpu => D::Gpu,
+                Device::Auto => D::Auto,
+            },
+            precision: self.precision.map(|p| match p {
+                PrecisionArg::F32 => Precision::F32,
+                PrecisionArg::F64 => Precision::F64,
+            }),
+            adapter: self.adapter.clone(),
+            threads: None,
+        };
+        let engine = Engine::new(&options)?;
+        if self.device == Device::Auto && self.precision == Some(PrecisionArg::F32) && matches!(engine, Engine::Cpu(_)) {
+            eprintln!("note: no hardware GPU, so the f64 CPU reference runs (--precision f32 applies to GPUs)");
+        }
+        eprintln!("device: {}", engine.describe());
+        Ok(engine)
+    }
 }
 
 /// Arguments every geometry command shares.
@@ -89,9 +149,8 @@ pub struct CommonArgs {
     /// Output CSV file (default: standard output); written only when every input row parsed
     #[arg(long, short, value_name = "FILE")]
     pub output: Option<PathBuf>,
-    /// Compute device
-    #[arg(long, value_enum, default_value_t = Device::Cpu)]
-    pub device: Device,
+    #[command(flatten)]
+    pub engine: EngineArgs,
 }
 
 /// Parses `A,B` (two names).
