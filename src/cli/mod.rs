@@ -2,6 +2,7 @@
 //! calls the library row by row, and writes the CSV contract of DESIGN.md §1.
 
 mod batch;
+mod bench;
 mod demo;
 mod geometry;
 mod info;
@@ -75,6 +76,20 @@ Example:
 Example:
   flatport demo --output flatport-demo")]
     Demo(demo::DemoArgs),
+    /// Measure items/s of every path (CPU 1 thread, CPU all threads, GPU f32/f64) and the memory bandwidth
+    #[command(after_help = "\
+Prints items per second for back-projection, forward projection and triangulation on the CPU
+(f64, one thread and all threads) and the GPU (f32 and f64; `kernel` = dispatch only with the
+data on the device, `end_to_end` = upload, dispatch and results in host memory), the memory
+streaming bandwidth measured by a STREAM triad as the physical limit, and the issue's targets as
+ratios of this run. JSON: {\"memory_stream_bytes_per_s\": B, \"results\": [{\"kernel\", \"path\",
+\"precision\", \"threads\" (0 on the GPU), \"stage\", \"items\", \"items_per_s\"}, ...]}.
+
+Examples:
+  flatport bench
+  flatport bench --items 4000000 --json bench.json
+  flatport bench --no-gpu")]
+    Bench(bench::BenchArgs),
     /// Version, build and the compute devices found
     Info,
 }
@@ -176,6 +191,7 @@ pub fn main() -> ExitCode {
         Command::Vop(args) => geometry::vop(args),
         Command::Rig(command) => rig::run(command),
         Command::Demo(args) => demo::run(args),
+        Command::Bench(args) => bench::run(args),
         Command::Info => info::run(),
     };
     match result {

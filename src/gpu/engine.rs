@@ -8,6 +8,8 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 
+use rayon::prelude::*;
+
 use super::context::{GpuContext, GpuError};
 use super::layout::{MAX_LAYERS, pack_params, set_info};
 use super::shaders::{Kernel, Precision, Reduction, source};
@@ -57,11 +59,22 @@ pub struct GpuEngine {
     buffers: Mutex<Buffers>,
 }
 
-/// Bytes of `values` in `precision`, appended to `bytes`.
+/// Rows per parallel task of the host-side conversions.
+const CONVERT_ROWS: usize = 1 << 14;
+
+/// Bytes of `values` in `precision`, appended to `bytes` (converted on all cores).
 fn extend_reals(bytes: &mut Vec<u8>, precision: Precision, values: &[f64]) {
     match precision {
         Precision::F64 => bytes.extend_from_slice(bytemuck::cast_slice(values)),
-        Precision::F32 => bytes.extend(values.iter().flat_map(|&v| (v as f32).to_le_bytes())),
+        Precision::F32 => {
+            let start = bytes.len();
+            bytes.resize(start + 4 * values.len(), 0);
+            bytes[start..].par_chunks_mut(4 * CONVERT_ROWS).zip(values.par_chunks(CONVERT_ROWS)).for_each(|(out, values)| {
+                for (o, v) in out.chunks_exact_mut(4).zip(values) {
+                    o.copy_from_slice(&(*v as f32).to_le_bytes());
+                }
+            });
+        }
     }
 }
 
@@ -74,22 +87,26 @@ fn real_at(bytes: &[u8], precision: Precision, k: usize) -> f64 {
     }
 }
 
-/// Copies mapped rows into `output` where `status` is 0, NaN elsewhere.
+/// Copies mapped rows into `output` where `status` is 0, NaN elsewhere (on all cores).
 fn rows_from<const M: usize>(bytes: &[u8], precision: Precision, status: &[u32], output: &mut [[f64; M]]) {
-    match precision {
-        Precision::F64 => {
-            let values: &[f64] = bytemuck::cast_slice(&bytes[..output.len() * M * 8]);
-            for ((row, chunk), s) in output.iter_mut().zip(values.chunks_exact(M)).zip(status) {
-                *row = if *s == 0 { chunk.try_into().expect("M values") } else { [f64::NAN; M] };
+    let s = precision.size();
+    let bytes = &bytes[..output.len() * M * s];
+    output.par_chunks_mut(CONVERT_ROWS).zip(status.par_chunks(CONVERT_ROWS)).zip(bytes.par_chunks(CONVERT_ROWS * M * s)).for_each(
+        |((output, status), bytes)| match precision {
+            Precision::F64 => {
+                let values: &[f64] = bytemuck::cast_slice(bytes);
+                for ((row, chunk), s) in output.iter_mut().zip(values.chunks_exact(M)).zip(status) {
+                    *row = if *s == 0 { chunk.try_into().expect("M values") } else { [f64::NAN; M] };
+                }
             }
-        }
-        Precision::F32 => {
-            let values: &[f32] = bytemuck::cast_slice(&bytes[..output.len() * M * 4]);
-            for ((row, chunk), s) in output.iter_mut().zip(values.chunks_exact(M)).zip(status) {
-                *row = if *s == 0 { std::array::from_fn(|k| chunk[k] as f64) } else { [f64::NAN; M] };
+            Precision::F32 => {
+                let values: &[f32] = bytemuck::cast_slice(bytes);
+                for ((row, chunk), s) in output.iter_mut().zip(values.chunks_exact(M)).zip(status) {
+                    *row = if *s == 0 { std::array::from_fn(|k| chunk[k] as f64) } else { [f64::NAN; M] };
+                }
             }
-        }
-    }
+        },
+    );
 }
 
 impl GpuEngine {

@@ -1,0 +1,207 @@
+//! `flatport bench`: items per second of back-projection, forward projection and triangulation on
+//! every path (CPU f64 one thread and all threads, GPU f32 and f64, kernel-only and end to end),
+//! and the machine's memory streaming bandwidth as the physical limit, from one run.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::Args;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use flatport::engine::CpuEngine;
+use flatport::engine::workload::Workload;
+use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision};
+use flatport::io::{rig_from_json_str, write_atomic};
+use flatport::model::{RefractiveCamera, Rig};
+
+use super::demo::EXAMPLE_RIG;
+
+/// `flatport bench`
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// Items per batch
+    #[arg(long, default_value_t = 1 << 20)]
+    items: usize,
+    /// Timed repetitions per figure (the fastest counts)
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+    /// Also write the results as JSON
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Rig to measure on (default: the built-in example)
+    #[arg(long, value_name = "RIG.json")]
+    rig: Option<PathBuf>,
+    /// GPU adapter: part of its name (else $FLATPORT_ADAPTER, else the first hardware GPU, else lavapipe)
+    #[arg(long, value_name = "NAME")]
+    adapter: Option<String>,
+    /// Skip the GPU paths
+    #[arg(long)]
+    no_gpu: bool,
+}
+
+/// One figure of the JSON report.
+#[derive(Debug, Serialize)]
+struct Figure {
+    kernel: &'static str,
+    path: &'static str,
+    precision: &'static str,
+    threads: usize,
+    stage: &'static str,
+    items: usize,
+    items_per_s: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct Report {
+    memory_stream_bytes_per_s: f64,
+    /// Not in the shape but useful: what ran.
+    cpu_threads: usize,
+    gpu_adapter: Option<String>,
+    results: Vec<Figure>,
+}
+
+/// Fastest of `repeats` runs of `f` after one warm-up, in seconds.
+fn fastest(repeats: usize, mut f: impl FnMut() -> anyhow::Result<()>) -> anyhow::Result<f64> {
+    f()?;
+    let mut best = f64::INFINITY;
+    for _ in 0..repeats.max(1) {
+        let start = Instant::now();
+        f()?;
+        best = best.min(start.elapsed().as_secs_f64());
+    }
+    Ok(best)
+}
+
+/// STREAM triad a = b + s·c over 3 × 64 MiB arrays on all cores: bytes read and written per
+/// second (24 per element, write-allocate traffic not counted), best of 5.
+fn memory_stream_bandwidth() -> f64 {
+    let n = 8 << 20;
+    let b = vec![1.0f64; n];
+    let c = vec![2.0f64; n];
+    let mut a = vec![0.0f64; n];
+    let mut best = f64::INFINITY;
+    for k in 0..6 {
+        let s = 0.5 + k as f64;
+        let start = Instant::now();
+        a.par_chunks_mut(1 << 16).zip(b.par_chunks(1 << 16)).zip(c.par_chunks(1 << 16)).for_each(|((a, b), c)| {
+            for ((a, b), c) in a.iter_mut().zip(b).zip(c) {
+                *a = b + s * c;
+            }
+        });
+        if k > 0 {
+            best = best.min(start.elapsed().as_secs_f64());
+        }
+    }
+    std::hint::black_box(&a);
+    24.0 * n as f64 / best
+}
+
+fn human(rate: f64) -> String {
+    if rate >= 1e9 { format!("{:7.2} G/s", rate / 1e9) } else { format!("{:7.2} M/s", rate / 1e6) }
+}
+
+pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    let rig: Rig = match &args.rig {
+        Some(path) => flatport::io::read_rig(path)?,
+        None => rig_from_json_str(EXAMPLE_RIG, Path::new("<built-in example rig>"))?,
+    };
+    let n = args.items.max(1);
+    eprintln!("flatport bench: {n} items per batch, fastest of {} runs", args.repeats);
+    let work = Workload::new(&rig, n);
+    let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1.min(rig.cameras().len() - 1)));
+    let mut results = Vec::new();
+    let mut record = |kernel: &'static str, path: &'static str, precision: &'static str, threads: usize, stage: &'static str, seconds: f64| {
+        let figure = Figure { kernel, path, precision, threads, stage, items: n, items_per_s: n as f64 / seconds };
+        println!("{kernel:12} {path:3} {precision} {threads:>3} thr {stage:10} {}", human(figure.items_per_s));
+        results.push(figure);
+    };
+
+    let stream = memory_stream_bandwidth();
+    println!("memory streaming bandwidth (triad, all cores): {:.2} GB/s", stream / 1e9);
+
+    let all = CpuEngine::new(None);
+    let one = CpuEngine::new(Some(1));
+    let mut out6 = vec![[0.0; 6]; n];
+    let mut out4 = vec![[0.0; 4]; n];
+    let mut out2 = vec![[0.0; 2]; n];
+    let mut status = vec![0u32; n];
+    for (cpu, threads) in [(&one, 1), (&all, all.threads())] {
+        let t = fastest(args.repeats, || Ok(cpu.backproject(&a, &work.pixels, &mut out6, &mut status)))?;
+        record("backproject", "cpu", "f64", threads, "end_to_end", t);
+        let t = fastest(args.repeats, || Ok(cpu.project(&a, &work.points, &mut out2, &mut status)))?;
+        record("project", "cpu", "f64", threads, "end_to_end", t);
+        let t = fastest(args.repeats, || Ok(cpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status)))?;
+        record("triangulate", "cpu", "f64", threads, "end_to_end", t);
+    }
+
+    let mut adapter = None;
+    if !args.no_gpu {
+        let context = GpuContext::new(args.adapter.as_deref()).context("the GPU paths need a Vulkan adapter (or pass --no-gpu)")?;
+        adapter = Some(format!("{} ({})", context.adapter().name, context.adapter().driver));
+        eprintln!("GPU adapter: {}", adapter.as_deref().unwrap_or_default());
+        let has_f64 = context.adapter().f64;
+        let mut gpu = GpuEngine::new(context, Precision::F32)?;
+        for precision in [Precision::F32, Precision::F64] {
+            if precision == Precision::F64 {
+                if !has_f64 {
+                    eprintln!("the adapter has no SHADER_F64: no f64 figures");
+                    break;
+                }
+                let context = GpuContext::new(args.adapter.as_deref())?;
+                gpu = GpuEngine::new(context, Precision::F64)?;
+            }
+            let p = precision.name();
+            let kernel_only = |kernel: Kernel, gpu: &GpuEngine, a: &RefractiveCamera, b: &RefractiveCamera| -> anyhow::Result<f64> {
+                Ok(match kernel {
+                    Kernel::Backproject => gpu.kernel_seconds::<2, 6>(kernel, a, b, &work.pixels, args.repeats)?,
+                    Kernel::Project => gpu.kernel_seconds::<3, 2>(kernel, a, b, &work.points, args.repeats)?,
+                    _ => gpu.kernel_seconds::<4, 4>(kernel, a, b, &work.matches, args.repeats)?,
+                })
+            };
+            record("backproject", "gpu", p, 0, "kernel", kernel_only(Kernel::Backproject, &gpu, &a, &a)?);
+            let t = fastest(args.repeats, || Ok(gpu.backproject(&a, &work.pixels, &mut out6, &mut status)?))?;
+            record("backproject", "gpu", p, 0, "end_to_end", t);
+            record("project", "gpu", p, 0, "kernel", kernel_only(Kernel::Project, &gpu, &a, &a)?);
+            let t = fastest(args.repeats, || Ok(gpu.project(&a, &work.points, &mut out2, &mut status)?))?;
+            record("project", "gpu", p, 0, "end_to_end", t);
+            record("triangulate", "gpu", p, 0, "kernel", kernel_only(Kernel::Triangulate, &gpu, &a, &b)?);
+            let t = fastest(args.repeats, || Ok(gpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status)?))?;
+            record("triangulate", "gpu", p, 0, "end_to_end", t);
+        }
+    }
+
+    print_targets(&results, stream, all.threads());
+    if let Some(path) = &args.json {
+        let report = Report { memory_stream_bytes_per_s: stream, cpu_threads: all.threads(), gpu_adapter: adapter, results };
+        let text = serde_json::to_string_pretty(&report).context("serialising the report")?;
+        write_atomic(path, text.as_bytes())?;
+        eprintln!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// The targets as ratios of this run's figures.
+fn print_targets(results: &[Figure], stream: f64, threads: usize) {
+    let rate = |kernel: &str, path: &str, precision: &str, threads: Option<usize>, stage: &str| {
+        results
+            .iter()
+            .find(|f| f.kernel == kernel && f.path == path && f.precision == precision && threads.is_none_or(|t| f.threads == t) && f.stage == stage)
+            .map(|f| f.items_per_s)
+    };
+    println!("\ntargets (ratios from this run):");
+    let cpu_all = |k: &str| rate(k, "cpu", "f64", Some(threads), "end_to_end");
+    let check = |name: &str, value: Option<f64>, target: f64| match value {
+        Some(v) => println!("  {name:58} {v:8.2}  (target ≥ {target}) {}", if v >= target { "met" } else { "NOT MET" }),
+        None => println!("  {name:58}      n/a"),
+    };
+    let ratio = |x: Option<f64>, y: Option<f64>| x.zip(y).map(|(x, y)| x / y);
+    check("backproject GPU f32 kernel / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "kernel"), cpu_all("backproject")), 1.5);
+    check("backproject GPU f32 end to end / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "end_to_end"), cpu_all("backproject")), 1.0);
+    let best = results.iter().filter(|f| f.kernel == "backproject").map(|f| f.items_per_s).fold(0.0, f64::max);
+    check("best backproject × 24 B / streaming limit", Some(best * 24.0 / stream), 0.2);
+    check("project GPU f32 end to end / CPU f64 all threads", ratio(rate("project", "gpu", "f32", None, "end_to_end"), cpu_all("project")), 1.0);
+    check("project CPU f64 1 thread / C++ peer 4.3e5 points/s", rate("project", "cpu", "f64", Some(1), "end_to_end").map(|r| r / 4.3e5), 20.0);
+    check("backproject CPU f64 1 thread / C++ peer 2.1e7 rays/s", rate("backproject", "cpu", "f64", Some(1), "end_to_end").map(|r| r / 2.1e7), 2.0);
+}
