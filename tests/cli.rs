@@ -306,7 +306,7 @@ fn gpu_device_agrees_with_cpu_device() {
             return;
         }
         assert!(gpu.status.success(), "{}", stderr(&gpu));
-        assert!(stderr(&gpu).contains(&format!("device: gpu: ")) && stderr(&gpu).contains(precision), "{}", stderr(&gpu));
+        assert!(stderr(&gpu).contains("device: gpu: ") && stderr(&gpu).contains(precision), "{}", stderr(&gpu));
         assert!(stderr(&gpu).contains("1 of 401 rows have no answer"), "{}", stderr(&gpu));
         let (_, rows) = table(&stdout(&gpu));
         assert_eq!(rows.len(), expected.len());

@@ -128,11 +128,20 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let mut out2 = vec![[0.0; 2]; n];
     let mut status = vec![0u32; n];
     for (cpu, threads) in [(&one, 1), (&all, all.threads())] {
-        let t = fastest(args.repeats, || Ok(cpu.backproject(&a, &work.pixels, &mut out6, &mut status)))?;
+        let t = fastest(args.repeats, || {
+            cpu.backproject(&a, &work.pixels, &mut out6, &mut status);
+            Ok(())
+        })?;
         record("backproject", "cpu", "f64", threads, "end_to_end", t);
-        let t = fastest(args.repeats, || Ok(cpu.project(&a, &work.points, &mut out2, &mut status)))?;
+        let t = fastest(args.repeats, || {
+            cpu.project(&a, &work.points, &mut out2, &mut status);
+            Ok(())
+        })?;
         record("project", "cpu", "f64", threads, "end_to_end", t);
-        let t = fastest(args.repeats, || Ok(cpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status)))?;
+        let t = fastest(args.repeats, || {
+            cpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status);
+            Ok(())
+        })?;
         record("triangulate", "cpu", "f64", threads, "end_to_end", t);
     }
 

@@ -38,7 +38,8 @@ impl CpuEngine {
         f: impl Fn(&[f64; N]) -> Result<[f64; M], NoSolution> + Sync,
     ) {
         assert!(input.len() == output.len() && input.len() == status.len(), "input, output and status of equal length");
-        let run = |(input, (output, status)): (&[[f64; N]], (&mut [[f64; M]], &mut [u32]))| {
+        type Task<'a, const N: usize, const M: usize> = (&'a [[f64; N]], (&'a mut [[f64; M]], &'a mut [u32]));
+        let run = |(input, (output, status)): Task<N, M>| {
             for ((x, y), s) in input.iter().zip(output.iter_mut()).zip(status.iter_mut()) {
                 (*y, *s) = match f(x) {
                     Ok(value) => (value, 0),

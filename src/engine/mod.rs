@@ -63,6 +63,7 @@ pub enum EngineError {
 }
 
 /// The backend that runs batches.
+#[allow(clippy::large_enum_variant)] // one per program: boxing would buy nothing
 pub enum Engine {
     /// The f64 reference.
     Cpu(CpuEngine),
@@ -116,7 +117,10 @@ impl Engine {
     /// Panics if the slices differ in length.
     pub fn backproject(&self, camera: &RefractiveCamera, pixels: &[[f64; 2]], rays: &mut [[f64; 6]], status: &mut [u32]) -> Result<(), EngineError> {
         match self {
-            Self::Cpu(cpu) => Ok(cpu.backproject(camera, pixels, rays, status)),
+            Self::Cpu(cpu) => {
+                cpu.backproject(camera, pixels, rays, status);
+                Ok(())
+            }
             Self::Gpu(gpu) => Ok(gpu.backproject(camera, pixels, rays, status)?),
         }
     }
@@ -124,7 +128,10 @@ impl Engine {
     /// Projects points (x, y, z, master frame) through the interface to raw pixels (u, v).
     pub fn project(&self, camera: &RefractiveCamera, points: &[[f64; 3]], pixels: &mut [[f64; 2]], status: &mut [u32]) -> Result<(), EngineError> {
         match self {
-            Self::Cpu(cpu) => Ok(cpu.project(camera, points, pixels, status)),
+            Self::Cpu(cpu) => {
+                cpu.project(camera, points, pixels, status);
+                Ok(())
+            }
             Self::Gpu(gpu) => Ok(gpu.project(camera, points, pixels, status)?),
         }
     }
@@ -133,7 +140,10 @@ impl Engine {
     /// [`RefractiveCamera::vop`].
     pub fn vop(&self, camera: &RefractiveCamera, points: &[[f64; 3]], vops: &mut [[f64; 6]], status: &mut [u32]) -> Result<(), EngineError> {
         match self {
-            Self::Cpu(cpu) => Ok(cpu.vop(camera, points, vops, status)),
+            Self::Cpu(cpu) => {
+                cpu.vop(camera, points, vops, status);
+                Ok(())
+            }
             Self::Gpu(gpu) => Ok(gpu.vop(camera, points, vops, status)?),
         }
     }
@@ -148,7 +158,10 @@ impl Engine {
         status: &mut [u32],
     ) -> Result<(), EngineError> {
         match self {
-            Self::Cpu(cpu) => Ok(cpu.triangulate(a, b, matches, points, status)),
+            Self::Cpu(cpu) => {
+                cpu.triangulate(a, b, matches, points, status);
+                Ok(())
+            }
             Self::Gpu(gpu) => Ok(gpu.triangulate(a, b, matches, points, status)?),
         }
     }
@@ -164,7 +177,10 @@ impl Engine {
         status: &mut [u32],
     ) -> Result<(), EngineError> {
         match self {
-            Self::Cpu(cpu) => Ok(cpu.binocular_vop(a, b, matches, vops, status)),
+            Self::Cpu(cpu) => {
+                cpu.binocular_vop(a, b, matches, vops, status);
+                Ok(())
+            }
             Self::Gpu(gpu) => Ok(gpu.binocular_vop(a, b, matches, vops, status)?),
         }
     }
@@ -178,7 +194,10 @@ impl Engine {
     /// gets `[0, 0]`.
     pub fn ray_gap_cost(&self, rig: &Rig, a: usize, b: usize, air_rays: &[[f64; 6]], candidates: &[[f64; 4]], costs: &mut [[f64; 2]]) -> Result<(), EngineError> {
         match self {
-            Self::Cpu(cpu) => Ok(cpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs)),
+            Self::Cpu(cpu) => {
+                cpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs);
+                Ok(())
+            }
             Self::Gpu(gpu) => Ok(gpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs)?),
         }
     }
