@@ -1,9 +1,6 @@
 // Back-projection of a pixel buffer: u,v → ox,oy,oz,dx,dy,dz (ray in the water, master frame).
 
-@group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> input: array<real>;        // 2 per item
-@group(0) @binding(2) var<storage, read_write> output: array<real>; // 6 per item
-@group(0) @binding(3) var<storage, read_write> status: array<u32>;
+// Bindings: shaders/kernels/map_bindings.wgsl (input and output rows, status).
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {

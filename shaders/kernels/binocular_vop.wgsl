@@ -1,10 +1,7 @@
 // Binocular VOPs from the system axis alone: ul,vl,ur,vr (raw pixels in cameras a and b) →
 // left VOP xyz, right VOP xyz, axis offset m, conditioning |det|.
 
-@group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> input: array<real>;        // 4 per item
-@group(0) @binding(2) var<storage, read_write> output: array<real>; // 8 per item
-@group(0) @binding(3) var<storage, read_write> status: array<u32>;
+// Bindings: shaders/kernels/map_bindings.wgsl (input and output rows, status).
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {

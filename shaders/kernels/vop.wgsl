@@ -1,10 +1,7 @@
 // Virtual Object Points: x,y,z → depth, vop_distance, vop_x, vop_y, vop_z, tan a (the host turns
 // tan a into the angle: WGSL has no f64 arctangent).
 
-@group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> input: array<real>;        // 3 per item
-@group(0) @binding(2) var<storage, read_write> output: array<real>; // 6 per item
-@group(0) @binding(3) var<storage, read_write> status: array<u32>;
+// Bindings: shaders/kernels/map_bindings.wgsl (input and output rows, status).
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {

@@ -105,6 +105,11 @@ impl Kernel {
         }
     }
 
+    /// True for the row-mapping kernels (shared bindings in `shaders/kernels/map_bindings.wgsl`).
+    fn maps_rows(self) -> bool {
+        !matches!(self, Self::BackprojectGrid | Self::RayGapCost)
+    }
+
     /// True for kernels whose entry point is a reduction.
     pub fn is_cost(self) -> bool {
         matches!(self, Self::RayGapCost)
@@ -147,7 +152,8 @@ pub fn prelude(precision: Precision) -> String {
 pub fn source(kernel: Kernel, precision: Precision, reduction: Reduction) -> String {
     let reduction = if kernel.is_cost() { reduction } else { Reduction::Workgroup };
     let mut text = prelude(precision);
-    for part in [COMMON].into_iter().chain(LIBRARY).chain([kernel.file()]) {
+    let bindings = if kernel.maps_rows() { include_str!("../../shaders/kernels/map_bindings.wgsl") } else { "" };
+    for part in [COMMON].into_iter().chain(LIBRARY).chain([bindings, kernel.file()]) {
         text.push_str(part);
         text.push('\n');
     }
