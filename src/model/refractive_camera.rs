@@ -75,8 +75,10 @@ pub struct RefractiveCamera {
     normal: Unit<Vector3<f64>>,
     air_distance: f64,
     layers: Vec<Layer>,
-    /// (tᵢ, ρᵢ, 1/ρᵢ) per layer, ρᵢ = μᵢ/μ_air.
-    layer_terms: Vec<(f64, f64, f64)>,
+    /// The media of a forward-projection path: air, water, then the layers ([`AIR`], [`WATER`]).
+    media: Vec<Medium>,
+    /// Index in `media` of the slowest medium (smallest ρ; the first of equals).
+    slowest: usize,
     layers_thickness: f64,
     index_air: f64,
     index_water: f64,
@@ -93,21 +95,37 @@ impl RefractiveCamera {
         let centre = cam_from_master.inverse_transform_point(&Point3::origin());
         let normal = *interface.normal();
         let index_air = interface.index_air();
-        let layer_terms =
-            interface.layers().iter().map(|l| (l.thickness, l.index / index_air, index_air / l.index)).collect();
+        let air_distance = interface.air_distance() - normal.dot(&centre.coords);
+        let rho_water = interface.index_water() / index_air;
+        let mut media: Vec<Medium> = [(air_distance, 1.0, 1.0), (0.0, rho_water, 1.0 / rho_water)]
+            .into_iter()
+            .chain(interface.layers().iter().map(|l| (l.thickness, l.index / index_air, index_air / l.index)))
+            .map(|(length, rho, inv_rho)| Medium { length, rho, inv_rho, critical_top: f64::INFINITY })
+            .collect();
+        let rhos: Vec<f64> = media.iter().map(|m| m.rho).collect();
+        for medium in &mut media {
+            for &rho in &rhos {
+                let k = medium.rho / rho;
+                if k > 1.0 {
+                    medium.critical_top = medium.critical_top.min(1.0 / (k * k - 1.0).sqrt());
+                }
+            }
+        }
+        let slowest = (0..media.len()).fold(AIR, |a, i| if media[i].rho < media[a].rho { i } else { a });
         Self {
             intrinsics,
             cam_from_master: rotation,
             master_from_cam: rotation.transpose(),
             centre,
             normal,
-            air_distance: interface.air_distance() - normal.dot(&centre.coords),
+            air_distance,
             layers: interface.layers().to_vec(),
-            layer_terms,
+            media,
+            slowest,
             layers_thickness: interface.layers_thickness(),
             index_air,
             index_water: interface.index_water(),
-            rho_water: interface.index_water() / index_air,
+            rho_water,
             fold_radius2: intrinsics.fold_radius2(),
         }
     }
@@ -211,7 +229,7 @@ impl RefractiveCamera {
         let lambda1 = water_radicand.sqrt() / cos_a;
         let mut axis_shift = self.air_distance * (1.0 - lambda1);
         let mut lateral_length = self.air_distance;
-        for &(thickness, rho, _) in &self.layer_terms {
+        for &Medium { length: thickness, rho, .. } in &self.media[WATER + 1..] {
             let radicand = rho * rho - sin2_a;
             if !(radicand > 0.0) {
                 return Err(NoSolution::TotalInternalReflection);
@@ -273,6 +291,20 @@ impl RefractiveCamera {
     /// Errors: [`NoSolution::NotInWater`] when x ≤ 0 (the point is in the air or a layer, or behind
     /// the camera); [`NoSolution::NoConvergence`] if the iteration bound is hit.
     pub fn air_path_to(&self, point_in_master: &Point3<f64>) -> Result<AirPath, NoSolution> {
+        let (depth, lateral, r) = self.split(point_in_master)?;
+        if r == 0.0 {
+            return Ok(AirPath { dir_in_air: self.normal, tan_incidence: 0.0, depth, lateral_distance: r, iterations: 0 });
+        }
+        let (v, rho_ref, iterations) = self.solve_incidence(depth, r)?;
+        let tau = tan_incidence_from(v, rho_ref);
+        let dir = (self.normal.into_inner() + lateral * (tau / r)) / (1.0 + tau * tau).sqrt();
+        Ok(AirPath { dir_in_air: Unit::new_unchecked(dir), tan_incidence: tau, depth, lateral_distance: r, iterations })
+    }
+
+    /// (x, O − C_k − z·n, r) of [`air_path_to`](Self::air_path_to): depth, lateral offset and its
+    /// length. Errors: [`NoSolution::NotInWater`] when x ≤ 0.
+    #[inline]
+    fn split(&self, point_in_master: &Point3<f64>) -> Result<(f64, Vector3<f64>, f64), NoSolution> {
         let n = self.normal.into_inner();
         let offset = point_in_master - self.centre;
         let z = n.dot(&offset);
@@ -281,146 +313,24 @@ impl RefractiveCamera {
             return Err(NoSolution::NotInWater);
         }
         let lateral = offset - n * z;
-        let r = lateral.norm();
-        if r == 0.0 {
-            return Ok(AirPath { dir_in_air: self.normal, tan_incidence: 0.0, depth, lateral_distance: r, iterations: 0 });
-        }
-        let (tau, iterations) = self.solve_tan_incidence(depth, r)?;
-        let dir = (n + lateral * (tau / r)) / (1.0 + tau * tau).sqrt();
-        Ok(AirPath { dir_in_air: Unit::new_unchecked(dir), tan_incidence: tau, depth, lateral_distance: r, iterations })
+        Ok((depth, lateral, lateral.norm()))
     }
 
-    /// f(v), f′(v) of [`air_path_to`](Self::air_path_to) in the variable of the reference medium
-    /// of relative index `rho_ref` (T′(v; k) = k / (1 + (1 − k²) v²)^(3/2)), and the medium whose
-    /// term contributes most to f′ as (length, ρ).
+    /// The root of [`air_path_to`](Self::air_path_to)'s f for a point at `depth` and lateral
+    /// distance `r` > 0, as (v, ρ_ref, iterations): v the tangent of the angle in the final
+    /// reference medium, ρ_ref that medium's relative index (tan a = T(v; ρ_ref)).
     #[inline]
-    fn incidence_equation(&self, v: f64, rho_ref: f64, depth: f64, r: f64) -> (f64, f64, (f64, f64)) {
-        let v2 = v * v;
-        let (mut f, mut df) = (-r, 0.0);
-        let mut dominant = (0.0, 1.0, 0.0); // (length, ρ, its f′ term)
-        for (length, rho, inv_rho) in self.media(depth) {
-            let k = rho_ref * inv_rho;
-            let inv_sqrt = 1.0 / (1.0 + (1.0 - k * k) * v2).sqrt();
-            let lk = length * k * inv_sqrt;
-            let slope = lk * inv_sqrt * inv_sqrt;
-            f += lk * v;
-            df += slope;
-            if slope > dominant.2 {
-                dominant = (length, rho, slope);
-            }
+    fn solve_incidence(&self, depth: f64, r: f64) -> Result<(f64, f64, u32), NoSolution> {
+        // The same code at a length known to the compiler for the common stacks (one layer, a
+        // single interface), so that the loops over the media unroll.
+        let media = self.media.as_slice();
+        if let Ok(media) = <&[Medium; 3]>::try_from(media) {
+            return PathMedia { media, depth }.solve(self.slowest, r);
         }
-        (f, df, (dominant.0, dominant.1))
-    }
-
-    /// The media a path crosses as (length along the axis, index relative to the air): air d_k,
-    /// water at `depth`, then the layers.
-    #[inline]
-    fn media(&self, depth: f64) -> impl Iterator<Item = (f64, f64, f64)> + '_ {
-        [(self.air_distance, 1.0, 1.0), (depth, self.rho_water, 1.0 / self.rho_water)]
-            .into_iter()
-            .chain(self.layer_terms.iter().copied())
-    }
-
-    /// Upper end of the bracket in the variable of the reference medium (length, ρ):
-    /// f(r / L_ref) ≥ 0, and light must enter every medium (v < 1/√(k² − 1) where k > 1).
-    #[inline]
-    fn bracket_top(&self, depth: f64, r: f64, (length_ref, rho_ref): (f64, f64)) -> f64 {
-        let mut hi = r / length_ref;
-        for (_, rho, _) in self.media(depth) {
-            let k = rho_ref / rho;
-            if k > 1.0 {
-                hi = hi.min(1.0 / (k * k - 1.0).sqrt());
-            }
+        if let Ok(media) = <&[Medium; 2]>::try_from(media) {
+            return PathMedia { media, depth }.solve(self.slowest, r);
         }
-        hi
-    }
-
-    /// tan a of the path to a point at `depth` and lateral distance `r` > 0, and the iterations used.
-    #[inline]
-    fn solve_tan_incidence(&self, depth: f64, r: f64) -> Result<(f64, u32), NoSolution> {
-        // Start in the medium with the largest paraxial weight L/ρ, from the paraxial root.
-        let mut reference = (self.air_distance, 1.0);
-        let mut paraxial_slope = 0.0;
-        for (length, rho, _) in self.media(depth) {
-            paraxial_slope += length / rho;
-            if length / rho > reference.0 / reference.1 {
-                reference = (length, rho);
-            }
-        }
-        let mut v = r / (paraxial_slope * reference.1);
-        let mut lo = 0.0;
-        let mut hi = self.bracket_top(depth, r, reference);
-        if !(v > lo && v < hi) {
-            v = 0.5 * (lo + hi);
-        }
-        // The slowest medium (smallest index) sets the critical-angle top of every other bracket.
-        let slowest = self.media(depth).fold((0.0, f64::INFINITY), |a, (l, rho, _)| if rho < a.1 { (l, rho) } else { a });
-        for iteration in 1..=PROJECT_MAX_ITERATIONS {
-            let (f, mut df, dominant) = self.incidence_equation(v, reference.1, depth, r);
-            if f < 0.0 {
-                lo = v;
-            } else if f > 0.0 {
-                hi = v;
-            } else {
-                return Ok((self.tan_incidence_from(v, reference.1), iteration));
-            }
-            if dominant.1 != reference.1 {
-                self.reparametrise(&mut reference, dominant, [&mut v, &mut lo, &mut hi], &mut df, depth, r);
-            }
-            let mut step = f / df;
-            if v - step >= hi && slowest.1 != reference.1 {
-                // The step leaves through the critical angle of the slowest medium: its term is
-                // about to dominate, so continue in its angle, where that term is linear.
-                self.reparametrise(&mut reference, slowest, [&mut v, &mut lo, &mut hi], &mut df, depth, r);
-                step = f / df;
-            }
-            // Converged: test before the bracket, since a step below half an ulp leaves v unchanged
-            // and would otherwise read as a step outside the open bracket.
-            if step.abs() <= PROJECT_TOLERANCE * v {
-                return Ok((self.tan_incidence_from(v - step, reference.1), iteration));
-            }
-            let mut next = v - step;
-            if !(next > lo && next < hi) {
-                next = 0.5 * (lo + hi);
-            }
-            if hi - lo <= PROJECT_TOLERANCE * hi {
-                return Ok((self.tan_incidence_from(next, reference.1), iteration));
-            }
-            v = next;
-        }
-        Err(NoSolution::NoConvergence)
-    }
-
-    /// Moves the iteration from the angle of medium `reference` to that of `to` (length, ρ): f is
-    /// the lateral miss in every variable; v and the bracket map through T(·; ρ_ref/ρ_to), and f′
-    /// is divided by T′ (chain rule). The mapped bracket top is capped by `to`'s own bound.
-    #[inline]
-    fn reparametrise(
-        &self,
-        reference: &mut (f64, f64),
-        to: (f64, f64),
-        [v, lo, hi]: [&mut f64; 3],
-        df: &mut f64,
-        depth: f64,
-        r: f64,
-    ) {
-        let k = reference.1 / to.1;
-        let map = |x: f64| {
-            let q = 1.0 + (1.0 - k * k) * x * x;
-            if q > 0.0 { k * x / q.sqrt() } else { f64::INFINITY }
-        };
-        let q = 1.0 + (1.0 - k * k) * *v * *v;
-        *df /= k / (q * q.sqrt());
-        (*v, *lo) = (map(*v), map(*lo));
-        *hi = map(*hi).min(self.bracket_top(depth, r, to));
-        *reference = to;
-    }
-
-    /// tan a = T(v; k_air) from the tangent v of the angle in the reference medium.
-    #[inline]
-    fn tan_incidence_from(&self, v: f64, rho_ref: f64) -> f64 {
-        let k = rho_ref;
-        k * v / (1.0 + (1.0 - k * k) * v * v).sqrt()
+        PathMedia { media, depth }.solve(self.slowest, r)
     }
 
     /// Forward projection: the (distorted) pixel at which `point_in_master` appears through the
@@ -432,12 +342,22 @@ impl RefractiveCamera {
     /// distortion, where the pixel would back-project to another ray.
     #[inline]
     pub fn project(&self, point_in_master: &Point3<f64>) -> Result<Point2<f64>, NoSolution> {
-        let path = self.air_path_to(point_in_master)?;
-        let dir_in_cam = self.cam_from_master * path.dir_in_air.into_inner();
+        let (depth, lateral, r) = self.split(point_in_master)?;
+        let n = self.normal.into_inner();
+        // Any positive multiple of the air direction gives the same pixel: with tan a = k v / √q,
+        // q = 1 + (1 − k²) v², take r·√q·(n + lateral·tan a / r) = r√q·n + k v·lateral.
+        let dir_in_air = if r == 0.0 {
+            n
+        } else {
+            let (v, k, _) = self.solve_incidence(depth, r)?;
+            n * (r * (1.0 + (1.0 - k * k) * v * v).sqrt()) + lateral * (k * v)
+        };
+        let dir_in_cam = self.cam_from_master * dir_in_air;
         if !(dir_in_cam.z > 0.0) {
             return Err(NoSolution::BehindCamera);
         }
-        let normalized = Vector2::new(dir_in_cam.x / dir_in_cam.z, dir_in_cam.y / dir_in_cam.z);
+        let inv_z = 1.0 / dir_in_cam.z;
+        let normalized = Vector2::new(dir_in_cam.x * inv_z, dir_in_cam.y * inv_z);
         if !(normalized.norm_squared() < self.fold_radius2) {
             return Err(NoSolution::OutsideLens);
         }
@@ -466,4 +386,151 @@ impl RefractiveCamera {
         let vop = point_in_master + n * (vop_distance - path.depth);
         Ok(Vop { depth: path.depth, vop_distance, vop, incidence: tau.atan() })
     }
+}
+
+/// Index of the air in [`RefractiveCamera`]'s media.
+const AIR: usize = 0;
+/// Index of the water in [`RefractiveCamera`]'s media; the layers follow it.
+const WATER: usize = 1;
+
+/// A medium that a forward-projection path crosses, with the constants its root finder needs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Medium {
+    /// Length along the axis: d_k for the air, tᵢ for a layer; unused for the water, whose length
+    /// is the depth of the point.
+    length: f64,
+    /// ρ = μ/μ_air.
+    rho: f64,
+    /// 1/ρ.
+    inv_rho: f64,
+    /// Critical-angle top of the bracket in this medium's variable: light must enter every medium,
+    /// v < 1/√(k² − 1) for every k = ρ/ρₘ > 1 (∞ when there is none).
+    critical_top: f64,
+}
+
+/// The media of the path to one point: a camera's media with the water as deep as the point.
+#[derive(Debug, Clone, Copy)]
+struct PathMedia<'a> {
+    media: &'a [Medium],
+    depth: f64,
+}
+
+impl PathMedia<'_> {
+    /// Length along the axis of medium `i`.
+    #[inline(always)]
+    fn length(&self, i: usize) -> f64 {
+        if i == WATER { self.depth } else { self.media[i].length }
+    }
+
+    /// The safeguarded Newton iteration of [`RefractiveCamera::air_path_to`] for lateral distance
+    /// `r` > 0; `slowest` indexes the medium of smallest ρ. Returns (v, ρ_ref, iterations).
+    #[inline(always)]
+    fn solve(&self, slowest: usize, r: f64) -> Result<(f64, f64, u32), NoSolution> {
+        // Start in the medium with the largest paraxial weight L/ρ, from the paraxial root.
+        let mut reference = AIR;
+        let mut reference_weight = self.length(AIR) * self.media[AIR].inv_rho;
+        let mut paraxial_slope = 0.0;
+        for (i, medium) in self.media.iter().enumerate() {
+            let weight = self.length(i) * medium.inv_rho;
+            paraxial_slope += weight;
+            if weight > reference_weight {
+                (reference, reference_weight) = (i, weight);
+            }
+        }
+        let mut v = r / (paraxial_slope * self.media[reference].rho);
+        let mut lo = 0.0;
+        let mut hi = self.bracket_top(reference, r);
+        if !(v > lo && v < hi) {
+            v = 0.5 * (lo + hi);
+        }
+        // The slowest medium (smallest index) sets the critical-angle top of every other bracket.
+        let slowest_rho = self.media[slowest].rho;
+        for iteration in 1..=PROJECT_MAX_ITERATIONS {
+            let (f, mut df, dominant) = self.incidence_equation(v, reference, r);
+            if f < 0.0 {
+                lo = v;
+            } else if f > 0.0 {
+                hi = v;
+            } else {
+                return Ok((v, self.media[reference].rho, iteration));
+            }
+            if self.media[dominant].rho != self.media[reference].rho {
+                self.reparametrise(&mut reference, dominant, [&mut v, &mut lo, &mut hi], &mut df, r);
+            }
+            let mut step = f / df;
+            if v - step >= hi && slowest_rho != self.media[reference].rho {
+                // The step leaves through the critical angle of the slowest medium: its term is
+                // about to dominate, so continue in its angle, where that term is linear.
+                self.reparametrise(&mut reference, slowest, [&mut v, &mut lo, &mut hi], &mut df, r);
+                step = f / df;
+            }
+            // Converged: test before the bracket, since a step below half an ulp leaves v unchanged
+            // and would otherwise read as a step outside the open bracket.
+            if step.abs() <= PROJECT_TOLERANCE * v {
+                return Ok((v - step, self.media[reference].rho, iteration));
+            }
+            let mut next = v - step;
+            if !(next > lo && next < hi) {
+                next = 0.5 * (lo + hi);
+            }
+            if hi - lo <= PROJECT_TOLERANCE * hi {
+                return Ok((next, self.media[reference].rho, iteration));
+            }
+            v = next;
+        }
+        Err(NoSolution::NoConvergence)
+    }
+
+    /// f(v), f′(v) of [`RefractiveCamera::air_path_to`] in the variable of medium `reference`
+    /// (T′(v; k) = k / (1 + (1 − k²) v²)^(3/2)), and the medium whose term contributes most to f′.
+    #[inline(always)]
+    fn incidence_equation(&self, v: f64, reference: usize, r: f64) -> (f64, f64, usize) {
+        let v2 = v * v;
+        let rho_ref = self.media[reference].rho;
+        let (mut f, mut df) = (-r, 0.0);
+        let (mut dominant, mut dominant_slope) = (AIR, 0.0);
+        for (i, medium) in self.media.iter().enumerate() {
+            let k = rho_ref * medium.inv_rho;
+            let inv_sqrt = 1.0 / (1.0 + (1.0 - k * k) * v2).sqrt();
+            let lk = self.length(i) * k * inv_sqrt;
+            let slope = lk * inv_sqrt * inv_sqrt;
+            f += lk * v;
+            df += slope;
+            if slope > dominant_slope {
+                (dominant, dominant_slope) = (i, slope);
+            }
+        }
+        (f, df, dominant)
+    }
+
+    /// Upper end of the bracket in the variable of medium `reference`: f(r / L_ref) ≥ 0, capped by
+    /// the critical angles.
+    #[inline(always)]
+    fn bracket_top(&self, reference: usize, r: f64) -> f64 {
+        (r / self.length(reference)).min(self.media[reference].critical_top)
+    }
+
+    /// Moves the iteration from the angle of medium `reference` to that of medium `to`: f is the
+    /// lateral miss in every variable; v and the bracket map through T(·; ρ_ref/ρ_to), and f′ is
+    /// divided by T′ (chain rule). The mapped bracket top is capped by `to`'s own bound.
+    #[inline(never)]
+    fn reparametrise(&self, reference: &mut usize, to: usize, [v, lo, hi]: [&mut f64; 3], df: &mut f64, r: f64) {
+        let k = self.media[*reference].rho / self.media[to].rho;
+        let map = |x: f64| {
+            let q = 1.0 + (1.0 - k * k) * x * x;
+            if q > 0.0 { k * x / q.sqrt() } else { f64::INFINITY }
+        };
+        let q = 1.0 + (1.0 - k * k) * *v * *v;
+        *df /= k / (q * q.sqrt());
+        (*v, *lo) = (map(*v), map(*lo));
+        *hi = map(*hi).min(self.bracket_top(to, r));
+        *reference = to;
+    }
+}
+
+/// tan a = T(v; k_air) from the tangent v of the angle in the reference medium of index ρ_ref.
+#[inline]
+fn tan_incidence_from(v: f64, rho_ref: f64) -> f64 {
+    let k = rho_ref;
+    k * v / (1.0 + (1.0 - k * k) * v * v).sqrt()
 }
