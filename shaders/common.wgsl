@@ -1,4 +1,5 @@
-// Shared structs, status codes and indexing of every flatport kernel.
+// Shared structs, status codes and indexing of every flatport kernel. Every kernel declares the
+// uniform `params: Params` at binding 0, which the relations in shaders/lib/ read.
 //
 // A kernel module is composed (src/gpu/shaders.rs) from: a precision prelude that defines
 // `real` (f32 or f64), `vec2r`..`vec4r` and the tolerances; this file; the relations in
@@ -36,9 +37,21 @@ struct Camera {
 
 // Uniform of every kernel: one or two cameras and the dispatch description.
 struct Params {
-    a: Camera,
-    b: Camera,
+    cams: array<Camera, 2>,
     info: vec4<u32>, // items in this dispatch, grid width, first grid row, 0
+}
+
+// Camera k of `params` and the interface it sees: the axis n and its own air layer d_k (a cost
+// kernel moves them per candidate). Everything else is read from the uniform where it is used:
+// a by-value copy of `Camera` lives in memory on SIMD drivers, which made lavapipe 1.4× slower.
+struct View {
+    k: u32,
+    n: vec3r,
+    d_k: real,
+}
+
+fn view(k: u32) -> View {
+    return View(k, params.cams[k].normal.xyz, params.cams[k].extra.w);
 }
 
 // A value that may not exist (total internal reflection, …).
@@ -57,11 +70,11 @@ fn cross3(a: vec3r, b: vec3r) -> vec3r {
 }
 
 // R_k · v from the rows of R_kᵀ: camera frame from master frame.
-fn cam_from_master(cam: Camera, v: vec3r) -> vec3r {
-    return cam.master_from_cam0.xyz * v.x + cam.master_from_cam1.xyz * v.y + cam.master_from_cam2.xyz * v.z;
+fn cam_from_master(cam: View, v: vec3r) -> vec3r {
+    return params.cams[cam.k].master_from_cam0.xyz * v.x + params.cams[cam.k].master_from_cam1.xyz * v.y + params.cams[cam.k].master_from_cam2.xyz * v.z;
 }
 
 // R_kᵀ · v: master frame from camera frame.
-fn master_from_cam(cam: Camera, v: vec3r) -> vec3r {
-    return vec3r(dot(cam.master_from_cam0.xyz, v), dot(cam.master_from_cam1.xyz, v), dot(cam.master_from_cam2.xyz, v));
+fn master_from_cam(cam: View, v: vec3r) -> vec3r {
+    return vec3r(dot(params.cams[cam.k].master_from_cam0.xyz, v), dot(params.cams[cam.k].master_from_cam1.xyz, v), dot(params.cams[cam.k].master_from_cam2.xyz, v));
 }

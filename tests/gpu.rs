@@ -50,8 +50,9 @@ fn host_packing_mirrors_the_wgsl_structs() {
         let (size, b_offset, info_offset) = params_layout(precision);
         assert_eq!(layouter[params].size as usize, size, "{precision} Params");
         let naga::TypeInner::Struct { members, .. } = &ty.inner else { panic!("Params is a struct") };
-        assert_eq!(members[1].offset as usize, b_offset, "{precision} Params.b");
-        assert_eq!(members[2].offset as usize, info_offset, "{precision} Params.info");
+        let naga::TypeInner::Array { stride, .. } = module.types[members[0].ty].inner else { panic!("Params.cams is an array") };
+        assert_eq!(stride as usize, b_offset, "{precision} Params.cams stride");
+        assert_eq!(members[1].offset as usize, info_offset, "{precision} Params.info");
     }
 }
 

@@ -8,7 +8,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (i >= params.info.x) {
         return;
     }
-    let ray = backproject(params.a, vec2r(input[2u * i], input[2u * i + 1u]));
+    let ray = backproject(view(0u), vec2r(input[2u * i], input[2u * i + 1u]));
     status[i] = ray.status;
     if (ray.status == STATUS_OK) {
         let o = 6u * i;

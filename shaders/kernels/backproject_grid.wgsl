@@ -13,7 +13,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let i = gid.y * width + gid.x;
     let pixel = vec2r(real(gid.x), real(gid.y + params.info.z));
-    let ray = backproject(params.a, pixel);
+    let ray = backproject(view(0u), pixel);
     status[i] = ray.status;
     if (ray.status == STATUS_OK) {
         let o = 6u * i;

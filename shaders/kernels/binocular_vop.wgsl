@@ -10,17 +10,17 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
     let j = 4u * i;
-    let v_l = dir_in_air_from_img(params.a, vec2r(input[j], input[j + 1u]));
+    let v_l = dir_in_air_from_img(view(0u), vec2r(input[j], input[j + 1u]));
     if (v_l.status != STATUS_OK) {
         status[i] = v_l.status;
         return;
     }
-    let v_r = dir_in_air_from_img(params.b, vec2r(input[j + 2u], input[j + 3u]));
+    let v_r = dir_in_air_from_img(view(1u), vec2r(input[j + 2u], input[j + 3u]));
     if (v_r.status != STATUS_OK) {
         status[i] = v_r.status;
         return;
     }
-    let b = binocular_vop(params.a.centre.xyz, v_l.dir, params.b.centre.xyz, v_r.dir, params.a.normal.xyz);
+    let b = binocular_vop(params.cams[0].centre.xyz, v_l.dir, params.cams[1].centre.xyz, v_r.dir, view(0u).n);
     status[i] = b.status;
     if (b.status == STATUS_OK) {
         let o = 8u * i;

@@ -8,7 +8,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (i >= params.info.x) {
         return;
     }
-    let p = project(params.a, vec3r(input[3u * i], input[3u * i + 1u], input[3u * i + 2u]));
+    let p = project(view(0u), vec3r(input[3u * i], input[3u * i + 1u], input[3u * i + 2u]));
     status[i] = p.status;
     if (p.status == STATUS_OK) {
         output[2u * i] = p.pixel.x;

@@ -8,20 +8,17 @@
 @group(0) @binding(2) var<storage, read_write> output: array<real>; // (sum, count) per candidate × workgroup
 @group(0) @binding(4) var<storage, read> candidates: array<vec4r>;  // n xyz (unit), d
 
-// Camera `cam` behind candidate interface (n, d): d_k = d − n·C_k.
-fn with_interface(cam: Camera, candidate: vec4r) -> Camera {
-    var moved = cam;
-    moved.normal = vec4r(candidate.xyz, 0.0);
-    moved.extra.w = candidate.w - dot(candidate.xyz, cam.centre.xyz);
-    return moved;
+// Camera k behind candidate interface (n, d): d_k = d − n·C_k.
+fn with_interface(k: u32, candidate: vec4r) -> View {
+    return View(k, candidate.xyz, candidate.w - dot(candidate.xyz, params.cams[k].centre.xyz));
 }
 
 // (residual², 1) for correspondence j under candidate c, (0, 0) when it has no answer.
 fn cost_term(j: u32, c: u32) -> vec2r {
     let candidate = candidates[c];
-    let a = with_interface(params.a, candidate);
-    let b = with_interface(params.b, candidate);
-    if (!(a.extra.w > 0.0 && b.extra.w > 0.0)) {
+    let a = with_interface(0u, candidate);
+    let b = with_interface(1u, candidate);
+    if (!(a.d_k > 0.0 && b.d_k > 0.0)) {
         return vec2r(0.0); // a camera outside the air
     }
     let k = 6u * j;

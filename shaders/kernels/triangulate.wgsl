@@ -9,12 +9,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
     let j = 4u * i;
-    let ray_a = backproject(params.a, vec2r(input[j], input[j + 1u]));
+    let ray_a = backproject(view(0u), vec2r(input[j], input[j + 1u]));
     if (ray_a.status != STATUS_OK) {
         status[i] = ray_a.status;
         return;
     }
-    let ray_b = backproject(params.b, vec2r(input[j + 2u], input[j + 3u]));
+    let ray_b = backproject(view(1u), vec2r(input[j + 2u], input[j + 3u]));
     if (ray_b.status != STATUS_OK) {
         status[i] = ray_b.status;
         return;

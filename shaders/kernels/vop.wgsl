@@ -9,7 +9,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (i >= params.info.x) {
         return;
     }
-    let v = vop(params.a, vec3r(input[3u * i], input[3u * i + 1u], input[3u * i + 2u]));
+    let v = vop(view(0u), vec3r(input[3u * i], input[3u * i + 1u], input[3u * i + 2u]));
     status[i] = v.status;
     if (v.status == STATUS_OK) {
         let o = 6u * i;

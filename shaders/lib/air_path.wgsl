@@ -14,13 +14,13 @@ struct Media {
     count: u32,
 }
 
-fn media_of(cam: Camera, depth: real) -> Media {
+fn media_of(cam: View, depth: real) -> Media {
     var media: Media;
-    media.m[0] = vec2r(cam.extra.w, 1.0);
-    media.m[1] = vec2r(depth, cam.extra.z);
-    let layers = min(cam.counts.x, MAX_LAYERS);
+    media.m[0] = vec2r(cam.d_k, 1.0);
+    media.m[1] = vec2r(depth, params.cams[cam.k].extra.z);
+    let layers = min(params.cams[cam.k].counts.x, MAX_LAYERS);
     for (var l = 0u; l < layers; l++) {
-        media.m[l + 2u] = cam.layers[l].xy;
+        media.m[l + 2u] = params.cams[cam.k].layers[l].xy;
     }
     media.count = layers + 2u;
     return media;
@@ -104,10 +104,10 @@ fn tan_incidence_from(v: real, rho_ref: real) -> real {
 
 // tan a of the path to a point at `depth` and lateral distance r > 0; `ok` false if the
 // iteration bound is hit.
-fn solve_tan_incidence(cam: Camera, depth: real, r: real) -> Maybe {
+fn solve_tan_incidence(cam: View, depth: real, r: real) -> Maybe {
     var media = media_of(cam, depth);
     // Start in the medium with the largest paraxial weight L/ρ, from the paraxial root.
-    var reference = vec2r(cam.extra.w, 1.0);
+    var reference = vec2r(cam.d_k, 1.0);
     var paraxial_slope: real = 0.0;
     var slowest = vec2r(0.0, REAL_HUGE);
     for (var i = 0u; i < media.count; i++) {
@@ -167,11 +167,11 @@ struct AirPath {
     status: u32,
 }
 
-fn air_path_to(cam: Camera, point: vec3r) -> AirPath {
-    let n = cam.normal.xyz;
-    let offset = point - cam.centre.xyz;
+fn air_path_to(cam: View, point: vec3r) -> AirPath {
+    let n = cam.n;
+    let offset = point - params.cams[cam.k].centre.xyz;
     let z = dot(n, offset);
-    let depth = z - cam.extra.w - cam.centre.w;
+    let depth = z - cam.d_k - params.cams[cam.k].centre.w;
     if (!(depth > 0.0)) {
         return AirPath(vec3r(0.0), 0.0, depth, 0.0, STATUS_NOT_IN_WATER);
     }
@@ -194,7 +194,7 @@ struct Pixel {
 }
 
 // Forward projection: the raw pixel at which a point in the water appears.
-fn project(cam: Camera, point: vec3r) -> Pixel {
+fn project(cam: View, point: vec3r) -> Pixel {
     let path = air_path_to(cam, point);
     if (path.status != STATUS_OK) {
         return Pixel(vec2r(0.0), path.status);
@@ -204,7 +204,7 @@ fn project(cam: Camera, point: vec3r) -> Pixel {
         return Pixel(vec2r(0.0), STATUS_BEHIND_CAMERA);
     }
     let normalized = d.xy / d.z;
-    if (!(dot(normalized, normalized) < cam.extra.y)) {
+    if (!(dot(normalized, normalized) < params.cams[cam.k].extra.y)) {
         return Pixel(vec2r(0.0), STATUS_OUTSIDE_LENS);
     }
     return Pixel(img_from_normalized(cam, normalized), STATUS_OK);
@@ -219,14 +219,14 @@ struct VirtualPoint {
 }
 
 // The VOP: x̌ = r / tan a − d_k − Σ tᵢ (eq 4.8 on the camera's axis line, r = 0), Ǒ = O + (x̌ − x)·n.
-fn vop(cam: Camera, point: vec3r) -> VirtualPoint {
+fn vop(cam: View, point: vec3r) -> VirtualPoint {
     let path = air_path_to(cam, point);
     if (path.status != STATUS_OK) {
         return VirtualPoint(path.depth, 0.0, vec3r(0.0), 0.0, path.status);
     }
     var vop_distance: real = 0.0;
     if (path.tan_a > 0.0) {
-        vop_distance = path.r / path.tan_a - cam.extra.w - cam.centre.w;
+        vop_distance = path.r / path.tan_a - cam.d_k - params.cams[cam.k].centre.w;
     } else {
         let axial = virtual_from_real(cam, path.depth, 0.0, 1.0);
         if (!axial.ok) {
@@ -234,6 +234,6 @@ fn vop(cam: Camera, point: vec3r) -> VirtualPoint {
         }
         vop_distance = axial.value;
     }
-    let v = point + cam.normal.xyz * (vop_distance - path.depth);
+    let v = point + cam.n * (vop_distance - path.depth);
     return VirtualPoint(path.depth, vop_distance, v, path.tan_a, STATUS_OK);
 }

@@ -1,4 +1,4 @@
-//! Host-side packing of the WGSL uniform `Params` (two `Camera`s and the dispatch description) of
+//! Host-side packing of the WGSL uniform `Params` (`cams`: two `Camera`s, and the dispatch description) of
 //! `shaders/common.wgsl`, in f32 or f64. WGSL lays a struct of vec4s out without holes; only the
 //! struct's alignment (that of a vec4: 16 bytes in f32, 32 in f64) pads its end. A test compares
 //! these sizes and offsets with naga's layouter.
@@ -22,7 +22,7 @@ pub fn camera_size(precision: Precision) -> usize {
     (CAMERA_REAL4 * 4 * precision.size() + 16).next_multiple_of(align(precision))
 }
 
-/// Size of WGSL `Params` in bytes, and the offsets of its members `b` and `info`.
+/// Size of WGSL `Params` in bytes, the offset of its second camera (`cams[1]`) and of `info`.
 pub fn params_layout(precision: Precision) -> (usize, usize, usize) {
     let camera = camera_size(precision);
     ((2 * camera + 16).next_multiple_of(align(precision)), camera, 2 * camera)
