@@ -6,24 +6,21 @@
 // f(v) = Σₘ Lₘ T(v; kₘ) − r, T(v; k) = k v / √(1 + (1 − k²) v²), v = tan θ in the reference
 // medium, kₘ = ρ_ref / ρₘ, over the media m = air (d_k), water (depth), layers (tᵢ).
 
-const MAX_MEDIA: u32 = 10u; // air, water, MAX_LAYERS layers
-
-// The media a path crosses as (length along the axis, ρ = μ/μ_air).
-struct Media {
-    m: array<vec2r, 10>,
-    count: u32,
+// Medium i of a path as (length along the axis, ρ = μ/μ_air): 0 = air (d_k), 1 = water at
+// `depth`, 2.. = the layers, read from the uniform (a local array of media, dynamically indexed,
+// lives in memory on SIMD drivers).
+fn medium(cam: View, depth: real, i: u32) -> vec2r {
+    if (i == 0u) {
+        return vec2r(cam.d_k, 1.0);
+    }
+    if (i == 1u) {
+        return vec2r(depth, params.cams[cam.k].extra.z);
+    }
+    return params.cams[cam.k].layers[i - 2u].xy;
 }
 
-fn media_of(cam: View, depth: real) -> Media {
-    var media: Media;
-    media.m[0] = vec2r(cam.d_k, 1.0);
-    media.m[1] = vec2r(depth, params.cams[cam.k].extra.z);
-    let layers = min(params.cams[cam.k].counts.x, MAX_LAYERS);
-    for (var l = 0u; l < layers; l++) {
-        media.m[l + 2u] = params.cams[cam.k].layers[l].xy;
-    }
-    media.count = layers + 2u;
-    return media;
+fn media_count(cam: View) -> u32 {
+    return min(params.cams[cam.k].counts.x, MAX_LAYERS) + 2u;
 }
 
 // f, f′ in the variable of the reference medium of index rho_ref, and the medium whose term
@@ -34,14 +31,14 @@ struct Equation {
     dominant: vec2r,
 }
 
-fn incidence_equation(media: ptr<function, Media>, v: real, rho_ref: real, r: real) -> Equation {
+fn incidence_equation(cam: View, depth: real, v: real, rho_ref: real, r: real) -> Equation {
     let v2 = v * v;
     var f = -r;
     var df: real = 0.0;
     var dominant = vec2r(0.0, 1.0);
     var dominant_slope: real = 0.0;
-    for (var i = 0u; i < (*media).count; i++) {
-        let medium = (*media).m[i];
+    for (var i = 0u; i < media_count(cam); i++) {
+        let medium = medium(cam, depth, i);
         let k = rho_ref / medium.y;
         let inv_sqrt = 1.0 / sqrt(1.0 + (1.0 - k * k) * v2);
         let lk = medium.x * k * inv_sqrt;
@@ -58,10 +55,10 @@ fn incidence_equation(media: ptr<function, Media>, v: real, rho_ref: real, r: re
 
 // Upper end of the bracket in the variable of the reference medium: f(r / L_ref) ≥ 0, and light
 // must enter every medium (v < 1/√(k² − 1) where k > 1).
-fn bracket_top(media: ptr<function, Media>, r: real, reference: vec2r) -> real {
+fn bracket_top(cam: View, depth: real, r: real, reference: vec2r) -> real {
     var hi = r / reference.x;
-    for (var i = 0u; i < (*media).count; i++) {
-        let k = reference.y / (*media).m[i].y;
+    for (var i = 0u; i < media_count(cam); i++) {
+        let k = reference.y / medium(cam, depth, i).y;
         if (k > 1.0) {
             hi = min(hi, 1.0 / sqrt(k * k - 1.0));
         }
@@ -89,11 +86,11 @@ struct Newton {
 
 // Moves the iteration to the angle of medium `to`: v and the bracket map through T(·; ρ_ref/ρ_to),
 // f′ is divided by T′, and the mapped top is capped by `to`'s own bound.
-fn reparametrise(media: ptr<function, Media>, s: Newton, to: vec2r, r: real) -> Newton {
+fn reparametrise(cam: View, depth: real, s: Newton, to: vec2r, r: real) -> Newton {
     let k = s.reference.y / to.y;
     let q = 1.0 + (1.0 - k * k) * s.v * s.v;
     let df = s.df / (k / (q * sqrt(q)));
-    let hi = min(map_tangent(s.hi, k), bracket_top(media, r, to));
+    let hi = min(map_tangent(s.hi, k), bracket_top(cam, depth, r, to));
     return Newton(map_tangent(s.v, k), map_tangent(s.lo, k), hi, df, to);
 }
 
@@ -105,13 +102,12 @@ fn tan_incidence_from(v: real, rho_ref: real) -> real {
 // tan a of the path to a point at `depth` and lateral distance r > 0; `ok` false if the
 // iteration bound is hit.
 fn solve_tan_incidence(cam: View, depth: real, r: real) -> Maybe {
-    var media = media_of(cam, depth);
     // Start in the medium with the largest paraxial weight L/ρ, from the paraxial root.
     var reference = vec2r(cam.d_k, 1.0);
     var paraxial_slope: real = 0.0;
     var slowest = vec2r(0.0, REAL_HUGE);
-    for (var i = 0u; i < media.count; i++) {
-        let medium = media.m[i];
+    for (var i = 0u; i < media_count(cam); i++) {
+        let medium = medium(cam, depth, i);
         paraxial_slope += medium.x / medium.y;
         if (medium.x / medium.y > reference.x / reference.y) {
             reference = medium;
@@ -121,12 +117,12 @@ fn solve_tan_incidence(cam: View, depth: real, r: real) -> Maybe {
         }
     }
     var s = Newton(r / (paraxial_slope * reference.y), 0.0, 0.0, 0.0, reference);
-    s.hi = bracket_top(&media, r, reference);
+    s.hi = bracket_top(cam, depth, r, reference);
     if (!(s.v > s.lo && s.v < s.hi)) {
         s.v = 0.5 * (s.lo + s.hi);
     }
     for (var iteration = 1u; iteration <= PROJECT_MAX_ITERATIONS; iteration++) {
-        let e = incidence_equation(&media, s.v, s.reference.y, r);
+        let e = incidence_equation(cam, depth, s.v, s.reference.y, r);
         if (e.f < 0.0) {
             s.lo = s.v;
         } else if (e.f > 0.0) {
@@ -136,12 +132,12 @@ fn solve_tan_incidence(cam: View, depth: real, r: real) -> Maybe {
         }
         s.df = e.df;
         if (e.dominant.y != s.reference.y) {
-            s = reparametrise(&media, s, e.dominant, r);
+            s = reparametrise(cam, depth, s, e.dominant, r);
         }
         var step = e.f / s.df;
         if (s.v - step >= s.hi && slowest.y != s.reference.y) {
             // The step leaves through the slowest medium's critical angle: continue in its angle.
-            s = reparametrise(&media, s, slowest, r);
+            s = reparametrise(cam, depth, s, slowest, r);
             step = e.f / s.df;
         }
         if (abs(step) <= PROJECT_TOLERANCE * s.v) {
