@@ -94,6 +94,8 @@ pub struct GpuContext {
     pub(crate) device: wgpu::Device,
     pub(crate) queue: wgpu::Queue,
     summary: AdapterSummary,
+    /// Storage buffers can be mapped by the host (MAPPABLE_PRIMARY_BUFFERS on shared memory).
+    mapped_storage: bool,
 }
 
 impl GpuContext {
@@ -118,7 +120,13 @@ impl GpuContext {
             return Err(GpuError::NoAdapter { tried, hint: INSTALL_HINT.to_string() });
         };
         let summary = summary(adapter);
-        let wanted_features = wgpu::Features::SHADER_F64 | wgpu::Features::SUBGROUP | wgpu::Features::TIMESTAMP_QUERY;
+        let mut wanted_features = wgpu::Features::SHADER_F64 | wgpu::Features::SUBGROUP | wgpu::Features::TIMESTAMP_QUERY;
+        // Where the device shares the host's memory (lavapipe, integrated GPUs), storage buffers
+        // that the host maps directly save the staging copies both ways.
+        let shares_memory = matches!(adapter.get_info().device_type, wgpu::DeviceType::Cpu | wgpu::DeviceType::IntegratedGpu);
+        if shares_memory {
+            wanted_features |= wgpu::Features::MAPPABLE_PRIMARY_BUFFERS;
+        }
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("flatport"),
             required_features: adapter.features() & wanted_features,
@@ -126,12 +134,36 @@ impl GpuContext {
             ..Default::default()
         }))
         .map_err(|e| GpuError::Device { adapter: summary.name.clone(), reason: e.to_string() })?;
-        Ok(Self { device, queue, summary })
+        let mapped_storage = device.features().contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
+        Ok(Self { device, queue, summary, mapped_storage })
     }
 
     /// The adapter in use.
     pub fn adapter(&self) -> &AdapterSummary {
         &self.summary
+    }
+
+    /// True when kernels' storage buffers are mapped by the host directly, without staging
+    /// copies (adapters that share the host's memory and have MAPPABLE_PRIMARY_BUFFERS).
+    pub fn maps_storage(&self) -> bool {
+        self.mapped_storage
+    }
+
+    /// Writes `bytes` at the start of a MAP_WRITE buffer through a mapping.
+    pub(crate) fn write_mapped(&self, buffer: &wgpu::Buffer, bytes: &[u8]) -> Result<(), GpuError> {
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        let len = bytes.len() as u64;
+        let (sender, receiver) = std::sync::mpsc::channel();
+        buffer.map_async(wgpu::MapMode::Write, ..len, move |r| {
+            let _ = sender.send(r);
+        });
+        self.wait()?;
+        receiver.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
+        buffer.get_mapped_range_mut(..len).map_err(|e| GpuError::Readback(e.to_string()))?.copy_from_slice(bytes);
+        buffer.unmap();
+        Ok(())
     }
 
     /// Largest storage binding, bytes.
@@ -162,7 +194,8 @@ impl GpuContext {
         if groups <= max { (groups, 1) } else { (max, groups.div_ceil(max)) }
     }
 
-    /// Submits `encoder` after copying each `(source, staging, bytes)` into its staging buffer,
+    /// Submits `encoder` after copying each `(source, staging, bytes)` into its staging buffer
+    /// (nothing to copy where `staging` is `source`, a host-mappable storage buffer),
     /// waits, and hands the mapped bytes of every staging buffer, in order, to `read`.
     pub(crate) fn read_back<T>(
         &self,
@@ -171,7 +204,10 @@ impl GpuContext {
         read: impl FnOnce(&[&[u8]]) -> T,
     ) -> Result<T, GpuError> {
         for &(source, staging, bytes) in copies {
-            encoder.copy_buffer_to_buffer(source, 0, staging, 0, bytes);
+            // A source that is its own staging buffer is mapped directly.
+            if source != staging {
+                encoder.copy_buffer_to_buffer(source, 0, staging, 0, bytes);
+            }
         }
         self.queue.submit([encoder.finish()]);
         let (sender, receiver) = std::sync::mpsc::channel();

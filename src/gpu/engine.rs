@@ -22,14 +22,14 @@ pub const MAX_CHUNK_ITEMS: usize = 1 << 22;
 /// Largest workgroup count per dispatch dimension every Vulkan adapter supports.
 const MAX_GROUPS_PER_DIMENSION: usize = 65_535;
 
-/// A buffer that is replaced by a larger one when a call needs more.
+/// A buffer that is replaced when a call needs more bytes or another usage.
 #[derive(Default)]
 struct Slot(Option<wgpu::Buffer>);
 
 impl Slot {
     fn get(&mut self, device: &wgpu::Device, label: &str, bytes: usize, usage: wgpu::BufferUsages) -> &wgpu::Buffer {
         let bytes = (bytes.max(16) as u64).next_multiple_of(16);
-        if self.0.as_ref().is_none_or(|b| b.size() < bytes) {
+        if self.0.as_ref().is_none_or(|b| b.size() < bytes || b.usage() != usage) {
             self.0 = Some(device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: bytes, usage, mapped_at_creation: false }));
         }
         self.0.as_ref().expect("just set")
@@ -199,12 +199,24 @@ impl GpuEngine {
         let mut guard = self.buffers();
         let buffers = &mut *guard;
         use wgpu::BufferUsages as U;
+        let mapped = self.context.maps_storage();
+        let (in_usage, out_usage) = if mapped {
+            (U::STORAGE | U::MAP_WRITE, U::STORAGE | U::MAP_READ)
+        } else {
+            (U::STORAGE | U::COPY_DST, U::STORAGE | U::COPY_SRC)
+        };
         let uniform = buffers.uniform.get(device, "params", params.len(), U::UNIFORM | U::COPY_DST).clone();
-        let in_buf = buffers.input.get(device, "input", chunk * N * s, U::STORAGE | U::COPY_DST).clone();
-        let out_buf = buffers.output.get(device, "output", chunk * M * s, U::STORAGE | U::COPY_SRC).clone();
-        let status_buf = buffers.status.get(device, "status", chunk * 4, U::STORAGE | U::COPY_SRC).clone();
-        let out_staging = buffers.output_staging.get(device, "output staging", chunk * M * s, U::MAP_READ | U::COPY_DST).clone();
-        let status_staging = buffers.status_staging.get(device, "status staging", chunk * 4, U::MAP_READ | U::COPY_DST).clone();
+        let in_buf = buffers.input.get(device, "input", chunk * N * s, in_usage).clone();
+        let out_buf = buffers.output.get(device, "output", chunk * M * s, out_usage).clone();
+        let status_buf = buffers.status.get(device, "status", chunk * 4, out_usage).clone();
+        let (out_staging, status_staging) = if mapped {
+            (out_buf.clone(), status_buf.clone())
+        } else {
+            (
+                buffers.output_staging.get(device, "output staging", chunk * M * s, U::MAP_READ | U::COPY_DST).clone(),
+                buffers.status_staging.get(device, "status staging", chunk * 4, U::MAP_READ | U::COPY_DST).clone(),
+            )
+        };
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some(kernel.name()),
             layout: &pipeline.get_bind_group_layout(0),
@@ -221,13 +233,18 @@ impl GpuEngine {
             set_info(&mut params, self.precision, [items as u32, 0, 0, 0]);
             self.context.queue.write_buffer(&uniform, 0, &params);
             let values: &[f64] = bytemuck::cast_slice(&input[start..end]);
-            match self.precision {
-                Precision::F64 => self.context.queue.write_buffer(&in_buf, 0, bytemuck::cast_slice(values)),
+            let bytes: &[u8] = match self.precision {
+                Precision::F64 => bytemuck::cast_slice(values),
                 Precision::F32 => {
                     buffers.scratch.clear();
                     extend_reals(&mut buffers.scratch, self.precision, values);
-                    self.context.queue.write_buffer(&in_buf, 0, &buffers.scratch);
+                    &buffers.scratch
                 }
+            };
+            if mapped {
+                self.context.write_mapped(&in_buf, bytes)?;
+            } else {
+                self.context.queue.write_buffer(&in_buf, 0, bytes);
             }
             let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(kernel.name()) });
             {
@@ -372,10 +389,18 @@ impl GpuEngine {
         let buffers = &mut *guard;
         use wgpu::BufferUsages as U;
         let uniform = buffers.uniform.get(device, "params", params.len(), U::UNIFORM | U::COPY_DST).clone();
-        let out_buf = buffers.output.get(device, "output", rows * w * 6 * s, U::STORAGE | U::COPY_SRC).clone();
-        let status_buf = buffers.status.get(device, "status", rows * w * 4, U::STORAGE | U::COPY_SRC).clone();
-        let out_staging = buffers.output_staging.get(device, "output staging", rows * w * 6 * s, U::MAP_READ | U::COPY_DST).clone();
-        let status_staging = buffers.status_staging.get(device, "status staging", rows * w * 4, U::MAP_READ | U::COPY_DST).clone();
+        let mapped = self.context.maps_storage();
+        let out_usage = if mapped { U::STORAGE | U::MAP_READ } else { U::STORAGE | U::COPY_SRC };
+        let out_buf = buffers.output.get(device, "output", rows * w * 6 * s, out_usage).clone();
+        let status_buf = buffers.status.get(device, "status", rows * w * 4, out_usage).clone();
+        let (out_staging, status_staging) = if mapped {
+            (out_buf.clone(), status_buf.clone())
+        } else {
+            (
+                buffers.output_staging.get(device, "output staging", rows * w * 6 * s, U::MAP_READ | U::COPY_DST).clone(),
+                buffers.status_staging.get(device, "status staging", rows * w * 4, U::MAP_READ | U::COPY_DST).clone(),
+            )
+        };
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("backproject_grid"),
             layout: &pipeline.get_bind_group_layout(0),
