@@ -84,8 +84,14 @@ pub struct RefractiveCamera {
     index_water: f64,
     /// ρ_w = μ_w/μ_air.
     rho_water: f64,
+    /// 1/ρ_w.
+    inv_rho_water: f64,
     /// Squared normalised radius of the lens model's fold ([`PinholeCamera::fold_radius2`]).
     fold_radius2: f64,
+    /// (1/f_x, 1/f_y).
+    inv_focal: Vector2<f64>,
+    /// Whether the intrinsics distort.
+    distorts: bool,
 }
 
 impl RefractiveCamera {
@@ -126,7 +132,10 @@ impl RefractiveCamera {
             index_air,
             index_water: interface.index_water(),
             rho_water,
+            inv_rho_water: 1.0 / rho_water,
             fold_radius2: intrinsics.fold_radius2(),
+            inv_focal: Vector2::new(1.0 / intrinsics.fx, 1.0 / intrinsics.fy),
+            distorts: intrinsics.has_distortion(),
         }
     }
 
@@ -181,12 +190,21 @@ impl RefractiveCamera {
     /// radial distortion ([`PinholeCamera::fold_radius2`]), where the pixel has several preimages.
     #[inline]
     pub fn dir_in_air_from_img(&self, pixel: &Point2<f64>) -> Result<Unit<Vector3<f64>>, NoSolution> {
-        let normalized = self.intrinsics.normalized_from_img(pixel).ok_or(NoSolution::OutsideLens)?;
-        if !(normalized.norm_squared() < self.fold_radius2) {
+        let i = &self.intrinsics;
+        let distorted = Vector2::new((pixel.x - i.cx) * self.inv_focal.x, (pixel.y - i.cy) * self.inv_focal.y);
+        let normalized = if self.distorts {
+            i.undistort_normalized(&distorted).ok_or(NoSolution::OutsideLens)?
+        } else {
+            distorted
+        };
+        let radius2 = normalized.norm_squared();
+        if !(radius2 < self.fold_radius2) {
             return Err(NoSolution::OutsideLens);
         }
-        let dir_in_cam = Vector3::new(normalized.x, normalized.y, 1.0).normalize();
-        Ok(Unit::new_unchecked(self.master_from_cam * dir_in_cam))
+        // R_kᵀ·(x, y, 1)/√(x² + y² + 1): rotate, then scale once.
+        let m = &self.master_from_cam;
+        let dir = m.column(0) * normalized.x + m.column(1) * normalized.y + m.column(2);
+        Ok(Unit::new_unchecked(dir * (1.0 / (radius2 + 1.0).sqrt())))
     }
 
     /// Back-projects a (distorted) pixel into the water with the closed form of
@@ -226,7 +244,10 @@ impl RefractiveCamera {
         if !(water_radicand > 0.0) {
             return Err(NoSolution::TotalInternalReflection);
         }
-        let lambda1 = water_radicand.sqrt() / cos_a;
+        let inv_cos_a = 1.0 / cos_a;
+        // cos a·λ1 = √(ρ_w² − sin²a) = ρ_w cos θ_w.
+        let cos_lambda1 = water_radicand.sqrt();
+        let lambda1 = cos_lambda1 * inv_cos_a;
         let mut axis_shift = self.air_distance * (1.0 - lambda1);
         let mut lateral_length = self.air_distance;
         for &Medium { length: thickness, rho, .. } in &self.media[WATER + 1..] {
@@ -238,10 +259,14 @@ impl RefractiveCamera {
             axis_shift += thickness * (1.0 - lambda1 * lambda2);
             lateral_length += thickness * lambda2;
         }
-        let bent = v + n * (cos_a * (lambda1 - 1.0));
+        let bent = v + n * (cos_lambda1 - cos_a);
         let axis_point = self.centre + n * axis_shift;
-        let origin = axis_point + bent * (lateral_length / cos_a);
-        Ok(Ray { origin, dir: Unit::new_normalize(bent) })
+        let origin = axis_point + bent * (lateral_length * inv_cos_a);
+        // |bent|² = |v|² − cos²a + ρ_w² − sin²a = ρ_w²: normalise by 1/ρ_w with one Newton step of
+        // 1/√ from there (y ← y(3 − |bent|² y²)/2), which removes the rounding as a division would.
+        let y = self.inv_rho_water;
+        let scale = y * (1.5 - 0.5 * bent.norm_squared() * y * y);
+        Ok(Ray { origin, dir: Unit::new_unchecked(bent * scale) })
     }
 
     /// The ray in the water by tracing: intersect each plane in turn and apply vector Snell
