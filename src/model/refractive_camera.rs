@@ -193,7 +193,7 @@ impl RefractiveCamera {
         let i = &self.intrinsics;
         let distorted = Vector2::new((pixel.x - i.cx) * self.inv_focal.x, (pixel.y - i.cy) * self.inv_focal.y);
         let normalized = if self.distorts {
-            i.undistort_normalized(&distorted).ok_or(NoSolution::OutsideLens)?
+            i.undistort_normalized_in_fold(&distorted, self.fold_radius2).ok_or(NoSolution::OutsideLens)?
         } else {
             distorted
         };
