@@ -74,6 +74,7 @@ impl PinholeCamera {
     }
 
     /// True when any distortion coefficient is non-zero.
+    #[inline]
     pub fn has_distortion(&self) -> bool {
         self.distortion.iter().any(|&k| k != 0.0)
     }

@@ -73,6 +73,8 @@ pub struct RefractiveCamera {
     master_from_cam: Matrix3<f64>,
     centre: Point3<f64>,
     normal: Unit<Vector3<f64>>,
+    /// R_k·n: the system axis in this camera's frame.
+    normal_in_cam: Vector3<f64>,
     air_distance: f64,
     layers: Vec<Layer>,
     /// The media of a forward-projection path: air, water, then the layers ([`AIR`], [`WATER`]).
@@ -124,6 +126,7 @@ impl RefractiveCamera {
             master_from_cam: rotation.transpose(),
             centre,
             normal,
+            normal_in_cam: rotation * normal.into_inner(),
             air_distance,
             layers: interface.layers().to_vec(),
             media,
@@ -368,16 +371,16 @@ impl RefractiveCamera {
     #[inline]
     pub fn project(&self, point_in_master: &Point3<f64>) -> Result<Point2<f64>, NoSolution> {
         let (depth, lateral, r) = self.split(point_in_master)?;
-        let n = self.normal.into_inner();
         // Any positive multiple of the air direction gives the same pixel: with tan a = k v / √q,
-        // q = 1 + (1 − k²) v², take r·√q·(n + lateral·tan a / r) = r√q·n + k v·lateral.
-        let dir_in_air = if r == 0.0 {
-            n
+        // q = 1 + (1 − k²) v², take r·√q·(n + lateral·tan a / r) = r√q·n + k v·lateral, rotated
+        // term by term so that only the two scalars wait for the root finder.
+        let dir_in_cam = if r == 0.0 {
+            self.normal_in_cam
         } else {
+            let lateral_in_cam = self.cam_from_master * lateral;
             let (v, k, _) = self.solve_incidence(depth, r)?;
-            n * (r * (1.0 + (1.0 - k * k) * v * v).sqrt()) + lateral * (k * v)
+            self.normal_in_cam * (r * (1.0 + (1.0 - k * k) * v * v).sqrt()) + lateral_in_cam * (k * v)
         };
-        let dir_in_cam = self.cam_from_master * dir_in_air;
         if !(dir_in_cam.z > 0.0) {
             return Err(NoSolution::BehindCamera);
         }
@@ -462,7 +465,8 @@ impl PathMedia<'_> {
                 (reference, reference_weight) = (i, weight);
             }
         }
-        let mut v = r / (paraxial_slope * self.media[reference].rho);
+        // r·(1/…): the division need not wait for r's square root.
+        let mut v = r * (1.0 / (paraxial_slope * self.media[reference].rho));
         let mut lo = 0.0;
         let mut hi = self.bracket_top(reference, r);
         if !(v > lo && v < hi) {
@@ -515,10 +519,17 @@ impl PathMedia<'_> {
         let (mut f, mut df) = (-r, 0.0);
         let (mut dominant, mut dominant_slope) = (AIR, 0.0);
         for (i, medium) in self.media.iter().enumerate() {
-            let k = rho_ref * medium.inv_rho;
-            let inv_sqrt = 1.0 / (1.0 + (1.0 - k * k) * v2).sqrt();
-            let lk = self.length(i) * k * inv_sqrt;
-            let slope = lk * inv_sqrt * inv_sqrt;
+            let (lk, slope) = if i == reference {
+                // k = 1: T(v; 1) = v.
+                (self.length(i), self.length(i))
+            } else {
+                let k = rho_ref * medium.inv_rho;
+                let q = 1.0 + (1.0 - k * k) * v2;
+                // 1/√q as √q·(1/q): the root and the division run side by side.
+                let inv_q = 1.0 / q;
+                let lk = self.length(i) * k * (q.sqrt() * inv_q);
+                (lk, lk * inv_q)
+            };
             f += lk * v;
             df += slope;
             if slope > dominant_slope {
