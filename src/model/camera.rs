@@ -94,7 +94,9 @@ impl PinholeCamera {
         let [k1, k2, p1, p2, k3] = self.distortion;
         let (x, y) = (p.x, p.y);
         let r2 = x * x + y * y;
-        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+        // Estrin's split, (1 + k1 r²) + r⁴(k2 + k3 r²): a shorter chain than Horner's.
+        let r4 = r2 * r2;
+        let radial = (1.0 + k1 * r2) + r4 * (k2 + k3 * r2);
         // dR/d(r²)
         let radial_d = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2);
         let xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
