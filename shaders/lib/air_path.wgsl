@@ -127,8 +127,10 @@ fn solve_tan_incidence(cam: View, depth: real, r: real) -> Maybe {
             s.lo = s.v;
         } else if (e.f > 0.0) {
             s.hi = s.v;
-        } else {
+        } else if (e.f == 0.0) {
             return Maybe(tan_incidence_from(s.v, s.reference.y), true);
+        } else {
+            return Maybe(0.0, false); // NaN at a critical-angle cap: never a silent root
         }
         s.df = e.df;
         if (e.dominant.y != s.reference.y) {

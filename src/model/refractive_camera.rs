@@ -480,8 +480,11 @@ impl PathMedia<'_> {
                 lo = v;
             } else if f > 0.0 {
                 hi = v;
-            } else {
+            } else if f == 0.0 {
                 return Ok((v, self.media[reference].rho, iteration));
+            } else {
+                // NaN: v reached a critical-angle cap within rounding. Never a silent root.
+                return Err(NoSolution::NoConvergence);
             }
             if self.media[dominant].rho != self.media[reference].rho {
                 self.reparametrise(&mut reference, dominant, [&mut v, &mut lo, &mut hi], &mut df, r);
