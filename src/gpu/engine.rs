@@ -162,6 +162,60 @@ impl GpuEngine {
         self.buffers.lock().expect("buffer cache")
     }
 
+    /// Usage of a buffer the kernels read and the host fills: mapped directly where the adapter
+    /// shares the host's memory, written through the queue otherwise.
+    fn input_usage(&self) -> wgpu::BufferUsages {
+        use wgpu::BufferUsages as U;
+        if self.context.maps_storage() { U::STORAGE | U::MAP_WRITE } else { U::STORAGE | U::COPY_DST }
+    }
+
+    /// Writes `bytes` at the start of a buffer made with [`input_usage`](Self::input_usage).
+    fn upload(&self, buffer: &wgpu::Buffer, bytes: &[u8]) -> Result<(), GpuError> {
+        if self.context.maps_storage() {
+            self.context.write_mapped(buffer, bytes)
+        } else {
+            self.context.queue.write_buffer(buffer, 0, bytes);
+            Ok(())
+        }
+    }
+
+    /// A buffer of `bytes` the kernels write, and the buffer the host maps to read it: the same
+    /// one where the adapter shares the host's memory, a staging copy otherwise.
+    fn readable(&self, slot: &mut Slot, staging: &mut Slot, label: &str, bytes: usize) -> (wgpu::Buffer, wgpu::Buffer) {
+        use wgpu::BufferUsages as U;
+        let device = &self.context.device;
+        if self.context.maps_storage() {
+            let buffer = slot.get(device, label, bytes, U::STORAGE | U::MAP_READ).clone();
+            (buffer.clone(), buffer)
+        } else {
+            let buffer = slot.get(device, label, bytes, U::STORAGE | U::COPY_SRC).clone();
+            (buffer, staging.get(device, label, bytes, U::MAP_READ | U::COPY_DST).clone())
+        }
+    }
+
+    /// A bind group of `pipeline` with each `(binding, buffer)` bound whole.
+    fn bind_group(&self, pipeline: &wgpu::ComputePipeline, label: &str, entries: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> =
+            entries.iter().map(|&(binding, buffer)| wgpu::BindGroupEntry { binding, resource: buffer.as_entire_binding() }).collect();
+        self.context.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        })
+    }
+
+    /// An encoder holding one dispatch of `pipeline` over `groups` = (x, y) workgroups.
+    fn encode_dispatch(&self, pipeline: &wgpu::ComputePipeline, bind_group: &wgpu::BindGroup, label: &str, groups: (u32, u32)) -> wgpu::CommandEncoder {
+        let mut encoder = self.context.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(label), timestamp_writes: None });
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, bind_group, &[]);
+            pass.dispatch_workgroups(groups.0, groups.1, 1);
+        }
+        encoder
+    }
+
     /// Items per chunk when each item needs at most `bytes_per_item` of one binding.
     fn chunk_items(&self, bytes_per_item: usize) -> usize {
         let cap = (self.context.max_storage_binding() as usize / bytes_per_item.max(1)).min(MAX_CHUNK_ITEMS);
@@ -198,35 +252,11 @@ impl GpuEngine {
         let mut params = pack_params(self.precision, a, b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        use wgpu::BufferUsages as U;
-        let mapped = self.context.maps_storage();
-        let (in_usage, out_usage) = if mapped {
-            (U::STORAGE | U::MAP_WRITE, U::STORAGE | U::MAP_READ)
-        } else {
-            (U::STORAGE | U::COPY_DST, U::STORAGE | U::COPY_SRC)
-        };
-        let uniform = buffers.uniform.get(device, "params", params.len(), U::UNIFORM | U::COPY_DST).clone();
-        let in_buf = buffers.input.get(device, "input", chunk * N * s, in_usage).clone();
-        let out_buf = buffers.output.get(device, "output", chunk * M * s, out_usage).clone();
-        let status_buf = buffers.status.get(device, "status", chunk * 4, out_usage).clone();
-        let (out_staging, status_staging) = if mapped {
-            (out_buf.clone(), status_buf.clone())
-        } else {
-            (
-                buffers.output_staging.get(device, "output staging", chunk * M * s, U::MAP_READ | U::COPY_DST).clone(),
-                buffers.status_staging.get(device, "status staging", chunk * 4, U::MAP_READ | U::COPY_DST).clone(),
-            )
-        };
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(kernel.name()),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: in_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: out_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: status_buf.as_entire_binding() },
-            ],
-        });
+        let uniform = buffers.uniform.get(device, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST).clone();
+        let in_buf = buffers.input.get(device, "input", chunk * N * s, self.input_usage()).clone();
+        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", chunk * M * s);
+        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", chunk * 4);
+        let bind_group = self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)]);
         for start in (0..input.len()).step_by(chunk) {
             let end = (start + chunk).min(input.len());
             let items = end - start;
@@ -241,19 +271,8 @@ impl GpuEngine {
                     &buffers.scratch
                 }
             };
-            if mapped {
-                self.context.write_mapped(&in_buf, bytes)?;
-            } else {
-                self.context.queue.write_buffer(&in_buf, 0, bytes);
-            }
-            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(kernel.name()) });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(kernel.name()), timestamp_writes: None });
-                pass.set_pipeline(&pipeline);
-                pass.set_bind_group(0, &bind_group, &[]);
-                let (x, y) = self.context.dispatch_size(items as u32);
-                pass.dispatch_workgroups(x, y, 1);
-            }
+            self.upload(&in_buf, bytes)?;
+            let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), self.context.dispatch_size(items as u32));
             let copies = [(&out_buf, &out_staging, (items * M * s) as u64), (&status_buf, &status_staging, (items * 4) as u64)];
             let (out_rows, out_status) = (&mut output[start..end], &mut status[start..end]);
             self.context.read_back(encoder, &copies, |data| {
@@ -283,27 +302,12 @@ impl GpuEngine {
         self.run_map(kernel, a, b, input, &mut output, &mut status)?;
         let pipeline = self.pipeline(kernel);
         let buffers = self.buffers();
-        let device = &self.context.device;
-        let entries: Vec<wgpu::BindGroupEntry> = [&buffers.uniform, &buffers.input, &buffers.output, &buffers.status]
-            .iter()
-            .enumerate()
-            .map(|(k, slot)| wgpu::BindGroupEntry { binding: k as u32, resource: slot.0.as_ref().expect("allocated").as_entire_binding() })
-            .collect();
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(kernel.name()),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        });
+        let resident = |slot: &Slot| slot.0.clone().expect("allocated by run_map");
+        let (uniform, in_buf, out_buf, status_buf) = (resident(&buffers.uniform), resident(&buffers.input), resident(&buffers.output), resident(&buffers.status));
+        let bind_group = self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)]);
         let mut best = f64::INFINITY;
         for _ in 0..=repeats {
-            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(kernel.name()) });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(kernel.name()), timestamp_writes: None });
-                pass.set_pipeline(&pipeline);
-                pass.set_bind_group(0, &bind_group, &[]);
-                let (x, y) = self.context.dispatch_size(input.len() as u32);
-                pass.dispatch_workgroups(x, y, 1);
-            }
+            let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), self.context.dispatch_size(input.len() as u32));
             let started = std::time::Instant::now();
             self.context.queue.submit([encoder.finish()]);
             self.context.wait()?;
@@ -387,41 +391,16 @@ impl GpuEngine {
         let mut params = pack_params(self.precision, camera, camera, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        use wgpu::BufferUsages as U;
-        let uniform = buffers.uniform.get(device, "params", params.len(), U::UNIFORM | U::COPY_DST).clone();
-        let mapped = self.context.maps_storage();
-        let out_usage = if mapped { U::STORAGE | U::MAP_READ } else { U::STORAGE | U::COPY_SRC };
-        let out_buf = buffers.output.get(device, "output", rows * w * 6 * s, out_usage).clone();
-        let status_buf = buffers.status.get(device, "status", rows * w * 4, out_usage).clone();
-        let (out_staging, status_staging) = if mapped {
-            (out_buf.clone(), status_buf.clone())
-        } else {
-            (
-                buffers.output_staging.get(device, "output staging", rows * w * 6 * s, U::MAP_READ | U::COPY_DST).clone(),
-                buffers.status_staging.get(device, "status staging", rows * w * 4, U::MAP_READ | U::COPY_DST).clone(),
-            )
-        };
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("backproject_grid"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: out_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: status_buf.as_entire_binding() },
-            ],
-        });
+        let uniform = buffers.uniform.get(device, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST).clone();
+        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", rows * w * 6 * s);
+        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", rows * w * 4);
+        let bind_group = self.bind_group(&pipeline, "backproject_grid", &[(0, &uniform), (2, &out_buf), (3, &status_buf)]);
         for first in (0..h).step_by(rows) {
             let count = rows.min(h - first);
             let items = count * w;
             set_info(&mut params, self.precision, [items as u32, width, first as u32, 0]);
             self.context.queue.write_buffer(&uniform, 0, &params);
-            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("backproject_grid") });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("backproject_grid"), timestamp_writes: None });
-                pass.set_pipeline(&pipeline);
-                pass.set_bind_group(0, &bind_group, &[]);
-                pass.dispatch_workgroups(width.div_ceil(64), count as u32, 1);
-            }
+            let encoder = self.encode_dispatch(&pipeline, &bind_group, "backproject_grid", (width.div_ceil(64), count as u32));
             let copies = [(&out_buf, &out_staging, (items * 6 * s) as u64), (&status_buf, &status_staging, (items * 4) as u64)];
             let range = first * w..first * w + items;
             let (out_rows, out_status) = (&mut rays[range.clone()], &mut status[range]);
@@ -474,23 +453,12 @@ impl GpuEngine {
         let mut params = pack_params(self.precision, a, b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        use wgpu::BufferUsages as U;
         let partial_bytes = candidates_per_chunk * groups_x * 2 * s;
-        let uniform = buffers.uniform.get(device, "params", params.len(), U::UNIFORM | U::COPY_DST).clone();
-        let in_buf = buffers.input.get(device, "input", pairs_per_chunk * 6 * s, U::STORAGE | U::COPY_DST).clone();
-        let cand_buf = buffers.candidates.get(device, "candidates", candidates_per_chunk * 4 * s, U::STORAGE | U::COPY_DST).clone();
-        let out_buf = buffers.output.get(device, "output", partial_bytes, U::STORAGE | U::COPY_SRC).clone();
-        let out_staging = buffers.output_staging.get(device, "output staging", partial_bytes, U::MAP_READ | U::COPY_DST).clone();
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("ray_gap_cost"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: in_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: out_buf.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: cand_buf.as_entire_binding() },
-            ],
-        });
+        let uniform = buffers.uniform.get(device, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST).clone();
+        let in_buf = buffers.input.get(device, "input", pairs_per_chunk * 6 * s, self.input_usage()).clone();
+        let cand_buf = buffers.candidates.get(device, "candidates", candidates_per_chunk * 4 * s, self.input_usage()).clone();
+        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", partial_bytes);
+        let bind_group = self.bind_group(&pipeline, "ray_gap_cost", &[(0, &uniform), (1, &in_buf), (2, &out_buf), (4, &cand_buf)]);
         for pair_start in (0..air_rays.len()).step_by(pairs_per_chunk) {
             let pair_end = (pair_start + pairs_per_chunk).min(air_rays.len());
             let pairs = pair_end - pair_start;
@@ -499,20 +467,14 @@ impl GpuEngine {
             self.context.queue.write_buffer(&uniform, 0, &params);
             buffers.scratch.clear();
             extend_reals(&mut buffers.scratch, self.precision, bytemuck::cast_slice(&air_rays[pair_start..pair_end]));
-            self.context.queue.write_buffer(&in_buf, 0, &buffers.scratch);
+            self.upload(&in_buf, &buffers.scratch)?;
             for cand_start in (0..candidates.len()).step_by(candidates_per_chunk) {
                 let cand_end = (cand_start + candidates_per_chunk).min(candidates.len());
                 let count = cand_end - cand_start;
                 buffers.scratch.clear();
                 extend_reals(&mut buffers.scratch, self.precision, bytemuck::cast_slice(&candidates[cand_start..cand_end]));
-                self.context.queue.write_buffer(&cand_buf, 0, &buffers.scratch);
-                let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("ray_gap_cost") });
-                {
-                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("ray_gap_cost"), timestamp_writes: None });
-                    pass.set_pipeline(&pipeline);
-                    pass.set_bind_group(0, &bind_group, &[]);
-                    pass.dispatch_workgroups(groups as u32, count as u32, 1);
-                }
+                self.upload(&cand_buf, &buffers.scratch)?;
+                let encoder = self.encode_dispatch(&pipeline, &bind_group, "ray_gap_cost", (groups as u32, count as u32));
                 let copies = [(&out_buf, &out_staging, (count * groups * 2 * s) as u64)];
                 let precision = self.precision;
                 let out = &mut costs[cand_start..cand_end];

@@ -46,10 +46,6 @@ fn push_camera(bytes: &mut Vec<u8>, precision: Precision, camera: &RefractiveCam
     let c = camera.centre();
     let n = camera.normal();
     let fold = camera.fold_radius2();
-    let huge = match precision {
-        Precision::F32 => 1e30,
-        Precision::F64 => 1e300,
-    };
     let thickness: f64 = camera.layers().iter().map(|l| l.thickness).sum();
     let mut reals = vec![
         i.fx,
@@ -61,7 +57,7 @@ fn push_camera(bytes: &mut Vec<u8>, precision: Precision, camera: &RefractiveCam
         i.distortion[2],
         i.distortion[3],
         i.distortion[4],
-        if fold.is_finite() { fold } else { huge },
+        if fold.is_finite() { fold } else { precision.huge() },
         camera.relative_index_water(),
         camera.air_distance(),
     ];

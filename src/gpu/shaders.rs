@@ -25,6 +25,15 @@ impl Precision {
         }
     }
 
+    /// A stand-in for infinity in the kernels (`REAL_HUGE`; WGSL has no infinity literal), also
+    /// packed as the fold radius of a lens without a fold.
+    pub fn huge(self) -> f64 {
+        match self {
+            Self::F32 => 1e30,
+            Self::F64 => 1e300,
+        }
+    }
+
     /// `f32` or `f64`.
     pub fn name(self) -> &'static str {
         match self {
@@ -130,10 +139,11 @@ const LIBRARY: [&str; 5] = [
 /// at tolerances a few ulps above f32 rounding instead of the CPU's f64 ones. (Naga 30 takes
 /// subgroup operations without WGSL's `enable subgroups;`, which it does not parse yet.)
 pub fn prelude(precision: Precision) -> String {
-    let (undistort_tolerance, project_tolerance, huge) = match precision {
-        Precision::F32 => (4e-7, 2.5e-7, 1e30),
-        Precision::F64 => (1e-14, PROJECT_TOLERANCE, 1e300),
+    let (undistort_tolerance, project_tolerance) = match precision {
+        Precision::F32 => (4e-7, 2.5e-7),
+        Precision::F64 => (1e-14, PROJECT_TOLERANCE),
     };
+    let huge = precision.huge();
     let real = precision.name();
     format!(
         "alias real = {real};\nalias vec2r = vec2<{real}>;\nalias vec3r = vec3<{real}>;\nalias vec4r = vec4<{real}>;\n\
