@@ -366,3 +366,45 @@ fn six_million_rows_through_the_cli() {
     }
     assert_eq!(lines, n, "every row, none lost or added");
 }
+
+/// `flatport bench --json` writes the shape with a figure for every path (GPU ones where a
+/// Vulkan adapter exists; CI requires one).
+#[test]
+fn bench_json_has_every_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("bench.json");
+    let json_arg = json.to_str().unwrap();
+    let mut o = flatport(&["bench", "--items", "3000", "--repeats", "1", "--json", json_arg]);
+    let gpu = o.status.success() || std::env::var_os("CI").is_some() || !stderr(&o).contains("Vulkan adapter");
+    if !gpu {
+        eprintln!("no Vulkan adapter: checking the CPU paths only (CI fails instead)");
+        o = flatport(&["bench", "--items", "3000", "--repeats", "1", "--json", json_arg, "--no-gpu"]);
+    }
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("targets (ratios from this run)"), "{}", stdout(&o));
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert!(report["memory_stream_bytes_per_s"].as_f64().unwrap() > 1e8);
+    let results = report["results"].as_array().unwrap();
+    let has = |kernel: &str, path: &str, precision: &str, stage: &str, one_thread: Option<bool>| {
+        results.iter().any(|r| {
+            r["kernel"] == kernel
+                && r["path"] == path
+                && r["precision"] == precision
+                && r["stage"] == stage
+                && r["items"] == 3000
+                && r["items_per_s"].as_f64().is_some_and(|x| x.is_finite() && x > 0.0)
+                && one_thread.is_none_or(|one| (r["threads"] == 1) == one)
+        })
+    };
+    for kernel in ["backproject", "project", "triangulate"] {
+        assert!(has(kernel, "cpu", "f64", "end_to_end", Some(true)), "{kernel} cpu 1 thread");
+        assert!(has(kernel, "cpu", "f64", "end_to_end", None), "{kernel} cpu all threads");
+        if gpu {
+            for precision in ["f32", "f64"] {
+                for stage in ["kernel", "end_to_end"] {
+                    assert!(has(kernel, "gpu", precision, stage, None), "{kernel} gpu {precision} {stage}");
+                }
+            }
+        }
+    }
+}

@@ -1,9 +1,11 @@
 //! The GPU backend: runs the kernels of [`shaders`](super::shaders) over batches of any size.
 //!
 //! Batches are cut into chunks that fit the adapter's storage-binding cap (128 MiB on lavapipe)
-//! and dispatch limits; buffers are kept and reused across chunks and calls, growing only when a
-//! larger chunk needs it. Inputs and outputs are f64 slices whatever the kernel precision: f32
-//! kernels convert on upload and read-back. Rows with no answer get their status code and NaN.
+//! and dispatch limits; buffers are kept and reused across chunks and calls, replaced only when a
+//! larger chunk or another usage needs it. On adapters that share the host's memory the host maps
+//! the kernels' buffers directly; elsewhere it goes through staging buffers. Inputs and outputs
+//! are f64 slices whatever the kernel precision: f32 kernels convert on upload and read-back.
+//! Rows with no answer get their status code and NaN.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard};
