@@ -58,7 +58,12 @@ fn host_packing_mirrors_the_wgsl_structs() {
 
 /// The GPU backend at `precision`, or `None` (with a note) when there is no adapter outside CI.
 fn engine(precision: Precision) -> Option<GpuEngine> {
-    match GpuContext::new(None) {
+    engine_with(precision, true)
+}
+
+/// As [`engine`]; `map_storage: false` forces the staging copies of discrete GPUs.
+fn engine_with(precision: Precision, map_storage: bool) -> Option<GpuEngine> {
+    match GpuContext::open(None, map_storage) {
         Ok(context) => {
             eprintln!("GPU adapter: {} ({}), {precision}", context.adapter().name, context.adapter().driver);
             Some(GpuEngine::new(context, precision).expect("lavapipe and the GPUs we test have SHADER_F64"))
@@ -444,5 +449,45 @@ fn six_million_rows_go_through() {
         let cpu = camera.backproject(&Point2::new(pixels[i][0], pixels[i][1])).unwrap();
         let dir = Vector3::new(rays[i][3], rays[i][4], rays[i][5]);
         assert!((dir - cpu.dir.into_inner()).norm() < 2e-6, "row {i}");
+    }
+}
+
+/// The staging path (discrete GPUs: storage buffers copied to and from host-mapped staging
+/// buffers) gives the same results as the directly mapped path lavapipe uses by default, for a
+/// row kernel over several chunks, the image grid and the cost.
+#[test]
+fn staged_and_mapped_buffers_agree() {
+    for precision in [Precision::F32, Precision::F64] {
+        let (Some(mapped), Some(staged)) = (engine_with(precision, true), engine_with(precision, false)) else { return };
+        assert!(!staged.context().maps_storage());
+        let (_, rig) = configurations().remove(3);
+        let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
+        let mut random = Random(0x6A09_E667_F3BC_C909);
+        let n = flatport::gpu::engine::MAX_CHUNK_ITEMS + 777; // two chunks
+        let points = random_points(&mut random, &a, n);
+        let run = |gpu: &GpuEngine| {
+            let (mut pixels, mut status) = (vec![[0.0; 2]; n], vec![0; n]);
+            gpu.project(&a, &points, &mut pixels, &mut status).unwrap();
+            let (mut rays, mut grid_status) = (vec![[0.0; 6]; 200 * 150], vec![0; 200 * 150]);
+            gpu.backproject_grid(&b, 200, 150, &mut rays, &mut grid_status).unwrap();
+            let air: Vec<[f64; 6]> = (0..500).map(|k| {
+                let v = a.dir_in_air_from_img(&Point2::new(300.0 + k as f64, 400.0)).unwrap();
+                let w = b.dir_in_air_from_img(&Point2::new(250.0 + k as f64, 410.0)).unwrap();
+                [v.x, v.y, v.z, w.x, w.y, w.z]
+            }).collect();
+            let n0 = rig.interface().normal();
+            let candidates = [[n0.x, n0.y, n0.z, rig.interface().air_distance()], [0.0, 0.0, 1.0, 0.03]];
+            let mut costs = [[0.0; 2]; 2];
+            gpu.ray_gap_cost(&rig, 0, 1, &air, &candidates, &mut costs).unwrap();
+            (pixels, status, rays, grid_status, costs)
+        };
+        let (m, s) = (run(&mapped), run(&staged));
+        assert_eq!(m.1, s.1, "{precision} project statuses");
+        assert_eq!(m.3, s.3, "{precision} grid statuses");
+        assert!(m.1.contains(&0) && m.1.iter().any(|&c| c != 0), "{precision}: answers and rows without");
+        let same = |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits() || (p.is_nan() && q.is_nan()));
+        assert!(same(m.0.as_flattened(), s.0.as_flattened()), "{precision} project");
+        assert!(same(m.2.as_flattened(), s.2.as_flattened()), "{precision} grid");
+        assert!(same(m.4.as_flattened(), s.4.as_flattened()), "{precision} cost");
     }
 }

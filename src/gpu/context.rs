@@ -102,6 +102,13 @@ impl GpuContext {
     /// Opens the adapter whose name contains `name` (case-insensitive), else the one named by
     /// `FLATPORT_ADAPTER`, else the first hardware GPU, else the first adapter (lavapipe).
     pub fn new(name: Option<&str>) -> Result<Self, GpuError> {
+        Self::open(name, true)
+    }
+
+    /// As [`new`](Self::new), and `map_storage` says whether kernels' buffers may be mapped by
+    /// the host directly where the adapter shares its memory (`false`: always staging copies,
+    /// the path of discrete GPUs; for tests and comparisons).
+    pub fn open(name: Option<&str>, map_storage: bool) -> Result<Self, GpuError> {
         let wanted = name.map(str::to_string).or_else(|| std::env::var(ADAPTER_ENV).ok());
         let all = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::VULKAN));
         let names: Vec<String> = all.iter().map(|a| a.get_info().name).collect();
@@ -124,7 +131,7 @@ impl GpuContext {
         // Where the device shares the host's memory (lavapipe, integrated GPUs), storage buffers
         // that the host maps directly save the staging copies both ways.
         let shares_memory = matches!(adapter.get_info().device_type, wgpu::DeviceType::Cpu | wgpu::DeviceType::IntegratedGpu);
-        if shares_memory {
+        if shares_memory && map_storage {
             wanted_features |= wgpu::Features::MAPPABLE_PRIMARY_BUFFERS;
         }
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
