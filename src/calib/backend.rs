@@ -1,0 +1,80 @@
+//! Where batches of candidate costs are evaluated: the host optimisers hand a whole batch
+//! (a search grid, a finite-difference stencil) to a [`CostBackend`] in one call.
+
+use nalgebra::{Unit, Vector3};
+use rayon::prelude::*;
+
+use super::air_layer::air_distance_for_axis;
+use super::costs::{CostKind, cost};
+use super::data::{Candidate, StereoData};
+use super::error::CalibError;
+
+/// Evaluates calibration costs for batches of candidate interfaces.
+pub trait CostBackend: Sync {
+    /// One line saying what evaluates (`cpu (f64, 2 threads)`, `gpu: llvmpipe …, f64`).
+    fn describe(&self) -> String;
+
+    /// The data the costs are computed from.
+    fn data(&self) -> &StereoData;
+
+    /// The cost `kind` of every candidate, in order; +∞ where a candidate explains no corner.
+    fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError>;
+
+    /// The least-squares air layer of every axis (DESIGN.md's linear solve), in order; `None`
+    /// where an axis has none.
+    fn air_distances(&self, normals: &[Unit<Vector3<f64>>]) -> Result<Vec<Option<f64>>, CalibError> {
+        Ok(normals.par_iter().map(|n| air_distance_for_axis(self.data(), n).map(|(d, _)| d)).collect())
+    }
+
+    /// The cost of each axis with the air layer solved per axis (a profile): axis-only costs
+    /// ignore the air layer; the others take the least-squares air layer of that axis, and an
+    /// axis without one costs +∞. Returns the candidates evaluated and their costs.
+    fn profile(&self, kind: CostKind, normals: &[Unit<Vector3<f64>>]) -> Result<(Vec<Candidate>, Vec<f64>), CalibError> {
+        let distances: Vec<Option<f64>> = if kind.axis_only() {
+            vec![Some(f64::NAN); normals.len()]
+        } else {
+            self.air_distances(normals)?
+        };
+        let data = self.data();
+        // Axes with an air layer that keeps both cameras in the air are evaluated; the rest cost +∞.
+        let valid: Vec<usize> = (0..normals.len())
+            .filter(|&i| distances[i].is_some_and(|d| d.is_nan() || d > data.min_air_distance(&normals[i])))
+            .collect();
+        let candidates: Vec<Candidate> =
+            normals.iter().zip(&distances).map(|(n, d)| Candidate { normal: *n, air_distance: d.unwrap_or(f64::NAN) }).collect();
+        let batch: Vec<Candidate> = valid.iter().map(|&i| candidates[i]).collect();
+        let values = self.costs(kind, &batch)?;
+        let mut costs = vec![f64::INFINITY; normals.len()];
+        for (&i, v) in valid.iter().zip(values) {
+            costs[i] = v;
+        }
+        Ok((candidates, costs))
+    }
+}
+
+/// The f64 reference on the CPU, parallel over candidates (rayon).
+#[derive(Debug)]
+pub struct CpuBackend<'a> {
+    data: &'a StereoData,
+}
+
+impl<'a> CpuBackend<'a> {
+    /// A backend over `data`.
+    pub fn new(data: &'a StereoData) -> Self {
+        Self { data }
+    }
+}
+
+impl CostBackend for CpuBackend<'_> {
+    fn describe(&self) -> String {
+        format!("cpu (f64 reference, {} threads)", rayon::current_num_threads())
+    }
+
+    fn data(&self) -> &StereoData {
+        self.data
+    }
+
+    fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
+        Ok(candidates.par_iter().map(|c| cost(self.data, kind, c)).collect())
+    }
+}

@@ -1,0 +1,129 @@
+//! The planar calibration board: its corner grid in the board frame and the rigid fit of a board
+//! model to measured 3-D corners (Kabsch).
+
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+/// A chessboard of `rows` × `cols` inner corners spaced `square` metres apart.
+///
+/// Corner `i = r·cols + c` (row-major, as OpenCV `findChessboardCorners` orders them) lies at
+/// (c·square, r·square, 0) in the board frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Board {
+    /// Inner corners per column (number of rows).
+    pub rows: usize,
+    /// Inner corners per row (number of columns).
+    pub cols: usize,
+    /// Distance between adjacent corners, metres.
+    pub square: f64,
+}
+
+impl Board {
+    /// Number of corners, rows × cols.
+    pub fn corners(&self) -> usize {
+        self.rows * self.cols
+    }
+
+    /// Corner `i` in the board frame: (c·s, r·s, 0) with r = i / cols, c = i % cols.
+    pub fn point_in_board(&self, i: usize) -> Point3<f64> {
+        let (r, c) = (i / self.cols, i % self.cols);
+        Point3::new(c as f64 * self.square, r as f64 * self.square, 0.0)
+    }
+
+    /// (row, column) of corner `i`.
+    pub fn grid_position(&self, i: usize) -> (usize, usize) {
+        (i / self.cols, i % self.cols)
+    }
+
+    /// Centre of the corner grid in the board frame.
+    pub fn centre_in_board(&self) -> Point3<f64> {
+        Point3::new(
+            (self.cols - 1) as f64 * self.square / 2.0,
+            (self.rows - 1) as f64 * self.square / 2.0,
+            0.0,
+        )
+    }
+}
+
+/// The rigid motion `master_from_board` that best maps board-frame points onto measured points
+/// (least squares, Kabsch/Umeyama without scale), with the RMS of the remaining distances.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RigidFit {
+    /// X_master = R·X_board + t.
+    pub master_from_board: Isometry3<f64>,
+    /// √(Σ|R·Pᵢ + t − Xᵢ|² / N), metres.
+    pub rms: f64,
+    /// Σ|R·Pᵢ + t − Xᵢ|², m².
+    pub sum_squares: f64,
+}
+
+/// Kabsch fit of `model` (board frame) onto `measured` (master frame), pairs in order. `None` with
+/// fewer than 3 pairs or when the model points are collinear (the rotation is undetermined).
+pub fn fit_rigid(model: &[Point3<f64>], measured: &[Point3<f64>]) -> Option<RigidFit> {
+    let count = model.len();
+    if count < 3 || measured.len() != count {
+        return None;
+    }
+    let inv = 1.0 / count as f64;
+    let mean_model = model.iter().fold(Vector3::zeros(), |a, p| a + p.coords) * inv;
+    let mean_measured = measured.iter().fold(Vector3::zeros(), |a, p| a + p.coords) * inv;
+    // H = Σ (Xᵢ − X̄)(Pᵢ − P̄)ᵀ; R = U diag(1, 1, det(UVᵀ)) Vᵀ from H = U S Vᵀ.
+    let mut h = Matrix3::zeros();
+    for (p, x) in model.iter().zip(measured) {
+        h += (x.coords - mean_measured) * (p.coords - mean_model).transpose();
+    }
+    let svd = h.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let mut singular = svd.singular_values;
+    // Collinear model points leave two singular values at zero.
+    singular.as_mut_slice().sort_by(|a, b| b.total_cmp(a));
+    if !(singular[1] > 1e-12 * singular[0]) {
+        return None;
+    }
+    let sign = (u * v_t).determinant().signum();
+    let rotation = u * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, sign)) * v_t;
+    let rotation = Rotation3::from_matrix_unchecked(rotation);
+    let translation = mean_measured - rotation * mean_model;
+    let master_from_board = Isometry3::from_parts(
+        Translation3::from(translation),
+        UnitQuaternion::from_rotation_matrix(&rotation),
+    );
+    let sum_squares: f64 = model
+        .iter()
+        .zip(measured)
+        .map(|(p, x)| (master_from_board * p - x).norm_squared())
+        .sum();
+    Some(RigidFit { master_from_board, rms: (sum_squares * inv).sqrt(), sum_squares })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn corners_are_row_major() {
+        let board = Board { rows: 6, cols: 9, square: 0.04 };
+        assert_eq!(board.corners(), 54);
+        assert_eq!(board.point_in_board(10), Point3::new(0.04, 0.04, 0.0));
+        assert_eq!(board.grid_position(53), (5, 8));
+        assert_eq!(board.centre_in_board(), Point3::new(0.16, 0.1, 0.0));
+    }
+
+    #[test]
+    fn kabsch_recovers_a_known_motion() {
+        let board = Board { rows: 4, cols: 5, square: 0.03 };
+        let model: Vec<_> = (0..board.corners()).map(|i| board.point_in_board(i)).collect();
+        let motion = Isometry3::new(Vector3::new(0.1, -0.2, 0.9), Vector3::new(0.3, -2.8, 0.5));
+        let measured: Vec<_> = model.iter().map(|p| motion * p).collect();
+        let fit = fit_rigid(&model, &measured).unwrap();
+        assert!(fit.rms < 1e-14, "{}", fit.rms);
+        assert!((fit.master_from_board.to_homogeneous() - motion.to_homogeneous()).norm() < 1e-13);
+        // A mirror image is not a rotation: the fit stays proper and leaves a residual.
+        let mirrored: Vec<_> = measured.iter().map(|p| Point3::new(-p.x, p.y, p.z)).collect();
+        let fit = fit_rigid(&model, &mirrored).unwrap();
+        assert!(fit.master_from_board.rotation.to_rotation_matrix().matrix().determinant() > 0.0);
+        assert!(fit.rms > 1e-3);
+        // Collinear points leave the rotation undetermined.
+        let line: Vec<_> = (0..5).map(|i| Point3::new(i as f64, 0.0, 0.0)).collect();
+        assert!(fit_rigid(&line, &line).is_none());
+    }
+}

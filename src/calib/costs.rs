@@ -1,0 +1,206 @@
+//! The calibration costs of one candidate interface, in f64 on the CPU (the reference that the
+//! GPU backend is checked against).
+//!
+//! - [`CostKind::Reprojection`]: triangulate every corner, fit the rigid board to each view
+//!   (Kabsch), project the fitted board into both cameras: RMS pixel error.
+//! - [`CostKind::Scene`]: the same fit's RMS 3-D residual, metres (the 3-D scene error).
+//! - [`CostKind::RayGap`]: RMS distance between the two water rays of each corner, metres.
+//! - [`CostKind::AffineGrid`], [`CostKind::PlaneFitting`], [`CostKind::PlaneAngles`]: the pattern
+//!   invariants ([`super::invariants`]); they ignore the air layer.
+//!
+//! A candidate under which some corner has no answer (a camera outside the air, a ray that is
+//! totally reflected, a point that triangulates behind the port) costs +∞.
+
+use nalgebra::{Isometry3, Point3};
+
+use super::board::{RigidFit, fit_rigid};
+use super::data::{Candidate, StereoData};
+use super::invariants::{affine_grid, plane_angles, plane_fitting, projected_vops};
+use crate::model::{RefractiveCamera, triangulate_rays};
+
+/// Which cost to evaluate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum CostKind {
+    /// RMS reprojection error of the rigidly fitted boards in both cameras, pixels.
+    Reprojection,
+    /// RMS residual of the rigid board fit to the triangulated corners, metres.
+    Scene,
+    /// RMS distance between the two water rays of each corner, metres.
+    RayGap,
+    /// Weighted affine-grid invariant: χ² per degree of freedom (≈ σ² in px² at the true axis).
+    AffineGrid,
+    /// Plane fitting error: RMS distance of the projected corners to their row and column lines, metres.
+    PlaneFitting,
+    /// Plane angles error: RMS angle between parallel rows (columns) of the projected grid, radians.
+    PlaneAngles,
+}
+
+impl CostKind {
+    /// Every cost.
+    pub const ALL: [CostKind; 6] =
+        [Self::Reprojection, Self::Scene, Self::RayGap, Self::AffineGrid, Self::PlaneFitting, Self::PlaneAngles];
+
+    /// Whether the cost depends on the axis only (not on the air layer).
+    pub fn axis_only(self) -> bool {
+        matches!(self, Self::AffineGrid | Self::PlaneFitting | Self::PlaneAngles)
+    }
+
+    /// Short name (`reprojection`, `scene`, `ray-gap`, `affine-grid`, `plane-fitting`, `plane-angles`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Reprojection => "reprojection",
+            Self::Scene => "scene",
+            Self::RayGap => "ray-gap",
+            Self::AffineGrid => "affine-grid",
+            Self::PlaneFitting => "plane-fitting",
+            Self::PlaneAngles => "plane-angles",
+        }
+    }
+
+    /// Unit of the cost's value.
+    pub fn unit(self) -> &'static str {
+        match self {
+            Self::Reprojection => "px",
+            Self::Scene | Self::RayGap | Self::PlaneFitting => "m",
+            Self::AffineGrid => "px²",
+            Self::PlaneAngles => "rad",
+        }
+    }
+}
+
+/// The triangulated corners and the rigid board fits under one candidate.
+#[derive(Debug, Clone)]
+pub struct SceneFit {
+    /// Triangulated corner (midpoint), master frame, in `data.corners` order.
+    pub points: Vec<Point3<f64>>,
+    /// Distance between the two water rays of each corner, metres.
+    pub gaps: Vec<f64>,
+    /// Rigid fit of each view.
+    pub fits: Vec<RigidFit>,
+}
+
+impl SceneFit {
+    /// Triangulates every corner behind `cameras` and fits the board to each view. `None` when a
+    /// corner has no answer or a view cannot be fitted.
+    pub fn new(data: &StereoData, cameras: &[RefractiveCamera; 2]) -> Option<Self> {
+        let mut points = Vec::with_capacity(data.corners.len());
+        let mut gaps = Vec::with_capacity(data.corners.len());
+        for corner in &data.corners {
+            let left = cameras[0].ray_in_water(&corner.dirs[0]).ok()?;
+            let right = cameras[1].ray_in_water(&corner.dirs[1]).ok()?;
+            let t = triangulate_rays(&left, &right).ok()?;
+            points.push(t.point);
+            gaps.push(t.residual);
+        }
+        let fits = data
+            .views
+            .iter()
+            .map(|range| {
+                let model: Vec<_> = data.corners[range.clone()].iter().map(|c| data.board.point_in_board(c.index)).collect();
+                fit_rigid(&model, &points[range.clone()])
+            })
+            .collect::<Option<Vec<_>>>()?;
+        Some(Self { points, gaps, fits })
+    }
+
+    /// X_master = R·X_board + t of each view.
+    pub fn poses(&self) -> Vec<Isometry3<f64>> {
+        self.fits.iter().map(|f| f.master_from_board).collect()
+    }
+
+    /// RMS of the rigid-fit residuals over all corners, metres.
+    pub fn scene_rms(&self) -> f64 {
+        (self.fits.iter().map(|f| f.sum_squares).sum::<f64>() / self.points.len() as f64).sqrt()
+    }
+
+    /// RMS deviation of the distances between adjacent triangulated corners (along rows and
+    /// columns) from the board's square, metres.
+    pub fn square_deviation_rms(&self, data: &StereoData) -> f64 {
+        let (mut sum, mut count) = (0.0, 0usize);
+        for range in &data.views {
+            let corners = &data.corners[range.clone()];
+            let lookup: std::collections::HashMap<usize, usize> =
+                corners.iter().enumerate().map(|(j, c)| (c.index, range.start + j)).collect();
+            for c in corners {
+                let (r, col) = data.board.grid_position(c.index);
+                let here = lookup[&c.index];
+                let neighbours = [(col + 1 < data.board.cols).then(|| c.index + 1), (r + 1 < data.board.rows).then(|| c.index + data.board.cols)];
+                for next in neighbours.into_iter().flatten().filter_map(|i| lookup.get(&i)) {
+                    let distance = (self.points[here] - self.points[*next]).norm();
+                    sum += (distance - data.board.square).powi(2);
+                    count += 1;
+                }
+            }
+        }
+        if count == 0 { 0.0 } else { (sum / count as f64).sqrt() }
+    }
+}
+
+/// Pixel residuals (observed − projected) of the fitted boards in both cameras, `[left, right]`
+/// per corner in `data.corners` order. `None` when a fitted corner does not project.
+pub fn reprojection_residuals(
+    data: &StereoData,
+    cameras: &[RefractiveCamera; 2],
+    poses: &[Isometry3<f64>],
+) -> Option<Vec<[nalgebra::Vector2<f64>; 2]>> {
+    data.corners
+        .iter()
+        .map(|c| {
+            let point = poses[c.view] * data.board.point_in_board(c.index);
+            let left = cameras[0].project(&point).ok()?;
+            let right = cameras[1].project(&point).ok()?;
+            Some([c.pixels[0] - left, c.pixels[1] - right])
+        })
+        .collect()
+}
+
+/// The cost `kind` of one candidate, +∞ where the candidate explains no corner.
+pub fn cost(data: &StereoData, kind: CostKind, candidate: &Candidate) -> f64 {
+    evaluate(data, kind, candidate).unwrap_or(f64::INFINITY)
+}
+
+fn evaluate(data: &StereoData, kind: CostKind, candidate: &Candidate) -> Option<f64> {
+    if kind.axis_only() {
+        return invariant(data, kind, candidate);
+    }
+    let cameras = data.cameras_behind(candidate)?;
+    if kind == CostKind::RayGap {
+        let mut sum = 0.0;
+        for corner in &data.corners {
+            let left = cameras[0].ray_in_water(&corner.dirs[0]).ok()?;
+            let right = cameras[1].ray_in_water(&corner.dirs[1]).ok()?;
+            sum += triangulate_rays(&left, &right).ok()?.residual.powi(2);
+        }
+        return Some((sum / data.corners.len() as f64).sqrt());
+    }
+    let fit = SceneFit::new(data, &cameras)?;
+    match kind {
+        CostKind::Scene => Some(fit.scene_rms()),
+        _ => {
+            let residuals = reprojection_residuals(data, &cameras, &fit.poses())?;
+            let sum: f64 = residuals.iter().map(|[l, r]| l.norm_squared() + r.norm_squared()).sum();
+            Some((sum / (2 * residuals.len()) as f64).sqrt())
+        }
+    }
+}
+
+fn invariant(data: &StereoData, kind: CostKind, candidate: &Candidate) -> Option<f64> {
+    let (mut sum, mut dof) = (0.0, 0usize);
+    for range in &data.views {
+        let vops = projected_vops(data, &data.corners[range.clone()], &candidate.normal);
+        let (s, d) = match kind {
+            CostKind::AffineGrid => affine_grid(data, &vops)?,
+            CostKind::PlaneFitting => plane_fitting(data, &vops),
+            _ => plane_angles(data, &vops),
+        };
+        sum += s;
+        dof += d;
+    }
+    if dof == 0 {
+        return None;
+    }
+    Some(match kind {
+        CostKind::AffineGrid => sum / dof as f64,
+        _ => (sum / dof as f64).sqrt(),
+    })
+}

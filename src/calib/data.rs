@@ -1,0 +1,133 @@
+//! Observations prepared for cost evaluation: the air rays of every corner seen in both images,
+//! which do not depend on the interface, computed once.
+
+use std::ops::Range;
+
+use nalgebra::{Matrix3x2, Point2, Unit, Vector3};
+
+use super::board::Board;
+use super::error::{CalibError, Side};
+use super::observations::Observations;
+use crate::model::{Interface, RefractiveCamera, Rig};
+
+/// A candidate interface pose: system axis and air layer (master frame); the layers and indices
+/// are the rig's.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Candidate {
+    /// Unit system axis, pointing into the water.
+    pub normal: Unit<Vector3<f64>>,
+    /// Air layer d, metres.
+    pub air_distance: f64,
+}
+
+impl Candidate {
+    /// The candidate of an interface.
+    pub fn of(interface: &Interface) -> Self {
+        Self { normal: *interface.normal(), air_distance: interface.air_distance() }
+    }
+
+    /// Tilt from the master z axis, radians.
+    pub fn tilt(&self) -> f64 {
+        self.normal.z.clamp(-1.0, 1.0).acos()
+    }
+
+    /// Azimuth atan2(n_y, n_x), radians.
+    pub fn azimuth(&self) -> f64 {
+        self.normal.y.atan2(self.normal.x)
+    }
+}
+
+/// One board corner seen in both images.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Corner {
+    /// 0-based view.
+    pub view: usize,
+    /// Corner index on the board (row-major).
+    pub index: usize,
+    /// Observed raw pixel in the left and the right image.
+    pub pixels: [Point2<f64>; 2],
+    /// Unit air direction from each camera centre, master frame (undistorted).
+    pub dirs: [Unit<Vector3<f64>>; 2],
+    /// ∂dir/∂(u, v) of each image, master frame, per pixel.
+    pub dir_jacobians: [Matrix3x2<f64>; 2],
+}
+
+/// Stereo observations and the rig they were taken with, ready for batch cost evaluation.
+#[derive(Debug, Clone)]
+pub struct StereoData {
+    /// The rig (its interface is the start guess; layers and indices are known values).
+    pub rig: Rig,
+    /// Rig indices of the left and the right camera.
+    pub cameras: [usize; 2],
+    /// The board.
+    pub board: Board,
+    /// Every corner seen in both images, view by view.
+    pub corners: Vec<Corner>,
+    /// `corners[views[v].clone()]` are the corners of view v.
+    pub views: Vec<Range<usize>>,
+}
+
+/// Pixel step of the central differences for ∂dir/∂pixel (error ~1e-12 relative).
+const PIXEL_STEP: f64 = 1e-3;
+
+impl StereoData {
+    /// Prepares `observations` (already validated) taken by cameras `cameras` of `rig`.
+    ///
+    /// Errors: a corner that the lens model cannot undistort (beyond the fold of the radial
+    /// distortion), named by view, image and corner.
+    pub fn new(rig: &Rig, cameras: [usize; 2], observations: &Observations) -> Result<Self, CalibError> {
+        let refractive = cameras.map(|k| rig.refractive_camera(k));
+        let mut corners = Vec::with_capacity(observations.matched_corners());
+        let mut views = Vec::with_capacity(observations.views.len());
+        for (v, view) in observations.views.iter().enumerate() {
+            let start = corners.len();
+            for i in view.matched() {
+                let pixels = [view.left[i].expect("matched"), view.right[i].expect("matched")];
+                let mut dirs = [Unit::new_unchecked(Vector3::z()); 2];
+                let mut dir_jacobians = [Matrix3x2::zeros(); 2];
+                for (k, side) in [Side::Left, Side::Right].into_iter().enumerate() {
+                    let camera = &refractive[k];
+                    let unusable = || CalibError::UnusableView {
+                        view: v,
+                        reason: format!(
+                            "{} corner {i} at ({}, {}) px lies beyond the lens model's one-to-one region (check the distortion coefficients)",
+                            side.name(),
+                            pixels[k].x,
+                            pixels[k].y
+                        ),
+                    };
+                    let dir = |p: Point2<f64>| camera.dir_in_air_from_img(&p).map_err(|_| unusable());
+                    dirs[k] = dir(pixels[k])?;
+                    for axis in 0..2 {
+                        let mut step = nalgebra::Vector2::zeros();
+                        step[axis] = PIXEL_STEP;
+                        let plus = dir(pixels[k] + step)?;
+                        let minus = dir(pixels[k] - step)?;
+                        dir_jacobians[k].set_column(axis, &((plus.into_inner() - minus.into_inner()) / (2.0 * PIXEL_STEP)));
+                    }
+                }
+                corners.push(Corner { view: v, index: i, pixels, dirs, dir_jacobians });
+            }
+            views.push(start..corners.len());
+        }
+        Ok(Self { rig: rig.clone(), cameras, board: observations.board, corners, views })
+    }
+
+    /// The two cameras behind a candidate interface, or `None` when it puts a camera outside the
+    /// air (or is not a valid interface).
+    pub fn cameras_behind(&self, candidate: &Candidate) -> Option<[RefractiveCamera; 2]> {
+        let interface = self.rig.interface().with_pose(candidate.normal.into_inner(), candidate.air_distance).ok()?;
+        let rig = self.rig.with_interface(interface).ok()?;
+        Some(self.cameras.map(|k| rig.refractive_camera(k)))
+    }
+
+    /// Camera centres C_l, C_r in the master frame.
+    pub fn centres(&self) -> [nalgebra::Point3<f64>; 2] {
+        self.cameras.map(|k| self.rig.cameras()[k].centre_in_master())
+    }
+
+    /// The smallest air layer d that keeps both cameras in the air under `normal`: max_k n·C_k.
+    pub fn min_air_distance(&self, normal: &Unit<Vector3<f64>>) -> f64 {
+        self.centres().iter().map(|c| normal.dot(&c.coords)).fold(0.0, f64::max)
+    }
+}

@@ -1,0 +1,31 @@
+//! Calibration of a shared flat refractive stereo system (DESIGN.md §3): the system axis and the
+//! air layer of a stereo camera behind one flat port, from stereo views of a planar chessboard.
+//!
+//! Dependency order: [`board`], [`observations`] (data) → [`data`] (prepared air rays) →
+//! [`costs`], [`invariants`], [`air_layer`] (pure f64 costs of one candidate) → [`backend`]
+//! (batches of candidates, CPU or GPU) → [`search`], [`lm`], [`bundle`] (optimisers) →
+//! [`calibrate()`] (the methods). [`simulate`] makes scenes with known truth. No I/O here.
+
+pub mod air_layer;
+pub mod backend;
+pub mod board;
+pub mod bundle;
+pub mod calibrate;
+pub mod costs;
+pub mod data;
+pub mod error;
+pub mod invariants;
+pub mod lm;
+pub mod observations;
+pub mod rng;
+pub mod search;
+pub mod simulate;
+
+pub use backend::{CostBackend, CpuBackend};
+pub use board::{Board, RigidFit, fit_rigid};
+pub use costs::CostKind;
+pub use data::{Candidate, StereoData};
+pub use error::{CalibError, Side};
+pub use observations::{Observations, StereoView};
+pub use simulate::{Scene, SceneSpec, simulate};
+pub use calibrate::{Calibration, CalibrationOptions, CalibrationReport, Method, calibrate};

@@ -1,0 +1,139 @@
+//! Simulated calibration scenes: random board poses in the water seen fully by both cameras,
+//! corners projected exactly through the interface, Gaussian pixel noise.
+
+use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector3};
+
+use super::board::Board;
+use super::error::CalibError;
+use super::observations::{Observations, StereoView};
+use super::rng::Rng;
+use crate::model::{RefractiveCamera, Rig};
+
+/// How to simulate a scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneSpec {
+    /// The board.
+    pub board: Board,
+    /// Number of views.
+    pub views: usize,
+    /// Standard deviation of the Gaussian pixel noise added to each coordinate, pixels.
+    pub noise_px: f64,
+    /// Seed of the random generator (equal seeds give equal scenes).
+    pub seed: u64,
+    /// Largest angle between the board normal and the master camera's viewing axis, radians.
+    pub max_board_tilt: f64,
+    /// Corners keep this many pixels from the image border (before noise).
+    pub margin_px: f64,
+}
+
+impl SceneSpec {
+    /// Defaults: boards turned up to 45° toward the camera, corners 10 px inside the images.
+    pub fn new(board: Board, views: usize, noise_px: f64, seed: u64) -> Self {
+        Self { board, views, noise_px, seed, max_board_tilt: 45f64.to_radians(), margin_px: 10.0 }
+    }
+}
+
+/// A simulated scene: what the cameras saw and the truth behind it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    /// The corners as detected (with noise).
+    pub observations: Observations,
+    /// X_master = R·X_board + t for each view.
+    pub master_from_board: Vec<Isometry3<f64>>,
+}
+
+/// Most random poses tried per view before giving up.
+const MAX_TRIES_PER_VIEW: usize = 20_000;
+
+/// Simulates `spec.views` views of the board by cameras `left` and `right` of `rig`, behind the
+/// rig's interface (the truth). Every corner of every view lies inside both images.
+///
+/// Errors: [`CalibError::Options`] when no pose that both cameras see fully is found (board too
+/// large for the common field of view, or cameras that do not overlap).
+pub fn simulate(rig: &Rig, left: usize, right: usize, spec: &SceneSpec) -> Result<Scene, CalibError> {
+    let board = &spec.board;
+    if board.rows < 2 || board.cols < 2 || !(board.square > 0.0) {
+        return Err(CalibError::BadBoard { reason: format!("{} × {} corners of {} m", board.rows, board.cols, board.square) });
+    }
+    if !(spec.noise_px >= 0.0 && spec.noise_px.is_finite()) {
+        return Err(CalibError::Options(format!("noise must be ≥ 0 px, got {}", spec.noise_px)));
+    }
+    let cameras = [rig.refractive_camera(left), rig.refractive_camera(right)];
+    let mut rng = Rng::new(spec.seed);
+    let interface = rig.interface();
+    // Depth range from the field of view in water of the master camera: the board must fit.
+    let intrinsics = rig.cameras()[left].intrinsics;
+    let half_fov_air = (0.5 * (intrinsics.width as f64 / intrinsics.fx).min(intrinsics.height as f64 / intrinsics.fy)).atan();
+    let tan_half_fov_water = (half_fov_air.sin() * interface.index_air() / interface.index_water()).asin().tan();
+    let diagonal = ((board.rows - 1) as f64).hypot((board.cols - 1) as f64) * board.square;
+    let near = (0.5 * diagonal / tan_half_fov_water).max(interface.outer_distance() + 0.05);
+    let far = 3.0 * near;
+
+    let mut views = Vec::with_capacity(spec.views);
+    let mut poses = Vec::with_capacity(spec.views);
+    for v in 0..spec.views {
+        let (pose, pixels) = (0..MAX_TRIES_PER_VIEW)
+            .find_map(|_| {
+                let pose = random_pose(&mut rng, board, near, far, tan_half_fov_water, spec.max_board_tilt);
+                visible_corners(&cameras, rig, [left, right], board, &pose, spec.margin_px).map(|p| (pose, p))
+            })
+            .ok_or_else(|| {
+                CalibError::Options(format!(
+                    "view {v}: found no pose in which both cameras see the whole {}×{} board of {} m squares",
+                    board.rows, board.cols, board.square
+                ))
+            })?;
+        let mut noisy = |p: &Point2<f64>| Some(Point2::new(p.x + spec.noise_px * rng.normal(), p.y + spec.noise_px * rng.normal()));
+        let left_corners = pixels[0].iter().map(&mut noisy).collect();
+        let right_corners = pixels[1].iter().map(&mut noisy).collect();
+        views.push(StereoView { left: left_corners, right: right_corners });
+        poses.push(pose);
+    }
+    let names = [rig.cameras()[left].name.clone(), rig.cameras()[right].name.clone()];
+    Ok(Scene { observations: Observations { board: *board, views, cameras: Some(names) }, master_from_board: poses })
+}
+
+/// A board pose: centre at a random depth in [near, far] inside the central part of the view,
+/// facing the camera within `max_tilt`, turned in its plane by up to ±30°.
+fn random_pose(rng: &mut Rng, board: &Board, near: f64, far: f64, tan_half_fov: f64, max_tilt: f64) -> Isometry3<f64> {
+    let z = rng.range(near, far);
+    let reach = 0.7 * z * tan_half_fov;
+    let centre = Vector3::new(rng.range(-reach, reach), rng.range(-reach, reach), z);
+    // Tilt about a random in-plane axis, uniform in solid angle within the cone.
+    let cos_tilt = rng.range(max_tilt.cos(), 1.0);
+    let axis_angle = rng.range(0.0, std::f64::consts::TAU);
+    let axis = Vector3::new(axis_angle.cos(), axis_angle.sin(), 0.0);
+    let tilt = UnitQuaternion::from_scaled_axis(axis * cos_tilt.acos());
+    let spin = UnitQuaternion::from_scaled_axis(Vector3::z() * rng.range(-0.5, 0.5));
+    let rotation = tilt * spin;
+    let to_centre = Translation3::from(-board.centre_in_board().coords);
+    Isometry3::from_parts(Translation3::from(centre), rotation) * to_centre
+}
+
+/// The exact pixels of every corner in both cameras, or `None` when a corner does not project or
+/// falls within `margin` pixels of an image border.
+fn visible_corners(
+    cameras: &[RefractiveCamera; 2],
+    rig: &Rig,
+    indices: [usize; 2],
+    board: &Board,
+    pose: &Isometry3<f64>,
+    margin: f64,
+) -> Option<[Vec<Point2<f64>>; 2]> {
+    let mut out = [Vec::with_capacity(board.corners()), Vec::with_capacity(board.corners())];
+    for (k, camera) in cameras.iter().enumerate() {
+        let i = &rig.cameras()[indices[k]].intrinsics;
+        for c in 0..board.corners() {
+            let pixel = camera.project(&(pose * board.point_in_board(c))).ok()?;
+            let inside = pixel.x >= margin
+                && pixel.y >= margin
+                && pixel.x <= i.width as f64 - 1.0 - margin
+                && pixel.y <= i.height as f64 - 1.0 - margin;
+            if !inside {
+                return None;
+            }
+            out[k].push(pixel);
+        }
+    }
+    Some(out)
+}
