@@ -2,6 +2,7 @@
 //! calls the library row by row, and writes the CSV contract of DESIGN.md §1.
 
 mod batch;
+mod calib;
 mod bench;
 mod demo;
 mod geometry;
@@ -68,6 +69,37 @@ inside the glass, eq 4.8), vop_x..z the VOP in the master frame, incidence the a
 Example:
   flatport vop --rig rig.json --points points.csv --camera left")]
     Vop(geometry::PointsArgs),
+    /// Simulate stereo views of a chessboard through the rig's interface (with known truth)
+    #[command(after_help = "\
+Random board poses in the water that both cameras see whole, corners projected exactly through the
+rig's interface (the truth), Gaussian pixel noise. Writes DIR/observations.json (the calibration
+input), DIR/truth.json (interface, tilt, azimuth, board poses) and DIR/rig.json.
+
+Examples:
+  flatport simulate --rig rig.json --board 9x6@0.04 --views 20 --noise 0.1 --seed 1 --output scene
+  flatport calibrate --rig start.json --observations scene/observations.json -o calibrated.json \\
+      --truth scene/truth.json")]
+    Simulate(calib::SimulateArgs),
+    /// Calibrate the interface (axis and air layer) of a stereo rig from views of a chessboard
+    #[command(after_help = "\
+The rig's cameras are calibrated in air (intrinsics, distortion, extrinsics); its interface is the
+start guess, its layers and indices are known values. The observations hold the board's inner
+corners in both images per view, row-major as cv::findChessboardCorners returns them, raw
+(distorted) pixels, null where a corner was not found:
+  {\"board\": {\"rows\": 6, \"cols\": 9, \"square\": 0.04}, \"cameras\": [\"left\", \"right\"],
+   \"views\": [{\"left\": [[u, v], ...], \"right\": [[u, v], ...]}, ...]}
+
+Methods: consecutive (the thesis: the axis from the pattern invariants by a global search over tilts
+up to --max-tilt-deg and local refinement, then the air layer by linear least squares);
+simultaneous (maximum likelihood: Levenberg-Marquardt over axis, air layer and board poses on the
+reprojection error, started from the consecutive result, with standard deviations); auto (default:
+consecutive, then maximum likelihood from several starts, keeping the lowest cost).
+
+Examples:
+  flatport calibrate --rig rig.json --observations obs.json --output calibrated.json
+  flatport calibrate --rig rig.json --observations obs.json -o calibrated.json --report report.json \\
+      --method simultaneous --huber 1.0")]
+    Calibrate(calib::CalibrateArgs),
     /// Rig files: import OpenCV stereoCalibrate output, show a rig
     #[command(subcommand)]
     Rig(rig::RigCommand),
@@ -190,6 +222,8 @@ pub fn main() -> ExitCode {
         Command::Triangulate(args) => geometry::triangulate(args),
         Command::Vop(args) => geometry::vop(args),
         Command::Rig(command) => rig::run(command),
+        Command::Simulate(args) => calib::run_simulate(args),
+        Command::Calibrate(args) => calib::run_calibrate(args),
         Command::Demo(args) => demo::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Info => info::run(),

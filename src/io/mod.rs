@@ -1,5 +1,6 @@
 //! File formats: rig JSON, OpenCV FileStorage YAML, CSV tables. No geometry here.
 
+pub mod calib_json;
 pub mod error;
 pub mod opencv;
 pub mod rig_json;
@@ -9,6 +10,10 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+pub use calib_json::{
+    Truth, observations_from_json_str, observations_to_json_string, read_observations, read_truth,
+    report_to_json_string, write_observations, write_report, write_truth,
+};
 pub use error::IoError;
 pub use opencv::{OpenCvStereo, parse_opencv_stereo, read_opencv_stereo};
 pub use rig_json::{read_rig, rig_from_json_str, rig_to_json_string, write_rig};

@@ -37,7 +37,7 @@ struct CameraFile {
 
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct InterfaceFile {
+pub(crate) struct InterfaceFile {
     normal: [f64; 3],
     distance: f64,
     #[serde(default)]
@@ -63,8 +63,9 @@ fn default_index_water() -> f64 {
     DEFAULT_INDEX_WATER
 }
 
-/// Parses and validates a rig from JSON text; `path` only labels errors.
-pub fn rig_from_json_str(text: &str, path: &Path) -> Result<Rig, IoError> {
+/// Parses JSON text into `T`, naming the file, line, column and JSON path of any error; only
+/// whitespace may follow the value.
+pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Result<T, IoError> {
     let json_error = |field: String, error: serde_json::Error| IoError::Json {
         path: path.to_path_buf(),
         field: if field == "." { String::new() } else { field },
@@ -73,14 +74,17 @@ pub fn rig_from_json_str(text: &str, path: &Path) -> Result<Rig, IoError> {
         reason: strip_position(&error.to_string()),
     };
     let mut deserializer = serde_json::Deserializer::from_str(text);
-    let file: RigFile = serde_path_to_error::deserialize(&mut deserializer).map_err(|e| {
+    let value: T = serde_path_to_error::deserialize(&mut deserializer).map_err(|e| {
         let field = e.path().to_string();
         json_error(field, e.into_inner())
     })?;
-    // Only whitespace may follow the rig object.
-    deserializer
-        .end()
-        .map_err(|e| json_error(String::new(), e))?;
+    deserializer.end().map_err(|e| json_error(String::new(), e))?;
+    Ok(value)
+}
+
+/// Parses and validates a rig from JSON text; `path` only labels errors.
+pub fn rig_from_json_str(text: &str, path: &Path) -> Result<Rig, IoError> {
+    let file: RigFile = parse_json(text, path)?;
     let invalid = |field: String, error: ModelError| IoError::Invalid {
         path: path.to_path_buf(),
         field,
@@ -124,25 +128,31 @@ pub fn rig_from_json_str(text: &str, path: &Path) -> Result<Rig, IoError> {
             })?;
         cameras.push(camera);
     }
-    let i = &file.interface;
-    let layers = i
-        .layers
-        .iter()
-        .map(|l| Layer {
-            thickness: l.thickness,
-            index: l.index,
-        })
-        .collect();
-    let interface = Interface::new(
-        Vector3::from(i.normal),
-        i.distance,
-        layers,
-        i.index_air,
-        i.index_water,
-    )
-    .map_err(|e| invalid(interface_field(&e), e))?;
+    let interface = interface_from_file(&file.interface, path)?;
     let names: Vec<&str> = file.cameras.iter().map(|c| c.name.as_str()).collect();
     Rig::new(cameras, interface).map_err(|e| invalid(rig_field(&e, &names), e))
+}
+
+/// The interface of a rig file's `interface` object, validated.
+pub(crate) fn interface_from_file(i: &InterfaceFile, path: &Path) -> Result<Interface, IoError> {
+    let layers = i.layers.iter().map(|l| Layer { thickness: l.thickness, index: l.index }).collect();
+    Interface::new(Vector3::from(i.normal), i.distance, layers, i.index_air, i.index_water).map_err(|e| IoError::Invalid {
+        path: path.to_path_buf(),
+        field: interface_field(&e),
+        reason: e.to_string(),
+    })
+}
+
+/// The `interface` object of a rig file.
+pub(crate) fn interface_to_file(i: &Interface) -> InterfaceFile {
+    let n = i.normal();
+    InterfaceFile {
+        normal: [n.x, n.y, n.z],
+        distance: i.air_distance(),
+        layers: i.layers().iter().map(|l| LayerFile { thickness: l.thickness, index: l.index }).collect(),
+        index_air: i.index_air(),
+        index_water: i.index_water(),
+    }
 }
 
 /// The rig-file field an interface error is about.
@@ -224,25 +234,7 @@ pub fn rig_to_json_string(rig: &Rig) -> String {
             }
         })
         .collect();
-    let i = rig.interface();
-    let n = i.normal();
-    let file = RigFile {
-        cameras,
-        interface: InterfaceFile {
-            normal: [n.x, n.y, n.z],
-            distance: i.air_distance(),
-            layers: i
-                .layers()
-                .iter()
-                .map(|l| LayerFile {
-                    thickness: l.thickness,
-                    index: l.index,
-                })
-                .collect(),
-            index_air: i.index_air(),
-            index_water: i.index_water(),
-        },
-    };
+    let file = RigFile { cameras, interface: interface_to_file(rig.interface()) };
     let mut text = serde_json::to_string_pretty(&file).expect("plain data always serialises");
     text.push('\n');
     text

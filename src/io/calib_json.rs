@@ -1,0 +1,290 @@
+//! Calibration files: observations (the corners of stereo views of a board), the truth of a
+//! simulated scene, and the calibration report. JSON; unknown keys are rejected by name.
+
+use std::path::Path;
+
+use nalgebra::{Isometry3, Matrix3, Point2, Rotation3, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::rig_json::interface_to_file;
+use super::{IoError, read_text, write_atomic};
+use crate::calib::{Board, CalibrationReport, Observations, StereoView};
+use crate::model::Interface;
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BoardFile {
+    rows: usize,
+    cols: usize,
+    square: f64,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ViewFile {
+    left: Vec<Option<[f64; 2]>>,
+    right: Vec<Option<[f64; 2]>>,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ObservationsFile {
+    board: BoardFile,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    cameras: Option<[String; 2]>,
+    views: Vec<ViewFile>,
+}
+
+/// Parses observations from JSON text; `path` only labels errors. The values are checked against
+/// the rig later ([`Observations::validate`]); here only the shape: the board must have at least
+/// 2 × 2 corners and a positive square.
+pub fn observations_from_json_str(text: &str, path: &Path) -> Result<Observations, IoError> {
+    let file: ObservationsFile = super::rig_json::parse_json(text, path)?;
+    let board = Board { rows: file.board.rows, cols: file.board.cols, square: file.board.square };
+    let point = |c: &Option<[f64; 2]>| c.map(|[u, v]| Point2::new(u, v));
+    let views = file
+        .views
+        .iter()
+        .map(|v| StereoView { left: v.left.iter().map(point).collect(), right: v.right.iter().map(point).collect() })
+        .collect();
+    let observations = Observations { board, views, cameras: file.cameras };
+    if board.rows < 2 || board.cols < 2 || !(board.square > 0.0 && board.square.is_finite()) {
+        return Err(IoError::Invalid {
+            path: path.to_path_buf(),
+            field: "board".into(),
+            reason: format!("needs rows ≥ 2, cols ≥ 2 and a square > 0 m, got rows {}, cols {}, square {}", board.rows, board.cols, board.square),
+        });
+    }
+    Ok(observations)
+}
+
+/// Reads an observations file (`-` = standard input).
+pub fn read_observations(path: &Path) -> Result<Observations, IoError> {
+    observations_from_json_str(&read_text(path)?, path)
+}
+
+/// Observations as JSON, one view per block, every value at full f64 precision.
+pub fn observations_to_json_string(observations: &Observations) -> String {
+    let b = &observations.board;
+    let corners = |c: &[Option<Point2<f64>>]| c.iter().map(|p| p.map(|p| [p.x, p.y])).collect();
+    let file = ObservationsFile {
+        board: BoardFile { rows: b.rows, cols: b.cols, square: b.square },
+        cameras: observations.cameras.clone(),
+        views: observations.views.iter().map(|v| ViewFile { left: corners(&v.left), right: corners(&v.right) }).collect(),
+    };
+    let mut text = serde_json::to_string(&file).expect("plain data always serialises");
+    // One view per line keeps the file readable and diffable.
+    text = text.replace("{\"left\":", "\n  {\"left\":");
+    text.push('\n');
+    text
+}
+
+/// Writes an observations file atomically.
+pub fn write_observations(path: &Path, observations: &Observations) -> Result<(), IoError> {
+    write_atomic(path, observations_to_json_string(observations).as_bytes())
+}
+
+/// A board pose in a file: X_master = R·X_board + t, R as rows.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PoseFile {
+    rotation: [[f64; 3]; 3],
+    translation: [f64; 3],
+}
+
+fn pose_to_file(pose: &Isometry3<f64>) -> PoseFile {
+    let r = pose.rotation.to_rotation_matrix().into_inner();
+    let t = pose.translation.vector;
+    PoseFile { rotation: std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)])), translation: [t.x, t.y, t.z] }
+}
+
+fn pose_from_file(pose: &PoseFile) -> Isometry3<f64> {
+    let r = pose.rotation;
+    let m = Matrix3::from_fn(|i, j| r[i][j]);
+    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&m));
+    Isometry3::from_parts(Translation3::from(Vector3::from(pose.translation)), rotation)
+}
+
+/// The truth of a simulated scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Truth {
+    /// The interface the corners were projected through.
+    pub interface: Interface,
+    /// X_master = R·X_board + t per view.
+    pub master_from_board: Vec<Isometry3<f64>>,
+    /// Pixel noise added, pixels.
+    pub noise_px: f64,
+    /// Seed of the simulation.
+    pub seed: u64,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TruthFile {
+    interface: super::rig_json::InterfaceFile,
+    tilt_deg: f64,
+    azimuth_deg: f64,
+    noise_px: f64,
+    seed: u64,
+    board_poses: Vec<PoseFile>,
+}
+
+/// Truth as JSON: `interface` (as in a rig file), `tilt_deg`, `azimuth_deg`, `noise_px`, `seed`,
+/// `board_poses` [{rotation (rows), translation}] with X_master = R·X_board + t.
+pub fn truth_to_json_string(truth: &Truth) -> String {
+    let file = TruthFile {
+        interface: interface_to_file(&truth.interface),
+        tilt_deg: truth.interface.tilt().to_degrees(),
+        azimuth_deg: truth.interface.azimuth().to_degrees(),
+        noise_px: truth.noise_px,
+        seed: truth.seed,
+        board_poses: truth.master_from_board.iter().map(pose_to_file).collect(),
+    };
+    let mut text = serde_json::to_string_pretty(&file).expect("plain data always serialises");
+    text.push('\n');
+    text
+}
+
+/// Writes a truth file atomically.
+pub fn write_truth(path: &Path, truth: &Truth) -> Result<(), IoError> {
+    write_atomic(path, truth_to_json_string(truth).as_bytes())
+}
+
+/// Reads a truth file.
+pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
+    let file: TruthFile = super::rig_json::parse_json(&read_text(path)?, path)?;
+    let interface = super::rig_json::interface_from_file(&file.interface, path)?;
+    Ok(Truth { interface, master_from_board: file.board_poses.iter().map(pose_from_file).collect(), noise_px: file.noise_px, seed: file.seed })
+}
+
+#[derive(Debug, Serialize)]
+struct StdFile {
+    tilt_deg: f64,
+    azimuth_deg: f64,
+    air_distance: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct StageFile<'a> {
+    name: &'a str,
+    tilt_deg: f64,
+    azimuth_deg: f64,
+    air_distance: f64,
+    cost: f64,
+    unit: &'a str,
+    iterations: usize,
+    seconds: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct OutlierFile {
+    view: usize,
+    corner: usize,
+    residual_px: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct ReportFile<'a> {
+    method: &'a str,
+    normal: [f64; 3],
+    tilt_deg: f64,
+    azimuth_deg: f64,
+    air_distance: f64,
+    std: Option<StdFile>,
+    sigma_px: Option<f64>,
+    rms_px: [f64; 2],
+    rms_px_per_view: &'a [[f64; 2]],
+    scene_rms_m: f64,
+    square_deviation_rms_m: f64,
+    views: usize,
+    corners: usize,
+    iterations: usize,
+    termination: &'a str,
+    seconds: f64,
+    backend: &'a str,
+    warnings: &'a [String],
+    outliers: Vec<OutlierFile>,
+    stages: Vec<StageFile<'a>>,
+    board_poses: Vec<PoseFile>,
+}
+
+/// The calibration report as JSON: `normal`, `tilt_deg`, `azimuth_deg`, `air_distance` (m), `std`
+/// {tilt_deg, azimuth_deg, air_distance} (null for the consecutive method), `sigma_px`, `rms_px`
+/// [left, right], `rms_px_per_view`, `scene_rms_m`, `square_deviation_rms_m`, `iterations`,
+/// `termination`, `seconds`, `warnings`, `outliers`, `stages`, `board_poses`.
+pub fn report_to_json_string(report: &CalibrationReport) -> String {
+    let c = &report.candidate;
+    let n = c.normal;
+    let file = ReportFile {
+        method: report.method.name(),
+        normal: [n.x, n.y, n.z],
+        tilt_deg: c.tilt().to_degrees(),
+        azimuth_deg: c.azimuth().to_degrees(),
+        air_distance: c.air_distance,
+        std: report.std.map(|[t, a, d]| StdFile { tilt_deg: t.to_degrees(), azimuth_deg: a.to_degrees(), air_distance: d }),
+        sigma_px: report.sigma_px,
+        rms_px: report.rms_px,
+        rms_px_per_view: &report.rms_px_per_view,
+        scene_rms_m: report.scene_rms_m,
+        square_deviation_rms_m: report.square_deviation_rms_m,
+        views: report.views,
+        corners: report.corners,
+        iterations: report.iterations,
+        termination: &report.termination,
+        seconds: report.seconds,
+        backend: &report.backend,
+        warnings: &report.warnings,
+        outliers: report.outliers.iter().map(|&(view, corner, residual_px)| OutlierFile { view, corner, residual_px }).collect(),
+        stages: report
+            .stages
+            .iter()
+            .map(|s| StageFile {
+                name: &s.name,
+                tilt_deg: s.candidate.tilt().to_degrees(),
+                azimuth_deg: s.candidate.azimuth().to_degrees(),
+                air_distance: s.candidate.air_distance,
+                cost: s.cost,
+                unit: s.unit,
+                iterations: s.iterations,
+                seconds: s.seconds,
+            })
+            .collect(),
+        board_poses: report.poses.iter().map(pose_to_file).collect(),
+    };
+    // serde_json writes non-finite floats as null, which is what a reader should see.
+    let mut text = serde_json::to_string_pretty(&file).expect("plain data always serialises");
+    text.push('\n');
+    text
+}
+
+/// Writes a calibration report atomically.
+pub fn write_report(path: &Path, report: &CalibrationReport) -> Result<(), IoError> {
+    write_atomic(path, report_to_json_string(report).as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn observations_round_trip_and_errors_name_the_place() {
+        let text = r#"{"board": {"rows": 2, "cols": 3, "square": 0.05}, "cameras": ["left", "right"],
+            "views": [{"left": [[1, 2], null, [3.5, 4], [5, 6], [7, 8], [9, 10]],
+                       "right": [[1, 2], null, [3, 4], [5, 6], [7, 8], [9, 10.25]]}]}"#;
+        let observations = observations_from_json_str(text, "obs.json".as_ref()).unwrap();
+        assert_eq!(observations.views[0].left[1], None);
+        assert_eq!(observations.views[0].right[5], Some(Point2::new(9.0, 10.25)));
+        let again = observations_from_json_str(&observations_to_json_string(&observations), "x".as_ref()).unwrap();
+        assert_eq!(again, observations);
+
+        let typo = text.replace("\"square\"", "\"sqare\"");
+        let error = observations_from_json_str(&typo, "obs.json".as_ref()).unwrap_err().to_string();
+        assert!(error.starts_with("obs.json:1:") && error.contains("sqare"), "{error}");
+        let bad_corner = text.replace("[3.5, 4]", "[3.5]");
+        let error = observations_from_json_str(&bad_corner, "obs.json".as_ref()).unwrap_err().to_string();
+        assert!(error.contains("views[0].left[2]"), "{error}");
+        let no_square = text.replace("0.05", "-1");
+        let error = observations_from_json_str(&no_square, "obs.json".as_ref()).unwrap_err().to_string();
+        assert!(error.contains("board") && error.contains("square -1"), "{error}");
+    }
+}
