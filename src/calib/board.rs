@@ -117,9 +117,12 @@ mod tests {
         let fit = fit_rigid(&model, &measured).unwrap();
         assert!(fit.rms < 1e-14, "{}", fit.rms);
         assert!((fit.master_from_board.to_homogeneous() - motion.to_homogeneous()).norm() < 1e-13);
-        // A mirror image is not a rotation: the fit stays proper and leaves a residual.
-        let mirrored: Vec<_> = measured.iter().map(|p| Point3::new(-p.x, p.y, p.z)).collect();
-        let fit = fit_rigid(&model, &mirrored).unwrap();
+        // The mirror image of a non-planar set is no rotation of it: the fit stays proper
+        // (det +1) and leaves a residual. (A planar set's mirror image is a rotation of it.)
+        let mut solid = model.clone();
+        solid.push(Point3::new(0.05, 0.05, 0.1));
+        let mirrored: Vec<_> = solid.iter().map(|p| motion * Point3::new(-p.x, p.y, p.z)).collect();
+        let fit = fit_rigid(&solid, &mirrored).unwrap();
         assert!(fit.master_from_board.rotation.to_rotation_matrix().matrix().determinant() > 0.0);
         assert!(fit.rms > 1e-3);
         // Collinear points leave the rotation undetermined.
