@@ -10,7 +10,7 @@ use super::costs::{CostKind, SceneFit, reprojection_residuals};
 use super::data::{Candidate, StereoData};
 use super::error::CalibError;
 use super::lm::{LmOptions, Termination, levenberg_marquardt};
-use super::search::{cap_grid, refine_axis};
+use super::search::{cap_grid, fit_air_distance, refine_axis};
 use crate::model::Interface;
 
 /// Which estimator.
@@ -161,13 +161,22 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
         bound_deg: options.max_tilt.to_degrees(),
         reason: "the air layer has no least-squares solution under the invariant's axis".into(),
     })?;
-    let consecutive = Candidate { normal: consecutive.normal, air_distance };
+    let mut consecutive = Candidate { normal: consecutive.normal, air_distance };
     stages.push(stage("air layer (linear least squares on the ray gaps)", consecutive, gap, "m", 1, started));
-    if !(air_distance > data.min_air_distance(&consecutive.normal)) {
+    if !triangulates(data, &consecutive) {
+        // The ray gaps hardly depend on d when both cameras see a corner at similar incidence,
+        // so noise can throw the linear solve far off: take the air layer that best explains
+        // the images along the same axis instead.
+        let t = Instant::now();
+        let (d, cost) = fit_air_distance(backend, CostKind::Reprojection, &consecutive.normal)?
+            .ok_or_else(|| no_solution(options, "no air layer lets both cameras triangulate every corner under the invariant's axis"))?;
         warnings.push(format!(
-            "the consecutive method's air layer ({:.2} mm) puts a camera outside the air: the invariant's axis is off",
-            air_distance * 1e3
+            "the linear air layer ({:.2} mm) leaves corners without a triangulation: took the air layer with the least reprojection error along the same axis ({:.2} mm)",
+            air_distance * 1e3,
+            d * 1e3
         ));
+        consecutive.air_distance = d;
+        stages.push(stage("air layer (1-D search on the reprojection error)", consecutive, cost, "px", 1, t));
     }
 
     let (final_candidate, poses, ml) = match options.method {
@@ -305,6 +314,11 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
         corners: data.corners.len(),
     };
     Ok(Calibration { interface, report })
+}
+
+/// Whether every corner triangulates and every view can be fitted under `candidate`.
+fn triangulates(data: &StereoData, candidate: &Candidate) -> bool {
+    data.cameras_behind(candidate).and_then(|c| SceneFit::new(data, &c)).is_some()
 }
 
 fn no_solution(options: &CalibrationOptions, reason: &str) -> CalibError {

@@ -125,3 +125,40 @@ pub fn refine_axis(
     }
     Ok(Refined { candidate: best, cost: best_cost, iterations, evaluations })
 }
+
+/// Largest air layer [`fit_air_distance`] considers, metres.
+pub const MAX_AIR_DISTANCE: f64 = 0.5;
+
+/// The air layer that minimises `kind` along a fixed axis: a batch of 64 air layers spaced
+/// geometrically from just outside the cameras to [`MAX_AIR_DISTANCE`], then batches of 8 ever
+/// closer around the best (golden-section-like shrinking) until the bracket is below 1e-9 m.
+/// `None` when every air layer costs +∞.
+pub fn fit_air_distance(backend: &dyn CostBackend, kind: CostKind, normal: &Unit<Vector3<f64>>) -> Result<Option<(f64, f64)>, CalibError> {
+    let low = backend.data().min_air_distance(normal) + 1e-4;
+    if !(low < MAX_AIR_DISTANCE) {
+        return Ok(None);
+    }
+    let count = 64;
+    let ratio = (MAX_AIR_DISTANCE / low).powf(1.0 / (count - 1) as f64);
+    let mut distances: Vec<f64> = (0..count).map(|i| low * ratio.powi(i)).collect();
+    let (mut best_d, mut best_cost) = (f64::NAN, f64::INFINITY);
+    let mut bracket;
+    loop {
+        let candidates: Vec<Candidate> = distances.iter().map(|&d| Candidate { normal: *normal, air_distance: d }).collect();
+        let costs = backend.costs(kind, &candidates)?;
+        let Some(k) = (0..costs.len()).filter(|&k| costs[k].is_finite()).min_by(|&a, &b| costs[a].total_cmp(&costs[b])) else {
+            return Ok(best_cost.is_finite().then_some((best_d, best_cost)));
+        };
+        if costs[k] < best_cost {
+            (best_d, best_cost) = (distances[k], costs[k]);
+        }
+        let below = if k > 0 { distances[k - 1] } else { (best_d - (distances[1] - distances[0])).max(low) };
+        let above = if k + 1 < distances.len() { distances[k + 1] } else { best_d + (distances[k] - distances[k - 1]) };
+        bracket = above - below;
+        if bracket < 1e-9 {
+            break;
+        }
+        distances = (0..=8).map(|i| below + bracket * i as f64 / 8.0).filter(|&d| d >= low).collect();
+    }
+    Ok(Some((best_d, best_cost)))
+}
