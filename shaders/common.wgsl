@@ -54,6 +54,11 @@ fn view(k: u32) -> View {
     return View(k, params.cams[k].normal.xyz, params.cams[k].extra.w);
 }
 
+// Camera k behind a candidate interface (n, d) (n unit, master frame): d_k = d − n·C_k.
+fn with_interface(k: u32, candidate: vec4r) -> View {
+    return View(k, candidate.xyz, candidate.w - dot(candidate.xyz, params.cams[k].centre.xyz));
+}
+
 // A value that may not exist (total internal reflection, …).
 struct Maybe {
     value: real,

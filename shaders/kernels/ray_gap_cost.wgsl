@@ -8,11 +8,6 @@
 @group(0) @binding(2) var<storage, read_write> output: array<real>; // (sum, count) per candidate × workgroup
 @group(0) @binding(4) var<storage, read> candidates: array<vec4r>;  // n xyz (unit), d
 
-// Camera k behind candidate interface (n, d): d_k = d − n·C_k.
-fn with_interface(k: u32, candidate: vec4r) -> View {
-    return View(k, candidate.xyz, candidate.w - dot(candidate.xyz, params.cams[k].centre.xyz));
-}
-
 // (residual², 1) for correspondence j under candidate c, (0, 0) when it has no answer.
 fn cost_term(j: u32, c: u32) -> vec2r {
     let candidate = candidates[c];

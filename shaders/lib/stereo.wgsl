@@ -32,6 +32,8 @@ fn triangulate_rays(a: Ray, b: Ray) -> Triangulation {
 struct BinocularVop {
     vop_left: vec3r,
     vop_right: vec3r,
+    s_left: real,
+    s_right: real,
     axis_offset: real,
     conditioning: real,
     status: u32,
@@ -43,11 +45,11 @@ fn binocular_vop(centre_l: vec3r, v_l: vec3r, centre_r: vec3r, v_r: vec3r, n: ve
     let c2 = -v_r;
     let det = dot(v_l, cross3(n, c2));
     if (!(abs(det) >= MIN_BINOCULAR_CONDITIONING)) {
-        return BinocularVop(vec3r(0.0), vec3r(0.0), 0.0, 0.0, STATUS_DEGENERATE);
+        return BinocularVop(vec3r(0.0), vec3r(0.0), 0.0, 0.0, 0.0, 0.0, STATUS_DEGENERATE);
     }
     let b = centre_r - centre_l;
     let s_l = dot(b, cross3(n, c2)) / det;
     let m = dot(v_l, cross3(b, c2)) / det;
     let s_r = dot(v_l, cross3(n, b)) / det;
-    return BinocularVop(centre_l + v_l * s_l, centre_r + v_r * s_r, m, abs(det), STATUS_OK);
+    return BinocularVop(centre_l + v_l * s_l, centre_r + v_r * s_r, s_l, s_r, m, abs(det), STATUS_OK);
 }

@@ -17,38 +17,68 @@ use crate::model::RefractiveCamera;
 /// reflected), when the two rays of a corner are parallel, or when the gaps do not depend on d
 /// (Σ a² ≈ 0: both cameras see every corner at the same incidence).
 pub fn air_distance_for_axis(data: &StereoData, normal: &Unit<Vector3<f64>>) -> Option<(f64, f64)> {
-    // Any two air layers that keep the cameras in the air: the rays are exactly linear in d.
+    let (d0, near, far) = sample_cameras(data, normal)?;
+    let lines: Vec<Option<GapLine>> = data.corners.iter().map(|corner| gap_line(&near, &far, corner, d0)).collect();
+    least_squares_air_distance(&lines)
+}
+
+/// The cameras behind `normal` at two air layers d0 and d0 + 1 m that keep them in the air (any
+/// two do: the rays are exactly linear in d), as (d0, near, far). `None` when `normal` is not an
+/// interface axis (zero or pointing backward).
+pub fn sample_cameras(data: &StereoData, normal: &Unit<Vector3<f64>>) -> Option<(f64, [RefractiveCamera; 2], [RefractiveCamera; 2])> {
     let d0 = data.min_air_distance(normal) + 0.01;
     let d1 = d0 + 1.0;
     let near = data.cameras_behind(&Candidate { normal: *normal, air_distance: d0 })?;
     let far = data.cameras_behind(&Candidate { normal: *normal, air_distance: d1 })?;
+    Some((d0, near, far))
+}
+
+/// Smallest |w_l × w_r| (sine of the angle between the two water rays) of a usable gap line.
+pub const MIN_GAP_LINE_SIN: f64 = 1e-9;
+
+/// The signed ray gap of one corner as a line in the air layer, g(d) = a·d + b, and the sine of
+/// the angle between the two water rays that fixes its sign convention m = (w_l × w_r)/|w_l × w_r|.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GapLine {
+    /// Slope a, metres of gap per metre of air layer.
+    pub a: f64,
+    /// Intercept b = g(0), metres.
+    pub b: f64,
+    /// |w_l × w_r|: the line is usable where it is at least [`MIN_GAP_LINE_SIN`].
+    pub sin_angle: f64,
+}
+
+/// d = −Σ aⱼbⱼ / Σ aⱼ² over the gap lines of every corner, with the RMS gap there (metres).
+/// `None` when a corner has no line or an unusable one, or when Σ a² ≈ 0.
+pub fn least_squares_air_distance(lines: &[Option<GapLine>]) -> Option<(f64, f64)> {
     let (mut aa, mut ab, mut bb) = (0.0, 0.0, 0.0);
-    for corner in &data.corners {
-        let (a, b) = gap_line(&near, &far, corner, d0)?;
+    for line in lines {
+        let GapLine { a, b, sin_angle } = (*line)?;
+        if !(sin_angle > MIN_GAP_LINE_SIN) {
+            return None;
+        }
         aa += a * a;
         ab += a * b;
         bb += b * b;
     }
-    if !(aa > 1e-18 * data.corners.len() as f64) {
+    if !(aa > 1e-18 * lines.len() as f64) {
         return None;
     }
     let d = -ab / aa;
     let sum_squares = (bb - ab * ab / aa).max(0.0);
-    Some((d, (sum_squares / data.corners.len() as f64).sqrt()))
+    Some((d, (sum_squares / lines.len() as f64).sqrt()))
 }
 
-/// (a, b) of the corner's signed ray gap g(d) = a·d + b.
-fn gap_line(near: &[RefractiveCamera; 2], far: &[RefractiveCamera; 2], corner: &super::data::Corner, d0: f64) -> Option<(f64, f64)> {
+/// The gap line of `corner` from its water rays behind the cameras at air layers d0 (`near`) and
+/// d0 + 1 m (`far`). `None` when a ray has no answer. CPU twin of the `calib_gap_line` kernel.
+fn gap_line(near: &[RefractiveCamera; 2], far: &[RefractiveCamera; 2], corner: &super::data::Corner, d0: f64) -> Option<GapLine> {
     let ray = |cams: &[RefractiveCamera; 2], k: usize| cams[k].ray_in_water(&corner.dirs[k]).ok();
     let (l0, r0, l1, r1) = (ray(near, 0)?, ray(near, 1)?, ray(far, 0)?, ray(far, 1)?);
     let cross = l0.dir.cross(&r0.dir);
     let norm = cross.norm();
-    if !(norm > 1e-9) {
-        return None;
-    }
     let m = cross / norm;
     let g0 = m.dot(&(l0.origin - r0.origin));
     let g1 = m.dot(&(l1.origin - r1.origin));
     let a = g1 - g0; // per metre of d (d1 − d0 = 1)
-    Some((a, g0 - a * d0))
+    Some(GapLine { a, b: g0 - a * d0, sin_angle: norm })
 }

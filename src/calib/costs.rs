@@ -11,12 +11,12 @@
 //! A candidate under which some corner has no answer (a camera outside the air, a ray that is
 //! totally reflected, a point that triangulates behind the port) costs +∞.
 
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point2, Point3, Vector2};
 
 use super::board::{RigidFit, fit_rigid};
-use super::data::{Candidate, StereoData};
-use super::invariants::{affine_grid, plane_angles, plane_fitting, projected_vops};
-use crate::model::{RefractiveCamera, triangulate_rays};
+use super::data::{Candidate, Corner, StereoData};
+use super::invariants::{ProjectedVop, affine_grid, plane_angles, plane_fitting, projected_vops};
+use crate::model::{RefractiveCamera, Triangulation, triangulate_rays};
 
 /// Which cost to evaluate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -86,12 +86,17 @@ impl SceneFit {
         let mut points = Vec::with_capacity(data.corners.len());
         let mut gaps = Vec::with_capacity(data.corners.len());
         for corner in &data.corners {
-            let left = cameras[0].ray_in_water(&corner.dirs[0]).ok()?;
-            let right = cameras[1].ray_in_water(&corner.dirs[1]).ok()?;
-            let t = triangulate_rays(&left, &right).ok()?;
+            let t = triangulate_corner(cameras, corner)?;
             points.push(t.point);
             gaps.push(t.residual);
         }
+        Self::from_triangulated(data, points, gaps)
+    }
+
+    /// Fits the board to each view of corners already triangulated (`points`, `gaps` in
+    /// `data.corners` order, from [`triangulate_corner`] or its GPU twin). `None` when a view
+    /// cannot be fitted.
+    pub fn from_triangulated(data: &StereoData, points: Vec<Point3<f64>>, gaps: Vec<f64>) -> Option<Self> {
         let fits = data
             .views
             .iter()
@@ -106,6 +111,12 @@ impl SceneFit {
     /// X_master = R·X_board + t of each view.
     pub fn poses(&self) -> Vec<Isometry3<f64>> {
         self.fits.iter().map(|f| f.master_from_board).collect()
+    }
+
+    /// Every corner of the fitted boards, master frame, in `data.corners` order: what
+    /// [`reprojection_residuals`] projects.
+    pub fn fitted_points(&self, data: &StereoData) -> Vec<Point3<f64>> {
+        data.corners.iter().map(|c| fitted_corner(data, &self.fits[c.view].master_from_board, c)).collect()
     }
 
     /// RMS of the rigid-fit residuals over all corners, metres.
@@ -136,22 +147,53 @@ impl SceneFit {
     }
 }
 
+/// The corner triangulated behind `cameras`: both air rays into the water, midpoint of their
+/// closest approach and the gap there. `None` when a ray or the triangulation has no answer. CPU
+/// twin of the `calib_triangulate` kernel.
+pub fn triangulate_corner(cameras: &[RefractiveCamera; 2], corner: &Corner) -> Option<Triangulation> {
+    let left = cameras[0].ray_in_water(&corner.dirs[0]).ok()?;
+    let right = cameras[1].ray_in_water(&corner.dirs[1]).ok()?;
+    triangulate_rays(&left, &right).ok()
+}
+
+/// Corner `corner` of the board at pose `master_from_board`, master frame.
+pub fn fitted_corner(data: &StereoData, master_from_board: &Isometry3<f64>, corner: &Corner) -> Point3<f64> {
+    master_from_board * data.board.point_in_board(corner.index)
+}
+
+/// Observed − projected pixel of a corner in both images, `[left, right]`.
+pub fn pixel_residuals(corner: &Corner, projected: [Point2<f64>; 2]) -> [Vector2<f64>; 2] {
+    [corner.pixels[0] - projected[0], corner.pixels[1] - projected[1]]
+}
+
 /// Pixel residuals (observed − projected) of the fitted boards in both cameras, `[left, right]`
 /// per corner in `data.corners` order. `None` when a fitted corner does not project.
 pub fn reprojection_residuals(
     data: &StereoData,
     cameras: &[RefractiveCamera; 2],
     poses: &[Isometry3<f64>],
-) -> Option<Vec<[nalgebra::Vector2<f64>; 2]>> {
+) -> Option<Vec<[Vector2<f64>; 2]>> {
     data.corners
         .iter()
         .map(|c| {
-            let point = poses[c.view] * data.board.point_in_board(c.index);
+            let point = fitted_corner(data, &poses[c.view], c);
             let left = cameras[0].project(&point).ok()?;
             let right = cameras[1].project(&point).ok()?;
-            Some([c.pixels[0] - left, c.pixels[1] - right])
+            Some(pixel_residuals(c, [left, right]))
         })
         .collect()
+}
+
+/// [`CostKind::Reprojection`] from the residuals of every corner: √(Σ |r_l|² + |r_r|² / 2N), pixels.
+pub fn reprojection_rms(residuals: &[[Vector2<f64>; 2]]) -> f64 {
+    let sum: f64 = residuals.iter().map(|[l, r]| l.norm_squared() + r.norm_squared()).sum();
+    (sum / (2 * residuals.len()) as f64).sqrt()
+}
+
+/// [`CostKind::RayGap`] from the gap of every corner: √(Σ gap² / N), metres.
+pub fn ray_gap_rms(gaps: &[f64]) -> f64 {
+    let sum: f64 = gaps.iter().map(|g| g.powi(2)).sum();
+    (sum / gaps.len() as f64).sqrt()
 }
 
 /// The cost `kind` of one candidate, +∞ where the candidate explains no corner.
@@ -165,29 +207,27 @@ fn evaluate(data: &StereoData, kind: CostKind, candidate: &Candidate) -> Option<
     }
     let cameras = data.cameras_behind(candidate)?;
     if kind == CostKind::RayGap {
-        let mut sum = 0.0;
-        for corner in &data.corners {
-            let left = cameras[0].ray_in_water(&corner.dirs[0]).ok()?;
-            let right = cameras[1].ray_in_water(&corner.dirs[1]).ok()?;
-            sum += triangulate_rays(&left, &right).ok()?.residual.powi(2);
-        }
-        return Some((sum / data.corners.len() as f64).sqrt());
+        let gaps = data.corners.iter().map(|c| triangulate_corner(&cameras, c).map(|t| t.residual)).collect::<Option<Vec<_>>>()?;
+        return Some(ray_gap_rms(&gaps));
     }
     let fit = SceneFit::new(data, &cameras)?;
     match kind {
         CostKind::Scene => Some(fit.scene_rms()),
-        _ => {
-            let residuals = reprojection_residuals(data, &cameras, &fit.poses())?;
-            let sum: f64 = residuals.iter().map(|[l, r]| l.norm_squared() + r.norm_squared()).sum();
-            Some((sum / (2 * residuals.len()) as f64).sqrt())
-        }
+        _ => Some(reprojection_rms(&reprojection_residuals(data, &cameras, &fit.poses())?)),
     }
 }
 
 fn invariant(data: &StereoData, kind: CostKind, candidate: &Candidate) -> Option<f64> {
+    invariant_cost(data, kind, data.views.iter().map(|range| projected_vops(data, &data.corners[range.clone()], &candidate.normal)))
+}
+
+/// The axis-only cost `kind` from the projected VOPs of each view in turn (corners whose VOP is
+/// undetermined left out): χ²/dof for [`CostKind::AffineGrid`], √(Σ/dof) for the plane errors.
+/// `None` when a view's affine fit fails or no degree of freedom is left.
+pub fn invariant_cost(data: &StereoData, kind: CostKind, views: impl IntoIterator<Item = Vec<ProjectedVop>>) -> Option<f64> {
+    debug_assert!(kind.axis_only(), "invariant_cost of {}", kind.name());
     let (mut sum, mut dof) = (0.0, 0usize);
-    for range in &data.views {
-        let vops = projected_vops(data, &data.corners[range.clone()], &candidate.normal);
+    for vops in views {
         let (s, d) = match kind {
             CostKind::AffineGrid => affine_grid(data, &vops)?,
             CostKind::PlaneFitting => plane_fitting(data, &vops),

@@ -116,6 +116,16 @@ pub enum CalibError {
     /// An option out of range.
     #[error("{0}")]
     Options(String),
+    /// The GPU backend failed (a kernel it cannot run, a failed read-back): the
+    /// [`GpuError`](crate::gpu::GpuError)'s message.
+    #[error("GPU backend: {0}")]
+    Gpu(String),
+}
+
+impl From<crate::gpu::GpuError> for CalibError {
+    fn from(error: crate::gpu::GpuError) -> Self {
+        Self::Gpu(error.to_string())
+    }
 }
 
 impl CalibError {
@@ -131,7 +141,7 @@ impl CalibError {
             }
             Self::UnusableView { view, .. } => format!("views[{view}]"),
             Self::Cameras(_) => "cameras".into(),
-            Self::NoSolution { .. } | Self::Options(_) => String::new(),
+            Self::NoSolution { .. } | Self::Options(_) | Self::Gpu(_) => String::new(),
         }
     }
 }

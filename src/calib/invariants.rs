@@ -38,39 +38,58 @@ pub fn plane_basis(normal: &Unit<Vector3<f64>>) -> [Vector3<f64>; 2] {
     [e1, n.cross(&e1)]
 }
 
+impl ProjectedVop {
+    /// From the position and its Jacobian J = ∂q/∂(u_l, v_l, u_r, v_r) (metres per pixel):
+    /// Σ = J Jᵀ for unit pixel noise. Formed here in f64 whatever precision J was computed in, so
+    /// that Σ is positive semi-definite even for corners near the degenerate plane, whose Σ has a
+    /// condition number up to ~1e12 (f32 entries of Σ itself can give it a negative determinant).
+    pub fn from_jacobian(index: usize, position: Vector2<f64>, jacobian: &Matrix2x4<f64>) -> Self {
+        Self { index, position, covariance: jacobian * jacobian.transpose() }
+    }
+
+    /// From a packed row (q₁, q₂, then J column by column), as the `calib_projected_vop` kernel
+    /// writes it.
+    pub fn from_packed(index: usize, row: &[f64; 10]) -> Self {
+        Self::from_jacobian(index, Vector2::new(row[0], row[1]), &Matrix2x4::from_column_slice(&row[2..]))
+    }
+}
+
 /// The projected VOPs of one view's corners under `normal`. Corners in the degenerate plane
 /// (binocular VOP undetermined) carry no position and are left out.
 pub fn projected_vops(data: &StereoData, corners: &[Corner], normal: &Unit<Vector3<f64>>) -> Vec<ProjectedVop> {
-    let [centre_l, centre_r] = data.centres();
-    let [e1, e2] = plane_basis(normal);
-    corners
-        .iter()
-        .filter_map(|c| {
-            let [v_l, v_r] = c.dirs;
-            let bv = binocular_vop(&centre_l, &v_l, &centre_r, &v_r, normal).ok()?;
-            let point: Point3<f64> = bv.vop_left;
-            let position = Vector2::new(e1.dot(&point.coords), e2.dot(&point.coords));
-            // Propagation: M x = C_r − C_l with M = [v, n, −v′], x = (s, m, s′). A change dv moves
-            // column 0, so ds = −(M⁻¹ dv)₀·s; dv′ moves column 2 (−v′), so ds = (M⁻¹ dv′)₀·s′.
-            // The projected point is E·(C_l + s v): dq = E·(v ds + s dv).
-            let m = Matrix3::from_columns(&[v_l.into_inner(), normal.into_inner(), -v_r.into_inner()]);
-            let m_inv = m.try_inverse()?;
-            let row0 = m_inv.row(0);
-            let ds_l = -(row0 * c.dir_jacobians[0]) * bv.s_left; // 1×2
-            let ds_r = (row0 * c.dir_jacobians[1]) * bv.s_right; // 1×2
-            let dp_l = v_l.into_inner() * ds_l + c.dir_jacobians[0] * bv.s_left; // 3×2
-            let dp_r = v_l.into_inner() * ds_r; // 3×2
-            let mut jacobian = Matrix2x4::zeros();
-            for col in 0..2 {
-                jacobian[(0, col)] = e1.dot(&dp_l.column(col));
-                jacobian[(1, col)] = e2.dot(&dp_l.column(col));
-                jacobian[(0, col + 2)] = e1.dot(&dp_r.column(col));
-                jacobian[(1, col + 2)] = e2.dot(&dp_r.column(col));
-            }
-            let covariance = jacobian * jacobian.transpose();
-            Some(ProjectedVop { index: c.index, position, covariance })
-        })
-        .collect()
+    let centres = data.centres();
+    let basis = plane_basis(normal);
+    corners.iter().filter_map(|c| projected_vop(&centres, &basis, normal, c)).collect()
+}
+
+/// The binocular VOP of one corner under `normal`, projected along n with `basis` =
+/// [`plane_basis`]`(normal)`, and its covariance; `centres` = C_l, C_r. `None` where the VOP is
+/// undetermined. CPU twin of the `calib_projected_vop` kernel.
+pub fn projected_vop(centres: &[Point3<f64>; 2], basis: &[Vector3<f64>; 2], normal: &Unit<Vector3<f64>>, c: &Corner) -> Option<ProjectedVop> {
+    let [centre_l, centre_r] = centres;
+    let [e1, e2] = basis;
+    let [v_l, v_r] = c.dirs;
+    let bv = binocular_vop(centre_l, &v_l, centre_r, &v_r, normal).ok()?;
+    let point: Point3<f64> = bv.vop_left;
+    let position = Vector2::new(e1.dot(&point.coords), e2.dot(&point.coords));
+    // Propagation: M x = C_r − C_l with M = [v, n, −v′], x = (s, m, s′). A change dv moves
+    // column 0, so ds = −(M⁻¹ dv)₀·s; dv′ moves column 2 (−v′), so ds = (M⁻¹ dv′)₀·s′.
+    // The projected point is E·(C_l + s v): dq = E·(v ds + s dv).
+    let m = Matrix3::from_columns(&[v_l.into_inner(), normal.into_inner(), -v_r.into_inner()]);
+    let m_inv = m.try_inverse()?;
+    let row0 = m_inv.row(0);
+    let ds_l = -(row0 * c.dir_jacobians[0]) * bv.s_left; // 1×2
+    let ds_r = (row0 * c.dir_jacobians[1]) * bv.s_right; // 1×2
+    let dp_l = v_l.into_inner() * ds_l + c.dir_jacobians[0] * bv.s_left; // 3×2
+    let dp_r = v_l.into_inner() * ds_r; // 3×2
+    let mut jacobian = Matrix2x4::zeros();
+    for col in 0..2 {
+        jacobian[(0, col)] = e1.dot(&dp_l.column(col));
+        jacobian[(1, col)] = e2.dot(&dp_l.column(col));
+        jacobian[(0, col + 2)] = e1.dot(&dp_r.column(col));
+        jacobian[(1, col + 2)] = e2.dot(&dp_r.column(col));
+    }
+    Some(ProjectedVop::from_jacobian(c.index, position, &jacobian))
 }
 
 /// Weighted affine-grid residual of one view: fits q ≈ A·g + b (A 2×2, b 2-vector, g the corner's

@@ -17,6 +17,8 @@ use super::layout::{MAX_LAYERS, pack_params, set_info};
 use super::shaders::{Kernel, Precision, Reduction, source};
 use crate::model::{RefractiveCamera, Rig};
 
+mod candidates;
+
 /// Largest number of items per dispatch whatever the binding cap: bounds the device and staging
 /// memory (4 Mi items: 96 MiB of f32 rays, 192 MiB in f64 split over two chunks by the cap).
 pub const MAX_CHUNK_ITEMS: usize = 1 << 22;
@@ -59,6 +61,8 @@ pub struct GpuEngine {
     reduction: Reduction,
     pipelines: Mutex<HashMap<Kernel, Arc<wgpu::ComputePipeline>>>,
     buffers: Mutex<Buffers>,
+    /// Most items per dispatch ([`MAX_CHUNK_ITEMS`] unless a test lowers it).
+    max_chunk_items: usize,
 }
 
 /// Rows per parallel task of the host-side conversions.
@@ -122,7 +126,7 @@ impl GpuEngine {
             )));
         }
         let reduction = if context.adapter().subgroup { Reduction::Subgroup } else { Reduction::Workgroup };
-        Ok(Self { context, precision, reduction, pipelines: Mutex::default(), buffers: Mutex::default() })
+        Ok(Self { context, precision, reduction, pipelines: Mutex::default(), buffers: Mutex::default(), max_chunk_items: MAX_CHUNK_ITEMS })
     }
 
     /// The context (adapter, device).
@@ -149,6 +153,12 @@ impl GpuEngine {
         self.reduction = reduction;
         self.pipelines.lock().expect("pipeline cache").remove(&Kernel::RayGapCost);
         Ok(())
+    }
+
+    /// Lowers the most items per dispatch below [`MAX_CHUNK_ITEMS`] (at least 64; values above it
+    /// are capped), so that small batches run over several chunks. For tests of the chunking.
+    pub fn set_max_chunk_items(&mut self, items: usize) {
+        self.max_chunk_items = items.clamp(64, MAX_CHUNK_ITEMS);
     }
 
     /// The compiled pipeline of `kernel`, compiled on first use.
@@ -220,7 +230,7 @@ impl GpuEngine {
 
     /// Items per chunk when each item needs at most `bytes_per_item` of one binding.
     fn chunk_items(&self, bytes_per_item: usize) -> usize {
-        let cap = (self.context.max_storage_binding() as usize / bytes_per_item.max(1)).min(MAX_CHUNK_ITEMS);
+        let cap = (self.context.max_storage_binding() as usize / bytes_per_item.max(1)).min(self.max_chunk_items);
         (cap / 64 * 64).max(64)
     }
 
@@ -449,7 +459,7 @@ impl GpuEngine {
         let s = self.precision.size();
         let pairs_per_chunk = (self.chunk_items(6 * s)).min(64 * MAX_GROUPS_PER_DIMENSION).min(air_rays.len());
         let groups_x = pairs_per_chunk.div_ceil(64);
-        let candidates_per_chunk = (MAX_CHUNK_ITEMS / groups_x).clamp(1, MAX_GROUPS_PER_DIMENSION).min(candidates.len());
+        let candidates_per_chunk = (self.max_chunk_items / groups_x).clamp(1, MAX_GROUPS_PER_DIMENSION).min(candidates.len());
         let pipeline = self.pipeline(Kernel::RayGapCost);
         let device = &self.context.device;
         let mut params = pack_params(self.precision, a, b, [0; 4]);

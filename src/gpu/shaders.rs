@@ -75,11 +75,20 @@ pub enum Kernel {
     BinocularVop,
     /// Candidate interfaces × air-ray pairs → Σ triangulation residual², reduced per workgroup.
     RayGapCost,
+    /// Candidate interfaces × corners (two air rays) → x, y, z, gap.
+    CalibTriangulate,
+    /// Candidate interfaces × points (one per item) → ul, vl, ur, vr.
+    CalibProject,
+    /// Candidate axes × corners (air rays and their pixel Jacobians) → projected binocular VOP
+    /// q₁, q₂ in the plane ⟂ n and its Jacobian ∂q/∂(u_l, v_l, u_r, v_r).
+    CalibProjectedVop,
+    /// Candidate axes × corners (two air rays) → gap line a, b and |w_l × w_r|.
+    CalibGapLine,
 }
 
 impl Kernel {
     /// Every kernel.
-    pub const ALL: [Kernel; 7] = [
+    pub const ALL: [Kernel; 11] = [
         Self::Backproject,
         Self::BackprojectGrid,
         Self::Project,
@@ -87,6 +96,10 @@ impl Kernel {
         Self::Triangulate,
         Self::BinocularVop,
         Self::RayGapCost,
+        Self::CalibTriangulate,
+        Self::CalibProject,
+        Self::CalibProjectedVop,
+        Self::CalibGapLine,
     ];
 
     /// Name (file name in `shaders/kernels/`).
@@ -99,6 +112,10 @@ impl Kernel {
             Self::Triangulate => "triangulate",
             Self::BinocularVop => "binocular_vop",
             Self::RayGapCost => "ray_gap_cost",
+            Self::CalibTriangulate => "calib_triangulate",
+            Self::CalibProject => "calib_project",
+            Self::CalibProjectedVop => "calib_projected_vop",
+            Self::CalibGapLine => "calib_gap_line",
         }
     }
 
@@ -111,12 +128,26 @@ impl Kernel {
             Self::Triangulate => include_str!("../../shaders/kernels/triangulate.wgsl"),
             Self::BinocularVop => include_str!("../../shaders/kernels/binocular_vop.wgsl"),
             Self::RayGapCost => include_str!("../../shaders/kernels/ray_gap_cost.wgsl"),
+            Self::CalibTriangulate => include_str!("../../shaders/kernels/calib_triangulate.wgsl"),
+            Self::CalibProject => include_str!("../../shaders/kernels/calib_project.wgsl"),
+            Self::CalibProjectedVop => include_str!("../../shaders/kernels/calib_projected_vop.wgsl"),
+            Self::CalibGapLine => include_str!("../../shaders/kernels/calib_gap_line.wgsl"),
         }
     }
 
-    /// True for the row-mapping kernels (shared bindings in `shaders/kernels/map_bindings.wgsl`).
-    fn maps_rows(self) -> bool {
-        !matches!(self, Self::BackprojectGrid | Self::RayGapCost)
+    /// The shared bindings composed in front of the kernel: those of the row-mapping kernels
+    /// (`shaders/kernels/map_bindings.wgsl`), of the candidate-batch kernels
+    /// (`shaders/kernels/candidate_bindings.wgsl`), or none (the kernel declares its own).
+    fn bindings(self) -> &'static str {
+        match self {
+            Self::BackprojectGrid | Self::RayGapCost => "",
+            Self::CalibTriangulate | Self::CalibProject | Self::CalibProjectedVop | Self::CalibGapLine => {
+                include_str!("../../shaders/kernels/candidate_bindings.wgsl")
+            }
+            Self::Backproject | Self::Project | Self::Vop | Self::Triangulate | Self::BinocularVop => {
+                include_str!("../../shaders/kernels/map_bindings.wgsl")
+            }
+        }
     }
 
     /// True for kernels whose entry point is a reduction.
@@ -162,8 +193,7 @@ pub fn prelude(precision: Precision) -> String {
 pub fn source(kernel: Kernel, precision: Precision, reduction: Reduction) -> String {
     let reduction = if kernel.is_cost() { reduction } else { Reduction::Workgroup };
     let mut text = prelude(precision);
-    let bindings = if kernel.maps_rows() { include_str!("../../shaders/kernels/map_bindings.wgsl") } else { "" };
-    for part in [COMMON].into_iter().chain(LIBRARY).chain([bindings, kernel.file()]) {
+    for part in [COMMON].into_iter().chain(LIBRARY).chain([kernel.bindings(), kernel.file()]) {
         text.push_str(part);
         text.push('\n');
     }

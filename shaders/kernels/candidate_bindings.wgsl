@@ -1,0 +1,21 @@
+// Bindings of the candidate-batch kernels (calib_*): one item per candidate × corner, items
+// candidate-major (item i = candidate c · corners + corner j, corners = params.info.y). `input`
+// holds rows per corner (shared by every candidate) or, for calib_project, per item; `output`
+// M reals per item; one status per item. Composed in front of each of those kernels by
+// src/gpu/shaders.rs.
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> input: array<real>;
+@group(0) @binding(2) var<storage, read_write> output: array<real>;
+@group(0) @binding(3) var<storage, read_write> status: array<u32>;
+@group(0) @binding(4) var<storage, read> candidates: array<vec4r>; // n xyz (unit), d
+
+struct Item {
+    candidate: u32,
+    corner: u32,
+}
+
+fn candidate_item(i: u32) -> Item {
+    let c = i / params.info.y;
+    return Item(c, i - c * params.info.y);
+}

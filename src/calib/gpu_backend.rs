@@ -1,0 +1,207 @@
+//! The calibration costs on the GPU: a [`CostBackend`] whose per-(candidate, corner) work runs in
+//! WGSL kernels over the whole batch ([`GpuEngine::calib_triangulate`],
+//! [`GpuEngine::calib_project`], [`GpuEngine::calib_projected_vop`],
+//! [`GpuEngine::calib_gap_line`]), in f32 or f64, while the host finishes each candidate with the
+//! same functions as the CPU reference ([`SceneFit::from_triangulated`], [`reprojection_rms`],
+//! [`ray_gap_rms`], [`invariant_cost`], [`least_squares_air_distance`]): one definition of each
+//! cost.
+//!
+//! Per cost: the triangulating costs run one dispatch over candidates × corners, then the Kabsch
+//! fits on the host; [`CostKind::Reprojection`] runs a second dispatch that projects the fitted
+//! boards of every candidate. The invariants run one dispatch of projected VOPs, then the
+//! per-view fits on the host. A candidate that puts a camera outside the air, or under which a
+//! corner has no answer, costs +∞ as on the CPU.
+
+use nalgebra::{Point2, Point3, Unit, Vector3};
+use rayon::prelude::*;
+
+use super::air_layer::{GapLine, least_squares_air_distance, sample_cameras};
+use super::backend::CostBackend;
+use super::costs::{CostKind, SceneFit, invariant_cost, pixel_residuals, ray_gap_rms, reprojection_rms};
+use super::data::{Candidate, StereoData};
+use super::error::CalibError;
+use super::invariants::ProjectedVop;
+use crate::gpu::GpuEngine;
+
+/// The costs of candidate batches evaluated by a [`GpuEngine`] (any adapter, f32 or f64).
+pub struct GpuBackend<'a> {
+    data: &'a StereoData,
+    engine: &'a GpuEngine,
+    /// v_l, v_r of every corner (master frame).
+    air_rays: Vec<[f64; 6]>,
+    /// v_l, v_r, ∂v_l/∂u, ∂v_l/∂v, ∂v_r/∂u, ∂v_r/∂v of every corner.
+    vop_rows: Vec<[f64; 18]>,
+}
+
+impl<'a> GpuBackend<'a> {
+    /// A backend over `data` running on `engine` (whose pipelines and buffers it reuses).
+    pub fn new(data: &'a StereoData, engine: &'a GpuEngine) -> Self {
+        let air_rays = data.corners.iter().map(|c| std::array::from_fn(|i| c.dirs[i / 3][i % 3])).collect();
+        let vop_rows = data
+            .corners
+            .iter()
+            .map(|c| {
+                std::array::from_fn(|i| match i {
+                    0..6 => c.dirs[i / 3][i % 3],
+                    _ => {
+                        // Columns ∂/∂u, ∂/∂v of the left, then the right Jacobian.
+                        let k = (i - 6) / 6;
+                        let col = (i - 6) % 6 / 3;
+                        c.dir_jacobians[k][(i % 3, col)]
+                    }
+                })
+            })
+            .collect();
+        Self { data, engine, air_rays, vop_rows }
+    }
+
+    /// The engine the kernels run on.
+    pub fn engine(&self) -> &GpuEngine {
+        self.engine
+    }
+
+    /// Reprojection, scene or ray-gap costs: triangulation on the device, fits on the host.
+    fn scene_costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
+        let data = self.data;
+        let corners = data.corners.len();
+        let mut costs = vec![f64::INFINITY; candidates.len()];
+        // Candidates that keep both cameras in the air, with the axis as the rig normalises it.
+        let (valid, interfaces): (Vec<usize>, Vec<[f64; 4]>) = candidates
+            .par_iter()
+            .enumerate()
+            .filter_map(|(i, c)| {
+                let n = *data.cameras_behind(c)?[0].normal();
+                Some((i, [n.x, n.y, n.z, c.air_distance]))
+            })
+            .unzip();
+        if valid.is_empty() || corners == 0 {
+            return Ok(costs);
+        }
+        let mut rows = vec![[0.0; 4]; interfaces.len() * corners];
+        let mut status = vec![0; rows.len()];
+        self.engine.calib_triangulate(&data.rig, data.cameras, &self.air_rays, &interfaces, &mut rows, &mut status)?;
+        let answered = |c: usize| status[c * corners..(c + 1) * corners].iter().all(|&s| s == 0);
+        if kind == CostKind::RayGap {
+            let values: Vec<f64> = (0..valid.len())
+                .into_par_iter()
+                .map(|c| {
+                    let gaps: Vec<f64> = rows[c * corners..(c + 1) * corners].iter().map(|r| r[3]).collect();
+                    if answered(c) { ray_gap_rms(&gaps) } else { f64::INFINITY }
+                })
+                .collect();
+            valid.iter().zip(values).for_each(|(&i, v)| costs[i] = v);
+            return Ok(costs);
+        }
+        let fits: Vec<Option<SceneFit>> = (0..valid.len())
+            .into_par_iter()
+            .map(|c| {
+                if !answered(c) {
+                    return None;
+                }
+                let rows = &rows[c * corners..(c + 1) * corners];
+                let points = rows.iter().map(|r| Point3::new(r[0], r[1], r[2])).collect();
+                SceneFit::from_triangulated(data, points, rows.iter().map(|r| r[3]).collect())
+            })
+            .collect();
+        if kind == CostKind::Scene {
+            valid.iter().zip(&fits).for_each(|(&i, fit)| costs[i] = fit.as_ref().map_or(f64::INFINITY, SceneFit::scene_rms));
+            return Ok(costs);
+        }
+        // Reprojection: project every fitted board behind its own candidate.
+        let fitted: Vec<usize> = (0..valid.len()).filter(|&c| fits[c].is_some()).collect();
+        if fitted.is_empty() {
+            return Ok(costs);
+        }
+        let points: Vec<[f64; 3]> = fitted
+            .par_iter()
+            .flat_map_iter(|&c| fits[c].as_ref().expect("fitted").fitted_points(data).into_iter().map(|p| [p.x, p.y, p.z]))
+            .collect();
+        let fitted_interfaces: Vec<[f64; 4]> = fitted.iter().map(|&c| interfaces[c]).collect();
+        let mut pixels = vec![[0.0; 4]; points.len()];
+        let mut status = vec![0; points.len()];
+        self.engine.calib_project(&data.rig, data.cameras, corners, &points, &fitted_interfaces, &mut pixels, &mut status)?;
+        let values: Vec<f64> = (0..fitted.len())
+            .into_par_iter()
+            .map(|f| {
+                let range = f * corners..(f + 1) * corners;
+                if status[range.clone()].iter().any(|&s| s != 0) {
+                    return f64::INFINITY;
+                }
+                let residuals: Vec<_> = data
+                    .corners
+                    .iter()
+                    .zip(&pixels[range])
+                    .map(|(corner, p)| pixel_residuals(corner, [Point2::new(p[0], p[1]), Point2::new(p[2], p[3])]))
+                    .collect();
+                reprojection_rms(&residuals)
+            })
+            .collect();
+        fitted.iter().zip(values).for_each(|(&c, v)| costs[valid[c]] = v);
+        Ok(costs)
+    }
+
+    /// Axis-only costs: projected VOPs on the device, per-view fits on the host.
+    fn invariant_costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
+        let data = self.data;
+        let corners = data.corners.len();
+        let axes: Vec<[f64; 4]> = candidates.iter().map(|c| [c.normal.x, c.normal.y, c.normal.z, 0.0]).collect();
+        let mut rows = vec![[0.0; 10]; axes.len() * corners];
+        let mut status = vec![0; rows.len()];
+        self.engine.calib_projected_vop(&data.rig, data.cameras, &self.vop_rows, &axes, &mut rows, &mut status)?;
+        Ok((0..candidates.len())
+            .into_par_iter()
+            .map(|c| {
+                let (rows, status) = (&rows[c * corners..(c + 1) * corners], &status[c * corners..(c + 1) * corners]);
+                // Corners whose binocular VOP is undetermined are left out, as on the CPU.
+                let views = data.views.iter().map(|range| {
+                    range.clone().filter(|&j| status[j] == 0).map(|j| ProjectedVop::from_packed(data.corners[j].index, &rows[j])).collect()
+                });
+                invariant_cost(data, kind, views).unwrap_or(f64::INFINITY)
+            })
+            .collect())
+    }
+}
+
+impl CostBackend for GpuBackend<'_> {
+    fn describe(&self) -> String {
+        let a = self.engine.context().adapter();
+        format!("gpu: {} ({}, {}), {}", a.name, a.backend, a.driver, self.engine.precision())
+    }
+
+    fn data(&self) -> &StereoData {
+        self.data
+    }
+
+    fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
+        if kind.axis_only() { self.invariant_costs(kind, candidates) } else { self.scene_costs(kind, candidates) }
+    }
+
+    fn air_distances(&self, normals: &[Unit<Vector3<f64>>]) -> Result<Vec<Option<f64>>, CalibError> {
+        let data = self.data;
+        let corners = data.corners.len();
+        let mut distances = vec![None; normals.len()];
+        // Axes that are interface normals at all (the CPU reference samples the rays there).
+        let (valid, axes): (Vec<usize>, Vec<[f64; 4]>) =
+            normals.par_iter().enumerate().filter(|(_, n)| sample_cameras(data, n).is_some()).map(|(i, n)| (i, [n.x, n.y, n.z, 0.0])).unzip();
+        if valid.is_empty() {
+            return Ok(distances);
+        }
+        let mut rows = vec![[0.0; 3]; axes.len() * corners];
+        let mut status = vec![0; rows.len()];
+        self.engine.calib_gap_line(&data.rig, data.cameras, &self.air_rays, &axes, &mut rows, &mut status)?;
+        let values: Vec<Option<f64>> = (0..valid.len())
+            .into_par_iter()
+            .map(|c| {
+                let range = c * corners..(c + 1) * corners;
+                let lines: Vec<Option<GapLine>> = rows[range.clone()]
+                    .iter()
+                    .zip(&status[range])
+                    .map(|(r, &s)| (s == 0).then_some(GapLine { a: r[0], b: r[1], sin_angle: r[2] }))
+                    .collect();
+                least_squares_air_distance(&lines).map(|(d, _)| d)
+            })
+            .collect();
+        valid.iter().zip(values).for_each(|(&i, d)| distances[i] = d);
+        Ok(distances)
+    }
+}

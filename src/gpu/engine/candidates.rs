@@ -1,0 +1,191 @@
+//! Kernels over batches of candidate interfaces × corners (`shaders/kernels/calib_*.wgsl`): one
+//! item per (candidate, corner), candidate-major, in one dispatch per chunk of candidates. The
+//! calibration geometry lives in the kernels and their CPU twins in [`crate::calib`]; here only
+//! indexing, chunking and buffers.
+
+use super::{GpuEngine, extend_reals, rows_from};
+use crate::gpu::context::GpuError;
+use crate::gpu::layout::{pack_params, set_info};
+use crate::gpu::shaders::{Kernel, Precision};
+use crate::model::Rig;
+
+/// Where a candidate kernel's input rows belong.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Rows {
+    /// One row per corner, shared by every candidate (uploaded once per call).
+    PerCorner,
+    /// One row per item (uploaded with each chunk).
+    PerItem,
+}
+
+impl GpuEngine {
+    /// Triangulates every corner under every candidate interface (n unit, d; master frame):
+    /// `air_rays` holds the two unit air directions v_l, v_r of each corner (cameras `cameras`
+    /// of `rig`), `points[c · corners + j]` gets x, y, z, gap of corner j under candidate c,
+    /// as [`calib::costs::triangulate_corner`](crate::calib::costs::triangulate_corner).
+    /// `status` is 0 or the [`NoSolution`](crate::model::NoSolution) code, the row NaN where not 0.
+    ///
+    /// Panics if `points` and `status` are not `candidates.len() · air_rays.len()` long.
+    pub fn calib_triangulate(
+        &self,
+        rig: &Rig,
+        cameras: [usize; 2],
+        air_rays: &[[f64; 6]],
+        candidates: &[[f64; 4]],
+        points: &mut [[f64; 4]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
+        self.run_candidates(Kernel::CalibTriangulate, rig, cameras, air_rays, Rows::PerCorner, air_rays.len(), candidates, points, status)
+    }
+
+    /// Projects points into both cameras under every candidate interface: `points[c · corners + j]`
+    /// (master frame) is seen behind candidate c; `pixels` gets ul, vl, ur, vr (raw pixels),
+    /// status as in [`calib_triangulate`](Self::calib_triangulate).
+    ///
+    /// Panics if `points`, `pixels` and `status` are not `candidates.len() · corners` long.
+    #[allow(clippy::too_many_arguments)]
+    pub fn calib_project(
+        &self,
+        rig: &Rig,
+        cameras: [usize; 2],
+        corners: usize,
+        points: &[[f64; 3]],
+        candidates: &[[f64; 4]],
+        pixels: &mut [[f64; 4]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
+        self.run_candidates(Kernel::CalibProject, rig, cameras, points, Rows::PerItem, corners, candidates, pixels, status)
+    }
+
+    /// The binocular VOP of every corner under every candidate axis (unit, master frame; the
+    /// fourth value is ignored), projected along n into the plane ⟂ n, and its Jacobian for
+    /// pixel noise, as [`calib::invariants::projected_vop`](crate::calib::invariants::projected_vop):
+    /// `corners` holds v_l, v_r, ∂v_l/∂u, ∂v_l/∂v, ∂v_r/∂u, ∂v_r/∂v (xyz each); `vops` gets
+    /// q₁, q₂ and J = ∂q/∂(u_l, v_l, u_r, v_r) column by column. Status 6 (degenerate) where the
+    /// VOP is undetermined.
+    ///
+    /// Panics if `vops` and `status` are not `axes.len() · corners.len()` long.
+    pub fn calib_projected_vop(
+        &self,
+        rig: &Rig,
+        cameras: [usize; 2],
+        corners: &[[f64; 18]],
+        axes: &[[f64; 4]],
+        vops: &mut [[f64; 10]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
+        self.run_candidates(Kernel::CalibProjectedVop, rig, cameras, corners, Rows::PerCorner, corners.len(), axes, vops, status)
+    }
+
+    /// The gap line of every corner under every candidate axis (fourth value ignored): the
+    /// signed distance between the two water rays as a function of the air layer, g(d) = a·d + b,
+    /// with |w_l × w_r|, as [`calib::air_layer::GapLine`](crate::calib::air_layer::GapLine);
+    /// `air_rays` as in [`calib_triangulate`](Self::calib_triangulate).
+    ///
+    /// Panics if `lines` and `status` are not `axes.len() · air_rays.len()` long.
+    pub fn calib_gap_line(
+        &self,
+        rig: &Rig,
+        cameras: [usize; 2],
+        air_rays: &[[f64; 6]],
+        axes: &[[f64; 4]],
+        lines: &mut [[f64; 3]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
+        self.run_candidates(Kernel::CalibGapLine, rig, cameras, air_rays, Rows::PerCorner, air_rays.len(), axes, lines, status)
+    }
+
+    /// Runs a candidate kernel over `candidates` × `corners` items, chunked over candidates so
+    /// that every binding stays under the adapter's cap and a chunk holds at most the engine's
+    /// item limit.
+    #[allow(clippy::too_many_arguments)]
+    fn run_candidates<const N: usize, const M: usize>(
+        &self,
+        kernel: Kernel,
+        rig: &Rig,
+        cameras: [usize; 2],
+        input: &[[f64; N]],
+        rows: Rows,
+        corners: usize,
+        candidates: &[[f64; 4]],
+        output: &mut [[f64; M]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
+        let items = candidates.len() * corners;
+        assert!(output.len() == items && status.len() == items, "output and status of candidates · corners");
+        match rows {
+            Rows::PerCorner => assert_eq!(input.len(), corners, "one input row per corner"),
+            Rows::PerItem => assert_eq!(input.len(), items, "one input row per item"),
+        }
+        let (a, b) = (rig.refractive_camera(cameras[0]), rig.refractive_camera(cameras[1]));
+        Self::check_layers(&a)?;
+        Self::check_layers(&b)?;
+        if items == 0 {
+            return Ok(());
+        }
+        let s = self.precision.size();
+        let item_bytes = match rows {
+            Rows::PerCorner => M * s,
+            Rows::PerItem => N.max(M) * s,
+        };
+        let per_chunk = self.chunk_items(item_bytes.max(4)) / corners;
+        let cap = self.context.max_storage_binding() as usize;
+        if per_chunk == 0 || (rows == Rows::PerCorner && corners * N * s > cap) {
+            return Err(GpuError::Unsupported(format!(
+                "{corners} corners per candidate do not fit one dispatch ({} items, {cap} bytes per binding)",
+                self.chunk_items(item_bytes.max(4))
+            )));
+        }
+        let per_chunk = per_chunk.min(candidates.len());
+        let pipeline = self.pipeline(kernel);
+        let device = &self.context.device;
+        let mut params = pack_params(self.precision, &a, &b, [0; 4]);
+        let mut guard = self.buffers();
+        let buffers = &mut *guard;
+        let input_rows = match rows {
+            Rows::PerCorner => corners,
+            Rows::PerItem => per_chunk * corners,
+        };
+        let uniform = buffers.uniform.get(device, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST).clone();
+        let in_buf = buffers.input.get(device, "input", input_rows * N * s, self.input_usage()).clone();
+        let cand_buf = buffers.candidates.get(device, "candidates", per_chunk * 4 * s, self.input_usage()).clone();
+        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", per_chunk * corners * M * s);
+        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", per_chunk * corners * 4);
+        let bind_group =
+            self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf), (4, &cand_buf)]);
+        if rows == Rows::PerCorner {
+            self.upload_reals(&mut buffers.scratch, &in_buf, bytemuck::cast_slice(input))?;
+        }
+        for first in (0..candidates.len()).step_by(per_chunk) {
+            let last = (first + per_chunk).min(candidates.len());
+            let range = first * corners..last * corners;
+            let count = range.len();
+            set_info(&mut params, self.precision, [count as u32, corners as u32, 0, 0]);
+            self.context.queue.write_buffer(&uniform, 0, &params);
+            self.upload_reals(&mut buffers.scratch, &cand_buf, bytemuck::cast_slice(&candidates[first..last]))?;
+            if rows == Rows::PerItem {
+                self.upload_reals(&mut buffers.scratch, &in_buf, bytemuck::cast_slice(&input[range.clone()]))?;
+            }
+            let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), self.context.dispatch_size(count as u32));
+            let copies = [(&out_buf, &out_staging, (count * M * s) as u64), (&status_buf, &status_staging, (count * 4) as u64)];
+            let (out_rows, out_status) = (&mut output[range.clone()], &mut status[range]);
+            self.context.read_back(encoder, &copies, |data| {
+                out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
+                rows_from(data[0], self.precision, out_status, out_rows);
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Uploads f64 `values` in the kernel precision (through `scratch` for f32).
+    fn upload_reals(&self, scratch: &mut Vec<u8>, buffer: &wgpu::Buffer, values: &[f64]) -> Result<(), GpuError> {
+        match self.precision {
+            Precision::F64 => self.upload(buffer, bytemuck::cast_slice(values)),
+            Precision::F32 => {
+                scratch.clear();
+                extend_reals(scratch, self.precision, values);
+                self.upload(buffer, scratch)
+            }
+        }
+    }
+}

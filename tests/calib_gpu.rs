@@ -1,0 +1,267 @@
+//! The calibration costs on the GPU against the f64 CPU reference: every [`CostKind`] and the
+//! linear air layer over one batch of candidate interfaces on simulated scenes, f64 and f32
+//! kernels, one dispatch and many chunks. With `CI` set, a missing Vulkan adapter fails the run.
+//! `cargo test --release --test calib_gpu -- --nocapture` prints the deviations.
+
+use flatport::calib::{Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, simulate};
+use flatport::gpu::{GpuContext, GpuEngine, Precision};
+use flatport::model::Rig;
+use nalgebra::{Unit, Vector3};
+
+/// f64 kernels: |gpu − cpu| ≤ 1e-9 · |cpu| for every cost and air layer (measured ≤ 1.1e-12, and
+/// 1.4e-10 for the affine grid of the 1230-candidate batch: the covariance of a corner near the
+/// degenerate plane, cond ~ 1e12, carries ε·cond of its own rounding on either side).
+const F64_RELATIVE: f64 = 1e-9;
+
+// f32 kernels. The f32 upload rounds each corner's air rays by ≈ 6e-8 rad per component, which
+// is ≈ u·f = 6e-8 · 865 px ≈ 5e-5 px of extra pixel noise: ε/σ = 5e-4 of the 0.1 px simulated
+// noise. (The kernels' own rounding is of the same order: pixels ≈ 1e3 px carry 6e-5 px, and the
+// f32 Newton stopping rule leaves less.) At its minimum every cost measures the noise, to first
+// order in it (RMS costs ∝ σ, the χ² ∝ σ²), so it moves by at most ε/σ relative (2ε/σ for the χ²)
+// even with every perturbation aligned with the residuals; away from the minimum model error
+// dominates and the relative change is smaller. Measured over three scenes × 50 candidates and
+// one of 15 views × 1230 candidates: ≤ 1.8e-4 (reprojection 6.9e-5, scene 2.9e-5, ray gap
+// 2.2e-5, affine grid 4.2e-5, plane fitting 1.6e-4, plane angles 1.8e-4, the unweighted plane
+// errors including the corners near the degenerate plane): independent rounding partly averages
+// over the corners. The affine grid's covariance is formed in f64 on the host from the kernel's
+// Jacobian: formed in f32 it lost positive definiteness for corners with cond Σ ~ 1e12 and
+// made 2 of the 1230 candidates +∞.
+/// f32: relative bound of the RMS costs (reprojection, scene, ray gap, plane fitting, plane
+/// angles): ε/σ.
+const F32_RELATIVE: f64 = 5e-4;
+/// f32: relative bound of the affine-grid χ² (quadratic in the noise): 2ε/σ.
+const F32_RELATIVE_CHI2: f64 = 1e-3;
+/// f32: absolute bound of the least-squares air layer, metres. Each corner's signed gap moves by
+/// ≈ 1e-7 m (its rounded air rays, ≈ 1e-7 rad, at ≈ 1 m), and d = −Σab/Σa² moves by that over
+/// √Σa² = rms|a|·√N ≈ 3.5e-3 · √216 ≈ 0.05 (4 views): ≈ 2e-6 m (measured ≤ 2.5e-6 m over three
+/// scenes). 1e-5 m leaves room for axes where the gaps depend less on d; it is far below the
+/// 1–2 mm by which 0.1 px of noise moves d in these scenes.
+const F32_AIR_DISTANCE: f64 = 1e-5;
+
+/// The GPU engine at `precision`, or `None` (with a note) when there is no adapter outside CI.
+fn engine(precision: Precision) -> Option<GpuEngine> {
+    match GpuContext::new(None) {
+        Ok(context) => {
+            eprintln!("GPU adapter: {} ({}), {precision}", context.adapter().name, context.adapter().driver);
+            Some(GpuEngine::new(context, precision).expect("lavapipe and the GPUs we test have SHADER_F64"))
+        }
+        Err(e) if std::env::var_os("CI").is_none() => {
+            eprintln!("SKIPPED (no Vulkan adapter; CI fails here instead): {e}");
+            None
+        }
+        Err(e) => panic!("CI needs a Vulkan adapter (scripts/test.sh installs lavapipe): {e}"),
+    }
+}
+
+fn example_rig() -> Rig {
+    flatport::io::read_rig(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/data/example_rig.json"))).expect("example rig")
+}
+
+/// `views` simulated views of the 9×6 board of 4 cm squares behind the example rig, 0.1 px noise.
+fn stereo_data(views: usize, seed: u64) -> StereoData {
+    let rig = example_rig();
+    let spec = SceneSpec::new(Board { rows: 6, cols: 9, square: 0.04 }, views, 0.1, seed);
+    let scene = simulate(&rig, 0, 1, &spec).expect("simulated scene");
+    StereoData::new(&rig, [0, 1], &scene.observations).expect("stereo data")
+}
+
+/// xorshift64*: reproducible candidates without a dependency.
+struct Random(u64);
+
+impl Random {
+    fn uniform(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.uniform()
+    }
+}
+
+/// The true interface, then `n − 3` random axes tilted up to 20° with air layers of 5–40 mm, then
+/// two that put the right camera outside the air (its centre is 6 cm along +x: an axis tilted
+/// 20° toward +x needs d > 20.5 mm) and one close to that limit.
+fn candidates(data: &StereoData, n: usize, seed: u64) -> Vec<Candidate> {
+    let mut random = Random(seed);
+    let mut out = vec![Candidate::of(data.rig.interface())];
+    while out.len() < n - 3 {
+        let (tilt, azimuth) = (random.range(0.0, 20f64.to_radians()), random.range(0.0, std::f64::consts::TAU));
+        let normal = flatport::model::normal_from_tilt_azimuth(tilt, azimuth);
+        out.push(Candidate { normal, air_distance: random.range(0.005, 0.040) });
+    }
+    let toward_right = flatport::model::normal_from_tilt_azimuth(20f64.to_radians(), 0.0);
+    let limit = data.min_air_distance(&toward_right);
+    for air_distance in [0.005, limit - 1e-4, limit + 5e-3] {
+        out.push(Candidate { normal: toward_right, air_distance });
+    }
+    out
+}
+
+/// The largest deviation of `gpu` from `cpu` over candidates both answer: (max |Δ| / |cpu|,
+/// max |Δ|, candidates without an answer). Panics where one answers and the other does not.
+fn deviation(what: &str, cpu: &[f64], gpu: &[f64]) -> Deviation {
+    assert_eq!(cpu.len(), gpu.len(), "{what}: one value per candidate");
+    let mut d = Deviation { relative: 0.0, absolute: 0.0, infinite: 0 };
+    for (k, (c, g)) in cpu.iter().zip(gpu).enumerate() {
+        assert_eq!(c.is_finite(), g.is_finite(), "{what}: candidate {k}: cpu {c}, gpu {g}");
+        if c.is_finite() {
+            d.absolute = d.absolute.max((g - c).abs());
+            d.relative = d.relative.max((g - c).abs() / c.abs().max(f64::MIN_POSITIVE));
+        } else {
+            d.infinite += 1;
+        }
+    }
+    d
+}
+
+struct Deviation {
+    relative: f64,
+    absolute: f64,
+    infinite: usize,
+}
+
+/// Every cost and the air layers of `batch` on the CPU and on `gpu`, (name, deviation), and the
+/// GPU's values (costs of each kind, then the air layers, +∞ where none).
+fn compare(data: &StereoData, gpu: &GpuBackend, batch: &[Candidate]) -> (Vec<(&'static str, Deviation)>, Vec<Vec<f64>>) {
+    let cpu = CpuBackend::new(data);
+    let (mut out, mut values) = (Vec::new(), Vec::new());
+    for kind in CostKind::ALL {
+        let (c, g) = (cpu.costs(kind, batch).unwrap(), gpu.costs(kind, batch).unwrap());
+        let d = deviation(kind.name(), &c, &g);
+        if !kind.axis_only() {
+            // The last three candidates: two with the right camera outside the air (random ones
+            // tilted toward it with a thin air layer may be too).
+            assert!(g[batch.len() - 3].is_infinite() && g[batch.len() - 2].is_infinite(), "{}: camera outside the air", kind.name());
+            assert!(g[0].is_finite(), "{}: the true interface", kind.name());
+        }
+        out.push((kind.name(), d));
+        values.push(g);
+    }
+    let normals: Vec<Unit<Vector3<f64>>> = batch.iter().map(|c| c.normal).collect();
+    let as_costs = |d: Vec<Option<f64>>| -> Vec<f64> { d.into_iter().map(|d| d.unwrap_or(f64::INFINITY)).collect() };
+    let (c, g) = (as_costs(cpu.air_distances(&normals).unwrap()), as_costs(gpu.air_distances(&normals).unwrap()));
+    let d = deviation("air-distance", &c, &g);
+    assert_eq!(d.infinite, 0, "every axis has an air layer");
+    out.push(("air-distance", d));
+    values.push(g);
+    (out, values)
+}
+
+/// The three scenes of the parity tests: (views, seed).
+const SCENES: [(usize, u64); 3] = [(4, 11), (15, 3), (6, 99)];
+
+#[test]
+fn f64_kernels_match_the_cpu_reference() {
+    let Some(engine) = engine(Precision::F64) else { return };
+    for (views, seed) in SCENES {
+        let data = stereo_data(views, seed);
+        let batch = candidates(&data, 50, seed + 1);
+        let gpu = GpuBackend::new(&data, &engine);
+        for (name, d) in compare(&data, &gpu, &batch).0 {
+            eprintln!("f64 {views:>2} views {name:>14}: max relative deviation {:.2e} (absolute {:.2e})", d.relative, d.absolute);
+            assert!(d.relative <= F64_RELATIVE, "f64 {name}: {:e}", d.relative);
+        }
+    }
+}
+
+#[test]
+fn f32_kernels_match_the_cpu_reference() {
+    let Some(engine) = engine(Precision::F32) else { return };
+    for (views, seed) in SCENES {
+        let data = stereo_data(views, seed);
+        let batch = candidates(&data, 50, seed + 1);
+        let gpu = GpuBackend::new(&data, &engine);
+        for (name, d) in compare(&data, &gpu, &batch).0 {
+            eprintln!("f32 {views:>2} views {name:>14}: max relative deviation {:.2e} (absolute {:.2e})", d.relative, d.absolute);
+            match name {
+                "air-distance" => assert!(d.absolute <= F32_AIR_DISTANCE, "f32 {name}: {:e} m", d.absolute),
+                "affine-grid" => assert!(d.relative <= F32_RELATIVE_CHI2, "f32 {name}: {:e}", d.relative),
+                _ => assert!(d.relative <= F32_RELATIVE, "f32 {name}: {:e}", d.relative),
+            }
+        }
+    }
+}
+
+/// The batch size of a search grid: 1230 candidates over 15 views of 54 corners, both precisions
+/// (this batch holds corners near the degenerate plane that a 50-candidate batch may miss).
+#[test]
+fn a_large_batch_matches_in_both_precisions() {
+    let data = stereo_data(15, 3);
+    let batch = candidates(&data, 1230, 21);
+    for precision in [Precision::F64, Precision::F32] {
+        let Some(engine) = engine(precision) else { return };
+        let gpu = GpuBackend::new(&data, &engine);
+        for (name, d) in compare(&data, &gpu, &batch).0 {
+            eprintln!("{precision} 1230 candidates {name:>14}: max relative deviation {:.2e} (absolute {:.2e})", d.relative, d.absolute);
+            match (precision, name) {
+                (Precision::F64, _) => assert!(d.relative <= F64_RELATIVE, "f64 {name}: {:e}", d.relative),
+                (_, "air-distance") => assert!(d.absolute <= F32_AIR_DISTANCE, "f32 {name}: {:e} m", d.absolute),
+                (_, "affine-grid") => assert!(d.relative <= F32_RELATIVE_CHI2, "f32 {name}: {:e}", d.relative),
+                _ => assert!(d.relative <= F32_RELATIVE, "f32 {name}: {:e}", d.relative),
+            }
+        }
+    }
+}
+
+/// Many chunks of a few candidates each give the same values as one dispatch, bit for bit (each
+/// item's arithmetic does not depend on the chunking), and still match the CPU.
+#[test]
+fn chunked_batches_match_one_dispatch() {
+    let Some(whole) = engine(Precision::F64) else { return };
+    let Some(mut chunked) = engine(Precision::F64) else { return };
+    let data = stereo_data(4, 11);
+    let batch = candidates(&data, 50, 12);
+    // 1000 items: 960 after rounding to whole workgroups, 4 candidates of 216 corners per chunk:
+    // 13 chunks, the last one short.
+    chunked.set_max_chunk_items(1000);
+    let (deviations, chunked_values) = compare(&data, &GpuBackend::new(&data, &chunked), &batch);
+    for (name, d) in deviations {
+        assert!(d.relative <= F64_RELATIVE, "chunked f64 {name}: {:e}", d.relative);
+    }
+    let (_, whole_values) = compare(&data, &GpuBackend::new(&data, &whole), &batch);
+    assert_eq!(chunked_values, whole_values, "chunking changed a value");
+}
+
+/// A profile (air layer solved per axis, then the cost) agrees across the backends.
+#[test]
+fn profiles_match_the_cpu_reference() {
+    let Some(engine) = engine(Precision::F64) else { return };
+    let data = stereo_data(4, 11);
+    let normals: Vec<_> = candidates(&data, 20, 5).iter().map(|c| c.normal).collect();
+    let (cpu, gpu) = (CpuBackend::new(&data), GpuBackend::new(&data, &engine));
+    for kind in [CostKind::Reprojection, CostKind::AffineGrid] {
+        let (c, g) = (cpu.profile(kind, &normals).unwrap().1, gpu.profile(kind, &normals).unwrap().1);
+        let d = deviation(kind.name(), &c, &g);
+        assert!(d.relative <= F64_RELATIVE, "profile {}: {:e}", kind.name(), d.relative);
+    }
+}
+
+/// Times one batch of 1230 candidates (15 views of 54 corners) for the affine-grid and
+/// reprojection costs on the CPU and on the GPU in f32 and f64; the GPU after one warm-up call
+/// (pipeline compilation). `cargo test --release --test calib_gpu -- --ignored --nocapture`.
+#[test]
+#[ignore = "timing"]
+fn time_a_1230_candidate_batch() {
+    let data = stereo_data(15, 3);
+    let batch = candidates(&data, 1230, 21);
+    let time = |backend: &dyn CostBackend, kind: CostKind| {
+        let started = std::time::Instant::now();
+        let costs = backend.costs(kind, &batch).unwrap();
+        (started.elapsed().as_secs_f64(), costs.iter().filter(|c| c.is_finite()).count())
+    };
+    for kind in [CostKind::AffineGrid, CostKind::Reprojection] {
+        let cpu = CpuBackend::new(&data);
+        let (seconds, finite) = time(&cpu, kind);
+        eprintln!("{:>12} {}: {seconds:.3} s ({finite} finite)", kind.name(), cpu.describe());
+        for precision in [Precision::F32, Precision::F64] {
+            let Some(engine) = engine(precision) else { return };
+            let gpu = GpuBackend::new(&data, &engine);
+            time(&gpu, kind);
+            let (seconds, finite) = time(&gpu, kind);
+            eprintln!("{:>12} {}: {seconds:.3} s ({finite} finite)", kind.name(), gpu.describe());
+        }
+    }
+}
+
