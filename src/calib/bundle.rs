@@ -7,6 +7,7 @@
 //! (translation, m) with master_from_board ← (τ, exp(ω)) · master_from_board.
 
 use nalgebra::{DMatrix, DVector, Isometry3, Translation3, Unit, UnitQuaternion, Vector2, Vector3};
+use rayon::prelude::*;
 
 use super::data::{Candidate, StereoData};
 use super::lm::LeastSquares;
@@ -25,6 +26,15 @@ pub struct BundleState {
 /// Parameters of the interface in a step: δ₁, δ₂, δd.
 pub const INTERFACE_PARAMETERS: usize = 3;
 const POSE_PARAMETERS: usize = 6;
+/// Parameters one residual depends on: the interface's and its view's pose.
+const BLOCK: usize = INTERFACE_PARAMETERS + POSE_PARAMETERS;
+
+/// One view's share of the normal equations over its 9 parameters (upper triangle).
+struct ViewBlock {
+    jtj: [[f64; BLOCK]; BLOCK],
+    jtr: [f64; BLOCK],
+    cost: f64,
+}
 /// Central-difference step for every parameter (rad or m): pixels are exact to ~1e-10 px, so the
 /// derivatives keep ~8 digits, and the truncation error (h²) is far below that.
 const DIFFERENCE_STEP: f64 = 1e-6;
@@ -54,14 +64,19 @@ impl<'a> Bundle<'a> {
         Some(())
     }
 
-    /// Every residual at `state`, two per corner (left, right).
+    /// Every residual at `state`, two per corner (left, right); views in parallel.
     pub fn residuals(&self, state: &BundleState) -> Option<Vec<Vector2<f64>>> {
         let cameras = self.data.cameras_behind(&state.candidate)?;
-        let mut out = Vec::with_capacity(2 * self.data.corners.len());
-        for (v, pose) in state.poses.iter().enumerate() {
-            self.view_residuals(&cameras, v, pose, &mut out)?;
-        }
-        Some(out)
+        let per_view: Option<Vec<Vec<Vector2<f64>>>> = state
+            .poses
+            .par_iter()
+            .enumerate()
+            .map(|(v, pose)| {
+                let mut out = Vec::with_capacity(2 * self.data.views[v].len());
+                self.view_residuals(&cameras, v, pose, &mut out).map(|()| out)
+            })
+            .collect();
+        Some(per_view?.concat())
     }
 
     /// (cost contribution, weight) of a residual of length² `r2`: r² and 1 inside the Huber
@@ -119,48 +134,62 @@ impl LeastSquares for Bundle<'_> {
                 interface_jacobian[i][p] = (plus[i] - minus[i]) / (2.0 * DIFFERENCE_STEP);
             }
         }
+        // Per view, in parallel: ∂r/∂(pose v) (only this view's residuals move), then the view's
+        // share of JᵀWJ and JᵀWr over its columns (3 interface + 6 pose parameters).
+        let blocks: Option<Vec<ViewBlock>> = state
+            .poses
+            .par_iter()
+            .enumerate()
+            .map(|(v, pose)| {
+                let range = data.views[v].clone();
+                let first_row = 2 * range.start;
+                let count = 2 * range.len();
+                let mut pose_jacobian = vec![[Vector2::zeros(); POSE_PARAMETERS]; count];
+                let (mut plus, mut minus) = (Vec::with_capacity(count), Vec::with_capacity(count));
+                for p in 0..POSE_PARAMETERS {
+                    let mut delta = [0.0; POSE_PARAMETERS];
+                    delta[p] = DIFFERENCE_STEP;
+                    plus.clear();
+                    self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut plus)?;
+                    delta[p] = -DIFFERENCE_STEP;
+                    minus.clear();
+                    self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut minus)?;
+                    for i in 0..count {
+                        pose_jacobian[i][p] = (plus[i] - minus[i]) / (2.0 * DIFFERENCE_STEP);
+                    }
+                }
+                let mut block = ViewBlock { jtj: [[0.0; BLOCK]; BLOCK], jtr: [0.0; BLOCK], cost: 0.0 };
+                for i in 0..count {
+                    let row = first_row + i;
+                    let r = base[row];
+                    let (contribution, weight) = self.robust(r.norm_squared());
+                    block.cost += contribution;
+                    let mut gradient = [Vector2::zeros(); BLOCK];
+                    gradient[..INTERFACE_PARAMETERS].copy_from_slice(&interface_jacobian[row]);
+                    gradient[INTERFACE_PARAMETERS..].copy_from_slice(&pose_jacobian[i]);
+                    for a in 0..BLOCK {
+                        block.jtr[a] += weight * gradient[a].dot(&r);
+                        for b in a..BLOCK {
+                            block.jtj[a][b] += weight * gradient[a].dot(&gradient[b]);
+                        }
+                    }
+                }
+                Some(block)
+            })
+            .collect();
         let mut jtj = DMatrix::zeros(dimension, dimension);
         let mut jtr = DVector::zeros(dimension);
         let mut cost = 0.0;
-        let mut buffer = Vec::new();
-        for (v, pose) in state.poses.iter().enumerate() {
-            let range = data.views[v].clone();
-            let first_row = 2 * range.start;
-            let count = 2 * range.len();
-            // ∂r/∂(pose v): only this view's residuals.
-            let mut pose_jacobian = vec![[Vector2::zeros(); POSE_PARAMETERS]; count];
-            for p in 0..POSE_PARAMETERS {
-                let mut delta = [0.0; POSE_PARAMETERS];
-                delta[p] = DIFFERENCE_STEP;
-                buffer.clear();
-                self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut buffer)?;
-                let plus = buffer.clone();
-                delta[p] = -DIFFERENCE_STEP;
-                buffer.clear();
-                self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut buffer)?;
-                for i in 0..count {
-                    pose_jacobian[i][p] = (plus[i] - buffer[i]) / (2.0 * DIFFERENCE_STEP);
-                }
-            }
+        for (v, block) in blocks?.iter().enumerate() {
             let offset = INTERFACE_PARAMETERS + POSE_PARAMETERS * v;
-            let columns: Vec<usize> = (0..INTERFACE_PARAMETERS).chain(offset..offset + POSE_PARAMETERS).collect();
-            for i in 0..count {
-                let row = first_row + i;
-                let r = base[row];
-                let (contribution, weight) = self.robust(r.norm_squared());
-                cost += contribution;
-                // Each residual touches 3 interface and 6 pose parameters: accumulate its 9 × 9 block.
-                let mut gradient = [Vector2::zeros(); INTERFACE_PARAMETERS + POSE_PARAMETERS];
-                gradient[..INTERFACE_PARAMETERS].copy_from_slice(&interface_jacobian[row]);
-                gradient[INTERFACE_PARAMETERS..].copy_from_slice(&pose_jacobian[i]);
-                for (a, &ca) in columns.iter().enumerate() {
-                    jtr[ca] += weight * gradient[a].dot(&r);
-                    for (b, &cb) in columns.iter().enumerate().skip(a) {
-                        let value = weight * gradient[a].dot(&gradient[b]);
-                        jtj[(ca, cb)] += value;
-                        if a != b {
-                            jtj[(cb, ca)] += value;
-                        }
+            let column = |a: usize| if a < INTERFACE_PARAMETERS { a } else { offset + a - INTERFACE_PARAMETERS };
+            cost += block.cost;
+            for a in 0..BLOCK {
+                jtr[column(a)] += block.jtr[a];
+                for b in a..BLOCK {
+                    jtj[(column(a), column(b))] += block.jtj[a][b];
+                    if a != b {
+                        jtj[(column(b), column(a))] += block.jtj[a][b];
                     }
                 }
             }

@@ -157,12 +157,13 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
 
     // 1. Consecutive: axis from the weighted affine-grid invariant, global then local.
     let consecutive = axis_search(backend, CostKind::AffineGrid, options, &mut stages)?;
+    let linear_started = Instant::now();
     let (air_distance, gap) = super::air_layer::air_distance_for_axis(data, &consecutive.normal).ok_or_else(|| CalibError::NoSolution {
         bound_deg: options.max_tilt.to_degrees(),
         reason: "the air layer has no least-squares solution under the invariant's axis".into(),
     })?;
     let mut consecutive = Candidate { normal: consecutive.normal, air_distance };
-    stages.push(stage("air layer (linear least squares on the ray gaps)", consecutive, gap, "m", 1, started));
+    stages.push(stage("air layer (linear least squares on the ray gaps)", consecutive, gap, "m", 1, linear_started));
     if !triangulates(data, &consecutive) {
         // The ray gaps hardly depend on d when both cameras see a corner at similar incidence,
         // so noise can throw the linear solve far off: take the air layer that best explains

@@ -6,9 +6,10 @@ use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 
 use flatport::calib::{
-    Board, CalibError, CalibrationOptions, CalibrationReport, CostBackend, CpuBackend, Method, Observations, SceneSpec,
+    Board, CalibError, CalibrationOptions, CalibrationReport, CostBackend, CpuBackend, GpuBackend, Method, Observations, SceneSpec,
     StereoData, calibrate, simulate,
 };
+use flatport::engine::Engine;
 use flatport::io::{IoError, Truth, read_observations, read_rig, read_truth, write_observations, write_report, write_rig, write_truth};
 use flatport::model::Rig;
 
@@ -86,9 +87,8 @@ pub struct CalibrateArgs {
     /// Truth of a simulated scene (from `flatport simulate`): print the errors of the result
     #[arg(long, value_name = "TRUTH.json")]
     truth: Option<PathBuf>,
-    /// Where the cost batches run: cpu (f64 reference), gpu (Vulkan), auto (a hardware GPU if any)
-    #[arg(long, value_enum, default_value_t = super::Device::Auto)]
-    device: super::Device,
+    #[command(flatten)]
+    engine: super::EngineArgs,
 }
 
 /// Parses `COLSxROWS@SQUARE`.
@@ -182,8 +182,12 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     if args.huber.is_some_and(|k| !(k > 0.0)) {
         bail!("--huber must be a positive number of pixels");
     }
-    let backend = cost_backend(args.device, &data)?;
-    eprintln!("device: {}", backend.describe());
+    let engine = calibration_engine(&args.engine)?;
+    let backend: Box<dyn CostBackend> = match &engine {
+        Engine::Cpu(_) => Box::new(CpuBackend::new(&data)),
+        Engine::Gpu(gpu) => Box::new(GpuBackend::new(&data, gpu)),
+    };
+    eprintln!("device: {}", engine.describe());
     eprintln!(
         "calibrating from {} views ({} corners seen by both cameras), method {}...",
         data.views.len(),
@@ -205,12 +209,16 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The cost backend `--device` asks for.
-fn cost_backend<'a>(device: super::Device, data: &'a StereoData) -> anyhow::Result<Box<dyn CostBackend + 'a>> {
-    match device {
-        super::Device::Cpu | super::Device::Auto => Ok(Box::new(CpuBackend::new(data))),
-        super::Device::Gpu => bail!("the GPU cost backend is not built into this binary yet: use --device cpu"),
+/// The engine for cost batches. Without `--precision` a GPU runs f64 where the adapter has it:
+/// the local refinement takes finite differences far below f32's resolution.
+pub fn calibration_engine(args: &super::EngineArgs) -> anyhow::Result<Engine> {
+    if args.precision.is_none() && args.device != super::Device::Cpu {
+        let f64_args = super::EngineArgs { device: args.device, precision: Some(super::PrecisionArg::F64), adapter: args.adapter.clone() };
+        if let Ok(engine) = f64_args.engine_quiet() {
+            return Ok(engine);
+        }
     }
+    Ok(args.engine_quiet()?)
 }
 
 /// Errors of a result against the truth of a simulated scene, one line.

@@ -163,6 +163,16 @@ pub struct EngineArgs {
 impl EngineArgs {
     /// Builds the engine and says on stderr which device runs.
     pub fn engine(&self) -> anyhow::Result<flatport::engine::Engine> {
+        let engine = self.engine_quiet()?;
+        if self.device == Device::Auto && self.precision == Some(PrecisionArg::F32) && matches!(engine, flatport::engine::Engine::Cpu(_)) {
+            eprintln!("note: no hardware GPU, so the f64 CPU reference runs (--precision f32 applies to GPUs)");
+        }
+        eprintln!("device: {}", engine.describe());
+        Ok(engine)
+    }
+
+    /// Builds the engine without a word on stderr.
+    pub fn engine_quiet(&self) -> anyhow::Result<flatport::engine::Engine> {
         use flatport::engine::{Device as D, Engine, EngineOptions};
         use flatport::gpu::Precision;
         let options = EngineOptions {
@@ -178,12 +188,7 @@ impl EngineArgs {
             adapter: self.adapter.clone(),
             threads: None,
         };
-        let engine = Engine::new(&options)?;
-        if self.device == Device::Auto && self.precision == Some(PrecisionArg::F32) && matches!(engine, Engine::Cpu(_)) {
-            eprintln!("note: no hardware GPU, so the f64 CPU reference runs (--precision f32 applies to GPUs)");
-        }
-        eprintln!("device: {}", engine.describe());
-        Ok(engine)
+        Ok(Engine::new(&options)?)
     }
 }
 
