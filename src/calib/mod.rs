@@ -21,6 +21,7 @@ pub mod observations;
 pub mod rng;
 pub mod search;
 pub mod simulate;
+pub mod sweep;
 
 pub use backend::{CostBackend, CpuBackend};
 pub use board::{Board, RigidFit, fit_rigid};

@@ -106,7 +106,7 @@ pub fn parse_board(text: &str) -> Result<Board, String> {
 }
 
 /// Rig indices of the stereo pair: by name, else the first two cameras.
-fn stereo_pair(rig: &Rig, names: Option<(&str, &str)>, source: &str) -> anyhow::Result<[usize; 2]> {
+pub fn stereo_pair(rig: &Rig, names: Option<(&str, &str)>, source: &str) -> anyhow::Result<[usize; 2]> {
     if rig.cameras().len() < 2 {
         bail!("the rig has {} camera(s): calibration needs a stereo pair", rig.cameras().len());
     }

@@ -7,7 +7,9 @@ mod bench;
 mod demo;
 mod geometry;
 mod info;
+mod progress;
 mod rig;
+mod sweep;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -100,6 +102,25 @@ Examples:
   flatport calibrate --rig rig.json --observations obs.json -o calibrated.json --report report.json \\
       --method simultaneous --huber 1.0")]
     Calibrate(calib::CalibrateArgs),
+    /// Sweep a calibration cost over a grid of axes (and air layers): .npy, CSV, heat maps, summary
+    #[command(after_help = "\
+Tilt is the angle between the axis and the master camera's z axis, azimuth atan2(n_y, n_x), both in
+degrees; grids are START:STOP:COUNT with both ends included (numpy's linspace). Without --distance,
+every axis takes its least-squares air layer (a profile; the invariant needs none). The grid is
+evaluated in batches on the device, so memory stays bounded whatever its size.
+
+Writes DIR/cost.npy (float64, shape [tilt, azimuth] or [tilt, azimuth, distance]), DIR/cost.csv
+(tilt_deg,azimuth_deg,distance,cost per cell; inf where a candidate explains no corner),
+DIR/distance.npy (the profile's air layers, for reprojection and 3d without --distance),
+DIR/heatmap.png and DIR/polar.png (minimum marked, truth marked with --truth), DIR/summary.json
+(argmin, grid, timing). Files appear only when the sweep completed.
+
+Examples:
+  flatport sweep --rig rig.json --observations obs.json --cost invariant \\
+      --tilt-deg 0:20:64 --azimuth-deg -180:180:64 --output sweep
+  flatport sweep --rig rig.json --observations obs.json --cost reprojection \\
+      --tilt-deg 6:10:21 --azimuth-deg 40:50:21 --distance 0.015:0.025:11 --output sweep3d --device gpu")]
+    Sweep(sweep::SweepArgs),
     /// Rig files: import OpenCV stereoCalibrate output, show a rig
     #[command(subcommand)]
     Rig(rig::RigCommand),
@@ -229,6 +250,7 @@ pub fn main() -> ExitCode {
         Command::Rig(command) => rig::run(command),
         Command::Simulate(args) => calib::run_simulate(args),
         Command::Calibrate(args) => calib::run_calibrate(args),
+        Command::Sweep(args) => sweep::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Info => info::run(),

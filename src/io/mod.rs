@@ -2,6 +2,8 @@
 
 pub mod calib_json;
 pub mod error;
+pub mod npy;
+pub mod plot;
 pub mod opencv;
 pub mod rig_json;
 pub mod tabular;

@@ -1,0 +1,242 @@
+//! `flatport sweep`: a calibration cost over a grid of axes (and air layers), with .npy, CSV,
+//! PNG and summary outputs.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use clap::{Args, ValueEnum};
+use serde_json::json;
+
+use flatport::calib::sweep::{Linspace, SweepChunk, SweepSpec, sweep};
+use flatport::calib::{CalibError, CostBackend, CostKind, CpuBackend, GpuBackend, StereoData};
+use flatport::engine::Engine;
+use flatport::io::npy::NpyWriter;
+use flatport::io::plot::{CostMap, write_heatmap, write_polar};
+use flatport::io::{IoError, TableWriter, read_observations, read_rig, read_truth, write_atomic};
+
+use super::progress::Progress;
+
+/// Which cost to sweep (`--cost`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum CostArg {
+    /// The weighted affine-grid invariant (axis only): χ² per degree of freedom, px²
+    Invariant,
+    /// RMS reprojection error of the rigidly fitted boards, px
+    Reprojection,
+    /// RMS residual of the rigid board fit to the triangulated corners (3-D scene error), m
+    #[value(name = "3d")]
+    Scene,
+}
+
+impl CostArg {
+    fn kind(self) -> CostKind {
+        match self {
+            Self::Invariant => CostKind::AffineGrid,
+            Self::Reprojection => CostKind::Reprojection,
+            Self::Scene => CostKind::Scene,
+        }
+    }
+}
+
+/// `flatport sweep`
+#[derive(Debug, Args)]
+pub struct SweepArgs {
+    /// Rig file: cameras; its layers and indices are used, its normal and distance are not
+    #[arg(long, value_name = "RIG.json")]
+    pub rig: PathBuf,
+    /// Observations (JSON, as for calibrate)
+    #[arg(long, value_name = "OBS.json")]
+    pub observations: PathBuf,
+    /// The cost
+    #[arg(long, value_enum, default_value_t = CostArg::Invariant)]
+    pub cost: CostArg,
+    /// Tilts of the axis from the master camera's z axis, degrees: START:STOP:COUNT, both ends included
+    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace, allow_hyphen_values = true)]
+    pub tilt_deg: Linspace,
+    /// Azimuths atan2(n_y, n_x), degrees: START:STOP:COUNT, both ends included
+    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace, allow_hyphen_values = true)]
+    pub azimuth_deg: Linspace,
+    /// Air layers in metres: START:STOP:COUNT; without it each axis takes its least-squares air layer
+    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace)]
+    pub distance: Option<Linspace>,
+    /// Output folder (created if missing)
+    #[arg(long, short, value_name = "DIR")]
+    pub output: PathBuf,
+    /// Truth of a simulated scene: marked in the pictures and given in the summary
+    #[arg(long, value_name = "TRUTH.json")]
+    pub truth: Option<PathBuf>,
+    /// Axis cells per batch handed to the backend
+    #[arg(long, value_name = "CELLS", default_value_t = 4096)]
+    pub chunk: usize,
+    /// No progress bar
+    #[arg(long, short)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub engine: super::EngineArgs,
+}
+
+/// Parses `START:STOP:COUNT`.
+pub fn parse_linspace(text: &str) -> Result<Linspace, String> {
+    let parts: Vec<&str> = text.split(':').collect();
+    let error = || format!("expected START:STOP:COUNT such as 0:20:64, got '{text}'");
+    let [start, stop, count] = parts[..] else { return Err(error()) };
+    let start: f64 = start.trim().parse().map_err(|_| error())?;
+    let stop: f64 = stop.trim().parse().map_err(|_| error())?;
+    let count: usize = count.trim().parse().map_err(|_| error())?;
+    if count == 0 || !start.is_finite() || !stop.is_finite() {
+        return Err(format!("COUNT must be ≥ 1 and START, STOP finite, got '{text}'"));
+    }
+    if count == 1 && start != stop {
+        return Err(format!("one value needs START = STOP, got '{text}'"));
+    }
+    Ok(Linspace { start, stop, count })
+}
+
+fn grid_json(l: &Linspace) -> serde_json::Value {
+    json!({"start": l.start, "stop": l.stop, "count": l.count})
+}
+
+/// Runs a sweep into `args.output`; returns the summary JSON. Everything is written under
+/// temporary names and renamed into place only when the sweep completed.
+pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
+    let rig = read_rig(&args.rig)?;
+    let observations = read_observations(&args.observations)?;
+    let names = observations.cameras.as_ref().map(|[a, b]| (a.as_str(), b.as_str()));
+    let pair = super::calib::stereo_pair(&rig, names, &args.observations.display().to_string())?;
+    let intrinsics = pair.map(|k| rig.cameras()[k].intrinsics);
+    let in_file = |e: CalibError| IoError::Invalid { path: args.observations.clone(), field: e.field(), reason: e.to_string() };
+    observations.validate(&intrinsics[0], &intrinsics[1]).map_err(in_file)?;
+    let data = StereoData::new(&rig, pair, &observations).map_err(in_file)?;
+    let spec = SweepSpec { kind: args.cost.kind(), tilt_deg: args.tilt_deg, azimuth_deg: args.azimuth_deg, distance: args.distance };
+    spec.validate()?;
+    let truth = args.truth.as_deref().map(read_truth).transpose()?;
+    let engine: Engine = args.engine.engine_quiet()?;
+    let backend: Box<dyn CostBackend> = match &engine {
+        Engine::Cpu(_) => Box::new(CpuBackend::new(&data)),
+        Engine::Gpu(gpu) => Box::new(GpuBackend::new(&data, gpu)),
+    };
+    eprintln!("device: {}", engine.describe());
+    let dir = &args.output;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+
+    let shape = spec.shape();
+    let depth = spec.distance.map_or(1, |d| d.count);
+    let profile_distance = spec.distance.is_none() && !spec.kind.axis_only();
+    let mut cost_npy = NpyWriter::create(&dir.join("cost.npy"), &shape)?;
+    let mut distance_npy = if profile_distance { Some(NpyWriter::create(&dir.join("distance.npy"), &shape)?) } else { None };
+    let mut csv = TableWriter::create(Some(&dir.join("cost.csv")), ["tilt_deg", "azimuth_deg", "distance", "cost"])?;
+    // The pictures show the lowest cost over the air layers of each axis.
+    let mut per_axis = vec![f64::INFINITY; spec.axes()];
+    let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
+    let mut sink = |chunk: SweepChunk| -> Result<(), CalibError> {
+        let io = |e: IoError| CalibError::Options(e.to_string());
+        cost_npy.write(chunk.costs).map_err(io)?;
+        if let Some(npy) = distance_npy.as_mut() {
+            npy.write(chunk.distances).map_err(io)?;
+        }
+        let rows = chunk.costs.iter().zip(chunk.distances).enumerate().map(|(k, (&cost, &distance))| {
+            let axis = (chunk.first + k) / depth;
+            Some([tilts.value(axis / azimuths.count), azimuths.value(axis % azimuths.count), distance, cost])
+        });
+        csv.write_rows(rows).map_err(io)?;
+        for (k, &cost) in chunk.costs.iter().enumerate() {
+            let axis = (chunk.first + k) / depth;
+            if cost < per_axis[axis] {
+                per_axis[axis] = cost;
+            }
+        }
+        Ok(())
+    };
+    let cells = spec.cells();
+    eprintln!(
+        "sweeping the {} cost over {} cells ({}) × {} corners...",
+        spec.kind.name(),
+        cells,
+        shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" × "),
+        data.corners.len()
+    );
+    let mut progress = Progress::new("sweep", "cells", args.quiet);
+    let summary = sweep(backend.as_ref(), &spec, args.chunk, &mut sink, &mut |done, total| progress.update(done, total))?;
+    let Some(minimum) = summary.minimum else {
+        cost_npy.discard();
+        if let Some(n) = distance_npy {
+            n.discard();
+        }
+        bail!("no cell of the grid has a finite {} cost: every candidate leaves corners without an answer", spec.kind.name());
+    };
+    cost_npy.finish()?;
+    if let Some(n) = distance_npy {
+        n.finish()?;
+    }
+    csv.finish()?;
+
+    let truth_deg = truth.as_ref().map(|t| (t.interface.tilt().to_degrees(), t.interface.azimuth().to_degrees()));
+    let (tilt_values, azimuth_values) = (tilts.values(), azimuths.values());
+    let map = CostMap {
+        tilts_deg: &tilt_values,
+        azimuths_deg: &azimuth_values,
+        values: &per_axis,
+        title: format!(
+            "{} cost{} over {} axes × {} corners",
+            spec.kind.name(),
+            if spec.distance.is_some() { " (lowest over the air layers)" } else { "" },
+            spec.axes(),
+            data.corners.len()
+        ),
+        cost_label: format!("{} ({})", spec.kind.name(), spec.kind.unit()),
+        minimum: Some((minimum.tilt_deg, minimum.azimuth_deg)),
+        truth: truth_deg,
+    };
+    write_heatmap(&dir.join("heatmap.png"), &map)?;
+    write_polar(&dir.join("polar.png"), &map)?;
+    let finite = |x: f64| if x.is_finite() { json!(x) } else { serde_json::Value::Null };
+    let summary_json = json!({
+        "cost": spec.kind.name(),
+        "unit": spec.kind.unit(),
+        "argmin": {"tilt_deg": minimum.tilt_deg, "azimuth_deg": minimum.azimuth_deg, "distance": finite(minimum.distance), "cost": minimum.cost, "cell": minimum.cell},
+        "grid": {"tilt_deg": grid_json(&tilts), "azimuth_deg": grid_json(&azimuths), "distance": spec.distance.as_ref().map(grid_json)},
+        "shape": shape,
+        "cells": summary.cells,
+        "finite_cells": summary.finite,
+        "correspondences": data.corners.len(),
+        "views": data.views.len(),
+        "seconds": summary.seconds,
+        "cells_per_s": summary.cells as f64 / summary.seconds,
+        "cell_correspondences_per_s": (summary.cells * data.corners.len()) as f64 / summary.seconds,
+        "device": engine.describe(),
+        "truth": truth.as_ref().map(|t| json!({"tilt_deg": t.interface.tilt().to_degrees(), "azimuth_deg": t.interface.azimuth().to_degrees(), "distance": t.interface.air_distance()})),
+    });
+    let mut text = serde_json::to_string_pretty(&summary_json).expect("plain data");
+    text.push('\n');
+    write_atomic(&dir.join("summary.json"), text.as_bytes())?;
+    Ok(summary_json)
+}
+
+/// `flatport sweep` from the command line: runs and prints where everything went.
+pub fn run(args: SweepArgs) -> anyhow::Result<()> {
+    let summary = run_sweep(&args)?;
+    print_summary(&summary, &args.output);
+    Ok(())
+}
+
+/// The lines printed after a sweep.
+pub fn print_summary(summary: &serde_json::Value, dir: &Path) {
+    let m = &summary["argmin"];
+    println!(
+        "minimum {} = {:.6e} {} at tilt {:.4}°, azimuth {:.4}°{}",
+        summary["cost"].as_str().unwrap_or(""),
+        m["cost"].as_f64().unwrap_or(f64::NAN),
+        summary["unit"].as_str().unwrap_or(""),
+        m["tilt_deg"].as_f64().unwrap_or(f64::NAN),
+        m["azimuth_deg"].as_f64().unwrap_or(f64::NAN),
+        m["distance"].as_f64().map_or(String::new(), |d| format!(", air layer {:.3} mm", d * 1e3))
+    );
+    println!(
+        "{} cells × {} corners in {:.2} s ({:.3e} cell·corners/s)",
+        summary["cells"],
+        summary["correspondences"],
+        summary["seconds"].as_f64().unwrap_or(f64::NAN),
+        summary["cell_correspondences_per_s"].as_f64().unwrap_or(f64::NAN)
+    );
+    println!("wrote {}/cost.npy, cost.csv, heatmap.png, polar.png, summary.json", dir.display());
+}
