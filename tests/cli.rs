@@ -270,15 +270,27 @@ T: !!opencv-matrix
 fn demo_runs_end_to_end() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
-    let text = run_ok(&["demo", "--output", out.to_str().unwrap()]);
-    for file in ["rig.json", "points.csv", "pixels_left.csv", "pixels_right.csv", "rays_left.csv", "matches.csv", "triangulated.csv", "vops_left.csv"] {
+    let text = run_ok(&["demo", "--output", out.to_str().unwrap(), "--device", "cpu"]);
+    // The calibration story: simulated scene, calibration from the naive start, two sweeps.
+    for file in ["rig.json", "truth.json", "observations.json", "start_rig.json", "calibrated_rig.json", "report.json"] {
         assert!(out.join(file).exists(), "demo wrote no {file}");
+    }
+    for sweep in ["sweep_wide", "sweep_close"] {
+        for file in ["heatmap.png", "polar.png", "cost.npy", "cost.csv", "summary.json"] {
+            assert!(out.join(sweep).join(file).exists(), "demo wrote no {sweep}/{file}");
+        }
+    }
+    assert!(text.contains("against the truth: axis off by 0.0"), "{text}");
+    // The geometry tour.
+    let geometry = out.join("geometry");
+    for file in ["rig.json", "points.csv", "pixels_left.csv", "pixels_right.csv", "rays_left.csv", "matches.csv", "triangulated.csv", "vops_left.csv"] {
+        assert!(geometry.join(file).exists(), "demo wrote no geometry/{file}");
     }
     assert!(text.contains("triangulation"), "{text}");
     // The demo's own files feed the other commands.
-    let rig = out.join("rig.json");
-    let tri = run_ok(&["triangulate", "--rig", rig.to_str().unwrap(), "--matches", out.join("matches.csv").to_str().unwrap()]);
-    assert_eq!(tri.lines().count(), std::fs::read_to_string(out.join("points.csv")).unwrap().lines().count());
+    let rig = geometry.join("rig.json");
+    let tri = run_ok(&["triangulate", "--rig", rig.to_str().unwrap(), "--matches", geometry.join("matches.csv").to_str().unwrap()]);
+    assert_eq!(tri.lines().count(), std::fs::read_to_string(geometry.join("points.csv")).unwrap().lines().count());
 }
 
 /// The GPU path gives the CPU's answers within the f32 and f64 tolerances, NaN rows at the same

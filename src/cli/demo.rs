@@ -1,4 +1,6 @@
-//! `flatport demo`: the built-in example end to end.
+//! `flatport demo`: the built-in example end to end. The calibration story (simulate the documented
+//! rig, calibrate it from a naive start, sweep the invariant around the result) in DIR, and the
+//! geometry tour (project, back-project, triangulate, VOPs) in DIR/geometry.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -22,6 +24,9 @@ pub struct DemoArgs {
     /// Folder to write the example files into (created if missing)
     #[arg(long, short, value_name = "DIR", default_value = "flatport-demo")]
     output: PathBuf,
+    /// Where the calibration's and the sweeps' cost batches run
+    #[command(flatten)]
+    engine: super::EngineArgs,
 }
 
 /// A grid of points in the water: 21 × 15 per depth plane, spanning a bit more than the view.
@@ -53,9 +58,99 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let dir = &args.output;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let rig = rig_from_json_str(EXAMPLE_RIG, Path::new("<built-in example rig>"))?;
-    write_rig(&dir.join("rig.json"), &rig)?;
     println!("flatport demo: a stereo camera behind a 14 mm glass port, looking into water\n");
     print!("{}", describe(&rig));
+    calibration_story(&rig, dir, &args.engine)?;
+    geometry_tour(&rig, &dir.join("geometry"))
+}
+
+/// Scene of the story: 15 views of a 9×6 board of 40 mm squares, 0.125 px of noise.
+const VIEWS: usize = 15;
+const NOISE_PX: f64 = 0.125;
+
+/// Simulate, calibrate from the naive start, sweep the invariant around the result.
+fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyhow::Result<()> {
+    use flatport::calib::{Board, CalibrationOptions, CostBackend, CpuBackend, GpuBackend, SceneSpec, StereoData, calibrate, simulate};
+    use flatport::calib::sweep::Linspace;
+    use flatport::engine::Engine;
+    use flatport::io::{Truth, write_observations, write_report, write_truth};
+
+    println!("\n1. simulate: {VIEWS} stereo views of a 9x6 chessboard (40 mm squares) in the water, {NOISE_PX} px noise");
+    let board = Board { rows: 6, cols: 9, square: 0.04 };
+    let scene = simulate(rig, 0, 1, &SceneSpec::new(board, VIEWS, NOISE_PX, 1))?;
+    write_rig(&dir.join("rig.json"), rig)?;
+    write_observations(&dir.join("observations.json"), &scene.observations)?;
+    let truth = Truth { interface: rig.interface().clone(), master_from_board: scene.master_from_board.clone(), noise_px: NOISE_PX, seed: 1 };
+    write_truth(&dir.join("truth.json"), &truth)?;
+
+    let start = rig.with_interface(rig.interface().with_pose(nalgebra::Vector3::z(), 0.01)?)?;
+    write_rig(&dir.join("start_rig.json"), &start)?;
+    println!("2. calibrate from a naive start (axis on the camera's z axis, 10 mm air layer):");
+    let data = StereoData::new(&start, [0, 1], &scene.observations)?;
+    let engine: Engine = super::calib::calibration_engine(engine_args)?;
+    let backend: Box<dyn CostBackend> = match &engine {
+        Engine::Cpu(_) => Box::new(CpuBackend::new(&data)),
+        Engine::Gpu(gpu) => Box::new(GpuBackend::new(&data, gpu)),
+    };
+    let calibration = calibrate(backend.as_ref(), &CalibrationOptions::default(), vec![])?;
+    write_rig(&dir.join("calibrated_rig.json"), &start.with_interface(calibration.interface.clone())?)?;
+    write_report(&dir.join("report.json"), &calibration.report)?;
+    for line in super::calib::summary(&calibration.report).lines() {
+        println!("   {line}");
+    }
+    println!("   {}", super::calib::truth_errors(&calibration.report, &truth));
+
+    println!("3. sweep the invariant cost over the axis (a wide view, and a close one around the result):");
+    let found = calibration.report.candidate;
+    let (tilt, azimuth) = (found.tilt().to_degrees(), found.azimuth().to_degrees());
+    // Close view: ±1° of tilt, and azimuths spanning about ±1° of arc at this tilt.
+    let arc = (1.0 / tilt.to_radians().sin().max(0.05)).min(180.0);
+    let sweeps = [
+        ("sweep_wide", Linspace { start: 0.0, stop: 20.0, count: 96 }, Linspace { start: -180.0, stop: 180.0, count: 96 }),
+        (
+            "sweep_close",
+            Linspace { start: (tilt - 1.0).max(0.0), stop: tilt + 1.0, count: 64 },
+            Linspace { start: azimuth - arc, stop: azimuth + arc, count: 64 },
+        ),
+    ];
+    for (name, tilt_deg, azimuth_deg) in sweeps {
+        let args = super::sweep::SweepArgs {
+            rig: dir.join("start_rig.json"),
+            observations: dir.join("observations.json"),
+            cost: super::sweep::CostArg::Invariant,
+            tilt_deg,
+            azimuth_deg,
+            distance: None,
+            output: dir.join(name),
+            truth: Some(dir.join("truth.json")),
+            chunk: 4096,
+            quiet: false,
+            engine: super::EngineArgs { device: engine_args.device, precision: engine_args.precision, adapter: engine_args.adapter.clone() },
+        };
+        let summary = super::sweep::run_sweep(&args)?;
+        let m = &summary["argmin"];
+        println!(
+            "   {name}: {} × {} axes, minimum at tilt {:.3}°, azimuth {:.3}° in {:.2} s",
+            tilt_deg.count,
+            azimuth_deg.count,
+            m["tilt_deg"].as_f64().unwrap_or(f64::NAN),
+            m["azimuth_deg"].as_f64().unwrap_or(f64::NAN),
+            summary["seconds"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
+    println!(
+        "\nwrote {0}/: rig.json (the truth) truth.json observations.json start_rig.json calibrated_rig.json report.json\n       {0}/sweep_wide/ and {0}/sweep_close/: heatmap.png polar.png cost.npy cost.csv summary.json",
+        dir.display()
+    );
+    Ok(())
+}
+
+/// Project a grid of points, back-project and triangulate them, VOPs: into `dir`.
+fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let rig = rig.clone();
+    write_rig(&dir.join("rig.json"), &rig)?;
+    println!("\n4. the geometry on its own: project, back-project, triangulate a grid of points, VOPs");
 
     let points = example_points();
     let (left, right) = (rig.refractive_camera(0), rig.refractive_camera(1));
@@ -137,7 +232,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let max = iterations.last().copied().unwrap_or(0);
     let micros = |d: std::time::Duration| d.as_secs_f64() * 1e6;
 
-    println!("\n{} points on 4 planes 0.3–6 m away ({} inside both images)", points.len(), visible);
+    println!("{} points on 4 planes 0.3–6 m away ({} inside both images)", points.len(), visible);
     println!(
         "forward projection: {projected} of {} points, Newton iterations median {median}, max {max}, {:.0} µs for both cameras",
         points.len(),
@@ -158,7 +253,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
             v.vop_distance, v.depth
         );
     }
-    println!("\nwrote {}/: rig.json points.csv pixels_left.csv pixels_right.csv rays_left.csv matches.csv triangulated.csv vops_left.csv", dir.display());
+    println!("wrote {}/: rig.json points.csv pixels_left.csv pixels_right.csv rays_left.csv matches.csv triangulated.csv vops_left.csv", dir.display());
     println!(
         "try:  flatport triangulate --rig {0}/rig.json --matches {0}/matches.csv | head",
         dir.display()
