@@ -19,7 +19,7 @@ use rayon::prelude::*;
 const METHODS: [Method; 3] = [Method::Consecutive, Method::Simultaneous, Method::Auto];
 
 /// (axis error °, |air error| mm, seconds) per method for one random scene.
-fn trial(views: usize, noise: f64, seed: u64) -> Vec<(f64, f64, f64)> {
+fn trial(views: usize, noise: f64, seed: u64) -> Trial {
     let base = rig_from_json_str(include_str!("../data/example_rig.json"), "example".as_ref()).unwrap();
     let azimuth = Rng::new(seed ^ 0xA5A5).range(-180.0, 180.0);
     let n = normal_from_tilt_azimuth(8f64.to_radians(), azimuth.to_radians());
@@ -45,7 +45,10 @@ fn percentile(values: &mut [f64], q: f64) -> f64 {
     values[((values.len() - 1) as f64 * q).round() as usize]
 }
 
-fn table(label: &str, rows: &[(String, Vec<Vec<(f64, f64, f64)>>)]) {
+/// (axis error °, |air error| mm, seconds) of each method in one scene.
+type Trial = Vec<(f64, f64, f64)>;
+
+fn table(label: &str, rows: &[(String, Vec<Trial>)]) {
     println!("| {label} | method | axis median (°) | axis 95 % (°) | air median (mm) | air 95 % (mm) | time median (s) |");
     println!("|---|---|---|---|---|---|---|");
     for (name, trials) in rows {

@@ -57,8 +57,8 @@ impl<'a> Bundle<'a> {
     fn view_residuals(&self, cameras: &[RefractiveCamera; 2], view: usize, pose: &Isometry3<f64>, out: &mut Vec<Vector2<f64>>) -> Option<()> {
         for corner in &self.data.corners[self.data.views[view].clone()] {
             let point = pose * self.data.board.point_in_board(corner.index);
-            for k in 0..2 {
-                out.push(cameras[k].project(&point).ok()? - corner.pixels[k]);
+            for (camera, pixel) in cameras.iter().zip(&corner.pixels) {
+                out.push(camera.project(&point).ok()? - pixel);
             }
         }
         Some(())
@@ -154,19 +154,19 @@ impl LeastSquares for Bundle<'_> {
                     delta[p] = -DIFFERENCE_STEP;
                     minus.clear();
                     self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut minus)?;
-                    for i in 0..count {
-                        pose_jacobian[i][p] = (plus[i] - minus[i]) / (2.0 * DIFFERENCE_STEP);
+                    for ((row, plus), minus) in pose_jacobian.iter_mut().zip(&plus).zip(&minus) {
+                        row[p] = (plus - minus) / (2.0 * DIFFERENCE_STEP);
                     }
                 }
                 let mut block = ViewBlock { jtj: [[0.0; BLOCK]; BLOCK], jtr: [0.0; BLOCK], cost: 0.0 };
-                for i in 0..count {
+                for (i, pose_row) in pose_jacobian.iter().enumerate() {
                     let row = first_row + i;
                     let r = base[row];
                     let (contribution, weight) = self.robust(r.norm_squared());
                     block.cost += contribution;
                     let mut gradient = [Vector2::zeros(); BLOCK];
                     gradient[..INTERFACE_PARAMETERS].copy_from_slice(&interface_jacobian[row]);
-                    gradient[INTERFACE_PARAMETERS..].copy_from_slice(&pose_jacobian[i]);
+                    gradient[INTERFACE_PARAMETERS..].copy_from_slice(pose_row);
                     for a in 0..BLOCK {
                         block.jtr[a] += weight * gradient[a].dot(&r);
                         for b in a..BLOCK {

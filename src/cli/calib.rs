@@ -179,7 +179,7 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         huber: args.huber,
         max_iterations: args.max_iterations,
     };
-    if args.huber.is_some_and(|k| !(k > 0.0)) {
+    if args.huber.is_some_and(|k| k.is_nan() || k <= 0.0) {
         bail!("--huber must be a positive number of pixels");
     }
     let engine = calibration_engine(&args.engine)?;
@@ -218,7 +218,7 @@ pub fn calibration_engine(args: &super::EngineArgs) -> anyhow::Result<Engine> {
             return Ok(engine);
         }
     }
-    Ok(args.engine_quiet()?)
+    args.engine_quiet()
 }
 
 /// Errors of a result against the truth of a simulated scene, one line.
