@@ -202,6 +202,10 @@ pub fn cost(data: &StereoData, kind: CostKind, candidate: &Candidate) -> f64 {
 }
 
 fn evaluate(data: &StereoData, kind: CostKind, candidate: &Candidate) -> Option<f64> {
+    if kind == CostKind::AffineGrid {
+        let n = candidate.normal;
+        return super::affine_grid::affine_grid_cost(data, &[n.x, n.y, n.z]);
+    }
     if kind.axis_only() {
         return invariant(data, kind, candidate);
     }

@@ -65,6 +65,8 @@ pub struct StereoData {
     pub corners: Vec<Corner>,
     /// `corners[views[v].clone()]` are the corners of view v.
     pub views: Vec<Range<usize>>,
+    /// The corners' rows of the fused affine-grid invariant ([`super::affine_grid::affine_rows`]).
+    pub affine_rows: Vec<[f64; super::affine_grid::ROW]>,
 }
 
 /// Pixel step of the central differences for ∂dir/∂pixel (error ~1e-12 relative).
@@ -110,7 +112,9 @@ impl StereoData {
             }
             views.push(start..corners.len());
         }
-        Ok(Self { rig: rig.clone(), cameras, board: observations.board, corners, views })
+        let mut data = Self { rig: rig.clone(), cameras, board: observations.board, corners, views, affine_rows: Vec::new() };
+        data.affine_rows = super::affine_grid::affine_rows(&data);
+        Ok(data)
     }
 
     /// The two cameras behind a candidate interface, or `None` when it puts a camera outside the

@@ -140,6 +140,30 @@ impl<'a> GpuBackend<'a> {
         Ok(costs)
     }
 
+    /// The affine-grid invariant: the fused kernel per (axis, view) in f64 on the device, the
+    /// sum over views on the host; on adapters without SHADER_F64 the CPU twin runs instead.
+    fn affine_grid_costs(&self, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
+        let data = self.data;
+        if !self.engine.context().adapter().f64 {
+            return Ok(candidates.par_iter().map(|c| super::costs::cost(data, CostKind::AffineGrid, c)).collect());
+        }
+        let views: Vec<(usize, usize)> = data.views.iter().map(|r| (r.start, r.len())).collect();
+        let axes: Vec<[f64; 4]> = candidates.iter().map(|c| [c.normal.x, c.normal.y, c.normal.z, 0.0]).collect();
+        let mut fits = vec![[0.0; 2]; axes.len() * views.len()];
+        let mut status = vec![0; fits.len()];
+        self.engine.calib_affine_grid(&data.rig, data.cameras, &data.affine_rows, &views, &axes, &mut fits, &mut status)?;
+        Ok(candidates
+            .iter()
+            .enumerate()
+            .map(|(c, candidate)| {
+                let range = c * views.len()..(c + 1) * views.len();
+                let fitted = status[range.clone()].iter().all(|&s| s == 0) && candidate.normal.z > 0.0;
+                let (chi2, dof) = fits[range].iter().fold((0.0, 0.0), |(a, b), f| (a + f[0], b + f[1]));
+                if fitted && dof > 0.0 { chi2 / dof } else { f64::INFINITY }
+            })
+            .collect())
+    }
+
     /// Axis-only costs: projected VOPs on the device, per-view fits on the host.
     fn invariant_costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
         let data = self.data;
@@ -173,7 +197,11 @@ impl CostBackend for GpuBackend<'_> {
     }
 
     fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
-        if kind.axis_only() { self.invariant_costs(kind, candidates) } else { self.scene_costs(kind, candidates) }
+        match kind {
+            CostKind::AffineGrid => self.affine_grid_costs(candidates),
+            _ if kind.axis_only() => self.invariant_costs(kind, candidates),
+            _ => self.scene_costs(kind, candidates),
+        }
     }
 
     fn air_distances(&self, normals: &[Unit<Vector3<f64>>]) -> Result<Vec<Option<f64>>, CalibError> {

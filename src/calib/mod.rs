@@ -6,6 +6,7 @@
 //! (batches of candidates, CPU or GPU) → [`search`], [`lm`], [`bundle`] (optimisers) →
 //! [`calibrate()`] (the methods). [`simulate`] makes scenes with known truth. No I/O here.
 
+pub mod affine_grid;
 pub mod air_layer;
 pub mod backend;
 pub mod board;

@@ -17,6 +17,7 @@ use super::layout::{MAX_LAYERS, pack_params, set_info};
 use super::shaders::{Kernel, Precision, Reduction, source};
 use crate::model::{RefractiveCamera, Rig};
 
+mod affine_grid;
 mod candidates;
 
 /// Largest number of items per dispatch whatever the binding cap: bounds the device and staging
@@ -166,7 +167,10 @@ impl GpuEngine {
         let mut cache = self.pipelines.lock().expect("pipeline cache");
         cache
             .entry(kernel)
-            .or_insert_with(|| Arc::new(self.context.pipeline(kernel.name(), &source(kernel, self.precision, self.reduction))))
+            .or_insert_with(|| {
+                let precision = kernel.fixed_precision().unwrap_or(self.precision);
+                Arc::new(self.context.pipeline(kernel.name(), &source(kernel, precision, self.reduction)))
+            })
             .clone()
     }
 

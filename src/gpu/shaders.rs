@@ -84,11 +84,14 @@ pub enum Kernel {
     CalibProjectedVop,
     /// Candidate axes × corners (two air rays) → gap line a, b and |w_l × w_r|.
     CalibGapLine,
+    /// Candidate axes × views (fused corner rows) → weighted affine-grid χ² and degrees of freedom;
+    /// always f64.
+    CalibAffineGrid,
 }
 
 impl Kernel {
     /// Every kernel.
-    pub const ALL: [Kernel; 11] = [
+    pub const ALL: [Kernel; 12] = [
         Self::Backproject,
         Self::BackprojectGrid,
         Self::Project,
@@ -100,6 +103,7 @@ impl Kernel {
         Self::CalibProject,
         Self::CalibProjectedVop,
         Self::CalibGapLine,
+        Self::CalibAffineGrid,
     ];
 
     /// Name (file name in `shaders/kernels/`).
@@ -116,6 +120,7 @@ impl Kernel {
             Self::CalibProject => "calib_project",
             Self::CalibProjectedVop => "calib_projected_vop",
             Self::CalibGapLine => "calib_gap_line",
+            Self::CalibAffineGrid => "calib_affine_grid",
         }
     }
 
@@ -132,6 +137,7 @@ impl Kernel {
             Self::CalibProject => include_str!("../../shaders/kernels/calib_project.wgsl"),
             Self::CalibProjectedVop => include_str!("../../shaders/kernels/calib_projected_vop.wgsl"),
             Self::CalibGapLine => include_str!("../../shaders/kernels/calib_gap_line.wgsl"),
+            Self::CalibAffineGrid => include_str!("../../shaders/kernels/calib_affine_grid.wgsl"),
         }
     }
 
@@ -140,7 +146,7 @@ impl Kernel {
     /// (`shaders/kernels/candidate_bindings.wgsl`), or none (the kernel declares its own).
     fn bindings(self) -> &'static str {
         match self {
-            Self::BackprojectGrid | Self::RayGapCost => "",
+            Self::BackprojectGrid | Self::RayGapCost | Self::CalibAffineGrid => "",
             Self::CalibTriangulate | Self::CalibProject | Self::CalibProjectedVop | Self::CalibGapLine => {
                 include_str!("../../shaders/kernels/candidate_bindings.wgsl")
             }
@@ -148,6 +154,12 @@ impl Kernel {
                 include_str!("../../shaders/kernels/map_bindings.wgsl")
             }
         }
+    }
+
+    /// The precision a kernel is composed in whatever the engine's, if fixed: the fused affine
+    /// grid's one-pass χ² needs f64.
+    pub fn fixed_precision(self) -> Option<Precision> {
+        matches!(self, Self::CalibAffineGrid).then_some(Precision::F64)
     }
 
     /// True for kernels whose entry point is a reduction.

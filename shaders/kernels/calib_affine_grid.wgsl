@@ -1,0 +1,252 @@
+// The weighted affine-grid invariant fused per (candidate axis, view): one invocation sums the
+// weighted normal equations of one view's corners under one axis and solves them, writing
+// (χ², degrees of freedom). Twin of `calib::affine_grid` (same names, same loop; the formulation
+// and the taper are documented there). Composed in f64 on every adapter: the one-pass χ² cancels
+// up to ~1e7-fold.
+//
+// Items are view-major within a chunk: item i = view · info.y + candidate, info.y a multiple of
+// the workgroup size, so the 64 invocations of a workgroup read the same corner rows.
+// input: the corner rows (ROW reals each, info.z rows, read as vec4), then (start, count, 0, 0)
+// per view.
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> input: array<vec4r>;  // ROW / 4 vec4 per corner, then (start, count, 0, 0) per view
+@group(0) @binding(2) var<storage, read_write> output: array<real>;  // χ², dof per item
+@group(0) @binding(3) var<storage, read_write> status: array<u32>;
+@group(0) @binding(4) var<storage, read> candidates: array<vec4r>;  // unit axis n (w unused)
+
+const ROW: u32 = 36u;
+const TAPER: real = 2.0;
+const MIN_DENOMINATOR: real = 1e-12;
+const MIN_CORNERS: u32 = 4u;
+const CANCELLATION: real = 1e-6;
+
+// Π(w): w projected along t onto the plane z = 0.
+fn along_axis(w: vec3r, t: vec3r) -> vec2r {
+    return vec2r(w.x - w.z * t.x, w.y - w.z * t.y);
+}
+
+fn minor2(a: vec2r, b: vec2r) -> real {
+    return a.x * b.y - a.y * b.x;
+}
+
+// One corner's terms under the axis t = n/n_z (CornerTerms of calib::affine_grid): q = q′/d,
+// W = d²·d4_inverse·adj, the taper; ok false in the degenerate plane.
+struct CornerTerms {
+    ok: bool,
+    q_prime: vec2r,
+    d: real,
+    adj: vec3r,
+    d4_inverse: real,
+    taper: real,
+    g: vec2r,
+}
+
+fn corner_terms(j: u32, t: vec3r) -> CornerTerms {
+    // The row as 9 vec4: v_l, p, m, ∂v_l/∂u, ∂v_l/∂v, a_u, a_v, c_u, c_v, e_u, e_v, g.
+    let k = j * (ROW / 4u);
+    let q0 = input[k];
+    let q1 = input[k + 1u];
+    let q2 = input[k + 2u];
+    let q3 = input[k + 3u];
+    let q4 = input[k + 4u];
+    let q5 = input[k + 5u];
+    let q6 = input[k + 6u];
+    let q7 = input[k + 7u];
+    let q8 = input[k + 8u];
+    var terms: CornerTerms;
+    let d = dot(t, vec3r(q1.z, q1.w, q2.x));
+    terms.ok = abs(d) > MIN_DENOMINATOR;
+    if (!terms.ok) {
+        return terms;
+    }
+    let numerator = dot(t, vec3r(q0.w, q1.x, q1.y)); // s = numerator / d
+    let pv = along_axis(q0.xyz, t);
+    let ta_u = dot(t, vec3r(q3.w, q4.x, q4.y));
+    let ta_v = dot(t, vec3r(q4.z, q4.w, q5.x));
+    let tc_u = dot(t, q5.yzw);
+    let tc_v = dot(t, q6.xyz);
+    let te_u = dot(t, vec3r(q6.w, q7.x, q7.y));
+    let te_v = dot(t, vec3r(q7.z, q7.w, q8.x));
+    // Columns of d²·J, J = ∂q/∂(u_l, v_l, u_r, v_r): no division until the weight.
+    let j0 = numerator * (d * along_axis(q2.yzw, t) - ta_u * pv);
+    let j1 = numerator * (d * along_axis(q3.xyz, t) - ta_v * pv);
+    let j2 = (tc_u * d - numerator * te_u) * pv;
+    let j3 = (tc_v * d - numerator * te_v) * pv;
+    let sxx = j0.x * j0.x + j1.x * j1.x + j2.x * j2.x + j3.x * j3.x;
+    let sxy = j0.x * j0.y + j1.x * j1.y + j2.x * j2.y + j3.x * j3.y;
+    let syy = j0.y * j0.y + j1.y * j1.y + j2.y * j2.y + j3.y * j3.y;
+    // det(d⁴Σ) by Cauchy–Binet; the two right columns are parallel.
+    let m01 = minor2(j0, j1);
+    let m02 = minor2(j0, j2);
+    let m03 = minor2(j0, j3);
+    let m12 = minor2(j1, j2);
+    let m13 = minor2(j1, j3);
+    let det = m01 * m01 + m02 * m02 + m03 * m03 + m12 * m12 + m13 * m13;
+    let trace = sxx + syy;
+    let d2 = d * d;
+    let ridge = 1e-12 * trace + 1e-30 * d2 * d2;
+    let det_ridged = det + ridge * trace + ridge * ridge;
+    let sigma_d2 = ta_u * ta_u + ta_v * ta_v + te_u * te_u + te_v * te_v;
+    let inverse = 1.0 / ((d2 + TAPER * TAPER * sigma_d2) * det_ridged);
+    terms.q_prime = numerator * pv;
+    terms.d = d;
+    terms.adj = vec3r(syy + ridge, -sxy, sxx + ridge);
+    terms.d4_inverse = d2 * d2 * inverse;
+    terms.taper = d2 * det_ridged * inverse;
+    terms.g = q8.yz;
+    return terms;
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let i = item_index(gid, groups);
+    if (i >= params.info.x) {
+        return;
+    }
+    let per_view = params.info.y;
+    let view = i / per_view + params.info.w;
+    let candidate = i % per_view;
+    let n = candidates[candidate].xyz;
+    let t = vec3r(n.x / n.z, n.y / n.z, 1.0);
+    let table = input[params.info.z * (ROW / 4u) + view];
+    let start = u32(table.x);
+    let end = start + u32(table.y);
+
+    // W₁₁, W₁₂, W₂₂ times (g_x², g_x g_y, g_x) in *_a and (g_y², g_y, 1) in *_b.
+    var s11_a = vec3r(0.0);
+    var s11_b = vec3r(0.0);
+    var s12_a = vec3r(0.0);
+    var s12_b = vec3r(0.0);
+    var s22_a = vec3r(0.0);
+    var s22_b = vec3r(0.0);
+    var r1 = vec3r(0.0);
+    var r2 = vec3r(0.0);
+    var qwq: real = 0.0;
+    var weight: real = 0.0;
+    var used = 0u;
+    for (var j = start; j < end; j++) {
+        let c = corner_terms(j, t);
+        if (!c.ok) {
+            continue;
+        }
+        let scale = c.d * c.d * c.d4_inverse;
+        let w11 = c.adj.x * scale;
+        let w12 = c.adj.y * scale;
+        let w22 = c.adj.z * scale;
+        let gx = c.g.x;
+        let gy = c.g.y;
+        let ga = vec3r(gx * gx, gx * gy, gx);
+        let gb = vec3r(gy * gy, gy, 1.0);
+        s11_a += w11 * ga;
+        s11_b += w11 * gb;
+        s12_a += w12 * ga;
+        s12_b += w12 * gb;
+        s22_a += w22 * ga;
+        s22_b += w22 * gb;
+        // Wq = d·d4_inverse·adj·q′, qᵀWq = d4_inverse·q′ᵀ adj q′.
+        let q = c.q_prime;
+        let adj_q = vec2r(c.adj.x * q.x + c.adj.y * q.y, c.adj.y * q.x + c.adj.z * q.y);
+        let wq = (c.d * c.d4_inverse) * adj_q;
+        let g3 = vec3r(gx, gy, 1.0);
+        r1 += wq.x * g3;
+        r2 += wq.y * g3;
+        qwq += c.d4_inverse * dot(q, adj_q);
+        weight += c.taper;
+        used += 1u;
+    }
+    if (used < MIN_CORNERS) {
+        status[i] = STATUS_DEGENERATE;
+        return;
+    }
+    // Cholesky of the normal matrix over (a₁₁, a₁₂, b₁, a₂₁, a₂₂, b₂), written out (a local
+    // array indexed in loops lives in memory on SIMD drivers), then y = L⁻¹ rhs and
+    // χ² = Σ qᵀWq − |y|². Entry (r, c) is block (r/3, c/3) of the sums at (r%3, c%3).
+    let d0 = s11_a.x;
+    if (!(d0 > 0.0)) {
+        status[i] = STATUS_DEGENERATE;
+        return;
+    }
+    let l00 = sqrt(d0);
+    let inv0 = 1.0 / l00;
+    let l10 = (s11_a.y) * inv0;
+    let l20 = (s11_a.z) * inv0;
+    let l30 = (s12_a.x) * inv0;
+    let l40 = (s12_a.y) * inv0;
+    let l50 = (s12_a.z) * inv0;
+    let d1 = s11_b.x - l10 * l10;
+    if (!(d1 > 0.0)) {
+        status[i] = STATUS_DEGENERATE;
+        return;
+    }
+    let l11 = sqrt(d1);
+    let inv1 = 1.0 / l11;
+    let l21 = (s11_b.y - l20 * l10) * inv1;
+    let l31 = (s12_a.y - l30 * l10) * inv1;
+    let l41 = (s12_b.x - l40 * l10) * inv1;
+    let l51 = (s12_b.y - l50 * l10) * inv1;
+    let d2 = s11_b.z - l20 * l20 - l21 * l21;
+    if (!(d2 > 0.0)) {
+        status[i] = STATUS_DEGENERATE;
+        return;
+    }
+    let l22 = sqrt(d2);
+    let inv2 = 1.0 / l22;
+    let l32 = (s12_a.z - l30 * l20 - l31 * l21) * inv2;
+    let l42 = (s12_b.y - l40 * l20 - l41 * l21) * inv2;
+    let l52 = (s12_b.z - l50 * l20 - l51 * l21) * inv2;
+    let d3 = s22_a.x - l30 * l30 - l31 * l31 - l32 * l32;
+    if (!(d3 > 0.0)) {
+        status[i] = STATUS_DEGENERATE;
+        return;
+    }
+    let l33 = sqrt(d3);
+    let inv3 = 1.0 / l33;
+    let l43 = (s22_a.y - l40 * l30 - l41 * l31 - l42 * l32) * inv3;
+    let l53 = (s22_a.z - l50 * l30 - l51 * l31 - l52 * l32) * inv3;
+    let d4 = s22_b.x - l40 * l40 - l41 * l41 - l42 * l42 - l43 * l43;
+    if (!(d4 > 0.0)) {
+        status[i] = STATUS_DEGENERATE;
+        return;
+    }
+    let l44 = sqrt(d4);
+    let inv4 = 1.0 / l44;
+    let l54 = (s22_b.y - l50 * l40 - l51 * l41 - l52 * l42 - l53 * l43) * inv4;
+    let d5 = s22_b.z - l50 * l50 - l51 * l51 - l52 * l52 - l53 * l53 - l54 * l54;
+    if (!(d5 > 0.0)) {
+        status[i] = STATUS_DEGENERATE;
+        return;
+    }
+    let l55 = sqrt(d5);
+    let inv5 = 1.0 / l55;
+    let y0 = (r1.x) * inv0;
+    let y1 = (r1.y - l10 * y0) * inv1;
+    let y2 = (r1.z - l20 * y0 - l21 * y1) * inv2;
+    let y3 = (r2.x - l30 * y0 - l31 * y1 - l32 * y2) * inv3;
+    let y4 = (r2.y - l40 * y0 - l41 * y1 - l42 * y2 - l43 * y3) * inv4;
+    let y5 = (r2.z - l50 * y0 - l51 * y1 - l52 * y2 - l53 * y3 - l54 * y4) * inv5;
+    let explained = y0 * y0 + y1 * y1 + y2 * y2 + y3 * y3 + y4 * y4 + y5 * y5;
+    var chi2 = max(qwq - explained, 0.0);
+    if (chi2 < CANCELLATION * qwq) {
+        // The subtraction lost over half the digits: sum Σ rᵀWr again with θ = L⁻ᵀ y.
+        let th5 = (y5) * inv5;
+        let th4 = (y4 - l54 * th5) * inv4;
+        let th3 = (y3 - l43 * th4 - l53 * th5) * inv3;
+        let th2 = (y2 - l32 * th3 - l42 * th4 - l52 * th5) * inv2;
+        let th1 = (y1 - l21 * th2 - l31 * th3 - l41 * th4 - l51 * th5) * inv1;
+        let th0 = (y0 - l10 * th1 - l20 * th2 - l30 * th3 - l40 * th4 - l50 * th5) * inv0;
+        chi2 = 0.0;
+        for (var j = start; j < end; j++) {
+            let c = corner_terms(j, t);
+            if (!c.ok) {
+                continue;
+            }
+            let inv_d = 1.0 / c.d;
+            let r = vec2r(c.q_prime.x * inv_d - (th0 * c.g.x + th1 * c.g.y + th2), c.q_prime.y * inv_d - (th3 * c.g.x + th4 * c.g.y + th5));
+            chi2 += c.d * c.d * c.d4_inverse * (c.adj.x * r.x * r.x + 2.0 * c.adj.y * r.x * r.y + c.adj.z * r.y * r.y);
+        }
+    }
+    output[2u * i] = chi2;
+    output[2u * i + 1u] = 2.0 * weight - 6.0;
+    status[i] = STATUS_OK;
+}
