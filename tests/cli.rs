@@ -386,11 +386,11 @@ fn bench_json_has_every_path() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("bench.json");
     let json_arg = json.to_str().unwrap();
-    let mut o = flatport(&["bench", "--items", "3000", "--repeats", "1", "--json", json_arg]);
+    let mut o = flatport(&["bench", "--items", "3000", "--repeats", "1", "--sweep-cells", "64", "--json", json_arg]);
     let gpu = o.status.success() || std::env::var_os("CI").is_some() || !stderr(&o).contains("Vulkan adapter");
     if !gpu {
         eprintln!("no Vulkan adapter: checking the CPU paths only (CI fails instead)");
-        o = flatport(&["bench", "--items", "3000", "--repeats", "1", "--json", json_arg, "--no-gpu"]);
+        o = flatport(&["bench", "--items", "3000", "--repeats", "1", "--sweep-cells", "64", "--json", json_arg, "--no-gpu"]);
     }
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stdout(&o).contains("targets (ratios from this run)"), "{}", stdout(&o));
@@ -408,6 +408,14 @@ fn bench_json_has_every_path() {
                 && one_thread.is_none_or(|one| (r["threads"] == 1) == one)
         })
     };
+    // The sweep: 64 axis cells × 9 990 correspondences, on the CPU and (f64 kernel) the GPU.
+    let sweep = |path: &str| {
+        results.iter().any(|r| {
+            r["kernel"] == "sweep" && r["path"] == path && r["precision"] == "f64" && r["items"] == 64 * 9990 && r["items_per_s"].as_f64().is_some_and(|x| x > 0.0)
+        })
+    };
+    assert!(sweep("cpu"), "sweep cpu");
+    assert!(!gpu || sweep("gpu"), "sweep gpu");
     for kernel in ["backproject", "project", "triangulate"] {
         assert!(has(kernel, "cpu", "f64", "end_to_end", Some(true)), "{kernel} cpu 1 thread");
         assert!(has(kernel, "cpu", "f64", "end_to_end", None), "{kernel} cpu all threads");

@@ -2,9 +2,10 @@
 //! air layer of a stereo camera behind one flat port, from stereo views of a planar chessboard.
 //!
 //! Dependency order: [`board`], [`observations`] (data) → [`data`] (prepared air rays) →
-//! [`costs`], [`invariants`], [`air_layer`] (pure f64 costs of one candidate) → [`backend`]
-//! (batches of candidates, CPU or GPU) → [`search`], [`lm`], [`bundle`] (optimisers) →
-//! [`calibrate()`] (the methods). [`simulate`] makes scenes with known truth. No I/O here.
+//! [`costs`], [`invariants`], [`affine_grid`], [`air_layer`] (pure f64 costs of one candidate)
+//! → [`backend`], [`gpu_backend`] (batches of candidates, CPU or GPU) → [`search`], [`lm`],
+//! [`bundle`] (optimisers) → [`calibrate()`] (the methods), [`sweep`](mod@sweep) (cost
+//! surfaces). [`simulate`](mod@simulate) makes scenes with known truth. No I/O here.
 
 pub mod affine_grid;
 pub mod air_layer;

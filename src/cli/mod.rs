@@ -136,7 +136,8 @@ Prints items per second for back-projection, forward projection and triangulatio
 data on the device, `end_to_end` = upload, dispatch and results in host memory), the memory
 streaming bandwidth measured by a STREAM triad as the physical limit, and the issue's targets as
 ratios of this run. The sweep figure counts axis cells × correspondences per second of the weighted
-affine-grid invariant over 185 simulated views (9 990 correspondences). JSON: {\"memory_stream_bytes_per_s\": B, \"results\": [{\"kernel\", \"path\",
+affine-grid invariant over 185 simulated views (9 990 correspondences); its kernel is f64 on every
+adapter, so the GPU has one sweep figure. JSON: {\"memory_stream_bytes_per_s\": B, \"results\": [{\"kernel\", \"path\",
 \"precision\", \"threads\" (0 on the GPU), \"stage\", \"items\", \"items_per_s\"}, ...]}.
 
 Examples:
