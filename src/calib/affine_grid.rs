@@ -26,6 +26,9 @@
 //! Σ qᵢᵀWᵢqᵢ are summed in one pass; χ² = Σ qᵀWq − |L⁻¹ rhs|² (L the Cholesky factor). The
 //! subtraction cancels up to ~1e7-fold at the minimum, so this runs in f64 on every backend.
 
+// Indexed loops over the small fixed-size sums and the 6×6 factor mirror the kernel's.
+#![allow(clippy::needless_range_loop)]
+
 use super::data::{Corner, StereoData};
 
 /// Reals per corner row: v_l, p, m, ∂v_l/∂u, ∂v_l/∂v, a_u, a_v, c_u, c_v, e_u, e_v (3 each),
