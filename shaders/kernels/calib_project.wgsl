@@ -10,14 +10,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (i >= params.info.x) {
         return;
     }
-    let item = candidate_item(i);
-    let candidate = candidates[item.candidate];
-    let a = with_interface(0u, candidate);
-    let b = with_interface(1u, candidate);
-    if (!(a.d_k > 0.0 && b.d_k > 0.0)) {
+    let cameras = candidate_cameras(i);
+    if (!cameras.in_air) {
         status[i] = STATUS_MISSES_INTERFACE; // a camera outside the air
         return;
     }
+    let a = cameras.a;
+    let b = cameras.b;
     let point = vec3r(input[3u * i], input[3u * i + 1u], input[3u * i + 2u]);
     let left = project(a, point);
     if (left.status != STATUS_OK) {

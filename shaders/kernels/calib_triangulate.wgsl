@@ -10,14 +10,14 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if (i >= params.info.x) {
         return;
     }
-    let item = candidate_item(i);
-    let candidate = candidates[item.candidate];
-    let a = with_interface(0u, candidate);
-    let b = with_interface(1u, candidate);
-    if (!(a.d_k > 0.0 && b.d_k > 0.0)) {
+    let cameras = candidate_cameras(i);
+    if (!cameras.in_air) {
         status[i] = STATUS_MISSES_INTERFACE; // a camera outside the air
         return;
     }
+    let item = cameras.item;
+    let a = cameras.a;
+    let b = cameras.b;
     let k = 6u * item.corner;
     let ray_a = ray_in_water(a, vec3r(input[k], input[k + 1u], input[k + 2u]));
     if (ray_a.status != STATUS_OK) {

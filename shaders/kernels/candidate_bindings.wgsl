@@ -19,3 +19,20 @@ fn candidate_item(i: u32) -> Item {
     let c = i / params.info.y;
     return Item(c, i - c * params.info.y);
 }
+
+// The two cameras behind item i's candidate interface (n, d); `in_air` is false when the
+// candidate puts one of them outside the air.
+struct CandidateCameras {
+    item: Item,
+    a: View,
+    b: View,
+    in_air: bool,
+}
+
+fn candidate_cameras(i: u32) -> CandidateCameras {
+    let item = candidate_item(i);
+    let candidate = candidates[item.candidate];
+    let a = with_interface(0u, candidate);
+    let b = with_interface(1u, candidate);
+    return CandidateCameras(item, a, b, a.d_k > 0.0 && b.d_k > 0.0);
+}

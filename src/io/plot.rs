@@ -184,11 +184,15 @@ fn markers<'c, DB: DrawingBackend + 'c>(
     Ok(())
 }
 
-/// Heat map: azimuth across, tilt up, colour bar at the right, the minimum marked with a cross and
-/// the truth with a circle.
-pub fn write_heatmap(path: &Path, map: &CostMap) -> Result<(), IoError> {
+/// Renders a picture of `size`: the area left of the colour bar is drawn by `draw` with the
+/// map's colour scale; then the colour bar, PNG encoding and an atomic write.
+fn render(
+    path: &Path,
+    size: (u32, u32),
+    map: &CostMap,
+    draw: impl FnOnce(&Area, &Scale) -> Result<(), std::io::Error>,
+) -> Result<(), IoError> {
     register_font();
-    let size = (960u32, 720u32);
     let mut buffer = vec![0u8; (size.0 * size.1 * 3) as usize];
     let err = |source| IoError::Write { path: path.to_path_buf(), source };
     {
@@ -196,15 +200,25 @@ pub fn write_heatmap(path: &Path, map: &CostMap) -> Result<(), IoError> {
         root.fill(&WHITE).map_err(draw_error).map_err(err)?;
         let (main, bar) = root.split_horizontally(size.0 - 130);
         let scale = Scale::of(map.values);
+        draw(&main, &scale).map_err(err)?;
+        colour_bar(&bar, &scale, &map.cost_label).map_err(err)?;
+        root.present().map_err(draw_error).map_err(err)?;
+    }
+    encode(path, &buffer, size)
+}
+
+/// Heat map: azimuth across, tilt up, colour bar at the right, the minimum marked with a cross and
+/// the truth with a circle.
+pub fn write_heatmap(path: &Path, map: &CostMap) -> Result<(), IoError> {
+    render(path, (960, 720), map, |main, scale| {
         let (xe, ye) = (edges(map.azimuths_deg), edges(map.tilts_deg));
-        let mut chart = ChartBuilder::on(&main)
+        let mut chart = ChartBuilder::on(main)
             .caption(&map.title, ("sans-serif", 20))
             .margin(15)
             .x_label_area_size(45)
             .y_label_area_size(55)
             .build_cartesian_2d(xe[0]..*xe.last().expect("edges"), ye[0]..*ye.last().expect("edges"))
-            .map_err(draw_error)
-            .map_err(err)?;
+            .map_err(draw_error)?;
         chart
             .configure_mesh()
             .disable_mesh()
@@ -213,49 +227,35 @@ pub fn write_heatmap(path: &Path, map: &CostMap) -> Result<(), IoError> {
             .label_style(("sans-serif", 15))
             .axis_desc_style(("sans-serif", 16))
             .draw()
-            .map_err(draw_error)
-            .map_err(err)?;
+            .map_err(draw_error)?;
         let columns = map.azimuths_deg.len();
         chart
             .draw_series((0..map.values.len()).map(|k| {
                 let (r, c) = (k / columns, k % columns);
                 Rectangle::new([(xe[c], ye[r]), (xe[c + 1], ye[r + 1])], scale.colour(map.values[k]).filled())
             }))
-            .map_err(draw_error)
-            .map_err(err)?;
-        markers(&mut chart, map, |t, a| (a, t)).map_err(err)?;
-        colour_bar(&bar, &scale, &map.cost_label).map_err(err)?;
-        root.present().map_err(draw_error).map_err(err)?;
-    }
-    encode(path, &buffer, size)
+            .map_err(draw_error)?;
+        markers(&mut chart, map, |t, a| (a, t))
+    })
 }
 
 /// Polar view: the axis as a point on the disc of tilts, azimuth measured from +x toward +y of
 /// the master camera (x right, y down as in its image); rings every few degrees of tilt.
 pub fn write_polar(path: &Path, map: &CostMap) -> Result<(), IoError> {
-    register_font();
-    let size = (860u32, 720u32);
-    let mut buffer = vec![0u8; (size.0 * size.1 * 3) as usize];
-    let err = |source| IoError::Write { path: path.to_path_buf(), source };
-    {
-        let root = BitMapBackend::with_buffer(&mut buffer, size).into_drawing_area();
-        root.fill(&WHITE).map_err(draw_error).map_err(err)?;
-        let (main, bar) = root.split_horizontally(size.0 - 130);
-        let scale = Scale::of(map.values);
+    render(path, (860, 720), map, |main, scale| {
         let (ae, te) = (edges(map.azimuths_deg), edges(map.tilts_deg));
         let radius = te.last().expect("edges").max(1e-9);
         let at = |t: f64, a: f64| {
             let a = a.to_radians();
             (t.max(0.0) * a.cos(), -t.max(0.0) * a.sin())
         };
-        let mut chart = ChartBuilder::on(&main)
+        let mut chart = ChartBuilder::on(main)
             .caption(&map.title, ("sans-serif", 20))
             .margin(15)
             .x_label_area_size(40)
             .y_label_area_size(50)
             .build_cartesian_2d(-radius..radius, -radius..radius)
-            .map_err(draw_error)
-            .map_err(err)?;
+            .map_err(draw_error)?;
         chart
             .configure_mesh()
             .disable_mesh()
@@ -264,8 +264,7 @@ pub fn write_polar(path: &Path, map: &CostMap) -> Result<(), IoError> {
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 15))
             .draw()
-            .map_err(draw_error)
-            .map_err(err)?;
+            .map_err(draw_error)?;
         let columns = map.azimuths_deg.len();
         let arc = 4;
         chart
@@ -276,25 +275,18 @@ pub fn write_polar(path: &Path, map: &CostMap) -> Result<(), IoError> {
                 points.extend((0..=arc).rev().map(|i| at(t0, ae[c] + (ae[c + 1] - ae[c]) * i as f64 / arc as f64)));
                 Polygon::new(points, scale.colour(map.values[k]).filled())
             }))
-            .map_err(draw_error)
-            .map_err(err)?;
+            .map_err(draw_error)?;
         // Rings of equal tilt, with labels.
         let ring_step = [1.0, 2.0, 5.0, 10.0, 15.0, 20.0].into_iter().find(|s| radius / s <= 6.0).unwrap_or(30.0);
         let mut t = ring_step;
         while t <= radius + 1e-9 {
             let ring: Vec<(f64, f64)> = (0..=120).map(|i| at(t, i as f64 * 3.0)).collect();
-            chart.draw_series([PathElement::new(ring, WHITE.mix(0.6))]).map_err(draw_error).map_err(err)?;
-            chart
-                .draw_series([Text::new(format!("{t}°"), at(t, 45.0), ("sans-serif", 13).into_font().color(&WHITE))])
-                .map_err(draw_error)
-                .map_err(err)?;
+            chart.draw_series([PathElement::new(ring, WHITE.mix(0.6))]).map_err(draw_error)?;
+            chart.draw_series([Text::new(format!("{t}°"), at(t, 45.0), ("sans-serif", 13).into_font().color(&WHITE))]).map_err(draw_error)?;
             t += ring_step;
         }
-        markers(&mut chart, map, at).map_err(err)?;
-        colour_bar(&bar, &scale, &map.cost_label).map_err(err)?;
-        root.present().map_err(draw_error).map_err(err)?;
-    }
-    encode(path, &buffer, size)
+        markers(&mut chart, map, at)
+    })
 }
 
 #[cfg(test)]
