@@ -113,7 +113,8 @@ Writes DIR/cost.npy (float64, shape [tilt, azimuth] or [tilt, azimuth, distance]
 (tilt_deg,azimuth_deg,distance,cost per cell; inf where a candidate explains no corner),
 DIR/distance.npy (the profile's air layers, for reprojection and 3d without --distance),
 DIR/heatmap.png and DIR/polar.png (minimum marked, truth marked with --truth), DIR/summary.json
-(argmin, grid, timing). Files appear only when the sweep completed.
+(argmin, grid, timing). Files appear only when the sweep completed; Ctrl-C stops after the batch
+in flight and leaves nothing behind.
 
 Examples:
   flatport sweep --rig rig.json --observations obs.json --cost invariant \\
@@ -124,7 +125,7 @@ Examples:
     /// Rig files: import OpenCV stereoCalibrate output, show a rig
     #[command(subcommand)]
     Rig(rig::RigCommand),
-    /// Run the built-in example end to end: write a rig, project and back-project a grid, triangulate
+    /// Run the built-in example end to end: simulate a rig, calibrate it, sweep the cost, tour the geometry
     #[command(after_help = "\
 Example:
   flatport demo --output flatport-demo")]

@@ -2,6 +2,8 @@
 //! PNG and summary outputs.
 
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
@@ -75,6 +77,18 @@ pub struct SweepArgs {
     pub engine: super::EngineArgs,
 }
 
+/// A flag that Ctrl-C sets (the handler is installed once per process).
+fn interruption_flag() -> &'static AtomicBool {
+    static FLAG: OnceLock<&'static AtomicBool> = OnceLock::new();
+    FLAG.get_or_init(|| {
+        let flag: &'static AtomicBool = Box::leak(Box::new(AtomicBool::new(false)));
+        // Without a handler (another one is installed) Ctrl-C ends the process as usual; the
+        // files then stay under their hidden temporary names, never under the output names.
+        let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
+        flag
+    })
+}
+
 /// Parses `START:STOP:COUNT`.
 pub fn parse_linspace(text: &str) -> Result<Linspace, String> {
     let parts: Vec<&str> = text.split(':').collect();
@@ -128,7 +142,12 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
     // The pictures show the lowest cost over the air layers of each axis.
     let mut per_axis = vec![f64::INFINITY; spec.axes()];
     let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
+    let interrupted = interruption_flag();
     let mut sink = |chunk: SweepChunk| -> Result<(), CalibError> {
+        // Ctrl-C stops after the chunk in flight; the writers then remove their temporary files.
+        if interrupted.load(Ordering::Relaxed) {
+            return Err(CalibError::Options("interrupted: no output was written".into()));
+        }
         let io = |e: IoError| CalibError::Options(e.to_string());
         cost_npy.write(chunk.costs).map_err(io)?;
         if let Some(npy) = distance_npy.as_mut() {
@@ -158,10 +177,8 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
     let mut progress = Progress::new("sweep", "cells", args.quiet);
     let summary = sweep(backend.as_ref(), &spec, args.chunk, &mut sink, &mut |done, total| progress.update(done, total))?;
     let Some(minimum) = summary.minimum else {
-        cost_npy.discard();
-        if let Some(n) = distance_npy {
-            n.discard();
-        }
+        drop(cost_npy);
+        drop(distance_npy);
         bail!("no cell of the grid has a finite {} cost: every candidate leaves corners without an answer", spec.kind.name());
     };
     cost_npy.finish()?;

@@ -23,13 +23,22 @@ pub fn npy_header(shape: &[usize]) -> Vec<u8> {
     bytes
 }
 
-/// A `.npy` file being written value by value in C order.
+/// A `.npy` file being written value by value in C order. Dropped before
+/// [`finish`](Self::finish) (an error, an interruption), it removes its temporary file.
 pub struct NpyWriter {
     path: PathBuf,
     temporary: PathBuf,
-    out: BufWriter<File>,
+    out: Option<BufWriter<File>>,
     expected: usize,
     written: usize,
+}
+
+impl Drop for NpyWriter {
+    fn drop(&mut self) {
+        if self.out.take().is_some() {
+            let _ = std::fs::remove_file(&self.temporary);
+        }
+    }
 }
 
 impl NpyWriter {
@@ -39,13 +48,14 @@ impl NpyWriter {
         let err = |source| IoError::Write { path: path.to_path_buf(), source };
         let mut out = BufWriter::new(File::create(&temporary).map_err(err)?);
         out.write_all(&npy_header(shape)).map_err(err)?;
-        Ok(Self { path: path.to_path_buf(), temporary, out, expected: shape.iter().product(), written: 0 })
+        Ok(Self { path: path.to_path_buf(), temporary, out: Some(out), expected: shape.iter().product(), written: 0 })
     }
 
     /// Appends values.
     pub fn write(&mut self, values: &[f64]) -> Result<(), IoError> {
+        let out = self.out.as_mut().expect("open until finished");
         for v in values {
-            self.out.write_all(&v.to_le_bytes()).map_err(|source| IoError::Write { path: self.path.clone(), source })?;
+            out.write_all(&v.to_le_bytes()).map_err(|source| IoError::Write { path: self.path.clone(), source })?;
         }
         self.written += values.len();
         Ok(())
@@ -53,12 +63,13 @@ impl NpyWriter {
 
     /// Flushes and renames into place. Errors (and removes the temporary file) when fewer or more
     /// values than the shape holds were written.
-    pub fn finish(self) -> Result<(), IoError> {
-        let Self { path, temporary, out, expected, written } = self;
-        let result = if written != expected {
+    pub fn finish(mut self) -> Result<(), IoError> {
+        let out = self.out.take().expect("open until finished");
+        let (path, temporary) = (self.path.clone(), self.temporary.clone());
+        let result = if self.written != self.expected {
             Err(IoError::Write {
                 path: path.clone(),
-                source: std::io::Error::other(format!("{written} values written for a shape of {expected}")),
+                source: std::io::Error::other(format!("{} values written for a shape of {}", self.written, self.expected)),
             })
         } else {
             out.into_inner()
@@ -71,11 +82,6 @@ impl NpyWriter {
             let _ = std::fs::remove_file(&temporary);
         }
         result
-    }
-
-    /// Abandons the file: the temporary is removed and nothing appears under the path.
-    pub fn discard(self) {
-        let _ = std::fs::remove_file(&self.temporary);
     }
 }
 
