@@ -68,21 +68,21 @@ fn corner_terms(j: u32, t: vec3r) -> CornerTerms {
     let tc_v = dot(t, q6.xyz);
     let te_u = dot(t, vec3r(q6.w, q7.x, q7.y));
     let te_v = dot(t, vec3r(q7.z, q7.w, q8.x));
-    // Columns of d²·J, J = ∂q/∂(u_l, v_l, u_r, v_r): no division until the weight.
+    // Columns of d²·J, J = ∂q/∂(u_l, v_l, u_r, v_r): no division until the weight. The two right
+    // columns are cₖ·Π(v_l): only ρ = c₁² + c₂² enters Σ and its determinant.
     let j0 = numerator * (d * along_axis(q2.yzw, t) - ta_u * pv);
     let j1 = numerator * (d * along_axis(q3.xyz, t) - ta_v * pv);
-    let j2 = (tc_u * d - numerator * te_u) * pv;
-    let j3 = (tc_v * d - numerator * te_v) * pv;
-    let sxx = j0.x * j0.x + j1.x * j1.x + j2.x * j2.x + j3.x * j3.x;
-    let sxy = j0.x * j0.y + j1.x * j1.y + j2.x * j2.y + j3.x * j3.y;
-    let syy = j0.y * j0.y + j1.y * j1.y + j2.y * j2.y + j3.y * j3.y;
-    // det(d⁴Σ) by Cauchy–Binet; the two right columns are parallel.
+    let c1 = tc_u * d - numerator * te_u;
+    let c2 = tc_v * d - numerator * te_v;
+    let rho = c1 * c1 + c2 * c2;
+    let sxx = j0.x * j0.x + j1.x * j1.x + rho * pv.x * pv.x;
+    let sxy = j0.x * j0.y + j1.x * j1.y + rho * pv.x * pv.y;
+    let syy = j0.y * j0.y + j1.y * j1.y + rho * pv.y * pv.y;
+    // det(d⁴Σ) by Cauchy–Binet (never negative).
     let m01 = minor2(j0, j1);
-    let m02 = minor2(j0, j2);
-    let m03 = minor2(j0, j3);
-    let m12 = minor2(j1, j2);
-    let m13 = minor2(j1, j3);
-    let det = m01 * m01 + m02 * m02 + m03 * m03 + m12 * m12 + m13 * m13;
+    let m0v = minor2(j0, pv);
+    let m1v = minor2(j1, pv);
+    let det = m01 * m01 + rho * (m0v * m0v + m1v * m1v);
     let trace = sxx + syy;
     let d2 = d * d;
     let ridge = 1e-12 * trace + 1e-30 * d2 * d2;

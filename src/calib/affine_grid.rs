@@ -134,25 +134,22 @@ fn corner_terms(row: &[f64; ROW], t: &[f64; 3], kappa: f64) -> Option<CornerTerm
     let (ta_u, ta_v) = (dot(t, &row[15..18]), dot(t, &row[18..21]));
     let (te_u, te_v) = (dot(t, &row[27..30]), dot(t, &row[30..33]));
     let (tc_u, tc_v) = (dot(t, &row[21..24]), dot(t, &row[24..27]));
-    // Columns of d²·J, J = ∂q/∂(u_l, v_l, u_r, v_r): no division until the weight.
+    // Columns of d²·J, J = ∂q/∂(u_l, v_l, u_r, v_r): no division until the weight. The two right
+    // columns are cₖ·Π(v_l): only ρ = c₁² + c₂² enters Σ and its determinant.
     let left = |ta: f64, dv: &[f64]| {
         let p = project(dv);
         [numerator * (d * p[0] - ta * pv[0]), numerator * (d * p[1] - ta * pv[1])]
     };
-    let right = |tc: f64, te: f64| {
-        let ds = tc * d - numerator * te;
-        [ds * pv[0], ds * pv[1]]
-    };
-    let j = [left(ta_u, &row[9..12]), left(ta_v, &row[12..15]), right(tc_u, te_u), right(tc_v, te_v)];
-    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
-    for col in &j {
-        sxx += col[0] * col[0];
-        sxy += col[0] * col[1];
-        syy += col[1] * col[1];
-    }
-    // det(d⁴Σ) = Σ_{k<l} minors² (Cauchy–Binet); the two right columns are parallel.
+    let (j0, j1) = (left(ta_u, &row[9..12]), left(ta_v, &row[12..15]));
+    let (c1, c2) = (tc_u * d - numerator * te_u, tc_v * d - numerator * te_v);
+    let rho = c1 * c1 + c2 * c2;
+    let sxx = j0[0] * j0[0] + j1[0] * j1[0] + rho * pv[0] * pv[0];
+    let sxy = j0[0] * j0[1] + j1[0] * j1[1] + rho * pv[0] * pv[1];
+    let syy = j0[1] * j0[1] + j1[1] * j1[1] + rho * pv[1] * pv[1];
+    // det(d⁴Σ) = Σ_{k<l} minors² (Cauchy–Binet, never negative).
     let minor = |a: &[f64; 2], b: &[f64; 2]| a[0] * b[1] - a[1] * b[0];
-    let det = [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3)].iter().map(|&(k, l)| minor(&j[k], &j[l]).powi(2)).sum::<f64>();
+    let (m01, m0v, m1v) = (minor(&j0, &j1), minor(&j0, &pv), minor(&j1, &pv));
+    let det = m01 * m01 + rho * (m0v * m0v + m1v * m1v);
     let trace = sxx + syy;
     let d2 = d * d;
     // The ridge 1e-12·tr Σ + 1e-30 of the explicit fit, in d⁴Σ's units.
