@@ -5,8 +5,9 @@
 //!   (Kabsch), project the fitted board into both cameras: RMS pixel error.
 //! - [`CostKind::Scene`]: the same fit's RMS 3-D residual, metres (the 3-D scene error).
 //! - [`CostKind::RayGap`]: RMS distance between the two water rays of each corner, metres.
-//! - [`CostKind::AffineGrid`], [`CostKind::PlaneFitting`], [`CostKind::PlaneAngles`]: the pattern
-//!   invariants ([`super::invariants`]); they ignore the air layer.
+//! - [`CostKind::AffineGrid`]: the weighted affine-grid invariant, fused per view
+//!   ([`super::affine_grid`]); [`CostKind::PlaneFitting`], [`CostKind::PlaneAngles`]: the thesis'
+//!   plane errors ([`super::invariants`]). These ignore the air layer.
 //!
 //! A candidate under which some corner has no answer (a camera outside the air, a ray that is
 //! totally reflected, a point that triangulates behind the port) costs +∞.
@@ -15,7 +16,7 @@ use nalgebra::{Isometry3, Point2, Point3, Vector2};
 
 use super::board::{RigidFit, fit_rigid};
 use super::data::{Candidate, Corner, StereoData};
-use super::invariants::{ProjectedVop, affine_grid, plane_angles, plane_fitting, projected_vops};
+use super::invariants::{ProjectedVop, plane_angles, plane_fitting, projected_vops};
 use crate::model::{RefractiveCamera, Triangulation, triangulate_rays};
 
 /// Which cost to evaluate.
@@ -207,7 +208,7 @@ fn evaluate(data: &StereoData, kind: CostKind, candidate: &Candidate) -> Option<
         return super::affine_grid::affine_grid_cost(data, &[n.x, n.y, n.z]);
     }
     if kind.axis_only() {
-        return invariant(data, kind, candidate);
+        return plane_cost(data, kind, data.views.iter().map(|range| projected_vops(data, &data.corners[range.clone()], &candidate.normal)));
     }
     let cameras = data.cameras_behind(candidate)?;
     if kind == CostKind::RayGap {
@@ -221,30 +222,16 @@ fn evaluate(data: &StereoData, kind: CostKind, candidate: &Candidate) -> Option<
     }
 }
 
-fn invariant(data: &StereoData, kind: CostKind, candidate: &Candidate) -> Option<f64> {
-    invariant_cost(data, kind, data.views.iter().map(|range| projected_vops(data, &data.corners[range.clone()], &candidate.normal)))
-}
-
-/// The axis-only cost `kind` from the projected VOPs of each view in turn (corners whose VOP is
-/// undetermined left out): χ²/dof for [`CostKind::AffineGrid`], √(Σ/dof) for the plane errors.
-/// `None` when a view's affine fit fails or no degree of freedom is left.
-pub fn invariant_cost(data: &StereoData, kind: CostKind, views: impl IntoIterator<Item = Vec<ProjectedVop>>) -> Option<f64> {
-    debug_assert!(kind.axis_only(), "invariant_cost of {}", kind.name());
+/// A plane error ([`CostKind::PlaneFitting`] or [`CostKind::PlaneAngles`]) from the projected VOPs
+/// of each view in turn (corners whose VOP is undetermined left out): √(Σ/dof). `None` when no
+/// degree of freedom is left. ([`CostKind::AffineGrid`] is [`super::affine_grid`]'s.)
+pub fn plane_cost(data: &StereoData, kind: CostKind, views: impl IntoIterator<Item = Vec<ProjectedVop>>) -> Option<f64> {
+    debug_assert!(matches!(kind, CostKind::PlaneFitting | CostKind::PlaneAngles), "plane_cost of {}", kind.name());
     let (mut sum, mut dof) = (0.0, 0usize);
     for vops in views {
-        let (s, d) = match kind {
-            CostKind::AffineGrid => affine_grid(data, &vops)?,
-            CostKind::PlaneFitting => plane_fitting(data, &vops),
-            _ => plane_angles(data, &vops),
-        };
+        let (s, d) = if kind == CostKind::PlaneFitting { plane_fitting(data, &vops) } else { plane_angles(data, &vops) };
         sum += s;
         dof += d;
     }
-    if dof == 0 {
-        return None;
-    }
-    Some(match kind {
-        CostKind::AffineGrid => sum / dof as f64,
-        _ => (sum / dof as f64).sqrt(),
-    })
+    (dof > 0).then(|| (sum / dof as f64).sqrt())
 }

@@ -3,7 +3,7 @@
 //! [`GpuEngine::calib_project`], [`GpuEngine::calib_projected_vop`],
 //! [`GpuEngine::calib_gap_line`]), in f32 or f64, while the host finishes each candidate with the
 //! same functions as the CPU reference ([`SceneFit::from_triangulated`], [`reprojection_rms`],
-//! [`ray_gap_rms`], [`invariant_cost`], [`least_squares_air_distance`]): one definition of each
+//! [`ray_gap_rms`], [`plane_cost`], [`least_squares_air_distance`]): one definition of each
 //! cost.
 //!
 //! Per cost: the triangulating costs run one dispatch over candidates × corners, then the Kabsch
@@ -17,7 +17,7 @@ use rayon::prelude::*;
 
 use super::air_layer::{GapLine, least_squares_air_distance, sample_cameras};
 use super::backend::CostBackend;
-use super::costs::{CostKind, SceneFit, invariant_cost, pixel_residuals, ray_gap_rms, reprojection_rms};
+use super::costs::{CostKind, SceneFit, pixel_residuals, plane_cost, ray_gap_rms, reprojection_rms};
 use super::data::{Candidate, StereoData};
 use super::error::CalibError;
 use super::invariants::ProjectedVop;
@@ -164,8 +164,8 @@ impl<'a> GpuBackend<'a> {
             .collect())
     }
 
-    /// Axis-only costs: projected VOPs on the device, per-view fits on the host.
-    fn invariant_costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
+    /// The plane errors: projected VOPs on the device, per-view line fits on the host.
+    fn plane_costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
         let data = self.data;
         let corners = data.corners.len();
         let axes: Vec<[f64; 4]> = candidates.iter().map(|c| [c.normal.x, c.normal.y, c.normal.z, 0.0]).collect();
@@ -180,7 +180,7 @@ impl<'a> GpuBackend<'a> {
                 let views = data.views.iter().map(|range| {
                     range.clone().filter(|&j| status[j] == 0).map(|j| ProjectedVop::from_packed(data.corners[j].index, &rows[j])).collect()
                 });
-                invariant_cost(data, kind, views).unwrap_or(f64::INFINITY)
+                plane_cost(data, kind, views).unwrap_or(f64::INFINITY)
             })
             .collect())
     }
@@ -199,7 +199,7 @@ impl CostBackend for GpuBackend<'_> {
     fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
         match kind {
             CostKind::AffineGrid => self.affine_grid_costs(candidates),
-            _ if kind.axis_only() => self.invariant_costs(kind, candidates),
+            _ if kind.axis_only() => self.plane_costs(kind, candidates),
             _ => self.scene_costs(kind, candidates),
         }
     }

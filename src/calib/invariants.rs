@@ -9,9 +9,11 @@
 //!
 //! The projected position is ill-conditioned near the plane through the baseline parallel to n,
 //! where [v, n, −v′] is singular: there one direction of it moves by metres per pixel of noise.
-//! [`affine_grid`] therefore weights each residual by the inverse of its covariance, propagated
-//! from isotropic 1-pixel noise in both images (a χ² per degree of freedom, ≈ σ² in px² at the
-//! true axis); PFE and PAE are the thesis' plain forms.
+//! The affine-grid residual therefore weights each corner by the inverse of its covariance,
+//! propagated from isotropic 1-pixel noise in both images (a χ² per degree of freedom, ≈ σ² in px²
+//! at the true axis). [`affine_grid`] is its explicit per-view form, the reference the batch path
+//! [`super::affine_grid`] (which adds a taper near the degenerate plane) is tested against; PFE
+//! and PAE are the thesis' plain forms.
 
 use nalgebra::{Matrix2, Matrix2x4, Matrix3, Matrix6, Point3, Unit, Vector2, Vector3, Vector6};
 
