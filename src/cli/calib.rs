@@ -160,14 +160,29 @@ fn in_file(path: &Path, error: CalibError) -> anyhow::Error {
     IoError::Invalid { path: path.to_path_buf(), field: error.field(), reason: error.to_string() }.into()
 }
 
-pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
-    let rig = read_rig(&args.rig)?;
-    let observations: Observations = read_observations(&args.observations)?;
+/// Reads a rig and observations, checks the observations against the pair of cameras they name
+/// (errors located in the observations file), and prepares them: (rig, data, warnings).
+pub fn load_stereo_data(rig_path: &Path, observations_path: &Path) -> anyhow::Result<(Rig, StereoData, Vec<String>)> {
+    let rig = read_rig(rig_path)?;
+    let observations: Observations = read_observations(observations_path)?;
     let names = observations.cameras.as_ref().map(|[a, b]| (a.as_str(), b.as_str()));
-    let pair = stereo_pair(&rig, names, &args.observations.display().to_string())?;
+    let pair = stereo_pair(&rig, names, &observations_path.display().to_string())?;
     let intrinsics = pair.map(|k| rig.cameras()[k].intrinsics);
-    let warnings = observations.validate(&intrinsics[0], &intrinsics[1]).map_err(|e| in_file(&args.observations, e))?;
-    let data = StereoData::new(&rig, pair, &observations).map_err(|e| in_file(&args.observations, e))?;
+    let warnings = observations.validate(&intrinsics[0], &intrinsics[1]).map_err(|e| in_file(observations_path, e))?;
+    let data = StereoData::new(&rig, pair, &observations).map_err(|e| in_file(observations_path, e))?;
+    Ok((rig, data, warnings))
+}
+
+/// The cost backend on `engine`'s device.
+pub fn cost_backend<'a>(engine: &'a Engine, data: &'a StereoData) -> Box<dyn CostBackend + 'a> {
+    match engine {
+        Engine::Cpu(_) => Box::new(CpuBackend::new(data)),
+        Engine::Gpu(gpu) => Box::new(GpuBackend::new(data, gpu)),
+    }
+}
+
+pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
+    let (rig, data, warnings) = load_stereo_data(&args.rig, &args.observations)?;
     let options = CalibrationOptions {
         method: match args.method {
             MethodArg::Consecutive => Method::Consecutive,
@@ -183,10 +198,7 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         bail!("--huber must be a positive number of pixels");
     }
     let engine = calibration_engine(&args.engine)?;
-    let backend: Box<dyn CostBackend> = match &engine {
-        Engine::Cpu(_) => Box::new(CpuBackend::new(&data)),
-        Engine::Gpu(gpu) => Box::new(GpuBackend::new(&data, gpu)),
-    };
+    let backend = cost_backend(&engine, &data);
     eprintln!("device: {}", engine.describe());
     eprintln!(
         "calibrating from {} views ({} corners seen by both cameras), method {}...",

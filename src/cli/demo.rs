@@ -70,7 +70,7 @@ const NOISE_PX: f64 = 0.125;
 
 /// Simulate, calibrate from the naive start, sweep the invariant around the result.
 fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyhow::Result<()> {
-    use flatport::calib::{Board, CalibrationOptions, CostBackend, CpuBackend, GpuBackend, SceneSpec, StereoData, calibrate, simulate};
+    use flatport::calib::{Board, CalibrationOptions, SceneSpec, StereoData, calibrate, simulate};
     use flatport::calib::sweep::Linspace;
     use flatport::engine::Engine;
     use flatport::io::{Truth, write_observations, write_report, write_truth};
@@ -88,10 +88,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     println!("2. calibrate from a naive start (axis on the camera's z axis, 10 mm air layer):");
     let data = StereoData::new(&start, [0, 1], &scene.observations)?;
     let engine: Engine = super::calib::calibration_engine(engine_args)?;
-    let backend: Box<dyn CostBackend> = match &engine {
-        Engine::Cpu(_) => Box::new(CpuBackend::new(&data)),
-        Engine::Gpu(gpu) => Box::new(GpuBackend::new(&data, gpu)),
-    };
+    let backend = super::calib::cost_backend(&engine, &data);
     let calibration = calibrate(backend.as_ref(), &CalibrationOptions::default(), vec![])?;
     write_rig(&dir.join("calibrated_rig.json"), &start.with_interface(calibration.interface.clone())?)?;
     write_report(&dir.join("report.json"), &calibration.report)?;

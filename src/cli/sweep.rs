@@ -10,11 +10,11 @@ use clap::{Args, ValueEnum};
 use serde_json::json;
 
 use flatport::calib::sweep::{Linspace, SweepChunk, SweepSpec, sweep};
-use flatport::calib::{CalibError, CostBackend, CostKind, CpuBackend, GpuBackend, StereoData};
+use flatport::calib::{CalibError, CostKind};
 use flatport::engine::Engine;
 use flatport::io::npy::NpyWriter;
 use flatport::io::plot::{CostMap, write_heatmap, write_polar};
-use flatport::io::{IoError, TableWriter, read_observations, read_rig, read_truth, write_atomic};
+use flatport::io::{IoError, TableWriter, read_truth, write_atomic};
 
 use super::progress::Progress;
 
@@ -113,22 +113,12 @@ fn grid_json(l: &Linspace) -> serde_json::Value {
 /// Runs a sweep into `args.output`; returns the summary JSON. Everything is written under
 /// temporary names and renamed into place only when the sweep completed.
 pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
-    let rig = read_rig(&args.rig)?;
-    let observations = read_observations(&args.observations)?;
-    let names = observations.cameras.as_ref().map(|[a, b]| (a.as_str(), b.as_str()));
-    let pair = super::calib::stereo_pair(&rig, names, &args.observations.display().to_string())?;
-    let intrinsics = pair.map(|k| rig.cameras()[k].intrinsics);
-    let in_file = |e: CalibError| IoError::Invalid { path: args.observations.clone(), field: e.field(), reason: e.to_string() };
-    observations.validate(&intrinsics[0], &intrinsics[1]).map_err(in_file)?;
-    let data = StereoData::new(&rig, pair, &observations).map_err(in_file)?;
+    let (_, data, _) = super::calib::load_stereo_data(&args.rig, &args.observations)?;
     let spec = SweepSpec { kind: args.cost.kind(), tilt_deg: args.tilt_deg, azimuth_deg: args.azimuth_deg, distance: args.distance };
     spec.validate()?;
     let truth = args.truth.as_deref().map(read_truth).transpose()?;
     let engine: Engine = args.engine.engine_quiet()?;
-    let backend: Box<dyn CostBackend> = match &engine {
-        Engine::Cpu(_) => Box::new(CpuBackend::new(&data)),
-        Engine::Gpu(gpu) => Box::new(GpuBackend::new(&data, gpu)),
-    };
+    let backend = super::calib::cost_backend(&engine, &data);
     eprintln!("device: {}", engine.describe());
     let dir = &args.output;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
