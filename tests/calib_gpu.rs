@@ -3,8 +3,11 @@
 //! kernels, one dispatch and many chunks. With `CI` set, a missing Vulkan adapter fails the run.
 //! `cargo test --release --test calib_gpu -- --nocapture` prints the deviations.
 
+mod gpu_harness;
+
+use gpu_harness::{Random, engine};
 use flatport::calib::{Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, simulate};
-use flatport::gpu::{GpuContext, GpuEngine, Precision};
+use flatport::gpu::Precision;
 use flatport::model::Rig;
 use nalgebra::{Unit, Vector3};
 
@@ -38,21 +41,6 @@ const F32_RELATIVE_CHI2: f64 = 1e-3;
 /// 1–2 mm by which 0.1 px of noise moves d in these scenes.
 const F32_AIR_DISTANCE: f64 = 1e-5;
 
-/// The GPU engine at `precision`, or `None` (with a note) when there is no adapter outside CI.
-fn engine(precision: Precision) -> Option<GpuEngine> {
-    match GpuContext::new(None) {
-        Ok(context) => {
-            eprintln!("GPU adapter: {} ({}), {precision}", context.adapter().name, context.adapter().driver);
-            Some(GpuEngine::new(context, precision).expect("lavapipe and the GPUs we test have SHADER_F64"))
-        }
-        Err(e) if std::env::var_os("CI").is_none() => {
-            eprintln!("SKIPPED (no Vulkan adapter; CI fails here instead): {e}");
-            None
-        }
-        Err(e) => panic!("CI needs a Vulkan adapter (scripts/test.sh installs lavapipe): {e}"),
-    }
-}
-
 fn example_rig() -> Rig {
     flatport::io::read_rig(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/data/example_rig.json"))).expect("example rig")
 }
@@ -63,21 +51,6 @@ fn stereo_data(views: usize, seed: u64) -> StereoData {
     let spec = SceneSpec::new(Board { rows: 6, cols: 9, square: 0.04 }, views, 0.1, seed);
     let scene = simulate(&rig, 0, 1, &spec).expect("simulated scene");
     StereoData::new(&rig, [0, 1], &scene.observations).expect("stereo data")
-}
-
-/// xorshift64*: reproducible candidates without a dependency.
-struct Random(u64);
-
-impl Random {
-    fn uniform(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.uniform()
-    }
 }
 
 /// The true interface, then `n − 3` random axes tilted up to 20° with air layers of 5–40 mm, then

@@ -7,12 +7,14 @@
 //! relative (|Δ| ≤ 1e-9 · max(1, |cpu|)). Other f32 outputs get bounds derived from those.
 
 mod common;
+mod gpu_harness;
 
 use common::*;
+use gpu_harness::{Random, engine, engine_with};
 use flatport::engine::CpuEngine;
 use flatport::gpu::layout::{camera_size, params_layout};
 use flatport::gpu::shaders::source;
-use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision, Reduction};
+use flatport::gpu::{GpuEngine, Kernel, Precision, Reduction};
 use flatport::model::{NoSolution, RefractiveCamera, Rig};
 use nalgebra::{Point2, Vector3};
 
@@ -53,41 +55,6 @@ fn host_packing_mirrors_the_wgsl_structs() {
         let naga::TypeInner::Array { stride, .. } = module.types[members[0].ty].inner else { panic!("Params.cams is an array") };
         assert_eq!(stride as usize, b_offset, "{precision} Params.cams stride");
         assert_eq!(members[1].offset as usize, info_offset, "{precision} Params.info");
-    }
-}
-
-/// The GPU backend at `precision`, or `None` (with a note) when there is no adapter outside CI.
-fn engine(precision: Precision) -> Option<GpuEngine> {
-    engine_with(precision, true)
-}
-
-/// As [`engine`]; `map_storage: false` forces the staging copies of discrete GPUs.
-fn engine_with(precision: Precision, map_storage: bool) -> Option<GpuEngine> {
-    match GpuContext::open(None, map_storage) {
-        Ok(context) => {
-            eprintln!("GPU adapter: {} ({}), {precision}", context.adapter().name, context.adapter().driver);
-            Some(GpuEngine::new(context, precision).expect("lavapipe and the GPUs we test have SHADER_F64"))
-        }
-        Err(e) if std::env::var_os("CI").is_none() => {
-            eprintln!("SKIPPED (no Vulkan adapter; CI fails here instead): {e}");
-            None
-        }
-        Err(e) => panic!("CI needs a Vulkan adapter (scripts/test.sh installs lavapipe): {e}"),
-    }
-}
-
-/// xorshift64*: reproducible random batches without a dependency.
-struct Random(u64);
-
-impl Random {
-    fn uniform(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.uniform()
     }
 }
 
