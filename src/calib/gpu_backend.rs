@@ -21,7 +21,7 @@ use super::costs::{CostKind, SceneFit, pixel_residuals, plane_cost, ray_gap_rms,
 use super::data::{Candidate, StereoData};
 use super::error::CalibError;
 use super::invariants::ProjectedVop;
-use crate::gpu::GpuEngine;
+use crate::gpu::{AffineGridInput, GpuEngine};
 
 /// The costs of candidate batches evaluated by a [`GpuEngine`] (any adapter, f32 or f64).
 pub struct GpuBackend<'a> {
@@ -31,6 +31,8 @@ pub struct GpuBackend<'a> {
     air_rays: Vec<[f64; 6]>,
     /// v_l, v_r, ∂v_l/∂u, ∂v_l/∂v, ∂v_r/∂u, ∂v_r/∂v of every corner.
     vop_rows: Vec<[f64; 18]>,
+    /// The affine-grid rows and view table, packed for the fused kernel.
+    affine_input: AffineGridInput,
 }
 
 impl<'a> GpuBackend<'a> {
@@ -52,7 +54,9 @@ impl<'a> GpuBackend<'a> {
                 })
             })
             .collect();
-        Self { data, engine, air_rays, vop_rows }
+        let views: Vec<(usize, usize)> = data.views.iter().map(|r| (r.start, r.len())).collect();
+        let affine_input = AffineGridInput::new(&data.affine_rows, &views);
+        Self { data, engine, air_rays, vop_rows, affine_input }
     }
 
     /// The engine the kernels run on.
@@ -147,16 +151,16 @@ impl<'a> GpuBackend<'a> {
         if !self.engine.context().adapter().f64 {
             return Ok(candidates.par_iter().map(|c| super::costs::cost(data, CostKind::AffineGrid, c)).collect());
         }
-        let views: Vec<(usize, usize)> = data.views.iter().map(|r| (r.start, r.len())).collect();
+        let views = self.affine_input.views();
         let axes: Vec<[f64; 4]> = candidates.iter().map(|c| [c.normal.x, c.normal.y, c.normal.z, 0.0]).collect();
-        let mut fits = vec![[0.0; 2]; axes.len() * views.len()];
+        let mut fits = vec![[0.0; 2]; axes.len() * views];
         let mut status = vec![0; fits.len()];
-        self.engine.calib_affine_grid(&data.rig, data.cameras, &data.affine_rows, &views, &axes, &mut fits, &mut status)?;
+        self.engine.calib_affine_grid(&data.rig, data.cameras, &self.affine_input, &axes, &mut fits, &mut status)?;
         Ok(candidates
             .iter()
             .enumerate()
             .map(|(c, candidate)| {
-                let range = c * views.len()..(c + 1) * views.len();
+                let range = c * views..(c + 1) * views;
                 let fitted = status[range.clone()].iter().all(|&s| s == 0) && candidate.normal.z > 0.0;
                 let (chi2, dof) = fits[range].iter().fold((0.0, 0.0), |(a, b), f| (a + f[0], b + f[1]));
                 if fitted && dof > 0.0 { chi2 / dof } else { f64::INFINITY }

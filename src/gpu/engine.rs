@@ -20,6 +20,8 @@ use crate::model::{RefractiveCamera, Rig};
 mod affine_grid;
 mod candidates;
 
+pub use affine_grid::AffineGridInput;
+
 /// Largest number of items per dispatch whatever the binding cap: bounds the device and staging
 /// memory (4 Mi items: 96 MiB of f32 rays, 192 MiB in f64 split over two chunks by the cap).
 pub const MAX_CHUNK_ITEMS: usize = 1 << 22;

@@ -12,27 +12,54 @@ use crate::model::Rig;
 /// workgroup's invocations share their view.
 const GROUP: usize = 64;
 
+/// The fused affine-grid kernel's input, packed once per data set: every corner row (N reals, a
+/// multiple of 4: the kernel reads vec4), then (first row, row count, 0, 0) per view.
+#[derive(Debug, Clone)]
+pub struct AffineGridInput {
+    reals: Vec<f64>,
+    rows: usize,
+    views: usize,
+}
+
+impl AffineGridInput {
+    /// Packs `rows` (view by view) and each view's (first row, row count).
+    pub fn new<const N: usize>(rows: &[[f64; N]], views: &[(usize, usize)]) -> Self {
+        assert_eq!(N % 4, 0, "rows are read as vec4");
+        let mut reals = Vec::with_capacity(rows.len() * N + 4 * views.len());
+        for row in rows {
+            reals.extend_from_slice(row);
+        }
+        for &(first, count) in views {
+            reals.extend_from_slice(&[first as f64, count as f64, 0.0, 0.0]);
+        }
+        Self { reals, rows: rows.len(), views: views.len() }
+    }
+
+    /// Number of views.
+    pub fn views(&self) -> usize {
+        self.views
+    }
+}
+
 impl GpuEngine {
-    /// The weighted affine-grid χ² and degrees of freedom of every view under every axis:
-    /// `rows` are the corners' rows (N reals each, view by view), `views` each view's
-    /// (first row, row count); N must be a multiple of 4 (rows are read as vec4), `axes` unit axes (fourth value ignored). `fits[c · views + v]` gets
+    /// The weighted affine-grid χ² and degrees of freedom of every view of `input` under every
+    /// axis (unit, fourth value ignored). `fits[c · views + v]` gets
     /// (χ², dof) of view v under axis c; `status` is 0, or 6 (degenerate) where the view has
     /// fewer than 4 weighted corners or a singular fit. Runs in f64 whatever the engine's
     /// precision; errors on adapters without SHADER_F64.
     ///
     /// Panics if `fits` and `status` are not `axes.len() · views.len()` long.
     #[allow(clippy::too_many_arguments)]
-    pub fn calib_affine_grid<const N: usize>(
+    pub fn calib_affine_grid(
         &self,
         rig: &Rig,
         cameras: [usize; 2],
-        rows: &[[f64; N]],
-        views: &[(usize, usize)],
+        input: &AffineGridInput,
         axes: &[[f64; 4]],
         fits: &mut [[f64; 2]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        let view_count = views.len();
+        let view_count = input.views;
         assert!(fits.len() == axes.len() * view_count && status.len() == fits.len(), "fits and status of axes · views");
         if !self.context.adapter().f64 {
             return Err(GpuError::Unsupported(format!(
@@ -52,17 +79,9 @@ impl GpuEngine {
         let capacity = self.chunk_items(2 * real);
         let views_per_chunk = view_count.min((capacity / GROUP).max(1));
         let per_view = ((capacity / views_per_chunk) / GROUP * GROUP).max(GROUP).min(axes.len().next_multiple_of(GROUP));
-        assert_eq!(N % 4, 0, "rows are read as vec4");
-        let mut input: Vec<f64> = Vec::with_capacity(rows.len() * N + 4 * view_count);
-        for row in rows {
-            input.extend_from_slice(row);
-        }
-        for &(first, count) in views {
-            input.extend_from_slice(&[first as f64, count as f64, 0.0, 0.0]);
-        }
         let cap = self.context.max_storage_binding() as usize;
-        if input.len() * real > cap {
-            return Err(GpuError::Unsupported(format!("{} corner rows do not fit one binding of {cap} bytes", rows.len())));
+        if input.reals.len() * real > cap {
+            return Err(GpuError::Unsupported(format!("{} corner rows do not fit one binding of {cap} bytes", input.rows)));
         }
         let kernel = Kernel::CalibAffineGrid;
         let pipeline = self.pipeline(kernel);
@@ -71,13 +90,13 @@ impl GpuEngine {
         let mut guard = self.buffers();
         let buffers = &mut *guard;
         let uniform = buffers.uniform.get(device, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST).clone();
-        let in_buf = buffers.input.get(device, "input", input.len() * real, self.input_usage()).clone();
+        let in_buf = buffers.input.get(device, "input", input.reals.len() * real, self.input_usage()).clone();
         let cand_buf = buffers.candidates.get(device, "candidates", per_view * 4 * real, self.input_usage()).clone();
         let items = per_view * views_per_chunk;
         let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", items * 2 * real);
         let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", items * 4);
         let bind_group = self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf), (4, &cand_buf)]);
-        self.upload(&in_buf, bytemuck::cast_slice(&input))?;
+        self.upload(&in_buf, bytemuck::cast_slice(&input.reals))?;
         let mut chunk_axes = vec![[0.0; 4]; per_view];
         for first in (0..axes.len()).step_by(per_view) {
             let last = (first + per_view).min(axes.len());
@@ -89,7 +108,7 @@ impl GpuEngine {
             for view_first in (0..view_count).step_by(views_per_chunk) {
                 let view_last = (view_first + views_per_chunk).min(view_count);
                 let count = per_view * (view_last - view_first);
-                set_info(&mut params, precision, [count as u32, per_view as u32, rows.len() as u32, view_first as u32]);
+                set_info(&mut params, precision, [count as u32, per_view as u32, input.rows as u32, view_first as u32]);
                 self.context.queue.write_buffer(&uniform, 0, &params);
                 let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), self.context.dispatch_size(count as u32));
                 let copies = [(&out_buf, &out_staging, (count * 2 * real) as u64), (&status_buf, &status_staging, (count * 4) as u64)];
