@@ -142,12 +142,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let mut record = |kernel: &'static str, path: &'static str, precision: &'static str, threads: usize, stage: &'static str, seconds: f64| {
         let items = if kernel == "sweep" { sweep_items } else { n };
         let figure = Figure { kernel, path, precision, threads, stage, items, items_per_s: items as f64 / seconds };
-        println!("{kernel:12} {path:3} {precision} {threads:>3} thr {stage:10} {}", human(figure.items_per_s));
+        outln!("{kernel:12} {path:3} {precision} {threads:>3} thr {stage:10} {}", human(figure.items_per_s));
         results.push(figure);
     };
 
     let stream = memory_stream_bandwidth();
-    println!("memory streaming bandwidth (triad, all cores): {:.2} GB/s", stream / 1e9);
+    outln!("memory streaming bandwidth (triad, all cores): {:.2} GB/s", stream / 1e9);
 
     let all = CpuEngine::new(None);
     let one = CpuEngine::new(Some(1));
@@ -236,11 +236,11 @@ fn print_targets(results: &[Figure], stream: f64, threads: usize) {
             .find(|f| f.kernel == kernel && f.path == path && f.precision == precision && threads.is_none_or(|t| f.threads == t) && f.stage == stage)
             .map(|f| f.items_per_s)
     };
-    println!("\ntargets (ratios from this run):");
+    outln!("\ntargets (ratios from this run):");
     let cpu_all = |k: &str| rate(k, "cpu", "f64", Some(threads), "end_to_end");
     let check = |name: &str, value: Option<f64>, target: f64| match value {
-        Some(v) => println!("  {name:58} {v:8.2}  (target ≥ {target}) {}", if v >= target { "met" } else { "NOT MET" }),
-        None => println!("  {name:58}      n/a"),
+        Some(v) => outln!("  {name:58} {v:8.2}  (target ≥ {target}) {}", if v >= target { "met" } else { "NOT MET" }),
+        None => outln!("  {name:58}      n/a"),
     };
     let ratio = |x: Option<f64>, y: Option<f64>| x.zip(y).map(|(x, y)| x / y);
     check("backproject GPU f32 kernel / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "kernel"), cpu_all("backproject")), 1.5);

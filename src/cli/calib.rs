@@ -139,7 +139,7 @@ pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
     write_truth(&args.output.join("truth.json"), &truth)?;
     write_rig(&args.output.join("rig.json"), &rig)?;
     let i = rig.interface();
-    println!(
+    outln!(
         "simulated {} views of a {}x{} board ({} m squares), {} px noise, seed {}\ntruth: tilt {:.4}°, azimuth {:.4}°, air layer {:.3} mm\nwrote {}/observations.json, truth.json, rig.json",
         args.views,
         args.board.cols,
@@ -212,12 +212,12 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.report {
         write_report(path, &calibration.report)?;
     }
-    print!("{}", summary(&calibration.report));
+    out!("{}", summary(&calibration.report));
     if let Some(path) = &args.truth {
         let truth = read_truth(path)?;
-        println!("{}", truth_errors(&calibration.report, &truth));
+        outln!("{}", truth_errors(&calibration.report, &truth));
     }
-    println!("wrote {}{}", args.output.display(), args.report.as_ref().map_or(String::new(), |p| format!(", {}", p.display())));
+    outln!("wrote {}{}", args.output.display(), args.report.as_ref().map_or(String::new(), |p| format!(", {}", p.display())));
     Ok(())
 }
 
