@@ -20,9 +20,9 @@ pub fn run() -> anyhow::Result<()> {
              or your GPU's Vulkan driver)"
         );
     }
-    for a in &found {
+    for (index, a) in found.iter().enumerate() {
         let yes = |b: bool| if b { "yes" } else { "no" };
-        outln!("  gpu: {} [{} {}, {}]", a.name, a.backend, a.device_type, a.driver);
+        outln!("  gpu {index}: {} [{} {}, {}]  (--adapter {index})", a.name, a.backend, a.device_type, a.driver);
         outln!(
             "       features used: SHADER_F64 {}, SUBGROUP {}, TIMESTAMP_QUERY {}",
             yes(a.f64),

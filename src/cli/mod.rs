@@ -191,27 +191,36 @@ pub struct EngineArgs {
     /// Precision of the GPU kernels (default f32; the CPU is always f64)
     #[arg(long, value_enum, value_name = "f32|f64")]
     pub precision: Option<PrecisionArg>,
-    /// GPU adapter: part of its name as `flatport info` lists it (else $FLATPORT_ADAPTER)
-    #[arg(long, value_name = "NAME")]
+    /// GPU adapter: its index or part of its name as `flatport info` lists them (else
+    /// $FLATPORT_ADAPTER, else the best: discrete, integrated, then lavapipe)
+    #[arg(long, value_name = "INDEX|NAME")]
     pub adapter: Option<String>,
 }
 
 impl EngineArgs {
     /// Builds the engine and says on stderr which device runs.
     pub fn engine(&self) -> anyhow::Result<flatport::engine::Engine> {
-        let engine = self.engine_quiet()?;
+        let (engine, why) = flatport::engine::Engine::choose(&self.options())?;
         if self.device == Device::Auto && self.precision == Some(PrecisionArg::F32) && matches!(engine, flatport::engine::Engine::Cpu(_)) {
             eprintln!("note: no hardware GPU, so the f64 CPU reference runs (--precision f32 applies to GPUs)");
         }
-        eprintln!("device: {}", engine.describe());
+        if self.device == Device::Auto {
+            eprintln!("device: {} ({why})", engine.describe());
+        } else {
+            eprintln!("device: {}", engine.describe());
+        }
         Ok(engine)
     }
 
     /// Builds the engine without a word on stderr.
     pub fn engine_quiet(&self) -> anyhow::Result<flatport::engine::Engine> {
-        use flatport::engine::{Device as D, Engine, EngineOptions};
+        Ok(flatport::engine::Engine::new(&self.options())?)
+    }
+
+    fn options(&self) -> flatport::engine::EngineOptions {
+        use flatport::engine::{Device as D, EngineOptions};
         use flatport::gpu::Precision;
-        let options = EngineOptions {
+        EngineOptions {
             device: match self.device {
                 Device::Cpu => D::Cpu,
                 Device::Gpu => D::Gpu,
@@ -223,8 +232,7 @@ impl EngineArgs {
             }),
             adapter: self.adapter.clone(),
             threads: None,
-        };
-        Ok(Engine::new(&options)?)
+        }
     }
 }
 
