@@ -219,7 +219,11 @@ impl GpuContext {
         let wanted = name.map(str::to_string).or_else(|| std::env::var(ADAPTER_ENV).ok());
         let all = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::VULKAN));
         let infos: Vec<wgpu::AdapterInfo> = all.iter().map(|a| a.get_info()).collect();
-        let index = choose_adapter(&infos, wanted.as_deref()).map_err(|tried| GpuError::NoAdapter { tried, hint: INSTALL_HINT.to_string() })?;
+        let index = choose_adapter(&infos, wanted.as_deref()).map_err(|tried| {
+            // With adapters present the choice was wrong, not the installation.
+            let hint = if infos.is_empty() { INSTALL_HINT } else { "`flatport info` lists the adapters with their indices" };
+            GpuError::NoAdapter { tried, hint: hint.to_string() }
+        })?;
         let adapter = &all[index];
         let summary = summary(adapter);
         let mut wanted_features = wgpu::Features::SHADER_F64 | wgpu::Features::SUBGROUP | wgpu::Features::TIMESTAMP_QUERY;
