@@ -83,7 +83,7 @@ pub const ADAPTER_ENV: &str = "FLATPORT_ADAPTER";
 const INSTALL_HINT: &str = "Install a Vulkan driver and loader. Debian/Ubuntu without a GPU: \
     `apt-get install mesa-vulkan-drivers libvulkan1` gives the lavapipe software adapter. NVIDIA \
     (H100, H200, A100, …): the driver's Vulkan ICD (`/usr/share/vulkan/icd.d/nvidia_icd.json`, from the \
-    driver or Debian's `nvidia-vulkan-icd`) and `libvulkan1`; in a container, the NVIDIA Container Toolkit \
+    NVIDIA driver; Debian non-free: `nvidia-vulkan-icd`) and `libvulkan1`; in a container, the NVIDIA Container Toolkit \
     mounts them only when NVIDIA_DRIVER_CAPABILITIES includes `graphics` (or is `all`): the default \
     `compute,utility` has CUDA but no Vulkan. Check with `flatport info` or `vulkaninfo --summary`";
 
