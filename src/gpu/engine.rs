@@ -29,6 +29,25 @@ pub const MAX_CHUNK_ITEMS: usize = 1 << 22;
 /// Largest workgroup count per dispatch dimension every Vulkan adapter supports.
 const MAX_GROUPS_PER_DIMENSION: usize = 65_535;
 
+/// The clock behind a kernel time of [`GpuEngine::kernel_seconds`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum KernelTimer {
+    /// GPU timestamps at the start and end of the compute pass: the kernel alone.
+    GpuTimestamp,
+    /// Host clocks around submit and wait: the kernel plus the driver's latency.
+    Host,
+}
+
+impl KernelTimer {
+    /// `gpu_timestamp` or `host`, as `flatport bench --json` writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::GpuTimestamp => "gpu_timestamp",
+            Self::Host => "host",
+        }
+    }
+}
+
 /// A buffer that is replaced when a call needs more bytes or another usage.
 #[derive(Default)]
 struct Slot(Option<wgpu::Buffer>);
@@ -307,7 +326,9 @@ impl GpuEngine {
 
     /// Seconds per dispatch of `kernel` over `input` (one chunk at most), the data already on the
     /// device: the kernel-only time, without upload or read-back. Runs `repeats` dispatches after
-    /// one warm-up and returns the fastest.
+    /// one warm-up and returns the fastest, with the clock that measured it: GPU timestamps written
+    /// at the start and end of the compute pass where the device has TIMESTAMP_QUERY (the kernel's
+    /// own time), else host clocks around submit and wait (which add the driver's latency).
     pub fn kernel_seconds<const N: usize, const M: usize>(
         &self,
         kernel: Kernel,
@@ -315,11 +336,13 @@ impl GpuEngine {
         b: &RefractiveCamera,
         input: &[[f64; N]],
         repeats: usize,
-    ) -> Result<f64, GpuError> {
+    ) -> Result<(f64, KernelTimer), GpuError> {
         let mut output = vec![[0.0; M]; input.len()];
         let mut status = vec![0; input.len()];
         let chunk = self.chunk_items(N.max(M) * self.precision.size());
-        assert!(input.len() <= chunk, "kernel_seconds takes one chunk ({chunk} items) at most");
+        if input.len() > chunk {
+            return Err(GpuError::Unsupported(format!("kernel_seconds takes one chunk ({chunk} items) at most, got {}", input.len())));
+        }
         // Uploads the data and leaves it resident in the reused buffers.
         self.run_map(kernel, a, b, input, &mut output, &mut status)?;
         let pipeline = self.pipeline(kernel)?;
@@ -327,15 +350,46 @@ impl GpuEngine {
         let resident = |slot: &Slot| slot.0.clone().expect("allocated by run_map");
         let (uniform, in_buf, out_buf, status_buf) = (resident(&buffers.uniform), resident(&buffers.input), resident(&buffers.output), resident(&buffers.status));
         let bind_group = self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)]);
+        let groups = self.context.dispatch_size(input.len() as u32);
+        let device = self.context.device();
+        let timestamps = device.features().contains(wgpu::Features::TIMESTAMP_QUERY).then(|| {
+            let queries = device.create_query_set(&wgpu::QuerySetDescriptor { label: Some("kernel time"), ty: wgpu::QueryType::Timestamp, count: 2 });
+            (queries, self.context.buffer("kernel time", 16, wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC), self.context.buffer("kernel time staging", 16, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST))
+        });
         let mut best = f64::INFINITY;
-        for _ in 0..=repeats {
-            let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), self.context.dispatch_size(input.len() as u32));
-            let started = std::time::Instant::now();
-            self.context.queue.submit([encoder.finish()]);
-            self.context.wait()?;
-            best = best.min(started.elapsed().as_secs_f64());
+        match timestamps {
+            Some((queries, resolve, staging)) => {
+                let (resolve, staging) = (resolve?, staging?);
+                let tick = self.context.queue.get_timestamp_period() as f64 * 1e-9;
+                for _ in 0..=repeats {
+                    let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(kernel.name()) });
+                    {
+                        let writes = wgpu::ComputePassTimestampWrites { query_set: &queries, beginning_of_pass_write_index: Some(0), end_of_pass_write_index: Some(1) };
+                        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(kernel.name()), timestamp_writes: Some(writes) });
+                        pass.set_pipeline(&pipeline);
+                        pass.set_bind_group(0, &bind_group, &[]);
+                        pass.dispatch_workgroups(groups.0, groups.1, 1);
+                    }
+                    encoder.resolve_query_set(&queries, 0..2, &resolve, 0);
+                    let ticks = self.context.read_back(encoder, &[(&resolve, &staging, 16)], |data| {
+                        let stamps: &[u64] = bytemuck::cast_slice(data[0]);
+                        stamps[1].saturating_sub(stamps[0])
+                    })?;
+                    best = best.min(ticks as f64 * tick);
+                }
+                Ok((best, KernelTimer::GpuTimestamp))
+            }
+            None => {
+                for _ in 0..=repeats {
+                    let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), groups);
+                    let started = std::time::Instant::now();
+                    self.context.queue.submit([encoder.finish()]);
+                    self.context.wait()?;
+                    best = best.min(started.elapsed().as_secs_f64());
+                }
+                Ok((best, KernelTimer::Host))
+            }
         }
-        Ok(best)
     }
 
     /// Back-projects raw pixels of `camera` into `rays` (origin xyz on the outer interface, unit
