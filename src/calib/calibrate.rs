@@ -193,7 +193,7 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
                 starts.push(("the reprojection profile's minimum".into(), profile));
                 starts.push(("the rig's start guess".into(), Candidate::of(data.rig.interface())));
             }
-            let mut best: Option<(BundleState, super::lm::LmReport, Option<nalgebra::DMatrix<f64>>)> = None;
+            let mut best: Option<(BundleState, super::lm::LmReport, Option<super::bundle::BlockNormalEquations>)> = None;
             let mut finals = Vec::new();
             for (name, start) in &starts {
                 let t = Instant::now();
