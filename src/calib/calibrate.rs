@@ -153,6 +153,16 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
     if !(options.grid_spacing > 0.0 && options.grid_spacing <= options.max_tilt) {
         return Err(CalibError::Options(format!("the grid spacing must lie in (0°, tilt bound], got {}°", options.grid_spacing.to_degrees())));
     }
+    if super::search::cap_grid_size(options.max_tilt, options.grid_spacing) > super::search::MAX_CAP_GRID_AXES as f64 {
+        return Err(CalibError::Options(format!(
+            "a grid spacing of {}° over a {}° tilt bound gives {:.3e} axes; the global search takes at most {} (each costs an evaluation over every corner): use a spacing ≥ {}°",
+            options.grid_spacing.to_degrees(),
+            options.max_tilt.to_degrees(),
+            super::search::cap_grid_size(options.max_tilt, options.grid_spacing),
+            super::search::MAX_CAP_GRID_AXES,
+            super::search::min_cap_grid_spacing_deg_text(options.max_tilt)
+        )));
+    }
     let mut stages = Vec::new();
 
     // 1. Consecutive: axis from the weighted affine-grid invariant, global then local.

@@ -5,6 +5,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 
+use flatport::calib::search::{MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text};
+use flatport::calib::simulate::{MAX_BOARD_CORNERS, MAX_SIMULATED_CORNERS};
 use flatport::calib::{
     Board, CalibError, CalibrationOptions, CalibrationReport, CostBackend, CpuBackend, GpuBackend, Method, Observations, SceneSpec,
     StereoData, calibrate, simulate,
@@ -102,6 +104,11 @@ pub fn parse_board(text: &str) -> Result<Board, String> {
     if cols < 2 || rows < 2 || !(square > 0.0 && square.is_finite()) {
         return Err(format!("a board needs at least 2x2 inner corners and a square > 0 m, got '{text}'"));
     }
+    if cols.checked_mul(rows).is_none_or(|c| c > MAX_BOARD_CORNERS) {
+        return Err(format!(
+            "'{text}' has {cols} × {rows} inner corners; at most {MAX_BOARD_CORNERS} are simulated (every pose tried projects all of them)"
+        ));
+    }
     Ok(Board { rows, cols, square })
 }
 
@@ -125,11 +132,18 @@ pub fn stereo_pair(rig: &Rig, names: Option<(&str, &str)>, source: &str) -> anyh
 }
 
 pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
+    // Sizes first, before anything is read or allocated.
+    let most = MAX_SIMULATED_CORNERS / args.board.corners();
+    if args.views == 0 || args.views > most {
+        bail!(
+            "--views {}: must lie in 1..={most} for a {}x{} board ({MAX_SIMULATED_CORNERS} corners in all: each takes about 100 bytes in memory and 80 in observations.json)",
+            args.views,
+            args.board.cols,
+            args.board.rows
+        );
+    }
     let rig = read_rig(&args.rig)?;
     let pair = stereo_pair(&rig, args.cameras.as_ref().map(|(a, b)| (a.as_str(), b.as_str())), "--cameras")?;
-    if args.views == 0 {
-        bail!("--views must be at least 1");
-    }
     let mut spec = SceneSpec::new(args.board, args.views, args.noise, args.seed);
     spec.max_board_tilt = args.max_board_tilt_deg.to_radians();
     let scene = simulate(&rig, pair[0], pair[1], &spec)?;
@@ -181,7 +195,26 @@ pub fn cost_backend<'a>(engine: &'a Engine, data: &'a StereoData) -> Box<dyn Cos
     }
 }
 
+/// Checks the size of the global search grid before anything is read.
+fn check_grid_step(args: &CalibrateArgs) -> anyhow::Result<()> {
+    let (bound, spacing) = (args.max_tilt_deg.to_radians(), args.grid_step_deg.to_radians());
+    // Other values of the two options are refused by the calibration with their own message.
+    if bound > 0.0 && bound < 80f64.to_radians() && spacing > 0.0 && spacing <= bound {
+        let axes = cap_grid_size(bound, spacing);
+        if axes > MAX_CAP_GRID_AXES as f64 {
+            bail!(
+                "--grid-step-deg {}: the global search over --max-tilt-deg {} would take {axes:.3e} axes; it takes at most {MAX_CAP_GRID_AXES} (each axis costs an evaluation over every corner): use --grid-step-deg {} or more",
+                args.grid_step_deg,
+                args.max_tilt_deg,
+                min_cap_grid_spacing_deg_text(bound)
+            );
+        }
+    }
+    Ok(())
+}
+
 pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
+    check_grid_step(&args)?;
     let (rig, data, warnings) = load_stereo_data(&args.rig, &args.observations)?;
     let options = CalibrationOptions {
         method: match args.method {
