@@ -242,3 +242,37 @@ fn a_sweep_in_small_batches_writes_every_cell_as_an_independent_evaluation() {
         assert_eq!(csv.lines().count(), 1 + expected.len(), "{cost_name}: one CSV row per cell");
     }
 }
+
+#[test]
+fn a_calibration_reports_its_stages_iterations_and_costs_as_it_goes() {
+    use flatport::calib::{CalibrationOptions, CpuBackend, calibrate_with_progress};
+    let rig = example_rig();
+    let scene = simulate(&rig, 0, 1, &SceneSpec::new(Board { rows: 6, cols: 9, square: 0.04 }, 8, 0.1, 2)).unwrap();
+    let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
+    let mut events: Vec<(String, usize, Option<usize>, f64)> = Vec::new();
+    let calibration =
+        calibrate_with_progress(&CpuBackend::new(&data), &CalibrationOptions::default(), vec![], &mut |p| events.push((p.stage.to_string(), p.done, p.total, p.cost)))
+            .unwrap();
+    // Every stage of the report that iterates was announced, in order, with its last cost: the
+    // events fall into runs of one stage each.
+    let mut runs: Vec<&(String, usize, Option<usize>, f64)> = Vec::new();
+    for (k, e) in events.iter().enumerate() {
+        if events.get(k + 1).is_none_or(|next| next.0 != e.0 || next.1 <= e.1) {
+            runs.push(e);
+        }
+    }
+    let stages: Vec<_> = calibration.report.stages.iter().filter(|s| !s.name.starts_with("air layer")).collect();
+    assert_eq!(runs.len(), stages.len(), "{runs:?}");
+    for (stage, last) in stages.iter().zip(&runs) {
+        assert!(stage.name.starts_with(&last.0), "{} announced as {}", stage.name, last.0);
+        if let Some(total) = last.2 {
+            assert_eq!(last.1, total, "{}: the global grid is reported to its end", stage.name);
+        }
+        let relative = (last.3 - stage.cost).abs() / stage.cost;
+        assert!(relative < 1e-12, "{}: {} vs {}", stage.name, last.3, stage.cost);
+    }
+    let global: Vec<_> = events.iter().filter(|e| e.0.starts_with("global search (affine-grid")).collect();
+    assert!(global.windows(2).all(|w| w[0].1 < w[1].1), "the grid's progress grows");
+    let ml = events.iter().filter(|e| e.0.starts_with("maximum likelihood")).count();
+    assert!(ml >= calibration.report.iterations, "every iteration of the fit is reported");
+}

@@ -86,6 +86,19 @@ pub fn refine_axis(
     min_step: f64,
     max_iterations: usize,
 ) -> Result<Refined, CalibError> {
+    refine_axis_observed(backend, kind, start, step, min_step, max_iterations, &mut |_, _| {})
+}
+
+/// [`refine_axis`], calling `progress(iteration, best cost)` after every iteration.
+pub fn refine_axis_observed(
+    backend: &dyn CostBackend,
+    kind: CostKind,
+    start: Unit<Vector3<f64>>,
+    step: f64,
+    min_step: f64,
+    max_iterations: usize,
+    progress: &mut dyn FnMut(usize, f64),
+) -> Result<Refined, CalibError> {
     let (candidates, costs) = backend.profile(kind, &[start])?;
     let (mut best, mut best_cost) = (candidates[0], costs[0]);
     let mut h = step;
@@ -143,6 +156,7 @@ pub fn refine_axis(
         } else {
             h /= 4.0;
         }
+        progress(iterations, best_cost);
     }
     if !best_cost.is_finite() {
         return Err(CalibError::NoSolution {

@@ -1,6 +1,8 @@
 //! `flatport simulate` and `flatport calibrate`.
 
+use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
@@ -8,8 +10,8 @@ use clap::{Args, ValueEnum};
 use flatport::calib::search::{MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text};
 use flatport::calib::simulate::{MAX_BOARD_CORNERS, MAX_SIMULATED_CORNERS};
 use flatport::calib::{
-    Board, CalibError, CalibrationOptions, CalibrationReport, CostBackend, CpuBackend, GpuBackend, Method, Observations, SceneSpec,
-    StereoData, calibrate, simulate,
+    Board, CalibError, CalibrationOptions, CalibrationProgress, CalibrationReport, CostBackend, CpuBackend, GpuBackend, Method,
+    Observations, SceneSpec, StereoData, calibrate_with_progress, simulate,
 };
 use flatport::engine::Engine;
 use flatport::io::{IoError, Truth, read_observations, read_rig, read_truth, write_observations, write_report, write_rig, write_truth};
@@ -239,7 +241,10 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         data.corners.len(),
         options.method.name()
     );
-    let calibration = calibrate(backend.as_ref(), &options, warnings)?;
+    let mut status = CalibrationStatus::new();
+    let calibration = calibrate_with_progress(backend.as_ref(), &options, warnings, &mut |p| status.update(p));
+    status.finish();
+    let calibration = calibration?;
     let calibrated = rig.with_interface(calibration.interface.clone())?;
     write_rig(&args.output, &calibrated)?;
     if let Some(path) = &args.report {
@@ -252,6 +257,61 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     }
     println!("wrote {}{}", args.output.display(), args.report.as_ref().map_or(String::new(), |p| format!(", {}", p.display())));
     Ok(())
+}
+
+/// Progress of a long calibration on stderr (stage, steps, cost): nothing during the first
+/// [`CalibrationStatus::SILENT`] (short runs stay quiet); then on a terminal one line redrawn at
+/// most five times a second; elsewhere (a log) a line when a stage starts and at most one every
+/// [`CalibrationStatus::LOG_EVERY`] within it.
+struct CalibrationStatus {
+    started: Instant,
+    terminal: bool,
+    last: Option<Instant>,
+    stage: String,
+    drawn: bool,
+}
+
+impl CalibrationStatus {
+    const SILENT: Duration = Duration::from_secs(3);
+    const LOG_EVERY: Duration = Duration::from_secs(30);
+    const REDRAW_EVERY: Duration = Duration::from_millis(200);
+
+    fn new() -> Self {
+        Self { started: Instant::now(), terminal: std::io::stderr().is_terminal(), last: None, stage: String::new(), drawn: false }
+    }
+
+    fn update(&mut self, p: &CalibrationProgress) {
+        let now = Instant::now();
+        let elapsed = now - self.started;
+        if elapsed < Self::SILENT {
+            return;
+        }
+        let new_stage = p.stage != self.stage;
+        let every = if self.terminal { Self::REDRAW_EVERY } else { Self::LOG_EVERY };
+        if !new_stage && self.last.is_some_and(|l| now - l < every) {
+            return;
+        }
+        if new_stage {
+            self.stage = p.stage.to_string();
+        }
+        self.last = Some(now);
+        let steps = match p.total {
+            Some(total) => format!("{}/{total}", p.done),
+            None => format!("iteration {}", p.done),
+        };
+        let cost = if p.cost.is_finite() { format!(", cost {:.6e} {}", p.cost, p.unit) } else { String::new() };
+        let line = format!("[{:.1} s] {}: {steps}{cost}", elapsed.as_secs_f64(), p.stage);
+        let mut err = std::io::stderr().lock();
+        let _ = if self.terminal { write!(err, "\r{line}\x1b[K") } else { writeln!(err, "{line}") };
+        self.drawn = true;
+    }
+
+    /// Ends the redrawn line on a terminal.
+    fn finish(&mut self) {
+        if self.terminal && self.drawn {
+            let _ = writeln!(std::io::stderr());
+        }
+    }
 }
 
 /// The engine for cost batches. Without `--precision` a GPU runs f64 where the adapter has it:
