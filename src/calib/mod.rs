@@ -33,4 +33,4 @@ pub use error::{CalibError, Side};
 pub use gpu_backend::GpuBackend;
 pub use observations::{Observations, StereoView};
 pub use simulate::{Scene, SceneSpec, simulate};
-pub use calibrate::{Calibration, CalibrationOptions, CalibrationReport, Method, calibrate};
+pub use calibrate::{Calibration, CalibrationOptions, CalibrationProgress, CalibrationReport, Method, calibrate, calibrate_with_progress};
