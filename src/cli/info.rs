@@ -35,6 +35,10 @@ pub fn run() -> anyhow::Result<()> {
             a.max_workgroups_per_dimension
         );
     }
-    println!("  (the GPU kernels are reachable from the library, flatport::gpu; --device accepts cpu for now)");
+    println!(
+        "--device cpu runs the f64 reference on all cores; --device gpu the WGSL kernels on a Vulkan adapter above \
+         (--adapter NAME, else $FLATPORT_ADAPTER, else the first hardware GPU, else lavapipe); --device auto (the \
+         default) a hardware GPU when there is one, otherwise the CPU"
+    );
     Ok(())
 }
