@@ -163,7 +163,7 @@ impl Scale {
             return (first..=last)
                 .map(|k| k as f64 * step)
                 .filter(|&x| inside(x))
-                .map(|x| Tick { at: x, label: format_multiple(x, step) })
+                .map(|x| Tick { at: x.clamp(self.low, self.high), label: format_multiple(x, step) })
                 .collect();
         }
         let (first, last) = (self.low.ceil() as i32, self.high.floor() as i32);
@@ -448,6 +448,20 @@ fn polar_view(map: &CostMap) -> PolarView {
     PolarView { centre: ((x0 + x1) / 2.0, (y0 + y1) / 2.0), half, tilt, azimuth, full_turn }
 }
 
+/// The index into `values` of the cell under the polar position (x, y), `None` outside the grid.
+fn polar_cell(view: &PolarView, tilt_edges: &[f64], azimuth_edges: &[f64], x: f64, y: f64) -> Option<usize> {
+    let t = x.hypot(y);
+    if t < view.tilt.0 || t > view.tilt.1 {
+        return None;
+    }
+    let a = (-y).atan2(x).to_degrees();
+    let a = [a, a + 360.0, a - 360.0].into_iter().find(|b| *b >= view.azimuth.0 && *b <= view.azimuth.1)?;
+    // Near the centre every azimuth is the same axis: tilts below the first cell's edge (≤ 0)
+    // belong to the first row.
+    let lowest = tilt_edges[0].min(tilt_edges[tilt_edges.len() - 1]);
+    Some(cell_of(tilt_edges, t.max(lowest))? * (azimuth_edges.len() - 1) + cell_of(azimuth_edges, a)?)
+}
+
 /// Polar view: the axis as a point on the disc of tilts, azimuth measured from +x toward +y of
 /// the master camera (x right, y down as in its image), zoomed to the grid's sector; rings of
 /// equal tilt and spokes of equal azimuth, labelled, the ring labels beside the data or on the
@@ -465,18 +479,7 @@ pub fn write_polar(path: &Path, map: &CostMap) -> Result<(), IoError> {
         let square = plot.margin(top, h as i32 - top - side, left, w as i32 - left - side);
         let (cx, cy, s) = (view.centre.0, view.centre.1, view.half);
         let mut chart = ChartBuilder::on(&square).build_cartesian_2d(cx - s..cx + s, cy - s..cy + s).map_err(draw_error)?;
-        let columns = map.azimuths_deg.len();
-        let cell = |x: f64, y: f64| {
-            let t = x.hypot(y);
-            if t < view.tilt.0 || t > view.tilt.1 {
-                return None;
-            }
-            let a = (-y).atan2(x).to_degrees();
-            let a = [a, a + 360.0, a - 360.0].into_iter().find(|b| *b >= view.azimuth.0 && *b <= view.azimuth.1)?;
-            // Near the centre every azimuth is the same axis: tilts below the first cell's edge
-            // (≤ 0) belong to the first row.
-            Some(cell_of(&te, t.max(te[0].min(te[te.len() - 1])))? * columns + cell_of(&ae, a)?)
-        };
+        let cell = |x: f64, y: f64| polar_cell(&view, &te, &ae, x, y);
         let corners = paint_cells(&chart, map, scale, cell)?;
         let per_pixel = 2.0 * s / side as f64;
         let (t0, t1) = view.tilt;
@@ -581,5 +584,163 @@ mod tests {
             assert_eq!((reader.info().width, reader.info().height), size);
         }
         assert!((viridis(0.0).0, viridis(1.0).1) == (68, 231));
+    }
+
+    /// The value a tick label spells: plain numbers, "10⁻²" and "2·10⁻²".
+    fn spelled(label: &str) -> f64 {
+        const SUPER: &str = "⁰¹²³⁴⁵⁶⁷⁸⁹";
+        if let Some((mantissa, power)) = label.split_once("10").filter(|_| label.contains(|c: char| SUPER.contains(c))) {
+            let mantissa: f64 = if mantissa.is_empty() { 1.0 } else { mantissa.trim_end_matches('·').parse().unwrap() };
+            let exponent: String =
+                power.chars().map(|c| if c == '⁻' { '-' } else { char::from_digit(SUPER.chars().position(|d| d == c).unwrap() as u32, 10).unwrap() }).collect();
+            return mantissa * 10f64.powi(exponent.parse().unwrap());
+        }
+        label.parse().unwrap()
+    }
+
+    #[test]
+    fn colour_bar_ticks_are_distinct_and_say_their_value() {
+        // Ranges of the kinds that printed "0.005" five times, large and tiny magnitudes, one value.
+        for values in [
+            vec![0.00495, 0.0053],
+            vec![0.0049995, 0.0050005],
+            vec![1.21e7, 1.2600001e7],
+            vec![1.0e-9, 3.0e-9],
+            vec![-0.5, 0.25],
+            vec![0.017, 0.017],
+            vec![0.0, 0.0],
+        ] {
+            let scale = Scale::of(&values);
+            assert!(!scale.log);
+            let ticks = scale.ticks();
+            assert!((3..=10).contains(&ticks.len()), "{values:?}: {ticks:?}");
+            let labels: std::collections::HashSet<&str> = ticks.iter().map(|t| t.label.as_str()).collect();
+            assert_eq!(labels.len(), ticks.len(), "{values:?}: labels repeat: {ticks:?}");
+            for t in &ticks {
+                assert!(t.at >= scale.low && t.at <= scale.high, "{t:?} outside the bar");
+                let step = ticks[1].at - ticks[0].at;
+                assert!((spelled(&t.label) - t.at).abs() <= 1e-9 * step.abs(), "{values:?}: {t:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn log_scale_ticks_are_powers_of_ten_not_exponents() {
+        for (values, majors) in [(vec![0.013, 25.0], 3), (vec![2e-7, 3e4], 5), (vec![0.05, 6.0], 1)] {
+            let scale = Scale::of(&values);
+            assert!(scale.log, "{values:?}");
+            let ticks = scale.ticks();
+            assert!(ticks.len() >= 3, "{ticks:?}");
+            let powers = ticks.iter().filter(|t| t.label.starts_with("10")).count();
+            assert!(powers >= majors, "{values:?}: {ticks:?}");
+            for t in &ticks {
+                // The label is the value at that place of the bar (10^at), never the exponent.
+                let value = 10f64.powf(t.at);
+                assert!((spelled(&t.label) / value - 1.0).abs() < 1e-9, "{values:?}: {t:?}");
+                assert!(value >= values[0] * (1.0 - 1e-9) && value <= values[1] * (1.0 + 1e-9), "{t:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn cells_without_a_finite_cost_are_named_and_counted() {
+        let values = [1.0, f64::INFINITY, 2.0, f64::NAN, f64::INFINITY];
+        assert_eq!(no_answer_label(&values).unwrap(), "grey: no finite cost (3 of 5 axes)");
+        assert_eq!(no_answer_label(&[1.0, 2.0]), None);
+        assert_eq!(Scale::of(&values).colour(f64::INFINITY), NO_ANSWER);
+        // No viridis colour is that grey.
+        assert!((0..=1000).all(|i| viridis(i as f64 / 1000.0) != NO_ANSWER));
+    }
+
+    fn sweep_map<'a>(tilts: &'a [f64], azimuths: &'a [f64], values: &'a [f64], truth: Option<(f64, f64)>) -> CostMap<'a> {
+        CostMap { tilts_deg: tilts, azimuths_deg: azimuths, values, title: "t".into(), cost_label: "c".into(), minimum: None, truth }
+    }
+
+    fn linspace(a: f64, b: f64, n: usize) -> Vec<f64> {
+        (0..n).map(|i| a + (b - a) * i as f64 / (n - 1) as f64).collect()
+    }
+
+    #[test]
+    fn the_polar_view_follows_the_data() {
+        // The demo's close sweep: ±1° of tilt around 8°, ±7.4° of azimuth around 45°.
+        let (tilts, azimuths) = (linspace(7.0, 9.0, 64), linspace(37.6, 52.4, 64));
+        let values = vec![1.0; 64 * 64];
+        let view = polar_view(&sweep_map(&tilts, &azimuths, &values, None));
+        assert!(!view.full_turn);
+        // The whole disc would be 2·9.03° wide; the sector is about 2.4° × 2.4°.
+        assert!(view.half < 2.0, "{view:?}");
+        let inside = |(x, y): (f64, f64)| (x - view.centre.0).abs() <= view.half && (y - view.centre.1).abs() <= view.half;
+        for &t in &[7.0 - 1.0 / 63.0, 9.0 + 1.0 / 63.0] {
+            for &a in &linspace(37.6 - 0.12, 52.4 + 0.12, 50) {
+                assert!(inside(polar_at(t, a)), "({t}, {a}) outside {view:?}");
+            }
+        }
+        // The data cover at least a third of the square.
+        let n = 200;
+        let covered = (0..n * n)
+            .filter(|k| {
+                let x = view.centre.0 - view.half + 2.0 * view.half * ((k % n) as f64 + 0.5) / n as f64;
+                let y = view.centre.1 - view.half + 2.0 * view.half * ((k / n) as f64 + 0.5) / n as f64;
+                polar_cell(&view, &edges(&tilts), &edges(&azimuths), x, y).is_some()
+            })
+            .count();
+        assert!(covered * 3 > n * n, "{covered} of {}", n * n);
+        // A truth outside the grid is still in the picture.
+        let view = polar_view(&sweep_map(&tilts, &azimuths, &values, Some((10.0, 60.0))));
+        let (x, y) = polar_at(10.0, 60.0);
+        assert!((x - view.centre.0).abs() < view.half && (y - view.centre.1).abs() < view.half);
+        // Every azimuth: the whole disc.
+        let (tilts, azimuths) = (linspace(0.0, 20.0, 96), linspace(-180.0, 180.0, 96));
+        let values = vec![1.0; 96 * 96];
+        let view = polar_view(&sweep_map(&tilts, &azimuths, &values, None));
+        assert!(view.full_turn && view.centre == (0.0, 0.0) && view.half > 20.0, "{view:?}");
+    }
+
+    #[test]
+    fn every_point_of_the_polar_grid_lies_in_its_own_cell() {
+        let (tilts, azimuths) = (linspace(0.0, 20.0, 21), linspace(-180.0, 180.0, 21));
+        let values = vec![1.0; 21 * 21];
+        let view = polar_view(&sweep_map(&tilts, &azimuths, &values, None));
+        let (te, ae) = (edges(&tilts), edges(&azimuths));
+        // A fine grid over the disc (independent of the cells' edges): inside the outer edge every
+        // point has a cell, and that cell's edges hold the point's tilt and azimuth.
+        for i in 0..400 {
+            for j in 0..400 {
+                let (x, y) = (-21.0 + 42.0 * i as f64 / 399.0, -21.0 + 42.0 * j as f64 / 399.0);
+                let (t, a) = (x.hypot(y), (-y).atan2(x).to_degrees());
+                let cell = polar_cell(&view, &te, &ae, x, y);
+                if t > te[21] {
+                    assert_eq!(cell, None);
+                    continue;
+                }
+                let k = cell.unwrap_or_else(|| panic!("no cell at ({x}, {y})"));
+                let (r, c) = (k / 21, k % 21);
+                assert!(t >= te[r].max(0.0) - 1e-12 && t <= te[r + 1] + 1e-12, "tilt {t} in row {r}");
+                let held = [a, a + 360.0, a - 360.0].iter().any(|b| *b >= ae[c] - 1e-12 && *b <= ae[c + 1] + 1e-12);
+                assert!(held, "azimuth {a} in column {c}");
+            }
+        }
+    }
+
+    #[test]
+    fn pictures_draw_cells_without_a_finite_cost_in_grey() {
+        let (tilts, azimuths) = (linspace(0.0, 20.0, 21), linspace(-180.0, 180.0, 21));
+        let grey_pixels = |values: &[f64]| {
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("p.png");
+            write_polar(&path, &sweep_map(&tilts, &azimuths, values, None)).unwrap();
+            let mut reader = png::Decoder::new(std::fs::File::open(&path).unwrap()).read_info().unwrap();
+            let mut buffer = vec![0; reader.output_buffer_size()];
+            reader.next_frame(&mut buffer).unwrap();
+            buffer.chunks(3).filter(|p| p == &[NO_ANSWER.0, NO_ANSWER.1, NO_ANSWER.2]).count()
+        };
+        let mut values: Vec<f64> = (0..21 * 21).map(|k| 1.0 + k as f64).collect();
+        // (Anti-aliased text may hit that grey in a few pixels.)
+        assert!(grey_pixels(&values) < 50);
+        // The outer ring of cells has no answer: a band of grey pixels (plus legend and swatch).
+        for v in values[20 * 21..].iter_mut() {
+            *v = f64::INFINITY;
+        }
+        assert!(grey_pixels(&values) > 5000);
     }
 }
