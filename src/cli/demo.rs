@@ -14,7 +14,7 @@ use flatport::model::{NoSolution, Rig, triangulate_rays};
 
 use super::rig::describe;
 
-/// The example stereo rig: DESIGN.md §1's rig with mild lens distortion and the right camera
+/// The example stereo rig: docs/DESIGN.md §1's rig with mild lens distortion and the right camera
 /// turned 1° toward the left one.
 pub const EXAMPLE_RIG: &str = include_str!("../../data/example_rig.json");
 

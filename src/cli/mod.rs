@@ -1,5 +1,5 @@
 //! Subcommands of the `flatport` binary (clap). No math here: every command reads its inputs,
-//! calls the library row by row, and writes the CSV contract of DESIGN.md §1.
+//! calls the library row by row, and writes the CSV contract of docs/DESIGN.md §1.
 
 mod batch;
 mod calib;
