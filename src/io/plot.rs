@@ -2,6 +2,14 @@
 //! (tilt as radius, azimuth as angle, as seen looking along the master camera: x right, y down).
 //! Drawn with plotters into memory, encoded with png, written atomically; the font (DejaVu Sans)
 //! is built in, so no system fonts are needed.
+//!
+//! The cells are painted pixel by pixel: each pixel takes the colour of the grid cell under its
+//! centre (for the polar view, the cell whose tilt and azimuth edges hold the pixel's polar
+//! coordinates), so every cell covers exactly its own area. Filled polygons approximated the
+//! annular cells with chords and left seams and overlaps between them (striped arcs, saw-tooth
+//! edges). The polar view shows the whole disc when the grid covers every azimuth and is zoomed to
+//! the grid's sector (and the marks) otherwise. Cells without a finite cost are [`NO_ANSWER`] grey,
+//! named in the legend with their count and shown under the colour bar.
 
 use std::path::Path;
 
@@ -20,7 +28,7 @@ pub struct CostMap<'a> {
     pub tilts_deg: &'a [f64],
     /// Azimuth values of the columns, degrees (ascending).
     pub azimuths_deg: &'a [f64],
-    /// values[row · azimuths + column]; non-finite cells are drawn grey.
+    /// values[row · azimuths + column]; non-finite cells are drawn [`NO_ANSWER`] grey.
     pub values: &'a [f64],
     /// Title over the picture.
     pub title: String,
