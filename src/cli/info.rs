@@ -35,10 +35,9 @@ pub fn run() -> anyhow::Result<()> {
             a.max_workgroups_per_dimension
         );
     }
-    println!(
-        "--device cpu runs the f64 reference on all cores; --device gpu the WGSL kernels on a Vulkan adapter above \
-         (--adapter NAME, else $FLATPORT_ADAPTER, else the first hardware GPU, else lavapipe); --device auto (the \
-         default) a hardware GPU when there is one, otherwise the CPU"
-    );
+    println!("--device cpu:  the f64 reference on all cores");
+    println!("--device gpu:  the WGSL kernels on a Vulkan adapter above (--adapter NAME, else $FLATPORT_ADAPTER,");
+    println!("               else the first hardware GPU, else lavapipe)");
+    println!("--device auto: (the default) a hardware GPU when there is one, otherwise the CPU");
     Ok(())
 }

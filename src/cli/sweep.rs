@@ -51,7 +51,7 @@ pub struct SweepArgs {
     /// Observations (JSON, as for calibrate)
     #[arg(long, value_name = "OBS.json")]
     pub observations: PathBuf,
-    /// The cost
+    /// The cost (the older names `invariant` and `3d` are accepted for affine-grid and scene)
     #[arg(long, value_enum, default_value_t = CostArg::Invariant)]
     pub cost: CostArg,
     /// Tilts of the axis from the master camera's z axis, degrees: START:STOP:COUNT, both ends included
