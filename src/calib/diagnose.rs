@@ -180,7 +180,7 @@ pub fn explain(data: &StereoData, candidate: Option<&Candidate>, noise_px: Optio
     if let Some(ratio) = square_ratio(data, &under) {
         if (ratio - 1.0).abs() > SCALE_TOLERANCE {
             let what = if candidate.is_some() { "under the fitted interface" } else { "under the rig's start interface" };
-            let hint = if (ratio > 5.0 || ratio < 0.2) && findings.is_empty() {
+            let hint = if !(0.2..=5.0).contains(&ratio) && findings.is_empty() {
                 " (a factor this large suggests a unit: a baseline or square in millimetres instead of metres?)"
             } else {
                 ""

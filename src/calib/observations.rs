@@ -160,10 +160,10 @@ pub fn compare_views(views: &[ViewCorners]) -> ViewGroups {
     }
     let mut groups = ViewGroups::default();
     let mut members: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
-    for v in 0..n {
+    for (v, &gap) in copy_gap.iter().enumerate() {
         let copy = root(&mut copy_parent, v);
         if copy != v {
-            groups.repeats.push((v, copy, copy_gap[v]));
+            groups.repeats.push((v, copy, gap));
         }
         members.entry(root(&mut pose_parent, v)).or_default().push(v);
     }

@@ -203,7 +203,7 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     if args.huber.is_some_and(|k| k.is_nan() || k <= 0.0) {
         bail!("--huber must be a positive number of pixels");
     }
-    if !(args.max_rms_px > 0.0) {
+    if args.max_rms_px.is_nan() || args.max_rms_px <= 0.0 {
         bail!("--max-rms-px must be a positive number of pixels, got {}", args.max_rms_px);
     }
     let engine = calibration_engine(&args.engine)?;
