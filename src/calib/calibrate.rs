@@ -199,9 +199,14 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
     let data = backend.data();
     let mut screening = None;
     calibrate_screened(backend, options, warnings, &mut screening).map_err(|error| match error {
-        CalibError::NoSolution { bound_deg, reason } => {
+        CalibError::NoSolution { reason, .. } => {
             let noise = screening.as_ref().and_then(|s: &Screening| s.noise_px);
-            CalibError::NoSolution { bound_deg, reason: format!("{reason}. What the data look like: {}", diagnose::explain(data, None, noise).join("; ")) }
+            // The local refinement does not know the search bound (it reports NaN): every
+            // NoSolution here is under the options' bound.
+            CalibError::NoSolution {
+                bound_deg: options.max_tilt.to_degrees(),
+                reason: format!("{reason}. What the data look like: {}", diagnose::explain(data, None, noise).join("; ")),
+            }
         }
         other => other,
     })
@@ -375,8 +380,11 @@ fn calibrate_screened(
     // The report: residuals under the final interface and poses, over every corner.
     let cameras = data.cameras_behind(&final_candidate).ok_or_else(|| no_solution(options, "the result puts a camera outside the air"))?;
     let residuals = reprojection_residuals(data, &cameras, &poses).ok_or_else(|| no_solution(options, "a fitted corner does not project"))?;
-    let scene = SceneFit::new(data, &cameras).or_else(|| clean_data.cameras_behind(&final_candidate).and_then(|c| SceneFit::new(clean_data, &c)));
-    let scene_data = if SceneFit::new(data, &cameras).is_some() { data } else { clean_data };
+    // The 3-D errors over every corner, else (an outlier that does not triangulate) over the kept ones.
+    let (scene, scene_data) = match SceneFit::new(data, &cameras) {
+        Some(fit) => (Some(fit), data),
+        None => (clean_data.cameras_behind(&final_candidate).and_then(|c| SceneFit::new(clean_data, &c)), clean_data),
+    };
     let mut per_view = Vec::with_capacity(data.views.len());
     let mut total = [0.0; 2];
     for range in &data.views {
@@ -402,7 +410,8 @@ fn calibrate_screened(
             worst.view,
             worst.corner,
             worst.side.name(),
-            if options.huber.is_none() && ml.is_some() { ", or use the Huber loss" } else { "" }
+            // The screened ones are already left out of the fit.
+            if options.huber.is_none() && ml.is_some() && outlier_images.iter().any(|o| !o.screened) { ", or use the Huber loss" } else { "" }
         ));
     }
     let inlier_rms_px = inlier_rms(data, &residuals, &outlier_images);
