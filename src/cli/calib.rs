@@ -88,6 +88,11 @@ pub struct CalibrateArgs {
     /// Iteration bound of the maximum-likelihood refinement
     #[arg(long, default_value_t = 200)]
     max_iterations: usize,
+    /// Largest RMS reprojection error (pixels, either camera, outlier corners left out) accepted
+    /// as a fit: above it the report (if asked for) is written with what the data look like, the
+    /// rig is not written, and the exit status is 1
+    #[arg(long, value_name = "PX", default_value_t = flatport::calib::calibrate::DEFAULT_MAX_RMS_PX)]
+    max_rms_px: f64,
     /// Truth of a simulated scene (from `flatport simulate`): print the errors of the result
     #[arg(long, value_name = "TRUTH.json")]
     truth: Option<PathBuf>,
@@ -239,9 +244,13 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         grid_spacing: args.grid_step_deg.to_radians(),
         huber: args.huber,
         max_iterations: args.max_iterations,
+        max_rms_px: args.max_rms_px,
     };
     if args.huber.is_some_and(|k| k.is_nan() || k <= 0.0) {
         bail!("--huber must be a positive number of pixels");
+    }
+    if args.max_rms_px.is_nan() || args.max_rms_px <= 0.0 {
+        bail!("--max-rms-px must be a positive number of pixels, got {}", args.max_rms_px);
     }
     let engine = calibration_engine(&args.engine)?;
     let backend = cost_backend(&engine, &data);
@@ -252,20 +261,33 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         data.corners.len(),
         options.method.name()
     );
+    // Errors about the data name the observations file.
     let mut status = CalibrationStatus::new();
     let calibration = calibrate_with_progress(backend.as_ref(), &options, warnings, &mut |p| status.update(p));
     status.finish();
-    let calibration = calibration?;
-    let calibrated = rig.with_interface(calibration.interface.clone())?;
-    write_rig(&args.output, &calibrated)?;
+    let calibration = calibration.map_err(|e| in_file(&args.observations, e))?;
+    let report = &calibration.report;
     if let Some(path) = &args.report {
-        write_report(path, &calibration.report)?;
+        write_report(path, report)?;
     }
-    out!("{}", summary(&calibration.report));
+    out!("{}", summary(report));
     if let Some(path) = &args.truth {
         let truth = read_truth(path)?;
-        outln!("{}", truth_errors(&calibration.report, &truth));
+        outln!("{}", truth_errors(report, &truth));
     }
+    if !report.fits {
+        let worst = report.inlier_rms_px[0].max(report.inlier_rms_px[1]);
+        bail!(
+            "{}: the calibration does not fit: the reprojection RMS is {worst:.2} px (outlier corners left out), above --max-rms-px {}. What the data look like: {}. {} not written{}",
+            args.observations.display(),
+            args.max_rms_px,
+            report.diagnosis.join("; "),
+            args.output.display(),
+            args.report.as_ref().map_or(String::new(), |p| format!("; the report is in {}", p.display()))
+        );
+    }
+    let calibrated = rig.with_interface(calibration.interface.clone())?;
+    write_rig(&args.output, &calibrated)?;
     outln!("wrote {}{}", args.output.display(), args.report.as_ref().map_or(String::new(), |p| format!(", {}", p.display())));
     Ok(())
 }
@@ -344,6 +366,9 @@ pub fn truth_errors(report: &CalibrationReport, truth: &Truth) -> String {
     format!("against the truth: axis off by {axis:.5}°, air layer off by {air:+.4} mm")
 }
 
+/// Outlier images listed in the summary (the report lists all).
+const MAX_LISTED_OUTLIERS: usize = 12;
+
 /// The human summary printed on stdout.
 pub fn summary(report: &CalibrationReport) -> String {
     let c = &report.candidate;
@@ -371,6 +396,23 @@ pub fn summary(report: &CalibrationReport) -> String {
         text += &format!("  {} views, {} corners; worst view {v}: {:.4} / {:.4} px\n", report.views, report.corners, rms[0], rms[1]);
     }
     text += &format!("  {} iterations ({})\n", report.iterations, report.termination);
+    if !report.outlier_images.is_empty() {
+        text += &format!("  {} outlier corner(s) (view, image, corner: residual under the result):\n", report.outliers.len());
+        for o in report.outlier_images.iter().take(MAX_LISTED_OUTLIERS) {
+            text += &format!(
+                "    view {}, {} image ({}), corner {}: {:.2} px{}\n",
+                o.view,
+                o.side.name(),
+                o.camera,
+                o.corner,
+                o.residual_px,
+                if o.screened { " (off the board's shape in its image: not used by the estimate)" } else { "" }
+            );
+        }
+        if report.outlier_images.len() > MAX_LISTED_OUTLIERS {
+            text += &format!("    … and {} more (all in the report)\n", report.outlier_images.len() - MAX_LISTED_OUTLIERS);
+        }
+    }
     for warning in &report.warnings {
         text += &format!("warning: {warning}\n");
     }
