@@ -58,6 +58,11 @@ impl CostKind {
         }
     }
 
+    /// The cost named `name` ([`name`](Self::name)'s inverse).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.name() == name)
+    }
+
     /// Unit of the cost's value.
     pub fn unit(self) -> &'static str {
         match self {

@@ -6,6 +6,7 @@
 //! grid each axis cell takes the air layer of the profile ([`CostBackend::profile`]): the linear
 //! least-squares air layer for costs that need one, none for the axis-only invariants.
 
+use std::ops::Range;
 use std::time::Instant;
 
 use super::backend::CostBackend;
@@ -100,6 +101,12 @@ impl SweepSpec {
     /// Number of cells, `None` when it overflows.
     pub fn checked_cells(&self) -> Option<usize> {
         self.shape().iter().try_fold(1usize, |a, &b| a.checked_mul(b))
+    }
+
+    /// Tilt and azimuth (degrees) of cell `cell` (row-major: tilt, azimuth, then air layer).
+    pub fn cell_angles_deg(&self, cell: usize) -> (f64, f64) {
+        let axis = cell / self.distance.map_or(1, |d| d.count);
+        (self.tilt_deg.value(axis / self.azimuth_deg.count), self.azimuth_deg.value(axis % self.azimuth_deg.count))
     }
 
     /// Number of axis cells (tilt × azimuth), saturating.
@@ -237,6 +244,51 @@ pub struct SweepSummary {
     pub seconds: f64,
 }
 
+/// One of `count` contiguous slices of a grid's cells in row-major (C) order, `index` in
+/// 0..count: `--shard INDEX/COUNT`, for a job array that runs one sweep over several machines.
+/// The slices differ in size by at most one cell and together cover the grid once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    /// This slice, 0-based (SLURM's `$SLURM_ARRAY_TASK_ID` with `--array=0-(N-1)`, Kubernetes'
+    /// `$JOB_COMPLETION_INDEX`).
+    pub index: usize,
+    /// Number of slices.
+    pub count: usize,
+}
+
+/// Most shards of one sweep.
+pub const MAX_SHARDS: usize = 100_000;
+
+impl Shard {
+    /// Parses `INDEX/COUNT` with 0 ≤ INDEX < COUNT ≤ [`MAX_SHARDS`].
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let error = || format!("expected INDEX/COUNT with 0 ≤ INDEX < COUNT (0-based, such as 0/4 … 3/4), got '{text}'");
+        let (index, count) = text.split_once('/').ok_or_else(error)?;
+        let index: usize = index.trim().parse().map_err(|_| error())?;
+        let count: usize = count.trim().parse().map_err(|_| error())?;
+        if count == 0 || index >= count {
+            return Err(error());
+        }
+        if count > MAX_SHARDS {
+            return Err(format!("at most {MAX_SHARDS} shards, got {count}"));
+        }
+        Ok(Self { index, count })
+    }
+
+    /// The cells of this slice of a grid of `total` cells: ⌊index·total/count⌋ up to
+    /// ⌊(index+1)·total/count⌋ (exact in 128-bit arithmetic).
+    pub fn cells(&self, total: usize) -> Range<usize> {
+        let bound = |i: usize| (i as u128 * total as u128 / self.count as u128) as usize;
+        bound(self.index)..bound(self.index + 1)
+    }
+}
+
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
 /// Sweeps `spec` over `backend` in batches of `chunk` axis cells (all their air layers), at most
 /// [`MAX_BATCH_CELLS`] cells each: candidates are generated batch by batch, never for the whole
 /// grid, so memory is bounded by the batch whatever the grid. Calls `sink` with every batch in
@@ -248,16 +300,34 @@ pub fn sweep(
     sink: &mut dyn FnMut(SweepChunk) -> Result<(), CalibError>,
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<SweepSummary, CalibError> {
+    sweep_cells(backend, spec, chunk, 0..spec.cells(), sink, progress)
+}
+
+/// [`sweep`] over the cells `cells` of the grid only (row-major indices, as a [`Shard`] gives
+/// them): the same batches' candidates, so every cell's cost is the one a whole sweep computes.
+/// [`SweepChunk::first`] and [`SweepMinimum::cell`] are indices into the whole grid;
+/// `progress(done, total)` counts within `cells`.
+pub fn sweep_cells(
+    backend: &dyn CostBackend,
+    spec: &SweepSpec,
+    chunk: usize,
+    cells: Range<usize>,
+    sink: &mut dyn FnMut(SweepChunk) -> Result<(), CalibError>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<SweepSummary, CalibError> {
     spec.validate()?;
     let started = Instant::now();
     let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
     let depth = spec.distance.map_or(1, |d| d.count);
-    let total = spec.cells();
+    if cells.start > cells.end || cells.end > spec.cells() {
+        return Err(CalibError::Options(format!("cells {}..{} are not within the grid's {} cells", cells.start, cells.end, spec.cells())));
+    }
+    let total = cells.end;
     let per_batch = chunk.max(1).saturating_mul(depth).min(MAX_BATCH_CELLS);
     let normal_of = |a: usize| normal_from_tilt_azimuth(tilts.value(a / azimuths.count).to_radians(), azimuths.value(a % azimuths.count).to_radians());
     let mut minimum: Option<SweepMinimum> = None;
     let mut finite = 0;
-    let mut first = 0;
+    let mut first = cells.start;
     while first < total {
         let end = first.saturating_add(per_batch).min(total);
         // The axis cells this batch touches (a batch may start or end inside an axis's air layers).
@@ -299,14 +369,34 @@ pub fn sweep(
         }
         sink(SweepChunk { first, costs: &costs, distances: &distances })?;
         first = end;
-        progress(first, total);
+        progress(first - cells.start, cells.len());
     }
-    Ok(SweepSummary { minimum, cells: total, finite, seconds: started.elapsed().as_secs_f64() })
+    Ok(SweepSummary { minimum, cells: cells.len(), finite, seconds: started.elapsed().as_secs_f64() })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shards_cover_the_grid_once_in_order() {
+        for total in [0usize, 1, 7, 64, 4096, 1_000_000_007] {
+            for count in [1usize, 2, 3, 4, 7, 64] {
+                let mut next = 0;
+                for index in 0..count {
+                    let cells = Shard { index, count }.cells(total);
+                    assert_eq!(cells.start, next, "{index}/{count} of {total}");
+                    assert!(cells.len() <= total / count + 1);
+                    next = cells.end;
+                }
+                assert_eq!(next, total);
+            }
+        }
+        assert_eq!(Shard::parse("2/4"), Ok(Shard { index: 2, count: 4 }));
+        for bad in ["4/4", "-1/4", "1/0", "1", "a/b", "1/4/2", "0/1000000"] {
+            assert!(Shard::parse(bad).is_err(), "{bad}");
+        }
+    }
 
     #[test]
     fn linspace_includes_both_ends() {

@@ -112,16 +112,17 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     ];
     for (name, tilt_deg, azimuth_deg) in sweeps {
         let args = super::sweep::SweepArgs {
-            rig: dir.join("start_rig.json"),
-            observations: dir.join("observations.json"),
+            rig: Some(dir.join("start_rig.json")),
+            observations: Some(dir.join("observations.json")),
             cost: super::sweep::CostArg::Invariant,
-            tilt_deg,
-            azimuth_deg,
+            tilt_deg: Some(tilt_deg),
+            azimuth_deg: Some(azimuth_deg),
             distance: None,
-            output: dir.join(name),
+            output: Some(dir.join(name)),
             truth: Some(dir.join("truth.json")),
             chunk: 4096,
             quiet: false,
+            shard: None,
             engine: super::EngineArgs { device: engine_args.device, precision: engine_args.precision, adapter: engine_args.adapter.clone() },
         };
         let summary = super::sweep::run_sweep(&args)?;

@@ -140,7 +140,7 @@ Examples:
       --tilt-deg 0:20:64 --azimuth-deg -180:180:64 --output sweep
   flatport sweep --rig rig.json --observations obs.json --cost reprojection \\
       --tilt-deg 6:10:21 --azimuth-deg 40:50:21 --distance 0.015:0.025:11 --output sweep3d --device gpu")]
-    Sweep(sweep::SweepArgs),
+    Sweep(sweep::SweepCommand),
     /// Rig files: import OpenCV stereoCalibrate output, show a rig
     #[command(subcommand)]
     Rig(rig::RigCommand),

@@ -4,15 +4,22 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use clap::{Args, ValueEnum};
+use clap::{Args, Subcommand, ValueEnum};
 use serde_json::json;
 
-use flatport::calib::sweep::{Linspace, MAX_SWEEP_CELLS, MinPool, SweepChunk, SweepSpec, sweep, too_many_cells};
+use flatport::calib::sweep::{
+    Linspace, MAX_SWEEP_CELLS, MinPool, Shard, SweepChunk, SweepMinimum, SweepSpec, SweepSummary, sweep, sweep_cells, too_many_cells,
+};
 use flatport::calib::{CalibError, CostKind};
 use flatport::engine::Engine;
 use flatport::io::npy::NpyWriter;
 use flatport::io::plot::{CostMap, write_heatmap, write_polar};
-use flatport::io::{IoError, TableWriter, read_truth, write_atomic};
+use flatport::io::npy::NpyReader;
+use flatport::io::sweep_shard::{
+    CellRange, GridAxes, GridAxis, SHARD_FORMAT, SHARD_VERSION, ShardIndex, ShardInputs, ShardManifest, read_shard_manifest, sha256_file,
+    write_shard_manifest,
+};
+use flatport::io::{IoError, TableWriter, Truth, read_truth, write_atomic};
 
 use super::progress::Progress;
 
@@ -44,26 +51,26 @@ impl CostArg {
 #[derive(Debug, Args)]
 pub struct SweepArgs {
     /// Rig file: cameras; its layers and indices are used, its normal and distance are not
-    #[arg(long, value_name = "RIG.json")]
-    pub rig: PathBuf,
+    #[arg(long, value_name = "RIG.json", required = true)]
+    pub rig: Option<PathBuf>,
     /// Observations (JSON, as for calibrate)
-    #[arg(long, value_name = "OBS.json")]
-    pub observations: PathBuf,
+    #[arg(long, value_name = "OBS.json", required = true)]
+    pub observations: Option<PathBuf>,
     /// The cost (the older names `invariant` and `3d` are accepted for affine-grid and scene)
     #[arg(long, value_enum, default_value_t = CostArg::Invariant)]
     pub cost: CostArg,
     /// Tilts of the axis from the master camera's z axis, degrees: START:STOP:COUNT, both ends included
-    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace, allow_hyphen_values = true)]
-    pub tilt_deg: Linspace,
+    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace, allow_hyphen_values = true, required = true)]
+    pub tilt_deg: Option<Linspace>,
     /// Azimuths atan2(n_y, n_x), degrees: START:STOP:COUNT, both ends included
-    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace, allow_hyphen_values = true)]
-    pub azimuth_deg: Linspace,
+    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace, allow_hyphen_values = true, required = true)]
+    pub azimuth_deg: Option<Linspace>,
     /// Air layers in metres: START:STOP:COUNT; without it each axis takes its least-squares air layer
     #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace)]
     pub distance: Option<Linspace>,
     /// Output folder (created if missing)
-    #[arg(long, short, value_name = "DIR")]
-    pub output: PathBuf,
+    #[arg(long, short, value_name = "DIR", required = true)]
+    pub output: Option<PathBuf>,
     /// Truth of a simulated scene: marked in the pictures and given in the summary
     #[arg(long, value_name = "TRUTH.json")]
     pub truth: Option<PathBuf>,
@@ -74,6 +81,11 @@ pub struct SweepArgs {
     /// No progress bar
     #[arg(long, short)]
     pub quiet: bool,
+    /// Evaluate only slice INDEX of COUNT contiguous slices of the grid's cells (row-major,
+    /// 0-based: 0/4 … 3/4) into DIR's shard files (cost.npy over the slice, shard.json); `flatport
+    /// sweep merge` joins the shards
+    #[arg(long, value_name = "INDEX/COUNT", value_parser = Shard::parse)]
+    pub shard: Option<Shard>,
     #[command(flatten)]
     pub engine: super::EngineArgs,
 }
@@ -142,131 +154,436 @@ fn grid_json(l: &Linspace) -> serde_json::Value {
 }
 
 /// Runs a sweep into `args.output`; returns the summary JSON. Everything is written under
-/// temporary names and renamed into place only when the sweep completed.
+/// temporary names and renamed into place only when the sweep completed. With `--shard I/N`
+/// only that slice of the grid is evaluated, into the shard's files ([`write_shard`]); the
+/// summary is then the shard's manifest.
 pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
-    let spec = SweepSpec { kind: args.cost.kind(), tilt_deg: args.tilt_deg, azimuth_deg: args.azimuth_deg, distance: args.distance };
+    let missing = |option: &str| anyhow::anyhow!("flatport sweep needs {option} (see flatport sweep --help)");
+    let (rig, observations) = (args.rig.as_deref().ok_or_else(|| missing("--rig"))?, args.observations.as_deref().ok_or_else(|| missing("--observations"))?);
+    let tilt_deg = args.tilt_deg.ok_or_else(|| missing("--tilt-deg"))?;
+    let azimuth_deg = args.azimuth_deg.ok_or_else(|| missing("--azimuth-deg"))?;
+    let dir = args.output.as_deref().ok_or_else(|| missing("--output"))?;
+    let spec = SweepSpec { kind: args.cost.kind(), tilt_deg, azimuth_deg, distance: args.distance };
     check_sizes(args, &spec)?;
     spec.validate()?;
-    let (_, data, _) = super::calib::load_stereo_data(&args.rig, &args.observations)?;
+    let (_, data, _) = super::calib::load_stereo_data(rig, observations)?;
     let truth = args.truth.as_deref().map(read_truth).transpose()?;
     let engine: Engine = args.engine.engine_quiet()?;
     let backend = super::calib::cost_backend(&engine, &data);
     eprintln!("device: {}", engine.describe());
-    let dir = &args.output;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-
+    let cells = args.shard.map_or(0..spec.cells(), |shard| shard.cells(spec.cells()));
     let shape = spec.shape();
-    let depth = spec.distance.map_or(1, |d| d.count);
-    let profile_distance = spec.distance.is_none() && !spec.kind.axis_only();
-    let mut cost_npy = NpyWriter::create(&dir.join("cost.npy"), &shape)?;
-    let mut distance_npy = if profile_distance { Some(NpyWriter::create(&dir.join("distance.npy"), &shape)?) } else { None };
-    let mut csv = TableWriter::create(Some(&dir.join("cost.csv")), ["tilt_deg", "azimuth_deg", "distance", "cost"])?;
-    // The pictures show the lowest cost over the air layers of each axis, min-pooled to at most
-    // PICTURE_SIDE² blocks: memory stays bounded by the picture and the batch, not the grid.
-    let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
-    let mut pool = MinPool::new(tilts, azimuths, PICTURE_SIDE);
-    // An interruption (Ctrl-C, SIGTERM) ends the process in `cli::signals`, which removes the
-    // writers' temporary files: nothing of the sweep is left behind.
-    let mut sink = |chunk: SweepChunk| -> Result<(), CalibError> {
+    eprintln!(
+        "sweeping the {} cost over {} cells ({}{}) × {} corners...",
+        spec.kind.name(),
+        cells.len(),
+        shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" × "),
+        args.shard.map_or(String::new(), |s| format!(", shard {s}: cells {}..{}", cells.start, cells.end)),
+        data.corners.len()
+    );
+    let mut progress = Progress::new("sweep", "cells", args.quiet);
+    if let Some(shard) = args.shard {
+        let mut files = ShardFiles::create(dir, &spec, cells.len())?;
+        let summary = sweep_cells(backend.as_ref(), &spec, args.chunk, cells.clone(), &mut |chunk| files.add(&chunk), &mut |done, total| {
+            progress.update(done, total)
+        })?;
+        let inputs = ShardInputs {
+            rig_sha256: sha256_file(rig)?,
+            observations_sha256: sha256_file(observations)?,
+            correspondences: data.corners.len(),
+            views: data.views.len(),
+        };
+        let manifest = ShardManifest {
+            format: SHARD_FORMAT.into(),
+            version: SHARD_VERSION,
+            shard: ShardIndex { index: shard.index, count: shard.count },
+            cells: CellRange { start: cells.start, end: cells.end, total: spec.cells() },
+            cost: spec.kind.name().into(),
+            grid: GridAxes { tilt_deg: grid_axis(&spec.tilt_deg), azimuth_deg: grid_axis(&spec.azimuth_deg), distance: spec.distance.as_ref().map(grid_axis) },
+            inputs,
+            device: engine.describe(),
+            seconds: summary.seconds,
+            finite_cells: summary.finite,
+        };
+        files.finish(dir, &manifest)?;
+        return Ok(serde_json::to_value(&manifest).expect("plain data"));
+    }
+    let mut outputs = SweepOutputs::create(dir, &spec)?;
+    let summary = sweep(backend.as_ref(), &spec, args.chunk, &mut |chunk| outputs.add(&chunk), &mut |done, total| progress.update(done, total))?;
+    let info = SweepInfo {
+        correspondences: data.corners.len(),
+        views: data.views.len(),
+        seconds: summary.seconds,
+        device: engine.describe(),
+    };
+    outputs.finish(dir, &spec, &summary, &info, truth.as_ref())
+}
+
+fn grid_axis(l: &Linspace) -> GridAxis {
+    GridAxis { start: l.start, stop: l.stop, count: l.count }
+}
+
+fn linspace(g: &GridAxis) -> Linspace {
+    Linspace { start: g.start, stop: g.stop, count: g.count }
+}
+
+/// What the summary says besides the grid's costs.
+struct SweepInfo {
+    correspondences: usize,
+    views: usize,
+    /// Wall-clock seconds (summed over the shards of a merge).
+    seconds: f64,
+    device: String,
+}
+
+/// The files of a whole sweep, written as the cells come in row-major order: cost.npy,
+/// distance.npy (a profile's air layers), cost.csv, and the min-pooled picture.
+struct SweepOutputs {
+    cost_npy: NpyWriter,
+    distance_npy: Option<NpyWriter>,
+    csv: TableWriter<4>,
+    pool: MinPool,
+    tilts: Linspace,
+    azimuths: Linspace,
+    depth: usize,
+}
+
+impl SweepOutputs {
+    fn create(dir: &Path, spec: &SweepSpec) -> anyhow::Result<Self> {
+        let shape = spec.shape();
+        let profile_distance = spec.distance.is_none() && !spec.kind.axis_only();
+        let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
+        Ok(Self {
+            cost_npy: NpyWriter::create(&dir.join("cost.npy"), &shape)?,
+            distance_npy: if profile_distance { Some(NpyWriter::create(&dir.join("distance.npy"), &shape)?) } else { None },
+            csv: TableWriter::create(Some(&dir.join("cost.csv")), ["tilt_deg", "azimuth_deg", "distance", "cost"])?,
+            // The pictures show the lowest cost over the air layers of each axis, min-pooled to at
+            // most PICTURE_SIDE² blocks: memory stays bounded by the picture and the batch.
+            pool: MinPool::new(tilts, azimuths, PICTURE_SIDE),
+            tilts,
+            azimuths,
+            depth: spec.distance.map_or(1, |d| d.count),
+        })
+    }
+
+    /// Takes the next cells. An interruption (Ctrl-C, SIGTERM) ends the process in
+    /// `cli::signals`, which removes the writers' temporary files: nothing is left behind.
+    fn add(&mut self, chunk: &SweepChunk) -> Result<(), CalibError> {
         let io = |e: IoError| CalibError::Options(e.to_string());
-        cost_npy.write(chunk.costs).map_err(io)?;
-        if let Some(npy) = distance_npy.as_mut() {
+        self.cost_npy.write(chunk.costs).map_err(io)?;
+        if let Some(npy) = self.distance_npy.as_mut() {
             npy.write(chunk.distances).map_err(io)?;
         }
+        let (tilts, azimuths, depth) = (self.tilts, self.azimuths, self.depth);
         let rows = chunk.costs.iter().zip(chunk.distances).enumerate().map(|(k, (&cost, &distance))| {
             let axis = (chunk.first + k) / depth;
             Some([tilts.value(axis / azimuths.count), azimuths.value(axis % azimuths.count), distance, cost])
         });
-        csv.write_rows(rows).map_err(io)?;
+        self.csv.write_rows(rows).map_err(io)?;
         for (k, &cost) in chunk.costs.iter().enumerate() {
-            pool.add((chunk.first + k) / depth, cost);
+            self.pool.add((chunk.first + k) / depth, cost);
         }
         Ok(())
-    };
-    let cells = spec.cells();
-    eprintln!(
-        "sweeping the {} cost over {} cells ({}) × {} corners...",
-        spec.kind.name(),
-        cells,
-        shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" × "),
-        data.corners.len()
-    );
-    let mut progress = Progress::new("sweep", "cells", args.quiet);
-    let summary = sweep(backend.as_ref(), &spec, args.chunk, &mut sink, &mut |done, total| progress.update(done, total))?;
-    let Some(minimum) = summary.minimum else {
-        drop(cost_npy);
-        drop(distance_npy);
-        bail!("no cell of the grid has a finite {} cost: every candidate leaves corners without an answer", spec.kind.name());
-    };
-    cost_npy.finish()?;
-    if let Some(n) = distance_npy {
-        n.finish()?;
-    } else {
-        remove_stale(&dir.join("distance.npy"))?;
-    }
-    csv.finish()?;
-    let no_answer = summary.cells - summary.finite;
-    if no_answer > 0 {
-        eprintln!(
-            "warning: {no_answer} of {} cells have no finite {} cost (inf in cost.npy and cost.csv, grey in the pictures): \
-             under those candidates some corner has no answer (a camera outside the air, a totally reflected ray, a corner \
-             triangulated behind the port){}",
-            summary.cells,
-            spec.kind.name(),
-            if profile_distance { "; without --distance this is often an axis whose least-squares air layer leaves a camera outside the air" } else { "" }
-        );
     }
 
-    let truth_deg = truth.as_ref().map(|t| (t.interface.tilt().to_degrees(), t.interface.azimuth().to_degrees()));
-    let (tilt_values, azimuth_values) = (pool.tilts_deg(), pool.azimuths_deg());
-    let pooled = match pool.factors() {
-        (1, 1) => String::new(),
-        (t, a) => format!(", each block the lowest of {t} × {a} axes"),
-    };
-    let map = CostMap {
-        tilts_deg: &tilt_values,
-        azimuths_deg: &azimuth_values,
-        values: pool.values(),
-        title: format!(
-            "{} cost{} over {} axes × {} corners{pooled}",
-            spec.kind.name(),
-            if spec.distance.is_some() { " (lowest over the air layers)" } else { "" },
-            spec.axes(),
-            data.corners.len()
-        ),
-        cost_label: format!("{} ({})", spec.kind.name(), spec.kind.unit()),
-        minimum: Some((minimum.tilt_deg, minimum.azimuth_deg)),
-        truth: truth_deg,
-    };
-    write_heatmap(&dir.join("heatmap.png"), &map)?;
-    write_polar(&dir.join("polar.png"), &map)?;
-    let finite = |x: f64| if x.is_finite() { json!(x) } else { serde_json::Value::Null };
-    let summary_json = json!({
-        "cost": spec.kind.name(),
-        "unit": spec.kind.unit(),
-        "argmin": {"tilt_deg": minimum.tilt_deg, "azimuth_deg": minimum.azimuth_deg, "distance": finite(minimum.distance), "cost": minimum.cost, "cell": minimum.cell},
-        "grid": {"tilt_deg": grid_json(&tilts), "azimuth_deg": grid_json(&azimuths), "distance": spec.distance.as_ref().map(grid_json)},
-        "shape": shape,
-        "cells": summary.cells,
-        "finite_cells": summary.finite,
-        "correspondences": data.corners.len(),
-        "views": data.views.len(),
-        "seconds": summary.seconds,
-        "cells_per_s": summary.cells as f64 / summary.seconds,
-        "cell_correspondences_per_s": (summary.cells * data.corners.len()) as f64 / summary.seconds,
-        "device": engine.describe(),
-        "truth": truth.as_ref().map(|t| json!({"tilt_deg": t.interface.tilt().to_degrees(), "azimuth_deg": t.interface.azimuth().to_degrees(), "distance": t.interface.air_distance()})),
-    });
-    let mut text = serde_json::to_string_pretty(&summary_json).expect("plain data");
-    text.push('\n');
-    write_atomic(&dir.join("summary.json"), text.as_bytes())?;
-    Ok(summary_json)
+    /// Puts the files in place, draws the pictures and writes summary.json; returns the summary.
+    fn finish(self, dir: &Path, spec: &SweepSpec, summary: &SweepSummary, info: &SweepInfo, truth: Option<&Truth>) -> anyhow::Result<serde_json::Value> {
+        let Self { cost_npy, distance_npy, csv, pool, tilts, azimuths, .. } = self;
+        let Some(minimum) = summary.minimum else {
+            bail!("no cell of the grid has a finite {} cost: every candidate leaves corners without an answer", spec.kind.name());
+        };
+        let profile_distance = distance_npy.is_some();
+        cost_npy.finish()?;
+        if let Some(n) = distance_npy {
+            n.finish()?;
+        } else {
+            remove_stale(&dir.join("distance.npy"))?;
+        }
+        csv.finish()?;
+        let no_answer = summary.cells - summary.finite;
+        if no_answer > 0 {
+            eprintln!(
+                "warning: {no_answer} of {} cells have no finite {} cost (inf in cost.npy and cost.csv, grey in the pictures): \
+                 under those candidates some corner has no answer (a camera outside the air, a totally reflected ray, a corner \
+                 triangulated behind the port){}",
+                summary.cells,
+                spec.kind.name(),
+                if profile_distance { "; without --distance this is often an axis whose least-squares air layer leaves a camera outside the air" } else { "" }
+            );
+        }
+
+        let truth_deg = truth.map(|t| (t.interface.tilt().to_degrees(), t.interface.azimuth().to_degrees()));
+        let (tilt_values, azimuth_values) = (pool.tilts_deg(), pool.azimuths_deg());
+        let pooled = match pool.factors() {
+            (1, 1) => String::new(),
+            (t, a) => format!(", each block the lowest of {t} × {a} axes"),
+        };
+        let map = CostMap {
+            tilts_deg: &tilt_values,
+            azimuths_deg: &azimuth_values,
+            values: pool.values(),
+            title: format!(
+                "{} cost{} over {} axes × {} corners{pooled}",
+                spec.kind.name(),
+                if spec.distance.is_some() { " (lowest over the air layers)" } else { "" },
+                spec.axes(),
+                info.correspondences
+            ),
+            cost_label: format!("{} ({})", spec.kind.name(), spec.kind.unit()),
+            minimum: Some((minimum.tilt_deg, minimum.azimuth_deg)),
+            truth: truth_deg,
+        };
+        write_heatmap(&dir.join("heatmap.png"), &map)?;
+        write_polar(&dir.join("polar.png"), &map)?;
+        let finite = |x: f64| if x.is_finite() { json!(x) } else { serde_json::Value::Null };
+        let summary_json = json!({
+            "cost": spec.kind.name(),
+            "unit": spec.kind.unit(),
+            "argmin": {"tilt_deg": minimum.tilt_deg, "azimuth_deg": minimum.azimuth_deg, "distance": finite(minimum.distance), "cost": minimum.cost, "cell": minimum.cell},
+            "grid": {"tilt_deg": grid_json(&tilts), "azimuth_deg": grid_json(&azimuths), "distance": spec.distance.as_ref().map(grid_json)},
+            "shape": spec.shape(),
+            "cells": summary.cells,
+            "finite_cells": summary.finite,
+            "correspondences": info.correspondences,
+            "views": info.views,
+            "seconds": info.seconds,
+            "cells_per_s": summary.cells as f64 / info.seconds,
+            "cell_correspondences_per_s": (summary.cells * info.correspondences) as f64 / info.seconds,
+            "device": info.device,
+            "truth": truth.map(|t| json!({"tilt_deg": t.interface.tilt().to_degrees(), "azimuth_deg": t.interface.azimuth().to_degrees(), "distance": t.interface.air_distance()})),
+        });
+        let mut text = serde_json::to_string_pretty(&summary_json).expect("plain data");
+        text.push('\n');
+        write_atomic(&dir.join("summary.json"), text.as_bytes())?;
+        Ok(summary_json)
+    }
+}
+
+/// The files of one shard: cost.npy (and a profile's distance.npy), one-dimensional over the
+/// shard's cells, and shard.json, its manifest (written last, so a folder with a manifest holds a
+/// whole shard).
+struct ShardFiles {
+    cost_npy: NpyWriter,
+    distance_npy: Option<NpyWriter>,
+}
+
+impl ShardFiles {
+    fn create(dir: &Path, spec: &SweepSpec, cells: usize) -> anyhow::Result<Self> {
+        let profile_distance = spec.distance.is_none() && !spec.kind.axis_only();
+        // A shard folder holds a shard only: the whole sweep's other files would be stale there.
+        for stale in ["cost.csv", "heatmap.png", "polar.png", "summary.json", "distance.npy"] {
+            remove_stale(&dir.join(stale))?;
+        }
+        Ok(Self {
+            cost_npy: NpyWriter::create(&dir.join("cost.npy"), &[cells])?,
+            distance_npy: if profile_distance { Some(NpyWriter::create(&dir.join("distance.npy"), &[cells])?) } else { None },
+        })
+    }
+
+    fn add(&mut self, chunk: &SweepChunk) -> Result<(), CalibError> {
+        let io = |e: IoError| CalibError::Options(e.to_string());
+        self.cost_npy.write(chunk.costs).map_err(io)?;
+        if let Some(npy) = self.distance_npy.as_mut() {
+            npy.write(chunk.distances).map_err(io)?;
+        }
+        Ok(())
+    }
+
+    fn finish(self, dir: &Path, manifest: &ShardManifest) -> anyhow::Result<()> {
+        self.cost_npy.finish()?;
+        if let Some(n) = self.distance_npy {
+            n.finish()?;
+        }
+        write_shard_manifest(&dir.join("shard.json"), manifest)?;
+        Ok(())
+    }
+}
+
+/// `flatport sweep merge`
+#[derive(Debug, Args)]
+pub struct MergeArgs {
+    /// The shards' folders (each with shard.json and cost.npy), in any order
+    #[arg(value_name = "SHARD_DIR", required = true, num_args = 1..)]
+    pub shards: Vec<PathBuf>,
+    /// Output folder (created if missing): the files an unsharded sweep writes
+    #[arg(long, short, value_name = "DIR")]
+    pub output: PathBuf,
+    /// Truth of a simulated scene: marked in the pictures and given in the summary
+    #[arg(long, value_name = "TRUTH.json")]
+    pub truth: Option<PathBuf>,
+}
+
+/// Values read from a shard at a time.
+const MERGE_BATCH: usize = 1 << 16;
+
+/// Merges the shards of one sweep into the files an unsharded sweep writes: cost.npy (the same
+/// bytes), distance.npy, cost.csv, the pictures and summary.json of the whole grid. Refuses shards
+/// of different sweeps (cost, grid, rig or observations differ), a shard given twice, and a set
+/// that leaves cells out.
+pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
+    let mut shards = Vec::with_capacity(args.shards.len());
+    for dir in &args.shards {
+        let manifest = read_shard_manifest(&dir.join("shard.json")).with_context(|| format!("{} is not a sweep shard (flatport sweep --shard I/N writes one)", dir.display()))?;
+        shards.push((dir.clone(), manifest));
+    }
+    let (first_dir, first) = &shards[0];
+    for (dir, m) in &shards[1..] {
+        let differs = |what: &str| {
+            anyhow::anyhow!(
+                "{} and {} are shards of different sweeps: their {what} differ (merge only the shards of one `flatport sweep … --shard I/N` run)",
+                first_dir.display(),
+                dir.display()
+            )
+        };
+        if m.cost != first.cost {
+            return Err(differs(&format!("costs ('{}', '{}')", first.cost, m.cost)));
+        }
+        if m.grid != first.grid {
+            return Err(differs("grids"));
+        }
+        if m.inputs.rig_sha256 != first.inputs.rig_sha256 {
+            return Err(differs("rig files (SHA-256)"));
+        }
+        if m.inputs != first.inputs {
+            return Err(differs("observations files (SHA-256)"));
+        }
+        if m.shard.count != first.shard.count || m.cells.total != first.cells.total {
+            return Err(differs(&format!("shard counts ({}, {})", first.shard.count, m.shard.count)));
+        }
+    }
+    let count = first.shard.count;
+    let mut by_index: Vec<Option<usize>> = vec![None; count];
+    for (k, (dir, m)) in shards.iter().enumerate() {
+        if let Some(other) = by_index[m.shard.index] {
+            bail!("{} and {} are both shard {}/{count}", shards[other].0.display(), dir.display(), m.shard.index);
+        }
+        let expected = Shard { index: m.shard.index, count }.cells(m.cells.total);
+        if (m.cells.start, m.cells.end) != (expected.start, expected.end) {
+            bail!("{}: shard {}/{count} claims cells {}..{}, but that shard is cells {}..{}", dir.display(), m.shard.index, m.cells.start, m.cells.end, expected.start, expected.end);
+        }
+        by_index[m.shard.index] = Some(k);
+    }
+    let missing: Vec<String> = (0..count)
+        .filter(|&i| by_index[i].is_none())
+        .map(|i| {
+            let cells = Shard { index: i, count }.cells(first.cells.total);
+            format!("{i}/{count} (cells {}..{})", cells.start, cells.end)
+        })
+        .collect();
+    if !missing.is_empty() {
+        bail!("the shards leave cells out: shard{} {} missing", if missing.len() == 1 { "" } else { "s" }, missing.join(", "));
+    }
+    let kind = CostKind::from_name(&first.cost).ok_or_else(|| anyhow::anyhow!("{}: unknown cost '{}'", first_dir.display(), first.cost))?;
+    let spec = SweepSpec { kind, tilt_deg: linspace(&first.grid.tilt_deg), azimuth_deg: linspace(&first.grid.azimuth_deg), distance: first.grid.distance.as_ref().map(linspace) };
+    spec.validate()?;
+    if spec.cells() != first.cells.total {
+        bail!("{}: the grid has {} cells, the manifest says {}", first_dir.display(), spec.cells(), first.cells.total);
+    }
+    let truth = args.truth.as_deref().map(read_truth).transpose()?;
+    let dir = &args.output;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let profile_distance = spec.distance.is_none() && !spec.kind.axis_only();
+    let depth = spec.distance.map_or(1, |d| d.count);
+    let mut outputs = SweepOutputs::create(dir, &spec)?;
+    let (mut minimum, mut finite, mut seconds) = (None::<SweepMinimum>, 0, 0.0);
+    let mut devices: Vec<&str> = Vec::new();
+    let (mut costs, mut distances) = (Vec::new(), Vec::new());
+    for k in by_index.into_iter().flatten() {
+        let (shard_dir, m) = &shards[k];
+        seconds += m.seconds;
+        if !devices.contains(&m.device.as_str()) {
+            devices.push(&m.device);
+        }
+        let open = |name: &str| -> anyhow::Result<NpyReader> {
+            let path = shard_dir.join(name);
+            let reader = NpyReader::open(&path)?;
+            if reader.shape() != [m.cells.end - m.cells.start] {
+                bail!("{}: shape {:?}, but the shard has {} cells", path.display(), reader.shape(), m.cells.end - m.cells.start);
+            }
+            Ok(reader)
+        };
+        let mut cost_reader = open("cost.npy")?;
+        let mut distance_reader = if profile_distance { Some(open("distance.npy")?) } else { None };
+        let mut cell = m.cells.start;
+        while cost_reader.read(MERGE_BATCH, &mut costs)? > 0 {
+            match distance_reader.as_mut() {
+                Some(reader) => {
+                    reader.read(costs.len(), &mut distances)?;
+                }
+                None => {
+                    distances.clear();
+                    distances.extend((cell..cell + costs.len()).map(|c| spec.distance.map_or(f64::NAN, |d| d.value(c % depth))));
+                }
+            }
+            for (i, &cost) in costs.iter().enumerate() {
+                if cost.is_finite() {
+                    finite += 1;
+                    if minimum.is_none_or(|best| cost < best.cost) {
+                        let (tilt_deg, azimuth_deg) = spec.cell_angles_deg(cell + i);
+                        minimum = Some(SweepMinimum { cell: cell + i, tilt_deg, azimuth_deg, distance: distances[i], cost });
+                    }
+                }
+            }
+            outputs.add(&SweepChunk { first: cell, costs: &costs, distances: &distances })?;
+            cell += costs.len();
+        }
+    }
+    let summary = SweepSummary { minimum, cells: spec.cells(), finite, seconds };
+    let info = SweepInfo { correspondences: first.inputs.correspondences, views: first.inputs.views, seconds, device: devices.join("; ") };
+    eprintln!("merged {count} shards of {} cells", spec.cells());
+    outputs.finish(dir, &spec, &summary, &info, truth.as_ref())
+}
+
+/// `flatport sweep …` (a sweep, or one shard of it) or `flatport sweep merge …`.
+#[derive(Debug, Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+pub struct SweepCommand {
+    #[command(subcommand)]
+    pub action: Option<SweepAction>,
+    #[command(flatten)]
+    pub run: SweepArgs,
+}
+
+/// What `flatport sweep` does besides sweeping.
+#[derive(Debug, Subcommand)]
+pub enum SweepAction {
+    /// Join the shards of a sweep (`--shard I/N`) into the files an unsharded sweep writes
+    #[command(after_help = "\
+cost.npy comes out byte for byte as an unsharded sweep on the same device writes it; cost.csv,
+distance.npy, the pictures and summary.json are made from the whole grid (summary.json's seconds
+add up the shards'). Shards of different sweeps (another cost, grid, rig or observations file), a
+shard given twice, and a set that leaves cells out are refused, naming them.
+
+Examples:
+  flatport sweep merge shard-0 shard-1 shard-2 shard-3 --output sweep
+  flatport sweep merge shards/* -o sweep --truth scene/truth.json")]
+    Merge(MergeArgs),
 }
 
 /// `flatport sweep` from the command line: runs and prints where everything went.
-pub fn run(args: SweepArgs) -> anyhow::Result<()> {
-    let summary = run_sweep(&args)?;
-    print_summary(&summary, &args.output);
+pub fn run(command: SweepCommand) -> anyhow::Result<()> {
+    match command.action {
+        Some(SweepAction::Merge(args)) => {
+            let summary = run_merge(&args)?;
+            print_summary(&summary, &args.output);
+        }
+        None => {
+            let args = command.run;
+            let summary = run_sweep(&args)?;
+            let output = args.output.as_deref().unwrap_or(Path::new("."));
+            match args.shard {
+                Some(shard) => outln!(
+                    "shard {shard}: cells {}..{} in {:.2} s; wrote {}/cost.npy, shard.json (join the shards with `flatport sweep merge`)",
+                    summary["cells"]["start"],
+                    summary["cells"]["end"],
+                    summary["seconds"].as_f64().unwrap_or(f64::NAN),
+                    output.display()
+                ),
+                None => print_summary(&summary, output),
+            }
+        }
+    }
     Ok(())
 }
 

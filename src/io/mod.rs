@@ -7,6 +7,7 @@ pub mod plot;
 pub mod opencv;
 pub mod output;
 pub mod rig_json;
+pub mod sweep_shard;
 pub mod tabular;
 
 use std::path::Path;

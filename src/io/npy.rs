@@ -82,6 +82,88 @@ pub fn read_npy(path: &Path) -> Result<(Vec<usize>, Vec<f64>), IoError> {
     Ok((shape, data.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))).collect()))
 }
 
+/// A little-endian f64 `.npy` file (format 1.0 or 2.0, C order) read value by value in bounded
+/// memory: the reading twin of [`NpyWriter`], for sweeps whose arrays do not fit in memory.
+pub struct NpyReader {
+    path: std::path::PathBuf,
+    input: std::io::BufReader<std::fs::File>,
+    shape: Vec<usize>,
+    left: usize,
+}
+
+impl NpyReader {
+    /// Opens `path` and reads its header.
+    ///
+    /// Errors: [`IoError::Read`] when it cannot be read; [`IoError::Invalid`] naming the file when
+    /// it is not an f64 C-order `.npy` file or its data do not match its shape.
+    pub fn open(path: &Path) -> Result<Self, IoError> {
+        use std::io::Read;
+        let read_error = |source| IoError::Read { path: path.to_path_buf(), source };
+        let invalid = |reason: String| IoError::Invalid { path: path.to_path_buf(), field: String::new(), reason };
+        let file = std::fs::File::open(path).map_err(read_error)?;
+        let length = file.metadata().map_err(read_error)?.len();
+        let mut input = std::io::BufReader::new(file);
+        let mut preamble = [0u8; 8];
+        input.read_exact(&mut preamble).map_err(|_| invalid("not a .npy file (too short)".into()))?;
+        if &preamble[..6] != b"\x93NUMPY" {
+            return Err(invalid("not a .npy file (no \\x93NUMPY magic)".into()));
+        }
+        let header_len = match preamble[6] {
+            1 => {
+                let mut n = [0u8; 2];
+                input.read_exact(&mut n).map_err(|_| invalid("truncated header".into()))?;
+                u16::from_le_bytes(n) as usize
+            }
+            2 | 3 => {
+                let mut n = [0u8; 4];
+                input.read_exact(&mut n).map_err(|_| invalid("truncated header".into()))?;
+                u32::from_le_bytes(n) as usize
+            }
+            v => return Err(invalid(format!("unknown .npy format version {v}"))),
+        };
+        let prefix = if preamble[6] == 1 { 10 } else { 12 };
+        if (prefix + header_len) as u64 > length || header_len > 1 << 20 {
+            return Err(invalid("truncated header".into()));
+        }
+        let mut header = vec![0u8; header_len];
+        input.read_exact(&mut header).map_err(|_| invalid("truncated header".into()))?;
+        let header = String::from_utf8(header).map_err(|_| invalid("the header is not text".into()))?;
+        if !header.contains("'descr': '<f8'") || !header.contains("'fortran_order': False") {
+            return Err(invalid(format!("only little-endian f64 in C order is read, the header says {}", header.trim())));
+        }
+        let shape_text = header.split("'shape': (").nth(1).and_then(|s| s.split(')').next()).ok_or_else(|| invalid("the header has no shape".into()))?;
+        let shape: Vec<usize> = shape_text
+            .split(',')
+            .filter(|s| !s.trim().is_empty())
+            .map(|s| s.trim().parse().map_err(|_| invalid(format!("bad shape ({shape_text})"))))
+            .collect::<Result<_, _>>()?;
+        let values = shape.iter().try_fold(1usize, |a, &b| a.checked_mul(b)).ok_or_else(|| invalid("the shape overflows".into()))?;
+        let data = length - (prefix + header_len) as u64;
+        if Some(data) != (values as u64).checked_mul(8) {
+            return Err(invalid(format!("{data} data bytes for the shape {shape:?} ({values} values of 8 bytes)")));
+        }
+        Ok(Self { path: path.to_path_buf(), input, shape, left: values })
+    }
+
+    /// The array's shape.
+    pub fn shape(&self) -> &[usize] {
+        &self.shape
+    }
+
+    /// Clears `values` and fills it with the next values, at most `max` (0 is taken as 1), in C
+    /// order. Returns how many: 0 only at the end.
+    pub fn read(&mut self, max: usize, values: &mut Vec<f64>) -> Result<usize, IoError> {
+        use std::io::Read;
+        values.clear();
+        let n = max.max(1).min(self.left);
+        let mut bytes = vec![0u8; 8 * n];
+        self.input.read_exact(&mut bytes).map_err(|source| IoError::Read { path: self.path.clone(), source })?;
+        values.extend(bytes.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))));
+        self.left -= n;
+        Ok(n)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
