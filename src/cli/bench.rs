@@ -69,6 +69,9 @@ struct Figure {
     precision: &'static str,
     threads: usize,
     stage: &'static str,
+    /// The clock: `host` (wall clock around the work) or `gpu_timestamp` (GPU timestamps around
+    /// the compute pass, for the GPU `kernel` stage where the adapter has TIMESTAMP_QUERY).
+    timer: &'static str,
     items: usize,
     items_per_s: f64,
 }
@@ -139,15 +142,19 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         sweep_candidates.len(),
         sweep_data.corners.len()
     );
+    // The clock of the next figure: `host` unless a GPU kernel time sets `gpu_timestamp`.
+    let next_timer = std::cell::Cell::new("host");
     let mut record = |kernel: &'static str, path: &'static str, precision: &'static str, threads: usize, stage: &'static str, seconds: f64| {
+        let timer = next_timer.replace("host");
         let items = if kernel == "sweep" { sweep_items } else { n };
-        let figure = Figure { kernel, path, precision, threads, stage, items, items_per_s: items as f64 / seconds };
-        println!("{kernel:12} {path:3} {precision} {threads:>3} thr {stage:10} {}", human(figure.items_per_s));
+        let figure = Figure { kernel, path, precision, threads, stage, timer, items, items_per_s: items as f64 / seconds };
+        let clock = if timer == "host" { String::new() } else { format!("  ({timer})") };
+        outln!("{kernel:12} {path:3} {precision} {threads:>3} thr {stage:10} {}{clock}", human(figure.items_per_s));
         results.push(figure);
     };
 
     let stream = memory_stream_bandwidth();
-    println!("memory streaming bandwidth (triad, all cores): {:.2} GB/s", stream / 1e9);
+    outln!("memory streaming bandwidth (triad, all cores): {:.2} GB/s", stream / 1e9);
 
     let all = CpuEngine::new(None);
     let one = CpuEngine::new(Some(1));
@@ -194,11 +201,13 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             }
             let p = precision.name();
             let kernel_only = |kernel: Kernel, gpu: &GpuEngine, a: &RefractiveCamera, b: &RefractiveCamera| -> anyhow::Result<f64> {
-                Ok(match kernel {
+                let (seconds, timer) = match kernel {
                     Kernel::Backproject => gpu.kernel_seconds::<2, 6>(kernel, a, b, &work.pixels, args.repeats)?,
                     Kernel::Project => gpu.kernel_seconds::<3, 2>(kernel, a, b, &work.points, args.repeats)?,
                     _ => gpu.kernel_seconds::<4, 4>(kernel, a, b, &work.matches, args.repeats)?,
-                })
+                };
+                next_timer.set(timer.name());
+                Ok(seconds)
             };
             record("backproject", "gpu", p, 0, "kernel", kernel_only(Kernel::Backproject, &gpu, &a, &a)?);
             let t = fastest(args.repeats, || Ok(gpu.backproject(&a, &work.pixels, &mut out6, &mut status)?))?;
@@ -238,11 +247,11 @@ fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
             .find(|f| f.kernel == kernel && f.path == path && f.precision == precision && threads.is_none_or(|t| f.threads == t) && f.stage == stage)
             .map(|f| f.items_per_s)
     };
-    println!("\nratios from this run (the goals are in the README, \"Speed goals\"):");
+    outln!("\nratios from this run (the goals are in the README, \"Speed goals\"):");
     let cpu_all = |k: &str| rate(k, "cpu", "f64", Some(threads), "end_to_end");
     let show = |name: &str, value: Option<f64>| match value {
-        Some(v) => println!("  {name:60} {v:8.2}"),
-        None => println!("  {name:60}      n/a"),
+        Some(v) => outln!("  {name:60} {v:8.2}"),
+        None => outln!("  {name:60}      n/a"),
     };
     let ratio = |x: Option<f64>, y: Option<f64>| x.zip(y).map(|(x, y)| x / y);
     show("backproject GPU f32 kernel / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "kernel"), cpu_all("backproject")));

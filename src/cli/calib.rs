@@ -150,7 +150,7 @@ pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
     write_rig(&args.output.join("rig.json"), &rig)?;
     write_rig(&args.output.join("start_rig.json"), &naive_start(&rig)?)?;
     let i = rig.interface();
-    println!(
+    outln!(
         "simulated {} views of a {}x{} board ({} m squares), {} px noise, seed {}\ntruth: tilt {:.4}°, azimuth {:.4}°, air layer {:.3} mm\nwrote {}/observations.json, truth.json, rig.json (the truth), start_rig.json (a naive start: axis on the camera's z, 10 mm air)",
         args.views,
         args.board.cols,
@@ -223,12 +223,12 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.report {
         write_report(path, &calibration.report)?;
     }
-    print!("{}", summary(&calibration.report));
+    out!("{}", summary(&calibration.report));
     if let Some(path) = &args.truth {
         let truth = read_truth(path)?;
-        println!("{}", truth_errors(&calibration.report, &truth));
+        outln!("{}", truth_errors(&calibration.report, &truth));
     }
-    println!("wrote {}{}", args.output.display(), args.report.as_ref().map_or(String::new(), |p| format!(", {}", p.display())));
+    outln!("wrote {}{}", args.output.display(), args.report.as_ref().map_or(String::new(), |p| format!(", {}", p.display())));
     Ok(())
 }
 

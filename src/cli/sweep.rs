@@ -2,8 +2,6 @@
 //! PNG and summary outputs.
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
@@ -79,18 +77,6 @@ pub struct SweepArgs {
     pub engine: super::EngineArgs,
 }
 
-/// A flag that Ctrl-C sets (the handler is installed once per process).
-fn interruption_flag() -> &'static AtomicBool {
-    static FLAG: OnceLock<&'static AtomicBool> = OnceLock::new();
-    FLAG.get_or_init(|| {
-        let flag: &'static AtomicBool = Box::leak(Box::new(AtomicBool::new(false)));
-        // Without a handler (another one is installed) Ctrl-C ends the process as usual; the
-        // files then stay under their hidden temporary names, never under the output names.
-        let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
-        flag
-    })
-}
-
 /// Removes `path`, an output of an earlier sweep into the same folder that this sweep does not
 /// write (distance.npy after a sweep with --distance or of an axis-only cost), so that the folder
 /// holds one sweep's files only. Only a regular file or a symbolic link is removed (the link, not
@@ -152,12 +138,9 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
     // The pictures show the lowest cost over the air layers of each axis.
     let mut per_axis = vec![f64::INFINITY; spec.axes()];
     let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
-    let interrupted = interruption_flag();
+    // An interruption (Ctrl-C, SIGTERM) ends the process in `cli::signals`, which removes the
+    // writers' temporary files: nothing of the sweep is left behind.
     let mut sink = |chunk: SweepChunk| -> Result<(), CalibError> {
-        // Ctrl-C stops after the chunk in flight; the writers then remove their temporary files.
-        if interrupted.load(Ordering::Relaxed) {
-            return Err(CalibError::Options("interrupted: no output was written".into()));
-        }
         let io = |e: IoError| CalibError::Options(e.to_string());
         cost_npy.write(chunk.costs).map_err(io)?;
         if let Some(npy) = distance_npy.as_mut() {
@@ -262,7 +245,7 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
 /// The lines printed after a sweep.
 pub fn print_summary(summary: &serde_json::Value, dir: &Path) {
     let m = &summary["argmin"];
-    println!(
+    outln!(
         "minimum {} = {:.6e} {} at tilt {:.4}°, azimuth {:.4}°{}",
         summary["cost"].as_str().unwrap_or(""),
         m["cost"].as_f64().unwrap_or(f64::NAN),
@@ -271,12 +254,12 @@ pub fn print_summary(summary: &serde_json::Value, dir: &Path) {
         m["azimuth_deg"].as_f64().unwrap_or(f64::NAN),
         m["distance"].as_f64().map_or(String::new(), |d| format!(", air layer {:.3} mm", d * 1e3))
     );
-    println!(
+    outln!(
         "{} cells × {} corners in {:.2} s ({:.3e} cell·corners/s)",
         summary["cells"],
         summary["correspondences"],
         summary["seconds"].as_f64().unwrap_or(f64::NAN),
         summary["cell_correspondences_per_s"].as_f64().unwrap_or(f64::NAN)
     );
-    println!("wrote {}/cost.npy, cost.csv, heatmap.png, polar.png, summary.json", dir.display());
+    outln!("wrote {}/cost.npy, cost.csv, heatmap.png, polar.png, summary.json", dir.display());
 }
