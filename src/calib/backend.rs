@@ -17,6 +17,12 @@ pub trait CostBackend: Sync {
     /// The data the costs are computed from.
     fn data(&self) -> &StereoData;
 
+    /// A backend of the same kind over other data: the consecutive method runs on the corners
+    /// that the screening ([`super::screen`]) kept. The default evaluates on the CPU.
+    fn over<'b>(&'b self, data: &'b StereoData) -> Box<dyn CostBackend + 'b> {
+        Box::new(CpuBackend::new(data))
+    }
+
     /// The cost `kind` of every candidate, in order; +∞ where a candidate explains no corner.
     fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError>;
 

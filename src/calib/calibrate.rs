@@ -8,9 +8,12 @@ use super::backend::CostBackend;
 use super::bundle::{Bundle, BundleState, interface_std};
 use super::costs::{CostKind, SceneFit, reprojection_residuals};
 use super::data::{Candidate, StereoData};
-use super::error::CalibError;
-use super::lm::{LmOptions, Termination, levenberg_marquardt};
-use super::search::{cap_grid, fit_air_distance, refine_axis};
+use super::diagnose;
+use super::error::{CalibError, Side, degrees};
+use super::lm::{LmOptions, Termination, levenberg_marquardt_observed};
+use super::observations::{ViewCorners, compare_views, describe_pose_groups};
+use super::screen::{Screening, screen, without_corners};
+use super::search::{cap_grid, fit_air_distance, refine_axis_observed};
 use crate::model::Interface;
 
 /// Which estimator.
@@ -51,12 +54,45 @@ pub struct CalibrationOptions {
     pub huber: Option<f64>,
     /// Iteration bound of the maximum-likelihood refinement.
     pub max_iterations: usize,
+    /// Largest RMS reprojection error, pixels, of the corners that are not outliers for the
+    /// result to count as a fit ([`CalibrationReport::fits`]); above it the report says what the
+    /// data look like ([`CalibrationReport::diagnosis`]).
+    pub max_rms_px: f64,
 }
+
+/// Default of [`CalibrationOptions::max_rms_px`], pixels.
+pub const DEFAULT_MAX_RMS_PX: f64 = 3.0;
 
 impl Default for CalibrationOptions {
     fn default() -> Self {
-        Self { method: Method::Auto, max_tilt: 30f64.to_radians(), grid_spacing: 1.5f64.to_radians(), huber: None, max_iterations: 200 }
+        Self {
+            method: Method::Auto,
+            max_tilt: 30f64.to_radians(),
+            grid_spacing: 1.5f64.to_radians(),
+            huber: None,
+            max_iterations: 200,
+            max_rms_px: DEFAULT_MAX_RMS_PX,
+        }
     }
+}
+
+/// A corner whose reprojection residual in one image is far above the rest, or that the
+/// screening found off the board's shape in that image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outlier {
+    /// 0-based view.
+    pub view: usize,
+    /// The image.
+    pub side: Side,
+    /// The rig camera that took that image.
+    pub camera: String,
+    /// Corner index on the board (row-major).
+    pub corner: usize,
+    /// Its reprojection residual in that image under the result, pixels.
+    pub residual_px: f64,
+    /// Whether the screening of the images ([`super::screen`]) found it before any fit; such
+    /// corners are left out of the estimate.
+    pub screened: bool,
 }
 
 /// One stage of a calibration, for the report.
@@ -104,8 +140,24 @@ pub struct CalibrationReport {
     pub iterations: usize,
     /// Why the final stage stopped.
     pub termination: String,
-    /// Corners with residuals far above the rest: (view, corner, residual px).
+    /// Corners with residuals far above the rest: (view, corner, larger residual of its two
+    /// images px), worst first; [`Self::outlier_images`] says which image.
     pub outliers: Vec<(usize, usize, f64)>,
+    /// Every image of an outlier corner whose residual is far above the rest (or that the
+    /// screening found), worst first.
+    pub outlier_images: Vec<Outlier>,
+    /// RMS reprojection error per camera [left, right] over the images that are not outliers, pixels.
+    pub inlier_rms_px: [f64; 2],
+    /// The corner noise σ per coordinate seen in the images themselves (the scatter about the
+    /// board's smooth shape, [`super::screen`]), pixels: what the reprojection RMS should come
+    /// close to. `None` for boards under 3 × 3.
+    pub noise_px: Option<f64>,
+    /// Whether the result fits: the larger of [`Self::inlier_rms_px`] is at most the
+    /// [`CalibrationOptions::max_rms_px`]. The CLI writes no rig otherwise.
+    pub fits: bool,
+    /// What the data look like, when the RMS is far above the noise or above the bound
+    /// ([`super::diagnose::explain`]); empty otherwise.
+    pub diagnosis: Vec<String>,
     /// Everything worth a second look.
     pub warnings: Vec<String>,
     /// Wall-clock seconds of the whole calibration.
@@ -132,44 +184,163 @@ pub const MIN_VIEWS: usize = 3;
 /// Views below which a calibration is flagged as weakly determined.
 pub const FEW_VIEWS: usize = 8;
 
+/// Where a running calibration is, for progress displays ([`calibrate_with_progress`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CalibrationProgress<'a> {
+    /// The stage running, named as its [`Stage`] will be (without the result).
+    pub stage: &'a str,
+    /// Steps done in the stage: grid axes evaluated, or iterations.
+    pub done: usize,
+    /// The stage's number of steps when known in advance (grid axes), `None` for iterations.
+    pub total: Option<usize>,
+    /// The stage's lowest cost so far, in the stage's unit (`unit`).
+    pub cost: f64,
+    /// The cost's unit.
+    pub unit: &'static str,
+}
+
 /// Calibrates the axis and air layer of `backend.data()` (whose rig's interface is the start
 /// guess). `warnings` (from validating the observations) are carried into the report.
+///
+/// Before any fit: views that repeat another are an error ([`CalibError::RepeatedView`]), so
+/// are fewer than [`MIN_VIEWS`] distinct board poses ([`CalibError::TooFewPoses`]); views whose
+/// images look swapped or whose corner order looks reversed are warned about
+/// ([`diagnose::pairing_findings`]); corners off the board's shape in their image by far more
+/// than the noise ([`super::screen`]) are left out of the estimate, whatever the method. Every
+/// method reports the corner images whose residuals under the result are far above the rest. When no axis explains the data the error says what the data look
+/// like ([`diagnose::explain`]); so does [`CalibrationReport::diagnosis`] when the RMS of the
+/// result is far above the noise or above [`CalibrationOptions::max_rms_px`].
 pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnings: Vec<String>) -> Result<Calibration, CalibError> {
+    calibrate_with_progress(backend, options, warnings, &mut |_| {})
+}
+
+/// [`calibrate`], telling `progress` where it is: after every batch of the global grid and every
+/// iteration of the local refinements and of the maximum-likelihood fit.
+pub fn calibrate_with_progress(
+    backend: &dyn CostBackend,
+    options: &CalibrationOptions,
+    warnings: Vec<String>,
+    progress: &mut dyn FnMut(&CalibrationProgress),
+) -> Result<Calibration, CalibError> {
+    let data = backend.data();
+    let mut screening = None;
+    calibrate_screened(backend, options, warnings, &mut screening, progress).map_err(|error| match error {
+        CalibError::NoSolution { reason, .. } => {
+            let noise = screening.as_ref().and_then(|s: &Screening| s.noise_px);
+            // The local refinement does not know the search bound (it reports NaN): every
+            // NoSolution here is under the options' bound.
+            CalibError::NoSolution {
+                bound_deg: options.max_tilt.to_degrees(),
+                reason: format!("{reason}. What the data look like: {}", diagnose::explain(data, None, noise).join("; ")),
+            }
+        }
+        other => other,
+    })
+}
+
+/// The corners of every view of `data` for [`compare_views`].
+fn view_corners(data: &StereoData) -> Vec<ViewCorners> {
+    data.views.iter().map(|range| data.corners[range.clone()].iter().map(|c| (c.index, c.pixels)).collect()).collect()
+}
+
+/// RMS reprojection error, pixels, at or below which the noise explains a maximum-likelihood
+/// result: this many times the corner noise seen in the images, plus [`NOISE_MARGIN_PX`] for the
+/// model error of that estimate.
+pub const NOISE_FACTOR: f64 = 3.0;
+/// See [`NOISE_FACTOR`], pixels.
+pub const NOISE_MARGIN_PX: f64 = 0.2;
+
+fn calibrate_screened(
+    backend: &dyn CostBackend,
+    options: &CalibrationOptions,
+    warnings: Vec<String>,
+    screening_out: &mut Option<Screening>,
+    progress: &mut dyn FnMut(&CalibrationProgress),
+) -> Result<Calibration, CalibError> {
     let started = Instant::now();
     let data = backend.data();
     let mut warnings = warnings;
     if data.views.len() < MIN_VIEWS {
         return Err(CalibError::TooFewViews { usable: data.views.len(), needed: MIN_VIEWS });
     }
-    if data.views.len() < FEW_VIEWS {
-        warnings.push(format!(
-            "only {} views: the axis and air layer are weakly determined (15-20 views at varied depths and angles are recommended)",
-            data.views.len()
-        ));
-    }
     if !(options.max_tilt > 0.0 && options.max_tilt < 80f64.to_radians()) {
-        return Err(CalibError::Options(format!("the tilt bound must lie in (0°, 80°), got {}°", options.max_tilt.to_degrees())));
+        return Err(CalibError::Options(format!("the tilt bound must lie in (0°, 80°), got {}°", degrees(options.max_tilt.to_degrees()))));
     }
     if !(options.grid_spacing > 0.0 && options.grid_spacing <= options.max_tilt) {
-        return Err(CalibError::Options(format!("the grid spacing must lie in (0°, tilt bound], got {}°", options.grid_spacing.to_degrees())));
+        return Err(CalibError::Options(format!(
+            "the grid spacing must lie in (0°, tilt bound], got {}°",
+            degrees(options.grid_spacing.to_degrees())
+        )));
     }
+    if super::search::cap_grid_size(options.max_tilt, options.grid_spacing) > super::search::MAX_CAP_GRID_AXES as f64 {
+        return Err(CalibError::Options(format!(
+            "a grid spacing of {}° over a {}° tilt bound gives {:.3e} axes; the global search takes at most {} (each costs an evaluation over every corner): use a spacing ≥ {}°",
+            options.grid_spacing.to_degrees(),
+            options.max_tilt.to_degrees(),
+            super::search::cap_grid_size(options.max_tilt, options.grid_spacing),
+            super::search::MAX_CAP_GRID_AXES,
+            super::search::min_cap_grid_spacing_deg_text(options.max_tilt)
+        )));
+    }
+    if !(options.max_rms_px > 0.0) {
+        return Err(CalibError::Options(format!("the largest accepted RMS must be a positive number of pixels, got {}", options.max_rms_px)));
+    }
+    // Views that repeat another, or too few distinct poses: the answer would look confident and
+    // be wrong (the copies shrink the standard deviations by √copies).
+    let groups = compare_views(&view_corners(data));
+    if let Some(&(view, earlier, max_px)) = groups.repeats.first() {
+        return Err(CalibError::RepeatedView { view, earlier, max_px, more: groups.repeats.len() - 1 });
+    }
+    if groups.distinct < MIN_VIEWS {
+        return Err(CalibError::TooFewPoses { views: data.views.len(), distinct: groups.distinct, groups: describe_pose_groups(&groups), needed: MIN_VIEWS });
+    }
+    if groups.distinct < FEW_VIEWS {
+        let poses = if groups.distinct == data.views.len() {
+            format!("only {} views", data.views.len())
+        } else {
+            format!("only {} distinct board poses among {} views", groups.distinct, data.views.len())
+        };
+        warnings.push(format!("{poses}: the axis and air layer are weakly determined (15-20 views at varied depths and angles are recommended)"));
+    }
+    warnings.extend(diagnose::pairing_findings(data));
+
+    // Gross corner errors, found from each image alone, are left out of every estimate (the
+    // report lists them with their residuals under the result).
+    let screening = screen(data);
+    let reduced = if screening.suspects.is_empty() { None } else { without_corners(data, &screening.mask(data.corners.len())) };
+    if let Some(worst) = screening.suspects.first() {
+        warnings.push(format!(
+            "{} corner(s) lie off the board's shape in their image by more than {:.2} px (largest {:.1} px: view {} corner {}, {} image){}",
+            screening.suspects.len(),
+            screening.threshold_px,
+            worst.deviation_px,
+            worst.view,
+            worst.corner,
+            worst.side.name(),
+            if reduced.is_some() { ": left out of the estimate (listed below when the result confirms them)" } else { "" }
+        ));
+    }
+    *screening_out = Some(screening.clone());
+    let reduced_backend = reduced.as_ref().map(|r| backend.over(r));
+    let clean: &dyn CostBackend = reduced_backend.as_deref().unwrap_or(backend);
+    let clean_data = clean.data();
     let mut stages = Vec::new();
 
     // 1. Consecutive: axis from the weighted affine-grid invariant, global then local.
-    let consecutive = axis_search(backend, CostKind::AffineGrid, options, &mut stages)?;
+    let consecutive = axis_search(clean, CostKind::AffineGrid, options, &mut stages, progress)?;
     let linear_started = Instant::now();
-    let (air_distance, gap) = super::air_layer::air_distance_for_axis(data, &consecutive.normal).ok_or_else(|| CalibError::NoSolution {
+    let (air_distance, gap) = super::air_layer::air_distance_for_axis(clean_data, &consecutive.normal).ok_or_else(|| CalibError::NoSolution {
         bound_deg: options.max_tilt.to_degrees(),
         reason: "the air layer has no least-squares solution under the invariant's axis".into(),
     })?;
     let mut consecutive = Candidate { normal: consecutive.normal, air_distance };
     stages.push(stage("air layer (linear least squares on the ray gaps)", consecutive, gap, "m", 1, linear_started));
-    if !triangulates(data, &consecutive) {
+    if !triangulates(clean_data, &consecutive) {
         // The ray gaps hardly depend on d when both cameras see a corner at similar incidence,
         // so noise can throw the linear solve far off: take the air layer that best explains
         // the images along the same axis instead.
         let t = Instant::now();
-        let (d, cost) = fit_air_distance(backend, CostKind::Reprojection, &consecutive.normal)?
+        let (d, cost) = fit_air_distance(clean, CostKind::Reprojection, &consecutive.normal)?
             .ok_or_else(|| no_solution(options, "no air layer lets both cameras triangulate every corner under the invariant's axis"))?;
         warnings.push(format!(
             "the linear air layer ({:.2} mm) leaves corners without a triangulation: took the air layer with the least reprojection error along the same axis ({:.2} mm)",
@@ -180,24 +351,26 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
         stages.push(stage("air layer (1-D search on the reprojection error)", consecutive, cost, "px", 1, t));
     }
 
+    // Board poses of a start, fitted to the corners the screening kept (views are the same).
+    let start_poses = |start: &Candidate| clean_data.cameras_behind(start).and_then(|c| SceneFit::new(clean_data, &c)).map(|f| f.poses());
     let (final_candidate, poses, ml) = match options.method {
         Method::Consecutive => {
-            let cameras = data.cameras_behind(&consecutive).ok_or_else(|| no_solution(options, "the consecutive result puts a camera outside the air"))?;
-            let fit = SceneFit::new(data, &cameras).ok_or_else(|| no_solution(options, "the consecutive result cannot triangulate every corner"))?;
-            (consecutive, fit.poses(), None)
+            clean_data.cameras_behind(&consecutive).ok_or_else(|| no_solution(options, "the consecutive result puts a camera outside the air"))?;
+            let poses = start_poses(&consecutive).ok_or_else(|| no_solution(options, "the consecutive result cannot triangulate every corner"))?;
+            (consecutive, poses, None)
         }
         Method::Simultaneous | Method::Auto => {
             let mut starts = vec![("the consecutive result".to_string(), consecutive)];
             if options.method == Method::Auto {
-                let profile = axis_search(backend, CostKind::Reprojection, options, &mut stages)?;
+                let profile = axis_search(clean, CostKind::Reprojection, options, &mut stages, progress)?;
                 starts.push(("the reprojection profile's minimum".into(), profile));
                 starts.push(("the rig's start guess".into(), Candidate::of(data.rig.interface())));
             }
-            let mut best: Option<(BundleState, super::lm::LmReport, Option<nalgebra::DMatrix<f64>>)> = None;
+            let mut best: Option<(BundleState, super::lm::LmReport, Option<super::bundle::BlockNormalEquations>)> = None;
             let mut finals = Vec::new();
             for (name, start) in &starts {
                 let t = Instant::now();
-                let Some(poses) = data.cameras_behind(start).and_then(|c| SceneFit::new(data, &c)).map(|f| f.poses()) else {
+                let Some(poses) = start_poses(start) else {
                     warnings.push(format!(
                         "{name} (tilt {:.2}°, air layer {:.1} mm) cannot triangulate every corner (a board behind the interface, or a camera outside the air): not used as a start",
                         start.tilt().to_degrees(),
@@ -205,13 +378,18 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
                     ));
                     continue;
                 };
-                let bundle = Bundle::new(data, options.huber);
+                let bundle = Bundle::new(clean_data, options.huber);
                 let lm_options = LmOptions { max_iterations: options.max_iterations, ..LmOptions::default() };
-                let (state, report, jtj) = levenberg_marquardt(&bundle, BundleState { candidate: *start, poses }, &lm_options);
+                let stage_name = format!("maximum likelihood from {name}");
+                // The cost in the report's unit: RMS over the 4 coordinates of each corner.
+                let rms = |cost: f64| (cost / (4 * clean_data.corners.len()) as f64).sqrt();
+                let (state, report, jtj) = levenberg_marquardt_observed(&bundle, BundleState { candidate: *start, poses }, &lm_options, &mut |i| {
+                    progress(&CalibrationProgress { stage: &stage_name, done: i.iteration, total: None, cost: rms(i.cost), unit: "px" })
+                });
                 stages.push(Stage {
                     name: format!("maximum likelihood from {name} ({})", report.termination.describe()),
                     candidate: state.candidate,
-                    cost: (report.final_cost / (4 * data.corners.len()) as f64).sqrt(),
+                    cost: (report.final_cost / (4 * clean_data.corners.len()) as f64).sqrt(),
                     unit: "px",
                     iterations: report.iterations,
                     seconds: t.elapsed().as_secs_f64(),
@@ -241,10 +419,14 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
         }
     };
 
-    // The report: residuals under the final interface and poses.
+    // The report: residuals under the final interface and poses, over every corner.
     let cameras = data.cameras_behind(&final_candidate).ok_or_else(|| no_solution(options, "the result puts a camera outside the air"))?;
     let residuals = reprojection_residuals(data, &cameras, &poses).ok_or_else(|| no_solution(options, "a fitted corner does not project"))?;
-    let scene = SceneFit::new(data, &cameras);
+    // The 3-D errors over every corner, else (an outlier that does not triangulate) over the kept ones.
+    let (scene, scene_data) = match SceneFit::new(data, &cameras) {
+        Some(fit) => (Some(fit), data),
+        None => (clean_data.cameras_behind(&final_candidate).and_then(|c| SceneFit::new(clean_data, &c)), clean_data),
+    };
     let mut per_view = Vec::with_capacity(data.views.len());
     let mut total = [0.0; 2];
     for range in &data.views {
@@ -260,20 +442,24 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
         per_view.push(sums.map(|s| (s / range.len() as f64).sqrt()));
     }
     let rms_px = total.map(|s| (s / data.corners.len() as f64).sqrt());
-    let outliers = find_outliers(data, &residuals);
+    let (outliers, outlier_images) = find_outliers(data, &residuals, &screening);
     if !outliers.is_empty() {
+        let worst = &outlier_images[0];
         warnings.push(format!(
-            "{} corner(s) have residuals far above the rest (largest {:.2} px at view {} corner {}): check the detections{}",
+            "{} corner(s) have residuals far above the rest (largest {:.2} px at view {} corner {}, {} image): check the detections{}",
             outliers.len(),
-            outliers[0].2,
-            outliers[0].0,
-            outliers[0].1,
-            if options.huber.is_none() { ", or use the Huber loss" } else { "" }
+            worst.residual_px,
+            worst.view,
+            worst.corner,
+            worst.side.name(),
+            // The screened ones are already left out of the fit.
+            if options.huber.is_none() && ml.is_some() && outlier_images.iter().any(|o| !o.screened) { ", or use the Huber loss" } else { "" }
         ));
     }
+    let inlier_rms_px = inlier_rms(data, &residuals, &outlier_images);
     let (std, sigma_px, iterations, termination) = match &ml {
         Some((report, jtj)) => {
-            let std = jtj.as_ref().and_then(|j| interface_std(&final_candidate, j, report.final_cost, 4 * data.corners.len()));
+            let std = jtj.as_ref().and_then(|j| interface_std(&final_candidate, j, report.final_cost, 4 * clean_data.corners.len()));
             (std.map(|s| s.0), std.map(|s| s.1), report.iterations, report.termination.describe().to_string())
         }
         None => (None, None, stages.iter().rev().find(|s| s.name.starts_with("refine")).map_or(0, |s| s.iterations), "converged".into()),
@@ -286,8 +472,37 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
             ));
         }
     }
+    match (&ml, std) {
+        (Some(_), None) => warnings.push("JᵀJ is singular at the result: the views do not determine the axis and air layer (vary the board's angle and distance)".into()),
+        (_, Some([tilt_std, _, air_std])) if tilt_std > WEAK_TILT_STD_DEG.to_radians() || air_std > WEAK_AIR_STD_M => warnings.push(format!(
+            "the views hardly constrain the result (σ tilt {:.2}°, σ air layer {:.1} mm): vary the board's angle and distance between views",
+            tilt_std.to_degrees(),
+            air_std * 1e3
+        )),
+        _ => {}
+    }
     if let Some(Termination::MaxIterations) = ml.as_ref().map(|(r, _)| r.termination) {
         warnings.push("raise --max-iterations".into());
+    }
+    // Does the result fit? The worse camera's RMS over the images that are not outliers,
+    // against the bound and the noise seen in the images.
+    let worst_rms = inlier_rms_px[0].max(inlier_rms_px[1]);
+    let fits = worst_rms <= options.max_rms_px;
+    // Only a maximum-likelihood fit is expected to come down to the noise; the consecutive
+    // result (no fit of the images) is held to the bound alone.
+    let noise_bound = screening.noise_px.filter(|_| ml.is_some()).map(|s| NOISE_FACTOR * s + NOISE_MARGIN_PX);
+    let mut diagnosis = Vec::new();
+    if !fits || noise_bound.is_some_and(|b| worst_rms > b) {
+        diagnosis = diagnose::explain(data, Some(&final_candidate), screening.noise_px);
+        warnings.push(format!(
+            "the reprojection RMS ({worst_rms:.2} px without the outliers) is {}: the model does not explain the data. What the data look like: {}",
+            match (screening.noise_px, fits) {
+                (Some(s), true) => format!("far above the corner noise seen in the images (σ ≈ {s:.3} px)"),
+                (Some(s), false) => format!("above the accepted {} px (the corner noise seen in the images is σ ≈ {s:.3} px)", options.max_rms_px),
+                (None, _) => format!("above the accepted {} px", options.max_rms_px),
+            },
+            diagnosis.join("; ")
+        ));
     }
     let interface = data
         .rig
@@ -302,12 +517,17 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
         rms_px,
         rms_px_per_view: per_view,
         scene_rms_m: scene.as_ref().map_or(f64::NAN, |s| s.scene_rms()),
-        square_deviation_rms_m: scene.as_ref().map_or(f64::NAN, |s| s.square_deviation_rms(data)),
+        square_deviation_rms_m: scene.as_ref().map_or(f64::NAN, |s| s.square_deviation_rms(scene_data)),
         poses,
         stages,
         iterations,
         termination,
         outliers,
+        outlier_images,
+        inlier_rms_px,
+        noise_px: screening.noise_px,
+        fits,
+        diagnosis,
         warnings,
         seconds: started.elapsed().as_secs_f64(),
         backend: backend.describe(),
@@ -316,6 +536,11 @@ pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnin
     };
     Ok(Calibration { interface, report })
 }
+
+/// σ of the tilt, degrees, above which the views are said to hardly constrain the axis.
+pub const WEAK_TILT_STD_DEG: f64 = 1.0;
+/// σ of the air layer, metres, above which the views are said to hardly constrain it.
+pub const WEAK_AIR_STD_M: f64 = 5e-3;
 
 /// Whether every corner triangulates and every view can be fitted under `candidate`.
 fn triangulates(data: &StereoData, candidate: &Candidate) -> bool {
@@ -330,16 +555,35 @@ fn stage(name: &str, candidate: Candidate, cost: f64, unit: &'static str, iterat
     Stage { name: name.into(), candidate, cost, unit, iterations, seconds: since.elapsed().as_secs_f64() }
 }
 
+/// Axes of the global grid per backend call (progress is reported after each).
+const GLOBAL_BATCH: usize = 2048;
+
 /// How many of the global grid's best cells (at least this many degrees apart) are refined.
 const LOCAL_STARTS: usize = 3;
 const DISTINCT_DEG: f64 = 4.0;
 
 /// Global search of `kind`'s profile over the tilt cap, then local refinement of the best few
 /// distinct cells; the best refined axis (with the profile's air layer) wins.
-fn axis_search(backend: &dyn CostBackend, kind: CostKind, options: &CalibrationOptions, stages: &mut Vec<Stage>) -> Result<Candidate, CalibError> {
+fn axis_search(
+    backend: &dyn CostBackend,
+    kind: CostKind,
+    options: &CalibrationOptions,
+    stages: &mut Vec<Stage>,
+    progress: &mut dyn FnMut(&CalibrationProgress),
+) -> Result<Candidate, CalibError> {
     let t = Instant::now();
     let grid = cap_grid(options.max_tilt, options.grid_spacing);
-    let (candidates, costs) = backend.profile(kind, &grid)?;
+    // In batches, to report progress (each axis is evaluated alone, so the costs do not depend on
+    // the batching).
+    let global_name = format!("global search ({}, {} axes)", kind.name(), grid.len());
+    let (mut candidates, mut costs) = (Vec::with_capacity(grid.len()), Vec::with_capacity(grid.len()));
+    for batch in grid.chunks(GLOBAL_BATCH) {
+        let (c, v) = backend.profile(kind, batch)?;
+        candidates.extend(c);
+        costs.extend(v);
+        let best = costs.iter().copied().filter(|c| c.is_finite()).fold(f64::INFINITY, f64::min);
+        progress(&CalibrationProgress { stage: &global_name, done: costs.len(), total: Some(grid.len()), cost: best, unit: kind.unit() });
+    }
     let mut order: Vec<usize> = (0..grid.len()).filter(|&i| costs[i].is_finite()).collect();
     if order.is_empty() {
         return Err(CalibError::NoSolution {
@@ -357,11 +601,14 @@ fn axis_search(backend: &dyn CostBackend, kind: CostKind, options: &CalibrationO
             }
         }
     }
-    stages.push(stage(&format!("global search ({}, {} axes)", kind.name(), grid.len()), candidates[order[0]], costs[order[0]], kind.unit(), grid.len(), t));
+    stages.push(stage(&global_name, candidates[order[0]], costs[order[0]], kind.unit(), grid.len(), t));
     let mut best: Option<super::search::Refined> = None;
     for start in starts {
         let t = Instant::now();
-        let refined = refine_axis(backend, kind, start, options.grid_spacing, 1e-9, 300)?;
+        let refine_name = format!("refine axis ({})", kind.name());
+        let refined = refine_axis_observed(backend, kind, start, options.grid_spacing, 1e-9, 300, &mut |i, cost| {
+            progress(&CalibrationProgress { stage: &refine_name, done: i, total: None, cost, unit: kind.unit() })
+        })?;
         stages.push(stage(&format!("refine axis ({})", kind.name()), refined.candidate, refined.cost, kind.unit(), refined.iterations, t));
         if best.is_none_or(|b| refined.cost < b.cost) {
             best = Some(refined);
@@ -370,20 +617,57 @@ fn axis_search(backend: &dyn CostBackend, kind: CostKind, options: &CalibrationO
     Ok(best.expect("at least one start").candidate)
 }
 
-/// Corners whose larger residual exceeds max(1 px, 5 × the robust σ (1.4826 × median residual)),
-/// worst first.
-fn find_outliers(data: &StereoData, residuals: &[[nalgebra::Vector2<f64>; 2]]) -> Vec<(usize, usize, f64)> {
-    let lengths: Vec<f64> = residuals.iter().map(|[l, r]| l.norm().max(r.norm())).collect();
-    let mut sorted = lengths.clone();
+/// Outlier images: a corner image whose residual exceeds max(1 px, 5 × the robust σ
+/// (1.4826 × the median of every corner's larger residual)); those the screening found are
+/// marked (a screened image that the result explains is not an outlier).
+/// Returns the corners (view, corner, larger residual), worst first, and the images, worst first.
+fn find_outliers(data: &StereoData, residuals: &[[nalgebra::Vector2<f64>; 2]], screening: &Screening) -> (Vec<(usize, usize, f64)>, Vec<Outlier>) {
+    let lengths: Vec<[f64; 2]> = residuals.iter().map(|[l, r]| [l.norm(), r.norm()]).collect();
+    let mut sorted: Vec<f64> = lengths.iter().map(|[l, r]| l.max(*r)).collect();
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];
     let threshold = (5.0 * 1.4826 * median).max(1.0);
-    let mut outliers: Vec<(usize, usize, f64)> = lengths
-        .iter()
-        .enumerate()
-        .filter(|&(_, &l)| l > threshold)
-        .map(|(j, &l)| (data.corners[j].view, data.corners[j].index, l))
-        .collect();
-    outliers.sort_by(|a, b| b.2.total_cmp(&a.2));
-    outliers
+    let screened: std::collections::HashSet<(usize, Side)> = screening.suspects.iter().map(|s| (s.position, s.side)).collect();
+    let mut images = Vec::new();
+    let mut corners = Vec::new();
+    for (j, pair) in lengths.iter().enumerate() {
+        let corner = &data.corners[j];
+        let mut flagged = false;
+        for (k, side) in [Side::Left, Side::Right].into_iter().enumerate() {
+            let was_screened = screened.contains(&(j, side));
+            if pair[k] > threshold {
+                flagged = true;
+                images.push(Outlier {
+                    view: corner.view,
+                    side,
+                    camera: data.rig.cameras()[data.cameras[k]].name.clone(),
+                    corner: corner.index,
+                    residual_px: pair[k],
+                    screened: was_screened,
+                });
+            }
+        }
+        if flagged {
+            corners.push((corner.view, corner.index, pair[0].max(pair[1])));
+        }
+    }
+    corners.sort_by(|a, b| b.2.total_cmp(&a.2));
+    images.sort_by(|a, b| b.residual_px.total_cmp(&a.residual_px));
+    (corners, images)
+}
+
+/// RMS reprojection error per camera over the images that are not in `outliers`, pixels.
+fn inlier_rms(data: &StereoData, residuals: &[[nalgebra::Vector2<f64>; 2]], outliers: &[Outlier]) -> [f64; 2] {
+    let flagged: std::collections::HashSet<(usize, usize, Side)> = outliers.iter().map(|o| (o.view, o.corner, o.side)).collect();
+    let (mut sums, mut counts) = ([0.0; 2], [0usize; 2]);
+    for (j, pair) in residuals.iter().enumerate() {
+        let c = &data.corners[j];
+        for (k, side) in [Side::Left, Side::Right].into_iter().enumerate() {
+            if !flagged.contains(&(c.view, c.index, side)) {
+                sums[k] += pair[k].norm_squared();
+                counts[k] += 1;
+            }
+        }
+    }
+    [0, 1].map(|k| if counts[k] == 0 { f64::NAN } else { (sums[k] / counts[k] as f64).sqrt() })
 }

@@ -1,7 +1,7 @@
 //! Errors of the calibration layer: observations or settings that cannot be calibrated from.
 
 /// Which image of a stereo view.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Side {
     /// The first camera of the pair (the master in a stereo rig).
     Left,
@@ -105,13 +105,40 @@ pub enum CalibError {
     /// The rig or the observations' camera names do not give a stereo pair.
     #[error("{0}")]
     Cameras(String),
-    /// No axis within the search bound explains the observations (every candidate failed).
-    #[error("no candidate axis within a tilt of {bound_deg}° lets both cameras triangulate the board: {reason}")]
+    /// No axis within the search bound explains the observations (every candidate failed). The
+    /// reason ends with what the data look like ([`super::diagnose`]).
+    #[error("no candidate axis within a tilt of {}° lets both cameras triangulate the board: {reason}", degrees(*bound_deg))]
     NoSolution {
         /// The search bound, degrees.
         bound_deg: f64,
         /// What failed.
         reason: String,
+    },
+    /// A view that repeats an earlier one: every corner it shares with it lies within
+    /// [`REPEAT_PX`](super::observations::REPEAT_PX) in both images, far below any detector's
+    /// noise, so it is a copy of the same frame, not a second measurement.
+    #[error("views[{view}] repeats views[{earlier}] (every corner within {max_px:.1e} px in both images){}: a copy of the same frame adds no information and would make the reported standard deviations too small; remove the copies", more_repeats(*more))]
+    RepeatedView {
+        /// 0-based index of the copy.
+        view: usize,
+        /// 0-based index of the view it repeats.
+        earlier: usize,
+        /// Largest coordinate difference between the two, pixels.
+        max_px: f64,
+        /// Further repeated views beyond this one.
+        more: usize,
+    },
+    /// The views show too few distinct board poses to constrain the axis and air layer.
+    #[error("the {views} views show only {distinct} distinct board pose(s) ({groups}): calibration needs at least {needed} poses at varied angles and depths")]
+    TooFewPoses {
+        /// Views given.
+        views: usize,
+        /// Distinct poses among them.
+        distinct: usize,
+        /// The groups of views that show one pose, as text (`views 0–14 within 0.258 px RMS`).
+        groups: String,
+        /// The minimum.
+        needed: usize,
     },
     /// An option out of range.
     #[error("{0}")]
@@ -120,6 +147,28 @@ pub enum CalibError {
     /// [`GpuError`](crate::gpu::GpuError)'s message.
     #[error("GPU backend: {0}")]
     Gpu(String),
+}
+
+/// An angle in degrees as a reader wants it: at most 6 decimals, no trailing zeros
+/// (`30`, `1.5`, `0.001`), scientific below 0.001 (`2.5e-5`); the rounding of a conversion
+/// (29.999999999999996) never shows.
+pub fn degrees(value: f64) -> String {
+    if !value.is_finite() {
+        return format!("{value}");
+    }
+    if value != 0.0 && value.abs() < 1e-3 {
+        return format!("{value:.2e}");
+    }
+    let text = format!("{value:.6}");
+    let text = text.trim_end_matches('0').trim_end_matches('.');
+    if text == "-0" { "0".into() } else { text.into() }
+}
+
+fn more_repeats(more: usize) -> String {
+    match more {
+        0 => String::new(),
+        n => format!(" and {n} more view(s) repeat earlier ones"),
+    }
 }
 
 impl From<crate::gpu::GpuError> for CalibError {
@@ -139,9 +188,27 @@ impl CalibError {
             Self::CornerNotFinite { view, side, corner, .. } | Self::CornerOutsideImage { view, side, corner, .. } => {
                 format!("views[{view}].{}[{corner}]", side.name())
             }
-            Self::UnusableView { view, .. } => format!("views[{view}]"),
+            Self::UnusableView { view, .. } | Self::RepeatedView { view, .. } => format!("views[{view}]"),
+            Self::TooFewPoses { .. } => "views".into(),
             Self::Cameras(_) => "cameras".into(),
             Self::NoSolution { .. } | Self::Options(_) | Self::Gpu(_) => String::new(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::degrees;
+
+    #[test]
+    fn degrees_read_cleanly() {
+        assert_eq!(degrees(29.999999999999996), "30");
+        assert_eq!(degrees(30f64.to_radians().to_degrees()), "30");
+        assert_eq!(degrees(1.5), "1.5");
+        assert_eq!(degrees(0.001), "0.001");
+        assert_eq!(degrees(-5.0), "-5");
+        assert_eq!(degrees(-1e-12), "-1.00e-12");
+        assert_eq!(degrees(0.0), "0");
+        assert_eq!(degrees(f64::NAN), "NaN");
     }
 }

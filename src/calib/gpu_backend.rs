@@ -200,6 +200,10 @@ impl CostBackend for GpuBackend<'_> {
         self.data
     }
 
+    fn over<'b>(&'b self, data: &'b StereoData) -> Box<dyn CostBackend + 'b> {
+        Box::new(GpuBackend::new(data, self.engine))
+    }
+
     fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
         match kind {
             CostKind::AffineGrid => self.affine_grid_costs(candidates),

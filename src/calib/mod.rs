@@ -5,7 +5,9 @@
 //! [`costs`], [`invariants`], [`affine_grid`], [`air_layer`] (pure f64 costs of one candidate)
 //! → [`backend`], [`gpu_backend`] (batches of candidates, CPU or GPU) → [`search`], [`lm`],
 //! [`bundle`] (optimisers) → [`calibrate()`] (the methods), [`sweep`](mod@sweep) (cost
-//! surfaces). [`simulate`](mod@simulate) makes scenes with known truth. No I/O here.
+//! surfaces). [`screen`] finds gross corner errors from the board's shape in each image and
+//! [`diagnose`] tests the usual mistakes (swapped images, reversed corner order, wrong square)
+//! when nothing fits. [`simulate`](mod@simulate) makes scenes with known truth. No I/O here.
 
 pub mod affine_grid;
 pub mod air_layer;
@@ -15,12 +17,14 @@ pub mod bundle;
 pub mod calibrate;
 pub mod costs;
 pub mod data;
+pub mod diagnose;
 pub mod error;
 pub mod gpu_backend;
 pub mod invariants;
 pub mod lm;
 pub mod observations;
 pub mod rng;
+pub mod screen;
 pub mod search;
 pub mod simulate;
 pub mod sweep;
@@ -31,6 +35,6 @@ pub use costs::CostKind;
 pub use data::{Candidate, StereoData};
 pub use error::{CalibError, Side};
 pub use gpu_backend::GpuBackend;
-pub use observations::{Observations, StereoView};
+pub use observations::{Observations, StereoView, ViewGroups, compare_views};
 pub use simulate::{Scene, SceneSpec, simulate};
-pub use calibrate::{Calibration, CalibrationOptions, CalibrationReport, Method, calibrate};
+pub use calibrate::{Calibration, CalibrationOptions, CalibrationProgress, CalibrationReport, Method, Outlier, calibrate, calibrate_with_progress};

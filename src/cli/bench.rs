@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use clap::Args;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -22,10 +22,10 @@ use super::demo::EXAMPLE_RIG;
 /// `flatport bench`
 #[derive(Debug, Args)]
 pub struct BenchArgs {
-    /// Items per batch
+    /// Items per batch (at most 16777216)
     #[arg(long, default_value_t = 1 << 20)]
     items: usize,
-    /// Timed repetitions per figure (the fastest counts)
+    /// Timed repetitions per figure (the fastest counts; 1 to 1000)
     #[arg(long, default_value_t = 3)]
     repeats: usize,
     /// Also write the results as JSON
@@ -40,7 +40,7 @@ pub struct BenchArgs {
     /// Skip the GPU paths
     #[arg(long)]
     no_gpu: bool,
-    /// Axis cells of the invariant sweep figure (over about 10 000 correspondences)
+    /// Axis cells of the invariant sweep figure (over about 10 000 correspondences; at most 1048576)
     #[arg(long, value_name = "CELLS", default_value_t = 4096)]
     sweep_cells: usize,
 }
@@ -125,7 +125,41 @@ fn human(rate: f64) -> String {
     if rate >= 1e9 { format!("{:7.2} G/s", rate / 1e9) } else { format!("{:7.2} M/s", rate / 1e6) }
 }
 
+/// Bytes each bench item takes on the host: the inputs (pixels 16, points 24, matches 32), the
+/// outputs (48 + 32 + 16) and a status word (4); the GPU paths hold as much again in buffers.
+const BYTES_PER_ITEM: usize = 172;
+/// Most `--items`: 2²⁴ items take about 2.9 GB on the host (and as much in GPU buffers).
+pub const MAX_ITEMS: usize = 1 << 24;
+/// Most `--sweep-cells`: each costs one evaluation over the ~10 000 correspondences per repetition.
+pub const MAX_SWEEP_CELLS: usize = 1 << 20;
+/// Most `--repeats`.
+pub const MAX_REPEATS: usize = 1000;
+
+/// Checks the sizes the options ask for before anything is allocated.
+fn check_sizes(args: &BenchArgs) -> anyhow::Result<()> {
+    if !(1..=MAX_ITEMS).contains(&args.items) {
+        bail!(
+            "--items {}: must lie in 1..={MAX_ITEMS} ({BYTES_PER_ITEM} bytes an item on the host, {:.1} GB at the limit, as much again on the GPU; {} items would take {:.3e} bytes)",
+            args.items,
+            (BYTES_PER_ITEM * MAX_ITEMS) as f64 / 1e9,
+            args.items,
+            args.items as f64 * BYTES_PER_ITEM as f64
+        );
+    }
+    if !(1..=MAX_SWEEP_CELLS).contains(&args.sweep_cells) {
+        bail!(
+            "--sweep-cells {}: must lie in 1..={MAX_SWEEP_CELLS} (each cell is evaluated over about 10 000 correspondences per repetition)",
+            args.sweep_cells
+        );
+    }
+    if !(1..=MAX_REPEATS).contains(&args.repeats) {
+        bail!("--repeats {}: must lie in 1..={MAX_REPEATS}", args.repeats);
+    }
+    Ok(())
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    check_sizes(&args)?;
     let rig: Rig = match &args.rig {
         Some(path) => flatport::io::read_rig(path)?,
         None => rig_from_json_str(EXAMPLE_RIG, Path::new("<built-in example rig>"))?,

@@ -1,13 +1,17 @@
 //! `flatport simulate` and `flatport calibrate`.
 
+use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 
+use flatport::calib::search::{MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text};
+use flatport::calib::simulate::{MAX_BOARD_CORNERS, MAX_SIMULATED_CORNERS};
 use flatport::calib::{
-    Board, CalibError, CalibrationOptions, CalibrationReport, CostBackend, CpuBackend, GpuBackend, Method, Observations, SceneSpec,
-    StereoData, calibrate, simulate,
+    Board, CalibError, CalibrationOptions, CalibrationProgress, CalibrationReport, CostBackend, CpuBackend, GpuBackend, Method,
+    Observations, SceneSpec, StereoData, calibrate_with_progress, simulate,
 };
 use flatport::engine::Engine;
 use flatport::io::{IoError, Truth, read_observations, read_rig, read_truth, write_observations, write_report, write_rig, write_truth};
@@ -84,6 +88,11 @@ pub struct CalibrateArgs {
     /// Iteration bound of the maximum-likelihood refinement
     #[arg(long, default_value_t = 200)]
     max_iterations: usize,
+    /// Largest RMS reprojection error (pixels, either camera, outlier corners left out) accepted
+    /// as a fit: above it the report (if asked for) is written with what the data look like, the
+    /// rig is not written, and the exit status is 1
+    #[arg(long, value_name = "PX", default_value_t = flatport::calib::calibrate::DEFAULT_MAX_RMS_PX)]
+    max_rms_px: f64,
     /// Truth of a simulated scene (from `flatport simulate`): print the errors of the result
     #[arg(long, value_name = "TRUTH.json")]
     truth: Option<PathBuf>,
@@ -101,6 +110,11 @@ pub fn parse_board(text: &str) -> Result<Board, String> {
     let square: f64 = square.trim().parse().map_err(|_| error())?;
     if cols < 2 || rows < 2 || !(square > 0.0 && square.is_finite()) {
         return Err(format!("a board needs at least 2x2 inner corners and a square > 0 m, got '{text}'"));
+    }
+    if cols.checked_mul(rows).is_none_or(|c| c > MAX_BOARD_CORNERS) {
+        return Err(format!(
+            "'{text}' has {cols} × {rows} inner corners; at most {MAX_BOARD_CORNERS} are simulated (every pose tried projects all of them)"
+        ));
     }
     Ok(Board { rows, cols, square })
 }
@@ -135,11 +149,18 @@ pub fn naive_start(rig: &Rig) -> anyhow::Result<Rig> {
 pub const NAIVE_AIR_DISTANCE: f64 = 0.01;
 
 pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
+    // Sizes first, before anything is read or allocated.
+    let most = MAX_SIMULATED_CORNERS / args.board.corners();
+    if args.views == 0 || args.views > most {
+        bail!(
+            "--views {}: must lie in 1..={most} for a {}x{} board ({MAX_SIMULATED_CORNERS} corners in all: each takes about 100 bytes in memory and 80 in observations.json)",
+            args.views,
+            args.board.cols,
+            args.board.rows
+        );
+    }
     let rig = read_rig(&args.rig)?;
     let pair = stereo_pair(&rig, args.cameras.as_ref().map(|(a, b)| (a.as_str(), b.as_str())), "--cameras")?;
-    if args.views == 0 {
-        bail!("--views must be at least 1");
-    }
     let mut spec = SceneSpec::new(args.board, args.views, args.noise, args.seed);
     spec.max_board_tilt = args.max_board_tilt_deg.to_radians();
     let scene = simulate(&rig, pair[0], pair[1], &spec)?;
@@ -192,7 +213,26 @@ pub fn cost_backend<'a>(engine: &'a Engine, data: &'a StereoData) -> Box<dyn Cos
     }
 }
 
+/// Checks the size of the global search grid before anything is read.
+fn check_grid_step(args: &CalibrateArgs) -> anyhow::Result<()> {
+    let (bound, spacing) = (args.max_tilt_deg.to_radians(), args.grid_step_deg.to_radians());
+    // Other values of the two options are refused by the calibration with their own message.
+    if bound > 0.0 && bound < 80f64.to_radians() && spacing > 0.0 && spacing <= bound {
+        let axes = cap_grid_size(bound, spacing);
+        if axes > MAX_CAP_GRID_AXES as f64 {
+            bail!(
+                "--grid-step-deg {}: the global search over --max-tilt-deg {} would take {axes:.3e} axes; it takes at most {MAX_CAP_GRID_AXES} (each axis costs an evaluation over every corner): use --grid-step-deg {} or more",
+                args.grid_step_deg,
+                args.max_tilt_deg,
+                min_cap_grid_spacing_deg_text(bound)
+            );
+        }
+    }
+    Ok(())
+}
+
 pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
+    check_grid_step(&args)?;
     let (rig, data, warnings) = load_stereo_data(&args.rig, &args.observations)?;
     let options = CalibrationOptions {
         method: match args.method {
@@ -204,9 +244,13 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         grid_spacing: args.grid_step_deg.to_radians(),
         huber: args.huber,
         max_iterations: args.max_iterations,
+        max_rms_px: args.max_rms_px,
     };
     if args.huber.is_some_and(|k| k.is_nan() || k <= 0.0) {
         bail!("--huber must be a positive number of pixels");
+    }
+    if args.max_rms_px.is_nan() || args.max_rms_px <= 0.0 {
+        bail!("--max-rms-px must be a positive number of pixels, got {}", args.max_rms_px);
     }
     let engine = calibration_engine(&args.engine)?;
     let backend = cost_backend(&engine, &data);
@@ -217,19 +261,90 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         data.corners.len(),
         options.method.name()
     );
-    let calibration = calibrate(backend.as_ref(), &options, warnings)?;
-    let calibrated = rig.with_interface(calibration.interface.clone())?;
-    write_rig(&args.output, &calibrated)?;
+    // Errors about the data name the observations file.
+    let mut status = CalibrationStatus::new();
+    let calibration = calibrate_with_progress(backend.as_ref(), &options, warnings, &mut |p| status.update(p));
+    status.finish();
+    let calibration = calibration.map_err(|e| in_file(&args.observations, e))?;
+    let report = &calibration.report;
     if let Some(path) = &args.report {
-        write_report(path, &calibration.report)?;
+        write_report(path, report)?;
     }
-    out!("{}", summary(&calibration.report));
+    out!("{}", summary(report));
     if let Some(path) = &args.truth {
         let truth = read_truth(path)?;
-        outln!("{}", truth_errors(&calibration.report, &truth));
+        outln!("{}", truth_errors(report, &truth));
     }
+    if !report.fits {
+        let worst = report.inlier_rms_px[0].max(report.inlier_rms_px[1]);
+        bail!(
+            "{}: the calibration does not fit: the reprojection RMS is {worst:.2} px (outlier corners left out), above --max-rms-px {}. What the data look like: {}. {} not written{}",
+            args.observations.display(),
+            args.max_rms_px,
+            report.diagnosis.join("; "),
+            args.output.display(),
+            args.report.as_ref().map_or(String::new(), |p| format!("; the report is in {}", p.display()))
+        );
+    }
+    let calibrated = rig.with_interface(calibration.interface.clone())?;
+    write_rig(&args.output, &calibrated)?;
     outln!("wrote {}{}", args.output.display(), args.report.as_ref().map_or(String::new(), |p| format!(", {}", p.display())));
     Ok(())
+}
+
+/// Progress of a long calibration on stderr (stage, steps, cost): nothing during the first
+/// [`CalibrationStatus::SILENT`] (short runs stay quiet); then on a terminal one line redrawn at
+/// most five times a second; elsewhere (a log) a line when a stage starts and at most one every
+/// [`CalibrationStatus::LOG_EVERY`] within it.
+struct CalibrationStatus {
+    started: Instant,
+    terminal: bool,
+    last: Option<Instant>,
+    stage: String,
+    drawn: bool,
+}
+
+impl CalibrationStatus {
+    const SILENT: Duration = Duration::from_secs(3);
+    const LOG_EVERY: Duration = Duration::from_secs(30);
+    const REDRAW_EVERY: Duration = Duration::from_millis(200);
+
+    fn new() -> Self {
+        Self { started: Instant::now(), terminal: std::io::stderr().is_terminal(), last: None, stage: String::new(), drawn: false }
+    }
+
+    fn update(&mut self, p: &CalibrationProgress) {
+        let now = Instant::now();
+        let elapsed = now - self.started;
+        if elapsed < Self::SILENT {
+            return;
+        }
+        let new_stage = p.stage != self.stage;
+        let every = if self.terminal { Self::REDRAW_EVERY } else { Self::LOG_EVERY };
+        if !new_stage && self.last.is_some_and(|l| now - l < every) {
+            return;
+        }
+        if new_stage {
+            self.stage = p.stage.to_string();
+        }
+        self.last = Some(now);
+        let steps = match p.total {
+            Some(total) => format!("{}/{total}", p.done),
+            None => format!("iteration {}", p.done),
+        };
+        let cost = if p.cost.is_finite() { format!(", cost {:.6e} {}", p.cost, p.unit) } else { String::new() };
+        let line = format!("[{:.1} s] {}: {steps}{cost}", elapsed.as_secs_f64(), p.stage);
+        let mut err = std::io::stderr().lock();
+        let _ = if self.terminal { write!(err, "\r{line}\x1b[K") } else { writeln!(err, "{line}") };
+        self.drawn = true;
+    }
+
+    /// Ends the redrawn line on a terminal.
+    fn finish(&mut self) {
+        if self.terminal && self.drawn {
+            let _ = writeln!(std::io::stderr());
+        }
+    }
 }
 
 /// The engine for cost batches. Without `--precision` a GPU runs f64 where the adapter has it:
@@ -250,6 +365,9 @@ pub fn truth_errors(report: &CalibrationReport, truth: &Truth) -> String {
     let air = (report.candidate.air_distance - truth.interface.air_distance()) * 1e3;
     format!("against the truth: axis off by {axis:.5}°, air layer off by {air:+.4} mm")
 }
+
+/// Outlier images listed in the summary (the report lists all).
+const MAX_LISTED_OUTLIERS: usize = 12;
 
 /// The human summary printed on stdout.
 pub fn summary(report: &CalibrationReport) -> String {
@@ -278,6 +396,23 @@ pub fn summary(report: &CalibrationReport) -> String {
         text += &format!("  {} views, {} corners; worst view {v}: {:.4} / {:.4} px\n", report.views, report.corners, rms[0], rms[1]);
     }
     text += &format!("  {} iterations ({})\n", report.iterations, report.termination);
+    if !report.outlier_images.is_empty() {
+        text += &format!("  {} outlier corner(s) (view, image, corner: residual under the result):\n", report.outliers.len());
+        for o in report.outlier_images.iter().take(MAX_LISTED_OUTLIERS) {
+            text += &format!(
+                "    view {}, {} image ({}), corner {}: {:.2} px{}\n",
+                o.view,
+                o.side.name(),
+                o.camera,
+                o.corner,
+                o.residual_px,
+                if o.screened { " (off the board's shape in its image: not used by the estimate)" } else { "" }
+            );
+        }
+        if report.outlier_images.len() > MAX_LISTED_OUTLIERS {
+            text += &format!("    … and {} more (all in the report)\n", report.outlier_images.len() - MAX_LISTED_OUTLIERS);
+        }
+    }
     for warning in &report.warnings {
         text += &format!("warning: {warning}\n");
     }

@@ -177,10 +177,13 @@ struct StageFile<'a> {
 }
 
 #[derive(Debug, Serialize)]
-struct OutlierFile {
+struct OutlierFile<'a> {
     view: usize,
+    image: &'a str,
+    camera: &'a str,
     corner: usize,
     residual_px: f64,
+    screened: bool,
 }
 
 #[derive(Debug, Serialize)]
@@ -203,7 +206,11 @@ struct ReportFile<'a> {
     seconds: f64,
     backend: &'a str,
     warnings: &'a [String],
-    outliers: Vec<OutlierFile>,
+    fits: bool,
+    inlier_rms_px: [f64; 2],
+    noise_px: Option<f64>,
+    diagnosis: &'a [String],
+    outliers: Vec<OutlierFile<'a>>,
     stages: Vec<StageFile<'a>>,
     board_poses: Vec<PoseFile>,
 }
@@ -211,7 +218,10 @@ struct ReportFile<'a> {
 /// The calibration report as JSON: `normal`, `tilt_deg`, `azimuth_deg`, `air_distance` (m), `std`
 /// {tilt_deg, azimuth_deg, air_distance} (null for the consecutive method), `sigma_px`, `rms_px`
 /// [left, right], `rms_px_per_view`, `scene_rms_m`, `square_deviation_rms_m`, `iterations`,
-/// `termination`, `seconds`, `warnings`, `outliers`, `stages`, `board_poses`.
+/// `termination`, `seconds`, `warnings`, `fits` (the RMS without the outliers is within
+/// `--max-rms-px`), `inlier_rms_px` [left, right], `noise_px` (corner noise seen in the images),
+/// `diagnosis` (what the data look like, when they do not fit), `outliers` [{view, image (`left`
+/// or `right`), camera (rig name), corner, residual_px, screened}], `stages`, `board_poses`.
 pub fn report_to_json_string(report: &CalibrationReport) -> String {
     let c = &report.candidate;
     let n = c.normal;
@@ -234,7 +244,22 @@ pub fn report_to_json_string(report: &CalibrationReport) -> String {
         seconds: report.seconds,
         backend: &report.backend,
         warnings: &report.warnings,
-        outliers: report.outliers.iter().map(|&(view, corner, residual_px)| OutlierFile { view, corner, residual_px }).collect(),
+        fits: report.fits,
+        inlier_rms_px: report.inlier_rms_px,
+        noise_px: report.noise_px,
+        diagnosis: &report.diagnosis,
+        outliers: report
+            .outlier_images
+            .iter()
+            .map(|o| OutlierFile {
+                view: o.view,
+                image: o.side.name(),
+                camera: &o.camera,
+                corner: o.corner,
+                residual_px: o.residual_px,
+                screened: o.screened,
+            })
+            .collect(),
         stages: report
             .stages
             .iter()
