@@ -34,7 +34,7 @@ pub struct BenchArgs {
     /// Rig to measure on (default: the built-in example)
     #[arg(long, value_name = "RIG.json")]
     rig: Option<PathBuf>,
-    /// GPU adapter: part of its name (else $FLATPORT_ADAPTER, else the first hardware GPU, else lavapipe)
+    /// GPU adapter: its index or part of its name as `flatport info` lists them (else $FLATPORT_ADAPTER, else the best)
     #[arg(long, value_name = "NAME")]
     adapter: Option<String>,
     /// Skip the GPU paths

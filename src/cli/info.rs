@@ -36,8 +36,8 @@ pub fn run() -> anyhow::Result<()> {
         );
     }
     outln!("--device cpu:  the f64 reference on all cores");
-    outln!("--device gpu:  the WGSL kernels on a Vulkan adapter above (--adapter NAME, else $FLATPORT_ADAPTER,");
-    outln!("               else the first hardware GPU, else lavapipe)");
+    outln!("--device gpu:  the WGSL kernels on a Vulkan adapter above (--adapter INDEX|NAME, else $FLATPORT_ADAPTER,");
+    outln!("               else the best: discrete, integrated, virtual, other, then lavapipe)");
     outln!("--device auto: (the default) a hardware GPU when there is one, otherwise the CPU");
     Ok(())
 }

@@ -80,7 +80,7 @@ pub const NO_ANSWER_NAME: &str = "grey";
 /// The legend entry for the cells without a finite cost, `None` when every cell has one.
 pub fn no_answer_label(values: &[f64]) -> Option<String> {
     let n = values.iter().filter(|v| !v.is_finite()).count();
-    (n > 0).then(|| format!("{NO_ANSWER_NAME}: no finite cost ({n} of {} axes)", values.len()))
+    (n > 0).then(|| format!("{NO_ANSWER_NAME}: no finite cost ({n} of {} cells)", values.len()))
 }
 
 /// How values map to colours: linear, or log10 when positive and spanning over two decades.
@@ -653,7 +653,7 @@ mod tests {
     #[test]
     fn cells_without_a_finite_cost_are_named_and_counted() {
         let values = [1.0, f64::INFINITY, 2.0, f64::NAN, f64::INFINITY];
-        assert_eq!(no_answer_label(&values).unwrap(), "grey: no finite cost (3 of 5 axes)");
+        assert_eq!(no_answer_label(&values).unwrap(), "grey: no finite cost (3 of 5 cells)");
         assert_eq!(no_answer_label(&[1.0, 2.0]), None);
         assert_eq!(Scale::of(&values).colour(f64::INFINITY), NO_ANSWER);
         // No viridis colour is that grey.
