@@ -139,7 +139,12 @@ Examples:
   flatport sweep --rig rig.json --observations obs.json --cost affine-grid \\
       --tilt-deg 0:20:64 --azimuth-deg -180:180:64 --output sweep
   flatport sweep --rig rig.json --observations obs.json --cost reprojection \\
-      --tilt-deg 6:10:21 --azimuth-deg 40:50:21 --distance 0.015:0.025:11 --output sweep3d --device gpu")]
+      --tilt-deg 6:10:21 --azimuth-deg 40:50:21 --distance 0.015:0.025:11 --output sweep3d --device gpu
+
+Over many machines (a SLURM array, a Kubernetes Indexed Job; see the README): --shard I/N writes
+slice I of N into its own folder, `flatport sweep merge` joins the folders into the files above:
+  flatport sweep ... --shard 0/4 --output shard-0      (and 1/4, 2/4, 3/4)
+  flatport sweep merge shard-0 shard-1 shard-2 shard-3 --output sweep")]
     Sweep(sweep::SweepCommand),
     /// Rig files: import OpenCV stereoCalibrate output, show a rig
     #[command(subcommand)]
