@@ -428,3 +428,14 @@ fn bench_json_has_every_path() {
         }
     }
 }
+
+/// Issue 14: the OS error of a missing file is printed once, not once in the message and again as
+/// its source.
+#[test]
+fn os_errors_are_printed_once() {
+    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/example_rig.json");
+    let message = run_err(&["vop", "--rig", rig.to_str().unwrap(), "--points", "/nonexistent/points.csv", "--device", "cpu"]);
+    assert_eq!(message.matches("No such file or directory").count(), 1, "{message}");
+    let message = run_err(&["vop", "--rig", "/nonexistent/rig.json", "--points", "p.csv"]);
+    assert_eq!(message.matches("os error 2").count(), 1, "{message}");
+}

@@ -237,6 +237,23 @@ pub fn parse_pair(text: &str) -> Result<(String, String), String> {
     }
 }
 
+/// `error: cause: cause …` as `{error:#}` writes it, leaving out a cause whose text the message
+/// already holds (an I/O error that shows its OS error also returns it as its source, which
+/// printed "No such file or directory (os error 2)" twice).
+fn chain_once(error: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in error.chain() {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&cause);
+        }
+    }
+    text
+}
+
 /// Entry point: runs the command, prints errors as `error: …` with their causes, exit code 1.
 pub fn main() -> ExitCode {
     if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
@@ -261,7 +278,7 @@ pub fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
-            eprintln!("error: {error:#}");
+            eprintln!("error: {}", chain_once(&error));
             ExitCode::FAILURE
         }
     }
