@@ -10,6 +10,7 @@ mod info;
 mod progress;
 mod rig;
 mod sweep;
+mod values;
 
 use std::path::PathBuf;
 use std::process::ExitCode;

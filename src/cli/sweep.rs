@@ -59,7 +59,7 @@ pub struct SweepArgs {
     #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace, allow_hyphen_values = true)]
     pub azimuth_deg: Linspace,
     /// Air layers in metres: START:STOP:COUNT; without it each axis takes its least-squares air layer
-    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace)]
+    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_distances, allow_hyphen_values = true)]
     pub distance: Option<Linspace>,
     /// Output folder (created if missing)
     #[arg(long, short, value_name = "DIR")]
@@ -68,7 +68,7 @@ pub struct SweepArgs {
     #[arg(long, value_name = "TRUTH.json")]
     pub truth: Option<PathBuf>,
     /// Axis cells per batch handed to the backend
-    #[arg(long, value_name = "CELLS", default_value_t = 4096)]
+    #[arg(long, value_name = "CELLS", default_value_t = 4096, allow_negative_numbers = true)]
     pub chunk: usize,
     /// No progress bar
     #[arg(long, short)]
@@ -104,6 +104,15 @@ pub fn parse_linspace(text: &str) -> Result<Linspace, String> {
         return Err(format!("one value needs START = STOP, got '{text}'"));
     }
     Ok(Linspace { start, stop, count })
+}
+
+/// Parses the `--distance` grid: START:STOP:COUNT of air layers, both ends > 0 m.
+pub fn parse_distances(text: &str) -> Result<Linspace, String> {
+    let grid = parse_linspace(text)?;
+    if !(grid.start > 0.0 && grid.stop > 0.0) {
+        return Err(format!("air layers must be > 0 m, got START {} and STOP {}", grid.start, grid.stop));
+    }
+    Ok(grid)
 }
 
 fn grid_json(l: &Linspace) -> serde_json::Value {
