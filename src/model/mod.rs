@@ -93,7 +93,7 @@ impl NoSolution {
             Self::BehindCamera => "beyond the camera's field of view (light would arrive from behind its image plane)",
             Self::Degenerate => "degenerate geometry (parallel rays)",
             Self::NoConvergence => "root finder did not converge",
-            Self::OutOfRange => "input beyond ±1e300 or result beyond the floating-point range",
+            Self::OutOfRange => "beyond the floating-point range (a coordinate past ±1e300, ±1e30 on f32 kernels, or an overflow)",
         }
     }
 }

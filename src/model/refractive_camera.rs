@@ -530,7 +530,7 @@ impl PathMedia<'_> {
             } else if f > 0.0 {
                 hi = v;
             } else if f == 0.0 {
-                return Ok(self.in_air_if_lost(v, reference, r, iteration));
+                return Ok((v, self.media[reference].rho, iteration));
             } else {
                 // NaN: v reached a critical-angle cap within rounding, or (a point more than 1e150
                 // times farther to the side than the air layer is thick, tan a > 1e150) v²
@@ -561,39 +561,18 @@ impl PathMedia<'_> {
             // Converged: test before the bracket, since a step below half an ulp leaves v unchanged
             // and would otherwise read as a step outside the open bracket.
             if step.abs() <= PROJECT_TOLERANCE * v {
-                return Ok(self.in_air_if_lost(v - step, reference, r, iteration));
+                return Ok((v - step, self.media[reference].rho, iteration));
             }
             let mut next = v - step;
             if !(next > lo && next < hi) {
                 next = 0.5 * (lo + hi);
             }
             if hi - lo <= PROJECT_TOLERANCE * hi {
-                return Ok(self.in_air_if_lost(next, reference, r, iteration));
+                return Ok((next, self.media[reference].rho, iteration));
             }
             v = next;
         }
         Err(if r / self.length(AIR) > SCALE_ABOVE { NoSolution::OutOfRange } else { NoSolution::NoConvergence })
-    }
-
-    /// The root v in medium `reference` as (v, ρ_ref, iterations), or in the air's variable when
-    /// tan a = T(v; ρ_ref) = ρ_ref v / √q, q = 1 + (1 − ρ_ref²) v², would lose its digits: q ≤ 0 or q² below
-    /// [`PROJECT_TOLERANCE`] (a point so far to the side that the water ray sits at the critical
-    /// angle within rounding and the air ray grazes). There the air term carries the rest of the
-    /// lateral distance: tan a = (r − Σ_{m ≠ air} Lₘ T(v; kₘ)) / d_k, f = 0 solved for the air term.
-    #[inline(always)]
-    fn in_air_if_lost(&self, v: f64, reference: usize, r: f64, iterations: u32) -> (f64, f64, u32) {
-        let rho_ref = self.media[reference].rho;
-        let q = 1.0 + (1.0 - rho_ref * rho_ref) * v * v;
-        if reference == AIR || (q > 0.0 && q * q >= PROJECT_TOLERANCE) {
-            return (v, rho_ref, iterations);
-        }
-        let others: f64 = (WATER..self.media.len())
-            .map(|i| {
-                let k = rho_ref * self.media[i].inv_rho;
-                self.length(i) * k * v / (1.0 + (1.0 - k * k) * v * v).sqrt()
-            })
-            .sum();
-        ((r - others) / self.length(AIR), 1.0, iterations)
     }
 
     /// f(v), f′(v) of [`RefractiveCamera::air_path_to`] in the variable of medium `reference`
