@@ -16,6 +16,7 @@ const STATUS_NOT_IN_WATER: u32 = 4u;
 const STATUS_BEHIND_CAMERA: u32 = 5u;
 const STATUS_DEGENERATE: u32 = 6u;
 const STATUS_NO_CONVERGENCE: u32 = 7u;
+const STATUS_OUT_OF_RANGE: u32 = 8u; // also set by the host for inputs beyond ±REAL_HUGE and non-finite results
 
 const MAX_LAYERS: u32 = 8u;
 const WORKGROUP_SIZE: u32 = 64u;

@@ -439,3 +439,40 @@ fn bench_json_has_every_path() {
         }
     }
 }
+
+/// Issue 14: the OS error of a missing file is printed once, not once in the message and again as
+/// its source.
+#[test]
+fn os_errors_are_printed_once() {
+    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/example_rig.json");
+    let message = run_err(&["vop", "--rig", rig.to_str().unwrap(), "--points", "/nonexistent/points.csv", "--device", "cpu"]);
+    assert_eq!(message.matches("No such file or directory").count(), 1, "{message}");
+    let message = run_err(&["vop", "--rig", "/nonexistent/rig.json", "--points", "p.csv"]);
+    assert_eq!(message.matches("os error 2").count(), 1, "{message}");
+}
+
+/// Issue 14: negative option values reach the option's parser (they read as unknown flags before)
+/// and out-of-range values are refused with a message naming the option and the value.
+#[test]
+fn negative_and_out_of_range_option_values_name_the_option() {
+    let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/example_rig.json");
+    let rig = rig.to_str().unwrap();
+    let cases: [(&[&str], &[&str]); 9] = [
+        (&["calibrate", "--rig", rig, "--observations", "o.json", "-o", "c.json", "--huber", "-1"], &["--huber", "must be > 0, got -1"]),
+        (&["calibrate", "--rig", rig, "--observations", "o.json", "-o", "c.json", "--max-tilt-deg", "-5"], &["--max-tilt-deg", "(0°, 80°), got -5"]),
+        (&["calibrate", "--rig", rig, "--observations", "o.json", "-o", "c.json", "--grid-step-deg", "-1"], &["--grid-step-deg", "must be > 0"]),
+        (&["sweep", "--rig", rig, "--observations", "o.json", "--tilt-deg", "0:10:3", "--azimuth-deg", "0:90:3", "-o", "s", "--distance", "-0.01:0.03:3"], &["--distance", "air layers must be > 0 m"]),
+        (&["vop", "--rig", rig, "--points", "p.csv", "--camera", "-1", "--device", "cpu"], &["--camera", "no camera '-1'"]),
+        (&["simulate", "--rig", rig, "-o", "s", "--max-board-tilt-deg", "180"], &["--max-board-tilt-deg", "[0°, 90°), got 180"]),
+        (&["simulate", "--rig", rig, "-o", "s", "--max-board-tilt-deg", "-1"], &["--max-board-tilt-deg", "[0°, 90°), got -1"]),
+        (&["simulate", "--rig", rig, "-o", "s", "--noise", "-0.5"], &["--noise", "must be ≥ 0, got -0.5"]),
+        (&["simulate", "--rig", rig, "-o", "s", "--views", "-3"], &["--views", "'-3'"]),
+    ];
+    for (args, expected) in cases {
+        let message = run_err(args);
+        assert!(!message.contains("unexpected argument"), "{args:?}: {message}");
+        for part in expected {
+            assert!(message.contains(part), "{args:?}: expected {part:?} in {message}");
+        }
+    }
+}

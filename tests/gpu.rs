@@ -458,3 +458,56 @@ fn staged_and_mapped_buffers_agree() {
         assert!(same(m.4.as_flattened(), s.4.as_flattened()), "{precision} cost");
     }
 }
+
+/// Issue 14 (rows that lie): points from metres to 1e299 m (past 1.3e154, where squares overflow),
+/// beyond ±1e300 and beyond f32's range, in view, far to the side and far down the axis. Every row
+/// is all numbers or all NaN on both engines; the f64 kernels give the CPU's statuses and values;
+/// the f32 kernels reject inputs they cannot represent (beyond ±1e30) as out of range.
+#[test]
+fn extreme_points_are_every_number_or_none_and_agree() {
+    let cpu = CpuEngine::new(None);
+    let directions = [[0.1, 0.05, 1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.01], [-0.3, 0.2, 1.0], [100.0, 0.0, 1.0], [0.0, 1e-3, 1e17]];
+    let scales = [1.0, 1e3, 1e10, 1e20, 1e40, 1e100, 1e154, 1e155, 1e200, 1e299, 1e301, f64::MAX];
+    let points: Vec<[f64; 3]> = scales.iter().flat_map(|&s| directions.iter().map(move |d| d.map(|c| c * s))).collect();
+    let n = points.len();
+    let all_or_none = |row: &[f64], s: u32| if s == 0 { row.iter().all(|v| v.is_finite()) } else { row.iter().all(|v| v.is_nan()) };
+    for precision in [Precision::F32, Precision::F64] {
+        let Some(gpu) = engine(precision) else { return };
+        each_camera(|name, rig, k| {
+            let camera = rig.refractive_camera(k);
+            let (mut c, mut cs, mut g, mut gs) = (vec![[0.0; 6]; n], vec![0; n], vec![[0.0; 6]; n], vec![0; n]);
+            cpu.vop(&camera, &points, &mut c, &mut cs);
+            gpu.vop(&camera, &points, &mut g, &mut gs).unwrap();
+            let (mut pc, mut pcs, mut pg, mut pgs) = (vec![[0.0; 2]; n], vec![0; n], vec![[0.0; 2]; n], vec![0; n]);
+            cpu.project(&camera, &points, &mut pc, &mut pcs);
+            gpu.project(&camera, &points, &mut pg, &mut pgs).unwrap();
+            for i in 0..n {
+                let what = format!("{precision} {name} camera {k} point {:?}", points[i]);
+                assert!(all_or_none(&c[i], cs[i]) && all_or_none(&g[i], gs[i]), "vop {what}: cpu {:?} {} gpu {:?} {}", c[i], cs[i], g[i], gs[i]);
+                assert!(all_or_none(&pc[i], pcs[i]) && all_or_none(&pg[i], pgs[i]), "project {what}");
+                let beyond = |limit: f64| points[i].iter().any(|v| v.abs() > limit);
+                if beyond(1e300) {
+                    assert_eq!((cs[i], pcs[i]), (NoSolution::OutOfRange.code(), NoSolution::OutOfRange.code()), "cpu {what}");
+                }
+                match precision {
+                    Precision::F64 => {
+                        assert_eq!((cs[i], pcs[i]), (gs[i], pgs[i]), "statuses {what}");
+                        // x̌ = r / tan a − d_k − Σtᵢ of a point 1e10 m away is a difference of
+                        // 1e10 m lengths: both engines round it at that scale.
+                        let scale = points[i].iter().fold(1.0f64, |m, v| m.max(v.abs()));
+                        for (a, b) in c[i].iter().zip(&g[i]).filter(|(a, _)| a.is_finite()) {
+                            assert!((a - b).abs() <= 1e-9 * a.abs().max(scale), "vop {what}: cpu {a} gpu {b}");
+                        }
+                        for (a, b) in pc[i].iter().zip(&pg[i]).filter(|(a, _)| a.is_finite()) {
+                            assert!((a - b).abs() <= 1e-9 * a.abs().max(1.0), "project {what}: cpu {a} gpu {b}");
+                        }
+                    }
+                    Precision::F32 if beyond(1e30) => {
+                        assert_eq!((gs[i], pgs[i]), (NoSolution::OutOfRange.code(), NoSolution::OutOfRange.code()), "gpu {what}");
+                    }
+                    Precision::F32 => {}
+                }
+            }
+        });
+    }
+}

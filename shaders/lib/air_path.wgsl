@@ -130,7 +130,9 @@ fn solve_tan_incidence(cam: View, depth: real, r: real) -> Maybe {
         } else if (e.f == 0.0) {
             return Maybe(tan_incidence_from(s.v, s.reference.y), true);
         } else {
-            return Maybe(0.0, false); // NaN at a critical-angle cap: never a silent root
+            // NaN at a critical-angle cap, or v² overflowed (r / d_k > √REAL_HUGE: out of
+            // range): never a silent root.
+            return Maybe(0.0, false);
         }
         s.df = e.df;
         if (e.dominant.y != s.reference.y) {
@@ -141,6 +143,15 @@ fn solve_tan_incidence(cam: View, depth: real, r: real) -> Maybe {
             // The step leaves through the slowest medium's critical angle: continue in its angle.
             s = reparametrise(cam, depth, s, slowest, r);
             step = e.f / s.df;
+        }
+        if (s.v >= REAL_HUGE) {
+            // The iterate sat at the new medium's critical angle within rounding: bisect, and test
+            // convergence only where f was evaluated; f(0) = −r < 0 bottoms a collapsed bracket.
+            if (!(s.lo < s.hi)) {
+                s.lo = 0.0;
+            }
+            s.v = 0.5 * (s.lo + s.hi);
+            continue;
         }
         if (abs(step) <= PROJECT_TOLERANCE * s.v) {
             return Maybe(tan_incidence_from(s.v - step, s.reference.y), true);
@@ -174,16 +185,55 @@ fn air_path_to(cam: View, point: vec3r) -> AirPath {
         return AirPath(vec3r(0.0), 0.0, depth, 0.0, STATUS_NOT_IN_WATER);
     }
     let lateral = offset - n * z;
-    let r = length(lateral);
+    let r = length_scaled(lateral);
     if (r == 0.0) {
         return AirPath(n, 0.0, depth, 0.0, STATUS_OK);
     }
     let tau = solve_tan_incidence(cam, depth, r);
     if (!tau.ok) {
-        return AirPath(vec3r(0.0), 0.0, depth, r, STATUS_NO_CONVERGENCE);
+        var status = STATUS_NO_CONVERGENCE;
+        if (above_root_huge(r / cam.d_k)) { // tan a > √REAL_HUGE: its square overflows
+            status = STATUS_OUT_OF_RANGE;
+        }
+        return AirPath(vec3r(0.0), 0.0, depth, r, status);
     }
-    let dir = (n + lateral * (tau.value / r)) / sqrt(1.0 + tau.value * tau.value);
+    if (above_root_huge(r / cam.d_k)) {
+        // tan a may be beyond √REAL_HUGE, where the iteration's squares overflow: accept the root
+        // only if the lateral offsets, summed without squares of tan a, give r.
+        var residual = cam.d_k * tau.value - r;
+        for (var i = 1u; i < media_count(cam); i++) {
+            let m = medium(cam, depth, i);
+            let k = 1.0 / m.y;
+            residual += m.x * k / sqrt((1.0 / tau.value) * (1.0 / tau.value) + 1.0 - k * k);
+        }
+        if (!(abs(residual) <= 1e-6 * r)) {
+            return AirPath(vec3r(0.0), 0.0, depth, r, STATUS_OUT_OF_RANGE);
+        }
+    }
+    var dir: vec3r;
+    if (above_root_huge(tau.value)) {
+        // Near grazing, where τ² would overflow: the same direction divided by τ.
+        let inv_tau = 1.0 / tau.value;
+        dir = (n * inv_tau + lateral * (1.0 / r)) / sqrt(1.0 + inv_tau * inv_tau);
+    } else {
+        dir = (n + lateral * (tau.value / r)) / sqrt(1.0 + tau.value * tau.value);
+    }
     return AirPath(dir, tau.value, depth, r, STATUS_OK);
+}
+
+// x > √REAL_HUGE, without a square that could overflow (naga evaluates no sqrt of an f64 constant).
+fn above_root_huge(x: real) -> bool {
+    return x > 1.0 && x > REAL_HUGE / x;
+}
+
+// |v| without overflow of the squares: scaled by the largest component above √REAL_HUGE (twin of
+// `length` in src/model/refractive_camera.rs, whose threshold 1e150 is √REAL_HUGE in f64).
+fn length_scaled(v: vec3r) -> real {
+    let largest = max(abs(v.x), max(abs(v.y), abs(v.z)));
+    if (above_root_huge(largest)) {
+        return largest * length(v * (1.0 / largest));
+    }
+    return length(v);
 }
 
 struct Pixel {

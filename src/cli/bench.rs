@@ -23,10 +23,10 @@ use super::demo::EXAMPLE_RIG;
 #[derive(Debug, Args)]
 pub struct BenchArgs {
     /// Items per batch (at most 16777216)
-    #[arg(long, default_value_t = 1 << 20)]
+    #[arg(long, default_value_t = 1 << 20, allow_negative_numbers = true)]
     items: usize,
     /// Timed repetitions per figure (the fastest counts; 1 to 1000)
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, allow_negative_numbers = true)]
     repeats: usize,
     /// Also write the results as JSON
     #[arg(long, value_name = "FILE")]
@@ -41,7 +41,7 @@ pub struct BenchArgs {
     #[arg(long)]
     no_gpu: bool,
     /// Axis cells of the invariant sweep figure (over about 10 000 correspondences; at most 1048576)
-    #[arg(long, value_name = "CELLS", default_value_t = 4096)]
+    #[arg(long, value_name = "CELLS", default_value_t = 4096, allow_negative_numbers = true)]
     sweep_cells: usize,
 }
 

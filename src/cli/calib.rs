@@ -28,19 +28,19 @@ pub struct SimulateArgs {
     #[arg(long, value_name = "COLSxROWS@M", default_value = "9x6@0.04", value_parser = parse_board)]
     board: Board,
     /// Number of stereo views
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
     views: usize,
     /// Standard deviation of the Gaussian noise added to every corner coordinate (pixels)
-    #[arg(long, value_name = "PX", default_value_t = 0.1)]
+    #[arg(long, value_name = "PX", default_value_t = 0.1, value_parser = super::values::non_negative, allow_negative_numbers = true)]
     noise: f64,
     /// Seed of the random poses and noise (equal seeds give equal scenes)
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
     /// Rig cameras that take the left and right images (default: the first two)
-    #[arg(long, value_name = "A,B", value_parser = super::parse_pair)]
+    #[arg(long, value_name = "A,B", value_parser = super::parse_pair, allow_hyphen_values = true)]
     cameras: Option<(String, String)>,
-    /// Largest angle between the board's normal and the master camera's axis (degrees)
-    #[arg(long, value_name = "DEG", default_value_t = 45.0)]
+    /// Largest angle between the board's normal and the master camera's axis (degrees, in [0, 90))
+    #[arg(long, value_name = "DEG", default_value_t = 45.0, value_parser = super::values::tilt_below_90, allow_negative_numbers = true)]
     max_board_tilt_deg: f64,
     /// Output folder (created if missing): observations.json, truth.json, rig.json, start_rig.json
     #[arg(long, short, value_name = "DIR")]
@@ -77,16 +77,16 @@ pub struct CalibrateArgs {
     #[arg(long, value_enum, default_value_t = MethodArg::Auto)]
     method: MethodArg,
     /// Largest axis tilt from the master camera's z axis that the global search covers (degrees)
-    #[arg(long, value_name = "DEG", default_value_t = 30.0)]
+    #[arg(long, value_name = "DEG", default_value_t = 30.0, value_parser = super::values::tilt_bound, allow_negative_numbers = true)]
     max_tilt_deg: f64,
     /// Spacing of the global search grid over the axis (degrees)
-    #[arg(long, value_name = "DEG", default_value_t = 1.5)]
+    #[arg(long, value_name = "DEG", default_value_t = 1.5, value_parser = super::values::positive, allow_negative_numbers = true)]
     grid_step_deg: f64,
     /// Huber loss with this threshold on each corner's residual (pixels); default plain least squares
-    #[arg(long, value_name = "PX")]
+    #[arg(long, value_name = "PX", value_parser = super::values::positive, allow_negative_numbers = true)]
     huber: Option<f64>,
     /// Iteration bound of the maximum-likelihood refinement
-    #[arg(long, default_value_t = 200)]
+    #[arg(long, default_value_t = 200, allow_negative_numbers = true)]
     max_iterations: usize,
     /// Largest RMS reprojection error (pixels, either camera, outlier corners left out) accepted
     /// as a fit: above it the report (if asked for) is written with what the data look like, the

@@ -20,7 +20,7 @@ pub struct PointsArgs {
     #[arg(long, value_name = "POINTS.csv")]
     points: PathBuf,
     /// Camera by name or index (default: the master camera)
-    #[arg(long, value_name = "NAME|INDEX")]
+    #[arg(long, value_name = "NAME|INDEX", allow_hyphen_values = true)]
     camera: Option<String>,
 }
 
@@ -33,7 +33,7 @@ pub struct BackprojectArgs {
     #[arg(long, value_name = "PIXELS.csv")]
     pixels: PathBuf,
     /// Camera by name or index (default: the master camera)
-    #[arg(long, value_name = "NAME|INDEX")]
+    #[arg(long, value_name = "NAME|INDEX", allow_hyphen_values = true)]
     camera: Option<String>,
 }
 
@@ -46,17 +46,17 @@ pub struct TriangulateArgs {
     #[arg(long, value_name = "MATCHES.csv")]
     matches: PathBuf,
     /// The two cameras, by name or index (default: the first two of the rig)
-    #[arg(long, value_name = "A,B", value_parser = super::parse_pair)]
+    #[arg(long, value_name = "A,B", value_parser = super::parse_pair, allow_hyphen_values = true)]
     cameras: Option<(String, String)>,
 }
 
-/// Index of `--camera` in the rig, the master when absent.
-pub fn camera_index(rig: &Rig, camera: Option<&str>) -> anyhow::Result<usize> {
+/// Index of `--camera` (or the option named `option`) in the rig, the master when absent.
+pub fn camera_index(rig: &Rig, camera: Option<&str>, option: &str) -> anyhow::Result<usize> {
     let Some(name) = camera else { return Ok(0) };
     rig.camera_index(name).with_context(|| {
         let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
         format!(
-            "no camera '{name}' in the rig (cameras: {}; or an index 0..{})",
+            "{option}: no camera '{name}' in the rig (cameras: {}; or an index 0..{})",
             names.join(", "),
             names.len() - 1
         )
@@ -65,7 +65,7 @@ pub fn camera_index(rig: &Rig, camera: Option<&str>) -> anyhow::Result<usize> {
 
 pub fn project(args: PointsArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
-    let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref())?);
+    let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref(), "--camera")?);
     let engine = args.common.engine.engine()?;
     stream(&engine, &args.points, ["x", "y", "z"], args.common.output.as_deref(), ["u", "v"], |e, points, pixels, status| {
         e.project(&camera, points, pixels, status)
@@ -74,7 +74,7 @@ pub fn project(args: PointsArgs) -> anyhow::Result<()> {
 
 pub fn backproject(args: BackprojectArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
-    let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref())?);
+    let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref(), "--camera")?);
     let engine = args.common.engine.engine()?;
     let header = ["ox", "oy", "oz", "dx", "dy", "dz"];
     stream(&engine, &args.pixels, ["u", "v"], args.common.output.as_deref(), header, |e, pixels, rays, status| {
@@ -85,7 +85,7 @@ pub fn backproject(args: BackprojectArgs) -> anyhow::Result<()> {
 pub fn triangulate(args: TriangulateArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
     let (a, b) = match &args.cameras {
-        Some((a, b)) => (camera_index(&rig, Some(a))?, camera_index(&rig, Some(b))?),
+        Some((a, b)) => (camera_index(&rig, Some(a), "--cameras")?, camera_index(&rig, Some(b), "--cameras")?),
         None => {
             if rig.cameras().len() < 2 {
                 bail!(
@@ -110,7 +110,7 @@ pub fn triangulate(args: TriangulateArgs) -> anyhow::Result<()> {
 
 pub fn vop(args: PointsArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
-    let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref())?);
+    let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref(), "--camera")?);
     let engine = args.common.engine.engine()?;
     let header = ["depth", "vop_distance", "vop_x", "vop_y", "vop_z", "incidence"];
     stream(&engine, &args.points, ["x", "y", "z"], args.common.output.as_deref(), header, |e, points, vops, status| {

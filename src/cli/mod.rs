@@ -22,6 +22,7 @@ mod progress;
 mod rig;
 mod signals;
 mod sweep;
+mod values;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -272,6 +273,23 @@ pub fn parse_pair(text: &str) -> Result<(String, String), String> {
     }
 }
 
+/// `error: cause: cause …` as `{error:#}` writes it, leaving out a cause whose text the message
+/// already holds (an I/O error that shows its OS error also returns it as its source, which
+/// printed "No such file or directory (os error 2)" twice).
+fn chain_once(error: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in error.chain() {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&cause);
+        }
+    }
+    text
+}
+
 /// Entry point: runs the command, prints errors as `error: …` with their causes, exit code 1.
 pub fn main() -> ExitCode {
     if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
@@ -298,7 +316,7 @@ pub fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) if signals::is_broken_pipe(&error) => signals::exit_on_broken_pipe(),
         Err(error) => {
-            eprintln!("error: {error:#}");
+            eprintln!("error: {}", chain_once(&error));
             ExitCode::FAILURE
         }
     }

@@ -39,19 +39,19 @@ pub struct FromOpencvArgs {
     #[arg(long, value_name = "X,Y,Z", default_value = "0,0,1", value_parser = parse_vector, allow_hyphen_values = true)]
     normal: Vector3<f64>,
     /// Air layer: distance from the master camera centre to the first interface along the normal (m)
-    #[arg(long, value_name = "METRES")]
+    #[arg(long, value_name = "METRES", value_parser = super::values::positive, allow_negative_numbers = true)]
     distance: f64,
     /// A layer between air and water as THICKNESS:INDEX, in order from the camera (repeatable)
-    #[arg(long = "layer", value_name = "THICKNESS:INDEX", value_parser = parse_layer)]
+    #[arg(long = "layer", value_name = "THICKNESS:INDEX", value_parser = parse_layer, allow_hyphen_values = true)]
     layers: Vec<Layer>,
     /// Refractive index of the medium around the cameras
-    #[arg(long, default_value_t = interface::DEFAULT_INDEX_AIR)]
+    #[arg(long, default_value_t = interface::DEFAULT_INDEX_AIR, value_parser = super::values::index, allow_negative_numbers = true)]
     index_air: f64,
     /// Refractive index of the last medium
-    #[arg(long, default_value_t = interface::DEFAULT_INDEX_WATER)]
+    #[arg(long, default_value_t = interface::DEFAULT_INDEX_WATER, value_parser = super::values::index, allow_negative_numbers = true)]
     index_water: f64,
     /// Camera names, master first
-    #[arg(long, value_name = "A,B", default_value = "left,right", value_parser = super::parse_pair)]
+    #[arg(long, value_name = "A,B", default_value = "left,right", value_parser = super::parse_pair, allow_hyphen_values = true)]
     names: (String, String),
     /// Image size WIDTHxHEIGHT when the YAML has no image_width/image_height
     #[arg(long, value_name = "WxH", value_parser = parse_size)]
@@ -63,8 +63,8 @@ pub struct FromOpencvArgs {
 
 fn parse_layer(text: &str) -> Result<Layer, String> {
     let (t, n) = text.split_once(':').ok_or_else(|| format!("expected THICKNESS:INDEX, got '{text}'"))?;
-    let thickness = t.trim().parse().map_err(|_| format!("thickness '{t}' is not a number"))?;
-    let index = n.trim().parse().map_err(|_| format!("index '{n}' is not a number"))?;
+    let thickness = super::values::positive(t).map_err(|e| format!("thickness {e}"))?;
+    let index = super::values::index(n).map_err(|e| format!("index: {e}"))?;
     Ok(Layer { thickness, index })
 }
 

@@ -66,7 +66,7 @@ pub struct SweepArgs {
     #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace, allow_hyphen_values = true, required = true)]
     pub azimuth_deg: Option<Linspace>,
     /// Air layers in metres: START:STOP:COUNT; without it each axis takes its least-squares air layer
-    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_linspace)]
+    #[arg(long, value_name = "START:STOP:COUNT", value_parser = parse_distances, allow_hyphen_values = true)]
     pub distance: Option<Linspace>,
     /// Output folder (created if missing)
     #[arg(long, short, value_name = "DIR", required = true)]
@@ -76,7 +76,7 @@ pub struct SweepArgs {
     pub truth: Option<PathBuf>,
     /// Axis cells per batch handed to the backend (1 to 1048576; a batch holds at most 262144
     /// cells whatever the distance grid)
-    #[arg(long, value_name = "CELLS", default_value_t = 4096)]
+    #[arg(long, value_name = "CELLS", default_value_t = 4096, allow_negative_numbers = true)]
     pub chunk: usize,
     /// No progress bar
     #[arg(long, short)]
@@ -149,13 +149,22 @@ fn check_sizes(args: &SweepArgs, spec: &SweepSpec) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Parses the `--distance` grid: START:STOP:COUNT of air layers, both ends > 0 m.
+pub fn parse_distances(text: &str) -> Result<Linspace, String> {
+    let grid = parse_linspace(text)?;
+    if !(grid.start > 0.0 && grid.stop > 0.0) {
+        return Err(format!("air layers must be > 0 m, got START {} and STOP {}", grid.start, grid.stop));
+    }
+    Ok(grid)
+}
+
 fn grid_json(l: &Linspace) -> serde_json::Value {
     json!({"start": l.start, "stop": l.stop, "count": l.count})
 }
 
 /// Runs a sweep into `args.output`; returns the summary JSON. Everything is written under
 /// temporary names and renamed into place only when the sweep completed. With `--shard I/N`
-/// only that slice of the grid is evaluated, into the shard's files ([`write_shard`]); the
+/// only that slice of the grid is evaluated, into the shard's files (`ShardFiles`); the
 /// summary is then the shard's manifest.
 pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
     let missing = |option: &str| anyhow::anyhow!("flatport sweep needs {option} (see flatport sweep --help)");

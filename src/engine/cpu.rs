@@ -2,7 +2,7 @@
 
 use rayon::prelude::*;
 
-use crate::model::{NoSolution, RefractiveCamera, Rig, binocular_vop, triangulate_rays};
+use crate::model::{MAX_INPUT, NoSolution, RefractiveCamera, Rig, binocular_vop, out_of_range, triangulate_rays};
 use nalgebra::{Point2, Point3, Unit, Vector3};
 
 /// Items per rayon task: large enough to amortise scheduling, small enough to balance.
@@ -29,7 +29,9 @@ impl CpuEngine {
         self.pool.current_num_threads()
     }
 
-    /// Applies `f` to every row in parallel: status 0 and the row, or the reason's code and NaN.
+    /// Applies `f` to every row in parallel: status 0 and the row, or the reason's code and NaN. A
+    /// row with an input beyond ±[`MAX_INPUT`] or a result that is not finite is
+    /// [`NoSolution::OutOfRange`]: every row is all numbers or all NaN.
     pub fn map<const N: usize, const M: usize>(
         &self,
         input: &[[f64; N]],
@@ -41,8 +43,10 @@ impl CpuEngine {
         type Task<'a, const N: usize, const M: usize> = (&'a [[f64; N]], (&'a mut [[f64; M]], &'a mut [u32]));
         let run = |(input, (output, status)): Task<N, M>| {
             for ((x, y), s) in input.iter().zip(output.iter_mut()).zip(status.iter_mut()) {
-                (*y, *s) = match f(x) {
-                    Ok(value) => (value, 0),
+                let result = if out_of_range(x, MAX_INPUT, &[]) { Err(NoSolution::OutOfRange) } else { f(x) };
+                (*y, *s) = match result {
+                    Ok(value) if !out_of_range(&[], MAX_INPUT, &value) => (value, 0),
+                    Ok(_) => ([f64::NAN; M], NoSolution::OutOfRange.code()),
                     Err(reason) => ([f64::NAN; M], reason.code()),
                 };
             }

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use super::context::{GpuContext, GpuError};
 use super::layout::{MAX_LAYERS, pack_params, set_info};
 use super::shaders::{Kernel, Precision, Reduction, source};
-use crate::model::{RefractiveCamera, Rig};
+use crate::model::{NoSolution, RefractiveCamera, Rig, out_of_range};
 
 mod affine_grid;
 mod candidates;
@@ -316,9 +316,21 @@ impl GpuEngine {
             let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), self.context.dispatch_size(items as u32));
             let copies = [(&out_buf, &out_staging, (items * M * s) as u64), (&status_buf, &status_staging, (items * 4) as u64)];
             let (out_rows, out_status) = (&mut output[start..end], &mut status[start..end]);
+            let in_rows = &input[start..end];
             self.context.read_back(encoder, &copies, |data| {
                 out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
                 rows_from(data[0], self.precision, out_status, out_rows);
+                // The CPU engine's guard (`CpuEngine::map`): every row all numbers or all NaN, and
+                // inputs beyond the precision's range (f32 would read them as infinity) rejected.
+                let limit = self.precision.huge();
+                let (rows, statuses) = (out_rows.par_chunks_mut(CONVERT_ROWS), out_status.par_chunks_mut(CONVERT_ROWS));
+                in_rows.par_chunks(CONVERT_ROWS).zip(rows.zip(statuses)).for_each(|(input, (output, status))| {
+                    for ((x, y), s) in input.iter().zip(output.iter_mut()).zip(status.iter_mut()) {
+                        if out_of_range(x, limit, if *s == 0 { y } else { &[] }) {
+                            (*y, *s) = ([f64::NAN; M], NoSolution::OutOfRange.code());
+                        }
+                    }
+                });
             })?;
         }
         Ok(())

@@ -30,7 +30,7 @@ struct ViewFile {
 #[serde(deny_unknown_fields)]
 struct ObservationsFile {
     board: BoardFile,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "super::rig_json::present")]
     cameras: Option<[String; 2]>,
     views: Vec<ViewFile>,
 }

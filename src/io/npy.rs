@@ -64,19 +64,26 @@ impl NpyWriter {
 /// Reads a little-endian f64 `.npy` file (C order): (shape, values). For tests and tools.
 pub fn read_npy(path: &Path) -> Result<(Vec<usize>, Vec<f64>), IoError> {
     let bytes = std::fs::read(path).map_err(|source| IoError::Read { path: path.to_path_buf(), source })?;
+    npy_from_bytes(&bytes, path)
+}
+
+/// Parses the bytes of a `.npy` file as [`read_npy`] does; `path` only labels errors.
+pub fn npy_from_bytes(bytes: &[u8], path: &Path) -> Result<(Vec<usize>, Vec<f64>), IoError> {
     let invalid = |reason: &str| IoError::Invalid { path: path.to_path_buf(), field: String::new(), reason: reason.into() };
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err(invalid("not a .npy file"));
     }
     let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
-    let header = std::str::from_utf8(&bytes[10..10 + header_len]).map_err(|_| invalid("header is not text"))?;
+    let header = bytes.get(10..10 + header_len).ok_or_else(|| invalid("file ends inside the header"))?;
+    let header = std::str::from_utf8(header).map_err(|_| invalid("header is not text"))?;
     if !header.contains("'descr': '<f8'") || !header.contains("'fortran_order': False") {
         return Err(invalid("only little-endian f64 in C order is read"));
     }
     let shape_text = header.split("'shape': (").nth(1).and_then(|s| s.split(')').next()).ok_or_else(|| invalid("no shape"))?;
     let shape: Vec<usize> = shape_text.split(',').filter(|s| !s.trim().is_empty()).map(|s| s.trim().parse().map_err(|_| invalid("bad shape"))).collect::<Result<_, _>>()?;
     let data = &bytes[10 + header_len..];
-    if data.len() != 8 * shape.iter().product::<usize>() {
+    let values = shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d)).and_then(|n| n.checked_mul(8));
+    if values != Some(data.len()) {
         return Err(invalid("data length does not match the shape"));
     }
     Ok((shape, data.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))).collect()))
@@ -167,6 +174,19 @@ impl NpyReader {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn short_and_overflowing_files_are_errors_not_panics() {
+        let path = Path::new("x.npy");
+        // A header length past the end of the file (sliced unchecked before: a panic).
+        assert!(npy_from_bytes(b"\x93NUMPY\x01\x00\xff\x00{'descr'", path).is_err());
+        // A shape whose element count overflows usize.
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        let dict = "{'descr': '<f8', 'fortran_order': False, 'shape': (18446744073709551615, 3), }";
+        bytes.extend_from_slice(&(dict.len() as u16).to_le_bytes());
+        bytes.extend_from_slice(dict.as_bytes());
+        assert!(npy_from_bytes(&bytes, path).is_err());
+    }
 
     #[test]
     fn header_is_aligned_and_round_trips() {

@@ -101,6 +101,8 @@ fn parse_entries(text: &str, path: &Path) -> Result<HashMap<String, Entry>, IoEr
         line,
         reason,
     };
+    // A UTF-8 byte order mark before %YAML carries no meaning: skip it, as the CSV reader does.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut lines = text
         .lines()
         .enumerate()
@@ -726,6 +728,11 @@ nested:
         let s = parse(&four).unwrap();
         assert_eq!(s.distortion[1], [-0.09, 0.011, 0.0, 0.0, 0.0]);
         assert_eq!(s.translation, Vector3::new(-0.06, 0.0, 0.0));
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_accepted() {
+        assert_eq!(parse(&format!("\u{feff}{STEREO}")).unwrap(), parse(STEREO).unwrap());
     }
 
     #[test]

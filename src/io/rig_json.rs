@@ -29,9 +29,9 @@ struct CameraFile {
     cy: f64,
     #[serde(default)]
     distortion: Vec<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "present")]
     rotation: Option<[[f64; 3]; 3]>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "present")]
     translation: Option<[f64; 3]>,
 }
 
@@ -55,6 +55,12 @@ struct LayerFile {
     index: f64,
 }
 
+/// An optional key that, when present, must hold a value: `null` is an error (naming the key),
+/// not the same as leaving the key out.
+pub(crate) fn present<'de, D: serde::Deserializer<'de>, T: Deserialize<'de>>(deserializer: D) -> Result<Option<T>, D::Error> {
+    T::deserialize(deserializer).map(Some)
+}
+
 fn default_index_air() -> f64 {
     DEFAULT_INDEX_AIR
 }
@@ -73,6 +79,9 @@ pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(text: &str, path: &Path
         column: error.column(),
         reason: strip_position(&error.to_string()),
     };
+    // A UTF-8 byte order mark (Windows editors write one) is not JSON but carries no meaning:
+    // skip it, as the CSV reader does.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut deserializer = serde_json::Deserializer::from_str(text);
     let value: T = serde_path_to_error::deserialize(&mut deserializer).map_err(|e| {
         let field = e.path().to_string();
@@ -264,6 +273,17 @@ mod tests {
 
     fn parse(text: &str) -> Result<Rig, IoError> {
         rig_from_json_str(text, Path::new("rig.json"))
+    }
+
+    #[test]
+    fn a_byte_order_mark_is_accepted_and_null_is_not_missing() {
+        let rig = parse(&format!("\u{feff}{EXAMPLE}")).unwrap();
+        assert_eq!(rig.cameras().len(), 2);
+        for key in ["translation", "rotation"] {
+            let from = if key == "translation" { "\"translation\": [-0.06, 0, 0]" } else { "\"rotation\": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]" };
+            let message = parse(&edited(from, &format!("\"{key}\": null"))).unwrap_err().to_string();
+            assert!(message.contains(&format!("cameras[1].{key}")) && message.contains("null"), "{message}");
+        }
     }
 
     /// The example with `from` replaced by `to` (which must occur).

@@ -318,7 +318,7 @@ fn parse_row<const N: usize>(
                     path,
                     line,
                     name.clone(),
-                    format!("not a number: \"{value}\""),
+                    format!("not a number: {}", shown(value)),
                 )
             })?;
             if !number.is_finite() {
@@ -326,7 +326,7 @@ fn parse_row<const N: usize>(
                     path,
                     line,
                     name.clone(),
-                    format!("must be a finite number, got \"{value}\""),
+                    format!("must be a finite number, got {}", shown(value)),
                 ));
             }
             *slot = number;
@@ -353,6 +353,18 @@ fn column_name(header: &[String], index: usize) -> String {
     header
         .get(index)
         .map_or_else(|| (index + 1).to_string(), String::clone)
+}
+
+/// Longest cell text echoed in an error, in characters.
+const SHOWN_CHARS: usize = 40;
+
+/// A cell's text for an error message, quoted: whole up to [`SHOWN_CHARS`] characters, else its
+/// start and its length (a 300 MB cell must not be copied into the message).
+fn shown(value: &str) -> String {
+    match value.char_indices().nth(SHOWN_CHARS) {
+        None => format!("\"{value}\""),
+        Some((end, _)) => format!("\"{}…\" ({} bytes)", &value[..end], value.len()),
+    }
 }
 
 fn csv_error(path: &Path, line: usize, column: String, reason: String) -> IoError {
@@ -639,6 +651,11 @@ mod tests {
         let (_, column, m) = failure("x,y,z\n1,,3\n");
         assert_eq!(column, "y");
         assert!(m.contains("not a number: \"\""), "{m}");
+        // A huge cell is shown by its start and length, not copied whole into the message.
+        let cell = "z".repeat(1 << 20);
+        let (_, column, m) = failure(&format!("x,y,z\n1,{cell},3\n"));
+        assert_eq!(column, "y");
+        assert!(m.len() < 200 && m.ends_with(&format!("not a number: \"{}…\" (1048576 bytes)", "z".repeat(40))), "{}", &m[..m.len().min(300)]);
         for bad in ["NaN", "nan", "inf", "-inf", "infinity", "1e999"] {
             let (line, column, m) = failure(&format!("x,y,z\n1,2,{bad}\n"));
             assert_eq!((line, column.as_str()), (2, "z"), "{bad}");

@@ -34,17 +34,35 @@ pub enum NoSolution {
     TotalInternalReflection = 3,
     /// The point is not beyond the outer interface (it is in the air, in a layer, or behind).
     NotInWater = 4,
-    /// The point projects behind the camera.
+    /// The light from the point would reach the camera from behind its image plane (more than 90°
+    /// off the optical axis): the point is behind the camera, or in front of it but so far to the
+    /// side that only a near-grazing air ray, beyond the camera's field of view, reaches it.
     BehindCamera = 5,
     /// Nearly parallel rays or a point in the degenerate plane of a stereo pair.
     Degenerate = 6,
     /// The forward-projection root finder hit its iteration bound.
     NoConvergence = 7,
+    /// An input beyond ±[`MAX_INPUT`], or a result that overflows the floating-point range: no
+    /// number can be given (never a row of wrong finite numbers).
+    OutOfRange = 8,
+}
+
+/// Largest magnitude of an input coordinate (metres or pixels) that the f64 paths accept; a row
+/// with a larger one is [`NoSolution::OutOfRange`]. (The GPU's f32 kernels stop at 1e30.) Up to
+/// it, lengths are computed without overflow: squares are taken only after scaling.
+pub const MAX_INPUT: f64 = 1e300;
+
+/// Whether a batch row breaks "every number or none": an input beyond ±`limit` (or NaN) or a
+/// result that is not finite. Both engines reject such a row as [`NoSolution::OutOfRange`]
+/// (`limit` is [`MAX_INPUT`] in f64; the f32 kernels' inputs stop at 1e30).
+#[inline]
+pub fn out_of_range(input: &[f64], limit: f64, output: &[f64]) -> bool {
+    !input.iter().all(|x| x.abs() <= limit) || !output.iter().all(|y| y.is_finite())
 }
 
 impl NoSolution {
     /// Every variant, in code order.
-    pub const ALL: [NoSolution; 7] = [
+    pub const ALL: [NoSolution; 8] = [
         Self::OutsideLens,
         Self::MissesInterface,
         Self::TotalInternalReflection,
@@ -52,6 +70,7 @@ impl NoSolution {
         Self::BehindCamera,
         Self::Degenerate,
         Self::NoConvergence,
+        Self::OutOfRange,
     ];
 
     /// Stable status code (non-zero; 0 means success in per-element status buffers).
@@ -71,9 +90,10 @@ impl NoSolution {
             Self::MissesInterface => "ray misses the interface",
             Self::TotalInternalReflection => "total internal reflection",
             Self::NotInWater => "point not in the water (in the air or a layer)",
-            Self::BehindCamera => "point behind the camera",
+            Self::BehindCamera => "beyond the camera's field of view (light would arrive from behind its image plane)",
             Self::Degenerate => "degenerate geometry (parallel rays)",
             Self::NoConvergence => "root finder did not converge",
+            Self::OutOfRange => "beyond the floating-point range (a coordinate past ±1e300, ±1e30 on f32 kernels, or an overflow)",
         }
     }
 }

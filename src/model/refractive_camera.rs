@@ -3,7 +3,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Point2, Point3, Unit, Vector2, Vector3};
 
-use super::NoSolution;
+use super::{MAX_INPUT, NoSolution};
 use super::camera::PinholeCamera;
 use super::interface::{Interface, Layer};
 use super::snell::refract;
@@ -317,7 +317,8 @@ impl RefractiveCamera {
     /// [`PROJECT_MAX_ITERATIONS`]. r = 0 gives a = 0. Finally tan a = T(v; k_air).
     ///
     /// Errors: [`NoSolution::NotInWater`] when x ≤ 0 (the point is in the air or a layer, or behind
-    /// the camera); [`NoSolution::NoConvergence`] if the iteration bound is hit.
+    /// the camera); [`NoSolution::NoConvergence`] if the iteration bound is hit;
+    /// [`NoSolution::OutOfRange`] for a coordinate beyond ±[`MAX_INPUT`] or an overflow.
     pub fn air_path_to(&self, point_in_master: &Point3<f64>) -> Result<AirPath, NoSolution> {
         let (depth, lateral, r) = self.split(point_in_master)?;
         if r == 0.0 {
@@ -325,14 +326,25 @@ impl RefractiveCamera {
         }
         let (v, rho_ref, iterations) = self.solve_incidence(depth, r)?;
         let tau = tan_incidence_from(v, rho_ref);
-        let dir = (self.normal.into_inner() + lateral * (tau / r)) / (1.0 + tau * tau).sqrt();
+        let dir = if tau > SCALE_ABOVE {
+            // Near grazing, where τ² would overflow: the same direction divided by τ.
+            let inv_tau = 1.0 / tau;
+            (self.normal.into_inner() * inv_tau + lateral * (1.0 / r)) / (1.0 + inv_tau * inv_tau).sqrt()
+        } else {
+            (self.normal.into_inner() + lateral * (tau / r)) / (1.0 + tau * tau).sqrt()
+        };
         Ok(AirPath { dir_in_air: Unit::new_unchecked(dir), tan_incidence: tau, depth, lateral_distance: r, iterations })
     }
 
     /// (x, O − C_k − z·n, r) of [`air_path_to`](Self::air_path_to): depth, lateral offset and its
     /// length. Errors: [`NoSolution::NotInWater`] when x ≤ 0.
+    /// Errors: [`NoSolution::OutOfRange`] when a coordinate of the point is beyond ±[`MAX_INPUT`]
+    /// (or NaN).
     #[inline]
     fn split(&self, point_in_master: &Point3<f64>) -> Result<(f64, Vector3<f64>, f64), NoSolution> {
+        if !point_in_master.coords.iter().all(|c| c.abs() <= MAX_INPUT) {
+            return Err(NoSolution::OutOfRange);
+        }
         let n = self.normal.into_inner();
         let offset = point_in_master - self.centre;
         let z = n.dot(&offset);
@@ -341,7 +353,7 @@ impl RefractiveCamera {
             return Err(NoSolution::NotInWater);
         }
         let lateral = offset - n * z;
-        Ok((depth, lateral, lateral.norm()))
+        Ok((depth, lateral, length(&lateral)))
     }
 
     /// The root of [`air_path_to`](Self::air_path_to)'s f for a point at `depth` and lateral
@@ -352,13 +364,28 @@ impl RefractiveCamera {
         // The same code at a length known to the compiler for the common stacks (one layer, a
         // single interface), so that the loops over the media unroll.
         let media = self.media.as_slice();
-        if let Ok(media) = <&[Medium; 3]>::try_from(media) {
-            return PathMedia { media, depth }.solve(self.slowest, r);
+        let root = if let Ok(media) = <&[Medium; 3]>::try_from(media) {
+            PathMedia { media, depth }.solve(self.slowest, r)
+        } else if let Ok(media) = <&[Medium; 2]>::try_from(media) {
+            PathMedia { media, depth }.solve(self.slowest, r)
+        } else {
+            PathMedia { media, depth }.solve(self.slowest, r)
+        }?;
+        if r / self.air_distance > SCALE_ABOVE {
+            // tan a may be beyond 1e150, where the iteration's squares overflow: accept the root
+            // only if the lateral offsets, summed without squares of tan a, give r.
+            let tau = tan_incidence_from(root.0, root.1);
+            let others: f64 = self.media[WATER..]
+                .iter()
+                .enumerate()
+                .map(|(i, m)| if i == 0 { depth } else { m.length } * m.inv_rho / ((1.0 / tau) * (1.0 / tau) + 1.0 - m.inv_rho * m.inv_rho).sqrt())
+                .sum();
+            let residual = self.air_distance * tau + others - r;
+            if !(residual.abs() <= 1e-6 * r) {
+                return Err(NoSolution::OutOfRange);
+            }
         }
-        if let Ok(media) = <&[Medium; 2]>::try_from(media) {
-            return PathMedia { media, depth }.solve(self.slowest, r);
-        }
-        PathMedia { media, depth }.solve(self.slowest, r)
+        Ok(root)
     }
 
     /// Forward projection: the (distorted) pixel at which `point_in_master` appears through the
@@ -366,8 +393,10 @@ impl RefractiveCamera {
     /// then pinhole and distortion.
     ///
     /// Errors: those of `air_path_to`; [`NoSolution::BehindCamera`] when the air ray points behind
-    /// the image plane of a rotated camera; [`NoSolution::OutsideLens`] beyond the fold of the radial
-    /// distortion, where the pixel would back-project to another ray.
+    /// the image plane (a point behind the camera, or one so far to the side of a tilted port that
+    /// only a near-grazing air ray reaches it); [`NoSolution::OutsideLens`] beyond the fold of the
+    /// radial distortion, where the pixel would back-project to another ray;
+    /// [`NoSolution::OutOfRange`] when the pixel overflows.
     #[inline]
     pub fn project(&self, point_in_master: &Point3<f64>) -> Result<Point2<f64>, NoSolution> {
         let (depth, lateral, r) = self.split(point_in_master)?;
@@ -379,8 +408,18 @@ impl RefractiveCamera {
         } else {
             let lateral_in_cam = self.cam_from_master * lateral;
             let (v, k, _) = self.solve_incidence(depth, r)?;
-            self.normal_in_cam * (r * (1.0 + (1.0 - k * k) * v * v).sqrt()) + lateral_in_cam * (k * v)
+            let root_q = (1.0 + (1.0 - k * k) * v * v).sqrt();
+            let dir = self.normal_in_cam * (r * root_q) + lateral_in_cam * (k * v);
+            if dir.iter().all(|c| c.is_finite()) {
+                dir
+            } else {
+                // r·√q overflowed (a point ~1e300 m away): the same direction divided by r.
+                self.normal_in_cam * root_q + lateral_in_cam * (k * v / r)
+            }
         };
+        if !dir_in_cam.iter().all(|c| c.is_finite()) {
+            return Err(NoSolution::OutOfRange);
+        }
         if !(dir_in_cam.z > 0.0) {
             return Err(NoSolution::BehindCamera);
         }
@@ -389,7 +428,11 @@ impl RefractiveCamera {
         if !(normalized.norm_squared() < self.fold_radius2) {
             return Err(NoSolution::OutsideLens);
         }
-        Ok(self.intrinsics.img_from_normalized(&normalized))
+        let pixel = self.intrinsics.img_from_normalized(&normalized);
+        if !(pixel.x.is_finite() && pixel.y.is_finite()) {
+            return Err(NoSolution::OutOfRange);
+        }
+        Ok(pixel)
     }
 
     /// The Virtual Object Point of `point_in_master` for this camera (thesis ch. 4): where the
@@ -412,7 +455,13 @@ impl RefractiveCamera {
         };
         let n = self.normal.into_inner();
         let vop = point_in_master + n * (vop_distance - path.depth);
-        Ok(Vop { depth: path.depth, vop_distance, vop, incidence: tau.atan() })
+        let result = Vop { depth: path.depth, vop_distance, vop, incidence: tau.atan() };
+        // Every number or none: an overflow anywhere is a rejection, never a partly NaN row.
+        let all_finite = [result.depth, result.vop_distance, vop.x, vop.y, vop.z, result.incidence].iter().all(|v| v.is_finite());
+        if !all_finite {
+            return Err(NoSolution::OutOfRange);
+        }
+        Ok(result)
     }
 }
 
@@ -483,8 +532,10 @@ impl PathMedia<'_> {
             } else if f == 0.0 {
                 return Ok((v, self.media[reference].rho, iteration));
             } else {
-                // NaN: v reached a critical-angle cap within rounding. Never a silent root.
-                return Err(NoSolution::NoConvergence);
+                // NaN: v reached a critical-angle cap within rounding, or (a point more than 1e150
+                // times farther to the side than the air layer is thick, tan a > 1e150) v²
+                // overflowed. Never a silent root.
+                return Err(if r / self.length(AIR) > SCALE_ABOVE { NoSolution::OutOfRange } else { NoSolution::NoConvergence });
             }
             if self.media[dominant].rho != self.media[reference].rho {
                 self.reparametrise(&mut reference, dominant, [&mut v, &mut lo, &mut hi], &mut df, r);
@@ -495,6 +546,17 @@ impl PathMedia<'_> {
                 // about to dominate, so continue in its angle, where that term is linear.
                 self.reparametrise(&mut reference, slowest, [&mut v, &mut lo, &mut hi], &mut df, r);
                 step = f / df;
+            }
+            if v == f64::INFINITY {
+                // The iterate sat at the new medium's critical angle within rounding (it maps to
+                // infinity: a point far to the side, seen at grazing incidence). Bisect, and test
+                // convergence only where f was evaluated: a step from there says nothing here. If
+                // the bottom also mapped beyond the top, f(0) = −r < 0 is the bracket's bottom.
+                if !(lo < hi) {
+                    lo = 0.0;
+                }
+                v = 0.5 * (lo + hi);
+                continue;
             }
             // Converged: test before the bracket, since a step below half an ulp leaves v unchanged
             // and would otherwise read as a step outside the open bracket.
@@ -510,7 +572,7 @@ impl PathMedia<'_> {
             }
             v = next;
         }
-        Err(NoSolution::NoConvergence)
+        Err(if r / self.length(AIR) > SCALE_ABOVE { NoSolution::OutOfRange } else { NoSolution::NoConvergence })
     }
 
     /// f(v), f′(v) of [`RefractiveCamera::air_path_to`] in the variable of medium `reference`
@@ -567,9 +629,115 @@ impl PathMedia<'_> {
     }
 }
 
+/// Lengths above this are scaled by their largest component before squaring (three squares of
+/// 1e150 stay far below f64's 1.8e308). Below it the plain Euclidean norm runs, bit for bit.
+const SCALE_ABOVE: f64 = 1e150;
+
+/// |v| without overflow of the squares for any finite v (hypot-like: scaled by the largest
+/// component when that exceeds [`SCALE_ABOVE`]). Twin of `length_scaled` in shaders/lib/air_path.wgsl.
+#[inline]
+fn length(v: &Vector3<f64>) -> f64 {
+    let largest = v.amax();
+    if largest > SCALE_ABOVE { largest * (v * (1.0 / largest)).norm() } else { v.norm() }
+}
+
 /// tan a = T(v; k_air) from the tangent v of the angle in the reference medium of index ρ_ref.
 #[inline]
 fn tan_incidence_from(v: f64, rho_ref: f64) -> f64 {
     let k = rho_ref;
     k * v / (1.0 + (1.0 - k * k) * v * v).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Interface, Layer, PinholeCamera, Rig, RigCamera};
+
+    /// The example rig's port (8° tilt, glass), an undistorted master camera.
+    fn camera() -> RefractiveCamera {
+        let intrinsics = PinholeCamera::new("left", 1280, 1024, 864.91, 864.91, 640.0, 512.0, [0.0; 5]).unwrap();
+        let master = RigCamera::new("left", intrinsics, Matrix3::identity(), Vector3::zeros()).unwrap();
+        let layers = vec![Layer { thickness: 0.014, index: 1.473 }];
+        let interface = Interface::new(Vector3::new(0.1, 0.1, 1.0), 0.02, layers, 1.003, 1.333).unwrap();
+        Rig::new(vec![master], interface).unwrap().refractive_camera(0)
+    }
+
+    /// Far from the port (depth ≫ d_k + Σtᵢ) the path is the water ray alone: with θw the angle
+    /// of the point from the axis, sin a = ρw sin θw, and the VOP distance is r / tan a. This
+    /// limit is the oracle for points 1e20…1e299 m away, where the air and glass (0.034 m) change
+    /// the angle by less than 1e-20 relative; it needs no squares of huge numbers.
+    #[test]
+    fn huge_coordinates_give_every_number_or_out_of_range() {
+        let camera = camera();
+        let n = camera.normal().into_inner();
+        let direction = Vector3::new(0.1, 0.05, 1.0);
+        let z = n.dot(&direction);
+        let lateral = (direction - n * z).norm(); // per unit of scale: r / s
+        let theta_w = (lateral / z).atan();
+        let sin_a = camera.relative_index_water() * theta_w.sin();
+        let (a, tan_a) = (sin_a.asin(), sin_a / (1.0 - sin_a * sin_a).sqrt());
+        for exponent in [20, 100, 154, 155, 160, 200, 250, 299] {
+            let s = 10f64.powi(exponent);
+            let vop = camera.vop(&Point3::from(direction * s)).unwrap_or_else(|e| panic!("1e{exponent}: {e}"));
+            assert!((vop.incidence - a).abs() < 1e-12, "1e{exponent}: incidence {} vs {a}", vop.incidence);
+            assert!((vop.depth / (z * s) - 1.0).abs() < 1e-12, "1e{exponent}: depth {}", vop.depth);
+            let expected = lateral * s / tan_a;
+            assert!((vop.vop_distance / expected - 1.0).abs() < 1e-12, "1e{exponent}: x̌ {} vs {expected}", vop.vop_distance);
+            let pixel = camera.project(&Point3::from(direction * s)).unwrap_or_else(|e| panic!("1e{exponent}: {e}"));
+            let reference = camera.project(&Point3::from(direction * 1e20)).unwrap();
+            assert!((pixel - reference).norm() < 1e-6, "1e{exponent}: pixel {pixel} vs {reference}");
+        }
+        // Far down the optical axis: a finite pixel, not "behind the camera".
+        let far = camera.project(&Point3::new(0.0, 0.0, 1e300)).unwrap();
+        let reference = camera.project(&Point3::new(0.0, 0.0, 1e20)).unwrap();
+        assert!((far - reference).norm() < 1e-6, "{far} vs {reference}");
+    }
+
+    #[test]
+    fn inputs_beyond_the_range_are_out_of_range() {
+        let camera = camera();
+        for point in [[0.0, 0.0, 2e300], [-1e301, 0.0, 1.0], [f64::MAX, f64::MAX, f64::MAX], [f64::NAN, 0.0, 1.0], [0.0, 0.0, f64::INFINITY]] {
+            let point = Point3::from(point);
+            assert_eq!(camera.vop(&point), Err(NoSolution::OutOfRange), "{point}");
+            assert_eq!(camera.project(&point), Err(NoSolution::OutOfRange), "{point}");
+            assert_eq!(camera.air_path_to(&point), Err(NoSolution::OutOfRange), "{point}");
+        }
+    }
+
+    /// A point far to the side of a tilted port is seen at grazing incidence; its VOP distance
+    /// tends to a limit as the point recedes along a fixed direction (here 0.0051781 m). From 1e10
+    /// to 1e40 m every scale gives that limit: the root finder's iterate sits at the water's
+    /// critical angle within rounding and must continue in the air's variable (it gave up, or
+    /// returned τ = ∞ and a wrong x̌ = −d_k, before).
+    #[test]
+    fn far_to_the_side_points_reach_the_grazing_limit() {
+        let intrinsics = PinholeCamera::new("left", 1280, 1024, 864.91, 864.91, 640.0, 512.0, [0.0; 5]).unwrap();
+        let master = RigCamera::new("left", intrinsics, Matrix3::identity(), Vector3::zeros()).unwrap();
+        let interface = Interface::new(Vector3::new(0.12, -0.08, 1.0), 0.03, vec![], 1.0, 1.333).unwrap();
+        let camera = Rig::new(vec![master], interface).unwrap().refractive_camera(0);
+        let limit = camera.vop(&Point3::new(1e10, 0.0, 1e8)).unwrap().vop_distance;
+        for exponent in [12, 20, 30, 38, 40, 60, 100, 140] {
+            let s = 10f64.powi(exponent);
+            let vop = camera.vop(&Point3::new(100.0 * s, 0.0, s)).unwrap_or_else(|e| panic!("1e{exponent}: {e}"));
+            assert!((vop.vop_distance - limit).abs() < 1e-9 * limit, "1e{exponent}: x̌ {} vs {limit}", vop.vop_distance);
+            assert!((vop.incidence - std::f64::consts::FRAC_PI_2).abs() < 1e-9, "1e{exponent}");
+        }
+        // tan a beyond 1e150 (r / d_k): the limit, or no number at all (never another number).
+        for exponent in [160, 200, 290] {
+            let point = Point3::new(100.0 * 10f64.powi(exponent), 0.0, 10f64.powi(exponent));
+            match camera.vop(&point) {
+                Ok(vop) => assert!((vop.vop_distance - limit).abs() < 1e-9 * limit, "1e{exponent}: x̌ {}", vop.vop_distance),
+                Err(e) => assert_eq!(e, NoSolution::OutOfRange, "1e{exponent}"),
+            }
+        }
+    }
+
+    #[test]
+    fn scaled_length_is_the_norm() {
+        let v = Vector3::new(3.0, -4.0, 12.0);
+        assert_eq!(length(&v), 13.0);
+        for s in [1e150, 1e200, 1e300] {
+            assert!((length(&(v * s)) / (13.0 * s) - 1.0).abs() < 1e-15, "{s}");
+        }
+    }
 }
