@@ -46,7 +46,7 @@ fn kernels(c: &mut Criterion) {
                 // kernel_seconds times its own dispatches; criterion reports their sum per iteration.
                 group.bench_function(BenchmarkId::new("backproject/kernel", n), |bench| {
                     bench.iter_custom(|iters| {
-                        let s = gpu.kernel_seconds::<2, 6>(Kernel::Backproject, &a, &a, &work.pixels[..n], 1).unwrap();
+                        let (s, _) = gpu.kernel_seconds::<2, 6>(Kernel::Backproject, &a, &a, &work.pixels[..n], 1).unwrap();
                         std::time::Duration::from_secs_f64(s * iters as f64)
                     })
                 });

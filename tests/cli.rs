@@ -427,4 +427,15 @@ fn bench_json_has_every_path() {
             }
         }
     }
+    // The clock of every figure: GPU timestamps for the GPU kernel stage where the adapter has
+    // TIMESTAMP_QUERY (lavapipe does, DESIGN.md §6: so in CI), host clocks for everything else.
+    for r in results {
+        let gpu_kernel = r["path"] == "gpu" && r["stage"] == "kernel";
+        let timer = r["timer"].as_str().unwrap_or_else(|| panic!("no timer in {r}"));
+        if gpu_kernel {
+            assert!(timer == "gpu_timestamp" || (timer == "host" && std::env::var_os("CI").is_none()), "{r}");
+        } else {
+            assert_eq!(timer, "host", "{r}");
+        }
+    }
 }

@@ -392,13 +392,20 @@ fn finish_renames_the_whole_file_into_place() {
     write_table(Some(&reference), ["u", "v"], rows).unwrap();
     assert!(std::fs::read(&target).unwrap() == std::fs::read(&reference).unwrap());
 
-    // A rename that fails (the target is a non-empty folder) removes the temporary file and
-    // leaves the folder as it was.
+    // A folder as the target is refused at once, naming it, and left as it was.
     let folder = dir.path().join("taken");
     std::fs::create_dir(&folder).unwrap();
     std::fs::write(folder.join("inside.txt"), "keep").unwrap();
+    let error = TableWriter::<2>::create(Some(&folder), ["u", "v"]).unwrap_err();
+    assert!(error.to_string().starts_with(&folder.display().to_string()), "{error}");
+    assert!(error.to_string().contains("folder"), "{error}");
+    // A rename that fails (the target became a non-empty folder while the table was written)
+    // removes the temporary file and leaves the folder as it was.
+    std::fs::remove_dir_all(&folder).unwrap();
     let mut writer = TableWriter::create(Some(&folder), ["u", "v"]).unwrap();
     writer.write_rows([Some([1.0, 2.0])]).unwrap();
+    std::fs::create_dir(&folder).unwrap();
+    std::fs::write(folder.join("inside.txt"), "keep").unwrap();
     let error = writer.finish().unwrap_err();
     assert!(matches!(error, IoError::Write { .. }), "{error:?}");
     assert!(

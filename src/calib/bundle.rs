@@ -6,11 +6,13 @@
 //! ([`tangent_step`]), δd the air layer (m), then for each view ω (rotation vector, rad) and τ
 //! (translation, m) with master_from_board ← (τ, exp(ω)) · master_from_board.
 
-use nalgebra::{DMatrix, DVector, Isometry3, Translation3, Unit, UnitQuaternion, Vector2, Vector3};
+use nalgebra::{
+    Cholesky, DMatrix, DVector, Dyn, Isometry3, Matrix6, OMatrix, Translation3, U6, Unit, UnitQuaternion, Vector2, Vector3, Vector6,
+};
 use rayon::prelude::*;
 
 use super::data::{Candidate, StereoData};
-use super::lm::LeastSquares;
+use super::lm::{LeastSquares, NormalEquations};
 use super::search::tangent_step;
 use crate::model::RefractiveCamera;
 
@@ -23,18 +25,121 @@ pub struct BundleState {
     pub poses: Vec<Isometry3<f64>>,
 }
 
-/// Parameters of the interface in a step: δ₁, δ₂, δd.
+/// Parameters of the interface in a step: δ₁, δ₂, δd. These are the bundle's global parameters
+/// (shared by every residual); [`BlockNormalEquations`] takes their number as a value, so more
+/// can join them (extrinsics, layer thicknesses).
 pub const INTERFACE_PARAMETERS: usize = 3;
-const POSE_PARAMETERS: usize = 6;
-/// Parameters one residual depends on: the interface's and its view's pose.
-const BLOCK: usize = INTERFACE_PARAMETERS + POSE_PARAMETERS;
+/// Parameters of one board pose in a step: ω (rad), τ (m).
+pub const POSE_PARAMETERS: usize = 6;
 
-/// One view's share of the normal equations over its 9 parameters (upper triangle).
-struct ViewBlock {
-    jtj: [[f64; BLOCK]; BLOCK],
-    jtr: [f64; BLOCK],
-    cost: f64,
+/// One view's share of the normal equations: its pose block, its coupling to the global
+/// parameters and its pose gradient.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseBlock {
+    /// J_vᵀWJ_v over the view's six pose parameters.
+    pub pose: Matrix6<f64>,
+    /// J_gᵀWJ_v: global parameters (rows) × the view's pose parameters.
+    pub coupling: OMatrix<f64, Dyn, U6>,
+    /// J_vᵀWr over the view's pose parameters.
+    pub gradient: Vector6<f64>,
 }
+
+/// Normal equations of a bundle with G global parameters g and V poses p_v:
+///
+/// ```text
+/// ⎡ U    W₁  …  W_V ⎤ ⎡δg ⎤     ⎡b_g⎤
+/// ⎢ W₁ᵀ  V₁         ⎥ ⎢δp₁⎥ = − ⎢b₁ ⎥
+/// ⎢ ⋮        ⋱      ⎥ ⎢ ⋮ ⎥     ⎢ ⋮ ⎥
+/// ⎣ W_Vᵀ        V_V ⎦ ⎣δp_V⎦     ⎣b_V⎦
+/// ```
+///
+/// No residual depends on two poses, so the pose part is block diagonal and is eliminated view by
+/// view (Schur complement on the poses): S = U − Σ W_v V_v⁻¹ W_vᵀ, S δg = −(b_g − Σ W_v V_v⁻¹ b_v),
+/// then δp_v = −V_v⁻¹ (b_v + W_vᵀ δg). Memory and time are linear in V (a dense solve is cubic).
+/// The step's order is δg, then δp₁ … δp_V.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlockNormalEquations {
+    /// U = J_gᵀWJ_g (G × G, symmetric).
+    pub global: DMatrix<f64>,
+    /// b_g = J_gᵀWr.
+    pub global_gradient: DVector<f64>,
+    /// The poses' blocks, in view order.
+    pub views: Vec<PoseBlock>,
+    /// Σ ρ(|r|²).
+    pub cost: f64,
+}
+
+impl BlockNormalEquations {
+    /// Number of global parameters G.
+    pub fn globals(&self) -> usize {
+        self.global.nrows()
+    }
+
+    /// Parameters of a step: G + 6V.
+    pub fn dimension(&self) -> usize {
+        self.globals() + POSE_PARAMETERS * self.views.len()
+    }
+
+    /// The Schur complement on the poses of the damped system (each diagonal entry a grown by
+    /// `damping`·max(a, `floor`)): (S, its right-hand side b_g − Σ W_v V_v⁻¹ b_v, the factors of
+    /// the damped V_v). `None` when a pose block is not positive definite.
+    fn reduce(&self, damping: f64, floor: f64) -> Option<(DMatrix<f64>, DVector<f64>, Vec<Cholesky<f64, U6>>)> {
+        let mut schur = self.global.clone();
+        for i in 0..self.globals() {
+            schur[(i, i)] += damping * self.global[(i, i)].max(floor);
+        }
+        let mut rhs = self.global_gradient.clone();
+        let mut factors = Vec::with_capacity(self.views.len());
+        for block in &self.views {
+            let mut pose = block.pose;
+            for i in 0..POSE_PARAMETERS {
+                pose[(i, i)] += damping * block.pose[(i, i)].max(floor);
+            }
+            let factor = pose.cholesky()?;
+            // V⁻¹ W_vᵀ (6 × G) and V⁻¹ b_v.
+            let solved = factor.solve(&block.coupling.transpose());
+            schur -= &block.coupling * &solved;
+            rhs -= &block.coupling * factor.solve(&block.gradient);
+            factors.push(factor);
+        }
+        Some((schur, rhs, factors))
+    }
+
+    /// Covariance of the global parameters, the G × G block of (JᵀWJ)⁻¹: the inverse of the Schur
+    /// complement of the undamped system. `None` when the system is singular.
+    pub fn global_covariance(&self) -> Option<DMatrix<f64>> {
+        let (schur, _, _) = self.reduce(0.0, 0.0)?;
+        Some(schur.cholesky()?.inverse())
+    }
+}
+
+impl NormalEquations for BlockNormalEquations {
+    fn cost(&self) -> f64 {
+        self.cost
+    }
+
+    fn gradient_amax(&self) -> f64 {
+        self.views.iter().map(|b| b.gradient.amax()).fold(self.global_gradient.amax(), f64::max)
+    }
+
+    fn max_diagonal(&self) -> f64 {
+        self.views.iter().map(|b| b.pose.diagonal().max()).fold(self.global.diagonal().max(), f64::max)
+    }
+
+    fn solve_damped(&self, damping: f64, floor: f64) -> Option<DVector<f64>> {
+        let (schur, rhs, factors) = self.reduce(damping, floor)?;
+        let global_step = -schur.cholesky()?.solve(&rhs);
+        let g = self.globals();
+        let mut step = DVector::zeros(self.dimension());
+        step.rows_mut(0, g).copy_from(&global_step);
+        for (v, (block, factor)) in self.views.iter().zip(&factors).enumerate() {
+            let pose_step = -factor.solve(&(block.gradient + block.coupling.transpose() * &global_step));
+            step.fixed_rows_mut::<POSE_PARAMETERS>(g + POSE_PARAMETERS * v).copy_from(&pose_step);
+        }
+        Some(step)
+    }
+}
+
 /// Central-difference step for every parameter (rad or m): pixels are exact to ~1e-10 px, so the
 /// derivatives keep ~8 digits, and the truncation error (h²) is far below that.
 const DIFFERENCE_STEP: f64 = 1e-6;
@@ -107,6 +212,7 @@ fn move_interface(candidate: &Candidate, delta: &[f64]) -> Candidate {
 
 impl LeastSquares for Bundle<'_> {
     type State = BundleState;
+    type Normal = BlockNormalEquations;
 
     fn dimension(&self, state: &BundleState) -> usize {
         INTERFACE_PARAMETERS + POSE_PARAMETERS * state.poses.len()
@@ -116,85 +222,85 @@ impl LeastSquares for Bundle<'_> {
         Some(self.residuals(state)?.iter().map(|r| self.robust(r.norm_squared()).0).sum())
     }
 
-    fn normal_equations(&self, state: &BundleState) -> Option<(DMatrix<f64>, DVector<f64>, f64)> {
+    fn normal_equations(&self, state: &BundleState) -> Option<BlockNormalEquations> {
         let data = self.data;
-        let dimension = self.dimension(state);
+        let globals = INTERFACE_PARAMETERS;
         let cameras = data.cameras_behind(&state.candidate)?;
-        let base = self.residuals(state)?;
-        let rows = base.len();
-        // ∂r/∂(interface parameters): every residual, central differences.
-        let mut interface_jacobian = vec![[Vector2::zeros(); INTERFACE_PARAMETERS]; rows];
-        for p in 0..INTERFACE_PARAMETERS {
-            let mut delta = [0.0; INTERFACE_PARAMETERS];
-            delta[p] = DIFFERENCE_STEP;
-            let plus = self.residuals(&BundleState { candidate: move_interface(&state.candidate, &delta), poses: state.poses.clone() })?;
-            delta[p] = -DIFFERENCE_STEP;
-            let minus = self.residuals(&BundleState { candidate: move_interface(&state.candidate, &delta), poses: state.poses.clone() })?;
-            for i in 0..rows {
-                interface_jacobian[i][p] = (plus[i] - minus[i]) / (2.0 * DIFFERENCE_STEP);
-            }
-        }
-        // Per view, in parallel: ∂r/∂(pose v) (only this view's residuals move), then the view's
-        // share of JᵀWJ and JᵀWr over its columns (3 interface + 6 pose parameters).
-        let blocks: Option<Vec<ViewBlock>> = state
+        // The cameras behind the interface moved by ±h along each global parameter.
+        let shifted: Vec<[[RefractiveCamera; 2]; 2]> = (0..globals)
+            .map(|p| {
+                let mut delta = [0.0; INTERFACE_PARAMETERS];
+                delta[p] = DIFFERENCE_STEP;
+                let plus = data.cameras_behind(&move_interface(&state.candidate, &delta))?;
+                delta[p] = -DIFFERENCE_STEP;
+                let minus = data.cameras_behind(&move_interface(&state.candidate, &delta))?;
+                Some([plus, minus])
+            })
+            .collect::<Option<_>>()?;
+        // Per view, in parallel: ∂r/∂(globals) and ∂r/∂(pose v) by central differences (only
+        // this view's residuals depend on its pose), then its share of JᵀWJ and JᵀWr.
+        let shares: Vec<(DMatrix<f64>, DVector<f64>, f64)> = state
             .poses
             .par_iter()
             .enumerate()
             .map(|(v, pose)| {
-                let range = data.views[v].clone();
-                let first_row = 2 * range.start;
-                let count = 2 * range.len();
-                let mut pose_jacobian = vec![[Vector2::zeros(); POSE_PARAMETERS]; count];
+                let mut base = Vec::with_capacity(2 * data.views[v].len());
+                self.view_residuals(&cameras, v, pose, &mut base)?;
+                let count = base.len();
+                let columns = globals + POSE_PARAMETERS;
+                // jacobian[p * count + i] = ∂r_i/∂(parameter p), globals first.
+                let mut jacobian = vec![Vector2::zeros(); columns * count];
                 let (mut plus, mut minus) = (Vec::with_capacity(count), Vec::with_capacity(count));
-                for p in 0..POSE_PARAMETERS {
-                    let mut delta = [0.0; POSE_PARAMETERS];
-                    delta[p] = DIFFERENCE_STEP;
+                for p in 0..columns {
                     plus.clear();
-                    self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut plus)?;
-                    delta[p] = -DIFFERENCE_STEP;
                     minus.clear();
-                    self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut minus)?;
-                    for ((row, plus), minus) in pose_jacobian.iter_mut().zip(&plus).zip(&minus) {
-                        row[p] = (plus - minus) / (2.0 * DIFFERENCE_STEP);
+                    if p < globals {
+                        self.view_residuals(&shifted[p][0], v, pose, &mut plus)?;
+                        self.view_residuals(&shifted[p][1], v, pose, &mut minus)?;
+                    } else {
+                        let mut delta = [0.0; POSE_PARAMETERS];
+                        delta[p - globals] = DIFFERENCE_STEP;
+                        self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut plus)?;
+                        delta[p - globals] = -DIFFERENCE_STEP;
+                        self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut minus)?;
+                    }
+                    for (i, (plus, minus)) in plus.iter().zip(&minus).enumerate() {
+                        jacobian[p * count + i] = (plus - minus) / (2.0 * DIFFERENCE_STEP);
                     }
                 }
-                let mut block = ViewBlock { jtj: [[0.0; BLOCK]; BLOCK], jtr: [0.0; BLOCK], cost: 0.0 };
-                for (i, pose_row) in pose_jacobian.iter().enumerate() {
-                    let row = first_row + i;
-                    let r = base[row];
+                let mut jtj = DMatrix::zeros(columns, columns);
+                let mut jtr = DVector::zeros(columns);
+                let mut cost = 0.0;
+                for (i, r) in base.iter().enumerate() {
                     let (contribution, weight) = self.robust(r.norm_squared());
-                    block.cost += contribution;
-                    let mut gradient = [Vector2::zeros(); BLOCK];
-                    gradient[..INTERFACE_PARAMETERS].copy_from_slice(&interface_jacobian[row]);
-                    gradient[INTERFACE_PARAMETERS..].copy_from_slice(pose_row);
-                    for a in 0..BLOCK {
-                        block.jtr[a] += weight * gradient[a].dot(&r);
-                        for b in a..BLOCK {
-                            block.jtj[a][b] += weight * gradient[a].dot(&gradient[b]);
+                    cost += contribution;
+                    for a in 0..columns {
+                        let ja = jacobian[a * count + i];
+                        jtr[a] += weight * ja.dot(r);
+                        for b in a..columns {
+                            jtj[(a, b)] += weight * ja.dot(&jacobian[b * count + i]);
                         }
                     }
                 }
-                Some(block)
+                jtj.fill_lower_triangle_with_upper_triangle();
+                Some((jtj, jtr, cost))
             })
-            .collect();
-        let mut jtj = DMatrix::zeros(dimension, dimension);
-        let mut jtr = DVector::zeros(dimension);
+            .collect::<Option<_>>()?;
+        let mut global = DMatrix::zeros(globals, globals);
+        let mut global_gradient = DVector::zeros(globals);
         let mut cost = 0.0;
-        for (v, block) in blocks?.iter().enumerate() {
-            let offset = INTERFACE_PARAMETERS + POSE_PARAMETERS * v;
-            let column = |a: usize| if a < INTERFACE_PARAMETERS { a } else { offset + a - INTERFACE_PARAMETERS };
-            cost += block.cost;
-            for a in 0..BLOCK {
-                jtr[column(a)] += block.jtr[a];
-                for b in a..BLOCK {
-                    jtj[(column(a), column(b))] += block.jtj[a][b];
-                    if a != b {
-                        jtj[(column(b), column(a))] += block.jtj[a][b];
-                    }
-                }
-            }
+        let mut views = Vec::with_capacity(shares.len());
+        for (jtj, jtr, share_cost) in shares {
+            global += jtj.view((0, 0), (globals, globals));
+            global_gradient += jtr.rows(0, globals);
+            cost += share_cost;
+            views.push(PoseBlock {
+                pose: jtj.fixed_view::<POSE_PARAMETERS, POSE_PARAMETERS>(globals, globals).into_owned(),
+                coupling: jtj.generic_view((0, globals), (Dyn(globals), U6)).into_owned(),
+                gradient: jtr.fixed_rows::<POSE_PARAMETERS>(globals).into_owned(),
+            });
         }
-        Some((jtj, jtr, cost))
+        Some(BlockNormalEquations { global, global_gradient, views, cost })
     }
 
     fn retract(&self, state: &BundleState, delta: &DVector<f64>) -> BundleState {
@@ -214,15 +320,15 @@ impl LeastSquares for Bundle<'_> {
     }
 }
 
-/// Standard deviations of (tilt, azimuth, air layer) from the inverse of JᵀJ scaled by the
+/// Standard deviations of (tilt, azimuth, air layer) from the global block of (JᵀJ)⁻¹ (the
+/// inverse of the Schur complement, [`BlockNormalEquations::global_covariance`]) scaled by the
 /// residual variance σ̂² = cost / (residuals − parameters), with the tangent-plane axis
 /// parameters carried to tilt and azimuth by their derivatives at `candidate`. Also returns σ̂.
-pub fn interface_std(candidate: &Candidate, jtj: &DMatrix<f64>, cost: f64, residuals: usize) -> Option<([f64; 3], f64)> {
-    let parameters = jtj.nrows();
+pub fn interface_std(candidate: &Candidate, normal: &BlockNormalEquations, cost: f64, residuals: usize) -> Option<([f64; 3], f64)> {
+    let parameters = normal.dimension();
     let dof = residuals.checked_sub(parameters).filter(|&d| d > 0)?;
     let sigma2 = cost / dof as f64;
-    let inverse = jtj.clone().cholesky()?.inverse();
-    let covariance = inverse.fixed_view::<3, 3>(0, 0).into_owned() * sigma2;
+    let covariance = normal.global_covariance()?.fixed_view::<3, 3>(0, 0).into_owned() * sigma2;
     // ∂(tilt, azimuth)/∂(δ₁, δ₂) by central differences on the unit sphere.
     let h = 1e-7;
     let angles = |n: &Unit<Vector3<f64>>| (n.z.clamp(-1.0, 1.0).acos(), n.y.atan2(n.x));
@@ -240,4 +346,84 @@ pub fn interface_std(candidate: &Candidate, jtj: &DMatrix<f64>, cost: f64, resid
     }
     let propagated = jacobian * covariance * jacobian.transpose();
     Some(([propagated[(0, 0)].sqrt(), propagated[(1, 1)].sqrt(), propagated[(2, 2)].sqrt()], sigma2.sqrt()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::lm::DenseNormalEquations;
+    use crate::calib::rng::Rng;
+
+    /// A random block-sparse Jacobian (each residual row depends on the G globals and one view's
+    /// pose), its block normal equations, and the dense JᵀJ, Jᵀr of the same J built directly.
+    fn random_problem(globals: usize, views: usize, rows_per_view: usize, seed: u64) -> (BlockNormalEquations, DenseNormalEquations) {
+        let mut rng = Rng::new(seed);
+        let n = globals + POSE_PARAMETERS * views;
+        let rows = views * rows_per_view;
+        let mut j = DMatrix::zeros(rows, n);
+        let mut r = DVector::zeros(rows);
+        for v in 0..views {
+            for i in 0..rows_per_view {
+                let row = v * rows_per_view + i;
+                for c in 0..globals {
+                    j[(row, c)] = rng.normal();
+                }
+                for c in 0..POSE_PARAMETERS {
+                    // Pose columns of a different scale, as in the bundle (radians vs metres).
+                    j[(row, globals + POSE_PARAMETERS * v + c)] = rng.normal() * if c < 3 { 300.0 } else { 2000.0 };
+                }
+                r[row] = rng.normal();
+            }
+        }
+        let dense = DenseNormalEquations { jtj: j.transpose() * &j, jtr: j.transpose() * &r, cost: r.norm_squared() };
+        let jg = j.columns(0, globals);
+        let blocks = (0..views)
+            .map(|v| {
+                let rows = j.rows(v * rows_per_view, rows_per_view);
+                let jg = rows.columns(0, globals);
+                let jp = rows.fixed_columns::<POSE_PARAMETERS>(globals + POSE_PARAMETERS * v);
+                let rv = r.rows(v * rows_per_view, rows_per_view);
+                PoseBlock { pose: jp.transpose() * jp, coupling: jg.transpose() * jp, gradient: jp.transpose() * rv }
+            })
+            .collect();
+        let block = BlockNormalEquations { global: jg.transpose() * jg, global_gradient: jg.transpose() * &r, views: blocks, cost: r.norm_squared() };
+        (block, dense)
+    }
+
+    fn relative(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
+        (a - b).norm() / b.norm()
+    }
+
+    #[test]
+    fn schur_step_and_covariance_equal_the_dense_solve() {
+        // G = 3 (axis, air layer) as today and G = 5 (more globals, as extrinsics will add).
+        for (globals, views, seed) in [(3, 7, 1), (5, 4, 2), (3, 1, 3)] {
+            let (block, dense) = random_problem(globals, views, 20, seed);
+            assert_eq!(block.dimension(), dense.jtj.nrows());
+            assert_eq!(block.max_diagonal(), dense.max_diagonal());
+            assert!((block.gradient_amax() - dense.gradient_amax()).abs() <= 1e-12 * dense.gradient_amax());
+            for (damping, floor) in [(0.0, 0.0), (1e-4, 1e-12), (10.0, 1e3)] {
+                let step = block.solve_damped(damping, floor).unwrap();
+                let reference = dense.solve_damped(damping, floor).unwrap();
+                let error = (&step - &reference).norm() / reference.norm();
+                assert!(error < 1e-9, "G {globals}, damping {damping}: step relative error {error:e}");
+            }
+            // The global block of the inverse of the full JᵀJ.
+            let inverse = dense.jtj.clone().cholesky().unwrap().inverse();
+            let reference = inverse.view((0, 0), (globals, globals)).into_owned();
+            let covariance = block.global_covariance().unwrap();
+            let error = relative(&covariance, &reference);
+            assert!(error < 1e-9, "G {globals}: covariance relative error {error:e}");
+        }
+    }
+
+    #[test]
+    fn a_singular_pose_block_is_refused() {
+        let (mut block, _) = random_problem(3, 3, 20, 4);
+        block.views[1] = PoseBlock { pose: Matrix6::zeros(), coupling: OMatrix::<f64, Dyn, U6>::zeros(3), gradient: Vector6::zeros() };
+        assert!(block.solve_damped(0.0, 0.0).is_none());
+        assert!(block.global_covariance().is_none());
+        // Damping with a positive floor makes it definite again.
+        assert!(block.solve_damped(1e-3, 1.0).is_some());
+    }
 }

@@ -10,10 +10,10 @@ use super::costs::{CostKind, SceneFit, reprojection_residuals};
 use super::data::{Candidate, StereoData};
 use super::diagnose;
 use super::error::{CalibError, Side, degrees};
-use super::lm::{LmOptions, Termination, levenberg_marquardt};
+use super::lm::{LmOptions, Termination, levenberg_marquardt_observed};
 use super::observations::{ViewCorners, compare_views, describe_pose_groups};
 use super::screen::{Screening, screen, without_corners};
-use super::search::{cap_grid, fit_air_distance, refine_axis};
+use super::search::{cap_grid, fit_air_distance, refine_axis_observed};
 use crate::model::Interface;
 
 /// Which estimator.
@@ -184,6 +184,21 @@ pub const MIN_VIEWS: usize = 3;
 /// Views below which a calibration is flagged as weakly determined.
 pub const FEW_VIEWS: usize = 8;
 
+/// Where a running calibration is, for progress displays ([`calibrate_with_progress`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CalibrationProgress<'a> {
+    /// The stage running, named as its [`Stage`] will be (without the result).
+    pub stage: &'a str,
+    /// Steps done in the stage: grid axes evaluated, or iterations.
+    pub done: usize,
+    /// The stage's number of steps when known in advance (grid axes), `None` for iterations.
+    pub total: Option<usize>,
+    /// The stage's lowest cost so far, in the stage's unit (`unit`).
+    pub cost: f64,
+    /// The cost's unit.
+    pub unit: &'static str,
+}
+
 /// Calibrates the axis and air layer of `backend.data()` (whose rig's interface is the start
 /// guess). `warnings` (from validating the observations) are carried into the report.
 ///
@@ -196,9 +211,20 @@ pub const FEW_VIEWS: usize = 8;
 /// like ([`diagnose::explain`]); so does [`CalibrationReport::diagnosis`] when the RMS of the
 /// result is far above the noise or above [`CalibrationOptions::max_rms_px`].
 pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnings: Vec<String>) -> Result<Calibration, CalibError> {
+    calibrate_with_progress(backend, options, warnings, &mut |_| {})
+}
+
+/// [`calibrate`], telling `progress` where it is: after every batch of the global grid and every
+/// iteration of the local refinements and of the maximum-likelihood fit.
+pub fn calibrate_with_progress(
+    backend: &dyn CostBackend,
+    options: &CalibrationOptions,
+    warnings: Vec<String>,
+    progress: &mut dyn FnMut(&CalibrationProgress),
+) -> Result<Calibration, CalibError> {
     let data = backend.data();
     let mut screening = None;
-    calibrate_screened(backend, options, warnings, &mut screening).map_err(|error| match error {
+    calibrate_screened(backend, options, warnings, progress, &mut screening).map_err(|error| match error {
         CalibError::NoSolution { reason, .. } => {
             let noise = screening.as_ref().and_then(|s: &Screening| s.noise_px);
             // The local refinement does not know the search bound (it reports NaN): every
@@ -228,6 +254,7 @@ fn calibrate_screened(
     backend: &dyn CostBackend,
     options: &CalibrationOptions,
     warnings: Vec<String>,
+    progress: &mut dyn FnMut(&CalibrationProgress),
     screening_out: &mut Option<Screening>,
 ) -> Result<Calibration, CalibError> {
     let started = Instant::now();
@@ -243,6 +270,16 @@ fn calibrate_screened(
         return Err(CalibError::Options(format!(
             "the grid spacing must lie in (0°, tilt bound], got {}°",
             degrees(options.grid_spacing.to_degrees())
+        )));
+    }
+    if super::search::cap_grid_size(options.max_tilt, options.grid_spacing) > super::search::MAX_CAP_GRID_AXES as f64 {
+        return Err(CalibError::Options(format!(
+            "a grid spacing of {}° over a {}° tilt bound gives {:.3e} axes; the global search takes at most {} (each costs an evaluation over every corner): use a spacing ≥ {}°",
+            degrees(options.grid_spacing.to_degrees()),
+            degrees(options.max_tilt.to_degrees()),
+            super::search::cap_grid_size(options.max_tilt, options.grid_spacing),
+            super::search::MAX_CAP_GRID_AXES,
+            super::search::min_cap_grid_spacing_deg_text(options.max_tilt)
         )));
     }
     if !(options.max_rms_px > 0.0) {
@@ -290,7 +327,7 @@ fn calibrate_screened(
     let mut stages = Vec::new();
 
     // 1. Consecutive: axis from the weighted affine-grid invariant, global then local.
-    let consecutive = axis_search(clean, CostKind::AffineGrid, options, &mut stages)?;
+    let consecutive = axis_search(clean, CostKind::AffineGrid, options, &mut stages, progress)?;
     let linear_started = Instant::now();
     let (air_distance, gap) = super::air_layer::air_distance_for_axis(clean_data, &consecutive.normal).ok_or_else(|| CalibError::NoSolution {
         bound_deg: options.max_tilt.to_degrees(),
@@ -325,11 +362,11 @@ fn calibrate_screened(
         Method::Simultaneous | Method::Auto => {
             let mut starts = vec![("the consecutive result".to_string(), consecutive)];
             if options.method == Method::Auto {
-                let profile = axis_search(clean, CostKind::Reprojection, options, &mut stages)?;
+                let profile = axis_search(clean, CostKind::Reprojection, options, &mut stages, progress)?;
                 starts.push(("the reprojection profile's minimum".into(), profile));
                 starts.push(("the rig's start guess".into(), Candidate::of(data.rig.interface())));
             }
-            let mut best: Option<(BundleState, super::lm::LmReport, Option<nalgebra::DMatrix<f64>>)> = None;
+            let mut best: Option<(BundleState, super::lm::LmReport, Option<super::bundle::BlockNormalEquations>)> = None;
             let mut finals = Vec::new();
             for (name, start) in &starts {
                 let t = Instant::now();
@@ -343,7 +380,12 @@ fn calibrate_screened(
                 };
                 let bundle = Bundle::new(clean_data, options.huber);
                 let lm_options = LmOptions { max_iterations: options.max_iterations, ..LmOptions::default() };
-                let (state, report, jtj) = levenberg_marquardt(&bundle, BundleState { candidate: *start, poses }, &lm_options);
+                let stage_name = format!("maximum likelihood from {name}");
+                // The cost in the report's unit: RMS over the 4 coordinates of each corner.
+                let rms = |cost: f64| (cost / (4 * clean_data.corners.len()) as f64).sqrt();
+                let (state, report, jtj) = levenberg_marquardt_observed(&bundle, BundleState { candidate: *start, poses }, &lm_options, &mut |i| {
+                    progress(&CalibrationProgress { stage: &stage_name, done: i.iteration, total: None, cost: rms(i.cost), unit: "px" })
+                });
                 stages.push(Stage {
                     name: format!("maximum likelihood from {name} ({})", report.termination.describe()),
                     candidate: state.candidate,
@@ -513,16 +555,35 @@ fn stage(name: &str, candidate: Candidate, cost: f64, unit: &'static str, iterat
     Stage { name: name.into(), candidate, cost, unit, iterations, seconds: since.elapsed().as_secs_f64() }
 }
 
+/// Axes of the global grid per backend call (progress is reported after each).
+const GLOBAL_BATCH: usize = 2048;
+
 /// How many of the global grid's best cells (at least this many degrees apart) are refined.
 const LOCAL_STARTS: usize = 3;
 const DISTINCT_DEG: f64 = 4.0;
 
 /// Global search of `kind`'s profile over the tilt cap, then local refinement of the best few
 /// distinct cells; the best refined axis (with the profile's air layer) wins.
-fn axis_search(backend: &dyn CostBackend, kind: CostKind, options: &CalibrationOptions, stages: &mut Vec<Stage>) -> Result<Candidate, CalibError> {
+fn axis_search(
+    backend: &dyn CostBackend,
+    kind: CostKind,
+    options: &CalibrationOptions,
+    stages: &mut Vec<Stage>,
+    progress: &mut dyn FnMut(&CalibrationProgress),
+) -> Result<Candidate, CalibError> {
     let t = Instant::now();
     let grid = cap_grid(options.max_tilt, options.grid_spacing);
-    let (candidates, costs) = backend.profile(kind, &grid)?;
+    // In batches, to report progress (each axis is evaluated alone, so the costs do not depend on
+    // the batching).
+    let global_name = format!("global search ({}, {} axes)", kind.name(), grid.len());
+    let (mut candidates, mut costs) = (Vec::with_capacity(grid.len()), Vec::with_capacity(grid.len()));
+    for batch in grid.chunks(GLOBAL_BATCH) {
+        let (c, v) = backend.profile(kind, batch)?;
+        candidates.extend(c);
+        costs.extend(v);
+        let best = costs.iter().copied().filter(|c| c.is_finite()).fold(f64::INFINITY, f64::min);
+        progress(&CalibrationProgress { stage: &global_name, done: costs.len(), total: Some(grid.len()), cost: best, unit: kind.unit() });
+    }
     let mut order: Vec<usize> = (0..grid.len()).filter(|&i| costs[i].is_finite()).collect();
     if order.is_empty() {
         return Err(CalibError::NoSolution {
@@ -540,11 +601,14 @@ fn axis_search(backend: &dyn CostBackend, kind: CostKind, options: &CalibrationO
             }
         }
     }
-    stages.push(stage(&format!("global search ({}, {} axes)", kind.name(), grid.len()), candidates[order[0]], costs[order[0]], kind.unit(), grid.len(), t));
+    stages.push(stage(&global_name, candidates[order[0]], costs[order[0]], kind.unit(), grid.len(), t));
     let mut best: Option<super::search::Refined> = None;
     for start in starts {
         let t = Instant::now();
-        let refined = refine_axis(backend, kind, start, options.grid_spacing, 1e-9, 300)?;
+        let refine_name = format!("refine axis ({})", kind.name());
+        let refined = refine_axis_observed(backend, kind, start, options.grid_spacing, 1e-9, 300, &mut |i, cost| {
+            progress(&CalibrationProgress { stage: &refine_name, done: i, total: None, cost, unit: kind.unit() })
+        })?;
         stages.push(stage(&format!("refine axis ({})", kind.name()), refined.candidate, refined.cost, kind.unit(), refined.iterations, t));
         if best.is_none_or(|b| refined.cost < b.cost) {
             best = Some(refined);

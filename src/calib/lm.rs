@@ -3,10 +3,64 @@
 
 use nalgebra::{DMatrix, DVector};
 
+/// Gauss–Newton normal equations JᵀWJ δ = −JᵀWr at one state, in whatever layout the problem
+/// keeps them (dense, or blocks that a solver reduces): the optimiser only asks for the gradient,
+/// the diagonal and damped solves.
+pub trait NormalEquations {
+    /// The cost Σᵢ ρ(|rᵢ|²) at the state they were built at.
+    fn cost(&self) -> f64;
+
+    /// max |JᵀWr|ᵢ, the largest gradient component.
+    fn gradient_amax(&self) -> f64;
+
+    /// max (JᵀWJ)ᵢᵢ, the largest diagonal entry.
+    fn max_diagonal(&self) -> f64;
+
+    /// The step δ solving (JᵀWJ + λ·D) δ = −JᵀWr with D = diag(max((JᵀWJ)ᵢᵢ, `floor`)), or `None`
+    /// where that matrix is not numerically positive definite.
+    fn solve_damped(&self, damping: f64, floor: f64) -> Option<DVector<f64>>;
+}
+
+/// Normal equations held as one dense matrix: for small problems and as the reference the block
+/// solvers are tested against.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DenseNormalEquations {
+    /// JᵀWJ.
+    pub jtj: DMatrix<f64>,
+    /// JᵀWr.
+    pub jtr: DVector<f64>,
+    /// The cost.
+    pub cost: f64,
+}
+
+impl NormalEquations for DenseNormalEquations {
+    fn cost(&self) -> f64 {
+        self.cost
+    }
+
+    fn gradient_amax(&self) -> f64 {
+        self.jtr.amax()
+    }
+
+    fn max_diagonal(&self) -> f64 {
+        self.jtj.diagonal().max()
+    }
+
+    fn solve_damped(&self, damping: f64, floor: f64) -> Option<DVector<f64>> {
+        let mut a = self.jtj.clone();
+        for i in 0..a.nrows() {
+            a[(i, i)] += damping * self.jtj[(i, i)].max(floor);
+        }
+        Some(-a.cholesky()?.solve(&self.jtr))
+    }
+}
+
 /// A least-squares problem Σᵢ ρ(|rᵢ(x)|²) over a state that moves by retraction.
 pub trait LeastSquares {
     /// The point being optimised.
     type State: Clone;
+    /// How the problem holds its normal equations.
+    type Normal: NormalEquations;
 
     /// Number of parameters of a step.
     fn dimension(&self, state: &Self::State) -> usize;
@@ -14,12 +68,23 @@ pub trait LeastSquares {
     /// The cost at `state`; `None` where it is undefined (a residual has no answer).
     fn cost(&self, state: &Self::State) -> Option<f64>;
 
-    /// Gauss–Newton normal equations at `state`: (JᵀWJ, JᵀWr, cost) with J = ∂r/∂δ at δ = 0 and
-    /// W the robust weights. `None` where a residual has no answer.
-    fn normal_equations(&self, state: &Self::State) -> Option<(DMatrix<f64>, DVector<f64>, f64)>;
+    /// Gauss–Newton normal equations at `state`: JᵀWJ, JᵀWr and the cost, with J = ∂r/∂δ at
+    /// δ = 0 and W the robust weights. `None` where a residual has no answer.
+    fn normal_equations(&self, state: &Self::State) -> Option<Self::Normal>;
 
     /// The state moved by `delta` (a step in the problem's local parameters).
     fn retract(&self, state: &Self::State, delta: &DVector<f64>) -> Self::State;
+}
+
+/// What the solver reports after each step it tries, for progress displays.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LmIteration {
+    /// Steps tried so far (accepted and rejected).
+    pub iteration: usize,
+    /// The cost at the current state.
+    pub cost: f64,
+    /// Whether this step was accepted.
+    pub accepted: bool,
 }
 
 /// When to stop.
@@ -87,40 +152,43 @@ pub struct LmReport {
     pub termination: Termination,
 }
 
-/// Minimises `problem` from `start`. Returns the final state, the report, and JᵀWJ at the final
-/// state (for covariances).
-pub fn levenberg_marquardt<P: LeastSquares>(
+/// Minimises `problem` from `start`. Returns the final state, the report, and the normal
+/// equations at the final state (for covariances).
+pub fn levenberg_marquardt<P: LeastSquares>(problem: &P, start: P::State, options: &LmOptions) -> (P::State, LmReport, Option<P::Normal>) {
+    levenberg_marquardt_observed(problem, start, options, &mut |_| {})
+}
+
+/// [`levenberg_marquardt`], calling `observer` after every step tried.
+pub fn levenberg_marquardt_observed<P: LeastSquares>(
     problem: &P,
     start: P::State,
     options: &LmOptions,
-) -> (P::State, LmReport, Option<DMatrix<f64>>) {
+    observer: &mut dyn FnMut(&LmIteration),
+) -> (P::State, LmReport, Option<P::Normal>) {
     let mut state = start;
-    let Some((mut jtj, mut jtr, mut cost)) = problem.normal_equations(&state) else {
+    let Some(mut normal) = problem.normal_equations(&state) else {
         let report = LmReport { iterations: 0, initial_cost: f64::INFINITY, final_cost: f64::INFINITY, termination: Termination::InvalidStart };
         return (state, report, None);
     };
+    let mut cost = normal.cost();
     let initial_cost = cost;
-    let max_diagonal = jtj.diagonal().max();
+    let max_diagonal = normal.max_diagonal();
     let mut damping = options.initial_damping * max_diagonal.max(1e-300);
     let mut termination = Termination::MaxIterations;
     let mut iterations = 0;
     while iterations < options.max_iterations {
-        if jtr.amax() <= options.gradient_tolerance {
+        if normal.gradient_amax() <= options.gradient_tolerance {
             termination = Termination::GradientConverged;
             break;
         }
         iterations += 1;
         // (JᵀJ + λ·diag(JᵀJ)) δ = −Jᵀr, with a floor on the diagonal for parameters that the
         // data barely see.
-        let mut a = jtj.clone();
-        for i in 0..a.nrows() {
-            a[(i, i)] += damping * jtj[(i, i)].max(1e-12 * max_diagonal);
-        }
-        let Some(cholesky) = a.cholesky() else {
+        let Some(delta) = normal.solve_damped(damping, 1e-12 * max_diagonal) else {
             damping *= 10.0;
+            observer(&LmIteration { iteration: iterations, cost, accepted: false });
             continue;
         };
-        let delta = -cholesky.solve(&jtr);
         let candidate = problem.retract(&state, &delta);
         match problem.cost(&candidate) {
             Some(new_cost) if new_cost < cost => {
@@ -128,18 +196,23 @@ pub fn levenberg_marquardt<P: LeastSquares>(
                 state = candidate;
                 damping = (damping / 3.0).max(1e-15 * max_diagonal);
                 match problem.normal_equations(&state) {
-                    Some((j, r, c)) => (jtj, jtr, cost) = (j, r, c),
+                    Some(n) => {
+                        cost = n.cost();
+                        normal = n;
+                    }
                     None => {
                         termination = Termination::NoDescent;
                         break;
                     }
                 }
+                observer(&LmIteration { iteration: iterations, cost, accepted: true });
                 if improvement < options.cost_tolerance {
                     termination = Termination::CostConverged;
                     break;
                 }
             }
             _ => {
+                observer(&LmIteration { iteration: iterations, cost, accepted: false });
                 damping *= 4.0;
                 if damping > 1e16 * max_diagonal.max(1e-300) {
                     termination = Termination::NoDescent;
@@ -149,7 +222,7 @@ pub fn levenberg_marquardt<P: LeastSquares>(
         }
     }
     let report = LmReport { iterations, initial_cost, final_cost: cost, termination };
-    (state, report, Some(jtj))
+    (state, report, Some(normal))
 }
 
 #[cfg(test)]
@@ -161,16 +234,17 @@ mod tests {
 
     impl LeastSquares for Rosenbrock {
         type State = DVector<f64>;
+        type Normal = DenseNormalEquations;
         fn dimension(&self, _: &Self::State) -> usize {
             2
         }
         fn cost(&self, s: &Self::State) -> Option<f64> {
             Some((10.0 * (s[1] - s[0] * s[0])).powi(2) + (1.0 - s[0]).powi(2))
         }
-        fn normal_equations(&self, s: &Self::State) -> Option<(DMatrix<f64>, DVector<f64>, f64)> {
+        fn normal_equations(&self, s: &Self::State) -> Option<DenseNormalEquations> {
             let r = DVector::from_vec(vec![10.0 * (s[1] - s[0] * s[0]), 1.0 - s[0]]);
             let j = DMatrix::from_row_slice(2, 2, &[-20.0 * s[0], 10.0, -1.0, 0.0]);
-            Some((j.transpose() * &j, j.transpose() * &r, r.norm_squared()))
+            Some(DenseNormalEquations { jtj: j.transpose() * &j, jtr: j.transpose() * &r, cost: r.norm_squared() })
         }
         fn retract(&self, s: &Self::State, delta: &DVector<f64>) -> Self::State {
             s + delta

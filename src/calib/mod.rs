@@ -37,4 +37,4 @@ pub use error::{CalibError, Side};
 pub use gpu_backend::GpuBackend;
 pub use observations::{Observations, StereoView, ViewGroups, compare_views};
 pub use simulate::{Scene, SceneSpec, simulate};
-pub use calibrate::{Calibration, CalibrationOptions, CalibrationReport, Method, Outlier, calibrate};
+pub use calibrate::{Calibration, CalibrationOptions, CalibrationProgress, CalibrationReport, Method, Outlier, calibrate, calibrate_with_progress};

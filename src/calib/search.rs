@@ -9,11 +9,38 @@ use super::data::Candidate;
 use super::error::CalibError;
 use super::invariants::plane_basis;
 
+/// Most axes of a global search grid ([`cap_grid`]): every axis costs one evaluation over all
+/// corners in each global search (two in the auto method), so 10⁵ axes already take minutes on a
+/// thousand views. The default 1.5° over a 30° cap is 1 229 axes.
+pub const MAX_CAP_GRID_AXES: usize = 100_000;
+
+/// Axes [`cap_grid`] spreads over a cap of tilt `bound` at `spacing` (radians), as a float so that
+/// tiny spacings do not overflow (+∞ for a zero spacing).
+pub fn cap_grid_size(bound: f64, spacing: f64) -> f64 {
+    let area = std::f64::consts::TAU * (1.0 - bound.cos());
+    (area / (spacing * spacing)).ceil().max(1.0) + 1.0
+}
+
+/// The smallest spacing (radians) whose [`cap_grid`] over `bound` holds at most
+/// [`MAX_CAP_GRID_AXES`] axes.
+pub fn min_cap_grid_spacing(bound: f64) -> f64 {
+    let area = std::f64::consts::TAU * (1.0 - bound.cos());
+    (area / (MAX_CAP_GRID_AXES - 1) as f64).sqrt()
+}
+
+/// [`min_cap_grid_spacing`] in degrees, rounded up to 4 decimals (so that the value printed is
+/// accepted).
+pub fn min_cap_grid_spacing_deg_text(bound: f64) -> String {
+    format!("{:.4}", (min_cap_grid_spacing(bound).to_degrees() * 1e4).ceil() / 1e4)
+}
+
 /// Axes with a tilt from the master z axis of at most `bound` (radians), spread evenly over that
-/// spherical cap (a Fibonacci spiral) about `spacing` radians apart; the first is z itself.
+/// spherical cap (a Fibonacci spiral) about `spacing` radians apart; the first is z itself. At most
+/// [`MAX_CAP_GRID_AXES`] axes: a smaller spacing is widened to [`min_cap_grid_spacing`] (callers
+/// refuse it first with a message, see [`cap_grid_size`]).
 pub fn cap_grid(bound: f64, spacing: f64) -> Vec<Unit<Vector3<f64>>> {
     let area = std::f64::consts::TAU * (1.0 - bound.cos());
-    let count = ((area / (spacing * spacing)).ceil() as usize).max(1);
+    let count = (area / (spacing * spacing)).ceil().clamp(1.0, (MAX_CAP_GRID_AXES - 1) as f64) as usize;
     let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
     let mut normals = vec![Unit::new_unchecked(Vector3::z())];
     for i in 0..count {
@@ -58,6 +85,19 @@ pub fn refine_axis(
     step: f64,
     min_step: f64,
     max_iterations: usize,
+) -> Result<Refined, CalibError> {
+    refine_axis_observed(backend, kind, start, step, min_step, max_iterations, &mut |_, _| {})
+}
+
+/// [`refine_axis`], calling `progress(iteration, best cost)` after every iteration.
+pub fn refine_axis_observed(
+    backend: &dyn CostBackend,
+    kind: CostKind,
+    start: Unit<Vector3<f64>>,
+    step: f64,
+    min_step: f64,
+    max_iterations: usize,
+    progress: &mut dyn FnMut(usize, f64),
 ) -> Result<Refined, CalibError> {
     let (candidates, costs) = backend.profile(kind, &[start])?;
     let (mut best, mut best_cost) = (candidates[0], costs[0]);
@@ -116,6 +156,7 @@ pub fn refine_axis(
         } else {
             h /= 4.0;
         }
+        progress(iterations, best_cost);
     }
     if !best_cost.is_finite() {
         return Err(CalibError::NoSolution {

@@ -42,6 +42,34 @@ pub struct Scene {
     pub master_from_board: Vec<Isometry3<f64>>,
 }
 
+/// Most corners a board may have (rows × cols): far beyond any printed chessboard a detector
+/// finds (OpenCV's are tens by tens), and every pose tried projects all of them.
+pub const MAX_BOARD_CORNERS: usize = 10_000;
+
+/// Most corners a simulated scene may hold (views × board corners): each takes about 100 bytes in
+/// memory (both images' pixels, the views' bookkeeping) and about 80 in observations.json, so the
+/// largest scene is about 1 GB in memory and 0.8 GB on disk (185 000 views of a 9×6 board).
+pub const MAX_SIMULATED_CORNERS: usize = 10_000_000;
+
+/// Checks the sizes of a scene before anything is allocated: a board of at most
+/// [`MAX_BOARD_CORNERS`] corners, 1 to [`MAX_SIMULATED_CORNERS`] / corners views.
+pub fn check_scene_size(board: &Board, views: usize) -> Result<(), CalibError> {
+    let corners = board.rows.checked_mul(board.cols).filter(|&c| c <= MAX_BOARD_CORNERS).ok_or_else(|| CalibError::BadBoard {
+        reason: format!(
+            "{} × {} corners: at most {MAX_BOARD_CORNERS} corners are simulated (every pose tried projects all of them)",
+            board.rows, board.cols
+        ),
+    })?;
+    let most = MAX_SIMULATED_CORNERS / corners.max(1);
+    if views == 0 || views > most {
+        return Err(CalibError::Options(format!(
+            "{views} views of a {}×{} board: 1 to {most} views ({MAX_SIMULATED_CORNERS} corners in all; each takes about 100 bytes in memory and 80 in observations.json)",
+            board.cols, board.rows
+        )));
+    }
+    Ok(())
+}
+
 /// Most random poses tried per view before giving up.
 const MAX_TRIES_PER_VIEW: usize = 20_000;
 
@@ -49,12 +77,14 @@ const MAX_TRIES_PER_VIEW: usize = 20_000;
 /// rig's interface (the truth). Every corner of every view lies inside both images.
 ///
 /// Errors: [`CalibError::Options`] when no pose that both cameras see fully is found (board too
-/// large for the common field of view, or cameras that do not overlap).
+/// large for the common field of view, or cameras that do not overlap), or when the scene is
+/// larger than [`check_scene_size`] allows.
 pub fn simulate(rig: &Rig, left: usize, right: usize, spec: &SceneSpec) -> Result<Scene, CalibError> {
     let board = &spec.board;
     if board.rows < 2 || board.cols < 2 || !(board.square > 0.0) {
         return Err(CalibError::BadBoard { reason: format!("{} × {} corners of {} m", board.rows, board.cols, board.square) });
     }
+    check_scene_size(board, spec.views)?;
     if !(spec.noise_px >= 0.0 && spec.noise_px.is_finite()) {
         return Err(CalibError::Options(format!("noise must be ≥ 0 px, got {}", spec.noise_px)));
     }

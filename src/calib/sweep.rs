@@ -56,11 +56,15 @@ pub struct SweepSpec {
 }
 
 impl SweepSpec {
-    /// Checks the grid: counts ≥ 1, tilts in [0°, 80°), positive air layers.
+    /// Checks the grid: counts ≥ 1, at most [`MAX_SWEEP_CELLS`] cells, tilts in [0°, 80°),
+    /// positive air layers.
     pub fn validate(&self) -> Result<(), CalibError> {
         let bad = |what: &str| Err(CalibError::Options(what.to_string()));
         if self.tilt_deg.count == 0 || self.azimuth_deg.count == 0 || self.distance.is_some_and(|d| d.count == 0) {
             return bad("every grid needs at least one value (COUNT ≥ 1)");
+        }
+        if self.checked_cells().is_none_or(|cells| cells > MAX_SWEEP_CELLS) {
+            return bad(&too_many_cells(&self.shape()));
         }
         for t in [self.tilt_deg.start, self.tilt_deg.stop] {
             if !(0.0..80.0).contains(&t) {
@@ -87,15 +91,111 @@ impl SweepSpec {
         shape
     }
 
-    /// Number of cells.
+    /// Number of cells (saturating at `usize::MAX`; [`validate`](Self::validate) refuses more
+    /// than [`MAX_SWEEP_CELLS`]).
     pub fn cells(&self) -> usize {
-        self.shape().iter().product()
+        self.checked_cells().unwrap_or(usize::MAX)
     }
 
-    /// Number of axis cells (tilt × azimuth).
-    pub fn axes(&self) -> usize {
-        self.tilt_deg.count * self.azimuth_deg.count
+    /// Number of cells, `None` when it overflows.
+    pub fn checked_cells(&self) -> Option<usize> {
+        self.shape().iter().try_fold(1usize, |a, &b| a.checked_mul(b))
     }
+
+    /// Number of axis cells (tilt × azimuth), saturating.
+    pub fn axes(&self) -> usize {
+        self.tilt_deg.count.saturating_mul(self.azimuth_deg.count)
+    }
+}
+
+/// Most cells a sweep evaluates. The outputs stream, so memory does not grow with the grid, but
+/// the files do: cost.npy takes 8 bytes a cell and cost.csv up to [`CSV_BYTES_PER_CELL`], so 10⁹
+/// cells write up to about 8 GB + 80 GB (and take hours at 10⁹ cell·corners per second).
+pub const MAX_SWEEP_CELLS: usize = 1_000_000_000;
+
+/// Upper estimate of one cost.csv row (four numbers at full precision, commas, newline), bytes.
+pub const CSV_BYTES_PER_CELL: usize = 80;
+
+/// Most cells handed to the backend in one call, whatever `--chunk` and the distance grid are:
+/// a batch holds a candidate (32 bytes) and two results (16 bytes) per cell, so about 12 MiB.
+pub const MAX_BATCH_CELLS: usize = 1 << 18;
+
+/// Why a grid of `shape` is refused (more than [`MAX_SWEEP_CELLS`] cells).
+pub fn too_many_cells(shape: &[usize]) -> String {
+    let dims = shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" × ");
+    let cells = shape.iter().try_fold(1u128, |a, &b| a.checked_mul(b as u128));
+    let size = cells.map_or("more than 10³⁸".into(), |c| format!("{c}"));
+    let disk = cells.map_or(String::new(), |c| {
+        format!(" (cost.npy {:.3e} bytes and cost.csv up to {:.3e} bytes)", (8 * c) as f64, (CSV_BYTES_PER_CELL as u128 * c) as f64)
+    });
+    format!(
+        "the grid {dims} has {size} cells{disk}; a sweep evaluates at most {MAX_SWEEP_CELLS} cells (cost.npy takes 8 bytes a cell, cost.csv up to {CSV_BYTES_PER_CELL}): use fewer values"
+    )
+}
+
+/// The lowest cost of each axis cell, pooled into a picture of at most `max_side` × `max_side`
+/// blocks (each the minimum over a block of f_t × f_a adjacent axis cells, f = ⌈count / max_side⌉):
+/// the heat map and polar plot of any grid in memory bounded by the picture, not the grid. Grids
+/// of at most `max_side` values per axis are kept cell for cell (f = 1).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MinPool {
+    tilts: Linspace,
+    azimuths: Linspace,
+    tilt_factor: usize,
+    azimuth_factor: usize,
+    columns: usize,
+    /// values[block row · columns + block column]; +∞ where no cell of the block is finite.
+    values: Vec<f64>,
+}
+
+impl MinPool {
+    /// An empty picture of the tilt × azimuth grid.
+    pub fn new(tilts: Linspace, azimuths: Linspace, max_side: usize) -> Self {
+        let max_side = max_side.max(1);
+        let tilt_factor = tilts.count.div_ceil(max_side).max(1);
+        let azimuth_factor = azimuths.count.div_ceil(max_side).max(1);
+        let rows = tilts.count.div_ceil(tilt_factor);
+        let columns = azimuths.count.div_ceil(azimuth_factor);
+        Self { tilts, azimuths, tilt_factor, azimuth_factor, columns, values: vec![f64::INFINITY; rows * columns] }
+    }
+
+    /// Takes the cost of axis cell `axis` (row-major over tilt × azimuth); NaN is ignored.
+    pub fn add(&mut self, axis: usize, cost: f64) {
+        let (t, a) = (axis / self.azimuths.count, axis % self.azimuths.count);
+        let k = (t / self.tilt_factor) * self.columns + a / self.azimuth_factor;
+        if cost < self.values[k] {
+            self.values[k] = cost;
+        }
+    }
+
+    /// Cells of the grid per picture block, (tilts, azimuths).
+    pub fn factors(&self) -> (usize, usize) {
+        (self.tilt_factor, self.azimuth_factor)
+    }
+
+    /// The pooled values, row-major over (tilt block, azimuth block).
+    pub fn values(&self) -> &[f64] {
+        &self.values
+    }
+
+    /// The tilt of each block row: the middle of its first and last cell's tilts.
+    pub fn tilts_deg(&self) -> Vec<f64> {
+        block_centres(&self.tilts, self.tilt_factor)
+    }
+
+    /// The azimuth of each block column: the middle of its first and last cell's azimuths.
+    pub fn azimuths_deg(&self) -> Vec<f64> {
+        block_centres(&self.azimuths, self.azimuth_factor)
+    }
+}
+
+fn block_centres(grid: &Linspace, factor: usize) -> Vec<f64> {
+    (0..grid.count.div_ceil(factor))
+        .map(|b| {
+            let (first, last) = (b * factor, ((b + 1) * factor).min(grid.count) - 1);
+            if first == last { grid.value(first) } else { 0.5 * (grid.value(first) + grid.value(last)) }
+        })
+        .collect()
 }
 
 /// The best cell of a sweep.
@@ -137,8 +237,10 @@ pub struct SweepSummary {
     pub seconds: f64,
 }
 
-/// Sweeps `spec` over `backend`, `chunk` axis cells per backend call (the backend chunks further
-/// for the device). Calls `sink` with every chunk in order and `progress(done, total)` after each.
+/// Sweeps `spec` over `backend` in batches of `chunk` axis cells (all their air layers), at most
+/// [`MAX_BATCH_CELLS`] cells each: candidates are generated batch by batch, never for the whole
+/// grid, so memory is bounded by the batch whatever the grid. Calls `sink` with every batch in
+/// cell order and `progress(done, total)` after each.
 pub fn sweep(
     backend: &dyn CostBackend,
     spec: &SweepSpec,
@@ -151,16 +253,16 @@ pub fn sweep(
     let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
     let depth = spec.distance.map_or(1, |d| d.count);
     let total = spec.cells();
-    let axes = spec.axes();
-    let chunk = chunk.max(1);
+    let per_batch = chunk.max(1).saturating_mul(depth).min(MAX_BATCH_CELLS);
+    let normal_of = |a: usize| normal_from_tilt_azimuth(tilts.value(a / azimuths.count).to_radians(), azimuths.value(a % azimuths.count).to_radians());
     let mut minimum: Option<SweepMinimum> = None;
     let mut finite = 0;
-    let mut axis = 0;
-    while axis < axes {
-        let end = (axis + chunk).min(axes);
-        let normals: Vec<_> = (axis..end)
-            .map(|a| normal_from_tilt_azimuth(tilts.value(a / azimuths.count).to_radians(), azimuths.value(a % azimuths.count).to_radians()))
-            .collect();
+    let mut first = 0;
+    while first < total {
+        let end = first.saturating_add(per_batch).min(total);
+        // The axis cells this batch touches (a batch may start or end inside an axis's air layers).
+        let first_axis = first / depth;
+        let normals: Vec<_> = (first_axis..=(end - 1) / depth).map(normal_of).collect();
         let (costs, distances) = match spec.distance {
             None => {
                 let (candidates, costs) = backend.profile(spec.kind, &normals)?;
@@ -170,17 +272,15 @@ pub fn sweep(
                 // The air layer does not enter: one evaluation per axis, repeated along d.
                 let candidates: Vec<Candidate> = normals.iter().map(|n| Candidate { normal: *n, air_distance: f64::NAN }).collect();
                 let per_axis = backend.costs(spec.kind, &candidates)?;
-                let costs = per_axis.iter().flat_map(|&c| std::iter::repeat_n(c, depth)).collect();
-                (costs, normals.iter().flat_map(|_| grid.values()).collect())
+                ((first..end).map(|c| per_axis[c / depth - first_axis]).collect(), (first..end).map(|c| grid.value(c % depth)).collect())
             }
             Some(grid) => {
                 let candidates: Vec<Candidate> =
-                    normals.iter().flat_map(|n| grid.values().into_iter().map(move |d| Candidate { normal: *n, air_distance: d })).collect();
+                    (first..end).map(|c| Candidate { normal: normals[c / depth - first_axis], air_distance: grid.value(c % depth) }).collect();
                 let costs = backend.costs(spec.kind, &candidates)?;
                 (costs, candidates.iter().map(|c| c.air_distance).collect())
             }
         };
-        let first = axis * depth;
         for (k, &cost) in costs.iter().enumerate() {
             if cost.is_finite() {
                 finite += 1;
@@ -198,8 +298,8 @@ pub fn sweep(
             }
         }
         sink(SweepChunk { first, costs: &costs, distances: &distances })?;
-        axis = end;
-        progress(axis * depth, total);
+        first = end;
+        progress(first, total);
     }
     Ok(SweepSummary { minimum, cells: total, finite, seconds: started.elapsed().as_secs_f64() })
 }
@@ -213,5 +313,42 @@ mod tests {
         let l = Linspace { start: -180.0, stop: 180.0, count: 5 };
         assert_eq!(l.values(), vec![-180.0, -90.0, 0.0, 90.0, 180.0]);
         assert_eq!(Linspace { start: 3.0, stop: 9.0, count: 1 }.values(), vec![3.0]);
+    }
+
+    #[test]
+    fn min_pool_keeps_small_grids_and_takes_block_minima_of_large_ones() {
+        let tilts = Linspace { start: 0.0, stop: 4.0, count: 5 };
+        let azimuths = Linspace { start: 0.0, stop: 6.0, count: 7 };
+        let value = |axis: usize| ((axis * 37) % 11) as f64;
+        // Cell for cell when the grid fits.
+        let mut exact = MinPool::new(tilts, azimuths, 7);
+        (0..35).for_each(|a| exact.add(a, value(a)));
+        assert_eq!(exact.factors(), (1, 1));
+        assert_eq!(exact.values(), (0..35).map(value).collect::<Vec<_>>());
+        assert_eq!(exact.tilts_deg(), tilts.values());
+        // At most 2 blocks a side: 3 tilts and 4 azimuths per block (the last blocks smaller).
+        let mut pooled = MinPool::new(tilts, azimuths, 2);
+        (0..35).for_each(|a| pooled.add(a, value(a)));
+        pooled.add(0, f64::NAN);
+        assert_eq!(pooled.factors(), (3, 4));
+        let brute = |rows: std::ops::Range<usize>, cols: std::ops::Range<usize>| {
+            rows.flat_map(|t| cols.clone().map(move |a| value(t * 7 + a))).fold(f64::INFINITY, f64::min)
+        };
+        assert_eq!(pooled.values(), [brute(0..3, 0..4), brute(0..3, 4..7), brute(3..5, 0..4), brute(3..5, 4..7)]);
+        assert_eq!(pooled.tilts_deg(), vec![1.0, 3.5]);
+        assert_eq!(pooled.azimuths_deg(), vec![1.5, 5.0]);
+    }
+
+    #[test]
+    fn grids_too_large_are_refused_without_overflow() {
+        let huge = Linspace { start: 0.0, stop: 1.0, count: usize::MAX };
+        let small = Linspace { start: 0.0, stop: 1.0, count: 3 };
+        for spec in [
+            SweepSpec { kind: CostKind::AffineGrid, tilt_deg: huge, azimuth_deg: huge, distance: None },
+            SweepSpec { kind: CostKind::AffineGrid, tilt_deg: small, azimuth_deg: small, distance: Some(Linspace { start: 0.01, stop: 0.02, count: MAX_SWEEP_CELLS }) },
+        ] {
+            let message = spec.validate().unwrap_err().to_string();
+            assert!(message.contains("at most 1000000000 cells"), "{message}");
+        }
     }
 }

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use clap::Args;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -22,10 +22,10 @@ use super::demo::EXAMPLE_RIG;
 /// `flatport bench`
 #[derive(Debug, Args)]
 pub struct BenchArgs {
-    /// Items per batch
+    /// Items per batch (at most 16777216)
     #[arg(long, default_value_t = 1 << 20)]
     items: usize,
-    /// Timed repetitions per figure (the fastest counts)
+    /// Timed repetitions per figure (the fastest counts; 1 to 1000)
     #[arg(long, default_value_t = 3)]
     repeats: usize,
     /// Also write the results as JSON
@@ -40,7 +40,7 @@ pub struct BenchArgs {
     /// Skip the GPU paths
     #[arg(long)]
     no_gpu: bool,
-    /// Axis cells of the invariant sweep figure (over about 10 000 correspondences)
+    /// Axis cells of the invariant sweep figure (over about 10 000 correspondences; at most 1048576)
     #[arg(long, value_name = "CELLS", default_value_t = 4096)]
     sweep_cells: usize,
 }
@@ -69,6 +69,9 @@ struct Figure {
     precision: &'static str,
     threads: usize,
     stage: &'static str,
+    /// The clock: `host` (wall clock around the work) or `gpu_timestamp` (GPU timestamps around
+    /// the compute pass, for the GPU `kernel` stage where the adapter has TIMESTAMP_QUERY).
+    timer: &'static str,
     items: usize,
     items_per_s: f64,
 }
@@ -122,7 +125,41 @@ fn human(rate: f64) -> String {
     if rate >= 1e9 { format!("{:7.2} G/s", rate / 1e9) } else { format!("{:7.2} M/s", rate / 1e6) }
 }
 
+/// Bytes each bench item takes on the host: the inputs (pixels 16, points 24, matches 32), the
+/// outputs (48 + 32 + 16) and a status word (4); the GPU paths hold as much again in buffers.
+const BYTES_PER_ITEM: usize = 172;
+/// Most `--items`: 2²⁴ items take about 2.9 GB on the host (and as much in GPU buffers).
+pub const MAX_ITEMS: usize = 1 << 24;
+/// Most `--sweep-cells`: each costs one evaluation over the ~10 000 correspondences per repetition.
+pub const MAX_SWEEP_CELLS: usize = 1 << 20;
+/// Most `--repeats`.
+pub const MAX_REPEATS: usize = 1000;
+
+/// Checks the sizes the options ask for before anything is allocated.
+fn check_sizes(args: &BenchArgs) -> anyhow::Result<()> {
+    if !(1..=MAX_ITEMS).contains(&args.items) {
+        bail!(
+            "--items {}: must lie in 1..={MAX_ITEMS} ({BYTES_PER_ITEM} bytes an item on the host, {:.1} GB at the limit, as much again on the GPU; {} items would take {:.3e} bytes)",
+            args.items,
+            (BYTES_PER_ITEM * MAX_ITEMS) as f64 / 1e9,
+            args.items,
+            args.items as f64 * BYTES_PER_ITEM as f64
+        );
+    }
+    if !(1..=MAX_SWEEP_CELLS).contains(&args.sweep_cells) {
+        bail!(
+            "--sweep-cells {}: must lie in 1..={MAX_SWEEP_CELLS} (each cell is evaluated over about 10 000 correspondences per repetition)",
+            args.sweep_cells
+        );
+    }
+    if !(1..=MAX_REPEATS).contains(&args.repeats) {
+        bail!("--repeats {}: must lie in 1..={MAX_REPEATS}", args.repeats);
+    }
+    Ok(())
+}
+
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    check_sizes(&args)?;
     let rig: Rig = match &args.rig {
         Some(path) => flatport::io::read_rig(path)?,
         None => rig_from_json_str(EXAMPLE_RIG, Path::new("<built-in example rig>"))?,
@@ -139,15 +176,19 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         sweep_candidates.len(),
         sweep_data.corners.len()
     );
+    // The clock of the next figure: `host` unless a GPU kernel time sets `gpu_timestamp`.
+    let next_timer = std::cell::Cell::new("host");
     let mut record = |kernel: &'static str, path: &'static str, precision: &'static str, threads: usize, stage: &'static str, seconds: f64| {
+        let timer = next_timer.replace("host");
         let items = if kernel == "sweep" { sweep_items } else { n };
-        let figure = Figure { kernel, path, precision, threads, stage, items, items_per_s: items as f64 / seconds };
-        println!("{kernel:12} {path:3} {precision} {threads:>3} thr {stage:10} {}", human(figure.items_per_s));
+        let figure = Figure { kernel, path, precision, threads, stage, timer, items, items_per_s: items as f64 / seconds };
+        let clock = if timer == "host" { String::new() } else { format!("  ({timer})") };
+        outln!("{kernel:12} {path:3} {precision} {threads:>3} thr {stage:10} {}{clock}", human(figure.items_per_s));
         results.push(figure);
     };
 
     let stream = memory_stream_bandwidth();
-    println!("memory streaming bandwidth (triad, all cores): {:.2} GB/s", stream / 1e9);
+    outln!("memory streaming bandwidth (triad, all cores): {:.2} GB/s", stream / 1e9);
 
     let all = CpuEngine::new(None);
     let one = CpuEngine::new(Some(1));
@@ -194,11 +235,13 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             }
             let p = precision.name();
             let kernel_only = |kernel: Kernel, gpu: &GpuEngine, a: &RefractiveCamera, b: &RefractiveCamera| -> anyhow::Result<f64> {
-                Ok(match kernel {
+                let (seconds, timer) = match kernel {
                     Kernel::Backproject => gpu.kernel_seconds::<2, 6>(kernel, a, b, &work.pixels, args.repeats)?,
                     Kernel::Project => gpu.kernel_seconds::<3, 2>(kernel, a, b, &work.points, args.repeats)?,
                     _ => gpu.kernel_seconds::<4, 4>(kernel, a, b, &work.matches, args.repeats)?,
-                })
+                };
+                next_timer.set(timer.name());
+                Ok(seconds)
             };
             record("backproject", "gpu", p, 0, "kernel", kernel_only(Kernel::Backproject, &gpu, &a, &a)?);
             let t = fastest(args.repeats, || Ok(gpu.backproject(&a, &work.pixels, &mut out6, &mut status)?))?;
@@ -236,11 +279,11 @@ fn print_targets(results: &[Figure], stream: f64, threads: usize) {
             .find(|f| f.kernel == kernel && f.path == path && f.precision == precision && threads.is_none_or(|t| f.threads == t) && f.stage == stage)
             .map(|f| f.items_per_s)
     };
-    println!("\ntargets (ratios from this run):");
+    outln!("\ntargets (ratios from this run):");
     let cpu_all = |k: &str| rate(k, "cpu", "f64", Some(threads), "end_to_end");
     let check = |name: &str, value: Option<f64>, target: f64| match value {
-        Some(v) => println!("  {name:58} {v:8.2}  (target ≥ {target}) {}", if v >= target { "met" } else { "NOT MET" }),
-        None => println!("  {name:58}      n/a"),
+        Some(v) => outln!("  {name:58} {v:8.2}  (target ≥ {target}) {}", if v >= target { "met" } else { "NOT MET" }),
+        None => outln!("  {name:58}      n/a"),
     };
     let ratio = |x: Option<f64>, y: Option<f64>| x.zip(y).map(|(x, y)| x / y);
     check("backproject GPU f32 kernel / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "kernel"), cpu_all("backproject")), 1.5);

@@ -1,13 +1,17 @@
 //! `flatport simulate` and `flatport calibrate`.
 
+use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 
+use flatport::calib::search::{MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text};
+use flatport::calib::simulate::{MAX_BOARD_CORNERS, MAX_SIMULATED_CORNERS};
 use flatport::calib::{
-    Board, CalibError, CalibrationOptions, CalibrationReport, CostBackend, CpuBackend, GpuBackend, Method, Observations, SceneSpec,
-    StereoData, calibrate, simulate,
+    Board, CalibError, CalibrationOptions, CalibrationProgress, CalibrationReport, CostBackend, CpuBackend, GpuBackend, Method,
+    Observations, SceneSpec, StereoData, calibrate_with_progress, simulate,
 };
 use flatport::engine::Engine;
 use flatport::io::{IoError, Truth, read_observations, read_rig, read_truth, write_observations, write_report, write_rig, write_truth};
@@ -107,6 +111,11 @@ pub fn parse_board(text: &str) -> Result<Board, String> {
     if cols < 2 || rows < 2 || !(square > 0.0 && square.is_finite()) {
         return Err(format!("a board needs at least 2x2 inner corners and a square > 0 m, got '{text}'"));
     }
+    if cols.checked_mul(rows).is_none_or(|c| c > MAX_BOARD_CORNERS) {
+        return Err(format!(
+            "'{text}' has {cols} × {rows} inner corners; at most {MAX_BOARD_CORNERS} are simulated (every pose tried projects all of them)"
+        ));
+    }
     Ok(Board { rows, cols, square })
 }
 
@@ -130,11 +139,18 @@ pub fn stereo_pair(rig: &Rig, names: Option<(&str, &str)>, source: &str) -> anyh
 }
 
 pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
+    // Sizes first, before anything is read or allocated.
+    let most = MAX_SIMULATED_CORNERS / args.board.corners();
+    if args.views == 0 || args.views > most {
+        bail!(
+            "--views {}: must lie in 1..={most} for a {}x{} board ({MAX_SIMULATED_CORNERS} corners in all: each takes about 100 bytes in memory and 80 in observations.json)",
+            args.views,
+            args.board.cols,
+            args.board.rows
+        );
+    }
     let rig = read_rig(&args.rig)?;
     let pair = stereo_pair(&rig, args.cameras.as_ref().map(|(a, b)| (a.as_str(), b.as_str())), "--cameras")?;
-    if args.views == 0 {
-        bail!("--views must be at least 1");
-    }
     let mut spec = SceneSpec::new(args.board, args.views, args.noise, args.seed);
     spec.max_board_tilt = args.max_board_tilt_deg.to_radians();
     let scene = simulate(&rig, pair[0], pair[1], &spec)?;
@@ -144,7 +160,7 @@ pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
     write_truth(&args.output.join("truth.json"), &truth)?;
     write_rig(&args.output.join("rig.json"), &rig)?;
     let i = rig.interface();
-    println!(
+    outln!(
         "simulated {} views of a {}x{} board ({} m squares), {} px noise, seed {}\ntruth: tilt {:.4}°, azimuth {:.4}°, air layer {:.3} mm\nwrote {}/observations.json, truth.json, rig.json",
         args.views,
         args.board.cols,
@@ -186,7 +202,26 @@ pub fn cost_backend<'a>(engine: &'a Engine, data: &'a StereoData) -> Box<dyn Cos
     }
 }
 
+/// Checks the size of the global search grid before anything is read.
+fn check_grid_step(args: &CalibrateArgs) -> anyhow::Result<()> {
+    let (bound, spacing) = (args.max_tilt_deg.to_radians(), args.grid_step_deg.to_radians());
+    // Other values of the two options are refused by the calibration with their own message.
+    if bound > 0.0 && bound < 80f64.to_radians() && spacing > 0.0 && spacing <= bound {
+        let axes = cap_grid_size(bound, spacing);
+        if axes > MAX_CAP_GRID_AXES as f64 {
+            bail!(
+                "--grid-step-deg {}: the global search over --max-tilt-deg {} would take {axes:.3e} axes; it takes at most {MAX_CAP_GRID_AXES} (each axis costs an evaluation over every corner): use --grid-step-deg {} or more",
+                args.grid_step_deg,
+                args.max_tilt_deg,
+                min_cap_grid_spacing_deg_text(bound)
+            );
+        }
+    }
+    Ok(())
+}
+
 pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
+    check_grid_step(&args)?;
     let (rig, data, warnings) = load_stereo_data(&args.rig, &args.observations)?;
     let options = CalibrationOptions {
         method: match args.method {
@@ -215,16 +250,19 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         data.corners.len(),
         options.method.name()
     );
+    let mut status = CalibrationStatus::new();
+    let calibration = calibrate_with_progress(backend.as_ref(), &options, warnings, &mut |p| status.update(p));
+    status.finish();
     // Errors about the data name the observations file.
-    let calibration = calibrate(backend.as_ref(), &options, warnings).map_err(|e| in_file(&args.observations, e))?;
+    let calibration = calibration.map_err(|e| in_file(&args.observations, e))?;
     let report = &calibration.report;
     if let Some(path) = &args.report {
         write_report(path, report)?;
     }
-    print!("{}", summary(report));
+    out!("{}", summary(report));
     if let Some(path) = &args.truth {
         let truth = read_truth(path)?;
-        println!("{}", truth_errors(report, &truth));
+        outln!("{}", truth_errors(report, &truth));
     }
     if !report.fits {
         let worst = report.inlier_rms_px[0].max(report.inlier_rms_px[1]);
@@ -239,8 +277,63 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     }
     let calibrated = rig.with_interface(calibration.interface.clone())?;
     write_rig(&args.output, &calibrated)?;
-    println!("wrote {}{}", args.output.display(), args.report.as_ref().map_or(String::new(), |p| format!(", {}", p.display())));
+    outln!("wrote {}{}", args.output.display(), args.report.as_ref().map_or(String::new(), |p| format!(", {}", p.display())));
     Ok(())
+}
+
+/// Progress of a long calibration on stderr (stage, steps, cost): nothing during the first
+/// [`CalibrationStatus::SILENT`] (short runs stay quiet); then on a terminal one line redrawn at
+/// most five times a second; elsewhere (a log) a line when a stage starts and at most one every
+/// [`CalibrationStatus::LOG_EVERY`] within it.
+struct CalibrationStatus {
+    started: Instant,
+    terminal: bool,
+    last: Option<Instant>,
+    stage: String,
+    drawn: bool,
+}
+
+impl CalibrationStatus {
+    const SILENT: Duration = Duration::from_secs(3);
+    const LOG_EVERY: Duration = Duration::from_secs(30);
+    const REDRAW_EVERY: Duration = Duration::from_millis(200);
+
+    fn new() -> Self {
+        Self { started: Instant::now(), terminal: std::io::stderr().is_terminal(), last: None, stage: String::new(), drawn: false }
+    }
+
+    fn update(&mut self, p: &CalibrationProgress) {
+        let now = Instant::now();
+        let elapsed = now - self.started;
+        if elapsed < Self::SILENT {
+            return;
+        }
+        let new_stage = p.stage != self.stage;
+        let every = if self.terminal { Self::REDRAW_EVERY } else { Self::LOG_EVERY };
+        if !new_stage && self.last.is_some_and(|l| now - l < every) {
+            return;
+        }
+        if new_stage {
+            self.stage = p.stage.to_string();
+        }
+        self.last = Some(now);
+        let steps = match p.total {
+            Some(total) => format!("{}/{total}", p.done),
+            None => format!("iteration {}", p.done),
+        };
+        let cost = if p.cost.is_finite() { format!(", cost {:.6e} {}", p.cost, p.unit) } else { String::new() };
+        let line = format!("[{:.1} s] {}: {steps}{cost}", elapsed.as_secs_f64(), p.stage);
+        let mut err = std::io::stderr().lock();
+        let _ = if self.terminal { write!(err, "\r{line}\x1b[K") } else { writeln!(err, "{line}") };
+        self.drawn = true;
+    }
+
+    /// Ends the redrawn line on a terminal.
+    fn finish(&mut self) {
+        if self.terminal && self.drawn {
+            let _ = writeln!(std::io::stderr());
+        }
+    }
 }
 
 /// The engine for cost batches. Without `--precision` a GPU runs f64 where the adapter has it:

@@ -58,8 +58,8 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let dir = &args.output;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let rig = rig_from_json_str(EXAMPLE_RIG, Path::new("<built-in example rig>"))?;
-    println!("flatport demo: a stereo camera behind a 14 mm glass port, looking into water\n");
-    print!("{}", describe(&rig));
+    outln!("flatport demo: a stereo camera behind a 14 mm glass port, looking into water\n");
+    out!("{}", describe(&rig));
     calibration_story(&rig, dir, &args.engine)?;
     geometry_tour(&rig, &dir.join("geometry"))
 }
@@ -75,7 +75,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     use flatport::engine::Engine;
     use flatport::io::{Truth, write_observations, write_report, write_truth};
 
-    println!("\n1. simulate: {VIEWS} stereo views of a 9x6 chessboard (40 mm squares) in the water, {NOISE_PX} px noise");
+    outln!("\n1. simulate: {VIEWS} stereo views of a 9x6 chessboard (40 mm squares) in the water, {NOISE_PX} px noise");
     let board = Board { rows: 6, cols: 9, square: 0.04 };
     let scene = simulate(rig, 0, 1, &SceneSpec::new(board, VIEWS, NOISE_PX, 1))?;
     write_rig(&dir.join("rig.json"), rig)?;
@@ -85,7 +85,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
 
     let start = rig.with_interface(rig.interface().with_pose(nalgebra::Vector3::z(), 0.01)?)?;
     write_rig(&dir.join("start_rig.json"), &start)?;
-    println!("2. calibrate from a naive start (axis on the camera's z axis, 10 mm air layer):");
+    outln!("2. calibrate from a naive start (axis on the camera's z axis, 10 mm air layer):");
     let data = StereoData::new(&start, [0, 1], &scene.observations)?;
     let engine: Engine = super::calib::calibration_engine(engine_args)?;
     let backend = super::calib::cost_backend(&engine, &data);
@@ -93,11 +93,11 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     write_rig(&dir.join("calibrated_rig.json"), &start.with_interface(calibration.interface.clone())?)?;
     write_report(&dir.join("report.json"), &calibration.report)?;
     for line in super::calib::summary(&calibration.report).lines() {
-        println!("   {line}");
+        outln!("   {line}");
     }
-    println!("   {}", super::calib::truth_errors(&calibration.report, &truth));
+    outln!("   {}", super::calib::truth_errors(&calibration.report, &truth));
 
-    println!("3. sweep the invariant cost over the axis (a wide view, and a close one around the result):");
+    outln!("3. sweep the invariant cost over the axis (a wide view, and a close one around the result):");
     let found = calibration.report.candidate;
     let (tilt, azimuth) = (found.tilt().to_degrees(), found.azimuth().to_degrees());
     // Close view: ±1° of tilt, and azimuths spanning about ±1° of arc at this tilt.
@@ -126,7 +126,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
         };
         let summary = super::sweep::run_sweep(&args)?;
         let m = &summary["argmin"];
-        println!(
+        outln!(
             "   {name}: {} × {} axes, minimum at tilt {:.3}°, azimuth {:.3}° in {:.2} s",
             tilt_deg.count,
             azimuth_deg.count,
@@ -135,7 +135,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
             summary["seconds"].as_f64().unwrap_or(f64::NAN)
         );
     }
-    println!(
+    outln!(
         "\nwrote {0}/: rig.json (the truth) truth.json observations.json start_rig.json calibrated_rig.json report.json\n       {0}/sweep_wide/ and {0}/sweep_close/: heatmap.png polar.png cost.npy cost.csv summary.json",
         dir.display()
     );
@@ -147,7 +147,7 @@ fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let rig = rig.clone();
     write_rig(&dir.join("rig.json"), &rig)?;
-    println!("\n4. the geometry on its own: project, back-project, triangulate a grid of points, VOPs");
+    outln!("\n4. the geometry on its own: project, back-project, triangulate a grid of points, VOPs");
 
     let points = example_points();
     let (left, right) = (rig.refractive_camera(0), rig.refractive_camera(1));
@@ -229,29 +229,29 @@ fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
     let max = iterations.last().copied().unwrap_or(0);
     let micros = |d: std::time::Duration| d.as_secs_f64() * 1e6;
 
-    println!("{} points on 4 planes 0.3–6 m away ({} inside both images)", points.len(), visible);
-    println!(
+    outln!("{} points on 4 planes 0.3–6 m away ({} inside both images)", points.len(), visible);
+    outln!(
         "forward projection: {projected} of {} points, Newton iterations median {median}, max {max}, {:.0} µs for both cameras",
         points.len(),
         micros(project_time)
     );
-    println!(
+    outln!(
         "back-projection:    largest distance from a point to its pixel's water ray {miss:.1e} m, {:.0} µs",
         micros(backproject_time)
     );
-    println!(
+    outln!(
         "triangulation:      largest error {triangulation_error:.1e} m over {} matches, {:.0} µs",
         triangulated.iter().filter(|t| t.is_ok()).count(),
         micros(triangulate_time)
     );
     if let Some(v) = vops.iter().filter_map(|v| v.ok()).min_by(|a, b| a.vop_distance.total_cmp(&b.vop_distance)) {
-        println!(
+        outln!(
             "virtual object points: nearest VOP {:.4} m beyond the glass for a point {:.3} m deep",
             v.vop_distance, v.depth
         );
     }
-    println!("wrote {}/: rig.json points.csv pixels_left.csv pixels_right.csv rays_left.csv matches.csv triangulated.csv vops_left.csv", dir.display());
-    println!(
+    outln!("wrote {}/: rig.json points.csv pixels_left.csv pixels_right.csv rays_left.csv matches.csv triangulated.csv vops_left.csv", dir.display());
+    outln!(
         "try:  flatport triangulate --rig {0}/rig.json --matches {0}/matches.csv | head",
         dir.display()
     );

@@ -4,37 +4,37 @@ use flatport::gpu::adapters;
 
 pub fn run() -> anyhow::Result<()> {
     let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-    println!("flatport {}", env!("CARGO_PKG_VERSION"));
-    println!(
+    outln!("flatport {}", env!("CARGO_PKG_VERSION"));
+    outln!(
         "build: {} ({}-{})",
         if cfg!(debug_assertions) { "debug" } else { "release" },
         std::env::consts::ARCH,
         std::env::consts::OS
     );
-    println!("devices:");
-    println!("  cpu: f64 reference, {threads} hardware threads");
+    outln!("devices:");
+    outln!("  cpu: f64 reference, {threads} hardware threads");
     let found = adapters();
     if found.is_empty() {
-        println!(
+        outln!(
             "  gpu: no Vulkan adapter found (install mesa-vulkan-drivers for the lavapipe software adapter, \
              or your GPU's Vulkan driver)"
         );
     }
-    for a in &found {
+    for (index, a) in found.iter().enumerate() {
         let yes = |b: bool| if b { "yes" } else { "no" };
-        println!("  gpu: {} [{} {}, {}]", a.name, a.backend, a.device_type, a.driver);
-        println!(
+        outln!("  gpu {index}: {} [{} {}, {}]  (--adapter {index})", a.name, a.backend, a.device_type, a.driver);
+        outln!(
             "       features used: SHADER_F64 {}, SUBGROUP {}, TIMESTAMP_QUERY {}",
             yes(a.f64),
             yes(a.subgroup),
             yes(a.timestamp)
         );
-        println!(
+        outln!(
             "       limits used: storage binding {} MiB, {} workgroups per dimension",
             a.max_storage_binding >> 20,
             a.max_workgroups_per_dimension
         );
     }
-    println!("  (the GPU kernels are reachable from the library, flatport::gpu; --device accepts cpu for now)");
+    outln!("  (the GPU kernels are reachable from the library, flatport::gpu; --device accepts cpu for now)");
     Ok(())
 }

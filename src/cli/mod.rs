@@ -1,6 +1,17 @@
 //! Subcommands of the `flatport` binary (clap). No math here: every command reads its inputs,
 //! calls the library row by row, and writes the CSV contract of DESIGN.md §1.
 
+/// `println!` that ends the process quietly when standard output is a closed pipe
+/// ([`signals::print_stdout`]); `println!` would panic there.
+macro_rules! outln {
+    () => { $crate::cli::signals::print_stdout(format_args!("\n")) };
+    ($($arg:tt)*) => { $crate::cli::signals::print_stdout(format_args!("{}\n", format_args!($($arg)*))) };
+}
+/// `print!` with the same care as [`outln!`].
+macro_rules! out {
+    ($($arg:tt)*) => { $crate::cli::signals::print_stdout(format_args!($($arg)*)) };
+}
+
 mod batch;
 mod calib;
 mod bench;
@@ -9,6 +20,7 @@ mod geometry;
 mod info;
 mod progress;
 mod rig;
+mod signals;
 mod sweep;
 
 use std::path::PathBuf;
@@ -113,8 +125,8 @@ Writes DIR/cost.npy (float64, shape [tilt, azimuth] or [tilt, azimuth, distance]
 (tilt_deg,azimuth_deg,distance,cost per cell; inf where a candidate explains no corner),
 DIR/distance.npy (the profile's air layers, for reprojection and 3d without --distance),
 DIR/heatmap.png and DIR/polar.png (minimum marked, truth marked with --truth), DIR/summary.json
-(argmin, grid, timing). Files appear only when the sweep completed; Ctrl-C stops after the batch
-in flight and leaves nothing behind.
+(argmin, grid, timing). Files appear only when the sweep completed; Ctrl-C (or SIGTERM) stops it
+at once and leaves nothing behind.
 
 Examples:
   flatport sweep --rig rig.json --observations obs.json --cost invariant \\
@@ -179,27 +191,36 @@ pub struct EngineArgs {
     /// Precision of the GPU kernels (default f32; the CPU is always f64)
     #[arg(long, value_enum, value_name = "f32|f64")]
     pub precision: Option<PrecisionArg>,
-    /// GPU adapter: part of its name as `flatport info` lists it (else $FLATPORT_ADAPTER)
-    #[arg(long, value_name = "NAME")]
+    /// GPU adapter: its index or part of its name as `flatport info` lists them (else
+    /// $FLATPORT_ADAPTER, else the best: discrete, integrated, then lavapipe)
+    #[arg(long, value_name = "INDEX|NAME")]
     pub adapter: Option<String>,
 }
 
 impl EngineArgs {
     /// Builds the engine and says on stderr which device runs.
     pub fn engine(&self) -> anyhow::Result<flatport::engine::Engine> {
-        let engine = self.engine_quiet()?;
+        let (engine, why) = flatport::engine::Engine::choose(&self.options())?;
         if self.device == Device::Auto && self.precision == Some(PrecisionArg::F32) && matches!(engine, flatport::engine::Engine::Cpu(_)) {
             eprintln!("note: no hardware GPU, so the f64 CPU reference runs (--precision f32 applies to GPUs)");
         }
-        eprintln!("device: {}", engine.describe());
+        if self.device == Device::Auto {
+            eprintln!("device: {} ({why})", engine.describe());
+        } else {
+            eprintln!("device: {}", engine.describe());
+        }
         Ok(engine)
     }
 
     /// Builds the engine without a word on stderr.
     pub fn engine_quiet(&self) -> anyhow::Result<flatport::engine::Engine> {
-        use flatport::engine::{Device as D, Engine, EngineOptions};
+        Ok(flatport::engine::Engine::new(&self.options())?)
+    }
+
+    fn options(&self) -> flatport::engine::EngineOptions {
+        use flatport::engine::{Device as D, EngineOptions};
         use flatport::gpu::Precision;
-        let options = EngineOptions {
+        EngineOptions {
             device: match self.device {
                 Device::Cpu => D::Cpu,
                 Device::Gpu => D::Gpu,
@@ -211,8 +232,7 @@ impl EngineArgs {
             }),
             adapter: self.adapter.clone(),
             threads: None,
-        };
-        Ok(Engine::new(&options)?)
+        }
     }
 }
 
@@ -244,6 +264,7 @@ pub fn main() -> ExitCode {
         // from warning about a missing runtime directory on headless machines.
         unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
     }
+    signals::install();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Project(args) => geometry::project(args),
@@ -260,6 +281,7 @@ pub fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(error) if signals::is_broken_pipe(&error) => signals::exit_on_broken_pipe(),
         Err(error) => {
             eprintln!("error: {error:#}");
             ExitCode::FAILURE

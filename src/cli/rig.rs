@@ -87,7 +87,7 @@ pub fn run(command: RigCommand) -> anyhow::Result<()> {
     match command {
         RigCommand::FromOpencv(args) => from_opencv(args),
         RigCommand::Show { rig } => {
-            print!("{}", describe(&read_rig(&rig)?));
+            out!("{}", describe(&read_rig(&rig)?));
             Ok(())
         }
     }
@@ -108,7 +108,7 @@ fn from_opencv(args: FromOpencvArgs) -> anyhow::Result<()> {
             write_atomic(path, json.as_bytes())?;
             eprintln!("wrote {}", path.display());
         }
-        None => println!("{json}"),
+        None => outln!("{json}"),
     }
     Ok(())
 }

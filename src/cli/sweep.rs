@@ -2,14 +2,12 @@
 //! PNG and summary outputs.
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use serde_json::json;
 
-use flatport::calib::sweep::{Linspace, SweepChunk, SweepSpec, sweep};
+use flatport::calib::sweep::{Linspace, MAX_SWEEP_CELLS, MinPool, SweepChunk, SweepSpec, sweep, too_many_cells};
 use flatport::calib::{CalibError, CostKind};
 use flatport::engine::Engine;
 use flatport::io::npy::NpyWriter;
@@ -67,7 +65,8 @@ pub struct SweepArgs {
     /// Truth of a simulated scene: marked in the pictures and given in the summary
     #[arg(long, value_name = "TRUTH.json")]
     pub truth: Option<PathBuf>,
-    /// Axis cells per batch handed to the backend
+    /// Axis cells per batch handed to the backend (1 to 1048576; a batch holds at most 262144
+    /// cells whatever the distance grid)
     #[arg(long, value_name = "CELLS", default_value_t = 4096)]
     pub chunk: usize,
     /// No progress bar
@@ -75,18 +74,6 @@ pub struct SweepArgs {
     pub quiet: bool,
     #[command(flatten)]
     pub engine: super::EngineArgs,
-}
-
-/// A flag that Ctrl-C sets (the handler is installed once per process).
-fn interruption_flag() -> &'static AtomicBool {
-    static FLAG: OnceLock<&'static AtomicBool> = OnceLock::new();
-    FLAG.get_or_init(|| {
-        let flag: &'static AtomicBool = Box::leak(Box::new(AtomicBool::new(false)));
-        // Without a handler (another one is installed) Ctrl-C ends the process as usual; the
-        // files then stay under their hidden temporary names, never under the output names.
-        let _ = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed));
-        flag
-    })
 }
 
 /// Parses `START:STOP:COUNT`.
@@ -106,6 +93,30 @@ pub fn parse_linspace(text: &str) -> Result<Linspace, String> {
     Ok(Linspace { start, stop, count })
 }
 
+/// Largest `--chunk`: bigger batches gain nothing (the backend splits them for the device anyway).
+pub const MAX_CHUNK: usize = 1 << 20;
+
+/// Blocks per side of the heat map and polar plot: grids with more values per axis are drawn
+/// min-pooled ([`MinPool`]) so the pictures hold at most this many blocks squared.
+pub const PICTURE_SIDE: usize = 512;
+
+/// Checks the sizes the options ask for before anything is read or allocated.
+fn check_sizes(args: &SweepArgs, spec: &SweepSpec) -> anyhow::Result<()> {
+    if !(1..=MAX_CHUNK).contains(&args.chunk) {
+        bail!("--chunk {}: must lie in 1..={MAX_CHUNK} axis cells per batch (larger batches gain nothing; the backend splits them anyway)", args.chunk);
+    }
+    if spec.checked_cells().is_none_or(|cells| cells > MAX_SWEEP_CELLS) {
+        let options = format!(
+            "--tilt-deg …:{} × --azimuth-deg …:{}{}",
+            spec.tilt_deg.count,
+            spec.azimuth_deg.count,
+            spec.distance.map_or(String::new(), |d| format!(" × --distance …:{}", d.count))
+        );
+        bail!("{options}: {}", too_many_cells(&spec.shape()));
+    }
+    Ok(())
+}
+
 fn grid_json(l: &Linspace) -> serde_json::Value {
     json!({"start": l.start, "stop": l.stop, "count": l.count})
 }
@@ -113,9 +124,10 @@ fn grid_json(l: &Linspace) -> serde_json::Value {
 /// Runs a sweep into `args.output`; returns the summary JSON. Everything is written under
 /// temporary names and renamed into place only when the sweep completed.
 pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
-    let (_, data, _) = super::calib::load_stereo_data(&args.rig, &args.observations)?;
     let spec = SweepSpec { kind: args.cost.kind(), tilt_deg: args.tilt_deg, azimuth_deg: args.azimuth_deg, distance: args.distance };
+    check_sizes(args, &spec)?;
     spec.validate()?;
+    let (_, data, _) = super::calib::load_stereo_data(&args.rig, &args.observations)?;
     let truth = args.truth.as_deref().map(read_truth).transpose()?;
     let engine: Engine = args.engine.engine_quiet()?;
     let backend = super::calib::cost_backend(&engine, &data);
@@ -129,15 +141,13 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
     let mut cost_npy = NpyWriter::create(&dir.join("cost.npy"), &shape)?;
     let mut distance_npy = if profile_distance { Some(NpyWriter::create(&dir.join("distance.npy"), &shape)?) } else { None };
     let mut csv = TableWriter::create(Some(&dir.join("cost.csv")), ["tilt_deg", "azimuth_deg", "distance", "cost"])?;
-    // The pictures show the lowest cost over the air layers of each axis.
-    let mut per_axis = vec![f64::INFINITY; spec.axes()];
+    // The pictures show the lowest cost over the air layers of each axis, min-pooled to at most
+    // PICTURE_SIDE² blocks: memory stays bounded by the picture and the batch, not the grid.
     let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
-    let interrupted = interruption_flag();
+    let mut pool = MinPool::new(tilts, azimuths, PICTURE_SIDE);
+    // An interruption (Ctrl-C, SIGTERM) ends the process in `cli::signals`, which removes the
+    // writers' temporary files: nothing of the sweep is left behind.
     let mut sink = |chunk: SweepChunk| -> Result<(), CalibError> {
-        // Ctrl-C stops after the chunk in flight; the writers then remove their temporary files.
-        if interrupted.load(Ordering::Relaxed) {
-            return Err(CalibError::Options("interrupted: no output was written".into()));
-        }
         let io = |e: IoError| CalibError::Options(e.to_string());
         cost_npy.write(chunk.costs).map_err(io)?;
         if let Some(npy) = distance_npy.as_mut() {
@@ -149,10 +159,7 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
         });
         csv.write_rows(rows).map_err(io)?;
         for (k, &cost) in chunk.costs.iter().enumerate() {
-            let axis = (chunk.first + k) / depth;
-            if cost < per_axis[axis] {
-                per_axis[axis] = cost;
-            }
+            pool.add((chunk.first + k) / depth, cost);
         }
         Ok(())
     };
@@ -178,13 +185,17 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
     csv.finish()?;
 
     let truth_deg = truth.as_ref().map(|t| (t.interface.tilt().to_degrees(), t.interface.azimuth().to_degrees()));
-    let (tilt_values, azimuth_values) = (tilts.values(), azimuths.values());
+    let (tilt_values, azimuth_values) = (pool.tilts_deg(), pool.azimuths_deg());
+    let pooled = match pool.factors() {
+        (1, 1) => String::new(),
+        (t, a) => format!(", each block the lowest of {t} × {a} axes"),
+    };
     let map = CostMap {
         tilts_deg: &tilt_values,
         azimuths_deg: &azimuth_values,
-        values: &per_axis,
+        values: pool.values(),
         title: format!(
-            "{} cost{} over {} axes × {} corners",
+            "{} cost{} over {} axes × {} corners{pooled}",
             spec.kind.name(),
             if spec.distance.is_some() { " (lowest over the air layers)" } else { "" },
             spec.axes(),
@@ -229,7 +240,7 @@ pub fn run(args: SweepArgs) -> anyhow::Result<()> {
 /// The lines printed after a sweep.
 pub fn print_summary(summary: &serde_json::Value, dir: &Path) {
     let m = &summary["argmin"];
-    println!(
+    outln!(
         "minimum {} = {:.6e} {} at tilt {:.4}°, azimuth {:.4}°{}",
         summary["cost"].as_str().unwrap_or(""),
         m["cost"].as_f64().unwrap_or(f64::NAN),
@@ -238,12 +249,12 @@ pub fn print_summary(summary: &serde_json::Value, dir: &Path) {
         m["azimuth_deg"].as_f64().unwrap_or(f64::NAN),
         m["distance"].as_f64().map_or(String::new(), |d| format!(", air layer {:.3} mm", d * 1e3))
     );
-    println!(
+    outln!(
         "{} cells × {} corners in {:.2} s ({:.3e} cell·corners/s)",
         summary["cells"],
         summary["correspondences"],
         summary["seconds"].as_f64().unwrap_or(f64::NAN),
         summary["cell_correspondences_per_s"].as_f64().unwrap_or(f64::NAN)
     );
-    println!("wrote {}/cost.npy, cost.csv, heatmap.png, polar.png, summary.json", dir.display());
+    outln!("wrote {}/cost.npy, cost.csv, heatmap.png, polar.png, summary.json", dir.display());
 }

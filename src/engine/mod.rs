@@ -74,27 +74,48 @@ pub enum Engine {
 impl Engine {
     /// Builds the backend `options` ask for. `Device::Auto` takes a hardware GPU adapter when the
     /// machine has one (never lavapipe, which runs on the same cores as the CPU path) and falls
-    /// back to the CPU otherwise.
+    /// back to the CPU otherwise; [`choose`](Self::choose) also says why.
     pub fn new(options: &EngineOptions) -> Result<Self, EngineError> {
+        Ok(Self::choose(options)?.0)
+    }
+
+    /// As [`new`](Self::new), with a sentence saying why this device runs (for `--device auto`:
+    /// which adapter was taken, or why the CPU runs instead).
+    pub fn choose(options: &EngineOptions) -> Result<(Self, String), EngineError> {
         let precision = options.precision.unwrap_or(Precision::F32);
         match options.device {
             Device::Cpu => {
                 if options.precision == Some(Precision::F32) {
                     return Err(EngineError::Options("the CPU path is f64 only: drop --precision f32 or use --device gpu".into()));
                 }
-                Ok(Self::Cpu(CpuEngine::new(options.threads)))
+                Ok((Self::Cpu(CpuEngine::new(options.threads)), "asked for (--device cpu)".into()))
             }
-            Device::Gpu => Ok(Self::Gpu(GpuEngine::new(GpuContext::new(options.adapter.as_deref())?, precision)?)),
+            Device::Gpu => {
+                let gpu = GpuEngine::new(GpuContext::new(options.adapter.as_deref())?, precision)?;
+                Ok((Self::Gpu(gpu), "asked for (--device gpu)".into()))
+            }
             Device::Auto => {
-                let hardware = crate::gpu::adapters().into_iter().any(|a| a.device_type != "Cpu");
-                if hardware || options.adapter.is_some() {
-                    if let Ok(context) = GpuContext::new(options.adapter.as_deref()) {
-                        if let Ok(gpu) = GpuEngine::new(context, precision) {
-                            return Ok(Self::Gpu(gpu));
-                        }
-                    }
+                let cpu = || Self::Cpu(CpuEngine::new(options.threads));
+                let found = crate::gpu::adapters();
+                let hardware: Vec<&str> = found.iter().filter(|a| a.device_type != "Cpu").map(|a| a.name.as_str()).collect();
+                if hardware.is_empty() && options.adapter.is_none() {
+                    let why = match found.first() {
+                        Some(software) => format!(
+                            "auto: no hardware GPU (only the software adapter '{}', which runs on these same cores; --device gpu takes it)",
+                            software.name
+                        ),
+                        None => "auto: no Vulkan adapter (flatport info says what to install)".to_string(),
+                    };
+                    return Ok((cpu(), why));
                 }
-                Ok(Self::Cpu(CpuEngine::new(options.threads)))
+                match GpuContext::new(options.adapter.as_deref()).and_then(|context| GpuEngine::new(context, precision)) {
+                    Ok(gpu) => {
+                        let a = gpu.context().adapter();
+                        let why = format!("auto: the {} GPU '{}', the best of {} adapter(s)", a.device_type.to_lowercase(), a.name, found.len());
+                        Ok((Self::Gpu(gpu), why))
+                    }
+                    Err(error) => Ok((cpu(), format!("auto: the GPU could not be used ({error})"))),
+                }
             }
         }
     }

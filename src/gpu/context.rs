@@ -5,6 +5,8 @@
 //! Mesa prints `XDG_RUNTIME_DIR` warnings on headless machines unless that variable is set; the
 //! `flatport` binary sets it at start-up, and `scripts/test.sh` exports it.
 
+use std::sync::{Arc, Mutex};
+
 /// Why no GPU context could be made.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
@@ -30,13 +32,97 @@ pub enum GpuError {
     /// The input cannot run on the GPU kernels.
     #[error("{0}")]
     Unsupported(String),
+    /// A kernel did not compile into a pipeline (a WGSL or layout error the adapter refused).
+    #[error("GPU kernel '{kernel}' was refused by the adapter: {reason}")]
+    Kernel {
+        /// Kernel name.
+        kernel: String,
+        /// wgpu's message.
+        reason: String,
+    },
+    /// A buffer could not be allocated on the device.
+    #[error("cannot allocate a GPU buffer '{label}' of {bytes} bytes: {reason}")]
+    OutOfMemory {
+        /// Buffer label.
+        label: String,
+        /// Requested size.
+        bytes: u64,
+        /// wgpu's message, or the limit exceeded.
+        reason: String,
+    },
+    /// wgpu reported an error for a command (bind group, dispatch, copy).
+    #[error("the GPU refused {what}: {reason}")]
+    Validation {
+        /// What was being done.
+        what: String,
+        /// wgpu's message.
+        reason: String,
+    },
+    /// The device was lost (driver reset, GPU removed, fatal error): no result can be trusted.
+    #[error("the GPU device was lost: {0}")]
+    DeviceLost(String),
+    /// The device did not finish its work in time.
+    #[error("the GPU did not finish within {seconds} s (a hung or overloaded device; set {TIMEOUT_ENV} to wait longer)")]
+    Timeout {
+        /// The wait's limit.
+        seconds: u64,
+    },
 }
+
+/// Environment variable: seconds to wait for the device to finish one submission (default
+/// [`DEFAULT_TIMEOUT_S`]).
+pub const TIMEOUT_ENV: &str = "FLATPORT_GPU_TIMEOUT_S";
+
+/// Seconds a wait for one submission may take before it is an error: far above any chunk's time
+/// (a 4 Mi-item chunk takes well under a second on lavapipe), so only a hung device reaches it.
+pub const DEFAULT_TIMEOUT_S: u64 = 600;
 
 /// Environment variable naming the adapter (a case-insensitive part of its name).
 pub const ADAPTER_ENV: &str = "FLATPORT_ADAPTER";
 
-const INSTALL_HINT: &str = "Install a Vulkan driver: on Debian/Ubuntu `apt-get install mesa-vulkan-drivers` \
-    gives the lavapipe software adapter; on a GPU machine install its vendor's Vulkan driver";
+const INSTALL_HINT: &str = "Install a Vulkan driver and loader. Debian/Ubuntu without a GPU: \
+    `apt-get install mesa-vulkan-drivers libvulkan1` gives the lavapipe software adapter. NVIDIA \
+    (H100, H200, A100, …): the driver's Vulkan ICD (`/usr/share/vulkan/icd.d/nvidia_icd.json`, from the \
+    NVIDIA driver; Debian non-free: `nvidia-vulkan-icd`) and `libvulkan1`; in a container, the NVIDIA Container Toolkit \
+    mounts them only when NVIDIA_DRIVER_CAPABILITIES includes `graphics` (or is `all`): the default \
+    `compute,utility` has CUDA but no Vulkan. Check with `flatport info` or `vulkaninfo --summary`";
+
+/// Preference among adapter kinds: a discrete GPU before an integrated one, before a virtual one,
+/// before anything else, before a software adapter (lavapipe runs on the CPU's own cores).
+fn rank(kind: wgpu::DeviceType) -> u8 {
+    match kind {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Other => 3,
+        wgpu::DeviceType::Cpu => 4,
+    }
+}
+
+/// The adapter to open among `adapters` (in enumeration order, the order `flatport info` numbers
+/// them): `wanted` as an index (`0`, `3`) or a case-insensitive part of a name (`h200`, `llvmpipe`;
+/// the first match); without it the best by [`rank`], the first of equals.
+///
+/// Errors: what was looked for and what was found, for [`GpuError::NoAdapter`].
+pub(crate) fn choose_adapter(adapters: &[wgpu::AdapterInfo], wanted: Option<&str>) -> Result<usize, String> {
+    let found = || {
+        let names: Vec<String> = adapters.iter().enumerate().map(|(i, a)| format!("{i}: {}", a.name)).collect();
+        list(&names)
+    };
+    match wanted.map(str::trim) {
+        Some(w) if !w.is_empty() && w.bytes().all(|b| b.is_ascii_digit()) => match w.parse::<usize>() {
+            Ok(i) if i < adapters.len() => Ok(i),
+            _ => Err(format!("no Vulkan adapter with index {w} (found: {})", found())),
+        },
+        Some(w) => adapters
+            .iter()
+            .position(|a| a.name.to_lowercase().contains(&w.to_lowercase()))
+            .ok_or_else(|| format!("no Vulkan adapter named like '{w}' (found: {})", found())),
+        None => (0..adapters.len())
+            .min_by_key(|&i| rank(adapters[i].device_type))
+            .ok_or_else(|| "no Vulkan adapter found".to_string()),
+    }
+}
 
 /// One adapter as `flatport info` lists it.
 #[derive(Debug, Clone)]
@@ -96,11 +182,32 @@ pub struct GpuContext {
     summary: AdapterSummary,
     /// Storage buffers can be mapped by the host (MAPPABLE_PRIMARY_BUFFERS on shared memory).
     mapped_storage: bool,
+    /// Errors wgpu reported outside an error scope (instead of its default handler, which
+    /// panics), and the reason the device was lost: both checked after every wait.
+    faults: Arc<Faults>,
+    /// Limit of one wait.
+    timeout: std::time::Duration,
+}
+
+/// What wgpu's callbacks report, for [`GpuContext::check`].
+#[derive(Debug, Default)]
+struct Faults {
+    uncaptured: Mutex<Option<String>>,
+    lost: Mutex<Option<String>>,
+}
+
+fn take(slot: &Mutex<Option<String>>) -> Option<String> {
+    slot.lock().unwrap_or_else(|p| p.into_inner()).take()
+}
+
+fn keep_first(slot: &Mutex<Option<String>>, message: String) {
+    slot.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(message);
 }
 
 impl GpuContext {
-    /// Opens the adapter whose name contains `name` (case-insensitive), else the one named by
-    /// `FLATPORT_ADAPTER`, else the first hardware GPU, else the first adapter (lavapipe).
+    /// Opens the adapter `name` names (its index as `flatport info` lists it, or a case-insensitive
+    /// part of its name), else the one `FLATPORT_ADAPTER` names, else the best one: a discrete GPU
+    /// before an integrated one, before lavapipe ([`choose_adapter`]).
     pub fn new(name: Option<&str>) -> Result<Self, GpuError> {
         Self::open(name, true)
     }
@@ -111,21 +218,13 @@ impl GpuContext {
     pub fn open(name: Option<&str>, map_storage: bool) -> Result<Self, GpuError> {
         let wanted = name.map(str::to_string).or_else(|| std::env::var(ADAPTER_ENV).ok());
         let all = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::VULKAN));
-        let names: Vec<String> = all.iter().map(|a| a.get_info().name).collect();
-        let chosen = match &wanted {
-            Some(w) => all.iter().find(|a| a.get_info().name.to_lowercase().contains(&w.to_lowercase())),
-            None => all
-                .iter()
-                .find(|a| a.get_info().device_type != wgpu::DeviceType::Cpu)
-                .or_else(|| all.first()),
-        };
-        let Some(adapter) = chosen else {
-            let tried = match &wanted {
-                Some(w) => format!("no Vulkan adapter named like '{w}' (found: {})", list(&names)),
-                None => "no Vulkan adapter found".to_string(),
-            };
-            return Err(GpuError::NoAdapter { tried, hint: INSTALL_HINT.to_string() });
-        };
+        let infos: Vec<wgpu::AdapterInfo> = all.iter().map(|a| a.get_info()).collect();
+        let index = choose_adapter(&infos, wanted.as_deref()).map_err(|tried| {
+            // With adapters present the choice was wrong, not the installation.
+            let hint = if infos.is_empty() { INSTALL_HINT } else { "`flatport info` lists the adapters with their indices" };
+            GpuError::NoAdapter { tried, hint: hint.to_string() }
+        })?;
+        let adapter = &all[index];
         let summary = summary(adapter);
         let mut wanted_features = wgpu::Features::SHADER_F64 | wgpu::Features::SUBGROUP | wgpu::Features::TIMESTAMP_QUERY;
         // Where the device shares the host's memory (lavapipe, integrated GPUs), storage buffers
@@ -142,7 +241,23 @@ impl GpuContext {
         }))
         .map_err(|e| GpuError::Device { adapter: summary.name.clone(), reason: e.to_string() })?;
         let mapped_storage = device.features().contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
-        Ok(Self { device, queue, summary, mapped_storage })
+        let faults = Arc::new(Faults::default());
+        let sink = faults.clone();
+        device.on_uncaptured_error(Arc::new(move |error: wgpu::Error| keep_first(&sink.uncaptured, error.to_string())));
+        let sink = faults.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            if reason != wgpu::DeviceLostReason::Destroyed {
+                keep_first(&sink.lost, format!("{reason:?}: {message}"));
+            }
+        });
+        let seconds = std::env::var(TIMEOUT_ENV).ok().and_then(|s| s.trim().parse::<u64>().ok()).filter(|&s| s > 0).unwrap_or(DEFAULT_TIMEOUT_S);
+        Ok(Self { device, queue, summary, mapped_storage, faults, timeout: std::time::Duration::from_secs(seconds) })
+    }
+
+    /// The wgpu device, for a pipeline that runs its own work beside flatport's. Errors it raises
+    /// outside an error scope are reported by [`check`](Self::check), not by a panic.
+    pub fn device(&self) -> &wgpu::Device {
+        &self.device
     }
 
     /// The adapter in use.
@@ -179,26 +294,71 @@ impl GpuContext {
     }
 
     /// Compiles a composed WGSL kernel with entry point `main` into a pipeline.
-    pub(crate) fn pipeline(&self, label: &str, source: &str) -> wgpu::ComputePipeline {
+    ///
+    /// Errors: [`GpuError::Kernel`] naming the kernel when the adapter refuses the shader or the
+    /// pipeline (caught in an error scope: wgpu's default would panic).
+    pub fn pipeline(&self, label: &str, source: &str) -> Result<wgpu::ComputePipeline, GpuError> {
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(label),
             source: wgpu::ShaderSource::Wgsl(source.into()),
         });
-        self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some(label),
             layout: None,
             module: &module,
             entry_point: Some("main"),
             compilation_options: Default::default(),
             cache: None,
-        })
+        });
+        match pollster::block_on(scope.pop()) {
+            Some(error) => Err(GpuError::Kernel { kernel: label.to_string(), reason: error.to_string() }),
+            None => Ok(pipeline),
+        }
     }
 
-    /// Workgroup counts (x, y) for `items` items in 64-wide workgroups: 2-D past the per-dimension limit.
+    /// Allocates a buffer of `bytes`.
+    ///
+    /// Errors: [`GpuError::OutOfMemory`] naming the buffer when `bytes` exceeds the adapter's
+    /// largest buffer or the device has no memory left; [`GpuError::Validation`] when the adapter
+    /// refuses the descriptor (a usage it does not allow). Both are caught in error scopes.
+    pub fn buffer(&self, label: &str, bytes: u64, usage: wgpu::BufferUsages) -> Result<wgpu::Buffer, GpuError> {
+        let limit = self.device.limits().max_buffer_size;
+        let refuse = |reason: String| GpuError::OutOfMemory { label: label.to_string(), bytes, reason };
+        if bytes > limit {
+            return Err(refuse(format!("the adapter's largest buffer is {limit} bytes")));
+        }
+        let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: bytes, usage, mapped_at_creation: false });
+        let invalid = pollster::block_on(validation.pop());
+        let exhausted = pollster::block_on(memory.pop());
+        if let Some(error) = exhausted {
+            return Err(refuse(error.to_string()));
+        }
+        match invalid {
+            Some(error) => Err(GpuError::Validation { what: format!("buffer '{label}' of {bytes} bytes"), reason: error.to_string() }),
+            None => Ok(buffer),
+        }
+    }
+
+    /// Errors that wgpu reported since the last check outside an error scope, or the loss of the
+    /// device: [`GpuError::DeviceLost`], or [`GpuError::Validation`] saying what was being done.
+    pub fn check(&self, what: &str) -> Result<(), GpuError> {
+        if let Some(reason) = take(&self.faults.lost) {
+            // Kept: every later call on a lost device fails too.
+            keep_first(&self.faults.lost, reason.clone());
+            return Err(GpuError::DeviceLost(reason));
+        }
+        match take(&self.faults.uncaptured) {
+            Some(reason) => Err(GpuError::Validation { what: what.to_string(), reason }),
+            None => Ok(()),
+        }
+    }
+
+    /// Workgroup counts (x, y) for `items` items in 64-wide workgroups: see [`dispatch_grid`].
     pub(crate) fn dispatch_size(&self, items: u32) -> (u32, u32) {
-        let groups = items.div_ceil(64).max(1);
-        let max = self.summary.max_workgroups_per_dimension.max(1);
-        if groups <= max { (groups, 1) } else { (max, groups.div_ceil(max)) }
+        dispatch_grid(items, self.summary.max_workgroups_per_dimension)
     }
 
     /// Submits `encoder` after copying each `(source, staging, bytes)` into its staging buffer
@@ -242,12 +402,75 @@ impl GpuContext {
         Ok(result)
     }
 
-    /// Blocks until every submitted command has finished.
+    /// Blocks until every submitted command has finished, at most the context's timeout
+    /// ([`TIMEOUT_ENV`]), then [`check`](Self::check)s for errors and the loss of the device.
     pub(crate) fn wait(&self) -> Result<(), GpuError> {
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map(drop).map_err(|e| GpuError::Readback(e.to_string()))
+        let polled = self.device.poll(wgpu::PollType::Wait { submission_index: None, timeout: Some(self.timeout) });
+        match polled {
+            Ok(_) => self.check("a submitted kernel"),
+            Err(wgpu::PollError::Timeout) => Err(GpuError::Timeout { seconds: self.timeout.as_secs() }),
+            Err(error) => {
+                self.check("a submitted kernel")?;
+                Err(GpuError::Readback(error.to_string()))
+            }
+        }
     }
+}
+
+/// Workgroup counts (x, y) for `items` items in 64-wide workgroups, at most `max_per_dimension`
+/// per dimension: 1-D while it fits, else y rows of x groups with x·y as close above the needed
+/// count as the rows allow (fewer than y spare groups), since the kernels index items as
+/// `gid.x + gid.y · groups.x · 64` and guard the tail. A full 2²² chunk is 65 536 groups: 2 rows of
+/// 32 768, not 2 rows of 65 535 (twice the work).
+pub(crate) fn dispatch_grid(items: u32, max_per_dimension: u32) -> (u32, u32) {
+    let groups = items.div_ceil(64).max(1);
+    let max = max_per_dimension.max(1);
+    if groups <= max {
+        return (groups, 1);
+    }
+    let rows = groups.div_ceil(max);
+    (groups.div_ceil(rows), rows)
 }
 
 fn list(names: &[String]) -> String {
     if names.is_empty() { "none".to_string() } else { names.join(", ") }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::dispatch_grid;
+
+    fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
+        wgpu::AdapterInfo { name: name.into(), device_type, ..wgpu::AdapterInfo::new(wgpu::DeviceType::Other, wgpu::Backend::Vulkan) }
+    }
+
+    #[test]
+    fn adapters_are_chosen_discrete_first_then_by_index_or_name() {
+        use super::choose_adapter;
+        use wgpu::DeviceType as T;
+        let machine = [info("llvmpipe (LLVM 15)", T::Cpu), info("Intel UHD 770", T::IntegratedGpu), info("NVIDIA H200", T::DiscreteGpu), info("NVIDIA H200", T::DiscreteGpu)];
+        assert_eq!(choose_adapter(&machine, None), Ok(2));
+        assert_eq!(choose_adapter(&machine[..2], None), Ok(1));
+        assert_eq!(choose_adapter(&machine[..1], None), Ok(0));
+        assert_eq!(choose_adapter(&machine, Some("3")), Ok(3), "the second of two identical GPUs");
+        assert_eq!(choose_adapter(&machine, Some("h200")), Ok(2));
+        assert_eq!(choose_adapter(&machine, Some("LLVMPIPE")), Ok(0));
+        let error = choose_adapter(&machine, Some("4")).unwrap_err();
+        assert!(error.contains("index 4") && error.contains("3: NVIDIA H200"), "{error}");
+        assert!(choose_adapter(&machine, Some("radeon")).unwrap_err().contains("'radeon'"));
+        assert!(choose_adapter(&[], None).is_err());
+    }
+
+    #[test]
+    fn dispatch_grids_cover_every_item_with_fewer_spare_groups_than_rows() {
+        for items in [1u32, 63, 64, 65, 65_535 * 64, 65_535 * 64 + 1, 1 << 22, (1 << 22) + 17, u32::MAX] {
+            let (x, y) = dispatch_grid(items, 65_535);
+            let needed = items.div_ceil(64) as u64;
+            assert!(x <= 65_535 && y <= 65_535, "{items}: {x} × {y}");
+            assert!(x as u64 * y as u64 >= needed, "{items}: {x} × {y} misses items");
+            assert!(x as u64 * y as u64 - needed < y as u64, "{items}: {x} × {y} for {needed} groups");
+        }
+        assert_eq!(dispatch_grid(1 << 22, 65_535), (32_768, 2));
+        assert_eq!(dispatch_grid(0, 65_535), (1, 1));
+    }
 }

@@ -29,17 +29,41 @@ pub const MAX_CHUNK_ITEMS: usize = 1 << 22;
 /// Largest workgroup count per dispatch dimension every Vulkan adapter supports.
 const MAX_GROUPS_PER_DIMENSION: usize = 65_535;
 
+/// The clock behind a kernel time of [`GpuEngine::kernel_seconds`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum KernelTimer {
+    /// GPU timestamps at the start and end of the compute pass: the kernel alone.
+    GpuTimestamp,
+    /// Host clocks around submit and wait: the kernel plus the driver's latency.
+    Host,
+}
+
+impl KernelTimer {
+    /// `gpu_timestamp` or `host`, as `flatport bench --json` writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::GpuTimestamp => "gpu_timestamp",
+            Self::Host => "host",
+        }
+    }
+}
+
 /// A buffer that is replaced when a call needs more bytes or another usage.
 #[derive(Default)]
 struct Slot(Option<wgpu::Buffer>);
 
 impl Slot {
-    fn get(&mut self, device: &wgpu::Device, label: &str, bytes: usize, usage: wgpu::BufferUsages) -> &wgpu::Buffer {
+    fn get(&mut self, context: &GpuContext, label: &str, bytes: usize, usage: wgpu::BufferUsages) -> Result<&wgpu::Buffer, GpuError> {
         let bytes = (bytes.max(16) as u64).next_multiple_of(16);
-        if self.0.as_ref().is_none_or(|b| b.size() < bytes || b.usage() != usage) {
-            self.0 = Some(device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: bytes, usage, mapped_at_creation: false }));
+        match &mut self.0 {
+            Some(buffer) if buffer.size() >= bytes && buffer.usage() == usage => {}
+            slot => {
+                // The old buffer goes first, so that both never hold device memory at once.
+                *slot = None;
+                *slot = Some(context.buffer(label, bytes, usage)?);
+            }
         }
-        self.0.as_ref().expect("just set")
+        Ok(self.0.as_ref().expect("just set"))
     }
 }
 
@@ -165,15 +189,15 @@ impl GpuEngine {
     }
 
     /// The compiled pipeline of `kernel`, compiled on first use.
-    fn pipeline(&self, kernel: Kernel) -> Arc<wgpu::ComputePipeline> {
+    fn pipeline(&self, kernel: Kernel) -> Result<Arc<wgpu::ComputePipeline>, GpuError> {
         let mut cache = self.pipelines.lock().expect("pipeline cache");
-        cache
-            .entry(kernel)
-            .or_insert_with(|| {
-                let precision = kernel.fixed_precision().unwrap_or(self.precision);
-                Arc::new(self.context.pipeline(kernel.name(), &source(kernel, precision, self.reduction)))
-            })
-            .clone()
+        if let Some(pipeline) = cache.get(&kernel) {
+            return Ok(pipeline.clone());
+        }
+        let precision = kernel.fixed_precision().unwrap_or(self.precision);
+        let pipeline = Arc::new(self.context.pipeline(kernel.name(), &source(kernel, precision, self.reduction))?);
+        cache.insert(kernel, pipeline.clone());
+        Ok(pipeline)
     }
 
     fn buffers(&self) -> MutexGuard<'_, Buffers> {
@@ -199,15 +223,15 @@ impl GpuEngine {
 
     /// A buffer of `bytes` the kernels write, and the buffer the host maps to read it: the same
     /// one where the adapter shares the host's memory, a staging copy otherwise.
-    fn readable(&self, slot: &mut Slot, staging: &mut Slot, label: &str, bytes: usize) -> (wgpu::Buffer, wgpu::Buffer) {
+    fn readable(&self, slot: &mut Slot, staging: &mut Slot, label: &str, bytes: usize) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
         use wgpu::BufferUsages as U;
-        let device = &self.context.device;
-        if self.context.maps_storage() {
-            let buffer = slot.get(device, label, bytes, U::STORAGE | U::MAP_READ).clone();
-            (buffer.clone(), buffer)
+        let context = &self.context;
+        if context.maps_storage() {
+            let buffer = slot.get(context, label, bytes, U::STORAGE | U::MAP_READ)?.clone();
+            Ok((buffer.clone(), buffer))
         } else {
-            let buffer = slot.get(device, label, bytes, U::STORAGE | U::COPY_SRC).clone();
-            (buffer, staging.get(device, label, bytes, U::MAP_READ | U::COPY_DST).clone())
+            let buffer = slot.get(context, label, bytes, U::STORAGE | U::COPY_SRC)?.clone();
+            Ok((buffer, staging.get(context, label, bytes, U::MAP_READ | U::COPY_DST)?.clone()))
         }
     }
 
@@ -265,15 +289,14 @@ impl GpuEngine {
         Self::check_layers(b)?;
         let s = self.precision.size();
         let chunk = self.chunk_items(N.max(M) * s).min(input.len().max(1));
-        let pipeline = self.pipeline(kernel);
-        let device = &self.context.device;
+        let pipeline = self.pipeline(kernel)?;
         let mut params = pack_params(self.precision, a, b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = buffers.uniform.get(device, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST).clone();
-        let in_buf = buffers.input.get(device, "input", chunk * N * s, self.input_usage()).clone();
-        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", chunk * M * s);
-        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", chunk * 4);
+        let uniform = buffers.uniform.get(&self.context, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
+        let in_buf = buffers.input.get(&self.context, "input", chunk * N * s, self.input_usage())?.clone();
+        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", chunk * M * s)?;
+        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", chunk * 4)?;
         let bind_group = self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)]);
         for start in (0..input.len()).step_by(chunk) {
             let end = (start + chunk).min(input.len());
@@ -303,7 +326,9 @@ impl GpuEngine {
 
     /// Seconds per dispatch of `kernel` over `input` (one chunk at most), the data already on the
     /// device: the kernel-only time, without upload or read-back. Runs `repeats` dispatches after
-    /// one warm-up and returns the fastest.
+    /// one warm-up and returns the fastest, with the clock that measured it: GPU timestamps written
+    /// at the start and end of the compute pass where the device has TIMESTAMP_QUERY (the kernel's
+    /// own time), else host clocks around submit and wait (which add the driver's latency).
     pub fn kernel_seconds<const N: usize, const M: usize>(
         &self,
         kernel: Kernel,
@@ -311,27 +336,60 @@ impl GpuEngine {
         b: &RefractiveCamera,
         input: &[[f64; N]],
         repeats: usize,
-    ) -> Result<f64, GpuError> {
+    ) -> Result<(f64, KernelTimer), GpuError> {
         let mut output = vec![[0.0; M]; input.len()];
         let mut status = vec![0; input.len()];
         let chunk = self.chunk_items(N.max(M) * self.precision.size());
-        assert!(input.len() <= chunk, "kernel_seconds takes one chunk ({chunk} items) at most");
+        if input.len() > chunk {
+            return Err(GpuError::Unsupported(format!("kernel_seconds takes one chunk ({chunk} items) at most, got {}", input.len())));
+        }
         // Uploads the data and leaves it resident in the reused buffers.
         self.run_map(kernel, a, b, input, &mut output, &mut status)?;
-        let pipeline = self.pipeline(kernel);
+        let pipeline = self.pipeline(kernel)?;
         let buffers = self.buffers();
         let resident = |slot: &Slot| slot.0.clone().expect("allocated by run_map");
         let (uniform, in_buf, out_buf, status_buf) = (resident(&buffers.uniform), resident(&buffers.input), resident(&buffers.output), resident(&buffers.status));
         let bind_group = self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)]);
+        let groups = self.context.dispatch_size(input.len() as u32);
+        let device = self.context.device();
+        let timestamps = device.features().contains(wgpu::Features::TIMESTAMP_QUERY).then(|| {
+            let queries = device.create_query_set(&wgpu::QuerySetDescriptor { label: Some("kernel time"), ty: wgpu::QueryType::Timestamp, count: 2 });
+            (queries, self.context.buffer("kernel time", 16, wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC), self.context.buffer("kernel time staging", 16, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST))
+        });
         let mut best = f64::INFINITY;
-        for _ in 0..=repeats {
-            let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), self.context.dispatch_size(input.len() as u32));
-            let started = std::time::Instant::now();
-            self.context.queue.submit([encoder.finish()]);
-            self.context.wait()?;
-            best = best.min(started.elapsed().as_secs_f64());
+        match timestamps {
+            Some((queries, resolve, staging)) => {
+                let (resolve, staging) = (resolve?, staging?);
+                let tick = self.context.queue.get_timestamp_period() as f64 * 1e-9;
+                for _ in 0..=repeats {
+                    let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(kernel.name()) });
+                    {
+                        let writes = wgpu::ComputePassTimestampWrites { query_set: &queries, beginning_of_pass_write_index: Some(0), end_of_pass_write_index: Some(1) };
+                        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(kernel.name()), timestamp_writes: Some(writes) });
+                        pass.set_pipeline(&pipeline);
+                        pass.set_bind_group(0, &bind_group, &[]);
+                        pass.dispatch_workgroups(groups.0, groups.1, 1);
+                    }
+                    encoder.resolve_query_set(&queries, 0..2, &resolve, 0);
+                    let ticks = self.context.read_back(encoder, &[(&resolve, &staging, 16)], |data| {
+                        let stamps: &[u64] = bytemuck::cast_slice(data[0]);
+                        stamps[1].saturating_sub(stamps[0])
+                    })?;
+                    best = best.min(ticks as f64 * tick);
+                }
+                Ok((best, KernelTimer::GpuTimestamp))
+            }
+            None => {
+                for _ in 0..=repeats {
+                    let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), groups);
+                    let started = std::time::Instant::now();
+                    self.context.queue.submit([encoder.finish()]);
+                    self.context.wait()?;
+                    best = best.min(started.elapsed().as_secs_f64());
+                }
+                Ok((best, KernelTimer::Host))
+            }
         }
-        Ok(best)
     }
 
     /// Back-projects raw pixels of `camera` into `rays` (origin xyz on the outer interface, unit
@@ -404,14 +462,13 @@ impl GpuEngine {
         Self::check_layers(camera)?;
         let s = self.precision.size();
         let rows = (self.chunk_items(6 * s) / w).clamp(1, MAX_GROUPS_PER_DIMENSION);
-        let pipeline = self.pipeline(Kernel::BackprojectGrid);
-        let device = &self.context.device;
+        let pipeline = self.pipeline(Kernel::BackprojectGrid)?;
         let mut params = pack_params(self.precision, camera, camera, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = buffers.uniform.get(device, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST).clone();
-        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", rows * w * 6 * s);
-        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", rows * w * 4);
+        let uniform = buffers.uniform.get(&self.context, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
+        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", rows * w * 6 * s)?;
+        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", rows * w * 4)?;
         let bind_group = self.bind_group(&pipeline, "backproject_grid", &[(0, &uniform), (2, &out_buf), (3, &status_buf)]);
         for first in (0..h).step_by(rows) {
             let count = rows.min(h - first);
@@ -466,16 +523,15 @@ impl GpuEngine {
         let pairs_per_chunk = (self.chunk_items(6 * s)).min(64 * MAX_GROUPS_PER_DIMENSION).min(air_rays.len());
         let groups_x = pairs_per_chunk.div_ceil(64);
         let candidates_per_chunk = (self.max_chunk_items / groups_x).clamp(1, MAX_GROUPS_PER_DIMENSION).min(candidates.len());
-        let pipeline = self.pipeline(Kernel::RayGapCost);
-        let device = &self.context.device;
+        let pipeline = self.pipeline(Kernel::RayGapCost)?;
         let mut params = pack_params(self.precision, a, b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
         let partial_bytes = candidates_per_chunk * groups_x * 2 * s;
-        let uniform = buffers.uniform.get(device, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST).clone();
-        let in_buf = buffers.input.get(device, "input", pairs_per_chunk * 6 * s, self.input_usage()).clone();
-        let cand_buf = buffers.candidates.get(device, "candidates", candidates_per_chunk * 4 * s, self.input_usage()).clone();
-        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", partial_bytes);
+        let uniform = buffers.uniform.get(&self.context, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
+        let in_buf = buffers.input.get(&self.context, "input", pairs_per_chunk * 6 * s, self.input_usage())?.clone();
+        let cand_buf = buffers.candidates.get(&self.context, "candidates", candidates_per_chunk * 4 * s, self.input_usage())?.clone();
+        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", partial_bytes)?;
         let bind_group = self.bind_group(&pipeline, "ray_gap_cost", &[(0, &uniform), (1, &in_buf), (2, &out_buf), (4, &cand_buf)]);
         for pair_start in (0..air_rays.len()).step_by(pairs_per_chunk) {
             let pair_end = (pair_start + pairs_per_chunk).min(air_rays.len());

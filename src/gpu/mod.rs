@@ -13,5 +13,5 @@ pub mod layout;
 pub mod shaders;
 
 pub use context::{AdapterSummary, GpuContext, GpuError, adapters};
-pub use engine::{AffineGridInput, GpuEngine};
+pub use engine::{AffineGridInput, GpuEngine, KernelTimer};
 pub use shaders::{Kernel, Precision, Reduction};

@@ -2,11 +2,10 @@
 //! array never has to be in memory, into a temporary file renamed into place by
 //! [`NpyWriter::finish`].
 
-use std::fs::File;
-use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::io::Write;
+use std::path::Path;
 
-use super::{IoError, temporary_path};
+use super::{IoError, OutputFile};
 
 /// The 10-byte preamble and the header dict, padded with spaces and a newline so the data starts
 /// on a 64-byte boundary, as numpy writes it.
@@ -23,39 +22,27 @@ pub fn npy_header(shape: &[usize]) -> Vec<u8> {
     bytes
 }
 
-/// A `.npy` file being written value by value in C order. Dropped before
-/// [`finish`](Self::finish) (an error, an interruption), it removes its temporary file.
+/// A `.npy` file being written value by value in C order, through an [`OutputFile`] (a temporary
+/// file renamed into place by [`finish`](Self::finish)). Dropped before `finish` (an error, an
+/// interruption), it removes its temporary file.
 pub struct NpyWriter {
-    path: PathBuf,
-    temporary: PathBuf,
-    out: Option<BufWriter<File>>,
+    out: OutputFile,
     expected: usize,
     written: usize,
-}
-
-impl Drop for NpyWriter {
-    fn drop(&mut self) {
-        if self.out.take().is_some() {
-            let _ = std::fs::remove_file(&self.temporary);
-        }
-    }
 }
 
 impl NpyWriter {
     /// Starts `path` (written under a temporary name until [`finish`](Self::finish)).
     pub fn create(path: &Path, shape: &[usize]) -> Result<Self, IoError> {
-        let temporary = temporary_path(path);
-        let err = |source| IoError::Write { path: path.to_path_buf(), source };
-        let mut out = BufWriter::new(File::create(&temporary).map_err(err)?);
-        out.write_all(&npy_header(shape)).map_err(err)?;
-        Ok(Self { path: path.to_path_buf(), temporary, out: Some(out), expected: shape.iter().product(), written: 0 })
+        let mut out = OutputFile::create(Some(path))?;
+        out.write_all(&npy_header(shape)).map_err(|source| out.write_error(source))?;
+        Ok(Self { out, expected: shape.iter().product(), written: 0 })
     }
 
     /// Appends values.
     pub fn write(&mut self, values: &[f64]) -> Result<(), IoError> {
-        let out = self.out.as_mut().expect("open until finished");
         for v in values {
-            out.write_all(&v.to_le_bytes()).map_err(|source| IoError::Write { path: self.path.clone(), source })?;
+            self.out.write_all(&v.to_le_bytes()).map_err(|source| self.out.write_error(source))?;
         }
         self.written += values.len();
         Ok(())
@@ -63,25 +50,14 @@ impl NpyWriter {
 
     /// Flushes and renames into place. Errors (and removes the temporary file) when fewer or more
     /// values than the shape holds were written.
-    pub fn finish(mut self) -> Result<(), IoError> {
-        let out = self.out.take().expect("open until finished");
-        let (path, temporary) = (self.path.clone(), self.temporary.clone());
-        let result = if self.written != self.expected {
-            Err(IoError::Write {
-                path: path.clone(),
-                source: std::io::Error::other(format!("{} values written for a shape of {}", self.written, self.expected)),
-            })
-        } else {
-            out.into_inner()
-                .map_err(|e| e.into_error())
-                .and_then(|f| f.sync_all())
-                .and_then(|()| std::fs::rename(&temporary, &path))
-                .map_err(|source| IoError::Write { path: path.clone(), source })
-        };
-        if result.is_err() {
-            let _ = std::fs::remove_file(&temporary);
+    pub fn finish(self) -> Result<(), IoError> {
+        if self.written != self.expected {
+            return Err(self.out.write_error(std::io::Error::other(format!(
+                "{} values written for a shape of {}",
+                self.written, self.expected
+            ))));
         }
-        result
+        self.out.finish()
     }
 }
 

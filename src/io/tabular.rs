@@ -13,10 +13,10 @@
 //!   it (to report malformed input before anything reaches standard output).
 
 use std::fs::File;
-use std::io::{BufRead, BufReader, BufWriter, Read, Stdout, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 
-use super::{IoError, temporary_path};
+use super::{IoError, OutputFile};
 
 /// Buffer size of the readers and writers opened here: large enough that system calls cost
 /// nothing next to parsing and formatting.
@@ -402,11 +402,12 @@ pub fn write_table<const M: usize>(
 /// Writes a CSV table chunk by chunk in bounded memory: the streaming form of [`write_table`],
 /// with the same bytes for the same rows.
 ///
-/// To a file: the lines go through a buffer into a temporary file beside the target (unique per
-/// process and writer), which [`finish`](Self::finish) flushes to disk and renames onto the target.
-/// Until then the target is untouched (an existing file keeps its old content); a writer dropped
-/// without `finish` (an error, a panic, an interrupted command) removes its temporary file. To
-/// standard output: the lines go through a buffer as they come, and cannot be taken back.
+/// The lines go through an [`OutputFile`]: to a regular file (or a new path, or a link to one)
+/// through a temporary file beside it, which [`finish`](Self::finish) flushes to disk and renames
+/// onto the target; until then the target is untouched, and a writer dropped without `finish` (an
+/// error, a panic, an interrupted command) removes its temporary file. To standard output, a device
+/// node or a FIFO the lines go out as they come and cannot be taken back
+/// ([`streams`](Self::streams)).
 ///
 /// ```no_run
 /// # fn main() -> Result<(), flatport::io::IoError> {
@@ -419,7 +420,9 @@ pub fn write_table<const M: usize>(
 /// ```
 #[derive(Debug)]
 pub struct TableWriter<const M: usize> {
-    output: Output,
+    output: OutputFile,
+    /// The header row, written before the first data row (or at `finish` for an empty table).
+    header: Option<String>,
     /// The text of the row being written, reused for every row.
     line: String,
     /// `NaN,…,NaN\n`.
@@ -427,62 +430,35 @@ pub struct TableWriter<const M: usize> {
     summary: TableWriteSummary,
 }
 
-#[derive(Debug)]
-enum Output {
-    File {
-        // Declared before `temporary`: the file is closed before it is removed (Windows needs it).
-        writer: BufWriter<File>,
-        temporary: TemporaryFile,
-        target: PathBuf,
-    },
-    // `Stdout` locks once per buffer flush; unlike its lock it lets the writer move to a thread.
-    Stdout(BufWriter<Stdout>),
-}
-
 impl<const M: usize> TableWriter<M> {
-    /// Starts a table with the header row `header`: into a temporary file beside `output`, or to
-    /// standard output when `output` is `None` or `-`.
+    /// Starts a table with the header row `header` into `output` (standard output when `None` or
+    /// `-`; see [`OutputFile`] for files, links, devices and FIFOs). Nothing reaches a streamed
+    /// output before the first [`write_rows`](Self::write_rows) or [`finish`](Self::finish).
     ///
-    /// Errors: [`IoError::Write`] naming `output` when the temporary file cannot be created (a
-    /// missing folder, no permission).
+    /// Errors: [`IoError::Write`] naming `output` when it cannot be opened (a missing folder, no
+    /// permission, a folder).
     pub fn create(output: Option<&Path>, header: [&str; M]) -> Result<Self, IoError> {
-        let output = match output {
-            Some(target) if target.as_os_str() != "-" => {
-                let temporary = TemporaryFile {
-                    path: temporary_path(target),
-                    keep: false,
-                };
-                let file = File::create(&temporary.path).map_err(|source| IoError::Write {
-                    path: target.to_path_buf(),
-                    source,
-                })?;
-                Output::File {
-                    writer: BufWriter::with_capacity(BUFFER_BYTES, file),
-                    temporary,
-                    target: target.to_path_buf(),
-                }
-            }
-            _ => Output::Stdout(BufWriter::with_capacity(BUFFER_BYTES, std::io::stdout())),
-        };
+        let output = OutputFile::create(output)?;
         let mut nan_line = vec!["NaN"; M].join(",");
         nan_line.push('\n');
-        let mut writer = TableWriter {
+        let mut header = header.join(",");
+        header.push('\n');
+        Ok(TableWriter {
             output,
-            line: header.join(","),
+            header: Some(header),
+            line: String::new(),
             nan_line,
             summary: TableWriteSummary {
                 rows: 0,
                 nan_rows: 0,
             },
-        };
-        writer.line.push('\n');
-        let Self { output, line, .. } = &mut writer;
-        let result = match output {
-            Output::File { writer, .. } => writer.write_all(line.as_bytes()),
-            Output::Stdout(writer) => writer.write_all(line.as_bytes()),
-        };
-        result.map_err(|source| writer.write_error(source))?;
-        Ok(writer)
+        })
+    }
+
+    /// Whether written rows reach the destination at once (standard output, a device, a FIFO)
+    /// rather than at [`finish`](Self::finish): see [`OutputFile::streams`].
+    pub fn streams(&self) -> bool {
+        self.output.streams()
     }
 
     /// Appends one line per row, in order: the numbers of `Some` with Rust's `{}` for f64 (the
@@ -493,18 +469,16 @@ impl<const M: usize> TableWriter<M> {
         &mut self,
         rows: impl IntoIterator<Item = Option<[f64; M]>>,
     ) -> Result<(), IoError> {
+        self.write_header()?;
         let Self {
             output,
             line,
             nan_line,
             summary,
+            ..
         } = self;
-        // Match once per call, so the loop is compiled for each sink without dynamic dispatch.
-        let result = match output {
-            Output::File { writer, .. } => write_lines(writer, rows, line, nan_line, summary),
-            Output::Stdout(writer) => write_lines(writer, rows, line, nan_line, summary),
-        };
-        result.map_err(|source| self.write_error(source))
+        write_lines(output, rows, line, nan_line, summary)
+            .map_err(|source| self.output.write_error(source))
     }
 
     /// Rows written so far.
@@ -512,44 +486,25 @@ impl<const M: usize> TableWriter<M> {
         self.summary
     }
 
-    /// Completes the table: flushes it and, for a file, syncs the temporary file to disk and
-    /// renames it onto the target, so the target appears whole or not at all. Returns the rows
-    /// written.
+    /// Completes the table (see [`OutputFile::finish`]): the target appears whole or not at all.
+    /// Returns the rows written.
     ///
-    /// Errors: [`IoError::Write`] naming the output when flushing, syncing or renaming fails (for
-    /// instance when the target is a folder); the temporary file is then removed and the target
-    /// left as it was.
-    pub fn finish(self) -> Result<TableWriteSummary, IoError> {
-        match self.output {
-            Output::File {
-                writer,
-                temporary,
-                target,
-            } => {
-                let error = |source| IoError::Write {
-                    path: target.clone(),
-                    source,
-                };
-                let file = writer.into_inner().map_err(|e| error(e.into_error()))?;
-                file.sync_all().map_err(error)?;
-                drop(file);
-                std::fs::rename(&temporary.path, &target).map_err(error)?;
-                temporary.keep();
-            }
-            Output::Stdout(mut writer) => writer.flush().map_err(|source| IoError::Write {
-                path: "-".into(),
-                source,
-            })?,
-        }
+    /// Errors: [`IoError::Write`] naming the output when writing, flushing, syncing or renaming
+    /// fails (a full device among them); the temporary file is then removed and the target left
+    /// as it was.
+    pub fn finish(mut self) -> Result<TableWriteSummary, IoError> {
+        self.write_header()?;
+        self.output.finish()?;
         Ok(self.summary)
     }
 
-    fn write_error(&self, source: std::io::Error) -> IoError {
-        let path = match &self.output {
-            Output::File { target, .. } => target.clone(),
-            Output::Stdout(_) => "-".into(),
-        };
-        IoError::Write { path, source }
+    fn write_header(&mut self) -> Result<(), IoError> {
+        if let Some(header) = self.header.take() {
+            self.output
+                .write_all(header.as_bytes())
+                .map_err(|source| self.output.write_error(source))?;
+        }
+        Ok(())
     }
 }
 
@@ -585,28 +540,6 @@ fn write_lines<W: Write, const M: usize>(
         sink.write_all(text.as_bytes())?;
     }
     Ok(())
-}
-
-/// A temporary file that is removed when dropped, unless kept.
-#[derive(Debug)]
-struct TemporaryFile {
-    path: PathBuf,
-    keep: bool,
-}
-
-impl TemporaryFile {
-    /// Forgets the file: it was renamed into place.
-    fn keep(mut self) {
-        self.keep = true;
-    }
-}
-
-impl Drop for TemporaryFile {
-    fn drop(&mut self) {
-        if !self.keep {
-            let _ = std::fs::remove_file(&self.path);
-        }
-    }
 }
 
 #[cfg(test)]

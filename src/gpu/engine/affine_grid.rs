@@ -84,17 +84,16 @@ impl GpuEngine {
             return Err(GpuError::Unsupported(format!("{} corner rows do not fit one binding of {cap} bytes", input.rows)));
         }
         let kernel = Kernel::CalibAffineGrid;
-        let pipeline = self.pipeline(kernel);
-        let device = &self.context.device;
+        let pipeline = self.pipeline(kernel)?;
         let mut params = pack_params(precision, &a, &b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = buffers.uniform.get(device, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST).clone();
-        let in_buf = buffers.input.get(device, "input", input.reals.len() * real, self.input_usage()).clone();
-        let cand_buf = buffers.candidates.get(device, "candidates", per_view * 4 * real, self.input_usage()).clone();
+        let uniform = buffers.uniform.get(&self.context, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
+        let in_buf = buffers.input.get(&self.context, "input", input.reals.len() * real, self.input_usage())?.clone();
+        let cand_buf = buffers.candidates.get(&self.context, "candidates", per_view * 4 * real, self.input_usage())?.clone();
         let items = per_view * views_per_chunk;
-        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", items * 2 * real);
-        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", items * 4);
+        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", items * 2 * real)?;
+        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", items * 4)?;
         let bind_group = self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf), (4, &cand_buf)]);
         self.upload(&in_buf, bytemuck::cast_slice(&input.reals))?;
         let mut chunk_axes = vec![[0.0; 4]; per_view];

@@ -137,8 +137,7 @@ impl GpuEngine {
             )));
         }
         let per_chunk = per_chunk.min(candidates.len());
-        let pipeline = self.pipeline(kernel);
-        let device = &self.context.device;
+        let pipeline = self.pipeline(kernel)?;
         let mut params = pack_params(self.precision, &a, &b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
@@ -146,11 +145,11 @@ impl GpuEngine {
             Rows::PerCorner => corners,
             Rows::PerItem => per_chunk * corners,
         };
-        let uniform = buffers.uniform.get(device, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST).clone();
-        let in_buf = buffers.input.get(device, "input", input_rows * N * s, self.input_usage()).clone();
-        let cand_buf = buffers.candidates.get(device, "candidates", per_chunk * 4 * s, self.input_usage()).clone();
-        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", per_chunk * corners * M * s);
-        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", per_chunk * corners * 4);
+        let uniform = buffers.uniform.get(&self.context, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
+        let in_buf = buffers.input.get(&self.context, "input", input_rows * N * s, self.input_usage())?.clone();
+        let cand_buf = buffers.candidates.get(&self.context, "candidates", per_chunk * 4 * s, self.input_usage())?.clone();
+        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", per_chunk * corners * M * s)?;
+        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", per_chunk * corners * 4)?;
         let bind_group =
             self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf), (4, &cand_buf)]);
         if rows == Rows::PerCorner {
