@@ -16,6 +16,9 @@
 //!   interface i lies on n·X = d + t₀ + … + t_(i−1). Camera k's own air layer is d_k = d − n·C_k.
 //! - Precision: everything here is f64.
 //!
+//! The conventions and relations in full, with the thesis' equation numbers (T. Dolereit's thesis
+//! on Virtual Object Points for flat refractive systems), are in `docs/DESIGN.md`.
+//!
 //! ## Example
 //! ```
 //! use flatport::model::{Interface, Layer, PinholeCamera, Rig, RigCamera};
@@ -39,6 +42,11 @@
 #![deny(missing_docs)]
 // `!(x > 0.0)` is deliberate throughout: unlike `x <= 0.0` it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+/// The README's Rust examples, compiled and run by `cargo test --doc` so that they stay true.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;
 
 pub mod calib;
 pub mod engine;

@@ -224,7 +224,7 @@ pub fn calibrate_with_progress(
 ) -> Result<Calibration, CalibError> {
     let data = backend.data();
     let mut screening = None;
-    calibrate_screened(backend, options, warnings, progress, &mut screening).map_err(|error| match error {
+    calibrate_screened(backend, options, warnings, &mut screening, progress).map_err(|error| match error {
         CalibError::NoSolution { reason, .. } => {
             let noise = screening.as_ref().and_then(|s: &Screening| s.noise_px);
             // The local refinement does not know the search bound (it reports NaN): every
@@ -254,8 +254,8 @@ fn calibrate_screened(
     backend: &dyn CostBackend,
     options: &CalibrationOptions,
     warnings: Vec<String>,
-    progress: &mut dyn FnMut(&CalibrationProgress),
     screening_out: &mut Option<Screening>,
+    progress: &mut dyn FnMut(&CalibrationProgress),
 ) -> Result<Calibration, CalibError> {
     let started = Instant::now();
     let data = backend.data();

@@ -79,7 +79,7 @@ struct Figure {
 #[derive(Debug, Serialize)]
 struct Report {
     memory_stream_bytes_per_s: f64,
-    /// Not in the shape but useful: what ran.
+    /// What ran: the CPU's threads and the GPU adapter.
     cpu_threads: usize,
     gpu_adapter: Option<String>,
     results: Vec<Figure>,
@@ -261,7 +261,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         }
     }
 
-    print_targets(&results, stream, all.threads());
+    print_ratios(&results, stream, all.threads());
     if let Some(path) = &args.json {
         let report = Report { memory_stream_bytes_per_s: stream, cpu_threads: all.threads(), gpu_adapter: adapter, results };
         let text = serde_json::to_string_pretty(&report).context("serialising the report")?;
@@ -271,29 +271,30 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The targets as ratios of this run's figures.
-fn print_targets(results: &[Figure], stream: f64, threads: usize) {
+/// Ratios between the paths of this run, without verdicts: the speed goals, and the outside
+/// reference they were set against, are in the README's "Speed goals" section (this command
+/// cannot run that reference, so it does not compare against it).
+fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
     let rate = |kernel: &str, path: &str, precision: &str, threads: Option<usize>, stage: &str| {
         results
             .iter()
             .find(|f| f.kernel == kernel && f.path == path && f.precision == precision && threads.is_none_or(|t| f.threads == t) && f.stage == stage)
             .map(|f| f.items_per_s)
     };
-    outln!("\ntargets (ratios from this run):");
+    outln!("\nratios from this run (the goals are in the README, \"Speed goals\"):");
     let cpu_all = |k: &str| rate(k, "cpu", "f64", Some(threads), "end_to_end");
-    let check = |name: &str, value: Option<f64>, target: f64| match value {
-        Some(v) => outln!("  {name:58} {v:8.2}  (target ≥ {target}) {}", if v >= target { "met" } else { "NOT MET" }),
-        None => outln!("  {name:58}      n/a"),
+    let show = |name: &str, value: Option<f64>| match value {
+        Some(v) => outln!("  {name:60} {v:8.2}"),
+        None => outln!("  {name:60}      n/a"),
     };
     let ratio = |x: Option<f64>, y: Option<f64>| x.zip(y).map(|(x, y)| x / y);
-    check("backproject GPU f32 kernel / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "kernel"), cpu_all("backproject")), 1.5);
-    check("backproject GPU f32 end to end / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "end_to_end"), cpu_all("backproject")), 1.0);
+    show("backproject GPU f32 kernel / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "kernel"), cpu_all("backproject")));
+    show("backproject GPU f32 end to end / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "end_to_end"), cpu_all("backproject")));
     let best = results.iter().filter(|f| f.kernel == "backproject").map(|f| f.items_per_s).fold(0.0, f64::max);
-    check("best backproject × 24 B / streaming limit", Some(best * 24.0 / stream), 0.2);
-    check("project GPU f32 end to end / CPU f64 all threads", ratio(rate("project", "gpu", "f32", None, "end_to_end"), cpu_all("project")), 1.0);
-    check("project CPU f64 1 thread / C++ peer 4.3e5 points/s", rate("project", "cpu", "f64", Some(1), "end_to_end").map(|r| r / 4.3e5), 20.0);
-    check("backproject CPU f64 1 thread / C++ peer 2.1e7 rays/s", rate("backproject", "cpu", "f64", Some(1), "end_to_end").map(|r| r / 2.1e7), 2.0);
-    // 256 × 256 axes × 10 000 correspondences in under 10 s: 6.6e7 cell·correspondences/s.
-    check("sweep GPU (f64 kernel) cells·corr./s / 6.6e7 (256² × 1e4 in 10 s)", rate("sweep", "gpu", "f64", None, "end_to_end").map(|r| r / 6.6e7), 1.0);
-    check("sweep CPU f64 all threads cells·corr./s / 6.6e7", rate("sweep", "cpu", "f64", Some(threads), "end_to_end").map(|r| r / 6.6e7), 1.0);
+    show("best backproject × 24 B / memory streaming bandwidth", Some(best * 24.0 / stream));
+    show("project GPU f32 end to end / CPU f64 all threads", ratio(rate("project", "gpu", "f32", None, "end_to_end"), cpu_all("project")));
+    // The README's sweep figure: 256 × 256 axes over 10 000 correspondences.
+    let seconds = |r: Option<f64>| r.map(|r| 256.0 * 256.0 * 1e4 / r);
+    show("sweep GPU (f64 kernel): seconds for 256² axes × 10⁴ correspondences", seconds(rate("sweep", "gpu", "f64", None, "end_to_end")));
+    show("sweep CPU f64 all threads: seconds for 256² axes × 10⁴ correspondences", seconds(rate("sweep", "cpu", "f64", Some(threads), "end_to_end")));
 }

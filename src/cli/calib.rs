@@ -42,7 +42,7 @@ pub struct SimulateArgs {
     /// Largest angle between the board's normal and the master camera's axis (degrees)
     #[arg(long, value_name = "DEG", default_value_t = 45.0)]
     max_board_tilt_deg: f64,
-    /// Output folder (created if missing): observations.json, truth.json, rig.json
+    /// Output folder (created if missing): observations.json, truth.json, rig.json, start_rig.json
     #[arg(long, short, value_name = "DIR")]
     output: PathBuf,
 }
@@ -138,6 +138,16 @@ pub fn stereo_pair(rig: &Rig, names: Option<(&str, &str)>, source: &str) -> anyh
     Ok(pair)
 }
 
+/// The naive start guess for calibrating `rig`: its cameras, layers and indices with the axis on
+/// the master camera's z axis and 10 mm of air. `simulate` writes it as start_rig.json, and the
+/// demo calibrates from it.
+pub fn naive_start(rig: &Rig) -> anyhow::Result<Rig> {
+    Ok(rig.with_interface(rig.interface().with_pose(nalgebra::Vector3::z(), NAIVE_AIR_DISTANCE)?)?)
+}
+
+/// The air layer of [`naive_start`], metres.
+pub const NAIVE_AIR_DISTANCE: f64 = 0.01;
+
 pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
     // Sizes first, before anything is read or allocated.
     let most = MAX_SIMULATED_CORNERS / args.board.corners();
@@ -159,9 +169,10 @@ pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
     let truth = Truth { interface: rig.interface().clone(), master_from_board: scene.master_from_board, noise_px: args.noise, seed: args.seed };
     write_truth(&args.output.join("truth.json"), &truth)?;
     write_rig(&args.output.join("rig.json"), &rig)?;
+    write_rig(&args.output.join("start_rig.json"), &naive_start(&rig)?)?;
     let i = rig.interface();
     outln!(
-        "simulated {} views of a {}x{} board ({} m squares), {} px noise, seed {}\ntruth: tilt {:.4}°, azimuth {:.4}°, air layer {:.3} mm\nwrote {}/observations.json, truth.json, rig.json",
+        "simulated {} views of a {}x{} board ({} m squares), {} px noise, seed {}\ntruth: tilt {:.4}°, azimuth {:.4}°, air layer {:.3} mm\nwrote {}/observations.json, truth.json, rig.json (the truth), start_rig.json (a naive start: axis on the camera's z, 10 mm air)",
         args.views,
         args.board.cols,
         args.board.rows,
@@ -250,10 +261,10 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         data.corners.len(),
         options.method.name()
     );
+    // Errors about the data name the observations file.
     let mut status = CalibrationStatus::new();
     let calibration = calibrate_with_progress(backend.as_ref(), &options, warnings, &mut |p| status.update(p));
     status.finish();
-    // Errors about the data name the observations file.
     let calibration = calibration.map_err(|e| in_file(&args.observations, e))?;
     let report = &calibration.report;
     if let Some(path) = &args.report {

@@ -14,7 +14,7 @@ use flatport::model::{NoSolution, Rig, triangulate_rays};
 
 use super::rig::describe;
 
-/// The example stereo rig: DESIGN.md §1's rig with mild lens distortion and the right camera
+/// The example stereo rig: docs/DESIGN.md §1's rig with mild lens distortion and the right camera
 /// turned 1° toward the left one.
 pub const EXAMPLE_RIG: &str = include_str!("../../data/example_rig.json");
 
@@ -83,7 +83,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     let truth = Truth { interface: rig.interface().clone(), master_from_board: scene.master_from_board.clone(), noise_px: NOISE_PX, seed: 1 };
     write_truth(&dir.join("truth.json"), &truth)?;
 
-    let start = rig.with_interface(rig.interface().with_pose(nalgebra::Vector3::z(), 0.01)?)?;
+    let start = super::calib::naive_start(rig)?;
     write_rig(&dir.join("start_rig.json"), &start)?;
     outln!("2. calibrate from a naive start (axis on the camera's z axis, 10 mm air layer):");
     let data = StereoData::new(&start, [0, 1], &scene.observations)?;
@@ -97,7 +97,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     }
     outln!("   {}", super::calib::truth_errors(&calibration.report, &truth));
 
-    outln!("3. sweep the invariant cost over the axis (a wide view, and a close one around the result):");
+    outln!("3. sweep the affine-grid cost over the axis (a wide view, and a close one around the result):");
     let found = calibration.report.candidate;
     let (tilt, azimuth) = (found.tilt().to_degrees(), found.azimuth().to_degrees());
     // Close view: ±1° of tilt, and azimuths spanning about ±1° of arc at this tilt.

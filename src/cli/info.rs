@@ -35,6 +35,9 @@ pub fn run() -> anyhow::Result<()> {
             a.max_workgroups_per_dimension
         );
     }
-    outln!("  (the GPU kernels are reachable from the library, flatport::gpu; --device accepts cpu for now)");
+    outln!("--device cpu:  the f64 reference on all cores");
+    outln!("--device gpu:  the WGSL kernels on a Vulkan adapter above (--adapter NAME, else $FLATPORT_ADAPTER,");
+    outln!("               else the first hardware GPU, else lavapipe)");
+    outln!("--device auto: (the default) a hardware GPU when there is one, otherwise the CPU");
     Ok(())
 }

@@ -1,5 +1,5 @@
 //! Subcommands of the `flatport` binary (clap). No math here: every command reads its inputs,
-//! calls the library row by row, and writes the CSV contract of DESIGN.md §1.
+//! calls the library row by row, and writes the CSV contract of docs/DESIGN.md §1.
 
 /// `println!` that ends the process quietly when standard output is a closed pipe
 /// ([`signals::print_stdout`]); `println!` would panic there.
@@ -37,8 +37,11 @@ defines the world (master) frame. CSV files have a header row; rows without an a
 as NaN and counted on stderr. Inputs of any size are streamed in chunks.
 
 Devices: --device cpu runs the f64 reference on all cores, --device gpu the WGSL kernels on a
-Vulkan adapter (--precision f32|f64), --device auto (default) a hardware GPU if there is one. The
-device used is printed on stderr.
+Vulkan adapter, --device auto (default) a hardware GPU if there is one. The device used is printed
+on stderr. GPU precision (--precision f32|f64): project, backproject, triangulate and vop run f32
+unless told; calibrate and demo run f64 where the adapter has SHADER_F64 (their finite differences
+are below f32's resolution); sweep's affine-grid cost always runs f64 (the adapter must have
+SHADER_F64), its reprojection and scene costs in --precision (f32 unless told).
 
 Start with:  flatport demo")]
 struct Cli {
@@ -87,12 +90,14 @@ Example:
     #[command(after_help = "\
 Random board poses in the water that both cameras see whole, corners projected exactly through the
 rig's interface (the truth), Gaussian pixel noise. Writes DIR/observations.json (the calibration
-input), DIR/truth.json (interface, tilt, azimuth, board poses) and DIR/rig.json.
+input), DIR/truth.json (interface, tilt, azimuth, board poses), DIR/rig.json (the rig with the true
+interface) and DIR/start_rig.json (the same rig with a naive start: the axis on the master
+camera's z axis, 10 mm of air, as the demo uses).
 
 Examples:
   flatport simulate --rig rig.json --board 9x6@0.04 --views 20 --noise 0.1 --seed 1 --output scene
-  flatport calibrate --rig start.json --observations scene/observations.json -o calibrated.json \\
-      --truth scene/truth.json")]
+  flatport calibrate --rig scene/start_rig.json --observations scene/observations.json \\
+      -o calibrated.json --truth scene/truth.json")]
     Simulate(calib::SimulateArgs),
     /// Calibrate the interface (axis and air layer) of a stereo rig from views of a chessboard
     #[command(after_help = "\
@@ -117,19 +122,21 @@ Examples:
     /// Sweep a calibration cost over a grid of axes (and air layers): .npy, CSV, heat maps, summary
     #[command(after_help = "\
 Tilt is the angle between the axis and the master camera's z axis, azimuth atan2(n_y, n_x), both in
-degrees; grids are START:STOP:COUNT with both ends included (numpy's linspace). Without --distance,
-every axis takes its least-squares air layer (a profile; the invariant needs none). The grid is
+degrees; grids are START:STOP:COUNT with both ends included (numpy's linspace). --distance is a
+grid of air layers d in metres (the rig file's interface.distance); without it, every axis takes
+its least-squares air layer (a profile; affine-grid needs none). The grid is
 evaluated in batches on the device, so memory stays bounded whatever its size.
 
 Writes DIR/cost.npy (float64, shape [tilt, azimuth] or [tilt, azimuth, distance]), DIR/cost.csv
-(tilt_deg,azimuth_deg,distance,cost per cell; inf where a candidate explains no corner),
-DIR/distance.npy (the profile's air layers, for reprojection and 3d without --distance),
+(tilt_deg,azimuth_deg,distance,cost per cell; inf where the candidate leaves some corner without
+an answer, counted on stderr and drawn grey in the pictures),
+DIR/distance.npy (the profile's air layers, for reprojection and scene without --distance),
 DIR/heatmap.png and DIR/polar.png (minimum marked, truth marked with --truth), DIR/summary.json
 (argmin, grid, timing). Files appear only when the sweep completed; Ctrl-C (or SIGTERM) stops it
 at once and leaves nothing behind.
 
 Examples:
-  flatport sweep --rig rig.json --observations obs.json --cost invariant \\
+  flatport sweep --rig rig.json --observations obs.json --cost affine-grid \\
       --tilt-deg 0:20:64 --azimuth-deg -180:180:64 --output sweep
   flatport sweep --rig rig.json --observations obs.json --cost reprojection \\
       --tilt-deg 6:10:21 --azimuth-deg 40:50:21 --distance 0.015:0.025:11 --output sweep3d --device gpu")]
@@ -147,10 +154,11 @@ Example:
 Prints items per second for back-projection, forward projection and triangulation on the CPU
 (f64, one thread and all threads) and the GPU (f32 and f64; `kernel` = dispatch only with the
 data on the device, `end_to_end` = upload, dispatch and results in host memory), the memory
-streaming bandwidth measured by a STREAM triad as the physical limit, and the issue's targets as
-ratios of this run. The sweep figure counts axis cells × correspondences per second of the weighted
-affine-grid invariant over 185 simulated views (9 990 correspondences); its kernel is f64 on every
-adapter, so the GPU has one sweep figure. JSON: {\"memory_stream_bytes_per_s\": B, \"results\": [{\"kernel\", \"path\",
+streaming bandwidth measured by a STREAM triad as the physical limit, and ratios between the paths
+of this run (the speed goals and their reference are in the README, \"Speed goals\"). The sweep
+figure counts axis cells × correspondences per second of the weighted affine-grid invariant over
+185 simulated views (9 990 correspondences); its kernel is f64 on every adapter, so the GPU has one
+sweep figure. JSON: {\"memory_stream_bytes_per_s\": B, \"results\": [{\"kernel\", \"path\",
 \"precision\", \"threads\" (0 on the GPU), \"stage\", \"items\", \"items_per_s\"}, ...]}.
 
 Examples:
@@ -188,7 +196,9 @@ pub struct EngineArgs {
     /// Compute device
     #[arg(long, value_enum, default_value_t = Device::Auto)]
     pub device: Device,
-    /// Precision of the GPU kernels (default f32; the CPU is always f64)
+    /// Precision of the GPU kernels. Default: f32 for project, backproject, triangulate, vop and
+    /// sweep's reprojection and scene costs; f64 (where the adapter has it) for calibrate and demo;
+    /// sweep's affine-grid cost is always f64. The CPU is always f64.
     #[arg(long, value_enum, value_name = "f32|f64")]
     pub precision: Option<PrecisionArg>,
     /// GPU adapter: its index or part of its name as `flatport info` lists them (else

@@ -16,15 +16,17 @@ use flatport::io::{IoError, TableWriter, read_truth, write_atomic};
 
 use super::progress::Progress;
 
-/// Which cost to sweep (`--cost`).
+/// Which cost to sweep (`--cost`). The names are `CostKind::name`, as in the summary, the report
+/// and the README; `invariant` and `3d` are the older spellings, still accepted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum CostArg {
     /// The weighted affine-grid invariant (axis only): χ² per degree of freedom, px²
+    #[value(name = "affine-grid", alias = "invariant")]
     Invariant,
     /// RMS reprojection error of the rigidly fitted boards, px
     Reprojection,
     /// RMS residual of the rigid board fit to the triangulated corners (3-D scene error), m
-    #[value(name = "3d")]
+    #[value(name = "scene", alias = "3d")]
     Scene,
 }
 
@@ -47,7 +49,7 @@ pub struct SweepArgs {
     /// Observations (JSON, as for calibrate)
     #[arg(long, value_name = "OBS.json")]
     pub observations: PathBuf,
-    /// The cost
+    /// The cost (the older names `invariant` and `3d` are accepted for affine-grid and scene)
     #[arg(long, value_enum, default_value_t = CostArg::Invariant)]
     pub cost: CostArg,
     /// Tilts of the axis from the master camera's z axis, degrees: START:STOP:COUNT, both ends included
@@ -74,6 +76,24 @@ pub struct SweepArgs {
     pub quiet: bool,
     #[command(flatten)]
     pub engine: super::EngineArgs,
+}
+
+/// Removes `path`, an output of an earlier sweep into the same folder that this sweep does not
+/// write (distance.npy after a sweep with --distance or of an axis-only cost), so that the folder
+/// holds one sweep's files only. Only a regular file or a symbolic link is removed (the link, not
+/// its target); anything else under that name is left alone, with a warning.
+fn remove_stale(path: &Path) -> anyhow::Result<()> {
+    match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(e).with_context(|| format!("cannot inspect {}", path.display())),
+        Ok(m) if m.is_file() || m.file_type().is_symlink() => {
+            std::fs::remove_file(path).with_context(|| format!("cannot remove the stale {} of an earlier sweep", path.display()))
+        }
+        Ok(_) => {
+            eprintln!("warning: {} is not a file of an earlier sweep's (not written by this one), left alone", path.display());
+            Ok(())
+        }
+    }
 }
 
 /// Parses `START:STOP:COUNT`.
@@ -181,8 +201,21 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
     cost_npy.finish()?;
     if let Some(n) = distance_npy {
         n.finish()?;
+    } else {
+        remove_stale(&dir.join("distance.npy"))?;
     }
     csv.finish()?;
+    let no_answer = summary.cells - summary.finite;
+    if no_answer > 0 {
+        eprintln!(
+            "warning: {no_answer} of {} cells have no finite {} cost (inf in cost.npy and cost.csv, grey in the pictures): \
+             under those candidates some corner has no answer (a camera outside the air, a totally reflected ray, a corner \
+             triangulated behind the port){}",
+            summary.cells,
+            spec.kind.name(),
+            if profile_distance { "; without --distance this is often an axis whose least-squares air layer leaves a camera outside the air" } else { "" }
+        );
+    }
 
     let truth_deg = truth.as_ref().map(|t| (t.interface.tilt().to_degrees(), t.interface.azimuth().to_degrees()));
     let (tilt_values, azimuth_values) = (pool.tilts_deg(), pool.azimuths_deg());

@@ -83,3 +83,6 @@ impl std::fmt::Display for NoSolution {
         f.write_str(self.describe())
     }
 }
+
+/// So that `?` carries a `NoSolution` into `Box<dyn Error>` and `anyhow` (as the README's examples do).
+impl std::error::Error for NoSolution {}
