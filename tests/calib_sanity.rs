@@ -263,3 +263,16 @@ fn a_result_above_the_rms_bound_writes_the_report_not_the_rig() {
     let bad = cli_calibrate(&start, &path, &out, &["--max-rms-px", "0"]);
     assert!(!bad.status.success() && text(&bad.stderr).contains("--max-rms-px"), "{}", text(&bad.stderr));
 }
+
+#[test]
+fn weakly_constrained_results_say_so() {
+    // Three views at 0.5 px: the air layer's σ is about 15 mm (measured), which the warnings say;
+    // fifteen views of the same geometry constrain it to about 1 mm and say nothing.
+    let truth = rig(8.0, 45.0);
+    let weak = run(&truth, &observations(&truth, 3, 0.5, 1), Method::Auto).unwrap();
+    let [tilt_std, _, air_std] = weak.report.std.unwrap();
+    println!("3 views: σ tilt {:.3}°, σ air {:.2} mm", tilt_std.to_degrees(), air_std * 1e3);
+    assert!(weak.report.warnings.iter().any(|w| w.starts_with("the views hardly constrain the result")), "{:?}", weak.report.warnings);
+    let strong = run(&truth, &observations(&truth, 15, 0.5, 1), Method::Auto).unwrap();
+    assert!(!strong.report.warnings.iter().any(|w| w.contains("hardly constrain")), "{:?}", strong.report.warnings);
+}

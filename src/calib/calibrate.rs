@@ -275,8 +275,8 @@ fn calibrate_screened(
     if super::search::cap_grid_size(options.max_tilt, options.grid_spacing) > super::search::MAX_CAP_GRID_AXES as f64 {
         return Err(CalibError::Options(format!(
             "a grid spacing of {}° over a {}° tilt bound gives {:.3e} axes; the global search takes at most {} (each costs an evaluation over every corner): use a spacing ≥ {}°",
-            options.grid_spacing.to_degrees(),
-            options.max_tilt.to_degrees(),
+            degrees(options.grid_spacing.to_degrees()),
+            degrees(options.max_tilt.to_degrees()),
             super::search::cap_grid_size(options.max_tilt, options.grid_spacing),
             super::search::MAX_CAP_GRID_AXES,
             super::search::min_cap_grid_spacing_deg_text(options.max_tilt)

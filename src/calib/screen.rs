@@ -27,6 +27,7 @@
 //! left to the reprojection residuals of the fit.
 
 use nalgebra::{Matrix3, Point2, SMatrix, SVector, Vector2, Vector3};
+use rayon::prelude::*;
 
 use super::data::StereoData;
 use super::error::Side;
@@ -194,25 +195,28 @@ fn deviation(data: &StereoData, image: &Image, excluded: &[bool], index: usize) 
     if points.len() < terms + 3 || used_rows.count_ones() < 3 || used_cols.count_ones() < 3 {
         return None;
     }
-    let basis = |x: f64, y: f64| {
-        let all = [1.0, x, y, x * x, x * y, y * y, x * x * x, x * x * y, x * y * y, y * y * y];
-        nalgebra::DVector::from_column_slice(&all[..terms])
-    };
-    let mut normal = nalgebra::DMatrix::zeros(terms, terms);
-    let (mut rhs_u, mut rhs_v) = (nalgebra::DVector::zeros(terms), nalgebra::DVector::zeros(terms));
-    for (x, y, p) in &points {
-        let phi = basis(*x, *y);
-        normal += &phi * phi.transpose();
-        rhs_u += &phi * p.x;
-        rhs_v += &phi * p.y;
-    }
-    let inverse = normal.cholesky()?.inverse();
-    // The prediction at (0, 0) is θ₀ = e₀ᵀ(ΦᵀΦ)⁻¹Φᵀp; its variance factor is the (0, 0) entry.
-    let e0 = inverse.row(0).transpose();
-    let predicted = Vector2::new(e0.dot(&rhs_u), e0.dot(&rhs_v));
-    let leverage = inverse[(0, 0)];
     let (_, p) = image[index]?;
+    let (predicted, leverage) = if cubic { predict::<10>(&points)? } else { predict::<6>(&points)? };
     Some((p.coords - predicted).norm() / (1.0 + leverage).sqrt())
+}
+
+/// The least-squares polynomial of the first `N` monomials (1, x, y, x², xy, y², x³, x²y, xy², y³)
+/// through `points` (x, y, value), evaluated at (0, 0): (θ₀, its variance factor e₀ᵀ(ΦᵀΦ)⁻¹e₀).
+fn predict<const N: usize>(points: &[(f64, f64, Point2<f64>)]) -> Option<(Vector2<f64>, f64)> {
+    let mut normal = SMatrix::<f64, N, N>::zeros();
+    let (mut rhs_u, mut rhs_v) = (SVector::<f64, N>::zeros(), SVector::<f64, N>::zeros());
+    for &(x, y, p) in points {
+        let all = [1.0, x, y, x * x, x * y, y * y, x * x * x, x * x * y, x * y * y, y * y * y];
+        let phi = SVector::<f64, N>::from_fn(|k, _| all[k]);
+        normal += phi * phi.transpose();
+        rhs_u += phi * p.x;
+        rhs_v += phi * p.y;
+    }
+    // The prediction at (0, 0) is θ₀ = e₀ᵀ(ΦᵀΦ)⁻¹Φᵀp; its variance factor is the (0, 0) entry of
+    // (ΦᵀΦ)⁻¹, and e₀ᵀ(ΦᵀΦ)⁻¹ is the solution of (ΦᵀΦ) w = e₀.
+    let cholesky = normal.cholesky()?;
+    let w = cholesky.solve(&SVector::<f64, N>::from_fn(|k, _| if k == 0 { 1.0 } else { 0.0 }));
+    Some((Vector2::new(w.dot(&rhs_u), w.dot(&rhs_v)), w[0]))
 }
 
 fn deviations(data: &StereoData, image: &Image, excluded: &[bool]) -> Vec<(usize, f64)> {
@@ -234,39 +238,39 @@ fn median(values: &mut [f64]) -> Option<f64> {
 pub fn screen(data: &StereoData) -> Screening {
     let images = images(data);
     let none = vec![false; data.board.corners()];
-    let mut all: Vec<f64> = images.iter().flat_map(|(_, _, image)| deviations(data, image, &none)).map(|(_, d)| d).collect();
-    let Some(first) = median(&mut all) else {
+    // Every image alone, in parallel: first without exclusions (for σ̂), then removing suspects.
+    let first: Vec<Vec<(usize, f64)>> = images.par_iter().map(|(_, _, image)| deviations(data, image, &none)).collect();
+    let mut all: Vec<f64> = first.iter().flatten().map(|&(_, d)| d).collect();
+    let Some(median_first) = median(&mut all) else {
         return Screening { suspects: Vec::new(), noise_px: None, threshold_px: f64::INFINITY };
     };
-    let threshold = (THRESHOLD_SIGMAS * first / MEDIAN_NORM).max(MIN_THRESHOLD_PX);
-    let mut suspects = Vec::new();
-    let mut kept = Vec::new();
-    for (view, side, image) in &images {
-        let mut excluded = none.clone();
-        let present = image.iter().filter(|c| c.is_some()).count();
-        loop {
-            let found = deviations(data, image, &excluded);
-            let worst = found.iter().copied().max_by(|a, b| a.1.total_cmp(&b.1));
-            match worst {
-                Some((i, d)) if d > threshold && 4 * (suspects_in(&excluded) + 1) <= present => {
-                    excluded[i] = true;
-                    let position = image[i].expect("present").0;
-                    suspects.push(Suspect { view: *view, side: *side, corner: i, position, deviation_px: d });
-                }
-                _ => {
-                    kept.extend(found.into_iter().map(|(_, d)| d));
-                    break;
+    let threshold = (THRESHOLD_SIGMAS * median_first / MEDIAN_NORM).max(MIN_THRESHOLD_PX);
+    let screened: Vec<(Vec<Suspect>, Vec<f64>)> = images
+        .par_iter()
+        .zip(first)
+        .map(|((view, side, image), mut found)| {
+            let mut excluded = none.clone();
+            let mut suspects = Vec::new();
+            let present = image.iter().filter(|c| c.is_some()).count();
+            loop {
+                let worst = found.iter().copied().max_by(|a, b| a.1.total_cmp(&b.1));
+                match worst {
+                    Some((i, d)) if d > threshold && 4 * (suspects.len() + 1) <= present => {
+                        excluded[i] = true;
+                        let position = image[i].expect("present").0;
+                        suspects.push(Suspect { view: *view, side: *side, corner: i, position, deviation_px: d });
+                        found = deviations(data, image, &excluded);
+                    }
+                    _ => return (suspects, found.into_iter().map(|(_, d)| d).collect()),
                 }
             }
-        }
-    }
+        })
+        .collect();
+    let mut suspects: Vec<Suspect> = screened.iter().flat_map(|(s, _)| s.iter().copied()).collect();
+    let mut kept: Vec<f64> = screened.into_iter().flat_map(|(_, k)| k).collect();
     suspects.sort_by(|a, b| b.deviation_px.total_cmp(&a.deviation_px));
     let noise_px = median(&mut kept).map(|m| m / MEDIAN_NORM);
     Screening { suspects, noise_px, threshold_px: threshold }
-}
-
-fn suspects_in(excluded: &[bool]) -> usize {
-    excluded.iter().filter(|&&e| e).count()
 }
 
 /// `data` without the corners marked in `mask` (views keep their indices; a view may be left
