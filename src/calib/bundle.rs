@@ -69,6 +69,9 @@ pub struct BlockNormalEquations {
     pub cost: f64,
 }
 
+/// The reduced system: (S, its right-hand side, the factors of the damped pose blocks).
+type Reduced = (DMatrix<f64>, DVector<f64>, Vec<Cholesky<f64, U6>>);
+
 impl BlockNormalEquations {
     /// Number of global parameters G.
     pub fn globals(&self) -> usize {
@@ -83,7 +86,7 @@ impl BlockNormalEquations {
     /// The Schur complement on the poses of the damped system (each diagonal entry a grown by
     /// `damping`·max(a, `floor`)): (S, its right-hand side b_g − Σ W_v V_v⁻¹ b_v, the factors of
     /// the damped V_v). `None` when a pose block is not positive definite.
-    fn reduce(&self, damping: f64, floor: f64) -> Option<(DMatrix<f64>, DVector<f64>, Vec<Cholesky<f64, U6>>)> {
+    fn reduce(&self, damping: f64, floor: f64) -> Option<Reduced> {
         let mut schur = self.global.clone();
         for i in 0..self.globals() {
             schur[(i, i)] += damping * self.global[(i, i)].max(floor);
