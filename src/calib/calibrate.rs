@@ -556,7 +556,7 @@ fn stage(name: &str, candidate: Candidate, cost: f64, unit: &'static str, iterat
 }
 
 /// Axes of the global grid per backend call (progress is reported after each).
-const GLOBAL_BATCH: usize = 2048;
+const GLOBAL_BATCH: usize = 256;
 
 /// How many of the global grid's best cells (at least this many degrees apart) are refined.
 const LOCAL_STARTS: usize = 3;
