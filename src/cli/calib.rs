@@ -24,10 +24,10 @@ pub struct SimulateArgs {
     #[arg(long, value_name = "RIG.json")]
     rig: PathBuf,
     /// Board as COLSxROWS@SQUARE: inner corners per row × per column (OpenCV's patternSize) and
-    /// the square in metres
+    /// the square in metres; at most 10 000 corners
     #[arg(long, value_name = "COLSxROWS@M", default_value = "9x6@0.04", value_parser = parse_board)]
     board: Board,
-    /// Number of stereo views
+    /// Number of stereo views (at most 10⁷ corners in all: 185 185 views of a 9×6 board)
     #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
     views: usize,
     /// Standard deviation of the Gaussian noise added to every corner coordinate (pixels)
@@ -79,7 +79,7 @@ pub struct CalibrateArgs {
     /// Largest axis tilt from the master camera's z axis that the global search covers (degrees)
     #[arg(long, value_name = "DEG", default_value_t = 30.0, value_parser = super::values::tilt_bound, allow_negative_numbers = true)]
     max_tilt_deg: f64,
-    /// Spacing of the global search grid over the axis (degrees)
+    /// Spacing of the global search grid over the axis (degrees; the grid holds at most 100 000 axes)
     #[arg(long, value_name = "DEG", default_value_t = 1.5, value_parser = super::values::positive, allow_negative_numbers = true)]
     grid_step_deg: f64,
     /// Huber loss with this threshold on each corner's residual (pixels); default plain least squares
