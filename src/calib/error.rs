@@ -69,7 +69,7 @@ pub enum CalibError {
         v: f64,
     },
     /// A corner outside its image.
-    #[error("view {view}: {} corner {corner} at ({u}, {v}) px lies outside the {width}×{height} image", side.name())]
+    #[error("view {view}: {} corner {corner} at ({}, {}) px lies outside the {width}×{height} image", side.name(), number(*u), number(*v))]
     CornerOutsideImage {
         /// 0-based view index.
         view: usize,
@@ -153,11 +153,20 @@ pub enum CalibError {
 /// (`30`, `1.5`, `0.001`), scientific below 0.001 (`2.5e-5`); the rounding of a conversion
 /// (29.999999999999996) never shows.
 pub fn degrees(value: f64) -> String {
+    number(value)
+}
+
+/// A number as a reader wants it in a message: at most 6 decimals, no trailing zeros,
+/// scientific below 0.001 and from 10⁶ on (`1.000e300`, not three hundred digits).
+pub fn number(value: f64) -> String {
     if !value.is_finite() {
         return format!("{value}");
     }
     if value != 0.0 && value.abs() < 1e-3 {
         return format!("{value:.2e}");
+    }
+    if value.abs() >= 1e6 {
+        return format!("{value:.3e}");
     }
     let text = format!("{value:.6}");
     let text = text.trim_end_matches('0').trim_end_matches('.');

@@ -73,6 +73,9 @@ pub fn check_scene_size(board: &Board, views: usize) -> Result<(), CalibError> {
 /// Most random poses tried per view before giving up.
 const MAX_TRIES_PER_VIEW: usize = 20_000;
 
+/// Largest simulated corner noise, pixels.
+pub const MAX_NOISE_PX: f64 = 100.0;
+
 /// Simulates `spec.views` views of the board by cameras `left` and `right` of `rig`, behind the
 /// rig's interface (the truth). Every corner of every view lies inside both images.
 ///
@@ -85,9 +88,17 @@ pub fn simulate(rig: &Rig, left: usize, right: usize, spec: &SceneSpec) -> Resul
         return Err(CalibError::BadBoard { reason: format!("{} × {} corners of {} m", board.rows, board.cols, board.square) });
     }
     check_scene_size(board, spec.views)?;
-    if !(spec.noise_px >= 0.0 && spec.noise_px.is_finite()) {
-        return Err(CalibError::Options(format!("noise must be ≥ 0 px, got {}", spec.noise_px)));
+    if !(spec.noise_px >= 0.0 && spec.noise_px <= MAX_NOISE_PX) {
+        return Err(CalibError::Options(format!(
+            "noise must lie in [0, {MAX_NOISE_PX}] px (a corner detector's error is a fraction of a pixel), got {}",
+            super::error::number(spec.noise_px)
+        )));
     }
+    // Noisy corners must stay inside the images, as a detector reports them: the poses keep
+    // every exact corner at least 5 σ from the border, and a noise sample that would carry a
+    // corner over that margin is drawn again (a Gaussian truncated at the margin, ≥ 5 σ: the
+    // default 10 px margin is 100 σ at 0.1 px, where no sample is ever redrawn).
+    let margin = spec.margin_px.max(5.0 * spec.noise_px);
     let cameras = [rig.refractive_camera(left), rig.refractive_camera(right)];
     let mut rng = Rng::new(spec.seed);
     let interface = rig.interface();
@@ -105,15 +116,21 @@ pub fn simulate(rig: &Rig, left: usize, right: usize, spec: &SceneSpec) -> Resul
         let (pose, pixels) = (0..MAX_TRIES_PER_VIEW)
             .find_map(|_| {
                 let pose = random_pose(&mut rng, board, near, far, tan_half_fov_water, spec.max_board_tilt);
-                visible_corners(&cameras, rig, [left, right], board, &pose, spec.margin_px).map(|p| (pose, p))
+                visible_corners(&cameras, rig, [left, right], board, &pose, margin).map(|p| (pose, p))
             })
             .ok_or_else(|| {
                 CalibError::Options(format!(
                     "view {v}: found no pose in which both cameras see the whole {}×{} board of {} m squares",
-                    board.rows, board.cols, board.square
+                    board.rows, board.cols, super::error::number(board.square)
                 ))
             })?;
-        let mut noisy = |p: &Point2<f64>| Some(Point2::new(p.x + spec.noise_px * rng.normal(), p.y + spec.noise_px * rng.normal()));
+        let mut draw = || loop {
+            let offset = spec.noise_px * rng.normal();
+            if offset.abs() <= margin {
+                break offset;
+            }
+        };
+        let mut noisy = |p: &Point2<f64>| Some(Point2::new(p.x + draw(), p.y + draw()));
         let left_corners = pixels[0].iter().map(&mut noisy).collect();
         let right_corners = pixels[1].iter().map(&mut noisy).collect();
         views.push(StereoView { left: left_corners, right: right_corners });

@@ -101,6 +101,10 @@ pub struct CalibrateArgs {
 }
 
 /// Parses `COLSxROWS@SQUARE`.
+/// Smallest and largest square of a simulated board, metres: a tenth of a millimetre to ten metres.
+const MIN_SQUARE_M: f64 = 1e-4;
+const MAX_SQUARE_M: f64 = 10.0;
+
 pub fn parse_board(text: &str) -> Result<Board, String> {
     let error = || format!("expected COLSxROWS@SQUARE such as 9x6@0.04, got '{text}'");
     let (size, square) = text.split_once('@').ok_or_else(error)?;
@@ -110,6 +114,11 @@ pub fn parse_board(text: &str) -> Result<Board, String> {
     let square: f64 = square.trim().parse().map_err(|_| error())?;
     if cols < 2 || rows < 2 || !(square > 0.0 && square.is_finite()) {
         return Err(format!("a board needs at least 2x2 inner corners and a square > 0 m, got '{text}'"));
+    }
+    if !(MIN_SQUARE_M..=MAX_SQUARE_M).contains(&square) {
+        return Err(format!(
+            "a square of {square:e} m: boards have squares from {MIN_SQUARE_M} m to {MAX_SQUARE_M} m (the square is in metres: 40 mm is 0.04), got '{text}'"
+        ));
     }
     if cols.checked_mul(rows).is_none_or(|c| c > MAX_BOARD_CORNERS) {
         return Err(format!(

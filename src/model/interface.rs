@@ -49,10 +49,13 @@ impl Interface {
         for (axis, v) in ["normal[0]", "normal[1]", "normal[2]"].iter().zip(normal.iter()) {
             check_finite(axis, *v)?;
         }
-        let norm = normal.norm();
-        if norm == 0.0 {
+        // Scaled by its largest component before squaring: |n|² of a normal given as
+        // [1e308, 1e308, 1e308] overflows, and the unit vector would come out zero.
+        let largest = normal.amax();
+        if largest == 0.0 {
             return Err(ModelError::ZeroNormal);
         }
+        let normal = normal / largest;
         if normal.z <= 0.0 {
             return Err(ModelError::NormalAwayFromWater { x: normal.x, y: normal.y, z: normal.z });
         }
@@ -195,5 +198,15 @@ mod tests {
             Interface::new(z, f64::NAN, glass(), 1.0, 1.333),
             Err(ModelError::NotFinite { .. })
         ));
+    }
+
+    #[test]
+    fn huge_and_tiny_normals_keep_their_direction() {
+        for scale in [1e308, 1e-320, 1.0] {
+            let i = Interface::new(Vector3::new(scale, 0.0, scale), 0.02, vec![], 1.0, 1.333).unwrap();
+            let expected = Vector3::new(1.0, 0.0, 1.0) / 2f64.sqrt();
+            assert!((i.normal().into_inner() - expected).norm() < 1e-15, "{scale}: {:?}", i.normal());
+        }
+        assert!(matches!(Interface::new(Vector3::zeros(), 0.02, vec![], 1.0, 1.333), Err(ModelError::ZeroNormal)));
     }
 }
