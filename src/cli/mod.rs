@@ -159,13 +159,15 @@ Example:
     #[command(after_help = "\
 Prints items per second for back-projection, forward projection and triangulation on the CPU
 (f64, one thread and all threads) and the GPU (f32 and f64; `kernel` = dispatch only with the
-data on the device, `end_to_end` = upload, dispatch and results in host memory), the memory
+data on the device, timed by GPU timestamps where the adapter has TIMESTAMP_QUERY, `end_to_end` =
+upload, dispatch and results in host memory, host clocks), the memory
 streaming bandwidth measured by a STREAM triad as the physical limit, and ratios between the paths
 of this run (the speed goals and their reference are in the README, \"Speed goals\"). The sweep
 figure counts axis cells × correspondences per second of the weighted affine-grid invariant over
 185 simulated views (9 990 correspondences); its kernel is f64 on every adapter, so the GPU has one
 sweep figure. JSON: {\"memory_stream_bytes_per_s\": B, \"results\": [{\"kernel\", \"path\",
-\"precision\", \"threads\" (0 on the GPU), \"stage\", \"items\", \"items_per_s\"}, ...]}.
+\"precision\", \"threads\" (0 on the GPU), \"stage\", \"timer\" (gpu_timestamp|host), \"items\",
+\"items_per_s\"}, ...]}.
 
 Examples:
   flatport bench
