@@ -51,11 +51,12 @@ impl Interface {
         }
         // Scaled by its largest component before squaring: |n|² of a normal given as
         // [1e308, 1e308, 1e308] overflows, and the unit vector would come out zero.
+        // Only outside [1e-150, 1e150], so that every ordinary normal normalises to the same bits.
         let largest = normal.amax();
         if largest == 0.0 {
             return Err(ModelError::ZeroNormal);
         }
-        let normal = normal / largest;
+        let normal = if (1e-150..=1e150).contains(&largest) { normal } else { normal / largest };
         if normal.z <= 0.0 {
             return Err(ModelError::NormalAwayFromWater { x: normal.x, y: normal.y, z: normal.z });
         }
