@@ -61,39 +61,26 @@ impl NpyWriter {
     }
 }
 
-/// Reads a little-endian f64 `.npy` file (C order): (shape, values). For tests and tools.
+/// Reads a little-endian f64 `.npy` file (C order): (shape, values). For tests and tools; a
+/// sweep's arrays are read in bounded memory with [`NpyReader`].
 pub fn read_npy(path: &Path) -> Result<(Vec<usize>, Vec<f64>), IoError> {
-    let bytes = std::fs::read(path).map_err(|source| IoError::Read { path: path.to_path_buf(), source })?;
-    npy_from_bytes(&bytes, path)
+    NpyReader::open(path)?.read_to_end()
 }
 
 /// Parses the bytes of a `.npy` file as [`read_npy`] does; `path` only labels errors.
 pub fn npy_from_bytes(bytes: &[u8], path: &Path) -> Result<(Vec<usize>, Vec<f64>), IoError> {
-    let invalid = |reason: &str| IoError::Invalid { path: path.to_path_buf(), field: String::new(), reason: reason.into() };
-    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
-        return Err(invalid("not a .npy file"));
-    }
-    let header_len = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
-    let header = bytes.get(10..10 + header_len).ok_or_else(|| invalid("file ends inside the header"))?;
-    let header = std::str::from_utf8(header).map_err(|_| invalid("header is not text"))?;
-    if !header.contains("'descr': '<f8'") || !header.contains("'fortran_order': False") {
-        return Err(invalid("only little-endian f64 in C order is read"));
-    }
-    let shape_text = header.split("'shape': (").nth(1).and_then(|s| s.split(')').next()).ok_or_else(|| invalid("no shape"))?;
-    let shape: Vec<usize> = shape_text.split(',').filter(|s| !s.trim().is_empty()).map(|s| s.trim().parse().map_err(|_| invalid("bad shape"))).collect::<Result<_, _>>()?;
-    let data = &bytes[10 + header_len..];
-    let values = shape.iter().try_fold(1usize, |n, &d| n.checked_mul(d)).and_then(|n| n.checked_mul(8));
-    if values != Some(data.len()) {
-        return Err(invalid("data length does not match the shape"));
-    }
-    Ok((shape, data.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))).collect()))
+    NpyReader::from_reader(bytes, bytes.len() as u64, path)?.read_to_end()
 }
 
+/// Longest `.npy` header read, bytes (numpy's own are a few hundred).
+const MAX_HEADER_BYTES: usize = 1 << 20;
+
 /// A little-endian f64 `.npy` file (format 1.0 or 2.0, C order) read value by value in bounded
-/// memory: the reading twin of [`NpyWriter`], for sweeps whose arrays do not fit in memory.
-pub struct NpyReader {
+/// memory: the reading twin of [`NpyWriter`], for sweeps whose arrays do not fit in memory. Its
+/// header is checked whole on opening: the data must hold exactly the values of the shape.
+pub struct NpyReader<R = std::io::BufReader<std::fs::File>> {
     path: std::path::PathBuf,
-    input: std::io::BufReader<std::fs::File>,
+    input: R,
     shape: Vec<usize>,
     left: usize,
 }
@@ -104,12 +91,17 @@ impl NpyReader {
     /// Errors: [`IoError::Read`] when it cannot be read; [`IoError::Invalid`] naming the file when
     /// it is not an f64 C-order `.npy` file or its data do not match its shape.
     pub fn open(path: &Path) -> Result<Self, IoError> {
-        use std::io::Read;
         let read_error = |source| IoError::Read { path: path.to_path_buf(), source };
-        let invalid = |reason: String| IoError::Invalid { path: path.to_path_buf(), field: String::new(), reason };
         let file = std::fs::File::open(path).map_err(read_error)?;
         let length = file.metadata().map_err(read_error)?.len();
-        let mut input = std::io::BufReader::new(file);
+        NpyReader::from_reader(std::io::BufReader::new(file), length, path)
+    }
+}
+
+impl<R: std::io::Read> NpyReader<R> {
+    /// [`NpyReader::open`] over any reader holding `length` bytes; `path` only labels errors.
+    pub fn from_reader(mut input: R, length: u64, path: &Path) -> Result<Self, IoError> {
+        let invalid = |reason: String| IoError::Invalid { path: path.to_path_buf(), field: String::new(), reason };
         let mut preamble = [0u8; 8];
         input.read_exact(&mut preamble).map_err(|_| invalid("not a .npy file (too short)".into()))?;
         if &preamble[..6] != b"\x93NUMPY" {
@@ -129,11 +121,11 @@ impl NpyReader {
             v => return Err(invalid(format!("unknown .npy format version {v}"))),
         };
         let prefix = if preamble[6] == 1 { 10 } else { 12 };
-        if (prefix + header_len) as u64 > length || header_len > 1 << 20 {
-            return Err(invalid("truncated header".into()));
+        if (prefix + header_len) as u64 > length || header_len > MAX_HEADER_BYTES {
+            return Err(invalid("the file ends inside the header".into()));
         }
         let mut header = vec![0u8; header_len];
-        input.read_exact(&mut header).map_err(|_| invalid("truncated header".into()))?;
+        input.read_exact(&mut header).map_err(|_| invalid("the file ends inside the header".into()))?;
         let header = String::from_utf8(header).map_err(|_| invalid("the header is not text".into()))?;
         if !header.contains("'descr': '<f8'") || !header.contains("'fortran_order': False") {
             return Err(invalid(format!("only little-endian f64 in C order is read, the header says {}", header.trim())));
@@ -160,7 +152,6 @@ impl NpyReader {
     /// Clears `values` and fills it with the next values, at most `max` (0 is taken as 1), in C
     /// order. Returns how many: 0 only at the end.
     pub fn read(&mut self, max: usize, values: &mut Vec<f64>) -> Result<usize, IoError> {
-        use std::io::Read;
         values.clear();
         let n = max.max(1).min(self.left);
         let mut bytes = vec![0u8; 8 * n];
@@ -168,6 +159,13 @@ impl NpyReader {
         values.extend(bytes.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))));
         self.left -= n;
         Ok(n)
+    }
+
+    /// The shape and every value left, in memory.
+    pub fn read_to_end(mut self) -> Result<(Vec<usize>, Vec<f64>), IoError> {
+        let mut values = Vec::new();
+        self.read(self.left, &mut values)?;
+        Ok((self.shape, values))
     }
 }
 
