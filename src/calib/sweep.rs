@@ -103,6 +103,13 @@ impl SweepSpec {
         self.shape().iter().try_fold(1usize, |a, &b| a.checked_mul(b))
     }
 
+    /// Whether every axis takes its own least-squares air layer (no `--distance` grid, and a cost
+    /// that depends on the air layer): those air layers are an output of the sweep
+    /// (`distance.npy`).
+    pub fn profiles_air_distance(&self) -> bool {
+        self.distance.is_none() && !self.kind.axis_only()
+    }
+
     /// Tilt and azimuth (degrees) of cell `cell` (row-major: tilt, azimuth, then air layer).
     pub fn cell_angles_deg(&self, cell: usize) -> (f64, f64) {
         let axis = cell / self.distance.map_or(1, |d| d.count);

@@ -249,8 +249,7 @@ struct SweepInfo {
 /// The files of a whole sweep, written as the cells come in row-major order: cost.npy,
 /// distance.npy (a profile's air layers), cost.csv, and the min-pooled picture.
 struct SweepOutputs {
-    cost_npy: NpyWriter,
-    distance_npy: Option<NpyWriter>,
+    arrays: CostArrays,
     csv: TableWriter<4>,
     pool: MinPool,
     tilts: Linspace,
@@ -260,12 +259,9 @@ struct SweepOutputs {
 
 impl SweepOutputs {
     fn create(dir: &Path, spec: &SweepSpec) -> anyhow::Result<Self> {
-        let shape = spec.shape();
-        let profile_distance = spec.distance.is_none() && !spec.kind.axis_only();
         let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
         Ok(Self {
-            cost_npy: NpyWriter::create(&dir.join("cost.npy"), &shape)?,
-            distance_npy: if profile_distance { Some(NpyWriter::create(&dir.join("distance.npy"), &shape)?) } else { None },
+            arrays: CostArrays::create(dir, &spec.shape(), spec.profiles_air_distance())?,
             csv: TableWriter::create(Some(&dir.join("cost.csv")), ["tilt_deg", "azimuth_deg", "distance", "cost"])?,
             // The pictures show the lowest cost over the air layers of each axis, min-pooled to at
             // most PICTURE_SIDE² blocks: memory stays bounded by the picture and the batch.
@@ -279,17 +275,13 @@ impl SweepOutputs {
     /// Takes the next cells. An interruption (Ctrl-C, SIGTERM) ends the process in
     /// `cli::signals`, which removes the writers' temporary files: nothing is left behind.
     fn add(&mut self, chunk: &SweepChunk) -> Result<(), CalibError> {
-        let io = |e: IoError| CalibError::Options(e.to_string());
-        self.cost_npy.write(chunk.costs).map_err(io)?;
-        if let Some(npy) = self.distance_npy.as_mut() {
-            npy.write(chunk.distances).map_err(io)?;
-        }
+        self.arrays.add(chunk)?;
         let (tilts, azimuths, depth) = (self.tilts, self.azimuths, self.depth);
         let rows = chunk.costs.iter().zip(chunk.distances).enumerate().map(|(k, (&cost, &distance))| {
             let axis = (chunk.first + k) / depth;
             Some([tilts.value(axis / azimuths.count), azimuths.value(axis % azimuths.count), distance, cost])
         });
-        self.csv.write_rows(rows).map_err(io)?;
+        self.csv.write_rows(rows).map_err(|e| CalibError::Options(e.to_string()))?;
         for (k, &cost) in chunk.costs.iter().enumerate() {
             self.pool.add((chunk.first + k) / depth, cost);
         }
@@ -298,17 +290,12 @@ impl SweepOutputs {
 
     /// Puts the files in place, draws the pictures and writes summary.json; returns the summary.
     fn finish(self, dir: &Path, spec: &SweepSpec, summary: &SweepSummary, info: &SweepInfo, truth: Option<&Truth>) -> anyhow::Result<serde_json::Value> {
-        let Self { cost_npy, distance_npy, csv, pool, tilts, azimuths, .. } = self;
+        let Self { arrays, csv, pool, tilts, azimuths, .. } = self;
         let Some(minimum) = summary.minimum else {
             bail!("no cell of the grid has a finite {} cost: every candidate leaves corners without an answer", spec.kind.name());
         };
-        let profile_distance = distance_npy.is_some();
-        cost_npy.finish()?;
-        if let Some(n) = distance_npy {
-            n.finish()?;
-        } else {
-            remove_stale(&dir.join("distance.npy"))?;
-        }
+        let profile_distance = spec.profiles_air_distance();
+        arrays.finish(dir)?;
         csv.finish()?;
         let no_answer = summary.cells - summary.finite;
         if no_answer > 0 {
@@ -373,38 +360,61 @@ impl SweepOutputs {
 /// shard's cells, and shard.json, its manifest (written last, so a folder with a manifest holds a
 /// whole shard).
 struct ShardFiles {
-    cost_npy: NpyWriter,
-    distance_npy: Option<NpyWriter>,
+    arrays: CostArrays,
 }
 
 impl ShardFiles {
     fn create(dir: &Path, spec: &SweepSpec, cells: usize) -> anyhow::Result<Self> {
-        let profile_distance = spec.distance.is_none() && !spec.kind.axis_only();
-        // A shard folder holds a shard only: the whole sweep's other files would be stale there.
-        for stale in ["cost.csv", "heatmap.png", "polar.png", "summary.json", "distance.npy"] {
+        Ok(Self { arrays: CostArrays::create(dir, &[cells], spec.profiles_air_distance())? })
+    }
+
+    fn add(&mut self, chunk: &SweepChunk) -> Result<(), CalibError> {
+        self.arrays.add(chunk)
+    }
+
+    fn finish(self, dir: &Path, manifest: &ShardManifest) -> anyhow::Result<()> {
+        self.arrays.finish(dir)?;
+        // A shard folder holds a shard only: a whole sweep's other files would be stale there.
+        for stale in ["cost.csv", "heatmap.png", "polar.png", "summary.json"] {
             remove_stale(&dir.join(stale))?;
         }
+        write_shard_manifest(&dir.join("shard.json"), manifest)?;
+        Ok(())
+    }
+}
+
+/// cost.npy and, for a profile, distance.npy of a sweep or of a shard (shaped as the grid, or
+/// flat over the shard's cells), written as the cells come.
+struct CostArrays {
+    cost: NpyWriter,
+    distance: Option<NpyWriter>,
+}
+
+impl CostArrays {
+    fn create(dir: &Path, shape: &[usize], profile_distance: bool) -> anyhow::Result<Self> {
         Ok(Self {
-            cost_npy: NpyWriter::create(&dir.join("cost.npy"), &[cells])?,
-            distance_npy: if profile_distance { Some(NpyWriter::create(&dir.join("distance.npy"), &[cells])?) } else { None },
+            cost: NpyWriter::create(&dir.join("cost.npy"), shape)?,
+            distance: if profile_distance { Some(NpyWriter::create(&dir.join("distance.npy"), shape)?) } else { None },
         })
     }
 
     fn add(&mut self, chunk: &SweepChunk) -> Result<(), CalibError> {
         let io = |e: IoError| CalibError::Options(e.to_string());
-        self.cost_npy.write(chunk.costs).map_err(io)?;
-        if let Some(npy) = self.distance_npy.as_mut() {
+        self.cost.write(chunk.costs).map_err(io)?;
+        if let Some(npy) = self.distance.as_mut() {
             npy.write(chunk.distances).map_err(io)?;
         }
         Ok(())
     }
 
-    fn finish(self, dir: &Path, manifest: &ShardManifest) -> anyhow::Result<()> {
-        self.cost_npy.finish()?;
-        if let Some(n) = self.distance_npy {
-            n.finish()?;
+    /// Puts the arrays in place; without a distance.npy of its own, removes the one an earlier
+    /// sweep left in `dir`, so the folder never mixes two sweeps.
+    fn finish(self, dir: &Path) -> anyhow::Result<()> {
+        self.cost.finish()?;
+        match self.distance {
+            Some(npy) => npy.finish()?,
+            None => remove_stale(&dir.join("distance.npy"))?,
         }
-        write_shard_manifest(&dir.join("shard.json"), manifest)?;
         Ok(())
     }
 }
@@ -492,7 +502,7 @@ pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
     let truth = args.truth.as_deref().map(read_truth).transpose()?;
     let dir = &args.output;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let profile_distance = spec.distance.is_none() && !spec.kind.axis_only();
+    let profile_distance = spec.profiles_air_distance();
     let depth = spec.distance.map_or(1, |d| d.count);
     let mut outputs = SweepOutputs::create(dir, &spec)?;
     let (mut minimum, mut finite, mut seconds) = (None::<SweepMinimum>, 0, 0.0);
