@@ -248,9 +248,21 @@ impl GpuEngine {
 
     /// An encoder holding one dispatch of `pipeline` over `groups` = (x, y) workgroups.
     fn encode_dispatch(&self, pipeline: &wgpu::ComputePipeline, bind_group: &wgpu::BindGroup, label: &str, groups: (u32, u32)) -> wgpu::CommandEncoder {
+        self.encode_timed_dispatch(pipeline, bind_group, label, groups, None)
+    }
+
+    /// [`encode_dispatch`](Self::encode_dispatch), with GPU timestamps written around the pass.
+    fn encode_timed_dispatch(
+        &self,
+        pipeline: &wgpu::ComputePipeline,
+        bind_group: &wgpu::BindGroup,
+        label: &str,
+        groups: (u32, u32),
+        timestamp_writes: Option<wgpu::ComputePassTimestampWrites>,
+    ) -> wgpu::CommandEncoder {
         let mut encoder = self.context.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
         {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(label), timestamp_writes: None });
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(label), timestamp_writes });
             pass.set_pipeline(pipeline);
             pass.set_bind_group(0, bind_group, &[]);
             pass.dispatch_workgroups(groups.0, groups.1, 1);
@@ -364,24 +376,21 @@ impl GpuEngine {
         let bind_group = self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)]);
         let groups = self.context.dispatch_size(input.len() as u32);
         let device = self.context.device();
-        let timestamps = device.features().contains(wgpu::Features::TIMESTAMP_QUERY).then(|| {
+        let timestamps = if device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
             let queries = device.create_query_set(&wgpu::QuerySetDescriptor { label: Some("kernel time"), ty: wgpu::QueryType::Timestamp, count: 2 });
-            (queries, self.context.buffer("kernel time", 16, wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC), self.context.buffer("kernel time staging", 16, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST))
-        });
+            let resolve = self.context.buffer("kernel time", 16, wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC)?;
+            let staging = self.context.buffer("kernel time staging", 16, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST)?;
+            Some((queries, resolve, staging))
+        } else {
+            None
+        };
         let mut best = f64::INFINITY;
         match timestamps {
             Some((queries, resolve, staging)) => {
-                let (resolve, staging) = (resolve?, staging?);
                 let tick = self.context.queue.get_timestamp_period() as f64 * 1e-9;
                 for _ in 0..=repeats {
-                    let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(kernel.name()) });
-                    {
-                        let writes = wgpu::ComputePassTimestampWrites { query_set: &queries, beginning_of_pass_write_index: Some(0), end_of_pass_write_index: Some(1) };
-                        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(kernel.name()), timestamp_writes: Some(writes) });
-                        pass.set_pipeline(&pipeline);
-                        pass.set_bind_group(0, &bind_group, &[]);
-                        pass.dispatch_workgroups(groups.0, groups.1, 1);
-                    }
+                    let writes = wgpu::ComputePassTimestampWrites { query_set: &queries, beginning_of_pass_write_index: Some(0), end_of_pass_write_index: Some(1) };
+                    let mut encoder = self.encode_timed_dispatch(&pipeline, &bind_group, kernel.name(), groups, Some(writes));
                     encoder.resolve_query_set(&queries, 0..2, &resolve, 0);
                     let ticks = self.context.read_back(encoder, &[(&resolve, &staging, 16)], |data| {
                         let stamps: &[u64] = bytemuck::cast_slice(data[0]);
