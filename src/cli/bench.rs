@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use flatport::calib::{Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, simulate};
-use flatport::engine::CpuEngine;
+use flatport::engine::{CpuEngine, CpuPath};
 use flatport::engine::workload::Workload;
 use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision};
 use flatport::io::{rig_from_json_str, write_atomic};
@@ -191,12 +191,13 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     outln!("memory streaming bandwidth (triad, all cores): {:.2} GB/s", stream / 1e9);
 
     let all = CpuEngine::new(None);
-    let one = CpuEngine::new(Some(1));
     let mut out6 = vec![[0.0; 6]; n];
     let mut out4 = vec![[0.0; 4]; n];
     let mut out2 = vec![[0.0; 2]; n];
     let mut status = vec![0u32; n];
-    for (cpu, threads) in [(&one, 1), (&all, all.threads())] {
+    for (path, threads) in [(CpuPath::Scalar, 1), (CpuPath::Vector, 1), (CpuPath::Scalar, all.threads()), (CpuPath::Vector, all.threads())] {
+        let cpu = &CpuEngine::with_path(Some(threads), path);
+        eprintln!("cpu path: {path}, {threads} threads");
         let t = fastest(args.repeats, || {
             cpu.backproject(&a, &work.pixels, &mut out6, &mut status);
             Ok(())
