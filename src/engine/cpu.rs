@@ -1,5 +1,5 @@
 //! The CPU backend: the f64 model of [`crate::model`] over batches, parallel with rayon, on the
-//! vector path of [`super::simd`] (8 rows per instruction) or row by row through the scalar model.
+//! vector path of [`super::simd`] (16 rows at a time) or row by row through the scalar model.
 
 use rayon::prelude::*;
 
@@ -13,7 +13,7 @@ const TASK_ITEMS: usize = 4096;
 /// How the CPU engine evaluates back-projection, forward projection and triangulation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum CpuPath {
-    /// Blocks of 8 rows through the lane twins in [`simd`] (AVX-512, AVX2 or NEON, chosen at run
+    /// Blocks of 16 rows through the lane twins in [`simd`] (AVX-512, AVX2 or NEON, chosen at run
     /// time), rare rows through the scalar model. The default.
     #[default]
     Vector,

@@ -63,11 +63,12 @@ impl Distortion {
     /// tol², tol = 1e-14(1 + |x′|), at most [`UNDISTORT_MAX_ITERATIONS`] steps, all lanes until
     /// the slowest is done.
     ///
-    /// Returns (x, y, ok): `ok` where that run ended with a positive Jacobian determinant inside
-    /// the fold, which is where the scalar function returns the same point. A lane without `ok`
-    /// needs the scalar function (its second run, or its `None`).
+    /// Returns (x, y, ok, steps): `ok` where that run ended with a positive Jacobian determinant
+    /// inside the fold, which is where the scalar function returns the same point (a lane without
+    /// `ok` needs the scalar function: its second run, or its `None`); `steps` the Newton steps
+    /// the block took (one ÷ each).
     #[inline(always)]
-    pub fn undistort_in_fold(&self, xd: F64s, yd: F64s, fold_radius2: f64) -> (F64s, F64s, Mask) {
+    pub fn undistort_in_fold(&self, xd: F64s, yd: F64s, fold_radius2: f64) -> (F64s, F64s, Mask, u32) {
         let (k1, k2) = (self.k1, self.k2);
         let r2 = xd * xd + yd * yd;
         let tolerance = 1e-14 * (1.0 + r2.sqrt());
@@ -76,6 +77,7 @@ impl Distortion {
         let (mut x, mut y) = (xd * shrink, yd * shrink);
         let mut active = Mask::splat(true);
         let mut ok = Mask::splat(false);
+        let mut steps = 0;
         for _ in 0..UNDISTORT_MAX_ITERATIONS {
             let d = self.distort_with_jacobian(x, y);
             let (rx, ry) = (d.x - xd, d.y - yd);
@@ -87,6 +89,7 @@ impl Distortion {
             if !active.any() {
                 break;
             }
+            steps += 1;
             let inv_det = 1.0 / det;
             let step_x = (d.dyy * rx - d.dxy * ry) * inv_det;
             let step_y = (d.dxx * ry - d.dxy * rx) * inv_det;
@@ -102,6 +105,6 @@ impl Distortion {
             ok = ok | (active & (rx * rx + ry * ry).le(tolerance2) & det.gt(F64s::splat(0.0)));
         }
         ok = ok & (x * x + y * y).lt(F64s::splat(fold_radius2));
-        (x, y, ok)
+        (x, y, ok, steps)
     }
 }

@@ -127,6 +127,17 @@ impl<'a> CameraLanes<'a> {
         }
     }
 
+    /// Newton steps of the undistortion for a block of raw pixels (0 without distortion): what
+    /// `flatport bench` counts for the back-projection's floor.
+    pub fn undistortion_steps(&self, u: F64s, v: F64s) -> u32 {
+        if !self.distorts {
+            return 0;
+        }
+        let xd = (u - self.cx) * self.inv_fx;
+        let yd = (v - self.cy) * self.inv_fy;
+        self.distortion.undistort_in_fold(xd, yd, self.fold_radius2).3
+    }
+
     /// [`RefractiveCamera::backproject`] (with the row checks of the CPU engine: an input beyond
     /// ±[`MAX_INPUT`] is [`NoSolution::OutOfRange`]) for a block of raw pixels.
     #[inline(always)]
@@ -137,7 +148,7 @@ impl<'a> CameraLanes<'a> {
         let xd = (u - self.cx) * self.inv_fx;
         let yd = (v - self.cy) * self.inv_fy;
         let (x, y, scalar) = if self.distorts {
-            let (x, y, ok) = self.distortion.undistort_in_fold(xd, yd, self.fold_radius2);
+            let (x, y, ok, _) = self.distortion.undistort_in_fold(xd, yd, self.fold_radius2);
             (x, y, status.answered().and_not(ok))
         } else {
             (xd, yd, Mask::splat(false))
