@@ -33,15 +33,15 @@ fn engines() -> [(CpuEngine, CpuEngine); 2] {
 fn compare<const M: usize>(what: &str, input: &[impl std::fmt::Debug], scalar: (&[[f64; M]], &[u32]), vector: (&[[f64; M]], &[u32])) -> (Vec<String>, usize) {
     let mut wrong = Vec::new();
     let mut inexact = 0;
-    for i in 0..input.len() {
+    for (i, row) in input.iter().enumerate() {
         let (a, b) = ((scalar.0[i], scalar.1[i]), (vector.0[i], vector.1[i]));
         if a.1 != b.1 {
-            wrong.push(format!("{what} row {i} {:?}: status {} (scalar) vs {} (vector)", input[i], a.1, b.1));
+            wrong.push(format!("{what} row {i} {row:?}: status {} (scalar) vs {} (vector)", a.1, b.1));
             continue;
         }
         if a.1 != 0 {
             if !b.0.iter().all(|x| x.is_nan()) {
-                wrong.push(format!("{what} row {i} {:?}: status {} with numbers {:?}", input[i], b.1, b.0));
+                wrong.push(format!("{what} row {i} {row:?}: status {} with numbers {:?}", b.1, b.0));
             }
             continue;
         }
@@ -49,8 +49,9 @@ fn compare<const M: usize>(what: &str, input: &[impl std::fmt::Debug], scalar: (
             inexact += 1;
         }
         for (x, y) in a.0.iter().zip(&b.0) {
-            if !((x - y).abs() <= RELATIVE * x.abs().max(1.0)) {
-                wrong.push(format!("{what} row {i} {:?}: {:?} (scalar) vs {:?} (vector)", input[i], a.0, b.0));
+            // Written so that a NaN on either side fails.
+            if (x - y).abs().partial_cmp(&(RELATIVE * x.abs().max(1.0))) != Some(std::cmp::Ordering::Less) && x != y {
+                wrong.push(format!("{what} row {i} {row:?}: {:?} (scalar) vs {:?} (vector)", a.0, b.0));
                 break;
             }
         }

@@ -100,6 +100,16 @@ pub fn triangulate_row(a: &RefractiveCamera, b: &RefractiveCamera, &[ul, vl, ur,
     Ok([t.point.x, t.point.y, t.point.z, t.residual])
 }
 
+/// Pixels of `points` (master frame) in `camera` on the vector path, or `None` when one of them
+/// has no answer: the calibration's per-corner projections (bundle residuals and Jacobians, the
+/// reprojection cost) in lanes, bit for bit [`RefractiveCamera::project`].
+pub fn project_all(camera: &RefractiveCamera, points: &[[f64; 3]]) -> Option<Vec<[f64; 2]>> {
+    let mut pixels = vec![[0.0; 2]; points.len()];
+    let mut status = vec![0; points.len()];
+    project(camera, points, &mut pixels, &mut status);
+    status.iter().all(|&s| s == 0).then_some(pixels)
+}
+
 /// Column `c` of a block of rows as lanes; a short last block repeats its last row (those lanes
 /// are computed and dropped).
 #[inline(always)]
