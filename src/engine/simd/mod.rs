@@ -40,7 +40,6 @@ macro_rules! dispatched {
         $item
     )*};
 }
-pub(crate) use dispatched;
 
 /// The instruction set the vector path runs on this machine: `avx512`, `avx2`, `neon` or
 /// `baseline` (the build's own target features: SSE2 on x86-64), as the kernels' dispatch
