@@ -12,7 +12,11 @@ pub fn run() -> anyhow::Result<()> {
         std::env::consts::OS
     );
     outln!("devices:");
-    outln!("  cpu: f64 reference, {threads} hardware threads");
+    outln!(
+        "  cpu: f64 reference, {threads} hardware threads; vector path on {} ({} rows at a time)",
+        flatport::engine::simd::instruction_set(),
+        flatport::engine::simd::lanes::LANES
+    );
     let found = adapters();
     if found.is_empty() {
         outln!(

@@ -24,7 +24,7 @@ pub enum CpuPath {
 impl std::fmt::Display for CpuPath {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Self::Vector => write!(f, "vector ({})", simd::instruction_set()),
+            Self::Vector => write!(f, "vector {}", simd::instruction_set()),
             Self::Scalar => f.write_str("scalar"),
         }
     }

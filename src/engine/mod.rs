@@ -121,11 +121,11 @@ impl Engine {
         }
     }
 
-    /// One line saying what runs: `cpu (f64 reference, 16 threads)` or
+    /// One line saying what runs: `cpu (f64 reference, vector avx512, 16 threads)` or
     /// `gpu: NVIDIA H100 (Vulkan, NVIDIA 550.54), f32`.
     pub fn describe(&self) -> String {
         match self {
-            Self::Cpu(cpu) => format!("cpu (f64 reference, {} threads)", cpu.threads()),
+            Self::Cpu(cpu) => format!("cpu (f64 reference, {}, {} threads)", cpu.path(), cpu.threads()),
             Self::Gpu(gpu) => {
                 let a = gpu.context().adapter();
                 format!("gpu: {} ({}, {}), {}", a.name, a.backend, a.driver, gpu.precision())
