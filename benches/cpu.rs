@@ -11,7 +11,7 @@ use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_m
 use flatport::engine::workload::Workload;
 use flatport::engine::{CpuEngine, CpuPath};
 use flatport::io::rig_from_json_str;
-use flatport::model::Rig;
+use flatport::model::{RefractiveCamera, Rig};
 
 const RIG: &str = include_str!("../data/example_rig.json");
 const SIZES: [usize; 4] = [1_000, 10_000, 100_000, 1_000_000];
@@ -34,38 +34,30 @@ fn engines() -> [(&'static str, CpuEngine); 2] {
     [("scalar", CpuEngine::with_path(Some(1), CpuPath::Scalar)), ("vector", CpuEngine::with_path(Some(1), CpuPath::Vector))]
 }
 
-fn backproject(c: &mut Criterion) {
+/// A group per rig (pinhole, distorted) for `relation`: `run` on camera 0 on both paths at every size.
+fn groups<const M: usize>(c: &mut Criterion, relation: &str, run: impl Fn(&CpuEngine, &RefractiveCamera, &Workload, &mut [[f64; M]], &mut [u32])) {
     for (variant, rig) in [("pinhole", pinhole_rig()), ("distorted", rig())] {
-        let mut group = c.benchmark_group(format!("cpu_f64_backproject_{variant}"));
+        let mut group = c.benchmark_group(format!("cpu_f64_{relation}_{variant}"));
         group.sample_size(10);
         let camera = rig.refractive_camera(0);
         for count in SIZES {
             let work = Workload::new(&rig, count);
-            let (mut rays, mut status) = (vec![[0.0; 6]; count], vec![0; count]);
+            let (mut out, mut status) = (vec![[0.0; M]; count], vec![0; count]);
             group.throughput(Throughput::Elements(count as u64));
             for (path, engine) in engines() {
-                group.bench_function(BenchmarkId::new(path, count), |b| b.iter(|| engine.backproject(&camera, &work.pixels, &mut rays, &mut status)));
+                group.bench_function(BenchmarkId::new(path, count), |b| b.iter(|| run(&engine, &camera, &work, &mut out, &mut status)));
             }
         }
         group.finish();
     }
 }
 
+fn backproject(c: &mut Criterion) {
+    groups::<6>(c, "backproject", |engine, camera, work, rays, status| engine.backproject(camera, &work.pixels, rays, status));
+}
+
 fn project(c: &mut Criterion) {
-    for (variant, rig) in [("pinhole", pinhole_rig()), ("distorted", rig())] {
-        let mut group = c.benchmark_group(format!("cpu_f64_project_{variant}"));
-        group.sample_size(10);
-        let camera = rig.refractive_camera(0);
-        for count in SIZES {
-            let work = Workload::new(&rig, count);
-            let (mut pixels, mut status) = (vec![[0.0; 2]; count], vec![0; count]);
-            group.throughput(Throughput::Elements(count as u64));
-            for (path, engine) in engines() {
-                group.bench_function(BenchmarkId::new(path, count), |b| b.iter(|| engine.project(&camera, &work.points, &mut pixels, &mut status)));
-            }
-        }
-        group.finish();
-    }
+    groups::<2>(c, "project", |engine, camera, work, pixels, status| engine.project(camera, &work.points, pixels, status));
 }
 
 fn triangulate(c: &mut Criterion) {

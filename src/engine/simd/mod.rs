@@ -200,35 +200,32 @@ dispatched! {
     /// throughput and not latency counts. `flatport bench` multiplies them by each relation's
     /// count to estimate its floor.
     pub fn sqrt_div_seconds(rounds: usize) -> (f64, f64) {
-        const UNROLL: usize = 16;
-        let mut x: [F64s; 8] = std::array::from_fn(|j| F64s::splat(1.5 + j as f64));
-        let (mut sqrt, mut div) = (f64::INFINITY, f64::INFINITY);
-        for _ in 0..5 {
-            let start = std::time::Instant::now();
-            for _ in 0..rounds.div_ceil(UNROLL) {
-                for _ in 0..UNROLL {
-                    for v in &mut x {
-                        *v = v.sqrt();
-                    }
-                }
-                x = std::hint::black_box(x);
-            }
-            sqrt = sqrt.min(start.elapsed().as_secs_f64());
-            let start = std::time::Instant::now();
-            for _ in 0..rounds.div_ceil(UNROLL) {
-                for _ in 0..UNROLL {
-                    for v in &mut x {
-                        *v = 2.5 / *v;
-                    }
-                }
-                x = std::hint::black_box(x);
-            }
-            div = div.min(start.elapsed().as_secs_f64());
-        }
-        std::hint::black_box(x);
-        let lanes = (rounds.div_ceil(UNROLL) * UNROLL * 8 * LANES) as f64;
+        let sqrt = fastest_of_5(rounds, |v| v.sqrt());
+        let div = fastest_of_5(rounds, |v| 2.5 / v);
+        let lanes = (rounds.div_ceil(PROBE_UNROLL) * PROBE_UNROLL * 8 * LANES) as f64;
         (sqrt / lanes, div / lanes)
     }
+}
+
+/// Rounds of [`sqrt_div_seconds`] between two looks of the optimiser at the values.
+const PROBE_UNROLL: usize = 16;
+
+/// Seconds of the fastest of 5 trials of `rounds` applications of `op` to 8 independent blocks.
+#[inline(always)]
+fn fastest_of_5(rounds: usize, op: impl Fn(F64s) -> F64s + Copy) -> f64 {
+    let mut x: [F64s; 8] = std::array::from_fn(|j| F64s::splat(1.5 + j as f64));
+    let mut best = f64::INFINITY;
+    for _ in 0..5 {
+        let start = std::time::Instant::now();
+        for _ in 0..rounds.div_ceil(PROBE_UNROLL) {
+            for _ in 0..PROBE_UNROLL {
+                x = x.map(op);
+            }
+            x = std::hint::black_box(x);
+        }
+        best = best.min(start.elapsed().as_secs_f64());
+    }
+    best
 }
 
 /// Mean Newton steps of the lane undistortion per block of [`LANES`] pixels of `camera` (each
