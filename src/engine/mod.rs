@@ -19,6 +19,7 @@
 //! ```
 
 pub mod cpu;
+pub mod raymap;
 pub mod workload;
 
 pub use cpu::CpuEngine;
