@@ -194,15 +194,27 @@ pub fn opencv_yaml(rig: &Rig, a: usize, b: Option<usize>) -> Result<String, Expo
     Ok(text)
 }
 
+/// `v` as C's `printf("%.16e", v)`: Rust's `{:.16e}` with the exponent signed and two digits at least.
+fn c_exponential(v: f64) -> String {
+    let text = format!("{v:.16e}");
+    match text.split_once('e') {
+        Some((mantissa, exponent)) => {
+            let exponent: i32 = exponent.parse().expect("Rust writes an integer exponent");
+            format!("{mantissa}e{}{:02}", if exponent < 0 { '-' } else { '+' }, exponent.abs())
+        }
+        None => text, // inf, NaN
+    }
+}
+
 /// K row-major.
 fn camera_matrix(i: &PinholeCamera) -> [f64; 9] {
     [i.fx, 0.0, i.cx, 0.0, i.fy, i.cy, 0.0, 0.0, 1.0]
 }
 
-/// One `!!opencv-matrix` block of doubles, each value to 17 significant digits (`%.16e`, as
-/// OpenCV writes doubles; it reads them back exactly).
+/// One `!!opencv-matrix` block of doubles, each value as C's `%.16e` writes it (17 significant
+/// digits, `8.6490999999999997e+02`), as OpenCV writes doubles; it reads them back exactly.
 fn write_matrix(text: &mut String, name: &str, rows: usize, cols: usize, values: &[f64]) {
-    let data: Vec<String> = values.iter().map(|v| format!("{v:.16e}")).collect();
+    let data: Vec<String> = values.iter().map(|&v| c_exponential(v)).collect();
     let _ = write!(text, "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ ");
     for (i, chunk) in data.chunks(4).enumerate() {
         if i > 0 {
@@ -229,7 +241,7 @@ mod tests {
     const STEREO: &str = r#"[
         {"name": "left", "width": 1280, "height": 1024, "fx": 864.91, "fy": 865.5, "cx": 640.25, "cy": 511.75, "distortion": [-0.1, 0.01, 0.0005, -0.0025, 0.001]},
         {"name": "right", "width": 1280, "height": 1024, "fx": 870, "fy": 870, "cx": 630, "cy": 500,
-         "rotation": [[0.9998, -0.0175, 0.0], [0.0175, 0.9998, 0.0], [0.0, 0.0, 1.0]], "translation": [-0.06, 0.001, 0.002]}]"#;
+         "rotation": [[0.9998468789078377, -0.017499106784510807, 0.0], [0.017499106784510807, 0.9998468789078377, 0.0], [0.0, 0.0, 1.0]], "translation": [-0.06, 0.001, 0.002]}]"#;
 
     #[test]
     fn colmap_lines_have_one_space_between_items_and_the_colmap_pixel_centre() {
@@ -269,6 +281,14 @@ mod tests {
     }
 
     #[test]
+    fn doubles_are_written_as_c_writes_them() {
+        assert_eq!(c_exponential(864.91), "8.6490999999999997e+02");
+        assert_eq!(c_exponential(-2.5e-3), "-2.5000000000000001e-03");
+        assert_eq!(c_exponential(1e-300), "1.0000000000000000e-300");
+        assert_eq!(c_exponential(0.0), "0.0000000000000000e+00");
+    }
+
+    #[test]
     fn rig_config_holds_cam_from_master_in_both_spellings() {
         let rig = rig("[]", STEREO);
         let config: serde_json::Value = serde_json::from_str(&colmap_rig_config(&rig)).unwrap();
@@ -280,8 +300,8 @@ mod tests {
         assert_eq!(right["rel_qvec"], right["cam_from_rig_rotation"]);
         let w = right["rel_qvec"][0].as_f64().unwrap();
         let z = right["rel_qvec"][3].as_f64().unwrap();
-        // A rotation about z by atan2(0.0175, 0.9998).
-        let angle = 0.0175f64.atan2(0.9998);
+        // A rotation about z by 0.0175 rad.
+        let angle = 0.0175f64;
         assert!((w - (angle / 2.0).cos()).abs() < 1e-12 && (z - (angle / 2.0).sin()).abs() < 1e-12);
     }
 
@@ -302,7 +322,7 @@ mod tests {
         let rig = rig("[]", STEREO);
         let one = opencv_yaml(&rig, 1, None).unwrap();
         assert!(one.contains("M1: !!opencv-matrix") && one.contains("D1: !!opencv-matrix") && !one.contains("M2"));
-        assert!(one.contains("8.7000000000000000e2"), "{one}");
+        assert!(one.contains("8.7000000000000000e+02") && one.contains("0.0000000000000000e+00"), "{one}");
         // right → left: R, T invert the rig's extrinsics.
         let reversed = parse_opencv_stereo(&opencv_yaml(&rig, 1, Some(0)).unwrap(), Path::new("r.yml")).unwrap();
         let pose = rig.cameras()[1].cam_from_master.inverse();
