@@ -147,6 +147,11 @@ impl PyRig {
         Ok(self.engine(py, device, precision)?.describe())
     }
 
+    /// The address of the engine of (device, precision), for tests that it is built once.
+    fn engine_id(&self, py: Python<'_>, device: &str, precision: &str) -> PyResult<usize> {
+        Ok(Arc::as_ptr(&self.engine(py, device, precision)?) as usize)
+    }
+
     fn project<'py>(
         &self,
         py: Python<'py>,
