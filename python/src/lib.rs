@@ -80,6 +80,12 @@ impl PyRig {
     }
 }
 
+/// A batch's answer: (N, M) float64 rows and the (N,) uint32 status.
+type Rows<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>);
+
+/// A ray map: (H, W, 6) float64 rays and the (H, W) uint32 status.
+type Image<'py> = (Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<u32>>);
+
 /// Rows of an (N, width) C-contiguous float64 array as `[f64; N]` rows, no copy.
 fn rows<'a, const W: usize>(array: &'a PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<&'a [[f64; W]]> {
     let shape = array.shape();
@@ -96,7 +102,7 @@ fn batch<'py, const N: usize, const M: usize>(
     py: Python<'py>,
     input: &[[f64; N]],
     run: impl FnOnce(&[[f64; N]], &mut [[f64; M]], &mut [u32]) -> Result<(), flatport::engine::EngineError> + Send,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>)> {
+) -> PyResult<Rows<'py>> {
     let n = input.len();
     let (output, status) = py
         .detach(|| {
@@ -159,7 +165,7 @@ impl PyRig {
         camera: usize,
         device: &str,
         precision: &str,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>)> {
+    ) -> PyResult<Rows<'py>> {
         let (engine, view) = (self.engine(py, device, precision)?, self.camera(camera)?);
         batch(py, rows::<3>(&points, "points")?, |i, o, s| engine.project(&view, i, o, s))
     }
@@ -171,7 +177,7 @@ impl PyRig {
         camera: usize,
         device: &str,
         precision: &str,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>)> {
+    ) -> PyResult<Rows<'py>> {
         let (engine, view) = (self.engine(py, device, precision)?, self.camera(camera)?);
         batch(py, rows::<2>(&pixels, "pixels")?, |i, o, s| engine.backproject(&view, i, o, s))
     }
@@ -183,7 +189,7 @@ impl PyRig {
         camera: usize,
         device: &str,
         precision: &str,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>)> {
+    ) -> PyResult<Rows<'py>> {
         let (engine, view) = (self.engine(py, device, precision)?, self.camera(camera)?);
         batch(py, rows::<3>(&points, "points")?, |i, o, s| engine.vop(&view, i, o, s))
     }
@@ -197,7 +203,7 @@ impl PyRig {
         b: usize,
         device: &str,
         precision: &str,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>)> {
+    ) -> PyResult<Rows<'py>> {
         let engine = self.engine(py, device, precision)?;
         let (view_a, view_b) = (self.camera(a)?, self.camera(b)?);
         batch(py, rows::<4>(&matches, "matches")?, |i, o, s| engine.triangulate(&view_a, &view_b, i, o, s))
@@ -210,7 +216,7 @@ impl PyRig {
         camera: usize,
         device: &str,
         precision: &str,
-    ) -> PyResult<(Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<u32>>)> {
+    ) -> PyResult<Image<'py>> {
         let (engine, view) = (self.engine(py, device, precision)?, self.camera(camera)?);
         let (width, height) = (view.intrinsics().width, view.intrinsics().height);
         let pixels = width as usize * height as usize;

@@ -177,3 +177,29 @@ def test_equal_to_the_cli(rig, tmp_path):
     assert status[0] != 0 and np.isnan(cli[0]).all()
     # The CLI writes shortest round-trip decimals: equal bits.
     np.testing.assert_array_equal(uv, cli)
+
+
+def test_compute_releases_the_gil(rig):
+    import threading
+    import time
+
+    points = points_in_view(2_000_000, seed=18)
+    timing = {}
+
+    def work():
+        timing["start"] = time.perf_counter()
+        timing["result"] = rig.project(points, camera="right")
+        timing["end"] = time.perf_counter()
+
+    worker = threading.Thread(target=work)
+    worker.start()
+    # The longest the main thread waited between two steps: with the GIL held through the call,
+    # it would be the whole call.
+    longest, last = 0.0, time.perf_counter()
+    while worker.is_alive():
+        now = time.perf_counter()
+        longest, last = max(longest, now - last), now
+    worker.join()
+    assert (timing["result"][1] == 0).all()
+    call = timing["end"] - timing["start"]
+    assert longest < call / 2, (longest, call)
