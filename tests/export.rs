@@ -215,6 +215,7 @@ fn export_colmap_and_opencv_on_the_command_line() {
     let cameras = std::fs::read_to_string(folder.join("cameras.txt")).unwrap();
     assert_eq!(cameras, flatport::io::colmap_cameras_txt(&example_rig()).unwrap());
     assert!(folder.join("rig_config.json").is_file());
+    assert_eq!(std::fs::read_to_string(folder.join("rigs.txt")).unwrap(), flatport::io::colmap_rigs_txt(&example_rig()));
     // A port of two layers is refused, naming the file and why.
     let mut two = std::fs::read_to_string(rig_path).unwrap();
     two = two.replace(r#""layers": [{"thickness": 0.014, "index": 1.473}]"#, r#""layers": [{"thickness": 0.014, "index": 1.473}, {"thickness": 0.002, "index": 1.4}]"#);

@@ -262,10 +262,17 @@ class Rig:
 
     # --- exports ----------------------------------------------------------------------------
 
-    def export_colmap(self) -> Tuple[str, str]:
-        """colmap_underwater's ``cameras.txt`` (lens + FLATPORT per camera) and COLMAP's rig
-        configuration JSON, as ``flatport export colmap`` writes them."""
-        return self._rig.export_colmap()
+    def export_colmap(self, refrac_token: bool = False) -> dict:
+        """The files ``flatport export colmap`` writes, by name: colmap_underwater's
+        ``cameras.txt`` (lens + FLATPORT per camera, the port in that camera's frame, COLMAP's pixel
+        centres), COLMAP's rig configuration ``rig_config.json`` and ``rigs.txt`` (COLMAP 3.12).
+        ``refrac_token`` writes ``… REFRAC FLATPORT …`` for the COLMAP 3.12 based port.
+
+        >>> files = rig.export_colmap()                                    # doctest: +SKIP
+        >>> print(files["cameras.txt"])                                    # doctest: +SKIP
+        """
+        cameras, config, rigs = self._rig.export_colmap(bool(refrac_token))
+        return {"cameras.txt": cameras, "rig_config.json": config, "rigs.txt": rigs}
 
     def export_opencv(self, cameras: Optional[Sequence[CameraRef]] = None) -> str:
         """The in-air calibration as OpenCV FileStorage YAML: cameras ``(a, b)`` (default the

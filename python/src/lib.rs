@@ -17,7 +17,7 @@ use flatport::calib::{Board, CalibrationOptions, CostBackend, CostKind, CpuBacke
 use flatport::engine::raymap::backproject_rows;
 use flatport::engine::{Device, Engine, EngineOptions};
 use flatport::gpu::Precision;
-use flatport::io::{Truth, colmap_cameras_txt, colmap_rig_config, observations_from_json_str, observations_to_json_string, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string};
+use flatport::io::{ColmapDialect, Truth, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, observations_to_json_string, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string};
 use flatport::io::calib_json::truth_to_json_string;
 use flatport::model::Rig;
 
@@ -237,9 +237,11 @@ impl PyRig {
         Ok((PyArray1::from_vec(py, rays.into_flattened()).reshape([h, w, 6])?, PyArray1::from_vec(py, status).reshape([h, w])?))
     }
 
-    /// colmap_underwater's cameras.txt and COLMAP's rig configuration JSON.
-    fn export_colmap(&self) -> PyResult<(String, String)> {
-        Ok((colmap_cameras_txt(&self.rig).map_err(value_error)?, colmap_rig_config(&self.rig)))
+    /// colmap_underwater's cameras.txt, COLMAP's rig configuration JSON and rigs.txt.
+    #[pyo3(signature = (refrac_token=false))]
+    fn export_colmap(&self, refrac_token: bool) -> PyResult<(String, String, String)> {
+        let dialect = if refrac_token { ColmapDialect::RefracToken } else { ColmapDialect::Legacy };
+        Ok((colmap_cameras_txt_as(&self.rig, dialect).map_err(value_error)?, colmap_rig_config(&self.rig), colmap_rigs_txt(&self.rig)))
     }
 
     /// OpenCV FileStorage YAML of camera `a` (and `b`).

@@ -86,9 +86,9 @@ def test_sweep_arrays(scene):
 def test_a_calibrated_rig_exported_for_colmap_projects_as_flatport(scene):
     _, start, simulation = scene
     rig = flatport.calibrate(start, simulation.observations, method="simultaneous").rig
-    cameras_txt, rig_config = rig.export_colmap()
-    cameras = read_cameras_txt(cameras_txt)
-    poses = {c["camera_id"]: c for c in json.loads(rig_config)[0]["cameras"]}
+    files = rig.export_colmap()
+    cameras = read_cameras_txt(files["cameras.txt"])
+    poses = {c["camera_id"]: c for c in json.loads(files["rig_config.json"])[0]["cameras"]}
     points = points_in_view(25, seed=31)
     for k in range(2):
         R, t = rotation_from_qvec(poses[k + 1]["rel_qvec"]), np.array(poses[k + 1]["rel_tvec"])

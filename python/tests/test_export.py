@@ -23,7 +23,7 @@ LENS_PARAMS = {"OPENCV": 8, "FULL_OPENCV": 12}
 def read_cameras_txt(text):
     """Reconstruction::ReadCamerasText of colmap_underwater: id, model, width, height, the model's
     parameters, then (when the line goes on) the refractive model's name and its parameters; items
-    split at single spaces."""
+    split at single spaces. The COLMAP 3.12 based port's reader skips a REFRAC token first."""
     cameras = {}
     for line in text.splitlines():
         line = line.strip()
@@ -34,6 +34,8 @@ def read_cameras_txt(text):
         count = LENS_PARAMS[model]
         lens = [float(v) for v in items[4 : 4 + count]]
         rest = items[4 + count :]
+        if rest[0] == "REFRAC":
+            rest = rest[1:]
         assert rest[0] == "FLATPORT" and len(rest) == 9, line
         cameras[camera_id] = dict(model=model, width=width, height=height, lens=np.array(lens), port=np.array([float(v) for v in rest[1:]]))
     return cameras
@@ -132,9 +134,9 @@ def full_opencv_rig():
 @pytest.mark.parametrize("make_rig", [lambda: flatport.load_rig(EXAMPLE), full_opencv_rig], ids=["opencv", "full_opencv"])
 def test_colmap_flatport_model_projects_held_out_points_as_flatport_plus_half_a_pixel(make_rig):
     rig = make_rig()
-    cameras_txt, rig_config = rig.export_colmap()
-    cameras = read_cameras_txt(cameras_txt)
-    config = json.loads(rig_config)
+    files = rig.export_colmap()
+    cameras = read_cameras_txt(files["cameras.txt"])
+    config = json.loads(files["rig_config.json"])
     assert config[0]["ref_camera_id"] == 1
     poses = {c["camera_id"]: c for c in config[0]["cameras"]}
     points = points_in_view(40, seed=21)
@@ -152,7 +154,7 @@ def test_colmap_flatport_model_projects_held_out_points_as_flatport_plus_half_a_
 
 def test_colmap_rays_are_flatport_rays_in_the_camera_frame():
     rig = full_opencv_rig()
-    cameras = read_cameras_txt(rig.export_colmap()[0])
+    cameras = read_cameras_txt(rig.export_colmap()["cameras.txt"])
     rng = np.random.default_rng(22)
     pixels = np.stack([rng.uniform(50, 1230, 50), rng.uniform(50, 970, 50)], axis=1)
     for k in range(2):
@@ -164,6 +166,20 @@ def test_colmap_rays_are_flatport_rays_in_the_camera_frame():
             assert np.abs(R @ ray[3:] - direction).max() < 1e-9
             rel = R @ ray[:3] + t - origin
             assert np.linalg.norm(rel - (rel @ direction) * direction) < 1e-9
+
+
+def test_rigs_txt_and_the_refrac_token_dialect():
+    rig = full_opencv_rig()
+    files = rig.export_colmap()
+    line = [l for l in files["rigs.txt"].splitlines() if not l.startswith("#")][0].split(" ")
+    # RIG_ID NUM_SENSORS REF_SENSOR_TYPE REF_SENSOR_ID, then CAMERA 2 HAS_POSE QW QX QY QZ TX TY TZ.
+    assert line[:7] == ["1", "2", "CAMERA", "1", "CAMERA", "2", "1"]
+    R, t = rotation_from_qvec([float(v) for v in line[7:11]]), np.array([float(v) for v in line[11:14]])
+    assert np.abs(R - np.array(rig.cameras[1]["rotation"])).max() < 1e-15
+    assert np.abs(t - np.array(rig.cameras[1]["translation"])).max() < 1e-15
+    token = rig.export_colmap(refrac_token=True)["cameras.txt"]
+    assert token == files["cameras.txt"].replace(" FLATPORT ", " REFRAC FLATPORT ")
+    assert read_cameras_txt(token).keys() == read_cameras_txt(files["cameras.txt"]).keys()
 
 
 def test_colmap_refuses_two_layers():
@@ -192,9 +208,10 @@ def test_cli_exports(tmp_path):
     rig = flatport.load_rig(EXAMPLE)
     binary = flatport_binary()
     subprocess.run([binary, "export", "colmap", "--rig", str(EXAMPLE), "--output", str(tmp_path / "colmap")], check=True, capture_output=True)
-    cameras_txt, rig_config = rig.export_colmap()
-    assert (tmp_path / "colmap" / "cameras.txt").read_text() == cameras_txt
-    assert (tmp_path / "colmap" / "rig_config.json").read_text() == rig_config
+    for name, text in rig.export_colmap().items():
+        assert (tmp_path / "colmap" / name).read_text() == text, name
+    subprocess.run([binary, "export", "colmap", "--rig", str(EXAMPLE), "--refrac-token", "--output", str(tmp_path / "colmap312")], check=True, capture_output=True)
+    assert (tmp_path / "colmap312" / "cameras.txt").read_text() == rig.export_colmap(refrac_token=True)["cameras.txt"]
     subprocess.run([binary, "export", "opencv", "--rig", str(EXAMPLE), "--output", str(tmp_path / "stereo.yml")], check=True, capture_output=True)
     assert (tmp_path / "stereo.yml").read_text() == rig.export_opencv()
     # The YAML goes back into a rig with the same cameras.

@@ -9,7 +9,7 @@ use clap::{Args, Subcommand};
 
 use flatport::engine::raymap::{backproject_rows, rows_per_band};
 use flatport::io::npy::{NpyDtype, NpyWriter};
-use flatport::io::{colmap_cameras_txt, colmap_rig_config, opencv_yaml, read_rig, write_atomic};
+use flatport::io::{ColmapDialect, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, opencv_yaml, read_rig, write_atomic};
 use flatport::model::NoSolution;
 
 use super::geometry::camera_index;
@@ -25,8 +25,10 @@ Writes DIR/cameras.txt: one line per camera, CAMERA_ID k+1 for camera k,
       FLATPORT Nx Ny Nz int_dist int_thick n_air n_glass n_water
 with the port in that camera's own frame (N = R_k n, int_dist = d_k = d - n.C_k) and COLMAP's pixel
 convention (the centre of the top-left pixel is (0.5, 0.5), so cx, cy are flatport's + 0.5);
-and DIR/rig_config.json, COLMAP's rig configuration (rig_bundle_adjuster --rig_config_path) with
-every camera's pose relative to the master (ref_camera_id 1) and the image prefix NAME/.
+DIR/rig_config.json, COLMAP's rig configuration (rig_bundle_adjuster --rig_config_path) with every
+camera's pose relative to the master (ref_camera_id 1) and the image prefix NAME/; and DIR/rigs.txt,
+the same rig as COLMAP 3.12 reads rigs (sensor_from_rig of CAMERA k+1). --refrac-token writes
+`... REFRAC FLATPORT ...`, the line of colmap_underwater's COLMAP 3.12 based port.
 FLATPORT holds one glass layer: a port of two or more layers is refused; a port without layers is
 written as a glass of thickness 0.
 
@@ -64,9 +66,12 @@ pub struct ColmapArgs {
     /// Rig file (JSON)
     #[arg(long, value_name = "RIG.json")]
     rig: PathBuf,
-    /// Output folder (created if missing): cameras.txt and rig_config.json
+    /// Output folder (created if missing): cameras.txt, rig_config.json, rigs.txt
     #[arg(long, short, value_name = "DIR")]
     output: PathBuf,
+    /// Put the token REFRAC before FLATPORT (the COLMAP 3.12 based port of colmap_underwater)
+    #[arg(long)]
+    refrac_token: bool,
 }
 
 /// `flatport export opencv`
@@ -119,12 +124,13 @@ pub fn run(command: ExportCommand) -> anyhow::Result<()> {
 
 fn colmap(args: ColmapArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.rig)?;
-    let cameras = colmap_cameras_txt(&rig).with_context(|| format!("{}: cannot be written for colmap_underwater", args.rig.display()))?;
+    let dialect = if args.refrac_token { ColmapDialect::RefracToken } else { ColmapDialect::Legacy };
+    let cameras = colmap_cameras_txt_as(&rig, dialect).with_context(|| format!("{}: cannot be written for colmap_underwater", args.rig.display()))?;
     if args.output.exists() && !args.output.is_dir() {
         bail!("{}: --output of export colmap is a folder, and this is not one", args.output.display());
     }
     std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create the folder", args.output.display()))?;
-    for (name, text) in [("cameras.txt", cameras), ("rig_config.json", colmap_rig_config(&rig))] {
+    for (name, text) in [("cameras.txt", cameras), ("rig_config.json", colmap_rig_config(&rig)), ("rigs.txt", colmap_rigs_txt(&rig))] {
         let path = args.output.join(name);
         write_atomic(&path, text.as_bytes())?;
         eprintln!("wrote {}", path.display());

@@ -23,6 +23,12 @@
 //! - `OPENCV` is fx fy cx cy k1 k2 p1 p2; `FULL_OPENCV` fx fy cx cy k1 k2 p1 p2 k3 k4 k5 k6 with the
 //!   rational radial term (1 + k1 r² + k2 r⁴ + k3 r⁶) / (1 + k4 r² + k5 r⁴ + k6 r⁶), which is
 //!   OpenCV's 5-term model when k4 = k5 = k6 = 0 (COLMAP `src/colmap/sensor/models.h`).
+//! - The COLMAP 3.12 based port of colmap_underwater (e.g. github.com/gargakshit/colmap,
+//!   `ReadCamerasText` in `src/colmap/scene/reconstruction_io_text.cc`) reads the same line with the
+//!   token `REFRAC` before the refractive model's name ([`ColmapDialect::RefracToken`]), and rigs
+//!   from `rigs.txt` (`ReadRigsText`, same file): `RIG_ID NUM_SENSORS REF_SENSOR_TYPE REF_SENSOR_ID`
+//!   then per other sensor `SENSOR_TYPE SENSOR_ID HAS_POSE QW QX QY QZ TX TY TZ`, the pose being
+//!   sensor_from_rig.
 //! - Rig: COLMAP's `rig_bundle_adjuster --rig_config_path` JSON (`ReadCameraRigConfig`,
 //!   `src/colmap/exe/sfm.cc`): a list of rigs `{"ref_camera_id", "cameras": [{"camera_id",
 //!   "image_prefix", …}]}` with each camera's pose relative to the reference camera as cam_from_rig
@@ -69,6 +75,16 @@ pub enum ExportError {
     },
 }
 
+/// How a `cameras.txt` line introduces the refractive model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ColmapDialect {
+    /// colmap_underwater (COLMAP 3.9 based): `… PARAMS FLATPORT …`.
+    #[default]
+    Legacy,
+    /// Its COLMAP 3.12 based port: `… PARAMS REFRAC FLATPORT …`.
+    RefracToken,
+}
+
 /// colmap_underwater's `cameras.txt` for every camera of `rig`, camera k with CAMERA_ID k + 1:
 /// its lens as `OPENCV` (k3 = 0) or `FULL_OPENCV`, then `FLATPORT` with the shared port expressed
 /// in that camera's own frame (N = R_k n, int_dist = d_k = d − n·C_k).
@@ -76,6 +92,11 @@ pub enum ExportError {
 /// A port without layers is written exactly as a glass of thickness 0 whose index is the water's
 /// (both refractions then give the one air → water refraction). Errors: more than one layer.
 pub fn colmap_cameras_txt(rig: &Rig) -> Result<String, ExportError> {
+    colmap_cameras_txt_as(rig, ColmapDialect::Legacy)
+}
+
+/// [`colmap_cameras_txt`] in either dialect.
+pub fn colmap_cameras_txt_as(rig: &Rig, dialect: ColmapDialect) -> Result<String, ExportError> {
     let interface = rig.interface();
     let (thickness, index_glass) = match interface.layers() {
         [] => (0.0, interface.index_water()),
@@ -95,6 +116,9 @@ pub fn colmap_cameras_txt(rig: &Rig) -> Result<String, ExportError> {
         let i = &camera.intrinsics;
         let mut items: Vec<String> = vec![(k + 1).to_string(), model.to_string(), i.width.to_string(), i.height.to_string()];
         items.extend(lens.iter().map(|v| v.to_string()));
+        if dialect == ColmapDialect::RefracToken {
+            items.push("REFRAC".into());
+        }
         items.push("FLATPORT".into());
         let port = [
             normal_in_cam.x,
@@ -123,6 +147,34 @@ fn colmap_lens(i: &PinholeCamera) -> (&'static str, Vec<f64>) {
     }
 }
 
+/// Each camera's pose relative to the master as COLMAP writes poses: quaternion (w, x, y, z) with
+/// w ≥ 0 (q and −q are one rotation) and translation, X_cam = R·X_master + t.
+fn colmap_pose(camera: &crate::model::RigCamera) -> ([f64; 4], [f64; 3]) {
+    let pose = &camera.cam_from_master;
+    let q = pose.rotation.quaternion();
+    let sign = if q.w < 0.0 { -1.0 } else { 1.0 };
+    let t = pose.translation.vector;
+    ([sign * q.w, sign * q.i, sign * q.j, sign * q.k], [t.x, t.y, t.z])
+}
+
+/// COLMAP 3.12's `rigs.txt` for `rig`: one rig, the master (CAMERA 1) its reference sensor, every
+/// other camera k a sensor `CAMERA k+1` with its sensor_from_rig pose (cam_from_master).
+pub fn colmap_rigs_txt(rig: &Rig) -> String {
+    let mut text = String::from(
+        "# Rig calib list with one line of data per calib, written by flatport export colmap:\n\
+         #   RIG_ID, NUM_SENSORS, REF_SENSOR_TYPE, REF_SENSOR_ID, SENSORS[] as (SENSOR_TYPE, SENSOR_ID, HAS_POSE, [QW, QX, QY, QZ, TX, TY, TZ])\n\
+         # Number of rigs: 1\n",
+    );
+    let mut items: Vec<String> = vec!["1".into(), rig.cameras().len().to_string(), "CAMERA".into(), "1".into()];
+    for (k, camera) in rig.cameras().iter().enumerate().skip(1) {
+        let (q, t) = colmap_pose(camera);
+        items.extend(["CAMERA".to_string(), (k + 1).to_string(), "1".to_string()]);
+        items.extend(q.iter().chain(&t).map(|v| v.to_string()));
+    }
+    let _ = writeln!(text, "{}", items.join(" "));
+    text
+}
+
 /// COLMAP's rig configuration (JSON) for `rig`: one rig whose reference is the master (CAMERA_ID
 /// 1), every camera with its cam_from_master pose and the image prefix `NAME/`.
 pub fn colmap_rig_config(rig: &Rig) -> String {
@@ -131,19 +183,14 @@ pub fn colmap_rig_config(rig: &Rig) -> String {
         .iter()
         .enumerate()
         .map(|(k, camera)| {
-            let pose = &camera.cam_from_master;
-            let q = pose.rotation.quaternion();
-            // q and −q are one rotation: the one with w ≥ 0, as COLMAP normalises.
-            let sign = if q.w < 0.0 { -1.0 } else { 1.0 };
-            let wxyz = [sign * q.w, sign * q.i, sign * q.j, sign * q.k];
-            let t = pose.translation.vector;
+            let (wxyz, t) = colmap_pose(camera);
             serde_json::json!({
                 "camera_id": k + 1,
                 "image_prefix": format!("{}/", camera.name),
                 "rel_qvec": wxyz,
-                "rel_tvec": [t.x, t.y, t.z],
+                "rel_tvec": t,
                 "cam_from_rig_rotation": wxyz,
-                "cam_from_rig_translation": [t.x, t.y, t.z],
+                "cam_from_rig_translation": t,
             })
         })
         .collect();
@@ -286,6 +333,19 @@ mod tests {
         assert_eq!(c_exponential(-2.5e-3), "-2.5000000000000001e-03");
         assert_eq!(c_exponential(1e-300), "1.0000000000000000e-300");
         assert_eq!(c_exponential(0.0), "0.0000000000000000e+00");
+    }
+
+    #[test]
+    fn the_refrac_token_dialect_and_rigs_txt() {
+        let rig = rig("[]", STEREO);
+        let legacy = colmap_cameras_txt(&rig).unwrap();
+        let token = colmap_cameras_txt_as(&rig, ColmapDialect::RefracToken).unwrap();
+        assert_eq!(token, legacy.replace(" FLATPORT ", " REFRAC FLATPORT "));
+        let rigs = colmap_rigs_txt(&rig);
+        let line: Vec<&str> = rigs.lines().last().unwrap().split(' ').collect();
+        assert_eq!(&line[..8], ["1", "2", "CAMERA", "1", "CAMERA", "2", "1", line[7]]);
+        assert_eq!(line.len(), 4 + 3 + 7);
+        assert_eq!(&line[11..], ["-0.06", "0.001", "0.002"]);
     }
 
     #[test]
