@@ -62,3 +62,24 @@ def test_the_engine_is_kept_per_rig(rig):
     assert rig._rig.engine_id("gpu", "f32") == first
     assert rig._rig.engine_id("cpu", "f64") != first
     assert rig._rig.engine_id("cpu", "f64") == rig._rig.engine_id("cpu", "f64")
+
+
+def test_calibrate_and_sweep_on_the_gpu_agree_with_the_cpu(rig):
+    simulation = flatport.simulate(rig, views=8, noise=0.1, seed=3)
+    d = rig.to_dict()
+    d["interface"]["normal"], d["interface"]["distance"] = [0.0, 0.0, 1.0], 0.01
+    start = flatport.Rig.from_dict(d)
+    try:
+        gpu = flatport.calibrate(start, simulation.observations, method="simultaneous", device="gpu")
+    except ValueError as error:
+        pytest.skip(f"the adapter has no f64: {error}")
+    cpu = flatport.calibrate(start, simulation.observations, method="simultaneous", device="cpu")
+    assert gpu.report["backend"].startswith("gpu")
+    assert np.abs(np.array(gpu.rig.interface["normal"]) - np.array(cpu.rig.interface["normal"])).max() < 1e-9
+    assert abs(gpu.rig.interface["distance"] - cpu.rig.interface["distance"]) < 1e-9
+    grid = dict(cost="reprojection", tilt_deg=(6, 10, 5), azimuth_deg=(40, 50, 5))
+    on_gpu = flatport.sweep(start, simulation.observations, device="gpu", precision="f64", **grid)
+    on_cpu = flatport.sweep(start, simulation.observations, **grid)
+    finite = np.isfinite(on_cpu.cost)
+    assert (np.isfinite(on_gpu.cost) == finite).all() and finite.any()
+    assert np.abs(on_gpu.cost[finite] - on_cpu.cost[finite]).max() <= 1e-9 * np.abs(on_cpu.cost[finite]).max()
