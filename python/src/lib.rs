@@ -68,8 +68,8 @@ impl PyRig {
         let options = engine_options(device, precision)?;
         // Opening a GPU takes a while: other Python threads run meanwhile.
         let engine = Arc::new(py.detach(|| Engine::new(&options)).map_err(runtime_error)?);
-        self.engines.lock().expect("engine cache").entry(key).or_insert(engine.clone());
-        Ok(engine)
+        // Another thread may have built one meanwhile: every caller gets the one kept.
+        Ok(self.engines.lock().expect("engine cache").entry(key).or_insert(engine).clone())
     }
 
     fn camera(&self, index: usize) -> PyResult<flatport::model::RefractiveCamera> {
