@@ -14,6 +14,7 @@ use rayon::prelude::*;
 use super::data::{Candidate, StereoData};
 use super::lm::{LeastSquares, NormalEquations};
 use super::search::tangent_step;
+use crate::engine::simd;
 use crate::model::RefractiveCamera;
 
 /// The interface and board poses being refined.
@@ -161,13 +162,16 @@ impl<'a> Bundle<'a> {
     }
 
     /// Residuals (projected − observed, px) of the corners of `view`, left and right, in
-    /// `data.corners` order; `None` when one does not project.
+    /// `data.corners` order; `None` when one does not project. The view's corners are projected
+    /// together, in the lanes of the CPU engine's vector path.
     fn view_residuals(&self, cameras: &[RefractiveCamera; 2], view: usize, pose: &Isometry3<f64>, out: &mut Vec<Vector2<f64>>) -> Option<()> {
-        for corner in &self.data.corners[self.data.views[view].clone()] {
-            let point = pose * self.data.board.point_in_board(corner.index);
-            for (camera, pixel) in cameras.iter().zip(&corner.pixels) {
-                out.push(camera.project(&point).ok()? - pixel);
-            }
+        let corners = &self.data.corners[self.data.views[view].clone()];
+        let points: Vec<[f64; 3]> = corners.iter().map(|c| (pose * self.data.board.point_in_board(c.index)).coords.into()).collect();
+        let [left, right] = [&cameras[0], &cameras[1]].map(|camera| simd::project_all(camera, &points));
+        let (left, right) = (left?, right?);
+        for ((corner, l), r) in corners.iter().zip(&left).zip(&right) {
+            out.push(Vector2::new(l[0], l[1]) - corner.pixels[0].coords);
+            out.push(Vector2::new(r[0], r[1]) - corner.pixels[1].coords);
         }
         Some(())
     }

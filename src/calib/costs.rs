@@ -17,6 +17,7 @@ use nalgebra::{Isometry3, Point2, Point3, Vector2};
 use super::board::{RigidFit, fit_rigid};
 use super::data::{Candidate, Corner, StereoData};
 use super::invariants::{ProjectedVop, plane_angles, plane_fitting, projected_vops};
+use crate::engine::simd;
 use crate::model::{RefractiveCamera, Triangulation, triangulate_rays};
 
 /// Which cost to evaluate.
@@ -179,15 +180,12 @@ pub fn reprojection_residuals(
     cameras: &[RefractiveCamera; 2],
     poses: &[Isometry3<f64>],
 ) -> Option<Vec<[Vector2<f64>; 2]>> {
-    data.corners
-        .iter()
-        .map(|c| {
-            let point = fitted_corner(data, &poses[c.view], c);
-            let left = cameras[0].project(&point).ok()?;
-            let right = cameras[1].project(&point).ok()?;
-            Some(pixel_residuals(c, [left, right]))
-        })
-        .collect()
+    // Every corner at once, in the lanes of the CPU engine's vector path.
+    let points: Vec<[f64; 3]> = data.corners.iter().map(|c| fitted_corner(data, &poses[c.view], c).coords.into()).collect();
+    let left = simd::project_all(&cameras[0], &points)?;
+    let right = simd::project_all(&cameras[1], &points)?;
+    let pixel = |p: &[f64; 2]| Point2::new(p[0], p[1]);
+    Some(data.corners.iter().zip(left.iter().zip(&right)).map(|(c, (l, r))| pixel_residuals(c, [pixel(l), pixel(r)])).collect())
 }
 
 /// [`CostKind::Reprojection`] from the residuals of every corner: √(Σ |r_l|² + |r_r|² / 2N), pixels.

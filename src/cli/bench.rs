@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use flatport::calib::{Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, simulate};
-use flatport::engine::CpuEngine;
+use flatport::engine::{CpuEngine, CpuPath};
 use flatport::engine::workload::Workload;
 use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision};
 use flatport::io::{rig_from_json_str, write_atomic};
@@ -66,6 +66,9 @@ fn sweep_workload(rig: &Rig, cells: usize) -> anyhow::Result<(StereoData, Vec<Ca
 struct Figure {
     kernel: &'static str,
     path: &'static str,
+    /// On the CPU: `scalar` (the model row by row) or `vector` (the lanes of `engine::simd`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    cpu_path: Option<&'static str>,
     precision: &'static str,
     threads: usize,
     stage: &'static str,
@@ -74,15 +77,123 @@ struct Figure {
     timer: &'static str,
     items: usize,
     items_per_s: f64,
+    /// For one CPU thread: cycles per item at the clock the OS reports (`cpu_clock_hz`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    cycles_per_item: Option<f64>,
 }
 
 #[derive(Debug, Serialize)]
 struct Report {
     memory_stream_bytes_per_s: f64,
-    /// What ran: the CPU's threads and the GPU adapter.
+    /// What ran: the CPU's threads, the vector path's instruction set, the GPU adapter.
     cpu_threads: usize,
+    cpu_instruction_set: &'static str,
+    /// The clock the OS reports (/proc/cpuinfo), which `cycles_per_item` counts in.
+    cpu_clock_hz: Option<f64>,
+    /// Where the time goes on the vector path, one thread.
+    floors: Option<Floors>,
     gpu_adapter: Option<String>,
     results: Vec<Figure>,
+}
+
+/// The vector path's cost per item against the floor of its √ and ÷ alone.
+#[derive(Debug, Serialize)]
+struct Floors {
+    /// Cost of one √ and one ÷ per f64 lane on this machine, measured in this run (cycles).
+    sqrt_cycles_per_lane: f64,
+    div_cycles_per_lane: f64,
+    kernels: Vec<Floor>,
+}
+
+#[derive(Debug, Serialize)]
+struct Floor {
+    kernel: &'static str,
+    /// √ and ÷ per item that the relation cannot do without (the scalar model's count, with its
+    /// iteration counts measured on this workload).
+    sqrt_per_item: f64,
+    div_per_item: f64,
+    floor_cycles_per_item: f64,
+    /// The vector path, one thread, this run.
+    cycles_per_item: Option<f64>,
+}
+
+/// The first camera of `rig` with its distortion set to zero.
+fn pinhole_camera(rig: &Rig) -> anyhow::Result<RefractiveCamera> {
+    let mut cameras = rig.cameras().to_vec();
+    cameras[0].intrinsics.distortion = [0.0; 5];
+    Ok(Rig::new(cameras, rig.interface().clone())?.refractive_camera(0))
+}
+
+/// Fastest of `repeats` runs of `run` on each engine after one warm-up each, the engines taking
+/// turns run by run, in seconds.
+fn alternating(repeats: usize, engines: [&CpuEngine; 2], run: &mut dyn FnMut(&CpuEngine)) -> [f64; 2] {
+    let mut best = [f64::INFINITY; 2];
+    for round in 0..=repeats.max(1) {
+        for (k, engine) in engines.iter().enumerate() {
+            let start = Instant::now();
+            run(engine);
+            if round > 0 {
+                best[k] = best[k].min(start.elapsed().as_secs_f64());
+            }
+        }
+    }
+    best
+}
+
+/// The CPU clock the OS reports, in Hz (`cpu MHz` of /proc/cpuinfo; the nominal clock in a
+/// virtual machine, not the boost clock), where there is one.
+fn cpu_clock_hz() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("cpu MHz"))?;
+    let mhz: f64 = line.split(':').nth(1)?.trim().parse().ok()?;
+    (mhz > 0.0).then_some(mhz * 1e6)
+}
+
+/// Prints and returns, for each CPU relation, its cycles per item on the vector path against the
+/// floor set by its square roots and divisions alone, each costed at this machine's measured
+/// throughput per lane. The counts are the scalar model's per row:
+/// - back-projection: √(1 + x² + y²) and its reciprocal, the water's √ and 1/cos a, per layer one
+///   √ and one ÷; with distortion one √ (the tolerance) and one ÷ per Newton step of the
+///   undistortion (steps per block of lanes, measured);
+/// - forward projection: √ of r, the start's two ÷, per Newton iteration (mean over the workload,
+///   measured) one √ and one ÷ per medium but the reference and the step's ÷, then √q and 1/z;
+/// - triangulation: two back-projections, the residual's √ and two ÷.
+fn where_the_time_goes(a: &RefractiveCamera, a_pinhole: &RefractiveCamera, work: &Workload, results: &[Figure], clock_hz: Option<f64>) -> Option<Floors> {
+    let hz = clock_hz?;
+    let (sqrt_s, div_s) = flatport::engine::simd::sqrt_div_seconds(200_000);
+    let (sqrt_c, div_c) = (sqrt_s * hz, div_s * hz);
+    let layers = a.layers().len() as f64;
+    let backproject = |camera: &RefractiveCamera| {
+        let steps = flatport::engine::simd::undistortion_steps(camera, &work.pixels);
+        let distorts = if camera.intrinsics().has_distortion() { 1.0 } else { 0.0 };
+        (2.0 + layers + distorts, 2.0 + layers + steps)
+    };
+    let iterations: Vec<u32> = work
+        .points
+        .iter()
+        .filter_map(|p| a.air_path_to(&nalgebra::Point3::new(p[0], p[1], p[2])).ok().map(|path| path.iterations))
+        .collect();
+    let mean_iterations = iterations.iter().map(|&i| f64::from(i)).sum::<f64>() / iterations.len().max(1) as f64;
+    let media = layers + 2.0;
+    let project = (2.0 + mean_iterations * (media - 1.0), 3.0 + mean_iterations * media);
+    let (bp, bp_pinhole) = (backproject(a), backproject(a_pinhole));
+    let triangulate = (2.0 * bp.0 + 1.0, 2.0 * bp.1 + 2.0);
+    let measured = |kernel: &str| {
+        results.iter().find(|f| f.kernel == kernel && f.cpu_path == Some("vector") && f.threads == 1).and_then(|f| f.cycles_per_item)
+    };
+    outln!("
+where the time goes (vector path, one thread; √ {sqrt_c:.1} and ÷ {div_c:.1} cycles per lane, measured; {mean_iterations:.2} Newton iterations per projected point):");
+    let kernels: Vec<Floor> = [("backproject", bp), ("backproject_pinhole", bp_pinhole), ("project", project), ("triangulate", triangulate)]
+        .into_iter()
+        .map(|(kernel, (sqrt, div))| {
+            let floor = sqrt * sqrt_c + div * div_c;
+            let cycles = measured(kernel);
+            let shown = cycles.map(|c| format!("{c:6.0} cycles/item = {:4.1}× the floor", c / floor)).unwrap_or_default();
+            outln!("  {kernel:19} {sqrt:5.1} √ + {div:5.1} ÷ per item: floor {floor:5.1} cycles; {shown}");
+            Floor { kernel, sqrt_per_item: sqrt, div_per_item: div, floor_cycles_per_item: floor, cycles_per_item: cycles }
+        })
+        .collect();
+    Some(Floors { sqrt_cycles_per_lane: sqrt_c, div_cycles_per_lane: div_c, kernels })
 }
 
 /// Fastest of `repeats` runs of `f` after one warm-up, in seconds.
@@ -178,12 +289,20 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     );
     // The clock of the next figure: `host` unless a GPU kernel time sets `gpu_timestamp`.
     let next_timer = std::cell::Cell::new("host");
+    // The CPU path of the next figure (`scalar`, `vector`; none for the GPU and the sweep).
+    let cpu_path = std::cell::Cell::new(None);
+    let clock_hz = cpu_clock_hz();
     let mut record = |kernel: &'static str, path: &'static str, precision: &'static str, threads: usize, stage: &'static str, seconds: f64| {
         let timer = next_timer.replace("host");
         let items = if kernel == "sweep" { sweep_items } else { n };
-        let figure = Figure { kernel, path, precision, threads, stage, timer, items, items_per_s: items as f64 / seconds };
+        let items_per_s = items as f64 / seconds;
+        // Cycles per item at the OS's clock, for one thread on the CPU.
+        let cycles_per_item = clock_hz.filter(|_| path == "cpu" && threads == 1).map(|hz| hz / items_per_s);
+        let figure = Figure { kernel, path, cpu_path: cpu_path.get(), precision, threads, stage, timer, items, items_per_s, cycles_per_item };
         let clock = if timer == "host" { String::new() } else { format!("  ({timer})") };
-        outln!("{kernel:12} {path:3} {precision} {threads:>3} thr {stage:10} {}{clock}", human(figure.items_per_s));
+        let cycles = cycles_per_item.map(|c| format!("  {c:6.0} cycles/item")).unwrap_or_default();
+        let variant = cpu_path.get().unwrap_or("");
+        outln!("{kernel:19} {path:3} {variant:6} {precision} {threads:>3} thr {stage:10} {}{clock}{cycles}", human(items_per_s));
         results.push(figure);
     };
 
@@ -191,30 +310,31 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     outln!("memory streaming bandwidth (triad, all cores): {:.2} GB/s", stream / 1e9);
 
     let all = CpuEngine::new(None);
-    let one = CpuEngine::new(Some(1));
     let mut out6 = vec![[0.0; 6]; n];
     let mut out4 = vec![[0.0; 4]; n];
     let mut out2 = vec![[0.0; 2]; n];
     let mut status = vec![0u32; n];
-    for (cpu, threads) in [(&one, 1), (&all, all.threads())] {
-        let t = fastest(args.repeats, || {
-            cpu.backproject(&a, &work.pixels, &mut out6, &mut status);
-            Ok(())
-        })?;
-        record("backproject", "cpu", "f64", threads, "end_to_end", t);
-        let t = fastest(args.repeats, || {
-            cpu.project(&a, &work.points, &mut out2, &mut status);
-            Ok(())
-        })?;
-        record("project", "cpu", "f64", threads, "end_to_end", t);
-        let t = fastest(args.repeats, || {
-            cpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status);
-            Ok(())
-        })?;
-        record("triangulate", "cpu", "f64", threads, "end_to_end", t);
+    // The first camera without its distortion: the refraction alone.
+    let a_pinhole = pinhole_camera(&rig)?;
+    let isa = flatport::engine::simd::instruction_set();
+    eprintln!("CPU paths: scalar (the model row by row) and vector ({isa}), run by run in turn");
+    for threads in [1, all.threads()] {
+        let [scalar, vector] = [CpuPath::Scalar, CpuPath::Vector].map(|path| CpuEngine::with_path(Some(threads), path));
+        let mut pair = |kernel: &'static str, run: &mut dyn FnMut(&CpuEngine)| {
+            let [t_scalar, t_vector] = alternating(args.repeats, [&scalar, &vector], run);
+            cpu_path.set(Some("scalar"));
+            record(kernel, "cpu", "f64", threads, "end_to_end", t_scalar);
+            cpu_path.set(Some("vector"));
+            record(kernel, "cpu", "f64", threads, "end_to_end", t_vector);
+        };
+        pair("backproject", &mut |cpu| cpu.backproject(&a, &work.pixels, &mut out6, &mut status));
+        pair("backproject_pinhole", &mut |cpu| cpu.backproject(&a_pinhole, &work.pixels, &mut out6, &mut status));
+        pair("project", &mut |cpu| cpu.project(&a, &work.points, &mut out2, &mut status));
+        pair("triangulate", &mut |cpu| cpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status));
     }
     let cpu_backend = CpuBackend::new(&sweep_data);
     let t = fastest(args.repeats.min(2), || Ok(cpu_backend.costs(CostKind::AffineGrid, &sweep_candidates).map(drop)?))?;
+    cpu_path.set(None);
     record("sweep", "cpu", "f64", all.threads(), "end_to_end", t);
 
     let mut adapter = None;
@@ -261,9 +381,18 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         }
     }
 
+    let floors = where_the_time_goes(&a, &a_pinhole, &work, &results, clock_hz);
     print_ratios(&results, stream, all.threads());
     if let Some(path) = &args.json {
-        let report = Report { memory_stream_bytes_per_s: stream, cpu_threads: all.threads(), gpu_adapter: adapter, results };
+        let report = Report {
+            memory_stream_bytes_per_s: stream,
+            cpu_threads: all.threads(),
+            cpu_instruction_set: isa,
+            cpu_clock_hz: clock_hz,
+            floors,
+            gpu_adapter: adapter,
+            results,
+        };
         let text = serde_json::to_string_pretty(&report).context("serialising the report")?;
         write_atomic(path, text.as_bytes())?;
         eprintln!("wrote {}", path.display());
@@ -275,19 +404,35 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
 /// reference they were set against, are in the README's "Speed goals" section (this command
 /// cannot run that reference, so it does not compare against it).
 fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
-    let rate = |kernel: &str, path: &str, precision: &str, threads: Option<usize>, stage: &str| {
+    // A CPU figure is the vector path's unless `scalar` is asked for.
+    let rate_on = |kernel: &str, path: &str, cpu_path: Option<&str>, precision: &str, threads: Option<usize>, stage: &str| {
         results
             .iter()
-            .find(|f| f.kernel == kernel && f.path == path && f.precision == precision && threads.is_none_or(|t| f.threads == t) && f.stage == stage)
+            .find(|f| {
+                f.kernel == kernel
+                    && f.path == path
+                    && (path != "cpu" || f.cpu_path.is_none() || f.cpu_path == cpu_path)
+                    && f.precision == precision
+                    && threads.is_none_or(|t| f.threads == t)
+                    && f.stage == stage
+            })
             .map(|f| f.items_per_s)
     };
+    let rate = |kernel: &str, path: &str, precision: &str, threads: Option<usize>, stage: &str| rate_on(kernel, path, Some("vector"), precision, threads, stage);
     outln!("\nratios from this run (the goals are in the README, \"Speed goals\"):");
     let cpu_all = |k: &str| rate(k, "cpu", "f64", Some(threads), "end_to_end");
     let show = |name: &str, value: Option<f64>| match value {
-        Some(v) => outln!("  {name:60} {v:8.2}"),
-        None => outln!("  {name:60}      n/a"),
+        Some(v) => outln!("  {name:72} {v:8.2}"),
+        None => outln!("  {name:72}      n/a"),
     };
     let ratio = |x: Option<f64>, y: Option<f64>| x.zip(y).map(|(x, y)| x / y);
+    for kernel in ["backproject", "backproject_pinhole", "project", "triangulate"] {
+        for t in [1, threads] {
+            let vector = rate_on(kernel, "cpu", Some("vector"), "f64", Some(t), "end_to_end");
+            let scalar = rate_on(kernel, "cpu", Some("scalar"), "f64", Some(t), "end_to_end");
+            show(&format!("{kernel} CPU vector / scalar, {t} thread(s)"), ratio(vector, scalar));
+        }
+    }
     show("backproject GPU f32 kernel / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "kernel"), cpu_all("backproject")));
     show("backproject GPU f32 end to end / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "end_to_end"), cpu_all("backproject")));
     let best = results.iter().filter(|f| f.kernel == "backproject").map(|f| f.items_per_s).fold(0.0, f64::max);

@@ -20,9 +20,10 @@
 
 pub mod cpu;
 pub mod raymap;
+pub mod simd;
 pub mod workload;
 
-pub use cpu::CpuEngine;
+pub use cpu::{CpuEngine, CpuPath};
 
 use crate::gpu::{GpuContext, GpuEngine, GpuError, Precision};
 use crate::model::{RefractiveCamera, Rig};

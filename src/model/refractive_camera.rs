@@ -187,6 +187,28 @@ impl RefractiveCamera {
         self.fold_radius2
     }
 
+    /// R_k: rotation from the master frame to this camera's frame.
+    pub fn cam_from_master(&self) -> &Matrix3<f64> {
+        &self.cam_from_master
+    }
+
+    /// R_k·n: the system axis in this camera's frame.
+    pub fn normal_in_cam(&self) -> &Vector3<f64> {
+        &self.normal_in_cam
+    }
+
+    /// Σ tᵢ: the thickness of all layers, metres.
+    pub fn layers_thickness(&self) -> f64 {
+        self.layers_thickness
+    }
+
+    /// The forward-projection root finder's media, for the vector twin in
+    /// [`engine::simd`](crate::engine::simd): (air, water, then the layers; the index of the
+    /// slowest).
+    pub(crate) fn path_media(&self) -> (&[Medium], usize) {
+        (&self.media, self.slowest)
+    }
+
     /// Unit viewing direction of a (distorted) pixel in the master frame.
     ///
     /// Errors: [`NoSolution::OutsideLens`] when undistortion fails or lands beyond the fold of the
@@ -466,23 +488,23 @@ impl RefractiveCamera {
 }
 
 /// Index of the air in [`RefractiveCamera`]'s media.
-const AIR: usize = 0;
+pub(crate) const AIR: usize = 0;
 /// Index of the water in [`RefractiveCamera`]'s media; the layers follow it.
-const WATER: usize = 1;
+pub(crate) const WATER: usize = 1;
 
 /// A medium that a forward-projection path crosses, with the constants its root finder needs.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Medium {
+pub(crate) struct Medium {
     /// Length along the axis: d_k for the air, tᵢ for a layer; unused for the water, whose length
     /// is the depth of the point.
-    length: f64,
+    pub(crate) length: f64,
     /// ρ = μ/μ_air.
-    rho: f64,
+    pub(crate) rho: f64,
     /// 1/ρ.
-    inv_rho: f64,
+    pub(crate) inv_rho: f64,
     /// Critical-angle top of the bracket in this medium's variable: light must enter every medium,
     /// v < 1/√(k² − 1) for every k = ρ/ρₘ > 1 (∞ when there is none).
-    critical_top: f64,
+    pub(crate) critical_top: f64,
 }
 
 /// The media of the path to one point: a camera's media with the water as deep as the point.
@@ -631,7 +653,7 @@ impl PathMedia<'_> {
 
 /// Lengths above this are scaled by their largest component before squaring (three squares of
 /// 1e150 stay far below f64's 1.8e308). Below it the plain Euclidean norm runs, bit for bit.
-const SCALE_ABOVE: f64 = 1e150;
+pub(crate) const SCALE_ABOVE: f64 = 1e150;
 
 /// |v| without overflow of the squares for any finite v (hypot-like: scaled by the largest
 /// component when that exceeds [`SCALE_ABOVE`]). Twin of `length_scaled` in shaders/lib/air_path.wgsl.

@@ -10,6 +10,8 @@
 //! - the Virtual Object Point by intersecting the air ray's extension with the object axis.
 #![allow(dead_code)]
 
+pub mod random_rig;
+
 use flatport::model::{Interface, Layer, PinholeCamera, RefractiveCamera, Rig, RigCamera};
 use nalgebra::{Matrix3, Point2, Point3, Rotation3, Vector3};
 
