@@ -32,3 +32,30 @@ export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 
 cargo test --release --all-targets "$@"
 cargo test --release --doc "$@"
+
+# The Python package (python/, README "Python"): built by maturin (`pip install ./python`) into a
+# virtual environment under target/, sharing target/ with the builds above, then its pytest suite,
+# which also compares with the CLI just built (target/release/flatport).
+python_tests() {
+    if ! command -v python3 >/dev/null 2>&1; then
+        echo "error: python3 not found; the Python package's tests need Python 3.9 or newer" >&2
+        exit 1
+    fi
+    if ! python3 -c 'import venv, ensurepip' >/dev/null 2>&1; then
+        if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+            echo "installing python3-venv (python3 -m venv needs it on Debian)..." >&2
+            export DEBIAN_FRONTEND=noninteractive
+            apt-get update -qq
+            apt-get install -y -qq python3-venv >/dev/null
+        else
+            echo "error: python3 -m venv does not work here. On Debian/Ubuntu: sudo apt-get install python3-venv" >&2
+            exit 1
+        fi
+    fi
+    local venv=target/python-venv
+    [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+    "$venv/bin/python" -m pip install -q numpy pytest
+    CARGO_TARGET_DIR="$PWD/target" "$venv/bin/python" -m pip install -q --force-reinstall --no-deps ./python
+    FLATPORT_BIN="$PWD/target/release/flatport" "$venv/bin/python" -m pytest python/tests -q
+}
+python_tests

@@ -7,7 +7,7 @@ mod gpu_harness;
 
 use gpu_harness::{Random, engine};
 use flatport::calib::{Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, simulate};
-use flatport::gpu::Precision;
+use flatport::gpu::{GpuEngine, Precision};
 use flatport::model::Rig;
 use nalgebra::{Unit, Vector3};
 
@@ -97,7 +97,7 @@ struct Deviation {
 
 /// Every cost and the air layers of `batch` on the CPU and on `gpu`, (name, deviation), and the
 /// GPU's values (costs of each kind, then the air layers, +∞ where none).
-fn compare(data: &StereoData, gpu: &GpuBackend, batch: &[Candidate]) -> (Vec<(&'static str, Deviation)>, Vec<Vec<f64>>) {
+fn compare(data: &StereoData, gpu: &GpuBackend<&StereoData, &GpuEngine>, batch: &[Candidate]) -> (Vec<(&'static str, Deviation)>, Vec<Vec<f64>>) {
     let cpu = CpuBackend::new(data);
     let (mut out, mut values) = (Vec::new(), Vec::new());
     for kind in CostKind::ALL {

@@ -208,6 +208,10 @@ fn every_command_has_help_with_an_example() {
     }
     let help = run_ok(&["rig", "from-opencv", "--help"]);
     assert!(help.contains("Example") && help.contains("--distance"));
+    for format in ["colmap", "opencv", "raymap"] {
+        let help = run_ok(&["export", format, "--help"]);
+        assert!(help.contains("Example") && help.contains("flatport export"), "export {format}");
+    }
     let info = run_ok(&["info"]);
     assert!(info.contains(env!("CARGO_PKG_VERSION")) && info.contains("cpu"));
 }

@@ -1,6 +1,9 @@
 //! Where batches of candidate costs are evaluated: the host optimisers hand a whole batch
 //! (a search grid, a finite-difference stencil) to a [`CostBackend`] in one call.
 
+use std::ops::Deref;
+use std::sync::Arc;
+
 use nalgebra::{Unit, Vector3};
 use rayon::prelude::*;
 
@@ -59,28 +62,32 @@ pub trait CostBackend: Sync {
 }
 
 /// The f64 reference on the CPU, parallel over candidates (rayon).
+///
+/// `D` is how it holds the data: a borrow (`CpuBackend::new(&data)`) or shared ownership
+/// (`CpuBackend::new(Arc::new(data))`, the default type), for holders that outlive a scope, such
+/// as a Python object.
 #[derive(Debug)]
-pub struct CpuBackend<'a> {
-    data: &'a StereoData,
+pub struct CpuBackend<D = Arc<StereoData>> {
+    data: D,
 }
 
-impl<'a> CpuBackend<'a> {
+impl<D: Deref<Target = StereoData>> CpuBackend<D> {
     /// A backend over `data`.
-    pub fn new(data: &'a StereoData) -> Self {
+    pub fn new(data: D) -> Self {
         Self { data }
     }
 }
 
-impl CostBackend for CpuBackend<'_> {
+impl<D: Deref<Target = StereoData> + Sync> CostBackend for CpuBackend<D> {
     fn describe(&self) -> String {
         format!("cpu (f64 reference, {} threads)", rayon::current_num_threads())
     }
 
     fn data(&self) -> &StereoData {
-        self.data
+        &self.data
     }
 
     fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
-        Ok(candidates.par_iter().map(|c| cost(self.data, kind, c)).collect())
+        Ok(candidates.par_iter().map(|c| cost(&self.data, kind, c)).collect())
     }
 }

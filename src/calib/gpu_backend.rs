@@ -12,6 +12,9 @@
 //! per-view fits on the host. A candidate that puts a camera outside the air, or under which a
 //! corner has no answer, costs +∞ as on the CPU.
 
+use std::ops::Deref;
+use std::sync::Arc;
+
 use nalgebra::{Point2, Point3, Unit, Vector3};
 use rayon::prelude::*;
 
@@ -24,9 +27,13 @@ use super::invariants::ProjectedVop;
 use crate::gpu::{AffineGridInput, GpuEngine};
 
 /// The costs of candidate batches evaluated by a [`GpuEngine`] (any adapter, f32 or f64).
-pub struct GpuBackend<'a> {
-    data: &'a StereoData,
-    engine: &'a GpuEngine,
+///
+/// `D` and `E` are how it holds the data and the engine: borrows (`GpuBackend::new(&data,
+/// &engine)`) or shared ownership (`Arc`, the default types), for holders that outlive a scope,
+/// such as a Python object.
+pub struct GpuBackend<D = Arc<StereoData>, E = Arc<GpuEngine>> {
+    data: D,
+    engine: E,
     /// v_l, v_r of every corner (master frame).
     air_rays: Vec<[f64; 6]>,
     /// v_l, v_r, ∂v_l/∂u, ∂v_l/∂v, ∂v_r/∂u, ∂v_r/∂v of every corner.
@@ -35,9 +42,9 @@ pub struct GpuBackend<'a> {
     affine_input: AffineGridInput,
 }
 
-impl<'a> GpuBackend<'a> {
+impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, E> {
     /// A backend over `data` running on `engine` (whose pipelines and buffers it reuses).
-    pub fn new(data: &'a StereoData, engine: &'a GpuEngine) -> Self {
+    pub fn new(data: D, engine: E) -> Self {
         let air_rays = data.corners.iter().map(|c| std::array::from_fn(|i| c.dirs[i / 3][i % 3])).collect();
         let vop_rows = data
             .corners
@@ -61,12 +68,12 @@ impl<'a> GpuBackend<'a> {
 
     /// The engine the kernels run on.
     pub fn engine(&self) -> &GpuEngine {
-        self.engine
+        &self.engine
     }
 
     /// Reprojection, scene or ray-gap costs: triangulation on the device, fits on the host.
     fn scene_costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
-        let data = self.data;
+        let data: &StereoData = &self.data;
         let corners = data.corners.len();
         let mut costs = vec![f64::INFINITY; candidates.len()];
         // Candidates that keep both cameras in the air, with the axis as the rig normalises it.
@@ -147,7 +154,7 @@ impl<'a> GpuBackend<'a> {
     /// The affine-grid invariant: the fused kernel per (axis, view) in f64 on the device, the
     /// sum over views on the host; on adapters without SHADER_F64 the CPU twin runs instead.
     fn affine_grid_costs(&self, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
-        let data = self.data;
+        let data: &StereoData = &self.data;
         if !self.engine.context().adapter().f64 {
             return Ok(candidates.par_iter().map(|c| super::costs::cost(data, CostKind::AffineGrid, c)).collect());
         }
@@ -170,7 +177,7 @@ impl<'a> GpuBackend<'a> {
 
     /// The plane errors: projected VOPs on the device, per-view line fits on the host.
     fn plane_costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
-        let data = self.data;
+        let data: &StereoData = &self.data;
         let corners = data.corners.len();
         let axes: Vec<[f64; 4]> = candidates.iter().map(|c| [c.normal.x, c.normal.y, c.normal.z, 0.0]).collect();
         let mut rows = vec![[0.0; 10]; axes.len() * corners];
@@ -190,18 +197,18 @@ impl<'a> GpuBackend<'a> {
     }
 }
 
-impl CostBackend for GpuBackend<'_> {
+impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> CostBackend for GpuBackend<D, E> {
     fn describe(&self) -> String {
         let a = self.engine.context().adapter();
         format!("gpu: {} ({}, {}), {}", a.name, a.backend, a.driver, self.engine.precision())
     }
 
     fn data(&self) -> &StereoData {
-        self.data
+        &self.data
     }
 
     fn over<'b>(&'b self, data: &'b StereoData) -> Box<dyn CostBackend + 'b> {
-        Box::new(GpuBackend::new(data, self.engine))
+        Box::new(GpuBackend::new(data, &*self.engine))
     }
 
     fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
@@ -213,7 +220,7 @@ impl CostBackend for GpuBackend<'_> {
     }
 
     fn air_distances(&self, normals: &[Unit<Vector3<f64>>]) -> Result<Vec<Option<f64>>, CalibError> {
-        let data = self.data;
+        let data: &StereoData = &self.data;
         let corners = data.corners.len();
         let mut distances = vec![None; normals.len()];
         // Axes that are interface normals at all (the CPU reference samples the rays there).

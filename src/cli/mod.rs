@@ -16,6 +16,7 @@ mod batch;
 mod calib;
 mod bench;
 mod demo;
+mod export;
 mod geometry;
 mod info;
 mod progress;
@@ -150,6 +151,9 @@ slice I of N into its own folder, `flatport sweep merge` joins the folders into 
     /// Rig files: import OpenCV stereoCalibrate output, show a rig
     #[command(subcommand)]
     Rig(rig::RigCommand),
+    /// Export a rig for other tools (colmap_underwater, OpenCV) or a camera's per-pixel ray map (.npy)
+    #[command(subcommand)]
+    Export(export::ExportCommand),
     /// Run the built-in example end to end: simulate a rig, calibrate it, sweep the cost, tour the geometry
     #[command(after_help = "\
 Example:
@@ -307,6 +311,7 @@ pub fn main() -> ExitCode {
         Command::Triangulate(args) => geometry::triangulate(args),
         Command::Vop(args) => geometry::vop(args),
         Command::Rig(command) => rig::run(command),
+        Command::Export(command) => export::run(command),
         Command::Simulate(args) => calib::run_simulate(args),
         Command::Calibrate(args) => calib::run_calibrate(args),
         Command::Sweep(args) => sweep::run(args),

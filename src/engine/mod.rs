@@ -19,6 +19,7 @@
 //! ```
 
 pub mod cpu;
+pub mod raymap;
 pub mod simd;
 pub mod workload;
 
@@ -207,6 +208,35 @@ impl Engine {
         }
     }
 
+    /// [`project`](Self::project) for f32 rows (a pipeline's own buffers): the rows are widened
+    /// to f64 in blocks of [`F32_BLOCK_ROWS`], computed as f64 and narrowed back, so memory stays
+    /// bounded and the answers are the f64 answers rounded to f32.
+    pub fn project_f32(&self, camera: &RefractiveCamera, points: &[[f32; 3]], pixels: &mut [[f32; 2]], status: &mut [u32]) -> Result<(), EngineError> {
+        widened(points, pixels, status, |i, o, s| self.project(camera, i, o, s))
+    }
+
+    /// [`backproject`](Self::backproject) for f32 rows, as [`project_f32`](Self::project_f32).
+    pub fn backproject_f32(&self, camera: &RefractiveCamera, pixels: &[[f32; 2]], rays: &mut [[f32; 6]], status: &mut [u32]) -> Result<(), EngineError> {
+        widened(pixels, rays, status, |i, o, s| self.backproject(camera, i, o, s))
+    }
+
+    /// [`vop`](Self::vop) for f32 rows, as [`project_f32`](Self::project_f32).
+    pub fn vop_f32(&self, camera: &RefractiveCamera, points: &[[f32; 3]], vops: &mut [[f32; 6]], status: &mut [u32]) -> Result<(), EngineError> {
+        widened(points, vops, status, |i, o, s| self.vop(camera, i, o, s))
+    }
+
+    /// [`triangulate`](Self::triangulate) for f32 rows, as [`project_f32`](Self::project_f32).
+    pub fn triangulate_f32(
+        &self,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        matches: &[[f32; 4]],
+        points: &mut [[f32; 4]],
+        status: &mut [u32],
+    ) -> Result<(), EngineError> {
+        widened(matches, points, status, |i, o, s| self.triangulate(a, b, i, o, s))
+    }
+
     /// The ray-gap cost of candidate interfaces for cameras `a` and `b` of `rig`. Each candidate
     /// is (n_x, n_y, n_z, d): a system axis (normalised here) and the master's air layer, the
     /// layers and indices staying those of the rig. For every pair of air rays (v_a xyz, v_b
@@ -223,4 +253,31 @@ impl Engine {
             Self::Gpu(gpu) => Ok(gpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs)?),
         }
     }
+}
+
+/// Rows per block of the `_f32` entry points: 64 Ki rows keep the f64 copies under 4 MiB per
+/// block of 8-real rows while a GPU chunk stays large enough to pay for its dispatch.
+pub const F32_BLOCK_ROWS: usize = 1 << 16;
+
+/// Runs an f64 batch `run` over f32 rows block by block: widens `input`, narrows the output.
+/// Panics if the slices differ in length, as the f64 entry points do.
+fn widened<const N: usize, const M: usize>(
+    input: &[[f32; N]],
+    output: &mut [[f32; M]],
+    status: &mut [u32],
+    mut run: impl FnMut(&[[f64; N]], &mut [[f64; M]], &mut [u32]) -> Result<(), EngineError>,
+) -> Result<(), EngineError> {
+    assert!(input.len() == output.len() && input.len() == status.len(), "input, output and status of equal length");
+    let block = F32_BLOCK_ROWS.min(input.len().max(1));
+    let (mut wide_in, mut wide_out) = (Vec::with_capacity(block), vec![[0.0; M]; block]);
+    for ((rows_in, rows_out), rows_status) in input.chunks(block).zip(output.chunks_mut(block)).zip(status.chunks_mut(block)) {
+        wide_in.clear();
+        wide_in.extend(rows_in.iter().map(|row| row.map(f64::from)));
+        let wide_out = &mut wide_out[..rows_in.len()];
+        run(&wide_in, wide_out, rows_status)?;
+        for (narrow, wide) in rows_out.iter_mut().zip(wide_out.iter()) {
+            *narrow = wide.map(|v| v as f32);
+        }
+    }
+    Ok(())
 }

@@ -154,9 +154,12 @@ fn instance() -> wgpu::Instance {
 }
 
 fn summary(adapter: &wgpu::Adapter) -> AdapterSummary {
-    let info = adapter.get_info();
-    let features = adapter.features();
-    let limits = adapter.limits();
+    summary_of(adapter.get_info(), adapter.features(), &adapter.limits())
+}
+
+/// The summary of an adapter with these features and limits (the adapter's own, or those a
+/// device was given).
+fn summary_of(info: wgpu::AdapterInfo, features: wgpu::Features, limits: &wgpu::Limits) -> AdapterSummary {
     AdapterSummary {
         name: info.name,
         backend: format!("{:?}", info.backend),
@@ -168,6 +171,12 @@ fn summary(adapter: &wgpu::Adapter) -> AdapterSummary {
         max_storage_binding: limits.max_storage_buffer_binding_size,
         max_workgroups_per_dimension: limits.max_compute_workgroups_per_dimension,
     }
+}
+
+/// The limit of one wait: [`TIMEOUT_ENV`] seconds, else [`DEFAULT_TIMEOUT_S`].
+fn wait_limit() -> std::time::Duration {
+    let seconds = std::env::var(TIMEOUT_ENV).ok().and_then(|s| s.trim().parse::<u64>().ok()).filter(|&s| s > 0).unwrap_or(DEFAULT_TIMEOUT_S);
+    std::time::Duration::from_secs(seconds)
 }
 
 /// Every Vulkan adapter on this machine.
@@ -250,8 +259,43 @@ impl GpuContext {
                 keep_first(&sink.lost, format!("{reason:?}: {message}"));
             }
         });
-        let seconds = std::env::var(TIMEOUT_ENV).ok().and_then(|s| s.trim().parse::<u64>().ok()).filter(|&s| s > 0).unwrap_or(DEFAULT_TIMEOUT_S);
-        Ok(Self { device, queue, summary, mapped_storage, faults, timeout: std::time::Duration::from_secs(seconds) })
+        Ok(Self { device, queue, summary, mapped_storage, faults, timeout: wait_limit() })
+    }
+
+    /// A context on a device and queue the caller already has (a pipeline that renders or runs
+    /// its own kernels on the same GPU shares them with flatport instead of opening a second
+    /// device). `adapter` is the one the device was requested from; flatport's kernels use what
+    /// the device was given: f64 kernels need `SHADER_F64`, the subgroup reduction `SUBGROUP`, and
+    /// buffers stay under the device's `max_storage_buffer_binding_size`.
+    ///
+    /// The device's uncaptured-error handler and device-lost callback stay the caller's: flatport
+    /// installs none on a borrowed device, so a fault outside flatport's error scopes reaches the
+    /// caller's handler (wgpu's default panics), and a lost device shows as failed waits.
+    ///
+    /// ```no_run
+    /// # async fn run() -> Result<(), Box<dyn std::error::Error>> {
+    /// let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+    /// let adapter = instance.request_adapter(&wgpu::RequestAdapterOptions::default()).await?;
+    /// let (device, queue) = adapter.request_device(&wgpu::DeviceDescriptor {
+    ///     required_features: adapter.features() & wgpu::Features::SHADER_F64,
+    ///     ..Default::default()
+    /// }).await?;
+    /// // … the pipeline's own work on `device` …
+    /// let context = flatport::gpu::GpuContext::from_device(&adapter, device.clone(), queue.clone());
+    /// let engine = flatport::gpu::GpuEngine::new(context, flatport::gpu::Precision::F32)?;
+    /// # Ok(()) }
+    /// ```
+    pub fn from_device(adapter: &wgpu::Adapter, device: wgpu::Device, queue: wgpu::Queue) -> Self {
+        let features = device.features();
+        let summary = summary_of(adapter.get_info(), features, &device.limits());
+        let mapped_storage = features.contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
+        Self { device, queue, summary, mapped_storage, faults: Arc::new(Faults::default()), timeout: wait_limit() }
+    }
+
+    /// The queue kernels are submitted to (shared with the caller after
+    /// [`from_device`](Self::from_device)).
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.queue
     }
 
     /// The wgpu device, for a pipeline that runs its own work beside flatport's. Errors it raises

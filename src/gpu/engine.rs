@@ -475,6 +475,21 @@ impl GpuEngine {
         rays: &mut [[f64; 6]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
+        self.backproject_grid_rows(camera, width, 0, height, rays, status)
+    }
+
+    /// [`backproject_grid`](Self::backproject_grid) of the image rows `first_row ..
+    /// first_row + height` only (a band of a larger image): `rays[i]` is pixel (i mod width,
+    /// first_row + i div width).
+    pub fn backproject_grid_rows(
+        &self,
+        camera: &RefractiveCamera,
+        width: u32,
+        first_row: u32,
+        height: u32,
+        rays: &mut [[f64; 6]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
         let (w, h) = (width as usize, height as usize);
         assert!(rays.len() == w * h && status.len() == w * h, "rays and status of width · height");
         if w == 0 || h == 0 {
@@ -494,7 +509,7 @@ impl GpuEngine {
         for first in (0..h).step_by(rows) {
             let count = rows.min(h - first);
             let items = count * w;
-            set_info(&mut params, self.precision, [items as u32, width, first as u32, 0]);
+            set_info(&mut params, self.precision, [items as u32, width, first_row + first as u32, 0]);
             self.context.queue.write_buffer(&uniform, 0, &params);
             let encoder = self.encode_dispatch(&pipeline, &bind_group, "backproject_grid", (width.div_ceil(64), count as u32));
             let copies = [(&out_buf, &out_staging, (items * 6 * s) as u64), (&status_buf, &status_staging, (items * 4) as u64)];

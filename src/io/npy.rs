@@ -1,4 +1,4 @@
-//! NumPy `.npy` files (format 1.0, little-endian f64, C order), written as a stream so a large
+//! NumPy `.npy` files (format 1.0, little-endian f64 or f32, C order), written as a stream so a large
 //! array never has to be in memory, into a temporary file renamed into place by
 //! [`NpyWriter::finish`].
 
@@ -10,9 +10,33 @@ use super::{IoError, OutputFile};
 /// The 10-byte preamble and the header dict, padded with spaces and a newline so the data starts
 /// on a 64-byte boundary, as numpy writes it.
 pub fn npy_header(shape: &[usize]) -> Vec<u8> {
+    npy_header_of(shape, NpyDtype::F64)
+}
+
+/// Element type of a `.npy` file flatport writes (little-endian).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NpyDtype {
+    /// `<f4`.
+    F32,
+    /// `<f8`.
+    F64,
+}
+
+impl NpyDtype {
+    /// numpy's `descr`.
+    fn descr(self) -> &'static str {
+        match self {
+            Self::F32 => "<f4",
+            Self::F64 => "<f8",
+        }
+    }
+}
+
+/// [`npy_header`] for elements of `dtype`.
+pub fn npy_header_of(shape: &[usize], dtype: NpyDtype) -> Vec<u8> {
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
     let shape = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
-    let mut dict = format!("{{'descr': '<f8', 'fortran_order': False, 'shape': {shape}, }}");
+    let mut dict = format!("{{'descr': '{}', 'fortran_order': False, 'shape': {shape}, }}", dtype.descr());
     let unpadded = 10 + dict.len() + 1;
     dict.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
     dict.push('\n');
@@ -27,6 +51,7 @@ pub fn npy_header(shape: &[usize]) -> Vec<u8> {
 /// interruption), it removes its temporary file.
 pub struct NpyWriter {
     out: OutputFile,
+    dtype: NpyDtype,
     expected: usize,
     written: usize,
 }
@@ -34,16 +59,24 @@ pub struct NpyWriter {
 impl NpyWriter {
     /// Starts `path` (written under a temporary name until [`finish`](Self::finish)).
     pub fn create(path: &Path, shape: &[usize]) -> Result<Self, IoError> {
+        Self::create_of(path, shape, NpyDtype::F64)
+    }
+
+    /// [`create`](Self::create) for elements of `dtype`; [`write`](Self::write) rounds f64 values
+    /// to it.
+    pub fn create_of(path: &Path, shape: &[usize], dtype: NpyDtype) -> Result<Self, IoError> {
         let mut out = OutputFile::create(Some(path))?;
-        out.write_all(&npy_header(shape)).map_err(|source| out.write_error(source))?;
-        Ok(Self { out, expected: shape.iter().product(), written: 0 })
+        out.write_all(&npy_header_of(shape, dtype)).map_err(|source| out.write_error(source))?;
+        Ok(Self { out, dtype, expected: shape.iter().product(), written: 0 })
     }
 
     /// Appends values.
     pub fn write(&mut self, values: &[f64]) -> Result<(), IoError> {
-        for v in values {
-            self.out.write_all(&v.to_le_bytes()).map_err(|source| self.out.write_error(source))?;
-        }
+        let written = match self.dtype {
+            NpyDtype::F64 => values.iter().try_for_each(|v| self.out.write_all(&v.to_le_bytes())),
+            NpyDtype::F32 => values.iter().try_for_each(|&v| self.out.write_all(&(v as f32).to_le_bytes())),
+        };
+        written.map_err(|source| self.out.write_error(source))?;
         self.written += values.len();
         Ok(())
     }

@@ -1,0 +1,438 @@
+"""Refraction through flat underwater camera ports, exactly: the Python face of the flatport crate.
+
+Cameras sit in air behind a flat port (air → glass → water). A :class:`Rig` projects 3-D points
+(master camera frame, metres) to pixels, back-projects pixels to rays in the water, triangulates
+stereo matches and computes Virtual Object Points, in batches of any size, on the CPU (the exact
+f64 reference, all cores) or on a GPU (WGSL kernels through wgpu, f32 or f64). Conventions are the
+crate's (docs/DESIGN.md): OpenCV camera frames, pixel (0, 0) is the centre of the top-left pixel,
+the first camera of the rig is the master and defines the world frame.
+
+Rows without an answer (a point inside the glass, total internal reflection, …) are NaN, and their
+``status`` is the reason's code (:data:`STATUS`); every other row has status 0, as the CLI writes.
+
+>>> import flatport, numpy as np
+>>> rig = flatport.load_rig("data/example_rig.json")                      # doctest: +SKIP
+>>> uv, status = rig.project(np.array([[0.2, -0.1, 1.5]]), camera="left")  # doctest: +SKIP
+>>> rays, status = rig.backproject(uv, camera="left")                      # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any, Iterable, NamedTuple, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _flatport
+from ._flatport import __version__
+
+__all__ = [
+    "Rig",
+    "load_rig",
+    "calibrate",
+    "CalibrationResult",
+    "simulate",
+    "Simulation",
+    "sweep",
+    "SweepResult",
+    "STATUS",
+    "__version__",
+]
+
+#: Status codes of rows without an answer (0: the row has one), as the crate's ``NoSolution``.
+STATUS = {
+    0: "ok",
+    1: "outside the lens model's one-to-one region",
+    2: "ray misses the interface",
+    3: "total internal reflection",
+    4: "point not in the water (in the air or a layer)",
+    5: "beyond the camera's field of view",
+    6: "degenerate geometry (parallel rays)",
+    7: "root finder did not converge",
+    8: "beyond the floating-point range",
+}
+
+_DEVICES = ("cpu", "gpu", "auto")
+_PRECISIONS = ("f64", "f32")
+
+CameraRef = Union[int, str, None]
+
+
+def _rows(name: str, value: Any, width: int) -> np.ndarray:
+    """``value`` as a C-contiguous float64 (N, width) array: an ndarray of that kind as it is (no
+    copy), another float array converted, a list of numbers converted. Raises TypeError naming
+    ``name`` for a non-float array and ValueError for a wrong shape."""
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind != "f":
+            raise TypeError(f"{name} must be a float array (float16/32/64), got dtype {value.dtype}")
+        array = value
+    else:
+        try:
+            array = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise TypeError(f"{name} must be an array of numbers: {error}") from None
+    if array.ndim != 2 or array.shape[1] != width:
+        raise ValueError(f"{name} must have shape (N, {width}), got {array.shape}")
+    return np.ascontiguousarray(array, dtype=np.float64)
+
+
+def _check_engine(device: str, precision: str) -> None:
+    if device not in _DEVICES:
+        raise ValueError(f"device must be one of {_DEVICES}, got {device!r}")
+    if precision not in _PRECISIONS:
+        raise ValueError(f"precision must be one of {_PRECISIONS}, got {precision!r}")
+    if device == "cpu" and precision == "f32":
+        raise ValueError("precision='f32' runs on the GPU kernels: the CPU path is f64 only (use device='gpu' or 'auto')")
+
+
+def _json_argument(name: str, value: Any) -> str:
+    """A dict (JSON object), a path to a JSON file, or JSON text, as JSON text."""
+    if isinstance(value, dict):
+        return json.dumps(value)
+    if isinstance(value, (str, os.PathLike)):
+        text = str(value)
+        if text.lstrip().startswith("{"):
+            return text
+        with open(value, encoding="utf-8") as file:
+            return file.read()
+    raise TypeError(f"{name} must be a dict, a path to a JSON file or JSON text, got {type(value).__name__}")
+
+
+class Rig:
+    """Cameras calibrated in air behind one shared flat port.
+
+    Build one with :func:`load_rig` (a rig JSON file) or :meth:`Rig.from_dict`. Each rig keeps one
+    engine per (device, precision) it was asked for, so a GPU context is made once and reused.
+    Compute releases the GIL.
+
+    >>> rig = flatport.Rig.from_dict({                                    # doctest: +SKIP
+    ...     "cameras": [{"name": "left", "width": 1280, "height": 1024,
+    ...                  "fx": 864.91, "fy": 864.91, "cx": 640.0, "cy": 512.0}],
+    ...     "interface": {"normal": [0, 0, 1], "distance": 0.02,
+    ...                   "layers": [{"thickness": 0.014, "index": 1.473}]}})
+    >>> rig.camera_names                                                   # doctest: +SKIP
+    ['left']
+    """
+
+    __slots__ = ("_rig",)
+
+    def __init__(self, _rig: Any) -> None:
+        if not isinstance(_rig, _flatport._Rig):
+            raise TypeError("use flatport.load_rig(path) or flatport.Rig.from_dict(d)")
+        self._rig = _rig
+
+    # --- construction and description -------------------------------------------------------
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Rig":
+        """A rig from the rig JSON's structure (docs/DESIGN.md §1): ``cameras`` and ``interface``.
+        Unknown keys and invalid values raise ValueError naming them."""
+        if not isinstance(d, dict):
+            raise TypeError(f"Rig.from_dict takes a dict, got {type(d).__name__}")
+        return cls(_flatport._Rig.from_json(json.dumps(d), "<dict>"))
+
+    def to_dict(self) -> dict:
+        """The rig as the rig JSON's structure (what :meth:`from_dict` takes back)."""
+        return json.loads(self._rig.to_json())
+
+    def to_json(self) -> str:
+        """The rig file's text."""
+        return self._rig.to_json()
+
+    @property
+    def camera_names(self) -> list:
+        """Names of the cameras, master first."""
+        return self._rig.camera_names()
+
+    @property
+    def cameras(self) -> list:
+        """Every camera as a dict: name, size, intrinsics, distortion, rotation, translation."""
+        return self.to_dict()["cameras"]
+
+    @property
+    def interface(self) -> dict:
+        """The shared port in the master frame: normal, distance (air layer d), layers, indices."""
+        return self.to_dict()["interface"]
+
+    def port(self, camera: CameraRef = None) -> dict:
+        """The shared port as ``camera`` sees it, in that camera's own frame (DESIGN.md §3b's
+        per-camera form, colmap_underwater's FLATPORT convention): ``normal`` R_k·n, ``distance``
+        d_k = d − n·C_k, ``layers``, ``index_air``, ``index_water``, and the camera's ``centre``
+        C_k in the master frame."""
+        index = self._camera_index(camera, "camera")
+        normal, distance, centre = self._rig.port_in_camera(index)
+        interface = self.interface
+        return {
+            "normal": list(normal),
+            "distance": distance,
+            "layers": interface.get("layers", []),
+            "index_air": interface.get("index_air", 1.0),
+            "index_water": interface.get("index_water", 1.333),
+            "centre": list(centre),
+        }
+
+    def engine(self, device: str = "cpu", precision: str = "f64") -> str:
+        """Builds (or reuses) the engine of ``device`` and ``precision`` and says what runs."""
+        _check_engine(device, precision)
+        return self._rig.describe_engine(device, precision)
+
+    def __repr__(self) -> str:
+        return f"flatport.Rig(cameras={self.camera_names})"
+
+    def _camera_index(self, camera: CameraRef, name: str) -> int:
+        names = self.camera_names
+        if camera is None:
+            return 0
+        if isinstance(camera, (int, np.integer)) and not isinstance(camera, bool):
+            if not 0 <= camera < len(names):
+                raise ValueError(f"{name}={camera}: the rig has cameras 0..{len(names) - 1} ({', '.join(names)})")
+            return int(camera)
+        if isinstance(camera, str):
+            if camera in names:
+                return names.index(camera)
+            if camera.isdigit() and int(camera) < len(names):
+                return int(camera)
+            raise ValueError(f"{name}={camera!r}: no such camera in the rig (cameras: {', '.join(names)})")
+        raise TypeError(f"{name} must be a camera name or index, got {type(camera).__name__}")
+
+    # --- geometry ---------------------------------------------------------------------------
+
+    def project(self, points: Any, camera: CameraRef = None, device: str = "cpu", precision: str = "f64") -> Tuple[np.ndarray, np.ndarray]:
+        """Projects points (N, 3) (x, y, z in the master frame, metres) through the port to raw
+        (distorted) pixels of ``camera`` (name or index; default the master).
+
+        Returns ``(uv, status)``: uv (N, 2) float64, NaN where status (N,) uint32 is not 0.
+
+        >>> uv, status = rig.project([[0.2, -0.1, 1.5]], camera="right")  # doctest: +SKIP
+        """
+        _check_engine(device, precision)
+        return self._rig.project(_rows("points", points, 3), self._camera_index(camera, "camera"), device, precision)
+
+    def backproject(self, pixels: Any, camera: CameraRef = None, device: str = "cpu", precision: str = "f64") -> Tuple[np.ndarray, np.ndarray]:
+        """Back-projects raw pixels (N, 2) of ``camera`` to rays in the water.
+
+        Returns ``(rays, status)``: rays (N, 6) = origin on the outer interface (x, y, z) and unit
+        direction in the water, master frame; NaN where status is not 0.
+
+        >>> rays, status = rig.backproject([[640.0, 512.0]])  # doctest: +SKIP
+        """
+        _check_engine(device, precision)
+        return self._rig.backproject(_rows("pixels", pixels, 2), self._camera_index(camera, "camera"), device, precision)
+
+    def triangulate(self, matches: Any, cameras: Optional[Sequence[CameraRef]] = None, device: str = "cpu", precision: str = "f64") -> Tuple[np.ndarray, np.ndarray]:
+        """Triangulates matches (N, 4) = (u_a, v_a, u_b, v_b), raw pixels in ``cameras = (a, b)``
+        (default the first two cameras), refractively: both pixels are back-projected into the
+        water and the point is the midpoint of the rays' closest approach.
+
+        Returns ``(xyz_residual, status)``: (N, 4) = x, y, z (master frame) and the rays'
+        distance (metres); NaN where status is not 0 (nearly parallel rays, …).
+
+        >>> xyzr, status = rig.triangulate(np.hstack([uv_left, uv_right]), cameras=("left", "right"))  # doctest: +SKIP
+        """
+        _check_engine(device, precision)
+        if cameras is None:
+            if len(self.camera_names) < 2:
+                raise ValueError("triangulate needs two cameras; this rig has one")
+            a, b = 0, 1
+        else:
+            if isinstance(cameras, str) or len(cameras) != 2:
+                raise ValueError(f"cameras must be a pair (a, b) of names or indices, got {cameras!r}")
+            a, b = self._camera_index(cameras[0], "cameras[0]"), self._camera_index(cameras[1], "cameras[1]")
+            if a == b:
+                raise ValueError(f"cameras names camera {a} twice")
+        return self._rig.triangulate(_rows("matches", matches, 4), a, b, device, precision)
+
+    def vop(self, points: Any, camera: CameraRef = None, device: str = "cpu", precision: str = "f64") -> Tuple[np.ndarray, np.ndarray]:
+        """Virtual Object Points of points (N, 3) seen by ``camera``.
+
+        Returns ``(vops, status)``: (N, 6) = depth (distance from the outer interface along the
+        axis, thesis eq 4.7), vop_distance (eq 4.8, negative inside the glass), the VOP's x, y, z
+        (master frame) and the angle of incidence in air (radians); NaN where status is not 0.
+        """
+        _check_engine(device, precision)
+        return self._rig.vop(_rows("points", points, 3), self._camera_index(camera, "camera"), device, precision)
+
+    def raymap(self, camera: CameraRef = None, device: str = "cpu", precision: str = "f64") -> Tuple[np.ndarray, np.ndarray]:
+        """The water ray of every pixel of ``camera``: ``(rays, status)`` with rays (H, W, 6)
+        float64, rays[v, u] the ray of pixel (u, v) exactly as :meth:`backproject` gives it, and
+        status (H, W). On the GPU the pixel grid is generated in the shader."""
+        _check_engine(device, precision)
+        return self._rig.raymap(self._camera_index(camera, "camera"), device, precision)
+
+    # --- exports ----------------------------------------------------------------------------
+
+    def export_colmap(self, refrac_token: bool = False) -> dict:
+        """The files ``flatport export colmap`` writes, by name: colmap_underwater's
+        ``cameras.txt`` (lens + FLATPORT per camera, the port in that camera's frame, COLMAP's pixel
+        centres), COLMAP's rig configuration ``rig_config.json`` and ``rigs.txt`` (COLMAP 3.12).
+        ``refrac_token`` writes ``… REFRAC FLATPORT …`` for the COLMAP 3.12 based port.
+
+        >>> files = rig.export_colmap()                                    # doctest: +SKIP
+        >>> print(files["cameras.txt"])                                    # doctest: +SKIP
+        """
+        cameras, config, rigs = self._rig.export_colmap(bool(refrac_token))
+        return {"cameras.txt": cameras, "rig_config.json": config, "rigs.txt": rigs}
+
+    def export_opencv(self, cameras: Optional[Sequence[CameraRef]] = None) -> str:
+        """The in-air calibration as OpenCV FileStorage YAML: cameras ``(a, b)`` (default the
+        first two, or the only one) as ``M1 D1 M2 D2 R T``, or one camera ``(a,)`` as ``M1 D1``."""
+        if cameras is None:
+            picked = [0, 1] if len(self.camera_names) > 1 else [0]
+        else:
+            picked = [self._camera_index(c, "cameras") for c in cameras]
+            if len(picked) not in (1, 2):
+                raise ValueError(f"cameras must name one or two cameras, got {cameras!r}")
+        return self._rig.export_opencv(*picked)
+
+
+def load_rig(path: Union[str, os.PathLike]) -> Rig:
+    """Reads a rig JSON file (docs/DESIGN.md §1). Errors name the file, line and field."""
+    return Rig(_flatport._Rig.load(os.fspath(path)))
+
+
+# --- calibration ----------------------------------------------------------------------------
+
+
+class CalibrationResult(NamedTuple):
+    """What :func:`calibrate` found."""
+
+    #: The input rig with the calibrated interface, or None when the fit was refused
+    #: (``report["fits"]`` is False: the reprojection RMS is above ``max_rms_px``).
+    rig: Optional[Rig]
+    #: The full report (the CLI's ``--report`` JSON) as a dict.
+    report: dict
+    #: Standard deviations: ``tilt_deg``, ``azimuth_deg``, ``air_distance`` (metres; None for the
+    #: consecutive method, which has no covariance) and ``sigma_px`` (the corner noise estimate).
+    sigma: dict
+
+
+_ESTIMABLE = {"axis", "distance"}
+
+
+def calibrate(
+    rig: Rig,
+    observations: Any,
+    estimate: Union[str, Iterable[str]] = ("axis", "distance"),
+    method: str = "auto",
+    device: str = "cpu",
+    max_tilt_deg: float = 30.0,
+    grid_step_deg: float = 1.5,
+    huber: Optional[float] = None,
+    max_iterations: int = 200,
+    max_rms_px: float = 3.0,
+) -> CalibrationResult:
+    """Calibrates the port's axis and air layer of a stereo rig from chessboard views, as
+    ``flatport calibrate`` does.
+
+    ``observations`` is the observations JSON (a dict, a path or JSON text): board size and the
+    corners of both images per view. ``estimate`` names what is estimated; today that is the axis
+    and the air distance together (``"axis,distance"``). ``method`` is ``consecutive``,
+    ``simultaneous`` or ``auto``; ``device`` ``cpu``, ``gpu`` or ``auto`` (GPU kernels in f64).
+
+    >>> scene = flatport.simulate(rig, views=15, noise=0.125, seed=3)             # doctest: +SKIP
+    >>> result = flatport.calibrate(start_rig, scene.observations)                # doctest: +SKIP
+    >>> result.rig.interface["normal"], result.sigma["tilt_deg"]                 # doctest: +SKIP
+    """
+    if not isinstance(rig, Rig):
+        raise TypeError(f"rig must be a flatport.Rig, got {type(rig).__name__}")
+    wanted = set(part.strip() for part in (estimate.split(",") if isinstance(estimate, str) else estimate))
+    if wanted != _ESTIMABLE:
+        extra = sorted(wanted - _ESTIMABLE)
+        raise ValueError(
+            f"estimate={sorted(wanted)}: flatport calibrates the axis and the air distance together (estimate='axis,distance');"
+            + (f" {', '.join(extra)} (layer thicknesses, extrinsics: DESIGN.md §3b) not supported yet" if extra else " estimating one without the other is not supported yet")
+        )
+    if device not in _DEVICES:
+        raise ValueError(f"device must be one of {_DEVICES}, got {device!r}")
+    calibrated, report = _flatport.calibrate(
+        rig._rig, _json_argument("observations", observations), method, device, float(max_tilt_deg), float(grid_step_deg),
+        None if huber is None else float(huber), int(max_iterations), float(max_rms_px),
+    )
+    report = json.loads(report)
+    std = report.get("std") or {}
+    sigma = {
+        "tilt_deg": std.get("tilt_deg"),
+        "azimuth_deg": std.get("azimuth_deg"),
+        "air_distance": std.get("air_distance"),
+        "sigma_px": report.get("sigma_px"),
+    }
+    return CalibrationResult(Rig(calibrated) if calibrated is not None else None, report, sigma)
+
+
+class Simulation(NamedTuple):
+    """What :func:`simulate` made."""
+
+    #: The observations JSON as a dict (what :func:`calibrate` takes).
+    observations: dict
+    #: The truth: interface, board poses, noise, seed (the CLI's truth.json) as a dict.
+    truth: dict
+
+
+def simulate(
+    rig: Rig,
+    board: Tuple[int, int, float] = (9, 6, 0.04),
+    views: int = 20,
+    noise: float = 0.1,
+    seed: int = 1,
+    cameras: Optional[Sequence[CameraRef]] = None,
+    max_board_tilt_deg: float = 45.0,
+) -> Simulation:
+    """Simulates stereo views of a chessboard through the rig's port, as ``flatport simulate``:
+    ``board = (cols, rows, square)`` inner corners and square (metres), random poses both cameras
+    see whole, corners projected exactly, Gaussian noise of ``noise`` pixels; equal seeds give
+    equal scenes."""
+    if not isinstance(rig, Rig):
+        raise TypeError(f"rig must be a flatport.Rig, got {type(rig).__name__}")
+    cols, rows, square = board
+    if cameras is None:
+        a, b = 0, 1
+    else:
+        a, b = (rig._camera_index(c, "cameras") for c in cameras)
+    observations, truth = _flatport.simulate(rig._rig, int(cols), int(rows), float(square), int(views), float(noise), int(seed), a, b, float(max_board_tilt_deg))
+    return Simulation(json.loads(observations), json.loads(truth))
+
+
+class SweepResult(NamedTuple):
+    """What :func:`sweep` measured."""
+
+    #: Cost per cell, shape (tilt, azimuth) or (tilt, azimuth, distance); inf where a candidate
+    #: leaves some corner without an answer.
+    cost: np.ndarray
+    #: Air layer per cell (the grid's, the profile's least-squares one, or NaN for axis-only costs).
+    distance: np.ndarray
+    #: The tilt values, degrees.
+    tilt_deg: np.ndarray
+    #: The azimuth values, degrees.
+    azimuth_deg: np.ndarray
+    #: cost name and unit, shape, cells, finite cells, seconds, minimum (cell, tilt_deg,
+    #: azimuth_deg, distance, cost).
+    summary: dict
+
+
+def sweep(
+    rig: Rig,
+    observations: Any,
+    cost: str = "affine-grid",
+    tilt_deg: Tuple[float, float, int] = (0.0, 20.0, 64),
+    azimuth_deg: Tuple[float, float, int] = (-180.0, 180.0, 64),
+    distance: Optional[Tuple[float, float, int]] = None,
+    device: str = "cpu",
+    precision: str = "f64",
+) -> SweepResult:
+    """Sweeps a calibration cost over a grid of axes (and air layers), as ``flatport sweep``:
+    grids are ``(start, stop, count)`` with both ends included (numpy's linspace). ``cost`` is
+    ``affine-grid``, ``reprojection``, ``scene`` (or ``ray-gap``, ``plane-fitting``,
+    ``plane-angles``)."""
+    if not isinstance(rig, Rig):
+        raise TypeError(f"rig must be a flatport.Rig, got {type(rig).__name__}")
+    _check_engine(device, precision)
+    grid = lambda g, name: (float(g[0]), float(g[1]), int(g[2])) if g is not None and len(g) == 3 else _bad_grid(name, g)  # noqa: E731
+    tilts, azimuths = grid(tilt_deg, "tilt_deg"), grid(azimuth_deg, "azimuth_deg")
+    distances = None if distance is None else grid(distance, "distance")
+    costs, cell_distances, summary = _flatport.sweep(rig._rig, _json_argument("observations", observations), cost, tilts, azimuths, distances, device, precision)
+    return SweepResult(costs, cell_distances, np.linspace(*tilts), np.linspace(*azimuths), json.loads(summary))
+
+
+def _bad_grid(name: str, value: Any) -> Any:
+    raise ValueError(f"{name} must be (start, stop, count), got {value!r}")

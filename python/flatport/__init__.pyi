@@ -1,0 +1,103 @@
+"""Type stubs of the flatport package (see __init__.py for the documentation)."""
+
+import os
+from typing import Any, Iterable, NamedTuple, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+STATUS: dict[int, str]
+
+CameraRef = Union[int, str, None]
+FloatRows = Union[npt.NDArray[np.floating], Sequence[Sequence[float]]]
+Device = str  # "cpu" | "gpu" | "auto"
+Precision = str  # "f64" | "f32"
+
+class Rig:
+    def __init__(self, _rig: Any) -> None: ...
+    @classmethod
+    def from_dict(cls, d: dict) -> Rig: ...
+    def to_dict(self) -> dict: ...
+    def to_json(self) -> str: ...
+    @property
+    def camera_names(self) -> list[str]: ...
+    @property
+    def cameras(self) -> list[dict]: ...
+    @property
+    def interface(self) -> dict: ...
+    def port(self, camera: CameraRef = None) -> dict: ...
+    def engine(self, device: Device = "cpu", precision: Precision = "f64") -> str: ...
+    def project(
+        self, points: FloatRows, camera: CameraRef = None, device: Device = "cpu", precision: Precision = "f64"
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.uint32]]: ...
+    def backproject(
+        self, pixels: FloatRows, camera: CameraRef = None, device: Device = "cpu", precision: Precision = "f64"
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.uint32]]: ...
+    def triangulate(
+        self,
+        matches: FloatRows,
+        cameras: Optional[Sequence[CameraRef]] = None,
+        device: Device = "cpu",
+        precision: Precision = "f64",
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.uint32]]: ...
+    def vop(
+        self, points: FloatRows, camera: CameraRef = None, device: Device = "cpu", precision: Precision = "f64"
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.uint32]]: ...
+    def raymap(
+        self, camera: CameraRef = None, device: Device = "cpu", precision: Precision = "f64"
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.uint32]]: ...
+    def export_colmap(self, refrac_token: bool = False) -> dict[str, str]: ...
+    def export_opencv(self, cameras: Optional[Sequence[CameraRef]] = None) -> str: ...
+
+def load_rig(path: Union[str, os.PathLike[str]]) -> Rig: ...
+
+class CalibrationResult(NamedTuple):
+    rig: Optional[Rig]
+    report: dict
+    sigma: dict
+
+def calibrate(
+    rig: Rig,
+    observations: Union[dict, str, os.PathLike[str]],
+    estimate: Union[str, Iterable[str]] = ...,
+    method: str = "auto",
+    device: Device = "cpu",
+    max_tilt_deg: float = 30.0,
+    grid_step_deg: float = 1.5,
+    huber: Optional[float] = None,
+    max_iterations: int = 200,
+    max_rms_px: float = 3.0,
+) -> CalibrationResult: ...
+
+class Simulation(NamedTuple):
+    observations: dict
+    truth: dict
+
+def simulate(
+    rig: Rig,
+    board: Tuple[int, int, float] = (9, 6, 0.04),
+    views: int = 20,
+    noise: float = 0.1,
+    seed: int = 1,
+    cameras: Optional[Sequence[CameraRef]] = None,
+    max_board_tilt_deg: float = 45.0,
+) -> Simulation: ...
+
+class SweepResult(NamedTuple):
+    cost: npt.NDArray[np.float64]
+    distance: npt.NDArray[np.float64]
+    tilt_deg: npt.NDArray[np.float64]
+    azimuth_deg: npt.NDArray[np.float64]
+    summary: dict
+
+def sweep(
+    rig: Rig,
+    observations: Union[dict, str, os.PathLike[str]],
+    cost: str = "affine-grid",
+    tilt_deg: Tuple[float, float, int] = (0.0, 20.0, 64),
+    azimuth_deg: Tuple[float, float, int] = (-180.0, 180.0, 64),
+    distance: Optional[Tuple[float, float, int]] = None,
+    device: Device = "cpu",
+    precision: Precision = "f64",
+) -> SweepResult: ...

@@ -1,0 +1,416 @@
+//! `flatport._flatport`: the compiled half of the Python package. The Python half
+//! (`python/flatport/__init__.py`) checks and converts arguments (shapes, dtypes, camera names)
+//! and documents the API; this module takes C-contiguous float64 arrays, runs the engine with the
+//! GIL released and hands the results to numpy without a copy (`PyArray::from_vec`).
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+use numpy::prelude::*;
+use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray2};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+
+use flatport::calib::sweep::{Linspace, SweepSpec, sweep as run_sweep};
+use flatport::calib::{Board, CalibrationOptions, CostBackend, CostKind, CpuBackend, GpuBackend, Method, SceneSpec, StereoData, calibrate_with_progress, simulate as run_simulate};
+use flatport::engine::raymap::backproject_rows;
+use flatport::engine::{Device, Engine, EngineOptions};
+use flatport::gpu::Precision;
+use flatport::io::{ColmapDialect, Truth, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, observations_to_json_string, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string};
+use flatport::io::calib_json::truth_to_json_string;
+use flatport::model::Rig;
+
+fn value_error(error: impl std::fmt::Display) -> PyErr {
+    PyValueError::new_err(error.to_string())
+}
+
+fn runtime_error(error: impl std::fmt::Display) -> PyErr {
+    PyRuntimeError::new_err(error.to_string())
+}
+
+/// The engine options of `device` ("cpu" | "gpu" | "auto") and `precision` ("f64" | "f32").
+fn engine_options(device: &str, precision: &str) -> PyResult<EngineOptions> {
+    let device = match device {
+        "cpu" => Device::Cpu,
+        "gpu" => Device::Gpu,
+        "auto" => Device::Auto,
+        other => return Err(value_error(format!("device must be 'cpu', 'gpu' or 'auto', got {other:?}"))),
+    };
+    let precision = match precision {
+        "f64" => Precision::F64,
+        "f32" => Precision::F32,
+        other => return Err(value_error(format!("precision must be 'f64' or 'f32', got {other:?}"))),
+    };
+    if device == Device::Cpu && precision == Precision::F32 {
+        return Err(value_error("precision='f32' runs on the GPU kernels: the CPU path is f64 only (use device='gpu' or 'auto')"));
+    }
+    Ok(EngineOptions { device, precision: Some(precision), ..Default::default() })
+}
+
+/// A rig with its engines, one per (device, precision), built on first use and reused.
+#[pyclass(name = "_Rig", module = "flatport._flatport", frozen)]
+struct PyRig {
+    rig: Arc<Rig>,
+    engines: Mutex<HashMap<(String, String), Arc<Engine>>>,
+}
+
+impl PyRig {
+    fn wrap(rig: Rig) -> Self {
+        Self { rig: Arc::new(rig), engines: Mutex::new(HashMap::new()) }
+    }
+
+    fn engine(&self, py: Python<'_>, device: &str, precision: &str) -> PyResult<Arc<Engine>> {
+        let key = (device.to_string(), precision.to_string());
+        if let Some(engine) = self.engines.lock().expect("engine cache").get(&key) {
+            return Ok(engine.clone());
+        }
+        let options = engine_options(device, precision)?;
+        // Opening a GPU takes a while: other Python threads run meanwhile.
+        let engine = Arc::new(py.detach(|| Engine::new(&options)).map_err(runtime_error)?);
+        // Another thread may have built one meanwhile: every caller gets the one kept.
+        Ok(self.engines.lock().expect("engine cache").entry(key).or_insert(engine).clone())
+    }
+
+    fn camera(&self, index: usize) -> PyResult<flatport::model::RefractiveCamera> {
+        if index >= self.rig.cameras().len() {
+            return Err(value_error(format!("the rig has {} cameras, there is no camera {index}", self.rig.cameras().len())));
+        }
+        Ok(self.rig.refractive_camera(index))
+    }
+}
+
+/// A batch's answer: (N, M) float64 rows and the (N,) uint32 status.
+type Rows<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<u32>>);
+
+/// A ray map: (H, W, 6) float64 rays and the (H, W) uint32 status.
+type Image<'py> = (Bound<'py, PyArray3<f64>>, Bound<'py, PyArray2<u32>>);
+
+/// Rows of an (N, width) C-contiguous float64 array as `[f64; N]` rows, no copy.
+fn rows<'a, const W: usize>(array: &'a PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<&'a [[f64; W]]> {
+    let shape = array.shape();
+    if shape[1] != W {
+        return Err(value_error(format!("{name} must have shape (N, {W}), got {shape:?}")));
+    }
+    let flat = array.as_slice().map_err(|_| value_error(format!("{name} must be C-contiguous")))?;
+    Ok(flat.as_chunks::<W>().0)
+}
+
+/// Runs `run` on `input` with the GIL released; rows without an answer are NaN. Returns the
+/// (N, M) float64 result and the (N,) uint32 status, both handed to numpy without a copy.
+fn batch<'py, const N: usize, const M: usize>(
+    py: Python<'py>,
+    input: &[[f64; N]],
+    run: impl FnOnce(&[[f64; N]], &mut [[f64; M]], &mut [u32]) -> Result<(), flatport::engine::EngineError> + Send,
+) -> PyResult<Rows<'py>> {
+    let n = input.len();
+    let (output, status) = py
+        .detach(|| {
+            let mut output = vec![[0.0; M]; n];
+            let mut status = vec![0u32; n];
+            run(input, &mut output, &mut status)?;
+            for (row, &s) in output.iter_mut().zip(&status) {
+                if s != 0 {
+                    *row = [f64::NAN; M];
+                }
+            }
+            Ok::<_, flatport::engine::EngineError>((output, status))
+        })
+        .map_err(runtime_error)?;
+    let flat: Vec<f64> = output.into_flattened();
+    Ok((PyArray1::from_vec(py, flat).reshape([n, M])?, PyArray1::from_vec(py, status)))
+}
+
+#[pymethods]
+impl PyRig {
+    #[staticmethod]
+    fn load(path: &str) -> PyResult<Self> {
+        Ok(Self::wrap(read_rig(Path::new(path)).map_err(value_error)?))
+    }
+
+    #[staticmethod]
+    fn from_json(text: &str, source: &str) -> PyResult<Self> {
+        Ok(Self::wrap(rig_from_json_str(text, Path::new(source)).map_err(value_error)?))
+    }
+
+    fn to_json(&self) -> String {
+        rig_to_json_string(&self.rig)
+    }
+
+    fn camera_names(&self) -> Vec<String> {
+        self.rig.cameras().iter().map(|c| c.name.clone()).collect()
+    }
+
+    /// The shared port as camera `index` sees it, in its own frame: (normal, air distance d_k, centre in master).
+    fn port_in_camera(&self, index: usize) -> PyResult<([f64; 3], f64, [f64; 3])> {
+        let view = self.camera(index)?;
+        let n = view.master_from_cam().transpose() * view.normal().into_inner();
+        let c = view.centre();
+        Ok(([n.x, n.y, n.z], view.air_distance(), [c.x, c.y, c.z]))
+    }
+
+    fn describe_engine(&self, py: Python<'_>, device: &str, precision: &str) -> PyResult<String> {
+        Ok(self.engine(py, device, precision)?.describe())
+    }
+
+    /// The address of the engine of (device, precision), for tests that it is built once.
+    fn engine_id(&self, py: Python<'_>, device: &str, precision: &str) -> PyResult<usize> {
+        Ok(Arc::as_ptr(&self.engine(py, device, precision)?) as usize)
+    }
+
+    fn project<'py>(
+        &self,
+        py: Python<'py>,
+        points: PyReadonlyArray2<'py, f64>,
+        camera: usize,
+        device: &str,
+        precision: &str,
+    ) -> PyResult<Rows<'py>> {
+        let (engine, view) = (self.engine(py, device, precision)?, self.camera(camera)?);
+        batch(py, rows::<3>(&points, "points")?, |i, o, s| engine.project(&view, i, o, s))
+    }
+
+    fn backproject<'py>(
+        &self,
+        py: Python<'py>,
+        pixels: PyReadonlyArray2<'py, f64>,
+        camera: usize,
+        device: &str,
+        precision: &str,
+    ) -> PyResult<Rows<'py>> {
+        let (engine, view) = (self.engine(py, device, precision)?, self.camera(camera)?);
+        batch(py, rows::<2>(&pixels, "pixels")?, |i, o, s| engine.backproject(&view, i, o, s))
+    }
+
+    fn vop<'py>(
+        &self,
+        py: Python<'py>,
+        points: PyReadonlyArray2<'py, f64>,
+        camera: usize,
+        device: &str,
+        precision: &str,
+    ) -> PyResult<Rows<'py>> {
+        let (engine, view) = (self.engine(py, device, precision)?, self.camera(camera)?);
+        batch(py, rows::<3>(&points, "points")?, |i, o, s| engine.vop(&view, i, o, s))
+    }
+
+    #[allow(clippy::too_many_arguments)] // the Python signature
+    fn triangulate<'py>(
+        &self,
+        py: Python<'py>,
+        matches: PyReadonlyArray2<'py, f64>,
+        a: usize,
+        b: usize,
+        device: &str,
+        precision: &str,
+    ) -> PyResult<Rows<'py>> {
+        let engine = self.engine(py, device, precision)?;
+        let (view_a, view_b) = (self.camera(a)?, self.camera(b)?);
+        batch(py, rows::<4>(&matches, "matches")?, |i, o, s| engine.triangulate(&view_a, &view_b, i, o, s))
+    }
+
+    /// Rays of every pixel: (H, W, 6) float64 and (H, W) uint32 status.
+    fn raymap<'py>(
+        &self,
+        py: Python<'py>,
+        camera: usize,
+        device: &str,
+        precision: &str,
+    ) -> PyResult<Image<'py>> {
+        let (engine, view) = (self.engine(py, device, precision)?, self.camera(camera)?);
+        let (width, height) = (view.intrinsics().width, view.intrinsics().height);
+        let pixels = width as usize * height as usize;
+        let (rays, status) = py
+            .detach(|| {
+                let mut rays = vec![[0.0; 6]; pixels];
+                let mut status = vec![0u32; pixels];
+                backproject_rows(&engine, &view, 0, height, &mut rays, &mut status)?;
+                for (ray, &s) in rays.iter_mut().zip(&status) {
+                    if s != 0 {
+                        *ray = [f64::NAN; 6];
+                    }
+                }
+                Ok::<_, flatport::engine::EngineError>((rays, status))
+            })
+            .map_err(runtime_error)?;
+        let (h, w) = (height as usize, width as usize);
+        Ok((PyArray1::from_vec(py, rays.into_flattened()).reshape([h, w, 6])?, PyArray1::from_vec(py, status).reshape([h, w])?))
+    }
+
+    /// colmap_underwater's cameras.txt, COLMAP's rig configuration JSON and rigs.txt.
+    #[pyo3(signature = (refrac_token=false))]
+    fn export_colmap(&self, refrac_token: bool) -> PyResult<(String, String, String)> {
+        let dialect = if refrac_token { ColmapDialect::RefracToken } else { ColmapDialect::Legacy };
+        Ok((colmap_cameras_txt_as(&self.rig, dialect).map_err(value_error)?, colmap_rig_config(&self.rig), colmap_rigs_txt(&self.rig)))
+    }
+
+    /// OpenCV FileStorage YAML of camera `a` (and `b`).
+    #[pyo3(signature = (a, b=None))]
+    fn export_opencv(&self, a: usize, b: Option<usize>) -> PyResult<String> {
+        opencv_yaml(&self.rig, a, b).map_err(value_error)
+    }
+}
+
+/// Observations (JSON text) checked against the rig's pair of cameras, prepared for the costs.
+fn stereo_data(rig: &Rig, observations_json: &str) -> PyResult<(StereoData, Vec<String>)> {
+    let observations = observations_from_json_str(observations_json, Path::new("observations")).map_err(value_error)?;
+    if rig.cameras().len() < 2 {
+        return Err(value_error(format!("the rig has {} camera(s): calibration needs a stereo pair", rig.cameras().len())));
+    }
+    let pair = match &observations.cameras {
+        None => [0, 1],
+        Some([a, b]) => {
+            let index = |name: &str| rig.camera_index(name).ok_or_else(|| value_error(format!("the observations name camera '{name}', which the rig does not have")));
+            [index(a)?, index(b)?]
+        }
+    };
+    let intrinsics = pair.map(|k| rig.cameras()[k].intrinsics);
+    let warnings = observations.validate(&intrinsics[0], &intrinsics[1]).map_err(value_error)?;
+    let data = StereoData::new(rig, pair, &observations).map_err(value_error)?;
+    Ok((data, warnings))
+}
+
+/// Calibrates the axis and air layer: (calibrated rig or None when the fit is refused, report JSON).
+#[pyfunction]
+#[pyo3(signature = (rig, observations_json, method, device, max_tilt_deg, grid_step_deg, huber, max_iterations, max_rms_px))]
+#[allow(clippy::too_many_arguments)] // the Python signature
+fn calibrate(
+    py: Python<'_>,
+    rig: &PyRig,
+    observations_json: &str,
+    method: &str,
+    device: &str,
+    max_tilt_deg: f64,
+    grid_step_deg: f64,
+    huber: Option<f64>,
+    max_iterations: usize,
+    max_rms_px: f64,
+) -> PyResult<(Option<PyRig>, String)> {
+    let method = match method {
+        "consecutive" => Method::Consecutive,
+        "simultaneous" => Method::Simultaneous,
+        "auto" => Method::Auto,
+        other => return Err(value_error(format!("method must be 'consecutive', 'simultaneous' or 'auto', got {other:?}"))),
+    };
+    let options = CalibrationOptions {
+        method,
+        max_tilt: max_tilt_deg.to_radians(),
+        grid_spacing: grid_step_deg.to_radians(),
+        huber,
+        max_iterations,
+        max_rms_px,
+    };
+    let (data, warnings) = stereo_data(&rig.rig, observations_json)?;
+    // The finite differences of the refinement are below f32's resolution: f64 kernels.
+    let engine = if device == "cpu" { None } else { Some(rig.engine(py, device, "f64")?) };
+    let calibration = py
+        .detach(|| {
+            let backend: Box<dyn CostBackend + '_> = match engine.as_deref() {
+                Some(Engine::Gpu(gpu)) => Box::new(GpuBackend::new(&data, gpu)),
+                _ => Box::new(CpuBackend::new(&data)),
+            };
+            calibrate_with_progress(backend.as_ref(), &options, warnings, &mut |_| {})
+        })
+        .map_err(value_error)?;
+    let report = report_to_json_string(&calibration.report);
+    if !calibration.report.fits {
+        return Ok((None, report));
+    }
+    let calibrated = rig.rig.with_interface(calibration.interface.clone()).map_err(value_error)?;
+    Ok((Some(PyRig::wrap(calibrated)), report))
+}
+
+/// Simulates stereo views of a chessboard: (observations JSON, truth JSON).
+#[pyfunction]
+#[allow(clippy::too_many_arguments)] // the Python signature
+fn simulate(
+    rig: &PyRig,
+    cols: usize,
+    rows: usize,
+    square: f64,
+    views: usize,
+    noise_px: f64,
+    seed: u64,
+    a: usize,
+    b: usize,
+    max_board_tilt_deg: f64,
+) -> PyResult<(String, String)> {
+    let mut spec = SceneSpec::new(Board { rows, cols, square }, views, noise_px, seed);
+    spec.max_board_tilt = max_board_tilt_deg.to_radians();
+    let scene = run_simulate(&rig.rig, a, b, &spec).map_err(value_error)?;
+    let truth = Truth { interface: rig.rig.interface().clone(), master_from_board: scene.master_from_board, noise_px, seed };
+    Ok((observations_to_json_string(&scene.observations), truth_to_json_string(&truth)))
+}
+
+/// Sweeps a cost over an axis grid (and air layers): (cost array, air layer array, summary JSON).
+#[pyfunction]
+#[allow(clippy::too_many_arguments)] // the Python signature
+fn sweep<'py>(
+    py: Python<'py>,
+    rig: &PyRig,
+    observations_json: &str,
+    cost: &str,
+    tilt_deg: (f64, f64, usize),
+    azimuth_deg: (f64, f64, usize),
+    distance: Option<(f64, f64, usize)>,
+    device: &str,
+    precision: &str,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, String)> {
+    let kind = CostKind::from_name(cost).ok_or_else(|| value_error(format!("unknown cost {cost:?} (affine-grid, reprojection, scene, …)")))?;
+    let linspace = |(start, stop, count): (f64, f64, usize)| Linspace { start, stop, count };
+    let spec = SweepSpec { kind, tilt_deg: linspace(tilt_deg), azimuth_deg: linspace(azimuth_deg), distance: distance.map(linspace) };
+    spec.validate().map_err(value_error)?;
+    let (data, _) = stereo_data(&rig.rig, observations_json)?;
+    // The affine-grid kernel is f64 on every adapter.
+    let precision = if kind == CostKind::AffineGrid { "f64" } else { precision };
+    let engine = if device == "cpu" { None } else { Some(rig.engine(py, device, precision)?) };
+    let cells = spec.cells();
+    let (costs, distances, summary) = py
+        .detach(|| {
+            let backend: Box<dyn CostBackend + '_> = match engine.as_deref() {
+                Some(Engine::Gpu(gpu)) => Box::new(GpuBackend::new(&data, gpu)),
+                _ => Box::new(CpuBackend::new(&data)),
+            };
+            let (mut costs, mut distances) = (Vec::with_capacity(cells), Vec::with_capacity(cells));
+            let summary = run_sweep(
+                backend.as_ref(),
+                &spec,
+                4096,
+                &mut |chunk| {
+                    costs.extend_from_slice(chunk.costs);
+                    distances.extend_from_slice(chunk.distances);
+                    Ok(())
+                },
+                &mut |_, _| {},
+            )?;
+            Ok::<_, flatport::calib::CalibError>((costs, distances, summary))
+        })
+        .map_err(value_error)?;
+    let minimum = summary.minimum.map(|m| {
+        serde_json::json!({"cell": m.cell, "tilt_deg": m.tilt_deg, "azimuth_deg": m.azimuth_deg, "distance": m.distance, "cost": m.cost})
+    });
+    let summary = serde_json::json!({
+        "cost": kind.name(),
+        "unit": kind.unit(),
+        "shape": spec.shape(),
+        "cells": summary.cells,
+        "finite": summary.finite,
+        "seconds": summary.seconds,
+        "minimum": minimum,
+        "correspondences": data.corners.len(),
+    });
+    let shape = spec.shape();
+    let costs = PyArray1::from_vec(py, costs).reshape(shape.clone())?.into_any();
+    let distances = PyArray1::from_vec(py, distances).reshape(shape)?.into_any();
+    Ok((costs, distances, summary.to_string()))
+}
+
+#[pymodule]
+fn _flatport(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyRig>()?;
+    m.add_function(wrap_pyfunction!(calibrate, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(sweep, m)?)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

@@ -1,0 +1,98 @@
+"""simulate → calibrate → sweep through Python, and a calibrated rig exported for
+colmap_underwater."""
+
+import json
+
+import numpy as np
+import pytest
+
+import flatport
+from test_export import flatport_img_from_cam, read_cameras_txt, rotation_from_qvec
+from test_geometry import EXAMPLE, points_in_view
+
+
+@pytest.fixture(scope="module")
+def scene():
+    truth_rig = flatport.load_rig(EXAMPLE)
+    simulation = flatport.simulate(truth_rig, board=(9, 6, 0.04), views=12, noise=0.1, seed=5)
+    d = truth_rig.to_dict()
+    d["interface"]["normal"], d["interface"]["distance"] = [0.0, 0.0, 1.0], 0.01
+    return truth_rig, flatport.Rig.from_dict(d), simulation
+
+
+def test_simulate_is_seeded(scene):
+    truth_rig, _, simulation = scene
+    again = flatport.simulate(truth_rig, board=(9, 6, 0.04), views=12, noise=0.1, seed=5)
+    assert again.observations == simulation.observations
+    assert simulation.observations["board"] == {"rows": 6, "cols": 9, "square": 0.04}
+    assert len(simulation.observations["views"]) == 12
+    assert simulation.truth["seed"] == 5
+
+
+def test_calibrate_finds_the_true_port_with_its_sigma(scene):
+    truth_rig, start, simulation = scene
+    result = flatport.calibrate(start, simulation.observations, method="auto")
+    assert result.report["fits"] and result.rig is not None
+    n, n_true = np.array(result.rig.interface["normal"]), np.array(truth_rig.interface["normal"])
+    axis_error_deg = np.degrees(np.arccos(min(1.0, n @ n_true)))
+    # σ from the covariance: the errors stay within a few σ of 0.1 px noise.
+    assert result.sigma["tilt_deg"] > 0 and result.sigma["air_distance"] > 0
+    assert axis_error_deg < 5 * max(result.sigma["tilt_deg"], result.sigma["azimuth_deg"] * np.sin(np.radians(8)))
+    assert abs(result.rig.interface["distance"] - 0.02) < 5 * result.sigma["air_distance"]
+    assert 0.05 < result.sigma["sigma_px"] < 0.2
+    # The cameras are the start rig's; only the interface changed.
+    assert result.rig.cameras == start.cameras
+
+
+def test_calibrate_takes_a_path_and_json_text(scene, tmp_path):
+    _, start, simulation = scene
+    path = tmp_path / "observations.json"
+    path.write_text(json.dumps(simulation.observations))
+    by_path = flatport.calibrate(start, path, method="consecutive")
+    by_text = flatport.calibrate(start, json.dumps(simulation.observations), method="consecutive", estimate="axis,distance")
+    assert by_path.rig.interface == by_text.rig.interface
+    assert by_path.sigma["tilt_deg"] is None  # the consecutive method has no covariance
+
+
+def test_calibrate_refuses_what_it_cannot_estimate_yet(scene):
+    _, start, simulation = scene
+    with pytest.raises(ValueError, match="layers.*not supported yet"):
+        flatport.calibrate(start, simulation.observations, estimate="axis,distance,layers")
+    with pytest.raises(ValueError, match="extrinsics.*not supported yet"):
+        flatport.calibrate(start, simulation.observations, estimate=["axis", "distance", "extrinsics"])
+    with pytest.raises(ValueError, match="not supported yet"):
+        flatport.calibrate(start, simulation.observations, estimate="axis")
+    with pytest.raises(ValueError, match="method"):
+        flatport.calibrate(start, simulation.observations, method="magic")
+    with pytest.raises(ValueError, match="sqare"):
+        bad = dict(simulation.observations, board={"rows": 6, "cols": 9, "sqare": 0.04})
+        flatport.calibrate(start, bad)
+
+
+def test_sweep_arrays(scene):
+    truth_rig, start, simulation = scene
+    result = flatport.sweep(start, simulation.observations, cost="affine-grid", tilt_deg=(0, 16, 9), azimuth_deg=(-180, 180, 13))
+    assert result.cost.shape == (9, 13) and result.distance.shape == (9, 13)
+    assert result.tilt_deg.shape == (9,) and result.azimuth_deg[-1] == 180
+    minimum = result.summary["minimum"]
+    assert result.cost.flat[minimum["cell"]] == minimum["cost"] == np.nanmin(result.cost)
+    # The well lies near the true axis: tilt 8.05°, azimuth 45°.
+    assert abs(minimum["tilt_deg"] - 8) <= 2 and abs(minimum["azimuth_deg"] - 45) <= 30
+    with_distance = flatport.sweep(start, simulation.observations, cost="reprojection", tilt_deg=(7, 9, 3), azimuth_deg=(40, 50, 3), distance=(0.015, 0.025, 3))
+    assert with_distance.cost.shape == (3, 3, 3)
+    assert np.allclose(with_distance.distance[0, 0], [0.015, 0.02, 0.025])
+
+
+def test_a_calibrated_rig_exported_for_colmap_projects_as_flatport(scene):
+    _, start, simulation = scene
+    rig = flatport.calibrate(start, simulation.observations, method="simultaneous").rig
+    files = rig.export_colmap()
+    cameras = read_cameras_txt(files["cameras.txt"])
+    poses = {c["camera_id"]: c for c in json.loads(files["rig_config.json"])[0]["cameras"]}
+    points = points_in_view(25, seed=31)
+    for k in range(2):
+        R, t = rotation_from_qvec(poses[k + 1]["rel_qvec"]), np.array(poses[k + 1]["rel_tvec"])
+        uv, status = rig.project(points, camera=k)
+        assert (status == 0).all()
+        for point, expected in zip(points, uv):
+            assert np.abs(flatport_img_from_cam(cameras[k + 1], R @ point + t) - (expected + 0.5)).max() < 1e-6
