@@ -37,18 +37,14 @@ cargo test --release --doc "$@"
 # virtual environment under target/, sharing target/ with the builds above, then its pytest suite,
 # which also compares with the CLI just built (target/release/flatport).
 python_tests() {
-    if ! command -v python3 >/dev/null 2>&1; then
-        echo "error: python3 not found; the Python package's tests need Python 3.9 or newer" >&2
-        exit 1
-    fi
-    if ! python3 -c 'import venv, ensurepip' >/dev/null 2>&1; then
+    if ! command -v python3 >/dev/null 2>&1 || ! python3 -c 'import venv, ensurepip' >/dev/null 2>&1; then
         if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-            echo "installing python3-venv (python3 -m venv needs it on Debian)..." >&2
+            echo "installing python3 and python3-venv (the Python package's tests)..." >&2
             export DEBIAN_FRONTEND=noninteractive
             apt-get update -qq
-            apt-get install -y -qq python3-venv >/dev/null
+            apt-get install -y -qq python3 python3-venv >/dev/null
         else
-            echo "error: python3 -m venv does not work here. On Debian/Ubuntu: sudo apt-get install python3-venv" >&2
+            echo "error: the Python package's tests need Python 3.9 or newer with venv. On Debian/Ubuntu: sudo apt-get install python3 python3-venv" >&2
             exit 1
         fi
     fi
