@@ -50,7 +50,8 @@ python_tests() {
     fi
     local venv=target/python-venv
     [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
-    "$venv/bin/python" -m pip install -q numpy pytest
+    # opencv-python-headless: OpenCV itself reads the exported FileStorage YAML.
+    "$venv/bin/python" -m pip install -q numpy pytest opencv-python-headless
     CARGO_TARGET_DIR="$PWD/target" "$venv/bin/python" -m pip install -q --force-reinstall --no-deps ./python
     FLATPORT_BIN="$PWD/target/release/flatport" "$venv/bin/python" -m pytest python/tests -q
 }

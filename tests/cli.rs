@@ -431,6 +431,29 @@ fn bench_json_has_every_path() {
             }
         }
     }
+    // The CPU on both paths, one thread and all, with the pinhole back-projection beside the rig's.
+    for kernel in ["backproject", "backproject_pinhole", "project", "triangulate"] {
+        for cpu_path in ["scalar", "vector"] {
+            for one in [true, false] {
+                let found = results.iter().find(|r| r["kernel"] == kernel && r["path"] == "cpu" && r["cpu_path"] == cpu_path && (r["threads"] == 1) == one);
+                let r = found.unwrap_or_else(|| panic!("{kernel} cpu {cpu_path} one thread: {one}"));
+                assert!(r["items_per_s"].as_f64().is_some_and(|x| x > 0.0), "{r}");
+                // Cycles per item for one thread wherever the OS reports a clock.
+                if one && report["cpu_clock_hz"].is_f64() {
+                    assert!(r["cycles_per_item"].as_f64().is_some_and(|c| c > 0.0), "{r}");
+                }
+            }
+        }
+    }
+    let isa = report["cpu_instruction_set"].as_str().unwrap();
+    assert!(["avx512", "avx2", "neon", "baseline"].contains(&isa), "{isa}");
+    if report["cpu_clock_hz"].is_f64() {
+        let floors = report["floors"]["kernels"].as_array().unwrap();
+        assert_eq!(floors.len(), 4);
+        for f in floors {
+            assert!(f["floor_cycles_per_item"].as_f64().is_some_and(|c| c > 0.0) && f["sqrt_per_item"].as_f64().unwrap() >= 3.0, "{f}");
+        }
+    }
     // The clock of every figure: GPU timestamps for the GPU kernel stage where the adapter has
     // TIMESTAMP_QUERY (lavapipe does, DESIGN.md §6: so in CI), host clocks for everything else.
     for r in results {

@@ -2,9 +2,11 @@
 here in numpy from its source (src/colmap/sensor/models_refrac.h: FlatPort::CamFromImg;
 src/colmap/sensor/ray3d.h: RayPlaneIntersection, ComputeRefraction; src/colmap/sensor/models.h:
 OPENCV / FULL_OPENCV), reading the exported cameras.txt and rig_config.json the way its readers do;
-OpenCV YAML read back by the crate's importer; ray maps against back-projection."""
+OpenCV YAML read back by OpenCV's own cv::FileStorage (opencv-python-headless) and by the crate's
+importer; ray maps against back-projection."""
 
 import json
+import os
 import pathlib
 import subprocess
 
@@ -232,3 +234,31 @@ def test_cli_exports(tmp_path):
     rays32 = np.load(raymap32)
     assert rays32.dtype == np.float32
     np.testing.assert_array_equal(rays32, rays.astype(np.float32))
+
+
+def test_opencv_filestorage_reads_the_export(tmp_path):
+    """OpenCV itself (opencv-python-headless, which scripts/test.sh installs) reads the exported
+    YAML with cv::FileStorage: M1 D1 M2 D2 R T equal the rig's numbers to the last bit."""
+    try:
+        import cv2
+    except ImportError:
+        if os.environ.get("CI"):
+            raise
+        pytest.skip("opencv-python-headless is not installed (scripts/test.sh installs it)")
+    rig = flatport.load_rig(EXAMPLE)
+    path = tmp_path / "stereo.yml"
+    path.write_text(rig.export_opencv())
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    assert storage.isOpened()
+    left, right = rig.to_dict()["cameras"]
+    for index, camera in ((1, left), (2, right)):
+        matrix = storage.getNode(f"M{index}").mat()
+        expected = [[camera["fx"], 0.0, camera["cx"]], [0.0, camera["fy"], camera["cy"]], [0.0, 0.0, 1.0]]
+        assert matrix.dtype == np.float64 and np.array_equal(matrix, expected)
+        distortion = storage.getNode(f"D{index}").mat().ravel()
+        assert np.array_equal(distortion, camera.get("distortion", [0.0] * 5))
+    rotation = storage.getNode("R").mat()
+    translation = storage.getNode("T").mat().ravel()
+    assert np.array_equal(rotation, right["rotation"])
+    assert np.array_equal(translation, right["translation"])
+    storage.release()

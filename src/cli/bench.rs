@@ -1,6 +1,7 @@
 //! `flatport bench`: items per second of back-projection, forward projection and triangulation on
-//! every path (CPU f64 one thread and all threads, GPU f32 and f64, kernel-only and end to end),
-//! and the machine's memory streaming bandwidth as the physical limit, from one run.
+//! every path (CPU f64 scalar and vector, one thread and all threads; GPU f32 and f64, kernel-only
+//! and end to end), where the CPU vector path's time goes, and the machine's memory streaming
+//! bandwidth as the physical limit, from one run.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

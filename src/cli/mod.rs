@@ -159,19 +159,25 @@ slice I of N into its own folder, `flatport sweep merge` joins the folders into 
 Example:
   flatport demo --output flatport-demo")]
     Demo(demo::DemoArgs),
-    /// Measure items/s of every path (CPU 1 thread, CPU all threads, GPU f32/f64) and the memory bandwidth
+    /// Measure items/s of every path (CPU scalar/vector, 1 thread/all threads, GPU f32/f64) and the memory bandwidth
     #[command(after_help = "\
-Prints items per second for back-projection, forward projection and triangulation on the CPU
-(f64, one thread and all threads) and the GPU (f32 and f64; `kernel` = dispatch only with the
+Prints items per second for back-projection (with the rig's lens distortion and without),
+forward projection and triangulation on the CPU (f64; the scalar path, the model row by row, and
+the vector path, run by run in turn; one thread, with cycles per item at the OS's clock, and all
+threads), where the vector path's time goes against the floor of its square roots and divisions
+(each costed at this machine's measured throughput), and the GPU (f32 and f64; `kernel` = dispatch only with the
 data on the device, timed by GPU timestamps where the adapter has TIMESTAMP_QUERY, `end_to_end` =
 upload, dispatch and results in host memory, host clocks), the memory
 streaming bandwidth measured by a STREAM triad as the physical limit, and ratios between the paths
 of this run (the speed goals and their reference are in the README, \"Speed goals\"). The sweep
 figure counts axis cells × correspondences per second of the weighted affine-grid invariant over
 185 simulated views (9 990 correspondences); its kernel is f64 on every adapter, so the GPU has one
-sweep figure. JSON: {\"memory_stream_bytes_per_s\": B, \"results\": [{\"kernel\", \"path\",
-\"precision\", \"threads\" (0 on the GPU), \"stage\", \"timer\" (gpu_timestamp|host), \"items\",
-\"items_per_s\"}, ...]}.
+sweep figure. JSON: {\"memory_stream_bytes_per_s\": B, \"cpu_instruction_set\", \"cpu_clock_hz\", \"floors\":
+{\"sqrt_cycles_per_lane\", \"div_cycles_per_lane\", \"kernels\": [{\"kernel\", \"sqrt_per_item\",
+\"div_per_item\", \"floor_cycles_per_item\", \"cycles_per_item\"}]}, \"results\": [{\"kernel\",
+\"path\", \"cpu_path\" (scalar|vector, CPU only), \"precision\", \"threads\" (0 on the GPU),
+\"stage\", \"timer\" (gpu_timestamp|host), \"items\", \"items_per_s\", \"cycles_per_item\" (one CPU
+thread)}, ...]}.
 
 Examples:
   flatport bench
