@@ -37,22 +37,10 @@ cargo test --release --doc "$@"
 # virtual environment under target/, sharing target/ with the builds above, then its pytest suite,
 # which also compares with the CLI just built (target/release/flatport).
 python_tests() {
-    if ! command -v python3 >/dev/null 2>&1 || ! python3 -c 'import venv, ensurepip' >/dev/null 2>&1; then
-        if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-            echo "installing python3 and python3-venv (the Python package's tests)..." >&2
-            export DEBIAN_FRONTEND=noninteractive
-            apt-get update -qq
-            apt-get install -y -qq python3 python3-venv >/dev/null
-        else
-            echo "error: the Python package's tests need Python 3.9 or newer with venv. On Debian/Ubuntu: sudo apt-get install python3 python3-venv" >&2
-            exit 1
-        fi
-    fi
     local venv=target/python-venv
-    [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+    CARGO_TARGET_DIR="$PWD/target" FLATPORT_VENV="$venv" VIRTUAL_ENV= scripts/install-python.sh
     # opencv-python-headless: OpenCV itself reads the exported FileStorage YAML.
     "$venv/bin/python" -m pip install -q numpy pytest opencv-python-headless
-    CARGO_TARGET_DIR="$PWD/target" "$venv/bin/python" -m pip install -q --force-reinstall --no-deps ./python
     FLATPORT_BIN="$PWD/target/release/flatport" "$venv/bin/python" -m pytest python/tests -q
 }
 python_tests
