@@ -124,34 +124,6 @@ fn host_mirrors_have_the_wgsl_layout() {
     }
 }
 
-/// The glam mirrors give the bytes of the hand packing they replace (example rig, every test
-/// configuration and random rigs with up to `MAX_LAYERS` layers).
-#[test]
-fn mirrors_give_the_bytes_of_the_hand_packing() {
-    use flatport::gpu::layout::{MAX_LAYERS, Params, pack_params};
-    use flatport::model::Layer;
-    let mut rigs: Vec<Rig> = vec![flatport::io::read_rig("data/example_rig.json".as_ref()).unwrap()];
-    rigs.extend(configurations().into_iter().map(|(_, rig)| rig));
-    let mut random = Random(7);
-    for k in 0..20 {
-        let normal = unit(random.range(-0.3, 0.3), random.range(-0.3, 0.3), 1.0);
-        let layers = (0..k % (MAX_LAYERS + 1)).map(|_| Layer { thickness: random.range(1e-3, 0.03), index: random.range(1.3, 1.8) }).collect();
-        rigs.push(stereo_rig(normal, random.range(0.03, 0.1), layers, random.range(1.0, 1.01), random.range(1.3, 1.4), k % 2 == 0));
-    }
-    for rig in &rigs {
-        let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
-        for precision in [Precision::F32, Precision::F64] {
-            let info = [random.0 as u32, 3, 5, 7];
-            let mut old = pack_params(precision, &a, &b, [0; 4]);
-            flatport::gpu::layout::set_info(&mut old, precision, info);
-            let mut new = Params::new(precision, &a, &b, [0; 4]);
-            new.set_info(info);
-            assert_eq!(new.bytes(), &old[..], "{precision}");
-            assert_eq!(Params::new(precision, &b, &a, info).bytes(), &pack_params(precision, &b, &a, info)[..], "{precision}");
-        }
-    }
-}
-
 /// Random raw pixels over the image and a margin around it (some beyond the lens fold).
 fn random_pixels(random: &mut Random, n: usize) -> Vec<[f64; 2]> {
     (0..n).map(|_| [random.range(-300.0, 1580.0), random.range(-300.0, 1324.0)]).collect()

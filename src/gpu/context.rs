@@ -340,10 +340,12 @@ impl GpuContext {
     }
 
     /// Compiles a composed WGSL kernel with entry point `main` into a pipeline, its
-    /// `override WORKGROUP_SIZE` set to [`WORKGROUP_SIZE`].
+    /// `override WORKGROUP_SIZE: u32` (which every composed kernel declares, in
+    /// `shaders/common.wgsl`) set to [`WORKGROUP_SIZE`].
     ///
     /// Errors: [`GpuError::Kernel`] naming the kernel when the adapter refuses the shader or the
-    /// pipeline (caught in an error scope: wgpu's default would panic).
+    /// pipeline, a source without that override included (caught in an error scope: wgpu's
+    /// default would panic).
     pub fn pipeline(&self, label: &str, source: &str) -> Result<wgpu::ComputePipeline, GpuError> {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {

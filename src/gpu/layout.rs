@@ -124,6 +124,7 @@ mirrors!(Precision::F64, "f64", DVec4, UVec4, CameraF64, ParamsF64);
 
 /// The uniform `Params` of a kernel in its precision.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[allow(clippy::large_enum_variant, reason = "one per call, on the stack: boxing the f64 uniform buys nothing")]
 pub enum Params {
     /// f32 kernels.
     F32(ParamsF32),
@@ -161,96 +162,36 @@ impl Params {
     }
 }
 
-/// Number of vec4 slots of reals in `Camera` before `counts`.
-const CAMERA_REAL4: usize = 8 + MAX_LAYERS;
+#[cfg(test)]
+mod tests {
+    use super::*;
 
-/// Alignment of `Camera` and `Params`: that of a vec4 of reals.
-fn align(precision: Precision) -> usize {
-    4 * precision.size()
-}
-
-/// Size of WGSL `Camera` in bytes.
-pub fn camera_size(precision: Precision) -> usize {
-    (CAMERA_REAL4 * 4 * precision.size() + 16).next_multiple_of(align(precision))
-}
-
-/// Size of WGSL `Params` in bytes, the offset of its second camera (`cams[1]`) and of `info`.
-pub fn params_layout(precision: Precision) -> (usize, usize, usize) {
-    let camera = camera_size(precision);
-    ((2 * camera + 16).next_multiple_of(align(precision)), camera, 2 * camera)
-}
-
-/// Appends reals in the kernel's precision.
-fn push_reals(bytes: &mut Vec<u8>, precision: Precision, values: &[f64]) {
-    for &v in values {
-        match precision {
-            Precision::F32 => bytes.extend_from_slice(&(v as f32).to_le_bytes()),
-            Precision::F64 => bytes.extend_from_slice(&v.to_le_bytes()),
+    /// The uniform's bytes are the mirror's: fx first, `info` where the struct puts it, and
+    /// `set_info` writes `info` only. (tests/gpu.rs checks the layout against naga.)
+    #[test]
+    fn params_bytes_hold_the_fields_where_the_mirror_puts_them() {
+        let rig = crate::io::read_rig("data/example_rig.json".as_ref()).expect("example rig");
+        let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
+        for precision in [Precision::F32, Precision::F64] {
+            let mut params = Params::new(precision, &a, &b, [1, 2, 3, 4]);
+            let before = params.bytes().to_vec();
+            params.set_info([5, 6, 7, 8]);
+            let (size, info) = match precision {
+                Precision::F32 => (size_of::<ParamsF32>(), std::mem::offset_of!(ParamsF32, info)),
+                Precision::F64 => (size_of::<ParamsF64>(), std::mem::offset_of!(ParamsF64, info)),
+            };
+            let bytes = params.bytes();
+            assert_eq!(bytes.len(), size);
+            let (fx, expected) = match precision {
+                Precision::F32 => (f32::from_le_bytes(bytes[..4].try_into().unwrap()) as f64, a.intrinsics().fx as f32 as f64),
+                Precision::F64 => (f64::from_le_bytes(bytes[..8].try_into().unwrap()), a.intrinsics().fx),
+            };
+            assert_eq!(fx, expected, "{precision}: fx first");
+            let words: Vec<u32> = (0..4).map(|k| u32::from_le_bytes(bytes[info + 4 * k..info + 4 * k + 4].try_into().unwrap())).collect();
+            assert_eq!(words, [5, 6, 7, 8], "{precision}");
+            assert_eq!(bytes[..info], before[..info], "{precision}: set_info writes info only");
+            assert_eq!(bytes[info + 16..], before[info + 16..], "{precision}");
+            assert!(bytes[info + 16..].iter().all(|&b| b == 0), "{precision}: end padding is zero");
         }
-    }
-}
-
-/// Appends `camera` as a WGSL `Camera`. The caller has checked the layer count.
-fn push_camera(bytes: &mut Vec<u8>, precision: Precision, camera: &RefractiveCamera) {
-    let start = bytes.len();
-    let i = camera.intrinsics();
-    let m = camera.master_from_cam();
-    let c = camera.centre();
-    let n = camera.normal();
-    let fold = camera.fold_radius2();
-    let thickness: f64 = camera.layers().iter().map(|l| l.thickness).sum();
-    let mut reals = vec![
-        i.fx,
-        i.fy,
-        i.cx,
-        i.cy,
-        i.distortion[0],
-        i.distortion[1],
-        i.distortion[2],
-        i.distortion[3],
-        i.distortion[4],
-        if fold.is_finite() { fold } else { precision.huge() },
-        camera.relative_index_water(),
-        camera.air_distance(),
-    ];
-    for r in 0..3 {
-        reals.extend([m[(r, 0)], m[(r, 1)], m[(r, 2)], 0.0]);
-    }
-    reals.extend([c.x, c.y, c.z, thickness, n.x, n.y, n.z, 0.0]);
-    for k in 0..MAX_LAYERS {
-        match camera.layers().get(k) {
-            Some(layer) => reals.extend([layer.thickness, layer.index / camera.index_air(), 0.0, 0.0]),
-            None => reals.extend([0.0; 4]),
-        }
-    }
-    push_reals(bytes, precision, &reals);
-    for count in [camera.layers().len() as u32, i.has_distortion() as u32, 0, 0] {
-        bytes.extend_from_slice(&count.to_le_bytes());
-    }
-    bytes.resize(start + camera_size(precision), 0);
-}
-
-/// The bytes of WGSL `Params` for cameras `a` and `b` (`b` = `a` for one-camera kernels) and
-/// `info` = (items, grid width, first grid row, 0).
-///
-/// Panics if a camera has more than [`MAX_LAYERS`] layers (the engine checks first).
-pub fn pack_params(precision: Precision, a: &RefractiveCamera, b: &RefractiveCamera, info: [u32; 4]) -> Vec<u8> {
-    assert!(a.layers().len() <= MAX_LAYERS && b.layers().len() <= MAX_LAYERS, "layer count checked by the engine");
-    let (size, _, _) = params_layout(precision);
-    let mut bytes = Vec::with_capacity(size);
-    push_camera(&mut bytes, precision, a);
-    push_camera(&mut bytes, precision, b);
-    for v in info {
-        bytes.extend_from_slice(&v.to_le_bytes());
-    }
-    bytes.resize(size, 0);
-    bytes
-}
-
-/// Overwrites `info` in packed params.
-pub fn set_info(params: &mut [u8], precision: Precision, info: [u32; 4]) {
-    let (_, _, offset) = params_layout(precision);
-    for (k, v) in info.iter().enumerate() {
-        params[offset + 4 * k..offset + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
     }
 }
