@@ -1,7 +1,8 @@
 //! Parses and validates every composed WGSL kernel with naga, in both precisions and both
 //! reductions, so that a WGSL mistake is a build error naming the kernel, never a panic or a
 //! `GpuError::Kernel` at pipeline creation. The composition is the crate's own
-//! (`src/gpu/shaders/compose.rs`); the validation is `build/wgsl.rs`, which `tests/gpu.rs` also runs.
+//! (`src/gpu/shaders/compose.rs`, with a copy of the CPU's stopping rules that `tests/gpu.rs` holds
+//! equal to the engine's); the validation is `build/wgsl.rs`, which `tests/gpu.rs` also runs.
 
 #[allow(dead_code)]
 #[path = "src/gpu/shaders/compose.rs"]
@@ -9,18 +10,9 @@ mod compose;
 #[path = "build/wgsl.rs"]
 mod wgsl;
 
+// `CpuBounds` is named by build/wgsl.rs as `super::CpuBounds`.
 use compose::{CpuBounds, Kernel, Precision, Reduction};
-
-/// Stand-ins for the CPU's stopping rules, which live in `crate::model` and cannot be reached from
-/// here. Only their WGSL types (`u32`, `real`) and ranges matter to validity, and they are of the
-/// same types and magnitudes; `tests/gpu.rs` validates the exact texts the engine compiles.
-const BOUNDS: CpuBounds = CpuBounds {
-    undistort_max_iterations: 30,
-    project_tolerance: 1e-13,
-    project_max_iterations: 100,
-    min_ray_angle_sin2: 1e-12,
-    min_binocular_conditioning: 1e-9,
-};
+use wgsl::CPU_BOUNDS_COPY;
 
 fn main() {
     println!("cargo:rerun-if-changed=shaders");
@@ -36,7 +28,7 @@ fn main() {
             }
             let reductions: &[Reduction] = if kernel.is_cost() { &[Reduction::Workgroup, Reduction::Subgroup] } else { &[Reduction::Workgroup] };
             for &reduction in reductions {
-                let source = compose::source(kernel, precision, reduction, &BOUNDS);
+                let source = compose::source(kernel, precision, reduction, &CPU_BOUNDS_COPY);
                 let reduction_name = if kernel.is_cost() { format!(" {reduction:?} reduction") } else { String::new() };
                 let label = format!("kernel {} {precision}{reduction_name}", kernel.name());
                 let capabilities = wgsl::capabilities(precision == Precision::F64, reduction == Reduction::Subgroup);

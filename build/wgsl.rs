@@ -3,6 +3,19 @@
 
 use naga::valid::{Capabilities, ValidationFlags, Validator};
 
+use super::CpuBounds;
+
+/// A copy of the CPU's stopping rules (`gpu::shaders::CPU_BOUNDS`, from `crate::model`, which a
+/// build script cannot reach), so that the build validates the very text the engine compiles;
+/// `tests/gpu.rs` fails when the two differ.
+pub const CPU_BOUNDS_COPY: CpuBounds = CpuBounds {
+    undistort_max_iterations: 30,
+    project_tolerance: 1e-13,
+    project_max_iterations: 100,
+    min_ray_angle_sin2: 1e-12,
+    min_binocular_conditioning: 1e-9,
+};
+
 /// The shader capabilities a kernel needs of the adapter, and no more: `FLOAT64` for f64
 /// arithmetic (the context requests SHADER_F64), `SUBGROUP` for the `subgroupAdd` reduction (the
 /// context requests SUBGROUP). An f32 kernel with the workgroup reduction needs none.

@@ -12,11 +12,12 @@ mod gpu_harness;
 use common::*;
 use gpu_harness::{Random, engine, engine_with};
 use flatport::engine::CpuEngine;
-use flatport::gpu::shaders::source;
+use flatport::gpu::shaders::{CPU_BOUNDS, CpuBounds, source};
 use flatport::gpu::{GpuEngine, Kernel, Precision, Reduction};
 use flatport::model::{NoSolution, RefractiveCamera, Rig};
 use nalgebra::{Point2, Vector3};
 
+// The build's validation, as build.rs compiles it (it names `super::CpuBounds`).
 #[path = "../build/wgsl.rs"]
 mod wgsl;
 
@@ -25,8 +26,13 @@ fn capabilities(kernel: Kernel, precision: Precision, reduction: Reduction) -> n
     wgsl::capabilities(precision == Precision::F64, kernel.is_cost() && reduction == Reduction::Subgroup)
 }
 
-/// The texts the engine compiles (the CPU's exact stopping rules, which build.rs stands in for):
-/// every kernel in f32 and f64 with both reductions, through the build's validation with no more
+/// build.rs composes with a copy of the CPU's stopping rules: the same as the engine's.
+#[test]
+fn the_build_validates_the_texts_the_engine_compiles() {
+    assert_eq!(wgsl::CPU_BOUNDS_COPY, CPU_BOUNDS, "update CPU_BOUNDS_COPY in build/wgsl.rs");
+}
+
+/// The texts the engine compiles: every kernel in f32 and f64 with both reductions, through the build's validation with no more
 /// capabilities than each kernel needs.
 #[test]
 fn every_shader_parses_and_validates() {

@@ -1,6 +1,6 @@
-// Entry point of a cost kernel, portable reduction: workgroup (WORKGROUP_SIZE correspondences) × candidate;
-// the terms are summed by a tree in workgroup memory, one (sum, count) per workgroup and
-// candidate. info.x = correspondences.
+// Entry point of a cost kernel, portable reduction: workgroup (WORKGROUP_SIZE correspondences) ×
+// candidate; the terms are summed by a tree in workgroup memory (WORKGROUP_SIZE a power of two),
+// one (sum, count) per workgroup and candidate. info.x = correspondences.
 
 var<workgroup> partial: array<vec2r, WORKGROUP_SIZE>;
 
