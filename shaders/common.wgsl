@@ -3,9 +3,10 @@
 //
 // A kernel module is composed (src/gpu/shaders.rs) from: a precision prelude that defines
 // `real` (f32 or f64), `vec2r`..`vec4r` and the tolerances; this file; the relations in
-// shaders/lib/; one kernel from shaders/kernels/. `Camera` and `Params` are mirrored by the host
-// packer in src/gpu/layout.rs: keep them in sync (a test compares sizes and offsets with naga's
-// layouter for both precisions).
+// shaders/lib/; one kernel from shaders/kernels/. `Camera` and `Params` are mirrored by the
+// `#[repr(C)]` structs `CameraF32`/`CameraF64` and `ParamsF32`/`ParamsF64` in src/gpu/layout.rs:
+// keep them in sync (tests/gpu.rs compares their sizes and field offsets with naga's layouter for
+// both precisions). build.rs parses and validates every composed kernel with naga.
 
 // Per-element status: 0 = answer, otherwise `NoSolution::code()` of the CPU path.
 const STATUS_OK: u32 = 0u;
@@ -19,7 +20,10 @@ const STATUS_NO_CONVERGENCE: u32 = 7u;
 const STATUS_OUT_OF_RANGE: u32 = 8u; // also set by the host for inputs beyond ±REAL_HUGE and non-finite results
 
 const MAX_LAYERS: u32 = 8u;
-const WORKGROUP_SIZE: u32 = 64u;
+// Invocations per workgroup of every kernel, a power of two (the workgroup tree reduction halves
+// it). No default: the host sets it at pipeline creation from `WORKGROUP_SIZE` in
+// src/gpu/shaders.rs, which its dispatch arithmetic reads too.
+override WORKGROUP_SIZE: u32;
 
 // One camera behind the interface, master frame. vec4 slots keep the layout identical in f32 and
 // f64 apart from the element size.

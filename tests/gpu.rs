@@ -12,49 +12,121 @@ mod gpu_harness;
 use common::*;
 use gpu_harness::{Random, engine, engine_with};
 use flatport::engine::CpuEngine;
-use flatport::gpu::layout::{camera_size, params_layout};
-use flatport::gpu::shaders::source;
+use flatport::gpu::shaders::{CPU_BOUNDS, CpuBounds, source};
 use flatport::gpu::{GpuEngine, Kernel, Precision, Reduction};
 use flatport::model::{NoSolution, RefractiveCamera, Rig};
 use nalgebra::{Point2, Vector3};
 
-fn parse(name: &str, source: &str) -> naga::Module {
-    naga::front::wgsl::parse_str(source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)))
+// The build's validation, as build.rs compiles it (it names `super::CpuBounds`).
+#[path = "../build/wgsl.rs"]
+mod wgsl;
+
+/// The capabilities a kernel composed at `precision` with `reduction` needs (as build.rs asks).
+fn capabilities(kernel: Kernel, precision: Precision, reduction: Reduction) -> naga::valid::Capabilities {
+    wgsl::capabilities(precision == Precision::F64, kernel.is_cost() && reduction == Reduction::Subgroup)
 }
 
+/// build.rs composes with a copy of the CPU's stopping rules: the same as the engine's.
+#[test]
+fn the_build_validates_the_texts_the_engine_compiles() {
+    assert_eq!(wgsl::CPU_BOUNDS_COPY, CPU_BOUNDS, "update CPU_BOUNDS_COPY in build/wgsl.rs");
+}
+
+/// The texts the engine compiles: every kernel in f32 and f64 with both reductions, through the build's validation with no more
+/// capabilities than each kernel needs.
 #[test]
 fn every_shader_parses_and_validates() {
     for kernel in Kernel::ALL {
         for precision in [Precision::F32, Precision::F64] {
             for reduction in [Reduction::Workgroup, Reduction::Subgroup] {
-                let text = source(kernel, precision, reduction);
+                let precision = kernel.fixed_precision().unwrap_or(precision);
                 let name = format!("{} {precision} {reduction:?}", kernel.name());
-                let module = parse(&name, &text);
-                naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
-                    .validate(&module)
-                    .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&text)));
-                assert!(module.entry_points.iter().any(|e| e.name == "main"), "{name}: entry point main");
+                wgsl::check(&name, &source(kernel, precision, reduction), capabilities(kernel, precision, reduction)).unwrap_or_else(|e| panic!("{e}"));
             }
         }
     }
 }
 
+/// The build's validation fails a broken kernel with naga's message naming the kernel: syntax and
+/// an undeclared name (front end), a type error and a capability the kernel was not granted (f64
+/// arithmetic, subgroups) (validator).
 #[test]
-fn host_packing_mirrors_the_wgsl_structs() {
+fn broken_wgsl_is_an_error_naming_the_kernel() {
+    let project = source(Kernel::Project, Precision::F32, Reduction::Workgroup);
+    let cases = [
+        ("project f32 (missing semicolon)", project.replace("return;", "return"), "parse error"),
+        ("project f32 (u32 + f32)", project.replace("let i = item_index(gid, groups);", "let i = item_index(gid, groups) + 1.0;"), "validation error"),
+        ("project f32 (undeclared)", format!("{project}\nfn broken() -> real {{ return no_such_value; }}\n"), "parse error"),
+        ("project f64 (without FLOAT64)", source(Kernel::Project, Precision::F64, Reduction::Workgroup), "validation error"),
+        ("ray_gap_cost f32 subgroup (without SUBGROUP)", source(Kernel::RayGapCost, Precision::F32, Reduction::Subgroup), "validation error"),
+    ];
+    for (name, text, kind) in cases {
+        assert_ne!(text, project, "{name}: the case changes the kernel");
+        let error = wgsl::check(name, &text, wgsl::capabilities(false, false)).err().unwrap_or_else(|| panic!("{name} validated"));
+        assert!(error.starts_with(&format!("{name}: WGSL {kind}")), "{name}: {error}");
+    }
+    let fine = wgsl::check("project f32", &project, wgsl::capabilities(false, false));
+    assert!(fine.is_ok(), "{:?}", fine.err());
+}
+
+/// The offset of `field` in naga's layout of struct `name`.
+fn member_offset(module: &naga::Module, name: &str, field: &str) -> usize {
+    let (_, ty) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("struct {name}"));
+    let naga::TypeInner::Struct { members, .. } = &ty.inner else { panic!("{name} is a struct") };
+    members.iter().find(|m| m.name.as_deref() == Some(field)).unwrap_or_else(|| panic!("{name}.{field}")).offset as usize
+}
+
+/// The host mirrors have naga's sizes and field offsets (WGSL's layout rules) in both precisions.
+#[test]
+fn host_mirrors_have_the_wgsl_layout() {
+    use flatport::gpu::layout::{CameraF32, CameraF64, ParamsF32, ParamsF64};
+    use std::mem::{offset_of, size_of};
+    macro_rules! offsets {
+        ($ty:ty: $($field:ident),*) => { [$((stringify!($field), offset_of!($ty, $field))),*] };
+    }
     for precision in [Precision::F32, Precision::F64] {
-        let module = parse("project", &source(Kernel::Project, precision, Reduction::Workgroup));
+        let text = source(Kernel::Project, precision, Reduction::Workgroup);
+        let module = wgsl::check("project", &text, capabilities(Kernel::Project, precision, Reduction::Workgroup)).unwrap_or_else(|e| panic!("{e}"));
         let mut layouter = naga::proc::Layouter::default();
         layouter.update(module.to_ctx()).unwrap();
-        let find = |name: &str| module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("struct {name}"));
-        let (camera, _) = find("Camera");
-        assert_eq!(layouter[camera].size as usize, camera_size(precision), "{precision} Camera");
-        let (params, ty) = find("Params");
-        let (size, b_offset, info_offset) = params_layout(precision);
-        assert_eq!(layouter[params].size as usize, size, "{precision} Params");
-        let naga::TypeInner::Struct { members, .. } = &ty.inner else { panic!("Params is a struct") };
+        let size = |name: &str| {
+            let (handle, _) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("struct {name}"));
+            layouter[handle].size as usize
+        };
+        let (camera_size, params_size, camera, params) = match precision {
+            Precision::F32 => (
+                size_of::<CameraF32>(),
+                size_of::<ParamsF32>(),
+                offsets!(CameraF32: intrinsics, distortion, extra, master_from_cam0, master_from_cam1, master_from_cam2, centre, normal, layers, counts),
+                offsets!(ParamsF32: cams, info),
+            ),
+            Precision::F64 => (
+                size_of::<CameraF64>(),
+                size_of::<ParamsF64>(),
+                offsets!(CameraF64: intrinsics, distortion, extra, master_from_cam0, master_from_cam1, master_from_cam2, centre, normal, layers, counts),
+                offsets!(ParamsF64: cams, info),
+            ),
+        };
+        assert_eq!(camera_size, size("Camera"), "{precision} Camera size");
+        assert_eq!(params_size, size("Params"), "{precision} Params size");
+        for (field, offset) in camera {
+            assert_eq!(offset, member_offset(&module, "Camera", field), "{precision} Camera.{field}");
+        }
+        for (field, offset) in params {
+            assert_eq!(offset, member_offset(&module, "Params", field), "{precision} Params.{field}");
+        }
+        // Every WGSL member is mirrored, in order (the mirrors add only `end_padding`).
+        for name in ["Camera", "Params"] {
+            let (_, ty) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap();
+            let naga::TypeInner::Struct { members, .. } = &ty.inner else { unreachable!() };
+            let wgsl: Vec<&str> = members.iter().filter_map(|m| m.name.as_deref()).collect();
+            let host: Vec<&str> = if name == "Camera" { camera.iter().map(|(f, _)| *f).collect() } else { params.iter().map(|(f, _)| *f).collect() };
+            assert_eq!(wgsl, host, "{precision} {name} members");
+        }
+        let (_, ty) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some("Params")).unwrap();
+        let naga::TypeInner::Struct { members, .. } = &ty.inner else { unreachable!() };
         let naga::TypeInner::Array { stride, .. } = module.types[members[0].ty].inner else { panic!("Params.cams is an array") };
-        assert_eq!(stride as usize, b_offset, "{precision} Params.cams stride");
-        assert_eq!(members[1].offset as usize, info_offset, "{precision} Params.info");
+        assert_eq!(stride as usize, camera_size, "{precision} Params.cams stride");
     }
 }
 

@@ -1,11 +1,11 @@
 // Back-projection of every pixel of an image, generated in the shader (no input buffer): the
-// dispatch is (⌈width / 64⌉, rows); pixel (column, first row + row) → ray, row-major.
+// dispatch is (⌈width / WORKGROUP_SIZE⌉, rows); pixel (column, first row + row) → ray, row-major.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(2) var<storage, read_write> output: array<real>; // 6 per pixel
 @group(0) @binding(3) var<storage, read_write> status: array<u32>;
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let width = params.info.y;
     if (gid.x >= width) {

@@ -5,7 +5,7 @@
 // up to ~1e7-fold.
 //
 // Items are view-major within a chunk: item i = view · info.y + candidate, info.y a multiple of
-// the workgroup size, so the 64 invocations of a workgroup read the same corner rows.
+// the workgroup size, so the invocations of a workgroup read the same corner rows.
 // input: the corner rows (ROW reals each, info.z rows, read as vec4), then (start, count, 0, 0)
 // per view.
 
@@ -98,7 +98,7 @@ fn corner_terms(j: u32, t: vec3r) -> CornerTerms {
     return terms;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = item_index(gid, groups);
     if (i >= params.info.x) {

@@ -18,7 +18,7 @@ fn corner_dir(k: u32) -> vec3r {
     return vec3r(input[k], input[k + 1u], input[k + 2u]);
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = item_index(gid, groups);
     if (i >= params.info.x) {

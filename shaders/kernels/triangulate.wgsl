@@ -2,7 +2,7 @@
 
 // Bindings: shaders/kernels/map_bindings.wgsl (input and output rows, status).
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = item_index(gid, groups);
     if (i >= params.info.x) {

@@ -2,9 +2,9 @@
 // its terms with subgroupAdd, the subgroup sums meet in workgroup memory, one (sum, count) per
 // workgroup and candidate. info.x = correspondences.
 
-var<workgroup> partial: array<vec2r, 64>;
+var<workgroup> partial: array<vec2r, WORKGROUP_SIZE>;
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32,
         @builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>,
         @builtin(subgroup_id) subgroup: u32, @builtin(num_subgroups) subgroups: u32,

@@ -1,10 +1,10 @@
-// Entry point of a cost kernel, portable reduction: workgroup (64 correspondences) × candidate;
-// the terms are summed by a tree in workgroup memory, one (sum, count) per workgroup and
-// candidate. info.x = correspondences.
+// Entry point of a cost kernel, portable reduction: workgroup (WORKGROUP_SIZE correspondences) ×
+// candidate; the terms are summed by a tree in workgroup memory (WORKGROUP_SIZE a power of two),
+// one (sum, count) per workgroup and candidate. info.x = correspondences.
 
-var<workgroup> partial: array<vec2r, 64>;
+var<workgroup> partial: array<vec2r, WORKGROUP_SIZE>;
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32,
         @builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     var term = vec2r(0.0);

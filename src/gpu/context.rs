@@ -7,6 +7,8 @@
 
 use std::sync::{Arc, Mutex};
 
+use super::shaders::WORKGROUP_SIZE;
+
 /// Why no GPU context could be made.
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
@@ -337,10 +339,13 @@ impl GpuContext {
         self.summary.max_storage_binding
     }
 
-    /// Compiles a composed WGSL kernel with entry point `main` into a pipeline.
+    /// Compiles a composed WGSL kernel with entry point `main` into a pipeline, its
+    /// `override WORKGROUP_SIZE: u32` (which every composed kernel declares, in
+    /// `shaders/common.wgsl`) set to [`WORKGROUP_SIZE`].
     ///
     /// Errors: [`GpuError::Kernel`] naming the kernel when the adapter refuses the shader or the
-    /// pipeline (caught in an error scope: wgpu's default would panic).
+    /// pipeline, a source without that override included (caught in an error scope: wgpu's
+    /// default would panic).
     pub fn pipeline(&self, label: &str, source: &str) -> Result<wgpu::ComputePipeline, GpuError> {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -352,7 +357,10 @@ impl GpuContext {
             layout: None,
             module: &module,
             entry_point: Some("main"),
-            compilation_options: Default::default(),
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &[("WORKGROUP_SIZE", f64::from(WORKGROUP_SIZE))],
+                ..Default::default()
+            },
             cache: None,
         });
         match pollster::block_on(scope.pop()) {
@@ -400,7 +408,8 @@ impl GpuContext {
         }
     }
 
-    /// Workgroup counts (x, y) for `items` items in 64-wide workgroups: see [`dispatch_grid`].
+    /// Workgroup counts (x, y) for `items` items in [`WORKGROUP_SIZE`]-wide workgroups: see
+    /// [`dispatch_grid`].
     pub(crate) fn dispatch_size(&self, items: u32) -> (u32, u32) {
         dispatch_grid(items, self.summary.max_workgroups_per_dimension)
     }
@@ -461,13 +470,13 @@ impl GpuContext {
     }
 }
 
-/// Workgroup counts (x, y) for `items` items in 64-wide workgroups, at most `max_per_dimension`
-/// per dimension: 1-D while it fits, else y rows of x groups with x·y as close above the needed
-/// count as the rows allow (fewer than y spare groups), since the kernels index items as
-/// `gid.x + gid.y · groups.x · 64` and guard the tail. A full 2²² chunk is 65 536 groups: 2 rows of
-/// 32 768, not 2 rows of 65 535 (twice the work).
+/// Workgroup counts (x, y) for `items` items in [`WORKGROUP_SIZE`]-wide workgroups, at most
+/// `max_per_dimension` per dimension: 1-D while it fits, else y rows of x groups with x·y as close
+/// above the needed count as the rows allow (fewer than y spare groups), since the kernels index
+/// items as `gid.x + gid.y · groups.x · WORKGROUP_SIZE` and guard the tail. A full 2²² chunk is
+/// 65 536 groups of 64: 2 rows of 32 768, not 2 rows of 65 535 (twice the work).
 pub(crate) fn dispatch_grid(items: u32, max_per_dimension: u32) -> (u32, u32) {
-    let groups = items.div_ceil(64).max(1);
+    let groups = items.div_ceil(WORKGROUP_SIZE).max(1);
     let max = max_per_dimension.max(1);
     if groups <= max {
         return (groups, 1);
@@ -482,7 +491,7 @@ fn list(names: &[String]) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::dispatch_grid;
+    use super::{WORKGROUP_SIZE, dispatch_grid};
 
     fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
         wgpu::AdapterInfo { name: name.into(), device_type, ..wgpu::AdapterInfo::new(wgpu::DeviceType::Other, wgpu::Backend::Vulkan) }
@@ -509,7 +518,7 @@ mod tests {
     fn dispatch_grids_cover_every_item_with_fewer_spare_groups_than_rows() {
         for items in [1u32, 63, 64, 65, 65_535 * 64, 65_535 * 64 + 1, 1 << 22, (1 << 22) + 17, u32::MAX] {
             let (x, y) = dispatch_grid(items, 65_535);
-            let needed = items.div_ceil(64) as u64;
+            let needed = items.div_ceil(WORKGROUP_SIZE) as u64;
             assert!(x <= 65_535 && y <= 65_535, "{items}: {x} × {y}");
             assert!(x as u64 * y as u64 >= needed, "{items}: {x} × {y} misses items");
             assert!(x as u64 * y as u64 - needed < y as u64, "{items}: {x} × {y} for {needed} groups");

@@ -13,8 +13,8 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use rayon::prelude::*;
 
 use super::context::{GpuContext, GpuError};
-use super::layout::{MAX_LAYERS, pack_params, set_info};
-use super::shaders::{Kernel, Precision, Reduction, source};
+use super::layout::{MAX_LAYERS, Params};
+use super::shaders::{Kernel, Precision, Reduction, WORKGROUP_SIZE, source};
 use crate::model::{NoSolution, RefractiveCamera, Rig, out_of_range};
 
 mod affine_grid;
@@ -28,6 +28,9 @@ pub const MAX_CHUNK_ITEMS: usize = 1 << 22;
 
 /// Largest workgroup count per dispatch dimension every Vulkan adapter supports.
 const MAX_GROUPS_PER_DIMENSION: usize = 65_535;
+
+/// Items per workgroup ([`WORKGROUP_SIZE`]) as a host count.
+const GROUP: usize = WORKGROUP_SIZE as usize;
 
 /// The clock behind a kernel time of [`GpuEngine::kernel_seconds`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -182,10 +185,11 @@ impl GpuEngine {
         Ok(())
     }
 
-    /// Lowers the most items per dispatch below [`MAX_CHUNK_ITEMS`] (at least 64; values above it
-    /// are capped), so that small batches run over several chunks. For tests of the chunking.
+    /// Lowers the most items per dispatch below [`MAX_CHUNK_ITEMS`] (at least one workgroup,
+    /// [`WORKGROUP_SIZE`]; values above it are capped), so that small batches run over several
+    /// chunks. For tests of the chunking.
     pub fn set_max_chunk_items(&mut self, items: usize) {
-        self.max_chunk_items = items.clamp(64, MAX_CHUNK_ITEMS);
+        self.max_chunk_items = items.clamp(GROUP, MAX_CHUNK_ITEMS);
     }
 
     /// The compiled pipeline of `kernel`, compiled on first use.
@@ -273,7 +277,7 @@ impl GpuEngine {
     /// Items per chunk when each item needs at most `bytes_per_item` of one binding.
     fn chunk_items(&self, bytes_per_item: usize) -> usize {
         let cap = (self.context.max_storage_binding() as usize / bytes_per_item.max(1)).min(self.max_chunk_items);
-        (cap / 64 * 64).max(64)
+        (cap / GROUP * GROUP).max(GROUP)
     }
 
     fn check_layers(camera: &RefractiveCamera) -> Result<(), GpuError> {
@@ -302,10 +306,10 @@ impl GpuEngine {
         let s = self.precision.size();
         let chunk = self.chunk_items(N.max(M) * s).min(input.len().max(1));
         let pipeline = self.pipeline(kernel)?;
-        let mut params = pack_params(self.precision, a, b, [0; 4]);
+        let mut params = Params::new(self.precision, a, b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = buffers.uniform.get(&self.context, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
+        let uniform = buffers.uniform.get(&self.context, "params", params.bytes().len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
         let in_buf = buffers.input.get(&self.context, "input", chunk * N * s, self.input_usage())?.clone();
         let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", chunk * M * s)?;
         let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", chunk * 4)?;
@@ -313,8 +317,8 @@ impl GpuEngine {
         for start in (0..input.len()).step_by(chunk) {
             let end = (start + chunk).min(input.len());
             let items = end - start;
-            set_info(&mut params, self.precision, [items as u32, 0, 0, 0]);
-            self.context.queue.write_buffer(&uniform, 0, &params);
+            params.set_info([items as u32, 0, 0, 0]);
+            self.context.queue.write_buffer(&uniform, 0, params.bytes());
             let values: &[f64] = bytemuck::cast_slice(&input[start..end]);
             let bytes: &[u8] = match self.precision {
                 Precision::F64 => bytemuck::cast_slice(values),
@@ -499,19 +503,19 @@ impl GpuEngine {
         let s = self.precision.size();
         let rows = (self.chunk_items(6 * s) / w).clamp(1, MAX_GROUPS_PER_DIMENSION);
         let pipeline = self.pipeline(Kernel::BackprojectGrid)?;
-        let mut params = pack_params(self.precision, camera, camera, [0; 4]);
+        let mut params = Params::new(self.precision, camera, camera, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = buffers.uniform.get(&self.context, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
+        let uniform = buffers.uniform.get(&self.context, "params", params.bytes().len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
         let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", rows * w * 6 * s)?;
         let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", rows * w * 4)?;
         let bind_group = self.bind_group(&pipeline, "backproject_grid", &[(0, &uniform), (2, &out_buf), (3, &status_buf)]);
         for first in (0..h).step_by(rows) {
             let count = rows.min(h - first);
             let items = count * w;
-            set_info(&mut params, self.precision, [items as u32, width, first_row + first as u32, 0]);
-            self.context.queue.write_buffer(&uniform, 0, &params);
-            let encoder = self.encode_dispatch(&pipeline, &bind_group, "backproject_grid", (width.div_ceil(64), count as u32));
+            params.set_info([items as u32, width, first_row + first as u32, 0]);
+            self.context.queue.write_buffer(&uniform, 0, params.bytes());
+            let encoder = self.encode_dispatch(&pipeline, &bind_group, "backproject_grid", (width.div_ceil(WORKGROUP_SIZE), count as u32));
             let copies = [(&out_buf, &out_staging, (items * 6 * s) as u64), (&status_buf, &status_staging, (items * 4) as u64)];
             let range = first * w..first * w + items;
             let (out_rows, out_status) = (&mut rays[range.clone()], &mut status[range]);
@@ -556,15 +560,15 @@ impl GpuEngine {
             return Ok(());
         }
         let s = self.precision.size();
-        let pairs_per_chunk = (self.chunk_items(6 * s)).min(64 * MAX_GROUPS_PER_DIMENSION).min(air_rays.len());
-        let groups_x = pairs_per_chunk.div_ceil(64);
+        let pairs_per_chunk = (self.chunk_items(6 * s)).min(GROUP * MAX_GROUPS_PER_DIMENSION).min(air_rays.len());
+        let groups_x = pairs_per_chunk.div_ceil(GROUP);
         let candidates_per_chunk = (self.max_chunk_items / groups_x).clamp(1, MAX_GROUPS_PER_DIMENSION).min(candidates.len());
         let pipeline = self.pipeline(Kernel::RayGapCost)?;
-        let mut params = pack_params(self.precision, a, b, [0; 4]);
+        let mut params = Params::new(self.precision, a, b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
         let partial_bytes = candidates_per_chunk * groups_x * 2 * s;
-        let uniform = buffers.uniform.get(&self.context, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
+        let uniform = buffers.uniform.get(&self.context, "params", params.bytes().len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
         let in_buf = buffers.input.get(&self.context, "input", pairs_per_chunk * 6 * s, self.input_usage())?.clone();
         let cand_buf = buffers.candidates.get(&self.context, "candidates", candidates_per_chunk * 4 * s, self.input_usage())?.clone();
         let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", partial_bytes)?;
@@ -572,9 +576,9 @@ impl GpuEngine {
         for pair_start in (0..air_rays.len()).step_by(pairs_per_chunk) {
             let pair_end = (pair_start + pairs_per_chunk).min(air_rays.len());
             let pairs = pair_end - pair_start;
-            let groups = pairs.div_ceil(64);
-            set_info(&mut params, self.precision, [pairs as u32, 0, 0, 0]);
-            self.context.queue.write_buffer(&uniform, 0, &params);
+            let groups = pairs.div_ceil(GROUP);
+            params.set_info([pairs as u32, 0, 0, 0]);
+            self.context.queue.write_buffer(&uniform, 0, params.bytes());
             buffers.scratch.clear();
             extend_reals(&mut buffers.scratch, self.precision, bytemuck::cast_slice(&air_rays[pair_start..pair_end]));
             self.upload(&in_buf, &buffers.scratch)?;

@@ -3,8 +3,9 @@
 //! buffer layout; every kernel function has a CPU twin of the same name in [`crate::model`].
 //!
 //! - [`context`]: adapter choice, device, read-back (all version-sensitive wgpu calls);
-//! - [`shaders`]: composition of the WGSL sources per kernel and precision;
-//! - [`layout`]: host packing of the kernels' uniform;
+//! - [`shaders`]: composition of the WGSL sources per kernel and precision (also compiled by
+//!   `build.rs`, which validates every kernel with naga);
+//! - [`layout`]: the `#[repr(C)]` host mirrors of the kernels' uniform;
 //! - [`engine`]: chunked batches, buffer reuse, f32/f64 conversion.
 
 pub mod context;

@@ -1,219 +1,39 @@
-//! WGSL sources and their composition. A kernel module is: a precision prelude (generated here
-//! from the crate's constants, so the CPU and GPU stop at the same bounds), `shaders/common.wgsl`,
-//! the relations in `shaders/lib/`, and one kernel from `shaders/kernels/` (plus, for costs, a
-//! reduction entry point from `shaders/reduce/`).
+//! WGSL sources and their composition. A kernel module is: a precision prelude (generated from the
+//! crate's constants, so the CPU and GPU stop at the same bounds), `shaders/common.wgsl`, the
+//! relations in `shaders/lib/`, and one kernel from `shaders/kernels/` (plus, for costs, a
+//! reduction entry point from `shaders/reduce/`). The composition itself is in [`compose`], which
+//! `build.rs` also compiles to validate every kernel with naga at build time.
 
 use crate::model::camera::UNDISTORT_MAX_ITERATIONS;
 use crate::model::refractive_camera::{PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE};
 use crate::model::stereo::{MIN_BINOCULAR_CONDITIONING, MIN_RAY_ANGLE_SIN2};
 
-/// Floating-point type of a kernel's arithmetic and buffers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Precision {
-    /// 32-bit: every adapter, fastest.
-    F32,
-    /// 64-bit: adapters with SHADER_F64 (lavapipe has it); agrees with the CPU to ~1e-12.
-    F64,
-}
+pub mod compose;
 
-impl Precision {
-    /// Bytes per value.
-    pub fn size(self) -> usize {
-        match self {
-            Self::F32 => 4,
-            Self::F64 => 8,
-        }
-    }
+pub use compose::{CpuBounds, Kernel, Precision, Reduction};
 
-    /// A stand-in for infinity in the kernels (`REAL_HUGE`; WGSL has no infinity literal), also
-    /// packed as the fold radius of a lens without a fold.
-    pub fn huge(self) -> f64 {
-        match self {
-            Self::F32 => 1e30,
-            Self::F64 => 1e300,
-        }
-    }
+/// Invocations per workgroup of every kernel: the value of WGSL's `override WORKGROUP_SIZE`
+/// (`shaders/common.wgsl`, no default there), set at pipeline creation by
+/// [`GpuContext::pipeline`](super::GpuContext::pipeline), and the width of every host dispatch
+/// computation. A power of two: the workgroup tree reduction halves it.
+pub const WORKGROUP_SIZE: u32 = 64;
 
-    /// `f32` or `f64`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::F32 => "f32",
-            Self::F64 => "f64",
-        }
-    }
-}
+/// The CPU path's stopping rules, as the kernels get them.
+pub const CPU_BOUNDS: CpuBounds = CpuBounds {
+    undistort_max_iterations: UNDISTORT_MAX_ITERATIONS,
+    project_tolerance: PROJECT_TOLERANCE,
+    project_max_iterations: PROJECT_MAX_ITERATIONS,
+    min_ray_angle_sin2: MIN_RAY_ANGLE_SIN2,
+    min_binocular_conditioning: MIN_BINOCULAR_CONDITIONING,
+};
 
-impl std::fmt::Display for Precision {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// How a cost kernel sums its terms within a workgroup.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Reduction {
-    /// Tree in workgroup memory: every adapter.
-    Workgroup,
-    /// `subgroupAdd`, then workgroup memory across subgroups: adapters with SUBGROUP.
-    Subgroup,
-}
-
-/// One compute kernel (entry point `main`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Kernel {
-    /// u,v → ray in the water.
-    Backproject,
-    /// Every pixel of an image → ray in the water, pixels generated in the shader.
-    BackprojectGrid,
-    /// x,y,z → u,v.
-    Project,
-    /// x,y,z → depth, VOP distance, VOP, tan a.
-    Vop,
-    /// ul,vl,ur,vr → x,y,z, residual.
-    Triangulate,
-    /// ul,vl,ur,vr → both VOPs, axis offset, conditioning.
-    BinocularVop,
-    /// Candidate interfaces × air-ray pairs → Σ triangulation residual², reduced per workgroup.
-    RayGapCost,
-    /// Candidate interfaces × corners (two air rays) → x, y, z, gap.
-    CalibTriangulate,
-    /// Candidate interfaces × points (one per item) → ul, vl, ur, vr.
-    CalibProject,
-    /// Candidate axes × corners (air rays and their pixel Jacobians) → projected binocular VOP
-    /// q₁, q₂ in the plane ⟂ n and its Jacobian ∂q/∂(u_l, v_l, u_r, v_r).
-    CalibProjectedVop,
-    /// Candidate axes × corners (two air rays) → gap line a, b and |w_l × w_r|.
-    CalibGapLine,
-    /// Candidate axes × views (fused corner rows) → weighted affine-grid χ² and degrees of freedom;
-    /// always f64.
-    CalibAffineGrid,
-}
-
-impl Kernel {
-    /// Every kernel.
-    pub const ALL: [Kernel; 12] = [
-        Self::Backproject,
-        Self::BackprojectGrid,
-        Self::Project,
-        Self::Vop,
-        Self::Triangulate,
-        Self::BinocularVop,
-        Self::RayGapCost,
-        Self::CalibTriangulate,
-        Self::CalibProject,
-        Self::CalibProjectedVop,
-        Self::CalibGapLine,
-        Self::CalibAffineGrid,
-    ];
-
-    /// Name (file name in `shaders/kernels/`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Backproject => "backproject",
-            Self::BackprojectGrid => "backproject_grid",
-            Self::Project => "project",
-            Self::Vop => "vop",
-            Self::Triangulate => "triangulate",
-            Self::BinocularVop => "binocular_vop",
-            Self::RayGapCost => "ray_gap_cost",
-            Self::CalibTriangulate => "calib_triangulate",
-            Self::CalibProject => "calib_project",
-            Self::CalibProjectedVop => "calib_projected_vop",
-            Self::CalibGapLine => "calib_gap_line",
-            Self::CalibAffineGrid => "calib_affine_grid",
-        }
-    }
-
-    fn file(self) -> &'static str {
-        match self {
-            Self::Backproject => include_str!("../../shaders/kernels/backproject.wgsl"),
-            Self::BackprojectGrid => include_str!("../../shaders/kernels/backproject_grid.wgsl"),
-            Self::Project => include_str!("../../shaders/kernels/project.wgsl"),
-            Self::Vop => include_str!("../../shaders/kernels/vop.wgsl"),
-            Self::Triangulate => include_str!("../../shaders/kernels/triangulate.wgsl"),
-            Self::BinocularVop => include_str!("../../shaders/kernels/binocular_vop.wgsl"),
-            Self::RayGapCost => include_str!("../../shaders/kernels/ray_gap_cost.wgsl"),
-            Self::CalibTriangulate => include_str!("../../shaders/kernels/calib_triangulate.wgsl"),
-            Self::CalibProject => include_str!("../../shaders/kernels/calib_project.wgsl"),
-            Self::CalibProjectedVop => include_str!("../../shaders/kernels/calib_projected_vop.wgsl"),
-            Self::CalibGapLine => include_str!("../../shaders/kernels/calib_gap_line.wgsl"),
-            Self::CalibAffineGrid => include_str!("../../shaders/kernels/calib_affine_grid.wgsl"),
-        }
-    }
-
-    /// The shared bindings composed in front of the kernel: those of the row-mapping kernels
-    /// (`shaders/kernels/map_bindings.wgsl`), of the candidate-batch kernels
-    /// (`shaders/kernels/candidate_bindings.wgsl`), or none (the kernel declares its own).
-    fn bindings(self) -> &'static str {
-        match self {
-            Self::BackprojectGrid | Self::RayGapCost | Self::CalibAffineGrid => "",
-            Self::CalibTriangulate | Self::CalibProject | Self::CalibProjectedVop | Self::CalibGapLine => {
-                include_str!("../../shaders/kernels/candidate_bindings.wgsl")
-            }
-            Self::Backproject | Self::Project | Self::Vop | Self::Triangulate | Self::BinocularVop => {
-                include_str!("../../shaders/kernels/map_bindings.wgsl")
-            }
-        }
-    }
-
-    /// The precision a kernel is composed in whatever the engine's, if fixed: the fused affine
-    /// grid's one-pass χ² needs f64.
-    pub fn fixed_precision(self) -> Option<Precision> {
-        matches!(self, Self::CalibAffineGrid).then_some(Precision::F64)
-    }
-
-    /// True for kernels whose entry point is a reduction.
-    pub fn is_cost(self) -> bool {
-        matches!(self, Self::RayGapCost)
-    }
-}
-
-const COMMON: &str = include_str!("../../shaders/common.wgsl");
-/// The relation files, in dependency order.
-const LIBRARY: [&str; 5] = [
-    include_str!("../../shaders/lib/lens.wgsl"),
-    include_str!("../../shaders/lib/lambda.wgsl"),
-    include_str!("../../shaders/lib/ray.wgsl"),
-    include_str!("../../shaders/lib/air_path.wgsl"),
-    include_str!("../../shaders/lib/stereo.wgsl"),
-];
-
-/// The precision prelude: type aliases and the stopping rules of the CPU path. f32 kernels stop
-/// at tolerances a few ulps above f32 rounding instead of the CPU's f64 ones. (Naga 30 takes
-/// subgroup operations without WGSL's `enable subgroups;`, which it does not parse yet.)
+/// The precision prelude with the CPU's stopping rules: see [`compose::prelude`].
 pub fn prelude(precision: Precision) -> String {
-    let (undistort_tolerance, project_tolerance) = match precision {
-        Precision::F32 => (4e-7, 2.5e-7),
-        Precision::F64 => (1e-14, PROJECT_TOLERANCE),
-    };
-    let huge = precision.huge();
-    let real = precision.name();
-    format!(
-        "alias real = {real};\nalias vec2r = vec2<{real}>;\nalias vec3r = vec3<{real}>;\nalias vec4r = vec4<{real}>;\n\
-         const REAL_HUGE: real = {huge:e};\n\
-         const UNDISTORT_TOLERANCE: real = {undistort_tolerance:e};\n\
-         const UNDISTORT_MAX_ITERATIONS: u32 = {UNDISTORT_MAX_ITERATIONS}u;\n\
-         const PROJECT_TOLERANCE: real = {project_tolerance:e};\n\
-         const PROJECT_MAX_ITERATIONS: u32 = {PROJECT_MAX_ITERATIONS}u;\n\
-         const MIN_RAY_ANGLE_SIN2: real = {MIN_RAY_ANGLE_SIN2:e};\n\
-         const MIN_BINOCULAR_CONDITIONING: real = {MIN_BINOCULAR_CONDITIONING:e};\n"
-    )
+    compose::prelude(precision, &CPU_BOUNDS)
 }
 
-/// The composed WGSL module of `kernel` at `precision`; `reduction` picks the entry point of cost
-/// kernels (ignored by the others).
+/// The composed WGSL module of `kernel` at `precision` with the CPU's stopping rules; `reduction`
+/// picks the entry point of cost kernels (ignored by the others).
 pub fn source(kernel: Kernel, precision: Precision, reduction: Reduction) -> String {
-    let reduction = if kernel.is_cost() { reduction } else { Reduction::Workgroup };
-    let mut text = prelude(precision);
-    for part in [COMMON].into_iter().chain(LIBRARY).chain([kernel.bindings(), kernel.file()]) {
-        text.push_str(part);
-        text.push('\n');
-    }
-    if kernel.is_cost() {
-        text.push_str(match reduction {
-            Reduction::Workgroup => include_str!("../../shaders/reduce/workgroup.wgsl"),
-            Reduction::Subgroup => include_str!("../../shaders/reduce/subgroup.wgsl"),
-        });
-    }
-    text
+    compose::source(kernel, precision, reduction, &CPU_BOUNDS)
 }

@@ -2,15 +2,11 @@
 //! views, one (χ², dof) per pair, always in f64. Indexing, chunking and buffers only; the
 //! formulation is in [`crate::calib::affine_grid`].
 
-use super::GpuEngine;
+use super::{GROUP, GpuEngine};
 use crate::gpu::context::GpuError;
-use crate::gpu::layout::{pack_params, set_info};
+use crate::gpu::layout::Params;
 use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::Rig;
-
-/// Invocations per workgroup: a chunk holds a multiple of this many candidates per view, so a
-/// workgroup's invocations share their view.
-const GROUP: usize = 64;
 
 /// The fused affine-grid kernel's input, packed once per data set: every corner row (N reals, a
 /// multiple of 4: the kernel reads vec4), then (first row, row count, 0, 0) per view.
@@ -78,6 +74,7 @@ impl GpuEngine {
         // Items per dispatch: (χ², dof) and a status each.
         let capacity = self.chunk_items(2 * real);
         let views_per_chunk = view_count.min((capacity / GROUP).max(1));
+        // Candidates per view a multiple of the workgroup size: a workgroup's invocations share their view.
         let per_view = ((capacity / views_per_chunk) / GROUP * GROUP).max(GROUP).min(axes.len().next_multiple_of(GROUP));
         let cap = self.context.max_storage_binding() as usize;
         if input.reals.len() * real > cap {
@@ -85,10 +82,10 @@ impl GpuEngine {
         }
         let kernel = Kernel::CalibAffineGrid;
         let pipeline = self.pipeline(kernel)?;
-        let mut params = pack_params(precision, &a, &b, [0; 4]);
+        let mut params = Params::new(precision, &a, &b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = buffers.uniform.get(&self.context, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
+        let uniform = buffers.uniform.get(&self.context, "params", params.bytes().len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
         let in_buf = buffers.input.get(&self.context, "input", input.reals.len() * real, self.input_usage())?.clone();
         let cand_buf = buffers.candidates.get(&self.context, "candidates", per_view * 4 * real, self.input_usage())?.clone();
         let items = per_view * views_per_chunk;
@@ -107,8 +104,8 @@ impl GpuEngine {
             for view_first in (0..view_count).step_by(views_per_chunk) {
                 let view_last = (view_first + views_per_chunk).min(view_count);
                 let count = per_view * (view_last - view_first);
-                set_info(&mut params, precision, [count as u32, per_view as u32, input.rows as u32, view_first as u32]);
-                self.context.queue.write_buffer(&uniform, 0, &params);
+                params.set_info([count as u32, per_view as u32, input.rows as u32, view_first as u32]);
+                self.context.queue.write_buffer(&uniform, 0, params.bytes());
                 let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), self.context.dispatch_size(count as u32));
                 let copies = [(&out_buf, &out_staging, (count * 2 * real) as u64), (&status_buf, &status_staging, (count * 4) as u64)];
                 self.context.read_back(encoder, &copies, |data| {

@@ -5,7 +5,7 @@
 
 use super::{GpuEngine, extend_reals, rows_from};
 use crate::gpu::context::GpuError;
-use crate::gpu::layout::{pack_params, set_info};
+use crate::gpu::layout::Params;
 use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::Rig;
 
@@ -138,14 +138,14 @@ impl GpuEngine {
         }
         let per_chunk = per_chunk.min(candidates.len());
         let pipeline = self.pipeline(kernel)?;
-        let mut params = pack_params(self.precision, &a, &b, [0; 4]);
+        let mut params = Params::new(self.precision, &a, &b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
         let input_rows = match rows {
             Rows::PerCorner => corners,
             Rows::PerItem => per_chunk * corners,
         };
-        let uniform = buffers.uniform.get(&self.context, "params", params.len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
+        let uniform = buffers.uniform.get(&self.context, "params", params.bytes().len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
         let in_buf = buffers.input.get(&self.context, "input", input_rows * N * s, self.input_usage())?.clone();
         let cand_buf = buffers.candidates.get(&self.context, "candidates", per_chunk * 4 * s, self.input_usage())?.clone();
         let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", per_chunk * corners * M * s)?;
@@ -159,8 +159,8 @@ impl GpuEngine {
             let last = (first + per_chunk).min(candidates.len());
             let range = first * corners..last * corners;
             let count = range.len();
-            set_info(&mut params, self.precision, [count as u32, corners as u32, 0, 0]);
-            self.context.queue.write_buffer(&uniform, 0, &params);
+            params.set_info([count as u32, corners as u32, 0, 0]);
+            self.context.queue.write_buffer(&uniform, 0, params.bytes());
             self.upload_reals(&mut buffers.scratch, &cand_buf, bytemuck::cast_slice(&candidates[first..last]))?;
             if rows == Rows::PerItem {
                 self.upload_reals(&mut buffers.scratch, &in_buf, bytemuck::cast_slice(&input[range.clone()]))?;
