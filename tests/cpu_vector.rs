@@ -1,4 +1,5 @@
-//! The CPU engine's vector path against the scalar model it twins: every row must get the same
+//! The CPU engine's vector path against the scalar model it twins (back-projection, forward
+//! projection, VOPs, triangulation): every row must get the same
 //! status and, where there is an answer, the same numbers within 1e-12 relative (the issue's
 //! bound; the lanes compute the scalar expressions in the same order, so most rows agree bit for
 //! bit and the test reports how many do not).
@@ -162,6 +163,11 @@ fn check_fixture(fixture: &Fixture, seed: u64, random: usize) -> (Vec<String>, u
             vector.project(camera, &points, &mut p1, &mut s1);
             record(compare(&format!("{} camera {k} project", fixture.name), &points, (&p0, &s0), (&p1, &s1)), n);
 
+            let (mut v0, mut s0, mut v1, mut s1) = (vec![[0.0; 6]; n], vec![0; n], vec![[0.0; 6]; n], vec![0; n]);
+            scalar.vop(camera, &points, &mut v0, &mut s0);
+            vector.vop(camera, &points, &mut v1, &mut s1);
+            record(compare(&format!("{} camera {k} vop", fixture.name), &points, (&v0, &s0), (&v1, &s1)), n);
+
             if k == 0 {
                 let matches = matches_for(fixture, &points, &mut rng);
                 let n = matches.len();
@@ -235,6 +241,7 @@ fn the_lanes_answer_ordinary_rows_themselves() {
     assert_eq!(simd::backproject(&a, &work.pixels, &mut vec![[0.0; 6]; n], &mut status), 0);
     assert_eq!(simd::project(&a, &work.points, &mut vec![[0.0; 2]; n], &mut status), 0);
     assert_eq!(simd::triangulate(&a, &b, &work.matches, &mut vec![[0.0; 4]; n], &mut status), 0);
+    assert_eq!(simd::vop(&a, &work.points, &mut vec![[0.0; 6]; n], &mut status), 0);
 }
 
 #[test]

@@ -332,6 +332,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         pair("backproject_pinhole", &mut |cpu| cpu.backproject(&a_pinhole, &work.pixels, &mut out6, &mut status));
         pair("project", &mut |cpu| cpu.project(&a, &work.points, &mut out2, &mut status));
         pair("triangulate", &mut |cpu| cpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status));
+        pair("vop", &mut |cpu| cpu.vop(&a, &work.points, &mut out6, &mut status));
     }
     let cpu_backend = CpuBackend::new(&sweep_data);
     let t = fastest(args.repeats.min(2), || Ok(cpu_backend.costs(CostKind::AffineGrid, &sweep_candidates).map(drop)?))?;
@@ -427,7 +428,7 @@ fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
         None => outln!("  {name:72}      n/a"),
     };
     let ratio = |x: Option<f64>, y: Option<f64>| x.zip(y).map(|(x, y)| x / y);
-    for kernel in ["backproject", "backproject_pinhole", "project", "triangulate"] {
+    for kernel in ["backproject", "backproject_pinhole", "project", "triangulate", "vop"] {
         for t in [1, threads] {
             let vector = rate_on(kernel, "cpu", Some("vector"), "f64", Some(t), "end_to_end");
             let scalar = rate_on(kernel, "cpu", Some("scalar"), "f64", Some(t), "end_to_end");

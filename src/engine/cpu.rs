@@ -3,9 +3,9 @@
 
 use rayon::prelude::*;
 
-use super::simd::{self, backproject_row, project_row, scalar_row, triangulate_row};
+use super::simd::{self, backproject_row, project_row, scalar_row, triangulate_row, vop_row};
 use crate::model::{NoSolution, RefractiveCamera, Rig, binocular_vop, triangulate_rays};
-use nalgebra::{Point2, Point3, Unit, Vector3};
+use nalgebra::{Point2, Unit, Vector3};
 
 /// Items per rayon task: large enough to amortise scheduling, small enough to balance.
 const TASK_ITEMS: usize = 4096;
@@ -119,10 +119,12 @@ impl CpuEngine {
 
     /// See [`Engine::vop`](super::Engine::vop).
     pub fn vop(&self, camera: &RefractiveCamera, points: &[[f64; 3]], vops: &mut [[f64; 6]], status: &mut [u32]) {
-        self.map(points, vops, status, |&[x, y, z]| {
-            let v = camera.vop(&Point3::new(x, y, z))?;
-            Ok([v.depth, v.vop_distance, v.vop.x, v.vop.y, v.vop.z, v.incidence])
-        });
+        match self.path {
+            CpuPath::Vector => self.split(points, vops, status, |p, v, s| {
+                simd::vop(camera, p, v, s);
+            }),
+            CpuPath::Scalar => self.map(points, vops, status, |p| vop_row(camera, p)),
+        }
     }
 
     /// See [`Engine::triangulate`](super::Engine::triangulate).

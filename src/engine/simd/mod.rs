@@ -91,6 +91,13 @@ pub fn project_row(camera: &RefractiveCamera, &[x, y, z]: &[f64; 3]) -> Result<[
     camera.project(&Point3::new(x, y, z)).map(|p| [p.x, p.y])
 }
 
+/// [`RefractiveCamera::vop`] as a batch row: depth, vop_distance, vop xyz, incidence.
+#[inline]
+pub fn vop_row(camera: &RefractiveCamera, &[x, y, z]: &[f64; 3]) -> Result<[f64; 6], NoSolution> {
+    let v = camera.vop(&Point3::new(x, y, z))?;
+    Ok([v.depth, v.vop_distance, v.vop.x, v.vop.y, v.vop.z, v.incidence])
+}
+
 /// Triangulation of a match (ul, vl, ur, vr) as a batch row: x, y, z, residual.
 #[inline]
 pub fn triangulate_row(a: &RefractiveCamera, b: &RefractiveCamera, &[ul, vl, ur, vr]: &[f64; 4]) -> Result<[f64; 4], NoSolution> {
@@ -167,6 +174,26 @@ dispatched! {
         by_scalar
     }
 
+    /// [`Engine::vop`](crate::engine::Engine::vop) on the vector path, one thread; returns how
+    /// many rows the scalar model answered. Panics if the slices differ in length.
+    pub fn vop(camera: &RefractiveCamera, points: &[[f64; 3]], vops: &mut [[f64; 6]], status: &mut [u32]) -> usize {
+        assert!(points.len() == vops.len() && points.len() == status.len(), "input, output and status of equal length");
+        let lanes = CameraLanes::new(camera);
+        let mut by_scalar = 0;
+        for ((points, vops), status) in points.chunks(LANES).zip(vops.chunks_mut(LANES)).zip(status.chunks_mut(LANES)) {
+            let out = lanes.vop(Vec3s { x: column(points, 0), y: column(points, 1), z: column(points, 2) });
+            for l in 0..points.len() {
+                if out.scalar.0[l] {
+                    (vops[l], status[l]) = scalar_row(&points[l], |p| vop_row(camera, p));
+                    by_scalar += 1;
+                } else {
+                    store(&mut vops[l], &mut status[l], out.status.0[l], out.values.map(|v| v.0[l]));
+                }
+            }
+        }
+        by_scalar
+    }
+
     /// [`Engine::triangulate`](crate::engine::Engine::triangulate) on the vector path, one
     /// thread; returns how many rows the scalar model answered. Panics if the slices differ in
     /// length.
@@ -200,32 +227,38 @@ dispatched! {
     /// throughput and not latency counts. `flatport bench` multiplies them by each relation's
     /// count to estimate its floor.
     pub fn sqrt_div_seconds(rounds: usize) -> (f64, f64) {
-        let sqrt = fastest_of_5(rounds, |v| v.sqrt());
-        let div = fastest_of_5(rounds, |v| 2.5 / v);
-        let lanes = (rounds.div_ceil(PROBE_UNROLL) * PROBE_UNROLL * 8 * LANES) as f64;
+        // Two loops spelt out on purpose: folded into one generic helper taking the operation, the
+        // same probe measured 0.3 cycles per ÷ and lane, below what the hardware can do, so the
+        // optimiser had changed what was timed.
+        const UNROLL: usize = 16;
+        let mut x: [F64s; 8] = std::array::from_fn(|j| F64s::splat(1.5 + j as f64));
+        let (mut sqrt, mut div) = (f64::INFINITY, f64::INFINITY);
+        for _ in 0..5 {
+            let start = std::time::Instant::now();
+            for _ in 0..rounds.div_ceil(UNROLL) {
+                for _ in 0..UNROLL {
+                    for v in &mut x {
+                        *v = v.sqrt();
+                    }
+                }
+                x = std::hint::black_box(x);
+            }
+            sqrt = sqrt.min(start.elapsed().as_secs_f64());
+            let start = std::time::Instant::now();
+            for _ in 0..rounds.div_ceil(UNROLL) {
+                for _ in 0..UNROLL {
+                    for v in &mut x {
+                        *v = 2.5 / *v;
+                    }
+                }
+                x = std::hint::black_box(x);
+            }
+            div = div.min(start.elapsed().as_secs_f64());
+        }
+        std::hint::black_box(x);
+        let lanes = (rounds.div_ceil(UNROLL) * UNROLL * 8 * LANES) as f64;
         (sqrt / lanes, div / lanes)
     }
-}
-
-/// Rounds of [`sqrt_div_seconds`] between two looks of the optimiser at the values.
-const PROBE_UNROLL: usize = 16;
-
-/// Seconds of the fastest of 5 trials of `rounds` applications of `op` to 8 independent blocks.
-#[inline(always)]
-fn fastest_of_5(rounds: usize, op: impl Fn(F64s) -> F64s + Copy) -> f64 {
-    let mut x: [F64s; 8] = std::array::from_fn(|j| F64s::splat(1.5 + j as f64));
-    let mut best = f64::INFINITY;
-    for _ in 0..5 {
-        let start = std::time::Instant::now();
-        for _ in 0..rounds.div_ceil(PROBE_UNROLL) {
-            for _ in 0..PROBE_UNROLL {
-                x = x.map(op);
-            }
-            x = std::hint::black_box(x);
-        }
-        best = best.min(start.elapsed().as_secs_f64());
-    }
-    best
 }
 
 /// Mean Newton steps of the lane undistortion per block of [`LANES`] pixels of `camera` (each

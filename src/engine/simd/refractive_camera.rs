@@ -69,6 +69,17 @@ pub struct Pixels {
     pub scalar: Mask,
 }
 
+/// VOPs for a block of points.
+#[derive(Debug, Clone, Copy)]
+pub struct Vops {
+    /// depth, vop_distance, vop x, y, z, incidence (radians), as the batch rows of `vop`.
+    pub values: [F64s; 6],
+    /// The reason per lane (0: an answer).
+    pub status: Status,
+    /// Lanes whose answer must come from the scalar model.
+    pub scalar: Mask,
+}
+
 /// The constants of one [`RefractiveCamera`] in the form the lanes use.
 #[derive(Debug, Clone)]
 pub struct CameraLanes<'a> {
@@ -191,14 +202,13 @@ impl<'a> CameraLanes<'a> {
         Rays { origin, dir, status, scalar }
     }
 
-    /// [`RefractiveCamera::project`] (with the CPU engine's row checks) for a block of points in
-    /// the master frame.
+    /// `split` and `solve_incidence` of [`RefractiveCamera::air_path_to`] for a block of points in
+    /// the master frame, with the CPU engine's check of the inputs' range.
     #[inline(always)]
-    pub fn project(&self, point: Vec3s) -> Pixels {
+    fn air_path(&self, point: Vec3s) -> AirPathLanes {
         let zero = F64s::splat(0.0);
         let mut status = Status::ok();
         status.fail(!(point.x.within(MAX_INPUT) & point.y.within(MAX_INPUT) & point.z.within(MAX_INPUT)), NoSolution::OutOfRange);
-        // split
         let n = Vec3s::splat(self.normal);
         let offset = point - Vec3s::splat(self.centre);
         let z = n.dot(offset);
@@ -207,7 +217,7 @@ impl<'a> CameraLanes<'a> {
         let lateral = offset - scaled(self.normal, z);
         let largest = lateral.x.abs().max(lateral.y.abs()).max(lateral.z.abs());
         // Lengths beyond 1e150 (scaled before squaring) and tan a beyond 1e150 take the scalar path.
-        let mut scalar = status.answered() & (largest.gt(F64s::splat(SCALE_ABOVE)) | (largest / self.air_distance).gt(F64s::splat(SCALE_ABOVE * 0.5)));
+        let scalar = status.answered() & (largest.gt(F64s::splat(SCALE_ABOVE)) | (largest / self.air_distance).gt(F64s::splat(SCALE_ABOVE * 0.5)));
         let r = lateral.norm_squared().sqrt();
         let on_axis = r.eq(zero);
         // Solve where a lane still needs it; lanes already decided get a harmless r.
@@ -217,8 +227,36 @@ impl<'a> CameraLanes<'a> {
             solving.select(r, F64s::splat(1.0)),
             solving,
         );
-        scalar = scalar | (solving & root.scalar);
-        let (v, k) = (root.v, root.rho_ref);
+        let scalar = scalar | (solving & root.scalar);
+        AirPathLanes { depth, lateral, r, on_axis, v: root.v, k: root.rho_ref, solving, status, scalar }
+    }
+
+    /// [`RefractiveCamera::vop`] (with the CPU engine's row checks) for a block of points in the
+    /// master frame: depth, x̌, the VOP's xyz and the angle of incidence, per lane. A point on the
+    /// camera's axis line (tan a = 0, where x̌ is eq 4.8's apparent depth) is left to the scalar
+    /// model.
+    #[inline(always)]
+    pub fn vop(&self, point: Vec3s) -> Vops {
+        let zero = F64s::splat(0.0);
+        let AirPathLanes { depth, r, on_axis, v, k, mut status, mut scalar, .. } = self.air_path(point);
+        let tau = k * v / (1.0 + (1.0 - k * k) * v * v).sqrt();
+        scalar = scalar | (status.answered() & (on_axis | !tau.gt(zero)));
+        let vop_distance = r / tau - self.air_distance - self.layers_thickness;
+        let shift = vop_distance - depth;
+        let vop = point + scaled(self.normal, shift);
+        let incidence = F64s(tau.0.map(f64::atan));
+        let values = [depth, vop_distance, vop.x, vop.y, vop.z, incidence];
+        let finite = values.iter().fold(Mask::splat(true), |all, v| all & v.is_finite());
+        status.fail(!finite, NoSolution::OutOfRange);
+        Vops { values, status, scalar }
+    }
+
+    /// [`RefractiveCamera::project`] (with the CPU engine's row checks) for a block of points in
+    /// the master frame.
+    #[inline(always)]
+    pub fn project(&self, point: Vec3s) -> Pixels {
+        let zero = F64s::splat(0.0);
+        let AirPathLanes { depth: _, lateral, r, on_axis, v, k, solving, mut status, mut scalar } = self.air_path(point);
         let [r0, r1, r2] = self.cam_from_master;
         let lateral_in_cam = Vec3s {
             x: r0[0] * lateral.x + r0[1] * lateral.y + r0[2] * lateral.z,
@@ -245,6 +283,25 @@ impl<'a> CameraLanes<'a> {
         status.fail(!(u.is_finite() & v.is_finite()), NoSolution::OutOfRange);
         Pixels { u, v, status, scalar }
     }
+}
+
+/// [`RefractiveCamera::air_path_to`] for a block of points, up to the root of its equation.
+struct AirPathLanes {
+    /// x, the depth beyond the outer interface.
+    depth: F64s,
+    /// O − C_k − z·n and its length r.
+    lateral: Vec3s,
+    r: F64s,
+    /// Lanes with r = 0 (no root to find: the path runs along n).
+    on_axis: Mask,
+    /// The root v in the variable of the medium of relative index k (lanes of `solving`).
+    v: F64s,
+    k: F64s,
+    /// Lanes whose root was found here.
+    solving: Mask,
+    status: Status,
+    /// Lanes whose answer must come from the scalar model.
+    scalar: Mask,
 }
 
 /// The root of the forward projection for a block: v per lane in the variable of medium ρ_ref.
