@@ -8,7 +8,7 @@
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 
-use flatport::engine::workload::Workload;
+use flatport::engine::workload::{Workload, without_distortion};
 use flatport::engine::{CpuEngine, CpuPath};
 use flatport::io::rig_from_json_str;
 use flatport::model::{RefractiveCamera, Rig};
@@ -22,12 +22,7 @@ fn rig() -> Rig {
 
 /// The example rig without lens distortion: isolates the refraction from the undistortion.
 fn pinhole_rig() -> Rig {
-    let rig = rig();
-    let mut cameras = rig.cameras().to_vec();
-    for camera in &mut cameras {
-        camera.intrinsics.distortion = [0.0; 5];
-    }
-    Rig::new(cameras, rig.interface().clone()).expect("still valid")
+    without_distortion(&rig()).expect("still valid")
 }
 
 fn engines() -> [(&'static str, CpuEngine); 2] {

@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use flatport::calib::{Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, simulate};
 use flatport::engine::{CpuEngine, CpuPath};
-use flatport::engine::workload::Workload;
+use flatport::engine::workload::{Workload, without_distortion};
 use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision};
 use flatport::io::{rig_from_json_str, write_atomic};
 use flatport::model::{RefractiveCamera, Rig, normal_from_tilt_azimuth};
@@ -116,13 +116,6 @@ struct Floor {
     floor_cycles_per_item: f64,
     /// The vector path, one thread, this run.
     cycles_per_item: Option<f64>,
-}
-
-/// The first camera of `rig` with its distortion set to zero.
-fn pinhole_camera(rig: &Rig) -> anyhow::Result<RefractiveCamera> {
-    let mut cameras = rig.cameras().to_vec();
-    cameras[0].intrinsics.distortion = [0.0; 5];
-    Ok(Rig::new(cameras, rig.interface().clone())?.refractive_camera(0))
 }
 
 /// Fastest of `repeats` runs of `run` on each engine after one warm-up each, the engines taking
@@ -316,7 +309,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let mut out2 = vec![[0.0; 2]; n];
     let mut status = vec![0u32; n];
     // The first camera without its distortion: the refraction alone.
-    let a_pinhole = pinhole_camera(&rig)?;
+    let a_pinhole = without_distortion(&rig)?.refractive_camera(0);
     let isa = flatport::engine::simd::instruction_set();
     eprintln!("CPU paths: scalar (the model row by row) and vector ({isa}), run by run in turn");
     for threads in [1, all.threads()] {

@@ -3,7 +3,17 @@
 
 use nalgebra::Point2;
 
-use crate::model::Rig;
+use crate::model::{ModelError, Rig};
+
+/// `rig` with every camera's lens distortion set to zero: the benchmarks' pinhole variant, which
+/// isolates the refraction from the undistortion.
+pub fn without_distortion(rig: &Rig) -> Result<Rig, ModelError> {
+    let mut cameras = rig.cameras().to_vec();
+    for camera in &mut cameras {
+        camera.intrinsics.distortion = [0.0; 5];
+    }
+    Rig::new(cameras, rig.interface().clone())
+}
 
 /// Batches of one size for cameras 0 and 1 of a rig.
 pub struct Workload {

@@ -146,12 +146,6 @@ impl Mask {
         F64s(lanewise!(self, |l| if self.0[l] { a.0[l] } else { b.0[l] }))
     }
 
-    /// Lane-wise `if self { a } else { b }` for masks.
-    #[inline(always)]
-    pub fn select_mask(self, a: Mask, b: Mask) -> Mask {
-        Mask(lanewise!(self, |l| if self.0[l] { a.0[l] } else { b.0[l] }))
-    }
-
     /// Lane-wise `self && !other`.
     #[inline(always)]
     pub fn and_not(self, other: Mask) -> Mask {

@@ -131,6 +131,10 @@ fn store<const M: usize>(row: &mut [f64; M], status: &mut u32, code: u32, values
     (*row, *status) = if code == 0 { (values, 0) } else { ([f64::NAN; M], code) };
 }
 
+// The four batch loops below share their shape on purpose. Folded into one generic loop (the
+// lanes of a relation as a closure, or as a trait with `#[inline(always)]` methods, returning the
+// output columns), back-projection ran at 56–64 M rows/s instead of 87 on one thread (machine B,
+// `flatport bench --no-gpu`), while projection and triangulation did not change.
 dispatched! {
     /// [`Engine::backproject`](crate::engine::Engine::backproject) on the vector path, one thread;
     /// returns how many rows the scalar model answered. Panics if the slices differ in length.

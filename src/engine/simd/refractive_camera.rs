@@ -144,9 +144,14 @@ impl<'a> CameraLanes<'a> {
         if !self.distorts {
             return 0;
         }
-        let xd = (u - self.cx) * self.inv_fx;
-        let yd = (v - self.cy) * self.inv_fy;
+        let (xd, yd) = self.normalized_distorted(u, v);
         self.distortion.undistort_in_fold(xd, yd, self.fold_radius2).3
+    }
+
+    /// The distorted normalised coordinates ((u − c_x)/f_x, (v − c_y)/f_y) of raw pixels.
+    #[inline(always)]
+    fn normalized_distorted(&self, u: F64s, v: F64s) -> (F64s, F64s) {
+        ((u - self.cx) * self.inv_fx, (v - self.cy) * self.inv_fy)
     }
 
     /// [`RefractiveCamera::backproject`] (with the row checks of the CPU engine: an input beyond
@@ -156,8 +161,7 @@ impl<'a> CameraLanes<'a> {
         let mut status = Status::ok();
         status.fail(!(u.within(MAX_INPUT) & v.within(MAX_INPUT)), NoSolution::OutOfRange);
         // dir_in_air_from_img
-        let xd = (u - self.cx) * self.inv_fx;
-        let yd = (v - self.cy) * self.inv_fy;
+        let (xd, yd) = self.normalized_distorted(u, v);
         let (x, y, scalar) = if self.distorts {
             let (x, y, ok, _) = self.distortion.undistort_in_fold(xd, yd, self.fold_radius2);
             (x, y, status.answered().and_not(ok))
