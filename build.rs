@@ -23,15 +23,29 @@ fn main() {
     for kernel in Kernel::ALL {
         for precision in [Precision::F32, Precision::F64] {
             // A kernel of fixed precision is composed once, as the engine composes it.
-            if kernel.fixed_precision().is_some_and(|fixed| fixed != precision) {
+            if kernel
+                .fixed_precision()
+                .is_some_and(|fixed| fixed != precision)
+            {
                 continue;
             }
-            let reductions: &[Reduction] = if kernel.is_cost() { &[Reduction::Workgroup, Reduction::Subgroup] } else { &[Reduction::Workgroup] };
+            let reductions: &[Reduction] = if kernel.is_cost() {
+                &[Reduction::Workgroup, Reduction::Subgroup]
+            } else {
+                &[Reduction::Workgroup]
+            };
             for &reduction in reductions {
                 let source = compose::source(kernel, precision, reduction, &CPU_BOUNDS_COPY);
-                let reduction_name = if kernel.is_cost() { format!(" {reduction:?} reduction") } else { String::new() };
+                let reduction_name = if kernel.is_cost() {
+                    format!(" {reduction:?} reduction")
+                } else {
+                    String::new()
+                };
                 let label = format!("kernel {} {precision}{reduction_name}", kernel.name());
-                let capabilities = wgsl::capabilities(precision == Precision::F64, reduction == Reduction::Subgroup);
+                let capabilities = wgsl::capabilities(
+                    precision == Precision::F64,
+                    reduction == Reduction::Subgroup,
+                );
                 if let Err(error) = wgsl::check(&label, &source, capabilities) {
                     errors.push(error);
                 }

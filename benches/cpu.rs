@@ -26,11 +26,18 @@ fn pinhole_rig() -> Rig {
 }
 
 fn engines() -> [(&'static str, CpuEngine); 2] {
-    [("scalar", CpuEngine::with_path(Some(1), CpuPath::Scalar)), ("vector", CpuEngine::with_path(Some(1), CpuPath::Vector))]
+    [
+        ("scalar", CpuEngine::with_path(Some(1), CpuPath::Scalar)),
+        ("vector", CpuEngine::with_path(Some(1), CpuPath::Vector)),
+    ]
 }
 
 /// A group per rig (pinhole, distorted) for `relation`: `run` on camera 0 on both paths at every size.
-fn groups<const M: usize>(c: &mut Criterion, relation: &str, run: impl Fn(&CpuEngine, &RefractiveCamera, &Workload, &mut [[f64; M]], &mut [u32])) {
+fn groups<const M: usize>(
+    c: &mut Criterion,
+    relation: &str,
+    run: impl Fn(&CpuEngine, &RefractiveCamera, &Workload, &mut [[f64; M]], &mut [u32]),
+) {
     for (variant, rig) in [("pinhole", pinhole_rig()), ("distorted", rig())] {
         let mut group = c.benchmark_group(format!("cpu_f64_{relation}_{variant}"));
         group.sample_size(10);
@@ -40,7 +47,9 @@ fn groups<const M: usize>(c: &mut Criterion, relation: &str, run: impl Fn(&CpuEn
             let (mut out, mut status) = (vec![[0.0; M]; count], vec![0; count]);
             group.throughput(Throughput::Elements(count as u64));
             for (path, engine) in engines() {
-                group.bench_function(BenchmarkId::new(path, count), |b| b.iter(|| run(&engine, &camera, &work, &mut out, &mut status)));
+                group.bench_function(BenchmarkId::new(path, count), |b| {
+                    b.iter(|| run(&engine, &camera, &work, &mut out, &mut status))
+                });
             }
         }
         group.finish();
@@ -48,11 +57,15 @@ fn groups<const M: usize>(c: &mut Criterion, relation: &str, run: impl Fn(&CpuEn
 }
 
 fn backproject(c: &mut Criterion) {
-    groups::<6>(c, "backproject", |engine, camera, work, rays, status| engine.backproject(camera, &work.pixels, rays, status));
+    groups::<6>(c, "backproject", |engine, camera, work, rays, status| {
+        engine.backproject(camera, &work.pixels, rays, status)
+    });
 }
 
 fn project(c: &mut Criterion) {
-    groups::<2>(c, "project", |engine, camera, work, pixels, status| engine.project(camera, &work.points, pixels, status));
+    groups::<2>(c, "project", |engine, camera, work, pixels, status| {
+        engine.project(camera, &work.points, pixels, status)
+    });
 }
 
 fn triangulate(c: &mut Criterion) {
@@ -65,7 +78,9 @@ fn triangulate(c: &mut Criterion) {
         let (mut points, mut status) = (vec![[0.0; 4]; count], vec![0; count]);
         group.throughput(Throughput::Elements(count as u64));
         for (path, engine) in engines() {
-            group.bench_function(BenchmarkId::new(path, count), |bench| bench.iter(|| engine.triangulate(&a, &b, &work.matches, &mut points, &mut status)));
+            group.bench_function(BenchmarkId::new(path, count), |bench| {
+                bench.iter(|| engine.triangulate(&a, &b, &work.matches, &mut points, &mut status))
+            });
         }
     }
     group.finish();

@@ -31,12 +31,25 @@ pub fn capabilities(float64: bool, subgroups: bool) -> Capabilities {
 ///
 /// Errors: naga's emitted message (file `label`, line, column, source excerpt) prefixed by `label`
 /// (the kernel and its precision).
-pub fn check(label: &str, source: &str, capabilities: Capabilities) -> Result<naga::Module, String> {
-    let module = naga::front::wgsl::parse_str(source)
-        .map_err(|e| format!("{label}: WGSL parse error\n{}", e.emit_to_string_with_path(source, label)))?;
+pub fn check(
+    label: &str,
+    source: &str,
+    capabilities: Capabilities,
+) -> Result<naga::Module, String> {
+    let module = naga::front::wgsl::parse_str(source).map_err(|e| {
+        format!(
+            "{label}: WGSL parse error\n{}",
+            e.emit_to_string_with_path(source, label)
+        )
+    })?;
     Validator::new(ValidationFlags::all(), capabilities)
         .validate(&module)
-        .map_err(|e| format!("{label}: WGSL validation error\n{}", e.emit_to_string_with_path(source, label)))?;
+        .map_err(|e| {
+            format!(
+                "{label}: WGSL validation error\n{}",
+                e.emit_to_string_with_path(source, label)
+            )
+        })?;
     if !module.entry_points.iter().any(|e| e.name == "main") {
         return Err(format!("{label}: no entry point `main`"));
     }

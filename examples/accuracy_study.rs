@@ -9,8 +9,10 @@
 //!
 //! Run: `cargo run --release --example accuracy_study [TRIALS]` (default 50); prints Markdown.
 
-use flatport::calib::{Board, CalibrationOptions, CpuBackend, Method, SceneSpec, StereoData, calibrate, simulate};
-use flatport::calib::rng::Rng;
+use flatport::calib::simulate::rng::Rng;
+use flatport::calib::{
+    Board, CalibrationOptions, CpuBackend, Method, SceneSpec, StereoData, calibrate, simulate,
+};
 use flatport::io::rig_from_json_str;
 use flatport::model::normal_from_tilt_azimuth;
 use nalgebra::Vector3;
@@ -20,22 +22,51 @@ const METHODS: [Method; 3] = [Method::Consecutive, Method::Simultaneous, Method:
 
 /// (axis error °, |air error| mm, seconds) per method for one random scene.
 fn trial(views: usize, noise: f64, seed: u64) -> Trial {
-    let base = rig_from_json_str(include_str!("../data/example_rig.json"), "example".as_ref()).unwrap();
+    let base =
+        rig_from_json_str(include_str!("../data/example_rig.json"), "example".as_ref()).unwrap();
     let azimuth = Rng::new(seed ^ 0xA5A5).range(-180.0, 180.0);
     let n = normal_from_tilt_azimuth(8f64.to_radians(), azimuth.to_radians());
-    let truth = base.with_interface(base.interface().with_pose(n.into_inner(), 0.02).unwrap()).unwrap();
-    let start = truth.with_interface(truth.interface().with_pose(Vector3::z(), 0.01).unwrap()).unwrap();
-    let scene = simulate(&truth, 0, 1, &SceneSpec::new(Board { rows: 6, cols: 9, square: 0.04 }, views, noise, seed)).unwrap();
+    let truth = base
+        .with_interface(base.interface().with_pose(n.into_inner(), 0.02).unwrap())
+        .unwrap();
+    let start = truth
+        .with_interface(truth.interface().with_pose(Vector3::z(), 0.01).unwrap())
+        .unwrap();
+    let scene = simulate(
+        &truth,
+        0,
+        1,
+        &SceneSpec::new(
+            Board {
+                rows: 6,
+                cols: 9,
+                square: 0.04,
+            },
+            views,
+            noise,
+            seed,
+        ),
+    )
+    .unwrap();
     let data = StereoData::new(&start, [0, 1], &scene.observations).unwrap();
     METHODS
         .iter()
-        .map(|&method| match calibrate(&CpuBackend::new(&data), &CalibrationOptions { method, ..Default::default() }, vec![]) {
-            Ok(c) => (
-                c.interface.normal().angle(&n).to_degrees(),
-                (c.interface.air_distance() - 0.02).abs() * 1e3,
-                c.report.seconds,
-            ),
-            Err(_) => (f64::INFINITY, f64::INFINITY, f64::NAN),
+        .map(|&method| {
+            match calibrate(
+                &CpuBackend::new(&data),
+                &CalibrationOptions {
+                    method,
+                    ..Default::default()
+                },
+                vec![],
+            ) {
+                Ok(c) => (
+                    c.interface.normal().angle(&n).to_degrees(),
+                    (c.interface.air_distance() - 0.02).abs() * 1e3,
+                    c.report.seconds,
+                ),
+                Err(_) => (f64::INFINITY, f64::INFINITY, f64::NAN),
+            }
         })
         .collect()
 }
@@ -49,13 +80,19 @@ fn percentile(values: &mut [f64], q: f64) -> f64 {
 type Trial = Vec<(f64, f64, f64)>;
 
 fn table(label: &str, rows: &[(String, Vec<Trial>)]) {
-    println!("| {label} | method | axis median (°) | axis 95 % (°) | air median (mm) | air 95 % (mm) | time median (s) |");
+    println!(
+        "| {label} | method | axis median (°) | axis 95 % (°) | air median (mm) | air 95 % (mm) | time median (s) |"
+    );
     println!("|---|---|---|---|---|---|---|");
     for (name, trials) in rows {
         for (m, method) in METHODS.iter().enumerate() {
             let mut axis: Vec<f64> = trials.iter().map(|t| t[m].0).collect();
             let mut air: Vec<f64> = trials.iter().map(|t| t[m].1).collect();
-            let mut time: Vec<f64> = trials.iter().map(|t| t[m].2).filter(|t| t.is_finite()).collect();
+            let mut time: Vec<f64> = trials
+                .iter()
+                .map(|t| t[m].2)
+                .filter(|t| t.is_finite())
+                .collect();
             println!(
                 "| {name} | {} | {:.4} | {:.4} | {:.3} | {:.3} | {:.2} |",
                 method.name(),
@@ -71,12 +108,19 @@ fn table(label: &str, rows: &[(String, Vec<Trial>)]) {
 }
 
 fn main() {
-    let trials: u64 = std::env::args().nth(1).map_or(50, |t| t.parse().expect("TRIALS is a number"));
-    println!("{trials} random scenes per row; errors are the angle between the found and the true axis and |found − true| air layer.\n");
+    let trials: u64 = std::env::args()
+        .nth(1)
+        .map_or(50, |t| t.parse().expect("TRIALS is a number"));
+    println!(
+        "{trials} random scenes per row; errors are the angle between the found and the true axis and |found − true| air layer.\n"
+    );
     let noise_rows: Vec<(String, Vec<_>)> = [0.0, 0.1, 0.25, 0.5, 1.0]
         .iter()
         .map(|&noise| {
-            let results = (0..trials).into_par_iter().map(|s| trial(15, noise, 1000 + s)).collect();
+            let results = (0..trials)
+                .into_par_iter()
+                .map(|s| trial(15, noise, 1000 + s))
+                .collect();
             (format!("{noise} px"), results)
         })
         .collect();
@@ -84,7 +128,10 @@ fn main() {
     let view_rows: Vec<(String, Vec<_>)> = [5, 10, 15, 20, 30]
         .iter()
         .map(|&views| {
-            let results = (0..trials).into_par_iter().map(|s| trial(views, 0.25, 5000 + s)).collect();
+            let results = (0..trials)
+                .into_par_iter()
+                .map(|s| trial(views, 0.25, 5000 + s))
+                .collect();
             (format!("{views} views"), results)
         })
         .collect();

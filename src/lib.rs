@@ -50,6 +50,6 @@ pub struct ReadmeDoctests;
 
 pub mod calib;
 pub mod engine;
-pub mod io;
 pub mod gpu;
+pub mod io;
 pub mod model;

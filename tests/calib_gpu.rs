@@ -5,10 +5,13 @@
 
 mod gpu_harness;
 
-use gpu_harness::{Random, engine};
-use flatport::calib::{Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, simulate};
+use flatport::calib::{
+    Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData,
+    simulate,
+};
 use flatport::gpu::{GpuEngine, Precision};
 use flatport::model::Rig;
+use gpu_harness::{Random, engine};
 use nalgebra::{Unit, Vector3};
 
 /// f64 kernels: |gpu − cpu| ≤ 1e-9 · |cpu| for every cost and air layer (measured ≤ 1.1e-12, and
@@ -42,13 +45,26 @@ const F32_RELATIVE_CHI2: f64 = 1e-3;
 const F32_AIR_DISTANCE: f64 = 1e-5;
 
 fn example_rig() -> Rig {
-    flatport::io::read_rig(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/data/example_rig.json"))).expect("example rig")
+    flatport::io::read_rig(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/data/example_rig.json"
+    )))
+    .expect("example rig")
 }
 
 /// `views` simulated views of the 9×6 board of 4 cm squares behind the example rig, 0.1 px noise.
 fn stereo_data(views: usize, seed: u64) -> StereoData {
     let rig = example_rig();
-    let spec = SceneSpec::new(Board { rows: 6, cols: 9, square: 0.04 }, views, 0.1, seed);
+    let spec = SceneSpec::new(
+        Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        },
+        views,
+        0.1,
+        seed,
+    );
     let scene = simulate(&rig, 0, 1, &spec).expect("simulated scene");
     StereoData::new(&rig, [0, 1], &scene.observations).expect("stereo data")
 }
@@ -60,14 +76,23 @@ fn candidates(data: &StereoData, n: usize, seed: u64) -> Vec<Candidate> {
     let mut random = Random(seed);
     let mut out = vec![Candidate::of(data.rig.interface())];
     while out.len() < n - 3 {
-        let (tilt, azimuth) = (random.range(0.0, 20f64.to_radians()), random.range(0.0, std::f64::consts::TAU));
+        let (tilt, azimuth) = (
+            random.range(0.0, 20f64.to_radians()),
+            random.range(0.0, std::f64::consts::TAU),
+        );
         let normal = flatport::model::normal_from_tilt_azimuth(tilt, azimuth);
-        out.push(Candidate { normal, air_distance: random.range(0.005, 0.040) });
+        out.push(Candidate {
+            normal,
+            air_distance: random.range(0.005, 0.040),
+        });
     }
     let toward_right = flatport::model::normal_from_tilt_azimuth(20f64.to_radians(), 0.0);
     let limit = data.min_air_distance(&toward_right);
     for air_distance in [0.005, limit - 1e-4, limit + 5e-3] {
-        out.push(Candidate { normal: toward_right, air_distance });
+        out.push(Candidate {
+            normal: toward_right,
+            air_distance,
+        });
     }
     out
 }
@@ -76,12 +101,22 @@ fn candidates(data: &StereoData, n: usize, seed: u64) -> Vec<Candidate> {
 /// max |Δ|, candidates without an answer). Panics where one answers and the other does not.
 fn deviation(what: &str, cpu: &[f64], gpu: &[f64]) -> Deviation {
     assert_eq!(cpu.len(), gpu.len(), "{what}: one value per candidate");
-    let mut d = Deviation { relative: 0.0, absolute: 0.0, infinite: 0 };
+    let mut d = Deviation {
+        relative: 0.0,
+        absolute: 0.0,
+        infinite: 0,
+    };
     for (k, (c, g)) in cpu.iter().zip(gpu).enumerate() {
-        assert_eq!(c.is_finite(), g.is_finite(), "{what}: candidate {k}: cpu {c}, gpu {g}");
+        assert_eq!(
+            c.is_finite(),
+            g.is_finite(),
+            "{what}: candidate {k}: cpu {c}, gpu {g}"
+        );
         if c.is_finite() {
             d.absolute = d.absolute.max((g - c).abs());
-            d.relative = d.relative.max((g - c).abs() / c.abs().max(f64::MIN_POSITIVE));
+            d.relative = d
+                .relative
+                .max((g - c).abs() / c.abs().max(f64::MIN_POSITIVE));
         } else {
             d.infinite += 1;
         }
@@ -97,24 +132,40 @@ struct Deviation {
 
 /// Every cost and the air layers of `batch` on the CPU and on `gpu`, (name, deviation), and the
 /// GPU's values (costs of each kind, then the air layers, +∞ where none).
-fn compare(data: &StereoData, gpu: &GpuBackend<&StereoData, &GpuEngine>, batch: &[Candidate]) -> (Vec<(&'static str, Deviation)>, Vec<Vec<f64>>) {
+fn compare(
+    data: &StereoData,
+    gpu: &GpuBackend<&StereoData, &GpuEngine>,
+    batch: &[Candidate],
+) -> (Vec<(&'static str, Deviation)>, Vec<Vec<f64>>) {
     let cpu = CpuBackend::new(data);
     let (mut out, mut values) = (Vec::new(), Vec::new());
     for kind in CostKind::ALL {
-        let (c, g) = (cpu.costs(kind, batch).unwrap(), gpu.costs(kind, batch).unwrap());
+        let (c, g) = (
+            cpu.costs(kind, batch).unwrap(),
+            gpu.costs(kind, batch).unwrap(),
+        );
         let d = deviation(kind.name(), &c, &g);
         if !kind.axis_only() {
             // The last three candidates: two with the right camera outside the air (random ones
             // tilted toward it with a thin air layer may be too).
-            assert!(g[batch.len() - 3].is_infinite() && g[batch.len() - 2].is_infinite(), "{}: camera outside the air", kind.name());
+            assert!(
+                g[batch.len() - 3].is_infinite() && g[batch.len() - 2].is_infinite(),
+                "{}: camera outside the air",
+                kind.name()
+            );
             assert!(g[0].is_finite(), "{}: the true interface", kind.name());
         }
         out.push((kind.name(), d));
         values.push(g);
     }
     let normals: Vec<Unit<Vector3<f64>>> = batch.iter().map(|c| c.normal).collect();
-    let as_costs = |d: Vec<Option<f64>>| -> Vec<f64> { d.into_iter().map(|d| d.unwrap_or(f64::INFINITY)).collect() };
-    let (c, g) = (as_costs(cpu.air_distances(&normals).unwrap()), as_costs(gpu.air_distances(&normals).unwrap()));
+    let as_costs = |d: Vec<Option<f64>>| -> Vec<f64> {
+        d.into_iter().map(|d| d.unwrap_or(f64::INFINITY)).collect()
+    };
+    let (c, g) = (
+        as_costs(cpu.air_distances(&normals).unwrap()),
+        as_costs(gpu.air_distances(&normals).unwrap()),
+    );
     let d = deviation("air-distance", &c, &g);
     assert_eq!(d.infinite, 0, "every axis has an air layer");
     out.push(("air-distance", d));
@@ -127,13 +178,18 @@ const SCENES: [(usize, u64); 3] = [(4, 11), (15, 3), (6, 99)];
 
 #[test]
 fn f64_kernels_match_the_cpu_reference() {
-    let Some(engine) = engine(Precision::F64) else { return };
+    let Some(engine) = engine(Precision::F64) else {
+        return;
+    };
     for (views, seed) in SCENES {
         let data = stereo_data(views, seed);
         let batch = candidates(&data, 50, seed + 1);
         let gpu = GpuBackend::new(&data, &engine);
         for (name, d) in compare(&data, &gpu, &batch).0 {
-            eprintln!("f64 {views:>2} views {name:>14}: max relative deviation {:.2e} (absolute {:.2e})", d.relative, d.absolute);
+            eprintln!(
+                "f64 {views:>2} views {name:>14}: max relative deviation {:.2e} (absolute {:.2e})",
+                d.relative, d.absolute
+            );
             assert!(d.relative <= F64_RELATIVE, "f64 {name}: {:e}", d.relative);
         }
     }
@@ -141,16 +197,29 @@ fn f64_kernels_match_the_cpu_reference() {
 
 #[test]
 fn f32_kernels_match_the_cpu_reference() {
-    let Some(engine) = engine(Precision::F32) else { return };
+    let Some(engine) = engine(Precision::F32) else {
+        return;
+    };
     for (views, seed) in SCENES {
         let data = stereo_data(views, seed);
         let batch = candidates(&data, 50, seed + 1);
         let gpu = GpuBackend::new(&data, &engine);
         for (name, d) in compare(&data, &gpu, &batch).0 {
-            eprintln!("f32 {views:>2} views {name:>14}: max relative deviation {:.2e} (absolute {:.2e})", d.relative, d.absolute);
+            eprintln!(
+                "f32 {views:>2} views {name:>14}: max relative deviation {:.2e} (absolute {:.2e})",
+                d.relative, d.absolute
+            );
             match name {
-                "air-distance" => assert!(d.absolute <= F32_AIR_DISTANCE, "f32 {name}: {:e} m", d.absolute),
-                "affine-grid" => assert!(d.relative <= F32_RELATIVE_CHI2, "f32 {name}: {:e}", d.relative),
+                "air-distance" => assert!(
+                    d.absolute <= F32_AIR_DISTANCE,
+                    "f32 {name}: {:e} m",
+                    d.absolute
+                ),
+                "affine-grid" => assert!(
+                    d.relative <= F32_RELATIVE_CHI2,
+                    "f32 {name}: {:e}",
+                    d.relative
+                ),
                 _ => assert!(d.relative <= F32_RELATIVE, "f32 {name}: {:e}", d.relative),
             }
         }
@@ -164,14 +233,29 @@ fn a_large_batch_matches_in_both_precisions() {
     let data = stereo_data(15, 3);
     let batch = candidates(&data, 1230, 21);
     for precision in [Precision::F64, Precision::F32] {
-        let Some(engine) = engine(precision) else { return };
+        let Some(engine) = engine(precision) else {
+            return;
+        };
         let gpu = GpuBackend::new(&data, &engine);
         for (name, d) in compare(&data, &gpu, &batch).0 {
-            eprintln!("{precision} 1230 candidates {name:>14}: max relative deviation {:.2e} (absolute {:.2e})", d.relative, d.absolute);
+            eprintln!(
+                "{precision} 1230 candidates {name:>14}: max relative deviation {:.2e} (absolute {:.2e})",
+                d.relative, d.absolute
+            );
             match (precision, name) {
-                (Precision::F64, _) => assert!(d.relative <= F64_RELATIVE, "f64 {name}: {:e}", d.relative),
-                (_, "air-distance") => assert!(d.absolute <= F32_AIR_DISTANCE, "f32 {name}: {:e} m", d.absolute),
-                (_, "affine-grid") => assert!(d.relative <= F32_RELATIVE_CHI2, "f32 {name}: {:e}", d.relative),
+                (Precision::F64, _) => {
+                    assert!(d.relative <= F64_RELATIVE, "f64 {name}: {:e}", d.relative)
+                }
+                (_, "air-distance") => assert!(
+                    d.absolute <= F32_AIR_DISTANCE,
+                    "f32 {name}: {:e} m",
+                    d.absolute
+                ),
+                (_, "affine-grid") => assert!(
+                    d.relative <= F32_RELATIVE_CHI2,
+                    "f32 {name}: {:e}",
+                    d.relative
+                ),
                 _ => assert!(d.relative <= F32_RELATIVE, "f32 {name}: {:e}", d.relative),
             }
         }
@@ -182,8 +266,12 @@ fn a_large_batch_matches_in_both_precisions() {
 /// item's arithmetic does not depend on the chunking), and still match the CPU.
 #[test]
 fn chunked_batches_match_one_dispatch() {
-    let Some(whole) = engine(Precision::F64) else { return };
-    let Some(mut chunked) = engine(Precision::F64) else { return };
+    let Some(whole) = engine(Precision::F64) else {
+        return;
+    };
+    let Some(mut chunked) = engine(Precision::F64) else {
+        return;
+    };
     let data = stereo_data(4, 11);
     let batch = candidates(&data, 50, 12);
     // 1000 items: 960 after rounding to whole workgroups, 4 candidates of 216 corners per chunk:
@@ -191,7 +279,11 @@ fn chunked_batches_match_one_dispatch() {
     chunked.set_max_chunk_items(1000);
     let (deviations, chunked_values) = compare(&data, &GpuBackend::new(&data, &chunked), &batch);
     for (name, d) in deviations {
-        assert!(d.relative <= F64_RELATIVE, "chunked f64 {name}: {:e}", d.relative);
+        assert!(
+            d.relative <= F64_RELATIVE,
+            "chunked f64 {name}: {:e}",
+            d.relative
+        );
     }
     let (_, whole_values) = compare(&data, &GpuBackend::new(&data, &whole), &batch);
     assert_eq!(chunked_values, whole_values, "chunking changed a value");
@@ -200,14 +292,24 @@ fn chunked_batches_match_one_dispatch() {
 /// A profile (air layer solved per axis, then the cost) agrees across the backends.
 #[test]
 fn profiles_match_the_cpu_reference() {
-    let Some(engine) = engine(Precision::F64) else { return };
+    let Some(engine) = engine(Precision::F64) else {
+        return;
+    };
     let data = stereo_data(4, 11);
     let normals: Vec<_> = candidates(&data, 20, 5).iter().map(|c| c.normal).collect();
     let (cpu, gpu) = (CpuBackend::new(&data), GpuBackend::new(&data, &engine));
     for kind in [CostKind::Reprojection, CostKind::AffineGrid] {
-        let (c, g) = (cpu.profile(kind, &normals).unwrap().1, gpu.profile(kind, &normals).unwrap().1);
+        let (c, g) = (
+            cpu.profile(kind, &normals).unwrap().1,
+            gpu.profile(kind, &normals).unwrap().1,
+        );
         let d = deviation(kind.name(), &c, &g);
-        assert!(d.relative <= F64_RELATIVE, "profile {}: {:e}", kind.name(), d.relative);
+        assert!(
+            d.relative <= F64_RELATIVE,
+            "profile {}: {:e}",
+            kind.name(),
+            d.relative
+        );
     }
 }
 
@@ -222,19 +324,31 @@ fn time_a_1230_candidate_batch() {
     let time = |backend: &dyn CostBackend, kind: CostKind| {
         let started = std::time::Instant::now();
         let costs = backend.costs(kind, &batch).unwrap();
-        (started.elapsed().as_secs_f64(), costs.iter().filter(|c| c.is_finite()).count())
+        (
+            started.elapsed().as_secs_f64(),
+            costs.iter().filter(|c| c.is_finite()).count(),
+        )
     };
     for kind in [CostKind::AffineGrid, CostKind::Reprojection] {
         let cpu = CpuBackend::new(&data);
         let (seconds, finite) = time(&cpu, kind);
-        eprintln!("{:>12} {}: {seconds:.3} s ({finite} finite)", kind.name(), cpu.describe());
+        eprintln!(
+            "{:>12} {}: {seconds:.3} s ({finite} finite)",
+            kind.name(),
+            cpu.describe()
+        );
         for precision in [Precision::F32, Precision::F64] {
-            let Some(engine) = engine(precision) else { return };
+            let Some(engine) = engine(precision) else {
+                return;
+            };
             let gpu = GpuBackend::new(&data, &engine);
             time(&gpu, kind);
             let (seconds, finite) = time(&gpu, kind);
-            eprintln!("{:>12} {}: {seconds:.3} s ({finite} finite)", kind.name(), gpu.describe());
+            eprintln!(
+                "{:>12} {}: {seconds:.3} s ({finite} finite)",
+                kind.name(),
+                gpu.describe()
+            );
         }
     }
 }
-

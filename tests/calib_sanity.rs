@@ -7,8 +7,11 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use flatport::calib::rng::Rng;
-use flatport::calib::{Board, CalibError, CalibrationOptions, CpuBackend, Method, Observations, SceneSpec, Side, StereoData, calibrate, simulate};
+use flatport::calib::simulate::rng::Rng;
+use flatport::calib::{
+    Board, CalibError, CalibrationOptions, CpuBackend, Method, Observations, SceneSpec, Side,
+    StereoData, calibrate, simulate,
+};
 use flatport::io::{rig_from_json_str, write_observations};
 use flatport::model::{Rig, normal_from_tilt_azimuth};
 use nalgebra::{Point2, Vector3};
@@ -19,28 +22,51 @@ const EXAMPLE_RIG: &str = include_str!("../data/example_rig.json");
 fn rig(tilt_deg: f64, azimuth_deg: f64) -> Rig {
     let base = rig_from_json_str(EXAMPLE_RIG, "example".as_ref()).unwrap();
     let n = normal_from_tilt_azimuth(tilt_deg.to_radians(), azimuth_deg.to_radians());
-    base.with_interface(base.interface().with_pose(n.into_inner(), 0.02).unwrap()).unwrap()
+    base.with_interface(base.interface().with_pose(n.into_inner(), 0.02).unwrap())
+        .unwrap()
 }
 
 fn naive(rig: &Rig) -> Rig {
-    rig.with_interface(rig.interface().with_pose(Vector3::z(), 0.01).unwrap()).unwrap()
+    rig.with_interface(rig.interface().with_pose(Vector3::z(), 0.01).unwrap())
+        .unwrap()
 }
 
 fn board() -> Board {
-    Board { rows: 6, cols: 9, square: 0.04 }
+    Board {
+        rows: 6,
+        cols: 9,
+        square: 0.04,
+    }
 }
 
 fn observations(truth: &Rig, views: usize, noise: f64, seed: u64) -> Observations {
-    simulate(truth, 0, 1, &SceneSpec::new(board(), views, noise, seed)).unwrap().observations
+    simulate(truth, 0, 1, &SceneSpec::new(board(), views, noise, seed))
+        .unwrap()
+        .observations
 }
 
-fn run(truth: &Rig, observations: &Observations, method: Method) -> Result<flatport::calib::Calibration, CalibError> {
+fn run(
+    truth: &Rig,
+    observations: &Observations,
+    method: Method,
+) -> Result<flatport::calib::Calibration, CalibError> {
     let data = StereoData::new(&naive(truth), [0, 1], observations).unwrap();
-    calibrate(&CpuBackend::new(&data), &CalibrationOptions { method, ..Default::default() }, vec![])
+    calibrate(
+        &CpuBackend::new(&data),
+        &CalibrationOptions {
+            method,
+            ..Default::default()
+        },
+        vec![],
+    )
 }
 
 fn flatport(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_flatport")).args(args).env("XDG_RUNTIME_DIR", std::env::temp_dir()).output().expect("binary runs")
+    Command::new(env!("CARGO_BIN_EXE_flatport"))
+        .args(args)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("binary runs")
 }
 
 fn text(bytes: &[u8]) -> String {
@@ -64,7 +90,17 @@ fn files(dir: &Path, observations: &Observations) -> (PathBuf, PathBuf) {
 }
 
 fn cli_calibrate(start: &Path, observations: &Path, out: &Path, extra: &[&str]) -> Output {
-    let mut args = vec!["calibrate", "--rig", p(start), "--observations", p(observations), "--output", p(out), "--device", "cpu"];
+    let mut args = vec![
+        "calibrate",
+        "--rig",
+        p(start),
+        "--observations",
+        p(observations),
+        "--output",
+        p(out),
+        "--device",
+        "cpu",
+    ];
     args.extend_from_slice(extra);
     flatport(&args)
 }
@@ -77,7 +113,18 @@ fn fifteen_copies_of_one_view_are_refused_naming_the_views() {
     let mut copies = one.clone();
     copies.views = vec![one.views[0].clone(); 15];
     let error = run(&truth, &copies, Method::Auto).unwrap_err();
-    assert!(matches!(error, CalibError::RepeatedView { view: 1, earlier: 0, more: 13, .. }), "{error:?}");
+    assert!(
+        matches!(
+            error,
+            CalibError::RepeatedView {
+                view: 1,
+                earlier: 0,
+                more: 13,
+                ..
+            }
+        ),
+        "{error:?}"
+    );
 
     let dir = tempfile::tempdir().unwrap();
     let (start, path) = files(dir.path(), &copies);
@@ -85,17 +132,28 @@ fn fifteen_copies_of_one_view_are_refused_naming_the_views() {
     let result = cli_calibrate(&start, &path, &out, &[]);
     let stderr = text(&result.stderr);
     assert!(!result.status.success(), "{}", text(&result.stdout));
-    assert!(stderr.contains(p(&path)) && stderr.contains("views[1] repeats views[0]") && stderr.contains("13 more"), "{stderr}");
+    assert!(
+        stderr.contains(p(&path))
+            && stderr.contains("views[1] repeats views[0]")
+            && stderr.contains("13 more"),
+        "{stderr}"
+    );
     assert!(!out.exists());
 
     // One repeated view among distinct ones is named by both indices.
     let mut repeated = one.clone();
     repeated.views[11] = one.views[4].clone();
     let error = run(&truth, &repeated, Method::Auto).unwrap_err();
-    assert!(error.to_string().starts_with("views[11] repeats views[4]"), "{error}");
+    assert!(
+        error.to_string().starts_with("views[11] repeats views[4]"),
+        "{error}"
+    );
     let (start, path) = files(dir.path(), &repeated);
     let stderr = text(&cli_calibrate(&start, &path, &out, &[]).stderr);
-    assert!(stderr.contains("views[11]: views[11] repeats views[4]"), "{stderr}");
+    assert!(
+        stderr.contains("views[11]: views[11] repeats views[4]"),
+        "{stderr}"
+    );
 }
 
 #[test]
@@ -117,29 +175,58 @@ fn views_of_one_pose_do_not_constrain_the_calibration() {
         .collect();
     let error = run(&truth, &redetected, Method::Auto).unwrap_err();
     println!("{error}");
-    assert!(matches!(error, CalibError::TooFewPoses { views: 15, distinct: 1, needed: 3, .. }), "{error:?}");
-    assert!(error.to_string().contains("only 1 distinct board pose(s) (views 0–14 within"), "{error}");
+    assert!(
+        matches!(
+            error,
+            CalibError::TooFewPoses {
+                views: 15,
+                distinct: 1,
+                needed: 3,
+                ..
+            }
+        ),
+        "{error:?}"
+    );
+    assert!(
+        error
+            .to_string()
+            .contains("only 1 distinct board pose(s) (views 0–14 within"),
+        "{error}"
+    );
 
     // Two poses among them: still too few; the CLI names the file and exits non-zero.
     redetected.views[7] = exact.views[1].clone();
     let error = run(&truth, &redetected, Method::Consecutive).unwrap_err();
-    assert!(matches!(error, CalibError::TooFewPoses { distinct: 2, .. }), "{error:?}");
+    assert!(
+        matches!(error, CalibError::TooFewPoses { distinct: 2, .. }),
+        "{error:?}"
+    );
     let dir = tempfile::tempdir().unwrap();
     let (start, path) = files(dir.path(), &redetected);
     let result = cli_calibrate(&start, &path, &dir.path().join("out.json"), &[]);
     let stderr = text(&result.stderr);
     assert!(!result.status.success());
-    assert!(stderr.contains(p(&path)) && stderr.contains("only 2 distinct board pose(s) (views 0–6, 8–14 within"), "{stderr}");
+    assert!(
+        stderr.contains(p(&path))
+            && stderr.contains("only 2 distinct board pose(s) (views 0–6, 8–14 within"),
+        "{stderr}"
+    );
 }
 
 /// Five 50-px detection errors, in both cameras' images.
-const GROSS: [(usize, usize, usize); 5] = [(0, 3, 0), (2, 17, 1), (5, 40, 0), (9, 8, 1), (12, 50, 0)];
+const GROSS: [(usize, usize, usize); 5] =
+    [(0, 3, 0), (2, 17, 1), (5, 40, 0), (9, 8, 1), (12, 50, 0)];
 
 fn with_gross_errors(observations: &Observations) -> Observations {
     let mut spoilt = observations.clone();
     for (k, &(v, i, side)) in GROSS.iter().enumerate() {
         let view = &mut spoilt.views[v];
-        let c = if side == 0 { view.left[i].as_mut() } else { view.right[i].as_mut() }.unwrap();
+        let c = if side == 0 {
+            view.left[i].as_mut()
+        } else {
+            view.right[i].as_mut()
+        }
+        .unwrap();
         // 50 px in varied directions.
         let angle = 1.3 * k as f64;
         c.x = (c.x + 50.0 * angle.cos()).clamp(0.0, 1279.0);
@@ -156,31 +243,65 @@ fn the_consecutive_method_withstands_gross_outliers_and_reports_them() {
         let clean = observations(&truth, 15, 0.125, seed);
         let reference = run(&truth, &clean, Method::Consecutive).unwrap();
         let calibration = run(&truth, &with_gross_errors(&clean), Method::Consecutive).unwrap();
-        let axis = calibration.interface.normal().angle(truth.interface().normal()).to_degrees();
-        let from_clean = calibration.interface.normal().angle(reference.interface.normal()).to_degrees();
+        let axis = calibration
+            .interface
+            .normal()
+            .angle(truth.interface().normal())
+            .to_degrees();
+        let from_clean = calibration
+            .interface
+            .normal()
+            .angle(reference.interface.normal())
+            .to_degrees();
         let air = calibration.interface.air_distance() - 0.02;
         println!(
             "tilt {tilt}°: axis {axis:.4}° off (clean data {:.4}°, the two {from_clean:.5}° apart), air {:.3} mm",
-            reference.interface.normal().angle(truth.interface().normal()).to_degrees(),
+            reference
+                .interface
+                .normal()
+                .angle(truth.interface().normal())
+                .to_degrees(),
             air * 1e3
         );
         // The consecutive method's own error on such scenes reaches 0.19° (tilt 15°, clean
         // data); its result moves by less than 0.02° when the gross errors are added (measured
         // 0.001-0.005°). Before the screening it ended 8-37° off.
-        assert!(axis < 0.3 && from_clean < 0.02 && air.abs() < 3e-3, "tilt {tilt}: {axis}° ({from_clean}° from clean), {air} m");
+        assert!(
+            axis < 0.3 && from_clean < 0.02 && air.abs() < 3e-3,
+            "tilt {tilt}: {axis}° ({from_clean}° from clean), {air} m"
+        );
         let report = &calibration.report;
         for &(v, i, side) in &GROSS {
             let side = if side == 0 { Side::Left } else { Side::Right };
-            let found = report.outlier_images.iter().find(|o| o.view == v && o.corner == i && o.side == side);
-            let found = found.unwrap_or_else(|| panic!("({v}, {i}, {side:?}) not in {:?}", report.outlier_images));
-            assert!((found.residual_px - 50.0).abs() < 5.0 && found.screened, "{found:?}");
+            let found = report
+                .outlier_images
+                .iter()
+                .find(|o| o.view == v && o.corner == i && o.side == side);
+            let found = found.unwrap_or_else(|| {
+                panic!("({v}, {i}, {side:?}) not in {:?}", report.outlier_images)
+            });
+            assert!(
+                (found.residual_px - 50.0).abs() < 5.0 && found.screened,
+                "{found:?}"
+            );
             assert_eq!(found.camera, side.name());
         }
         assert_eq!(report.outliers.len(), 5, "{:?}", report.outliers);
-        assert!(report.warnings.iter().any(|w| w.starts_with("5 corner(s) have residuals far above the rest")), "{:?}", report.warnings);
+        assert!(
+            report
+                .warnings
+                .iter()
+                .any(|w| w.starts_with("5 corner(s) have residuals far above the rest")),
+            "{:?}",
+            report.warnings
+        );
         // Not a fit of the images: the consecutive result leaves 0.1-0.45 px (measured) at 0.125 px
         // of noise.
-        assert!(report.fits && report.inlier_rms_px.iter().all(|&r| r < 1.0), "{:?}", report.inlier_rms_px);
+        assert!(
+            report.fits && report.inlier_rms_px.iter().all(|&r| r < 1.0),
+            "{:?}",
+            report.inlier_rms_px
+        );
     }
 }
 
@@ -191,14 +312,29 @@ fn the_cli_lists_the_outliers_of_the_consecutive_method() {
     let dir = tempfile::tempdir().unwrap();
     let (start, path) = files(dir.path(), &spoilt);
     let (out, report) = (dir.path().join("out.json"), dir.path().join("report.json"));
-    let result = cli_calibrate(&start, &path, &out, &["--method", "consecutive", "--report", p(&report)]);
+    let result = cli_calibrate(
+        &start,
+        &path,
+        &out,
+        &["--method", "consecutive", "--report", p(&report)],
+    );
     let stdout = text(&result.stdout);
     assert!(result.status.success(), "{}", text(&result.stderr));
-    assert!(stdout.contains("5 outlier corner(s)") && stdout.contains("view 2, right image (right), corner 17:"), "{stdout}");
+    assert!(
+        stdout.contains("5 outlier corner(s)")
+            && stdout.contains("view 2, right image (right), corner 17:"),
+        "{stdout}"
+    );
     let report: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
     let outliers = report["outliers"].as_array().unwrap();
     assert_eq!(outliers.len(), 5, "{outliers:?}");
-    assert!(outliers.iter().any(|o| o["view"] == 9 && o["corner"] == 8 && o["image"] == "right" && o["camera"] == "right"), "{outliers:?}");
+    assert!(
+        outliers.iter().any(|o| o["view"] == 9
+            && o["corner"] == 8
+            && o["image"] == "right"
+            && o["camera"] == "right"),
+        "{outliers:?}"
+    );
     assert_eq!(report["fits"], true);
     assert!(out.exists());
 }
@@ -219,8 +355,14 @@ fn swapped_images_are_named_with_the_file_and_clean_numbers() {
     let stderr = text(&result.stderr);
     assert!(!result.status.success());
     assert!(stderr.contains(p(&path)), "{stderr}");
-    assert!(stderr.contains("the left and right images look swapped (views 0–11)"), "{stderr}");
-    assert!(stderr.contains("within a tilt of 30°") && !stderr.contains("29.99"), "{stderr}");
+    assert!(
+        stderr.contains("the left and right images look swapped (views 0–11)"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("within a tilt of 30°") && !stderr.contains("29.99"),
+        "{stderr}"
+    );
     assert!(!out.exists());
 
     // One view swapped, another with one image's corner order reversed: both named.
@@ -230,7 +372,11 @@ fn swapped_images_are_named_with_the_file_and_clean_numbers() {
     mixed.views[8].right.reverse();
     let error = run(&truth, &mixed, Method::Auto).unwrap_err().to_string();
     println!("{error}");
-    assert!(error.contains("look swapped (views 3)") && error.contains("corner order of one image looks reversed (views 8)"), "{error}");
+    assert!(
+        error.contains("look swapped (views 3)")
+            && error.contains("corner order of one image looks reversed (views 8)"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -246,22 +392,46 @@ fn a_result_above_the_rms_bound_writes_the_report_not_the_rig() {
     let result = cli_calibrate(&start, &path, &out, &["--report", p(&report)]);
     let stderr = text(&result.stderr);
     assert!(!result.status.success(), "{}", text(&result.stdout));
-    assert!(stderr.contains(p(&path)) && stderr.contains("above --max-rms-px 3") && stderr.contains("not written"), "{stderr}");
-    assert!(stderr.contains("the observations give 30.00 mm"), "{stderr}");
+    assert!(
+        stderr.contains(p(&path))
+            && stderr.contains("above --max-rms-px 3")
+            && stderr.contains("not written"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("the observations give 30.00 mm"),
+        "{stderr}"
+    );
     assert!(!out.exists());
     let written: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
     assert_eq!(written["fits"], false);
-    let diagnosis: Vec<&str> = written["diagnosis"].as_array().unwrap().iter().map(|d| d.as_str().unwrap()).collect();
+    let diagnosis: Vec<&str> = written["diagnosis"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d.as_str().unwrap())
+        .collect();
     // The triangulated squares measure the true 40 mm.
-    assert!(diagnosis[0].contains("measure 39.") || diagnosis[0].contains("measure 40."), "{diagnosis:?}");
+    assert!(
+        diagnosis[0].contains("measure 39.") || diagnosis[0].contains("measure 40."),
+        "{diagnosis:?}"
+    );
 
     // A bound the user raises is a bound: the rig is written, the warning stays.
     let result = cli_calibrate(&start, &path, &out, &["--max-rms-px", "1000"]);
     assert!(result.status.success(), "{}", text(&result.stderr));
-    assert!(text(&result.stdout).contains("the model does not explain the data"), "{}", text(&result.stdout));
+    assert!(
+        text(&result.stdout).contains("the model does not explain the data"),
+        "{}",
+        text(&result.stdout)
+    );
     assert!(out.exists());
     let bad = cli_calibrate(&start, &path, &out, &["--max-rms-px", "0"]);
-    assert!(!bad.status.success() && text(&bad.stderr).contains("--max-rms-px"), "{}", text(&bad.stderr));
+    assert!(
+        !bad.status.success() && text(&bad.stderr).contains("--max-rms-px"),
+        "{}",
+        text(&bad.stderr)
+    );
 }
 
 #[test]
@@ -271,8 +441,27 @@ fn weakly_constrained_results_say_so() {
     let truth = rig(8.0, 45.0);
     let weak = run(&truth, &observations(&truth, 3, 0.5, 1), Method::Auto).unwrap();
     let [tilt_std, _, air_std] = weak.report.std.unwrap();
-    println!("3 views: σ tilt {:.3}°, σ air {:.2} mm", tilt_std.to_degrees(), air_std * 1e3);
-    assert!(weak.report.warnings.iter().any(|w| w.starts_with("the views hardly constrain the result")), "{:?}", weak.report.warnings);
+    println!(
+        "3 views: σ tilt {:.3}°, σ air {:.2} mm",
+        tilt_std.to_degrees(),
+        air_std * 1e3
+    );
+    assert!(
+        weak.report
+            .warnings
+            .iter()
+            .any(|w| w.starts_with("the views hardly constrain the result")),
+        "{:?}",
+        weak.report.warnings
+    );
     let strong = run(&truth, &observations(&truth, 15, 0.5, 1), Method::Auto).unwrap();
-    assert!(!strong.report.warnings.iter().any(|w| w.contains("hardly constrain")), "{:?}", strong.report.warnings);
+    assert!(
+        !strong
+            .report
+            .warnings
+            .iter()
+            .any(|w| w.contains("hardly constrain")),
+        "{:?}",
+        strong.report.warnings
+    );
 }

@@ -5,9 +5,10 @@
 
 mod common;
 
-use flatport::calib::air_layer::air_distance_for_axis;
+use flatport::calib::costs::air_layer::air_distance_for_axis;
 use flatport::calib::{
-    Board, Calibration, CalibrationOptions, Candidate, CostBackend, CostKind, CpuBackend, Method, SceneSpec, StereoData, calibrate, simulate,
+    Board, Calibration, CalibrationOptions, Candidate, CostBackend, CostKind, CpuBackend, Method,
+    SceneSpec, StereoData, calibrate, simulate,
 };
 use flatport::io::rig_from_json_str;
 use flatport::model::{Rig, normal_from_tilt_azimuth};
@@ -20,25 +21,49 @@ const EXAMPLE_RIG: &str = include_str!("../data/example_rig.json");
 fn rig(tilt_deg: f64, azimuth_deg: f64) -> Rig {
     let base = rig_from_json_str(EXAMPLE_RIG, "example".as_ref()).unwrap();
     let n = normal_from_tilt_azimuth(tilt_deg.to_radians(), azimuth_deg.to_radians());
-    base.with_interface(base.interface().with_pose(n.into_inner(), 0.02).unwrap()).unwrap()
+    base.with_interface(base.interface().with_pose(n.into_inner(), 0.02).unwrap())
+        .unwrap()
 }
 
 /// The issue's naive start: the axis on the camera's z axis, a 10 mm air layer.
 fn naive(rig: &Rig) -> Rig {
-    rig.with_interface(rig.interface().with_pose(Vector3::z(), 0.01).unwrap()).unwrap()
+    rig.with_interface(rig.interface().with_pose(Vector3::z(), 0.01).unwrap())
+        .unwrap()
 }
 
 fn board() -> Board {
-    Board { rows: 6, cols: 9, square: 0.04 }
+    Board {
+        rows: 6,
+        cols: 9,
+        square: 0.04,
+    }
 }
 
 /// Simulates with `truth`, calibrates from the naive start; returns (axis error °, air error m).
-fn run(truth: &Rig, views: usize, noise: f64, seed: u64, method: Method) -> (f64, f64, Calibration) {
+fn run(
+    truth: &Rig,
+    views: usize,
+    noise: f64,
+    seed: u64,
+    method: Method,
+) -> (f64, f64, Calibration) {
     let scene = simulate(truth, 0, 1, &SceneSpec::new(board(), views, noise, seed)).unwrap();
     let start = naive(truth);
     let data = StereoData::new(&start, [0, 1], &scene.observations).unwrap();
-    let calibration = calibrate(&CpuBackend::new(&data), &CalibrationOptions { method, ..Default::default() }, vec![]).unwrap();
-    let axis = calibration.interface.normal().angle(truth.interface().normal()).to_degrees();
+    let calibration = calibrate(
+        &CpuBackend::new(&data),
+        &CalibrationOptions {
+            method,
+            ..Default::default()
+        },
+        vec![],
+    )
+    .unwrap();
+    let axis = calibration
+        .interface
+        .normal()
+        .angle(truth.interface().normal())
+        .to_degrees();
     let air = calibration.interface.air_distance() - truth.interface().air_distance();
     (axis, air, calibration)
 }
@@ -47,14 +72,29 @@ fn run(truth: &Rig, views: usize, noise: f64, seed: u64, method: Method) -> (f64
 fn noise_free_scenes_come_back_exactly() {
     // The issue: within 1e-5° and 1e-7 m. The maximum-likelihood fit reaches rounding; the
     // consecutive method stops its axis refinement at a 1e-9 rad stencil.
-    for (tilt, azimuth, seed) in [(8.0, 45.0, 1), (15.0, -120.0, 2), (0.0, 0.0, 3), (25.0, 170.0, 4)] {
+    for (tilt, azimuth, seed) in [
+        (8.0, 45.0, 1),
+        (15.0, -120.0, 2),
+        (0.0, 0.0, 3),
+        (25.0, 170.0, 4),
+    ] {
         let truth = rig(tilt, azimuth);
         for method in [Method::Auto, Method::Simultaneous, Method::Consecutive] {
             let (axis, air, c) = run(&truth, 10, 0.0, seed, method);
-            println!("tilt {tilt}° azimuth {azimuth}° {method:?}: axis {axis:.2e}°, air {air:.2e} m, RMS {:?} px", c.report.rms_px);
+            println!(
+                "tilt {tilt}° azimuth {azimuth}° {method:?}: axis {axis:.2e}°, air {air:.2e} m, RMS {:?} px",
+                c.report.rms_px
+            );
             assert!(axis < 1e-5, "{method:?} tilt {tilt}: axis off by {axis}°");
-            assert!(air.abs() < 1e-7, "{method:?} tilt {tilt}: air layer off by {air} m");
-            assert!(c.report.rms_px.iter().all(|&r| r < 1e-6), "{:?}", c.report.rms_px);
+            assert!(
+                air.abs() < 1e-7,
+                "{method:?} tilt {tilt}: air layer off by {air} m"
+            );
+            assert!(
+                c.report.rms_px.iter().all(|&r| r < 1e-6),
+                "{:?}",
+                c.report.rms_px
+            );
         }
     }
 }
@@ -66,12 +106,32 @@ fn issue_targets_from_the_naive_start() {
     // seeds vary; the reported σ of the maximum-likelihood fit is about 0.02° and 0.3 mm here.
     let mut worst = [0.0f64; 4];
     for seed in 1..=5 {
-        let (axis, air, c) = run(&rig(8.0, 45.0 + 60.0 * seed as f64), 15, 0.125, 100 + seed, Method::Auto);
-        println!("8°, seed {seed}: axis {axis:.4}°, air {:.3} mm, {:.2} s", air * 1e3, c.report.seconds);
+        let (axis, air, c) = run(
+            &rig(8.0, 45.0 + 60.0 * seed as f64),
+            15,
+            0.125,
+            100 + seed,
+            Method::Auto,
+        );
+        println!(
+            "8°, seed {seed}: axis {axis:.4}°, air {:.3} mm, {:.2} s",
+            air * 1e3,
+            c.report.seconds
+        );
         worst[0] = worst[0].max(axis);
         worst[1] = worst[1].max(air.abs());
-        let (axis, air, c) = run(&rig(15.0, -30.0 - 50.0 * seed as f64), 20, 0.25, 200 + seed, Method::Auto);
-        println!("15°, seed {seed}: axis {axis:.4}°, air {:.3} mm, {:.2} s", air * 1e3, c.report.seconds);
+        let (axis, air, c) = run(
+            &rig(15.0, -30.0 - 50.0 * seed as f64),
+            20,
+            0.25,
+            200 + seed,
+            Method::Auto,
+        );
+        println!(
+            "15°, seed {seed}: axis {axis:.4}°, air {:.3} mm, {:.2} s",
+            air * 1e3,
+            c.report.seconds
+        );
         worst[2] = worst[2].max(axis);
         worst[3] = worst[3].max(air.abs());
     }
@@ -91,11 +151,19 @@ fn reported_standard_deviations_match_the_spread_over_scenes() {
         // Auto: maximum likelihood from several starts. From the consecutive start alone 2 of these
         // 24 scenes end in a local minimum (σ̂ 0.35–0.38 px instead of 0.25).
         let (_, air, c) = run(&truth, 12, 0.25, 300 + seed, Method::Auto);
-        let s = c.report.std.expect("maximum likelihood gives standard deviations");
+        let s = c
+            .report
+            .std
+            .expect("maximum likelihood gives standard deviations");
         let found = Candidate::of(&c.interface);
         let t = Candidate::of(truth.interface());
-        let d_azimuth = (found.azimuth() - t.azimuth() + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
-        for (k, e) in [found.tilt() - t.tilt(), d_azimuth, air].into_iter().enumerate() {
+        let d_azimuth = (found.azimuth() - t.azimuth() + std::f64::consts::PI)
+            .rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
+        for (k, e) in [found.tilt() - t.tilt(), d_azimuth, air]
+            .into_iter()
+            .enumerate()
+        {
             sq[k] += e * e;
             std[k] += s[k];
         }
@@ -120,10 +188,14 @@ fn simulated_corners_agree_with_an_independent_tracer() {
             for (i, pixel) in corners.iter().enumerate() {
                 let pixel: Point2<f64> = pixel.unwrap();
                 let corner = scene.master_from_board[v] * board().point_in_board(i);
-                let (origin, dir, _) = common::trace(&stack, common::dir_of_pixel(&stack, pixel)).unwrap();
+                let (origin, dir, _) =
+                    common::trace(&stack, common::dir_of_pixel(&stack, pixel)).unwrap();
                 let miss = (corner.coords - origin).cross(&dir).norm();
                 worst = worst.max(miss);
-                assert!(common::in_image(&stack, &pixel, 0.0), "view {v} camera {k} corner {i}: {pixel}");
+                assert!(
+                    common::in_image(&stack, &pixel, 0.0),
+                    "view {v} camera {k} corner {i}: {pixel}"
+                );
             }
         }
     }
@@ -138,11 +210,24 @@ fn costs_vanish_at_the_truth_and_the_linear_air_layer_is_exact() {
     let data = StereoData::new(&naive(&truth), [0, 1], &scene.observations).unwrap();
     let backend = CpuBackend::new(&data);
     let at_truth = Candidate::of(truth.interface());
-    let off = Candidate { normal: normal_from_tilt_azimuth(9f64.to_radians(), 45f64.to_radians()), air_distance: 0.02 };
+    let off = Candidate {
+        normal: normal_from_tilt_azimuth(9f64.to_radians(), 45f64.to_radians()),
+        air_distance: 0.02,
+    };
     for kind in CostKind::ALL {
         let costs = backend.costs(kind, &[at_truth, off]).unwrap();
-        println!("{}: {:.2e} at the truth, {:.2e} 1° off ({})", kind.name(), costs[0], costs[1], kind.unit());
-        assert!(costs[1] > 1e3 * costs[0].max(1e-16), "{}: {costs:?}", kind.name());
+        println!(
+            "{}: {:.2e} at the truth, {:.2e} 1° off ({})",
+            kind.name(),
+            costs[0],
+            costs[1],
+            kind.unit()
+        );
+        assert!(
+            costs[1] > 1e3 * costs[0].max(1e-16),
+            "{}: {costs:?}",
+            kind.name()
+        );
     }
     let (d, gap) = air_distance_for_axis(&data, truth.interface().normal()).unwrap();
     assert!((d - 0.02).abs() < 1e-10 && gap < 1e-10, "{d} {gap}");
@@ -153,21 +238,42 @@ fn huber_loss_withstands_outlier_corners_and_they_are_reported() {
     let truth = rig(8.0, 45.0);
     let mut scene = simulate(&truth, 0, 1, &SceneSpec::new(board(), 15, 0.125, 11)).unwrap();
     // Five gross detection errors of 15–25 px.
-    for (k, (v, i)) in [(0, 3), (2, 17), (5, 40), (9, 8), (12, 50)].into_iter().enumerate() {
+    for (k, (v, i)) in [(0, 3), (2, 17), (5, 40), (9, 8), (12, 50)]
+        .into_iter()
+        .enumerate()
+    {
         let p = scene.observations.views[v].left[i].as_mut().unwrap();
         p.x += 15.0 + 2.5 * k as f64;
         p.y -= 10.0;
     }
     let data = StereoData::new(&naive(&truth), [0, 1], &scene.observations).unwrap();
-    let options = CalibrationOptions { huber: Some(0.5), ..Default::default() };
+    let options = CalibrationOptions {
+        huber: Some(0.5),
+        ..Default::default()
+    };
     let c = calibrate(&CpuBackend::new(&data), &options, vec![]).unwrap();
-    let axis = c.interface.normal().angle(truth.interface().normal()).to_degrees();
+    let axis = c
+        .interface
+        .normal()
+        .angle(truth.interface().normal())
+        .to_degrees();
     let air = c.interface.air_distance() - 0.02;
-    println!("with Huber: axis {axis:.4}°, air {:.3} mm; outliers {:?}", air * 1e3, c.report.outliers);
+    println!(
+        "with Huber: axis {axis:.4}°, air {:.3} mm; outliers {:?}",
+        air * 1e3,
+        c.report.outliers
+    );
     assert!(axis < 0.1 && air.abs() < 2e-3, "{axis} {air}");
     let flagged: Vec<(usize, usize)> = c.report.outliers.iter().map(|&(v, i, _)| (v, i)).collect();
     for expected in [(0, 3), (2, 17), (5, 40), (9, 8), (12, 50)] {
-        assert!(flagged.contains(&expected), "{expected:?} not in {flagged:?}");
+        assert!(
+            flagged.contains(&expected),
+            "{expected:?} not in {flagged:?}"
+        );
     }
-    assert!(c.report.warnings.iter().any(|w| w.contains("5 corner(s)")), "{:?}", c.report.warnings);
+    assert!(
+        c.report.warnings.iter().any(|w| w.contains("5 corner(s)")),
+        "{:?}",
+        c.report.warnings
+    );
 }

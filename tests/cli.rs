@@ -4,7 +4,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 fn flatport(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_flatport")).args(args).output().expect("binary runs")
+    Command::new(env!("CARGO_BIN_EXE_flatport"))
+        .args(args)
+        .output()
+        .expect("binary runs")
 }
 
 fn stdout(o: &Output) -> String {
@@ -37,20 +40,33 @@ const RIG: &str = r#"{
 fn table(text: &str) -> (String, Vec<Vec<f64>>) {
     let mut lines = text.lines();
     let header = lines.next().expect("header").to_string();
-    let rows = lines.map(|l| l.split(',').map(|v| v.trim().parse::<f64>().unwrap()).collect()).collect();
+    let rows = lines
+        .map(|l| {
+            l.split(',')
+                .map(|v| v.trim().parse::<f64>().unwrap())
+                .collect()
+        })
+        .collect();
     (header, rows)
 }
 
 fn run_ok(args: &[&str]) -> String {
     let o = flatport(args);
-    assert!(o.status.success(), "flatport {args:?} failed: {}", stderr(&o));
+    assert!(
+        o.status.success(),
+        "flatport {args:?} failed: {}",
+        stderr(&o)
+    );
     stdout(&o)
 }
 
 fn run_err(args: &[&str]) -> String {
     let o = flatport(args);
     assert!(!o.status.success(), "flatport {args:?} should fail");
-    assert!(o.stdout.is_empty(), "a failing command writes nothing to stdout");
+    assert!(
+        o.stdout.is_empty(),
+        "a failing command writes nothing to stdout"
+    );
     stderr(&o)
 }
 
@@ -59,7 +75,12 @@ fn project_backproject_and_triangulate_agree_with_the_points() {
     let dir = tempfile::tempdir().unwrap();
     let rig = write(dir.path(), "rig.json", RIG);
     let rig = rig.to_str().unwrap();
-    let truth = [[0.2, -0.1, 1.5], [-0.3, 0.25, 0.8], [0.0, 0.0, 3.0], [0.5, 0.4, 2.2]];
+    let truth = [
+        [0.2, -0.1, 1.5],
+        [-0.3, 0.25, 0.8],
+        [0.0, 0.0, 3.0],
+        [0.5, 0.4, 2.2],
+    ];
     let mut text = String::from("x,y,z\n");
     for p in &truth {
         text += &format!("{},{},{}\n", p[0], p[1], p[2]);
@@ -68,7 +89,9 @@ fn project_backproject_and_triangulate_agree_with_the_points() {
     let points = points.to_str().unwrap();
 
     let left = run_ok(&["project", "--rig", rig, "--points", points]);
-    let right = run_ok(&["project", "--rig", rig, "--points", points, "--camera", "right"]);
+    let right = run_ok(&[
+        "project", "--rig", rig, "--points", points, "--camera", "right",
+    ]);
     let (header, left) = table(&left);
     assert_eq!(header, "u,v");
     let (_, right) = table(&right);
@@ -80,13 +103,23 @@ fn project_backproject_and_triangulate_agree_with_the_points() {
         pixels += &format!("{},{}\n", p[0], p[1]);
     }
     let pixels = write(dir.path(), "pixels.csv", &pixels);
-    let rays = run_ok(&["backproject", "--rig", rig, "--pixels", pixels.to_str().unwrap()]);
+    let rays = run_ok(&[
+        "backproject",
+        "--rig",
+        rig,
+        "--pixels",
+        pixels.to_str().unwrap(),
+    ]);
     let (header, rays) = table(&rays);
     assert_eq!(header, "ox,oy,oz,dx,dy,dz");
     for (ray, p) in rays.iter().zip(&truth) {
         let (o, d) = ([ray[0], ray[1], ray[2]], [ray[3], ray[4], ray[5]]);
         let w = [p[0] - o[0], p[1] - o[1], p[2] - o[2]];
-        let cross = [w[1] * d[2] - w[2] * d[1], w[2] * d[0] - w[0] * d[2], w[0] * d[1] - w[1] * d[0]];
+        let cross = [
+            w[1] * d[2] - w[2] * d[1],
+            w[2] * d[0] - w[0] * d[2],
+            w[0] * d[1] - w[1] * d[0],
+        ];
         let miss = cross.iter().map(|c| c * c).sum::<f64>().sqrt();
         // CSV carries shortest round-trip f64 text, so only model rounding remains.
         assert!(miss < 1e-9, "ray misses its point by {miss} m");
@@ -103,7 +136,13 @@ fn project_backproject_and_triangulate_agree_with_the_points() {
     let matches = write(dir.path(), "matches.csv", &matches);
     let out = dir.path().join("tri.csv");
     let o = flatport(&[
-        "triangulate", "--rig", rig, "--matches", matches.to_str().unwrap(), "--output", out.to_str().unwrap(),
+        "triangulate",
+        "--rig",
+        rig,
+        "--matches",
+        matches.to_str().unwrap(),
+        "--output",
+        out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(o.stdout.is_empty(), "with --output nothing goes to stdout");
@@ -121,8 +160,18 @@ fn rows_without_answer_are_nan_and_counted() {
     let dir = tempfile::tempdir().unwrap();
     let rig = write(dir.path(), "rig.json", RIG);
     // Row 2 lies inside the glass (z ≈ 0.025 m), row 3 in the air.
-    let points = write(dir.path(), "p.csv", "x,y,z\n0.1,0.1,1.0\n0,0,0.025\n0,0,0.01\n0.2,0,2\n");
-    let o = flatport(&["project", "--rig", rig.to_str().unwrap(), "--points", points.to_str().unwrap()]);
+    let points = write(
+        dir.path(),
+        "p.csv",
+        "x,y,z\n0.1,0.1,1.0\n0,0,0.025\n0,0,0.01\n0.2,0,2\n",
+    );
+    let o = flatport(&[
+        "project",
+        "--rig",
+        rig.to_str().unwrap(),
+        "--points",
+        points.to_str().unwrap(),
+    ]);
     assert!(o.status.success());
     let lines: Vec<&str> = std::str::from_utf8(&o.stdout).unwrap().lines().collect();
     assert_eq!(lines.len(), 5, "one row per input row");
@@ -133,7 +182,13 @@ fn rows_without_answer_are_nan_and_counted() {
     assert!(err.contains("2 of 4 rows"), "{err}");
     assert!(err.contains("not in the water"), "{err}");
 
-    let vops = run_ok(&["vop", "--rig", rig.to_str().unwrap(), "--points", points.to_str().unwrap()]);
+    let vops = run_ok(&[
+        "vop",
+        "--rig",
+        rig.to_str().unwrap(),
+        "--points",
+        points.to_str().unwrap(),
+    ]);
     let lines: Vec<&str> = vops.lines().collect();
     assert_eq!(lines[0], "depth,vop_distance,vop_x,vop_y,vop_z,incidence");
     assert_eq!(lines[2], "NaN,NaN,NaN,NaN,NaN,NaN");
@@ -147,18 +202,36 @@ fn malformed_csv_names_file_line_and_column_and_writes_nothing() {
     let out = dir.path().join("out.csv");
     let cases = [
         ("header.csv", "x,y,w\n1,2,3\n", vec!["header.csv", "x,y,z"]),
-        ("text.csv", "x,y,z\n0,0,1\n0.1,abc,2\n", vec!["text.csv", ":3", "y", "abc"]),
+        (
+            "text.csv",
+            "x,y,z\n0,0,1\n0.1,abc,2\n",
+            vec!["text.csv", ":3", "y", "abc"],
+        ),
         ("count.csv", "x,y,z\n0,0,1\n0,0\n", vec!["count.csv", ":3"]),
         ("nan.csv", "x,y,z\n0,0,NaN\n", vec!["nan.csv", ":2", "z"]),
         ("empty.csv", "", vec!["empty.csv"]),
     ];
     for (name, text, needles) in cases {
         let path = write(dir.path(), name, text);
-        let err = run_err(&["project", "--rig", rig, "--points", path.to_str().unwrap(), "--output", out.to_str().unwrap()]);
+        let err = run_err(&[
+            "project",
+            "--rig",
+            rig,
+            "--points",
+            path.to_str().unwrap(),
+            "--output",
+            out.to_str().unwrap(),
+        ]);
         for needle in needles {
-            assert!(err.contains(needle), "error for {name} should mention {needle:?}: {err}");
+            assert!(
+                err.contains(needle),
+                "error for {name} should mention {needle:?}: {err}"
+            );
         }
-        assert!(!out.exists(), "nothing is written on malformed input ({name})");
+        assert!(
+            !out.exists(),
+            "nothing is written on malformed input ({name})"
+        );
     }
 }
 
@@ -168,24 +241,62 @@ fn bad_rigs_and_arguments_give_clear_errors() {
     let points = write(dir.path(), "p.csv", "x,y,z\n0,0,1\n");
     let points = points.to_str().unwrap();
     let cases = [
-        ("typo.json", RIG.replace("\"index_water\"", "\"index_watr\""), vec!["index_watr"]),
-        ("fx.json", RIG.replacen("\"fx\": 864.91, ", "", 1), vec!["fx"]),
-        ("back.json", RIG.replace("[0.1, 0.1, 1.0]", "[0.1, 0.1, -1.0]"), vec!["normal"]),
-        ("zero.json", RIG.replace("[0.1, 0.1, 1.0]", "[0, 0, 0]"), vec!["normal"]),
-        ("notair.json", RIG.replace("[-0.06, 0, 0]", "[0, 0, -0.5]"), vec!["right", "air"]),
-        ("syntax.json", RIG.replace("\"cameras\": [", "\"cameras\": [,"), vec!["syntax.json"]),
+        (
+            "typo.json",
+            RIG.replace("\"index_water\"", "\"index_watr\""),
+            vec!["index_watr"],
+        ),
+        (
+            "fx.json",
+            RIG.replacen("\"fx\": 864.91, ", "", 1),
+            vec!["fx"],
+        ),
+        (
+            "back.json",
+            RIG.replace("[0.1, 0.1, 1.0]", "[0.1, 0.1, -1.0]"),
+            vec!["normal"],
+        ),
+        (
+            "zero.json",
+            RIG.replace("[0.1, 0.1, 1.0]", "[0, 0, 0]"),
+            vec!["normal"],
+        ),
+        (
+            "notair.json",
+            RIG.replace("[-0.06, 0, 0]", "[0, 0, -0.5]"),
+            vec!["right", "air"],
+        ),
+        (
+            "syntax.json",
+            RIG.replace("\"cameras\": [", "\"cameras\": [,"),
+            vec!["syntax.json"],
+        ),
     ];
     for (name, text, needles) in cases {
         let rig = write(dir.path(), name, &text);
-        let err = run_err(&["project", "--rig", rig.to_str().unwrap(), "--points", points]);
+        let err = run_err(&[
+            "project",
+            "--rig",
+            rig.to_str().unwrap(),
+            "--points",
+            points,
+        ]);
         for needle in needles {
-            assert!(err.contains(needle), "error for {name} should mention {needle:?}: {err}");
+            assert!(
+                err.contains(needle),
+                "error for {name} should mention {needle:?}: {err}"
+            );
         }
     }
     let rig = write(dir.path(), "rig.json", RIG);
     let rig = rig.to_str().unwrap();
-    let err = run_err(&["project", "--rig", rig, "--points", points, "--camera", "middle"]);
-    assert!(err.contains("middle") && err.contains("left, right"), "{err}");
+    let err = run_err(&[
+        "project", "--rig", rig, "--points", points, "--camera", "middle",
+    ]);
+    assert!(
+        err.contains("middle") && err.contains("left, right"),
+        "{err}"
+    );
     let err = run_err(&["project", "--rig", rig, "--points", "missing.csv"]);
     assert!(err.contains("missing.csv"), "{err}");
     let err = run_err(&["project", "--rig", "nope.json", "--points", points]);
@@ -195,7 +306,13 @@ fn bad_rigs_and_arguments_give_clear_errors() {
     {"name": "right", "width": 1280, "height": 1024, "fx": 864.91, "fy": 864.91, "cx": 640.0, "cy": 512.0,
      "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "translation": [-0.06, 0, 0]}"#, ""));
     let matches = write(dir.path(), "m.csv", "ul,vl,ur,vr\n1,2,3,4\n");
-    let err = run_err(&["triangulate", "--rig", mono.to_str().unwrap(), "--matches", matches.to_str().unwrap()]);
+    let err = run_err(&[
+        "triangulate",
+        "--rig",
+        mono.to_str().unwrap(),
+        "--matches",
+        matches.to_str().unwrap(),
+    ]);
     assert!(err.contains("two cameras"), "{err}");
 }
 
@@ -203,14 +320,20 @@ fn bad_rigs_and_arguments_give_clear_errors() {
 fn every_command_has_help_with_an_example() {
     for command in ["project", "backproject", "triangulate", "vop", "demo"] {
         let help = run_ok(&[command, "--help"]);
-        assert!(help.contains("Example"), "{command} --help has no example:\n{help}");
+        assert!(
+            help.contains("Example"),
+            "{command} --help has no example:\n{help}"
+        );
         assert!(help.contains("flatport"), "{command}");
     }
     let help = run_ok(&["rig", "from-opencv", "--help"]);
     assert!(help.contains("Example") && help.contains("--distance"));
     for format in ["colmap", "opencv", "raymap"] {
         let help = run_ok(&["export", format, "--help"]);
-        assert!(help.contains("Example") && help.contains("flatport export"), "export {format}");
+        assert!(
+            help.contains("Example") && help.contains("flatport export"),
+            "export {format}"
+        );
     }
     let info = run_ok(&["info"]);
     assert!(info.contains(env!("CARGO_PKG_VERSION")) && info.contains("cpu"));
@@ -219,7 +342,10 @@ fn every_command_has_help_with_an_example() {
 #[test]
 fn rig_from_opencv_yaml() {
     let dir = tempfile::tempdir().unwrap();
-    let yaml = write(dir.path(), "stereo.yml", "%YAML:1.0
+    let yaml = write(
+        dir.path(),
+        "stereo.yml",
+        "%YAML:1.0
 ---
 image_width: 1280
 image_height: 1024
@@ -254,19 +380,41 @@ T: !!opencv-matrix
    cols: 1
    dt: d
    data: [ -0.06, 0., 0. ]
-");
+",
+    );
     let out = dir.path().join("rig.json");
     let o = flatport(&[
-        "rig", "from-opencv", yaml.to_str().unwrap(), "--distance", "0.02", "--layer", "0.014:1.473",
-        "--normal", "0.1,0.1,1", "--output", out.to_str().unwrap(),
+        "rig",
+        "from-opencv",
+        yaml.to_str().unwrap(),
+        "--distance",
+        "0.02",
+        "--layer",
+        "0.014:1.473",
+        "--normal",
+        "0.1,0.1,1",
+        "--output",
+        out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let shown = run_ok(&["rig", "show", out.to_str().unwrap()]);
-    assert!(shown.contains("'right'") && shown.contains("fx 870"), "{shown}");
+    assert!(
+        shown.contains("'right'") && shown.contains("fx 870"),
+        "{shown}"
+    );
     assert!(shown.contains("azimuth 45.0000°"), "{shown}");
     // Camera right sits 0.06 m to the +x side of the master: C = −Rᵀt.
-    assert!(shown.contains("centre [0.060000, 0.000000, 0.000000]"), "{shown}");
-    let err = run_err(&["rig", "from-opencv", yaml.to_str().unwrap(), "--distance", "-1"]);
+    assert!(
+        shown.contains("centre [0.060000, 0.000000, 0.000000]"),
+        "{shown}"
+    );
+    let err = run_err(&[
+        "rig",
+        "from-opencv",
+        yaml.to_str().unwrap(),
+        "--distance",
+        "-1",
+    ]);
     assert!(err.contains("distance"), "{err}");
 }
 
@@ -276,25 +424,68 @@ fn demo_runs_end_to_end() {
     let out = dir.path().join("demo");
     let text = run_ok(&["demo", "--output", out.to_str().unwrap(), "--device", "cpu"]);
     // The calibration story: simulated scene, calibration from the naive start, two sweeps.
-    for file in ["rig.json", "truth.json", "observations.json", "start_rig.json", "calibrated_rig.json", "report.json"] {
+    for file in [
+        "rig.json",
+        "truth.json",
+        "observations.json",
+        "start_rig.json",
+        "calibrated_rig.json",
+        "report.json",
+    ] {
         assert!(out.join(file).exists(), "demo wrote no {file}");
     }
     for sweep in ["sweep_wide", "sweep_close"] {
-        for file in ["heatmap.png", "polar.png", "cost.npy", "cost.csv", "summary.json"] {
-            assert!(out.join(sweep).join(file).exists(), "demo wrote no {sweep}/{file}");
+        for file in [
+            "heatmap.png",
+            "polar.png",
+            "cost.npy",
+            "cost.csv",
+            "summary.json",
+        ] {
+            assert!(
+                out.join(sweep).join(file).exists(),
+                "demo wrote no {sweep}/{file}"
+            );
         }
     }
-    assert!(text.contains("against the truth: axis off by 0.0"), "{text}");
+    assert!(
+        text.contains("against the truth: axis off by 0.0"),
+        "{text}"
+    );
     // The geometry tour.
     let geometry = out.join("geometry");
-    for file in ["rig.json", "points.csv", "pixels_left.csv", "pixels_right.csv", "rays_left.csv", "matches.csv", "triangulated.csv", "vops_left.csv"] {
-        assert!(geometry.join(file).exists(), "demo wrote no geometry/{file}");
+    for file in [
+        "rig.json",
+        "points.csv",
+        "pixels_left.csv",
+        "pixels_right.csv",
+        "rays_left.csv",
+        "matches.csv",
+        "triangulated.csv",
+        "vops_left.csv",
+    ] {
+        assert!(
+            geometry.join(file).exists(),
+            "demo wrote no geometry/{file}"
+        );
     }
     assert!(text.contains("triangulation"), "{text}");
     // The demo's own files feed the other commands.
     let rig = geometry.join("rig.json");
-    let tri = run_ok(&["triangulate", "--rig", rig.to_str().unwrap(), "--matches", geometry.join("matches.csv").to_str().unwrap()]);
-    assert_eq!(tri.lines().count(), std::fs::read_to_string(geometry.join("points.csv")).unwrap().lines().count());
+    let tri = run_ok(&[
+        "triangulate",
+        "--rig",
+        rig.to_str().unwrap(),
+        "--matches",
+        geometry.join("matches.csv").to_str().unwrap(),
+    ]);
+    assert_eq!(
+        tri.lines().count(),
+        std::fs::read_to_string(geometry.join("points.csv"))
+            .unwrap()
+            .lines()
+            .count()
+    );
 }
 
 /// The GPU path gives the CPU's answers within the f32 and f64 tolerances, NaN rows at the same
@@ -305,34 +496,75 @@ fn gpu_device_agrees_with_cpu_device() {
     let rig = write(dir.path(), "rig.json", RIG);
     let mut points = String::from("x,y,z\n");
     for i in 0..400 {
-        let (x, y, z) = ((i % 20) as f64 * 0.07 - 0.7, (i / 20) as f64 * 0.06 - 0.6, 0.2 + (i % 7) as f64 * 0.8);
+        let (x, y, z) = (
+            (i % 20) as f64 * 0.07 - 0.7,
+            (i / 20) as f64 * 0.06 - 0.6,
+            0.2 + (i % 7) as f64 * 0.8,
+        );
         points.push_str(&format!("{x},{y},{z}\n"));
     }
     points.push_str("0,0,0.01\n"); // in the air: NaN row
     let points = write(dir.path(), "points.csv", &points);
     let rig = rig.to_str().unwrap();
     let points = points.to_str().unwrap();
-    let cpu = flatport(&["project", "--rig", rig, "--points", points, "--device", "cpu"]);
+    let cpu = flatport(&[
+        "project", "--rig", rig, "--points", points, "--device", "cpu",
+    ]);
     assert!(stderr(&cpu).contains("device: cpu"), "{}", stderr(&cpu));
     let (_, expected) = table(&stdout(&cpu));
     for (precision, tolerance) in [("f32", 1e-3), ("f64", 1e-9)] {
-        let gpu = flatport(&["project", "--rig", rig, "--points", points, "--device", "gpu", "--precision", precision]);
-        if !gpu.status.success() && std::env::var_os("CI").is_none() && stderr(&gpu).contains("no GPU adapter") {
+        let gpu = flatport(&[
+            "project",
+            "--rig",
+            rig,
+            "--points",
+            points,
+            "--device",
+            "gpu",
+            "--precision",
+            precision,
+        ]);
+        if !gpu.status.success()
+            && std::env::var_os("CI").is_none()
+            && stderr(&gpu).contains("no GPU adapter")
+        {
             eprintln!("SKIPPED (no Vulkan adapter; CI fails here instead)");
             return;
         }
         assert!(gpu.status.success(), "{}", stderr(&gpu));
-        assert!(stderr(&gpu).contains("device: gpu: ") && stderr(&gpu).contains(precision), "{}", stderr(&gpu));
-        assert!(stderr(&gpu).contains("1 of 401 rows have no answer"), "{}", stderr(&gpu));
+        assert!(
+            stderr(&gpu).contains("device: gpu: ") && stderr(&gpu).contains(precision),
+            "{}",
+            stderr(&gpu)
+        );
+        assert!(
+            stderr(&gpu).contains("1 of 401 rows have no answer"),
+            "{}",
+            stderr(&gpu)
+        );
         let (_, rows) = table(&stdout(&gpu));
         assert_eq!(rows.len(), expected.len());
         for (g, c) in rows.iter().zip(&expected) {
             for (a, b) in g.iter().zip(c) {
-                assert!(a.is_nan() == b.is_nan() && (a.is_nan() || (a - b).abs() <= tolerance * b.abs().max(1.0)), "{precision}: {g:?} vs {c:?}");
+                assert!(
+                    a.is_nan() == b.is_nan()
+                        && (a.is_nan() || (a - b).abs() <= tolerance * b.abs().max(1.0)),
+                    "{precision}: {g:?} vs {c:?}"
+                );
             }
         }
     }
-    let refused = run_err(&["project", "--rig", rig, "--points", points, "--device", "cpu", "--precision", "f32"]);
+    let refused = run_err(&[
+        "project",
+        "--rig",
+        rig,
+        "--points",
+        points,
+        "--device",
+        "cpu",
+        "--precision",
+        "f32",
+    ]);
     assert!(refused.contains("f64 only"), "{refused}");
 }
 
@@ -348,19 +580,38 @@ fn six_million_rows_through_the_cli() {
         let mut f = std::io::BufWriter::new(std::fs::File::create(&pixels).unwrap());
         writeln!(f, "u,v").unwrap();
         for i in 0..n {
-            writeln!(f, "{},{}", (i % 1280) as f64 + 0.5, ((i / 1280) % 1024) as f64).unwrap();
+            writeln!(
+                f,
+                "{},{}",
+                (i % 1280) as f64 + 0.5,
+                ((i / 1280) % 1024) as f64
+            )
+            .unwrap();
         }
     }
     let out = dir.path().join("rays.csv");
     let o = flatport(&[
-        "backproject", "--rig", rig.to_str().unwrap(), "--pixels", pixels.to_str().unwrap(), "--device", "gpu", "-o", out.to_str().unwrap(),
+        "backproject",
+        "--rig",
+        rig.to_str().unwrap(),
+        "--pixels",
+        pixels.to_str().unwrap(),
+        "--device",
+        "gpu",
+        "-o",
+        out.to_str().unwrap(),
     ]);
-    if !o.status.success() && std::env::var_os("CI").is_none() && stderr(&o).contains("no GPU adapter") {
+    if !o.status.success()
+        && std::env::var_os("CI").is_none()
+        && stderr(&o).contains("no GPU adapter")
+    {
         eprintln!("SKIPPED (no Vulkan adapter; CI fails here instead)");
         return;
     }
     assert!(o.status.success(), "{}", stderr(&o));
-    let camera = flatport::io::rig_from_json_str(RIG, Path::new("rig.json")).unwrap().refractive_camera(0);
+    let camera = flatport::io::rig_from_json_str(RIG, Path::new("rig.json"))
+        .unwrap()
+        .refractive_camera(0);
     let file = std::io::BufReader::new(std::fs::File::open(&out).unwrap());
     let mut lines = 0usize;
     for (k, line) in file.lines().enumerate() {
@@ -376,7 +627,10 @@ fn six_million_rows_through_the_cli() {
             let pixel = nalgebra::Point2::new((i % 1280) as f64 + 0.5, ((i / 1280) % 1024) as f64);
             let cpu = camera.backproject(&pixel).unwrap();
             let dir = nalgebra::Vector3::new(v[3], v[4], v[5]);
-            assert!((dir - cpu.dir.into_inner()).norm() < 2e-6, "row {i}: {line}");
+            assert!(
+                (dir - cpu.dir.into_inner()).norm() < 2e-6,
+                "row {i}: {line}"
+            );
         }
         lines += 1;
     }
@@ -390,15 +644,43 @@ fn bench_json_has_every_path() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("bench.json");
     let json_arg = json.to_str().unwrap();
-    let mut o = flatport(&["bench", "--items", "3000", "--repeats", "1", "--sweep-cells", "64", "--json", json_arg]);
-    let gpu = o.status.success() || std::env::var_os("CI").is_some() || !stderr(&o).contains("Vulkan adapter");
+    let mut o = flatport(&[
+        "bench",
+        "--items",
+        "3000",
+        "--repeats",
+        "1",
+        "--sweep-cells",
+        "64",
+        "--json",
+        json_arg,
+    ]);
+    let gpu = o.status.success()
+        || std::env::var_os("CI").is_some()
+        || !stderr(&o).contains("Vulkan adapter");
     if !gpu {
         eprintln!("no Vulkan adapter: checking the CPU paths only (CI fails instead)");
-        o = flatport(&["bench", "--items", "3000", "--repeats", "1", "--sweep-cells", "64", "--json", json_arg, "--no-gpu"]);
+        o = flatport(&[
+            "bench",
+            "--items",
+            "3000",
+            "--repeats",
+            "1",
+            "--sweep-cells",
+            "64",
+            "--json",
+            json_arg,
+            "--no-gpu",
+        ]);
     }
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stdout(&o).contains("ratios from this run") && !stdout(&o).contains("NOT MET"), "{}", stdout(&o));
-    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert!(
+        stdout(&o).contains("ratios from this run") && !stdout(&o).contains("NOT MET"),
+        "{}",
+        stdout(&o)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert!(report["memory_stream_bytes_per_s"].as_f64().unwrap() > 1e8);
     let results = report["results"].as_array().unwrap();
     let has = |kernel: &str, path: &str, precision: &str, stage: &str, one_thread: Option<bool>| {
@@ -408,59 +690,100 @@ fn bench_json_has_every_path() {
                 && r["precision"] == precision
                 && r["stage"] == stage
                 && r["items"] == 3000
-                && r["items_per_s"].as_f64().is_some_and(|x| x.is_finite() && x > 0.0)
+                && r["items_per_s"]
+                    .as_f64()
+                    .is_some_and(|x| x.is_finite() && x > 0.0)
                 && one_thread.is_none_or(|one| (r["threads"] == 1) == one)
         })
     };
     // The sweep: 64 axis cells × 9 990 correspondences, on the CPU and (f64 kernel) the GPU.
     let sweep = |path: &str| {
         results.iter().any(|r| {
-            r["kernel"] == "sweep" && r["path"] == path && r["precision"] == "f64" && r["items"] == 64 * 9990 && r["items_per_s"].as_f64().is_some_and(|x| x > 0.0)
+            r["kernel"] == "sweep"
+                && r["path"] == path
+                && r["precision"] == "f64"
+                && r["items"] == 64 * 9990
+                && r["items_per_s"].as_f64().is_some_and(|x| x > 0.0)
         })
     };
     assert!(sweep("cpu"), "sweep cpu");
     assert!(!gpu || sweep("gpu"), "sweep gpu");
     for kernel in ["backproject", "project", "triangulate"] {
-        assert!(has(kernel, "cpu", "f64", "end_to_end", Some(true)), "{kernel} cpu 1 thread");
-        assert!(has(kernel, "cpu", "f64", "end_to_end", None), "{kernel} cpu all threads");
+        assert!(
+            has(kernel, "cpu", "f64", "end_to_end", Some(true)),
+            "{kernel} cpu 1 thread"
+        );
+        assert!(
+            has(kernel, "cpu", "f64", "end_to_end", None),
+            "{kernel} cpu all threads"
+        );
         if gpu {
             for precision in ["f32", "f64"] {
                 for stage in ["kernel", "end_to_end"] {
-                    assert!(has(kernel, "gpu", precision, stage, None), "{kernel} gpu {precision} {stage}");
+                    assert!(
+                        has(kernel, "gpu", precision, stage, None),
+                        "{kernel} gpu {precision} {stage}"
+                    );
                 }
             }
         }
     }
     // The CPU on both paths, one thread and all, with the pinhole back-projection beside the rig's.
-    for kernel in ["backproject", "backproject_pinhole", "project", "triangulate"] {
+    for kernel in [
+        "backproject",
+        "backproject_pinhole",
+        "project",
+        "triangulate",
+    ] {
         for cpu_path in ["scalar", "vector"] {
             for one in [true, false] {
-                let found = results.iter().find(|r| r["kernel"] == kernel && r["path"] == "cpu" && r["cpu_path"] == cpu_path && (r["threads"] == 1) == one);
-                let r = found.unwrap_or_else(|| panic!("{kernel} cpu {cpu_path} one thread: {one}"));
+                let found = results.iter().find(|r| {
+                    r["kernel"] == kernel
+                        && r["path"] == "cpu"
+                        && r["cpu_path"] == cpu_path
+                        && (r["threads"] == 1) == one
+                });
+                let r =
+                    found.unwrap_or_else(|| panic!("{kernel} cpu {cpu_path} one thread: {one}"));
                 assert!(r["items_per_s"].as_f64().is_some_and(|x| x > 0.0), "{r}");
                 // Cycles per item for one thread wherever the OS reports a clock.
                 if one && report["cpu_clock_hz"].is_f64() {
-                    assert!(r["cycles_per_item"].as_f64().is_some_and(|c| c > 0.0), "{r}");
+                    assert!(
+                        r["cycles_per_item"].as_f64().is_some_and(|c| c > 0.0),
+                        "{r}"
+                    );
                 }
             }
         }
     }
     let isa = report["cpu_instruction_set"].as_str().unwrap();
-    assert!(["avx512", "avx2", "neon", "baseline"].contains(&isa), "{isa}");
+    assert!(
+        ["avx512", "avx2", "neon", "baseline"].contains(&isa),
+        "{isa}"
+    );
     if report["cpu_clock_hz"].is_f64() {
         let floors = report["floors"]["kernels"].as_array().unwrap();
         assert_eq!(floors.len(), 4);
         for f in floors {
-            assert!(f["floor_cycles_per_item"].as_f64().is_some_and(|c| c > 0.0) && f["sqrt_per_item"].as_f64().unwrap() >= 3.0, "{f}");
+            assert!(
+                f["floor_cycles_per_item"].as_f64().is_some_and(|c| c > 0.0)
+                    && f["sqrt_per_item"].as_f64().unwrap() >= 3.0,
+                "{f}"
+            );
         }
     }
     // The clock of every figure: GPU timestamps for the GPU kernel stage where the adapter has
     // TIMESTAMP_QUERY (lavapipe does, DESIGN.md §6: so in CI), host clocks for everything else.
     for r in results {
         let gpu_kernel = r["path"] == "gpu" && r["stage"] == "kernel";
-        let timer = r["timer"].as_str().unwrap_or_else(|| panic!("no timer in {r}"));
+        let timer = r["timer"]
+            .as_str()
+            .unwrap_or_else(|| panic!("no timer in {r}"));
         if gpu_kernel {
-            assert!(timer == "gpu_timestamp" || (timer == "host" && std::env::var_os("CI").is_none()), "{r}");
+            assert!(
+                timer == "gpu_timestamp" || (timer == "host" && std::env::var_os("CI").is_none()),
+                "{r}"
+            );
         } else {
             assert_eq!(timer, "host", "{r}");
         }
@@ -472,8 +795,20 @@ fn bench_json_has_every_path() {
 #[test]
 fn os_errors_are_printed_once() {
     let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/example_rig.json");
-    let message = run_err(&["vop", "--rig", rig.to_str().unwrap(), "--points", "/nonexistent/points.csv", "--device", "cpu"]);
-    assert_eq!(message.matches("No such file or directory").count(), 1, "{message}");
+    let message = run_err(&[
+        "vop",
+        "--rig",
+        rig.to_str().unwrap(),
+        "--points",
+        "/nonexistent/points.csv",
+        "--device",
+        "cpu",
+    ]);
+    assert_eq!(
+        message.matches("No such file or directory").count(),
+        1,
+        "{message}"
+    );
     let message = run_err(&["vop", "--rig", "/nonexistent/rig.json", "--points", "p.csv"]);
     assert_eq!(message.matches("os error 2").count(), 1, "{message}");
 }
@@ -485,21 +820,116 @@ fn negative_and_out_of_range_option_values_name_the_option() {
     let rig = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/example_rig.json");
     let rig = rig.to_str().unwrap();
     let cases: [(&[&str], &[&str]); 9] = [
-        (&["calibrate", "--rig", rig, "--observations", "o.json", "-o", "c.json", "--huber", "-1"], &["--huber", "must be > 0, got -1"]),
-        (&["calibrate", "--rig", rig, "--observations", "o.json", "-o", "c.json", "--max-tilt-deg", "-5"], &["--max-tilt-deg", "(0°, 80°), got -5"]),
-        (&["calibrate", "--rig", rig, "--observations", "o.json", "-o", "c.json", "--grid-step-deg", "-1"], &["--grid-step-deg", "must be > 0"]),
-        (&["sweep", "--rig", rig, "--observations", "o.json", "--tilt-deg", "0:10:3", "--azimuth-deg", "0:90:3", "-o", "s", "--distance", "-0.01:0.03:3"], &["--distance", "air layers must be > 0 m"]),
-        (&["vop", "--rig", rig, "--points", "p.csv", "--camera", "-1", "--device", "cpu"], &["--camera", "no camera '-1'"]),
-        (&["simulate", "--rig", rig, "-o", "s", "--max-board-tilt-deg", "180"], &["--max-board-tilt-deg", "[0°, 90°), got 180"]),
-        (&["simulate", "--rig", rig, "-o", "s", "--max-board-tilt-deg", "-1"], &["--max-board-tilt-deg", "[0°, 90°), got -1"]),
-        (&["simulate", "--rig", rig, "-o", "s", "--noise", "-0.5"], &["--noise", "must be ≥ 0, got -0.5"]),
-        (&["simulate", "--rig", rig, "-o", "s", "--views", "-3"], &["--views", "'-3'"]),
+        (
+            &[
+                "calibrate",
+                "--rig",
+                rig,
+                "--observations",
+                "o.json",
+                "-o",
+                "c.json",
+                "--huber",
+                "-1",
+            ],
+            &["--huber", "must be > 0, got -1"],
+        ),
+        (
+            &[
+                "calibrate",
+                "--rig",
+                rig,
+                "--observations",
+                "o.json",
+                "-o",
+                "c.json",
+                "--max-tilt-deg",
+                "-5",
+            ],
+            &["--max-tilt-deg", "(0°, 80°), got -5"],
+        ),
+        (
+            &[
+                "calibrate",
+                "--rig",
+                rig,
+                "--observations",
+                "o.json",
+                "-o",
+                "c.json",
+                "--grid-step-deg",
+                "-1",
+            ],
+            &["--grid-step-deg", "must be > 0"],
+        ),
+        (
+            &[
+                "sweep",
+                "--rig",
+                rig,
+                "--observations",
+                "o.json",
+                "--tilt-deg",
+                "0:10:3",
+                "--azimuth-deg",
+                "0:90:3",
+                "-o",
+                "s",
+                "--distance",
+                "-0.01:0.03:3",
+            ],
+            &["--distance", "air layers must be > 0 m"],
+        ),
+        (
+            &[
+                "vop", "--rig", rig, "--points", "p.csv", "--camera", "-1", "--device", "cpu",
+            ],
+            &["--camera", "no camera '-1'"],
+        ),
+        (
+            &[
+                "simulate",
+                "--rig",
+                rig,
+                "-o",
+                "s",
+                "--max-board-tilt-deg",
+                "180",
+            ],
+            &["--max-board-tilt-deg", "[0°, 90°), got 180"],
+        ),
+        (
+            &[
+                "simulate",
+                "--rig",
+                rig,
+                "-o",
+                "s",
+                "--max-board-tilt-deg",
+                "-1",
+            ],
+            &["--max-board-tilt-deg", "[0°, 90°), got -1"],
+        ),
+        (
+            &["simulate", "--rig", rig, "-o", "s", "--noise", "-0.5"],
+            &["--noise", "must be ≥ 0, got -0.5"],
+        ),
+        (
+            &["simulate", "--rig", rig, "-o", "s", "--views", "-3"],
+            &["--views", "'-3'"],
+        ),
     ];
     for (args, expected) in cases {
         let message = run_err(args);
-        assert!(!message.contains("unexpected argument"), "{args:?}: {message}");
+        assert!(
+            !message.contains("unexpected argument"),
+            "{args:?}: {message}"
+        );
         for part in expected {
-            assert!(message.contains(part), "{args:?}: expected {part:?} in {message}");
+            assert!(
+                message.contains(part),
+                "{args:?}: expected {part:?} in {message}"
+            );
         }
     }
 }

@@ -7,7 +7,11 @@ use std::process::{Command, Output};
 use serde_json::Value;
 
 fn flatport(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_flatport")).args(args).env("XDG_RUNTIME_DIR", std::env::temp_dir()).output().expect("binary runs")
+    Command::new(env!("CARGO_BIN_EXE_flatport"))
+        .args(args)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("binary runs")
 }
 
 fn text(bytes: &[u8]) -> String {
@@ -20,9 +24,24 @@ fn p(path: &Path) -> &str {
 
 /// Simulates a scene of `views` views into `dir` and writes a start rig (axis on z, 10 mm air).
 fn scene(dir: &Path, views: usize, noise: f64) -> (PathBuf, PathBuf) {
-    let out = flatport(&["simulate", "--rig", "data/example_rig.json", "--board", "9x6@0.04", "--views", &views.to_string(), "--noise", &noise.to_string(), "--seed", "7", "--output", p(dir)]);
+    let out = flatport(&[
+        "simulate",
+        "--rig",
+        "data/example_rig.json",
+        "--board",
+        "9x6@0.04",
+        "--views",
+        &views.to_string(),
+        "--noise",
+        &noise.to_string(),
+        "--seed",
+        "7",
+        "--output",
+        p(dir),
+    ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
-    let mut rig: Value = serde_json::from_str(&std::fs::read_to_string("data/example_rig.json").unwrap()).unwrap();
+    let mut rig: Value =
+        serde_json::from_str(&std::fs::read_to_string("data/example_rig.json").unwrap()).unwrap();
     rig["interface"]["normal"] = serde_json::json!([0, 0, 1]);
     rig["interface"]["distance"] = serde_json::json!(0.01);
     let start = dir.join("start.json");
@@ -31,7 +50,17 @@ fn scene(dir: &Path, views: usize, noise: f64) -> (PathBuf, PathBuf) {
 }
 
 fn calibrate(start: &Path, observations: &Path, out: &Path, extra: &[&str]) -> Output {
-    let mut args = vec!["calibrate", "--rig", p(start), "--observations", p(observations), "--output", p(out), "--device", "cpu"];
+    let mut args = vec![
+        "calibrate",
+        "--rig",
+        p(start),
+        "--observations",
+        p(observations),
+        "--output",
+        p(out),
+        "--device",
+        "cpu",
+    ];
     args.extend_from_slice(extra);
     flatport(&args)
 }
@@ -50,21 +79,64 @@ fn simulate_then_calibrate_writes_the_rig_and_the_report() {
     let (start, observations) = scene(dir.path(), 12, 0.1);
     let calibrated = dir.path().join("calibrated.json");
     let report = dir.path().join("report.json");
-    let out = calibrate(&start, &observations, &calibrated, &["--report", p(&report), "--truth", p(&dir.path().join("truth.json"))]);
+    let out = calibrate(
+        &start,
+        &observations,
+        &calibrated,
+        &[
+            "--report",
+            p(&report),
+            "--truth",
+            p(&dir.path().join("truth.json")),
+        ],
+    );
     let stdout = text(&out.stdout);
     assert!(out.status.success(), "{}", text(&out.stderr));
-    assert!(stdout.contains("tilt") && stdout.contains("air layer") && stdout.contains("against the truth"), "{stdout}");
+    assert!(
+        stdout.contains("tilt")
+            && stdout.contains("air layer")
+            && stdout.contains("against the truth"),
+        "{stdout}"
+    );
     let rig: Value = serde_json::from_str(&std::fs::read_to_string(&calibrated).unwrap()).unwrap();
-    let truth: Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("truth.json")).unwrap()).unwrap();
-    let n: Vec<f64> = rig["interface"]["normal"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
-    let t: Vec<f64> = truth["interface"]["normal"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let truth: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("truth.json")).unwrap())
+            .unwrap();
+    let n: Vec<f64> = rig["interface"]["normal"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let t: Vec<f64> = truth["interface"]["normal"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
     let dot: f64 = n.iter().zip(&t).map(|(a, b)| a * b).sum();
-    assert!(dot.min(1.0).acos().to_degrees() < 0.1, "axis {n:?} vs {t:?}");
+    assert!(
+        dot.min(1.0).acos().to_degrees() < 0.1,
+        "axis {n:?} vs {t:?}"
+    );
     assert!((rig["interface"]["distance"].as_f64().unwrap() - 0.02).abs() < 2e-3);
     // Layers and indices are carried over unchanged.
     assert_eq!(rig["interface"]["layers"], truth["interface"]["layers"]);
     let report: Value = serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
-    for key in ["normal", "tilt_deg", "azimuth_deg", "air_distance", "std", "rms_px", "rms_px_per_view", "scene_rms_m", "iterations", "seconds", "warnings", "stages"] {
+    for key in [
+        "normal",
+        "tilt_deg",
+        "azimuth_deg",
+        "air_distance",
+        "std",
+        "rms_px",
+        "rms_px_per_view",
+        "scene_rms_m",
+        "iterations",
+        "seconds",
+        "warnings",
+        "stages",
+    ] {
         assert!(!report[key].is_null(), "report lacks {key}: {report}");
     }
     assert_eq!(report["rms_px_per_view"].as_array().unwrap().len(), 12);
@@ -86,18 +158,41 @@ fn bad_observations_are_named() {
         assert!(!out_rig.exists(), "nothing is written on error");
     };
     // A corner missing from one image's list.
-    fails(&edit(&observations, |v| { v["views"][2]["right"].as_array_mut().unwrap().pop(); }), &["views[2].right", "53 corners", "54"]);
+    fails(
+        &edit(&observations, |v| {
+            v["views"][2]["right"].as_array_mut().unwrap().pop();
+        }),
+        &["views[2].right", "53 corners", "54"],
+    );
     // A corner outside the image.
-    fails(&edit(&observations, |v| v["views"][1]["left"][5] = serde_json::json!([1500.0, 20.0])), &["views[1].left[5]", "outside the 1280×1024 image"]);
+    fails(
+        &edit(&observations, |v| {
+            v["views"][1]["left"][5] = serde_json::json!([1500.0, 20.0])
+        }),
+        &["views[1].left[5]", "outside the 1280×1024 image"],
+    );
     // A corner found in one image only.
-    fails(&edit(&observations, |v| v["views"][0]["left"][9] = Value::Null), &["views[0].left[9]", "null in both"]);
+    fails(
+        &edit(&observations, |v| v["views"][0]["left"][9] = Value::Null),
+        &["views[0].left[9]", "null in both"],
+    );
     // Too few views.
-    fails(&edit(&observations, |v| { v["views"].as_array_mut().unwrap().truncate(2); }), &["2 usable view(s)", "at least 3"]);
+    fails(
+        &edit(&observations, |v| {
+            v["views"].as_array_mut().unwrap().truncate(2);
+        }),
+        &["2 usable view(s)", "at least 3"],
+    );
     // An edge-on board: every corner of a view on one image line.
     fails(
         &edit(&observations, |v| {
             for side in ["left", "right"] {
-                for (i, c) in v["views"][3][side].as_array_mut().unwrap().iter_mut().enumerate() {
+                for (i, c) in v["views"][3][side]
+                    .as_array_mut()
+                    .unwrap()
+                    .iter_mut()
+                    .enumerate()
+                {
                     *c = serde_json::json!([300.0 + 5.0 * i as f64, 400.0 + 0.5 * i as f64]);
                 }
             }
@@ -105,8 +200,16 @@ fn bad_observations_are_named() {
         &["views[3]", "edge-on"],
     );
     // A typo in a key, and a camera the rig does not have.
-    fails(&edit(&observations, |v| v["bord"] = v["board"].clone()), &["bord"]);
-    fails(&edit(&observations, |v| v["cameras"] = serde_json::json!(["left", "middle"])), &["'middle'", "left, right"]);
+    fails(
+        &edit(&observations, |v| v["bord"] = v["board"].clone()),
+        &["bord"],
+    );
+    fails(
+        &edit(&observations, |v| {
+            v["cameras"] = serde_json::json!(["left", "middle"])
+        }),
+        &["'middle'", "left, right"],
+    );
 }
 
 #[test]
@@ -114,10 +217,20 @@ fn a_start_guess_behind_the_board_is_reported_not_used() {
     let dir = tempfile::tempdir().unwrap();
     let (start, observations) = scene(dir.path(), 10, 0.1);
     // An air layer of 3 m puts every board behind the interface.
-    let far = edit(&start, |v| v["interface"]["distance"] = serde_json::json!(3.0));
-    let out = calibrate(&far, &observations, &dir.path().join("out.json"), &["--truth", p(&dir.path().join("truth.json"))]);
+    let far = edit(&start, |v| {
+        v["interface"]["distance"] = serde_json::json!(3.0)
+    });
+    let out = calibrate(
+        &far,
+        &observations,
+        &dir.path().join("out.json"),
+        &["--truth", p(&dir.path().join("truth.json"))],
+    );
     let stdout = text(&out.stdout);
     assert!(out.status.success(), "{}", text(&out.stderr));
-    assert!(stdout.contains("warning: the rig's start guess") && stdout.contains("not used as a start"), "{stdout}");
+    assert!(
+        stdout.contains("warning: the rig's start guess") && stdout.contains("not used as a start"),
+        "{stdout}"
+    );
     assert!(stdout.contains("axis off by 0.0"), "{stdout}");
 }

@@ -43,11 +43,20 @@ struct Scene {
 fn scene(rows: usize) -> Scene {
     let dir = tempfile::tempdir().unwrap();
     let rig = dir.path().join("rig.json");
-    std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/data/example_rig.json"), &rig).unwrap();
+    std::fs::copy(
+        concat!(env!("CARGO_MANIFEST_DIR"), "/data/example_rig.json"),
+        &rig,
+    )
+    .unwrap();
     let mut csv = String::from("x,y,z\n");
     for i in 0..rows {
         let f = i as f64 / rows.max(1) as f64;
-        csv.push_str(&format!("{},{},{}\n", 0.3 * f - 0.15, 0.1 - 0.2 * f, 0.5 + f));
+        csv.push_str(&format!(
+            "{},{},{}\n",
+            0.3 * f - 0.15,
+            0.1 - 0.2 * f,
+            0.5 + f
+        ));
     }
     let points = dir.path().join("points.csv");
     std::fs::write(&points, csv).unwrap();
@@ -56,7 +65,13 @@ fn scene(rows: usize) -> Scene {
 
 impl Scene {
     fn project(&self, extra: &[&str]) -> Output {
-        let mut args = vec!["project", "--device", "cpu", "--rig", self.rig.to_str().unwrap()];
+        let mut args = vec![
+            "project",
+            "--device",
+            "cpu",
+            "--rig",
+            self.rig.to_str().unwrap(),
+        ];
         args.extend_from_slice(extra);
         flatport(&args)
     }
@@ -75,7 +90,10 @@ fn mknod(path: &Path, major: u32, minor: u32) -> bool {
 }
 
 fn is_root() -> bool {
-    Command::new("id").arg("-u").output().is_ok_and(|o| text(&o.stdout).trim() == "0")
+    Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| text(&o.stdout).trim() == "0")
 }
 
 #[test]
@@ -88,7 +106,12 @@ fn a_device_node_output_is_written_in_place_not_replaced() {
         return;
     }
     for flag in ["-o", "--output"] {
-        let o = s.project(&["--points", s.points.to_str().unwrap(), flag, null.to_str().unwrap()]);
+        let o = s.project(&[
+            "--points",
+            s.points.to_str().unwrap(),
+            flag,
+            null.to_str().unwrap(),
+        ]);
         assert!(o.status.success(), "{}", text(&o.stderr));
         let kind = std::fs::symlink_metadata(&null).unwrap().file_type();
         assert!(kind.is_char_device(), "the device node was replaced");
@@ -108,12 +131,22 @@ fn a_full_device_is_an_error_naming_it() {
         assert!(!is_root(), "mknod failed as root");
         return;
     }
-    let o = s.project(&["--points", s.points.to_str().unwrap(), "-o", full.to_str().unwrap()]);
+    let o = s.project(&[
+        "--points",
+        s.points.to_str().unwrap(),
+        "-o",
+        full.to_str().unwrap(),
+    ]);
     assert!(!o.status.success(), "writing onto a full device succeeded");
     let stderr = text(&o.stderr);
     assert!(stderr.contains(full.to_str().unwrap()), "{stderr}");
     assert!(stderr.contains("No space left"), "{stderr}");
-    assert!(std::fs::symlink_metadata(&full).unwrap().file_type().is_char_device());
+    assert!(
+        std::fs::symlink_metadata(&full)
+            .unwrap()
+            .file_type()
+            .is_char_device()
+    );
 }
 
 #[test]
@@ -123,12 +156,28 @@ fn a_symlink_output_keeps_the_link_and_replaces_its_file() {
     std::fs::write(&real, "old").unwrap();
     let link = s.path("link.csv");
     std::os::unix::fs::symlink("real.csv", &link).unwrap();
-    let o = s.project(&["--points", s.points.to_str().unwrap(), "-o", link.to_str().unwrap()]);
+    let o = s.project(&[
+        "--points",
+        s.points.to_str().unwrap(),
+        "-o",
+        link.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+    assert!(
+        std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink()
+    );
     let written = std::fs::read_to_string(&real).unwrap();
-    assert!(written.starts_with("u,v\n") && written.lines().count() == 11, "{written}");
-    assert_eq!(names(s.dir.path()), ["link.csv", "points.csv", "real.csv", "rig.json"]);
+    assert!(
+        written.starts_with("u,v\n") && written.lines().count() == 11,
+        "{written}"
+    );
+    assert_eq!(
+        names(s.dir.path()),
+        ["link.csv", "points.csv", "real.csv", "rig.json"]
+    );
 }
 
 #[test]
@@ -137,7 +186,10 @@ fn dev_stdout_as_output_goes_to_standard_output() {
     let o = s.project(&["--points", s.points.to_str().unwrap(), "-o", "/dev/stdout"]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let stdout = text(&o.stdout);
-    assert!(stdout.starts_with("u,v\n") && stdout.lines().count() == 6, "{stdout}");
+    assert!(
+        stdout.starts_with("u,v\n") && stdout.lines().count() == 6,
+        "{stdout}"
+    );
 }
 
 #[test]
@@ -145,10 +197,18 @@ fn a_folder_as_output_is_refused_by_name() {
     let s = scene(5);
     let folder = s.path("out");
     std::fs::create_dir(&folder).unwrap();
-    let o = s.project(&["--points", s.points.to_str().unwrap(), "-o", folder.to_str().unwrap()]);
+    let o = s.project(&[
+        "--points",
+        s.points.to_str().unwrap(),
+        "-o",
+        folder.to_str().unwrap(),
+    ]);
     assert!(!o.status.success());
     let stderr = text(&o.stderr);
-    assert!(stderr.contains("folder") && stderr.contains(folder.to_str().unwrap()), "{stderr}");
+    assert!(
+        stderr.contains("folder") && stderr.contains(folder.to_str().unwrap()),
+        "{stderr}"
+    );
 }
 
 /// An OS error's text appears once in a message.
@@ -165,11 +225,28 @@ fn os_error_text_is_not_repeated() {
 fn interrupted_by(signal: &str, expected_code: i32) {
     let s = scene(0);
     let fifo = s.path("input.fifo");
-    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    assert!(
+        Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
     let out = s.path("out.csv");
     let mut child = bin()
-        .args(["project", "--device", "cpu", "--rig", s.rig.to_str().unwrap()])
-        .args(["--points", fifo.to_str().unwrap(), "-o", out.to_str().unwrap()])
+        .args([
+            "project",
+            "--device",
+            "cpu",
+            "--rig",
+            s.rig.to_str().unwrap(),
+        ])
+        .args([
+            "--points",
+            fifo.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
@@ -179,18 +256,36 @@ fn interrupted_by(signal: &str, expected_code: i32) {
     // Wait until the command has its temporary file open.
     let start = Instant::now();
     while !names(s.dir.path()).iter().any(|n| n.ends_with(".tmp")) {
-        assert!(start.elapsed() < Duration::from_secs(30), "no temporary file appeared");
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "no temporary file appeared"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
     let pid = child.id().to_string();
-    assert!(Command::new("kill").args(["-s", signal, &pid]).status().unwrap().success());
+    assert!(
+        Command::new("kill")
+            .args(["-s", signal, &pid])
+            .status()
+            .unwrap()
+            .success()
+    );
     let status = child.wait().unwrap();
     drop(writer);
     let mut stderr = String::new();
-    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
     assert_eq!(status.code(), Some(expected_code), "{signal}: {stderr}");
     assert!(stderr.contains("interrupted"), "{stderr}");
-    assert_eq!(names(s.dir.path()), ["input.fifo", "points.csv", "rig.json"], "{signal} left files behind");
+    assert_eq!(
+        names(s.dir.path()),
+        ["input.fifo", "points.csv", "rig.json"],
+        "{signal} left files behind"
+    );
 }
 
 #[test]
@@ -214,7 +309,15 @@ fn standard_input_to_standard_output_is_read_once() {
     let points = std::fs::read(&s.points).unwrap();
     for input in ["-", "/dev/stdin"] {
         let mut child = bin()
-            .args(["project", "--device", "cpu", "--rig", s.rig.to_str().unwrap(), "--points", input])
+            .args([
+                "project",
+                "--device",
+                "cpu",
+                "--rig",
+                s.rig.to_str().unwrap(),
+                "--points",
+                input,
+            ])
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -235,11 +338,23 @@ fn a_fifo_input_to_standard_output_is_read_once() {
     // What `--points <(generate)` hands the command: a pipe that can be read once.
     let s = scene(1000);
     let fifo = s.path("points.fifo");
-    assert!(Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+    assert!(
+        Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
     let points = std::fs::read(&s.points).unwrap();
     let feeder = {
         let fifo = fifo.clone();
-        std::thread::spawn(move || std::fs::OpenOptions::new().write(true).open(&fifo).unwrap().write_all(&points))
+        std::thread::spawn(move || {
+            std::fs::OpenOptions::new()
+                .write(true)
+                .open(&fifo)
+                .unwrap()
+                .write_all(&points)
+        })
     };
     let o = s.project(&["--points", fifo.to_str().unwrap()]);
     feeder.join().unwrap().unwrap();
@@ -251,13 +366,26 @@ fn a_fifo_input_to_standard_output_is_read_once() {
 fn a_bad_row_from_standard_input_writes_nothing_to_standard_output() {
     let s = scene(0);
     let mut child = bin()
-        .args(["project", "--device", "cpu", "--rig", s.rig.to_str().unwrap(), "--points", "-"])
+        .args([
+            "project",
+            "--device",
+            "cpu",
+            "--rig",
+            s.rig.to_str().unwrap(),
+            "--points",
+            "-",
+        ])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    child.stdin.take().unwrap().write_all(b"x,y,z\n0,0,1\n0,0,1\n0,zero,1\n").unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(b"x,y,z\n0,0,1\n0,0,1\n0,zero,1\n")
+        .unwrap();
     let o = child.wait_with_output().unwrap();
     assert!(!o.status.success());
     assert!(o.stdout.is_empty(), "wrote {:?}", text(&o.stdout));
@@ -269,7 +397,13 @@ fn a_bad_row_from_standard_input_writes_nothing_to_standard_output() {
 fn a_closed_standard_output_ends_quietly() {
     let s = scene(300_000);
     let mut child = bin()
-        .args(["project", "--device", "cpu", "--rig", s.rig.to_str().unwrap()])
+        .args([
+            "project",
+            "--device",
+            "cpu",
+            "--rig",
+            s.rig.to_str().unwrap(),
+        ])
         .args(["--points", s.points.to_str().unwrap()])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -283,7 +417,10 @@ fn a_closed_standard_output_ends_quietly() {
     let o = child.wait_with_output().unwrap();
     let stderr = text(&o.stderr);
     assert_eq!(o.status.code(), Some(141), "{stderr}");
-    assert!(!stderr.contains("Broken pipe") && !stderr.contains("error"), "{stderr}");
+    assert!(
+        !stderr.contains("Broken pipe") && !stderr.contains("error"),
+        "{stderr}"
+    );
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
 
@@ -301,5 +438,9 @@ fn a_closed_standard_output_of_a_summary_ends_quietly() {
     let o = child.wait_with_output().unwrap();
     let stderr = text(&o.stderr);
     assert!(!stderr.contains("panicked"), "{stderr}");
-    assert!(matches!(o.status.code(), Some(0) | Some(141)), "{:?} {stderr}", o.status);
+    assert!(
+        matches!(o.status.code(), Some(0) | Some(141)),
+        "{:?} {stderr}",
+        o.status
+    );
 }

@@ -25,34 +25,61 @@ const RELATIVE: f64 = 1e-12;
 
 fn engines() -> [(CpuEngine, CpuEngine); 2] {
     [
-        (CpuEngine::with_path(Some(1), CpuPath::Scalar), CpuEngine::with_path(Some(1), CpuPath::Vector)),
-        (CpuEngine::with_path(Some(2), CpuPath::Scalar), CpuEngine::with_path(Some(2), CpuPath::Vector)),
+        (
+            CpuEngine::with_path(Some(1), CpuPath::Scalar),
+            CpuEngine::with_path(Some(1), CpuPath::Vector),
+        ),
+        (
+            CpuEngine::with_path(Some(2), CpuPath::Scalar),
+            CpuEngine::with_path(Some(2), CpuPath::Vector),
+        ),
     ]
 }
 
 /// Rows that differ between the two paths, as messages; and the number of rows not bit for bit equal.
-fn compare<const M: usize>(what: &str, input: &[impl std::fmt::Debug], scalar: (&[[f64; M]], &[u32]), vector: (&[[f64; M]], &[u32])) -> (Vec<String>, usize) {
+fn compare<const M: usize>(
+    what: &str,
+    input: &[impl std::fmt::Debug],
+    scalar: (&[[f64; M]], &[u32]),
+    vector: (&[[f64; M]], &[u32]),
+) -> (Vec<String>, usize) {
     let mut wrong = Vec::new();
     let mut inexact = 0;
     for (i, row) in input.iter().enumerate() {
         let (a, b) = ((scalar.0[i], scalar.1[i]), (vector.0[i], vector.1[i]));
         if a.1 != b.1 {
-            wrong.push(format!("{what} row {i} {row:?}: status {} (scalar) vs {} (vector)", a.1, b.1));
+            wrong.push(format!(
+                "{what} row {i} {row:?}: status {} (scalar) vs {} (vector)",
+                a.1, b.1
+            ));
             continue;
         }
         if a.1 != 0 {
             if !b.0.iter().all(|x| x.is_nan()) {
-                wrong.push(format!("{what} row {i} {row:?}: status {} with numbers {:?}", b.1, b.0));
+                wrong.push(format!(
+                    "{what} row {i} {row:?}: status {} with numbers {:?}",
+                    b.1, b.0
+                ));
             }
             continue;
         }
-        if a.0.iter().zip(&b.0).any(|(x, y)| x.to_bits() != y.to_bits()) {
+        if a.0
+            .iter()
+            .zip(&b.0)
+            .any(|(x, y)| x.to_bits() != y.to_bits())
+        {
             inexact += 1;
         }
         for (x, y) in a.0.iter().zip(&b.0) {
             // Written so that a NaN on either side fails.
-            if (x - y).abs().partial_cmp(&(RELATIVE * x.abs().max(1.0))) != Some(std::cmp::Ordering::Less) && x != y {
-                wrong.push(format!("{what} row {i} {row:?}: {:?} (scalar) vs {:?} (vector)", a.0, b.0));
+            if (x - y).abs().partial_cmp(&(RELATIVE * x.abs().max(1.0)))
+                != Some(std::cmp::Ordering::Less)
+                && x != y
+            {
+                wrong.push(format!(
+                    "{what} row {i} {row:?}: {:?} (scalar) vs {:?} (vector)",
+                    a.0, b.0
+                ));
                 break;
             }
         }
@@ -62,11 +89,17 @@ fn compare<const M: usize>(what: &str, input: &[impl std::fmt::Debug], scalar: (
 
 /// Pixels over the image and far beyond it, with special values.
 fn pixels_for(camera: &RefractiveCamera, rng: &mut Rng, random: usize) -> Vec<[f64; 2]> {
-    let (w, h) = (camera.intrinsics().width as f64, camera.intrinsics().height as f64);
+    let (w, h) = (
+        camera.intrinsics().width as f64,
+        camera.intrinsics().height as f64,
+    );
     let mut pixels = Vec::new();
     for i in 0..=40 {
         for j in 0..=32 {
-            pixels.push([-0.6 * w + 2.2 * w * i as f64 / 40.0, -0.6 * h + 2.2 * h * j as f64 / 32.0]);
+            pixels.push([
+                -0.6 * w + 2.2 * w * i as f64 / 40.0,
+                -0.6 * h + 2.2 * h * j as f64 / 32.0,
+            ]);
         }
     }
     for _ in 0..random {
@@ -112,7 +145,13 @@ fn points_for(camera: &RefractiveCamera, pixels: &[[f64; 2]], rng: &mut Rng) -> 
         points.push([100.0 * s, 0.0, s]);
         points.push([0.0, 0.0, s]);
     }
-    points.extend([[f64::NAN, 0.0, 1.0], [0.0, 0.0, f64::INFINITY], [2e300, 0.0, 1.0], [0.0, 0.0, -1.0], [1e-300, 0.0, 2.0]]);
+    points.extend([
+        [f64::NAN, 0.0, 1.0],
+        [0.0, 0.0, f64::INFINITY],
+        [2e300, 0.0, 1.0],
+        [0.0, 0.0, -1.0],
+        [1e-300, 0.0, 2.0],
+    ]);
     points
 }
 
@@ -124,7 +163,12 @@ fn matches_for(fixture: &Fixture, points: &[[f64; 3]], rng: &mut Rng) -> Vec<[f6
         .filter_map(|p| {
             let p = Point3::from(*p);
             let (pa, pb) = (a.project(&p).ok()?, b.project(&p).ok()?);
-            Some([pa.x + rng.uniform(-0.3, 0.3), pa.y, pb.x, pb.y + rng.uniform(-0.3, 0.3)])
+            Some([
+                pa.x + rng.uniform(-0.3, 0.3),
+                pa.y,
+                pb.x,
+                pb.y + rng.uniform(-0.3, 0.3),
+            ])
         })
         .collect();
     // Each pixel with a random partner (no common point: rays that diverge or miss), and specials.
@@ -132,7 +176,13 @@ fn matches_for(fixture: &Fixture, points: &[[f64; 3]], rng: &mut Rng) -> Vec<[f6
         let j = (i * 7 + 3) % matches.len();
         matches.push([matches[i][0], matches[i][1], matches[j][2], matches[j][3]]);
     }
-    matches.extend([[640.0, 512.0, 640.0, 512.0], [f64::NAN, 1.0, 2.0, 3.0], [1.0, 2.0, 3.0, 1e301], [1e6, 0.0, 600.0, 500.0], [500.0, 400.0, -1e7, 0.0]]);
+    matches.extend([
+        [640.0, 512.0, 640.0, 512.0],
+        [f64::NAN, 1.0, 2.0, 3.0],
+        [1.0, 2.0, 3.0, 1e301],
+        [1e6, 0.0, 600.0, 500.0],
+        [500.0, 400.0, -1e7, 0.0],
+    ]);
     matches
 }
 
@@ -151,30 +201,66 @@ fn check_fixture(fixture: &Fixture, seed: u64, random: usize) -> (Vec<String>, u
         for (k, camera) in cameras.iter().enumerate() {
             let pixels = pixels_for(camera, &mut rng, random);
             let n = pixels.len();
-            let (mut r0, mut s0, mut r1, mut s1) = (vec![[0.0; 6]; n], vec![0; n], vec![[0.0; 6]; n], vec![0; n]);
+            let (mut r0, mut s0, mut r1, mut s1) =
+                (vec![[0.0; 6]; n], vec![0; n], vec![[0.0; 6]; n], vec![0; n]);
             scalar.backproject(camera, &pixels, &mut r0, &mut s0);
             vector.backproject(camera, &pixels, &mut r1, &mut s1);
-            record(compare(&format!("{} camera {k} backproject", fixture.name), &pixels, (&r0, &s0), (&r1, &s1)), n);
+            record(
+                compare(
+                    &format!("{} camera {k} backproject", fixture.name),
+                    &pixels,
+                    (&r0, &s0),
+                    (&r1, &s1),
+                ),
+                n,
+            );
 
             let points = points_for(camera, &pixels, &mut rng);
             let n = points.len();
-            let (mut p0, mut s0, mut p1, mut s1) = (vec![[0.0; 2]; n], vec![0; n], vec![[0.0; 2]; n], vec![0; n]);
+            let (mut p0, mut s0, mut p1, mut s1) =
+                (vec![[0.0; 2]; n], vec![0; n], vec![[0.0; 2]; n], vec![0; n]);
             scalar.project(camera, &points, &mut p0, &mut s0);
             vector.project(camera, &points, &mut p1, &mut s1);
-            record(compare(&format!("{} camera {k} project", fixture.name), &points, (&p0, &s0), (&p1, &s1)), n);
+            record(
+                compare(
+                    &format!("{} camera {k} project", fixture.name),
+                    &points,
+                    (&p0, &s0),
+                    (&p1, &s1),
+                ),
+                n,
+            );
 
-            let (mut v0, mut s0, mut v1, mut s1) = (vec![[0.0; 6]; n], vec![0; n], vec![[0.0; 6]; n], vec![0; n]);
+            let (mut v0, mut s0, mut v1, mut s1) =
+                (vec![[0.0; 6]; n], vec![0; n], vec![[0.0; 6]; n], vec![0; n]);
             scalar.vop(camera, &points, &mut v0, &mut s0);
             vector.vop(camera, &points, &mut v1, &mut s1);
-            record(compare(&format!("{} camera {k} vop", fixture.name), &points, (&v0, &s0), (&v1, &s1)), n);
+            record(
+                compare(
+                    &format!("{} camera {k} vop", fixture.name),
+                    &points,
+                    (&v0, &s0),
+                    (&v1, &s1),
+                ),
+                n,
+            );
 
             if k == 0 {
                 let matches = matches_for(fixture, &points, &mut rng);
                 let n = matches.len();
-                let (mut t0, mut s0, mut t1, mut s1) = (vec![[0.0; 4]; n], vec![0; n], vec![[0.0; 4]; n], vec![0; n]);
+                let (mut t0, mut s0, mut t1, mut s1) =
+                    (vec![[0.0; 4]; n], vec![0; n], vec![[0.0; 4]; n], vec![0; n]);
                 scalar.triangulate(&cameras[0], &cameras[1], &matches, &mut t0, &mut s0);
                 vector.triangulate(&cameras[0], &cameras[1], &matches, &mut t1, &mut s1);
-                record(compare(&format!("{} triangulate", fixture.name), &matches, (&t0, &s0), (&t1, &s1)), n);
+                record(
+                    compare(
+                        &format!("{} triangulate", fixture.name),
+                        &matches,
+                        (&t0, &s0),
+                        (&t1, &s1),
+                    ),
+                    n,
+                );
             }
         }
     }
@@ -196,21 +282,46 @@ fn vector_path_equals_the_scalar_model_on_every_oracle_configuration() {
         let pixels = pixels_for(&camera, &mut rng, 0);
         let points = points_for(&camera, &pixels, &mut rng);
         for p in &points {
-            statuses.insert(camera.project(&Point3::from(*p)).err().map_or(0, NoSolution::code));
+            statuses.insert(
+                camera
+                    .project(&Point3::from(*p))
+                    .err()
+                    .map_or(0, NoSolution::code),
+            );
         }
         for p in &pixels {
-            statuses.insert(camera.backproject(&Point2::new(p[0], p[1])).err().map_or(0, NoSolution::code));
+            statuses.insert(
+                camera
+                    .backproject(&Point2::new(p[0], p[1]))
+                    .err()
+                    .map_or(0, NoSolution::code),
+            );
         }
     }
-    eprintln!("{rows} rows compared, {inexact} not bit for bit equal; statuses reached: {statuses:?}");
-    assert!(wrong.is_empty(), "{} of {rows} rows differ, e.g.:\n{}", wrong.len(), wrong.iter().take(20).cloned().collect::<Vec<_>>().join("\n"));
+    eprintln!(
+        "{rows} rows compared, {inexact} not bit for bit equal; statuses reached: {statuses:?}"
+    );
+    assert!(
+        wrong.is_empty(),
+        "{} of {rows} rows differ, e.g.:\n{}",
+        wrong.len(),
+        wrong
+            .iter()
+            .take(20)
+            .cloned()
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
     // Stronger than the bound, and what the lanes are written for: the same IEEE operations in the
     // same order round the same way, so every answer is bit for bit the scalar one. (Should a
     // faster formulation ever reorder them, this line goes and the 1e-12 bound above stays.)
     assert_eq!(inexact, 0, "rows not bit for bit equal to the scalar model");
     // The inputs must reach every reason a single camera can give (6 and 7 are stereo/rare).
     for code in [0, 1, 2, 3, 4, 5, 8] {
-        assert!(statuses.contains(&code), "no input reached status {code}: {statuses:?}");
+        assert!(
+            statuses.contains(&code),
+            "no input reached status {code}: {statuses:?}"
+        );
     }
 }
 
@@ -232,16 +343,33 @@ proptest! {
 #[test]
 fn the_lanes_answer_ordinary_rows_themselves() {
     use flatport::engine::{simd, workload::Workload};
-    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/data/example_rig.json")).unwrap();
-    let rig = flatport::io::rig_from_json_str(&text, std::path::Path::new("example_rig.json")).unwrap();
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/data/example_rig.json"
+    ))
+    .unwrap();
+    let rig =
+        flatport::io::rig_from_json_str(&text, std::path::Path::new("example_rig.json")).unwrap();
     let n = 20_000;
     let work = Workload::new(&rig, n);
     let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
     let mut status = vec![0; n];
-    assert_eq!(simd::backproject(&a, &work.pixels, &mut vec![[0.0; 6]; n], &mut status), 0);
-    assert_eq!(simd::project(&a, &work.points, &mut vec![[0.0; 2]; n], &mut status), 0);
-    assert_eq!(simd::triangulate(&a, &b, &work.matches, &mut vec![[0.0; 4]; n], &mut status), 0);
-    assert_eq!(simd::vop(&a, &work.points, &mut vec![[0.0; 6]; n], &mut status), 0);
+    assert_eq!(
+        simd::backproject(&a, &work.pixels, &mut vec![[0.0; 6]; n], &mut status),
+        0
+    );
+    assert_eq!(
+        simd::project(&a, &work.points, &mut vec![[0.0; 2]; n], &mut status),
+        0
+    );
+    assert_eq!(
+        simd::triangulate(&a, &b, &work.matches, &mut vec![[0.0; 4]; n], &mut status),
+        0
+    );
+    assert_eq!(
+        simd::vop(&a, &work.points, &mut vec![[0.0; 6]; n], &mut status),
+        0
+    );
 }
 
 #[test]
@@ -251,13 +379,18 @@ fn empty_and_short_batches() {
     let vector = CpuEngine::with_path(Some(1), CpuPath::Vector);
     vector.backproject(&camera, &[], &mut [], &mut []);
     for n in 1..=17 {
-        let pixels: Vec<[f64; 2]> = (0..n).map(|i| [100.0 + 50.0 * i as f64, 200.0 + 30.0 * i as f64]).collect();
+        let pixels: Vec<[f64; 2]> = (0..n)
+            .map(|i| [100.0 + 50.0 * i as f64, 200.0 + 30.0 * i as f64])
+            .collect();
         let (mut rays, mut status) = (vec![[0.0; 6]; n], vec![9; n]);
         vector.backproject(&camera, &pixels, &mut rays, &mut status);
         for (i, p) in pixels.iter().enumerate() {
             let ray = camera.backproject(&Point2::new(p[0], p[1])).unwrap();
             assert_eq!(status[i], 0);
-            assert!((ray.origin.x - rays[i][0]).abs() < 1e-15 && (ray.dir.z - rays[i][5]).abs() < 1e-15, "n = {n}, row {i}");
+            assert!(
+                (ray.origin.x - rays[i][0]).abs() < 1e-15 && (ray.dir.z - rays[i][5]).abs() < 1e-15,
+                "n = {n}, row {i}"
+            );
         }
     }
 }

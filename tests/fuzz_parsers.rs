@@ -8,8 +8,8 @@ use std::path::Path;
 
 use flatport::io::npy::npy_from_bytes;
 use flatport::io::{
-    TableReader, observations_from_json_str, parse_opencv_stereo, read_observations, read_rig, read_table_from, read_truth,
-    rig_from_json_str,
+    TableReader, observations_from_json_str, parse_opencv_stereo, read_observations, read_rig,
+    read_table_from, read_truth, rig_from_json_str,
 };
 use proptest::prelude::*;
 
@@ -79,9 +79,42 @@ const CSV: &str = "x,y,z\n0.1,0.2,1\n\n-0.3, 0.25 ,2.5e0\n\"1\",2,3\r\n4,5,6";
 
 /// Tokens that the formats give meaning to, spliced in by the mutations.
 const TOKENS: &[&str] = &[
-    "null", "[", "]", "{", "}", "\"", ",", ":", "-", "1e999", "-0", "NaN", "inf", ".Nan", "\u{feff}", "\n", "\r\n", " ", "\t",
-    "#", "%YAML:1.0", "---", "!!opencv-matrix", "rows: 3", "dt: d", "data: [", "\"cameras\": [", "\"translation\":",
-    "18446744073709551615", "99999999999999999999999", "0.", "\\u0000", "\u{ff}", "é", "'shape': (", "'descr': '<f8'",
+    "null",
+    "[",
+    "]",
+    "{",
+    "}",
+    "\"",
+    ",",
+    ":",
+    "-",
+    "1e999",
+    "-0",
+    "NaN",
+    "inf",
+    ".Nan",
+    "\u{feff}",
+    "\n",
+    "\r\n",
+    " ",
+    "\t",
+    "#",
+    "%YAML:1.0",
+    "---",
+    "!!opencv-matrix",
+    "rows: 3",
+    "dt: d",
+    "data: [",
+    "\"cameras\": [",
+    "\"translation\":",
+    "18446744073709551615",
+    "99999999999999999999999",
+    "0.",
+    "\\u0000",
+    "\u{ff}",
+    "é",
+    "'shape': (",
+    "'descr': '<f8'",
 ];
 
 /// One edit of a byte string; positions are fractions of its length, so they apply to any input.
@@ -102,7 +135,11 @@ fn mutation() -> impl Strategy<Value = Mutation> {
         (at.clone(), any::<u8>()).prop_map(|(at, byte)| Mutation::Insert { at, byte }),
         (at.clone(), 1usize..16).prop_map(|(at, len)| Mutation::Delete { at, len }),
         (at.clone(), 0..TOKENS.len()).prop_map(|(at, token)| Mutation::Token { at, token }),
-        (at.clone(), 1usize..64, at.clone()).prop_map(|(from, len, to)| Mutation::Duplicate { from, len, to }),
+        (at.clone(), 1usize..64, at.clone()).prop_map(|(from, len, to)| Mutation::Duplicate {
+            from,
+            len,
+            to
+        }),
         at.prop_map(|at| Mutation::Truncate { at }),
     ]
 }
@@ -149,15 +186,22 @@ fn mutated(seed: &'static [u8]) -> impl Strategy<Value = Vec<u8>> {
 
 /// Random bytes, some of them starting like the format.
 fn random_bytes(prefix: &'static [u8]) -> impl Strategy<Value = Vec<u8>> {
-    (any::<bool>(), proptest::collection::vec(any::<u8>(), 0..512)).prop_map(move |(keep, tail)| {
-        let mut bytes = if keep { prefix.to_vec() } else { Vec::new() };
-        bytes.extend(tail);
-        bytes
-    })
+    (
+        any::<bool>(),
+        proptest::collection::vec(any::<u8>(), 0..512),
+    )
+        .prop_map(move |(keep, tail)| {
+            let mut bytes = if keep { prefix.to_vec() } else { Vec::new() };
+            bytes.extend(tail);
+            bytes
+        })
 }
 
 fn cases(default: u32) -> u32 {
-    std::env::var("FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(default)
+    std::env::var("FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
 }
 
 /// Every CSV table shape the commands read.
@@ -250,8 +294,16 @@ fn seeds_are_valid() {
     rig_from_json_str(RIG, Path::new("rig.json")).unwrap();
     observations_from_json_str(OBSERVATIONS, Path::new("obs.json")).unwrap();
     parse_opencv_stereo(YAML, Path::new("stereo.yml")).unwrap();
-    assert_eq!(read_table_from(CSV.as_bytes(), Path::new("p.csv"), ["x", "y", "z"]).unwrap().len(), 4);
-    assert_eq!(npy_from_bytes(&NPY, Path::new("a.npy")).unwrap().0, vec![2, 3]);
+    assert_eq!(
+        read_table_from(CSV.as_bytes(), Path::new("p.csv"), ["x", "y", "z"])
+            .unwrap()
+            .len(),
+        4
+    );
+    assert_eq!(
+        npy_from_bytes(&NPY, Path::new("a.npy")).unwrap().0,
+        vec![2, 3]
+    );
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("truth.json");
     std::fs::write(&path, TRUTH).unwrap();

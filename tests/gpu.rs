@@ -10,11 +10,11 @@ mod common;
 mod gpu_harness;
 
 use common::*;
-use gpu_harness::{Random, engine, engine_with};
 use flatport::engine::CpuEngine;
 use flatport::gpu::shaders::{CPU_BOUNDS, CpuBounds, source};
 use flatport::gpu::{GpuEngine, Kernel, Precision, Reduction};
 use flatport::model::{NoSolution, RefractiveCamera, Rig};
+use gpu_harness::{Random, engine, engine_with};
 use nalgebra::{Point2, Vector3};
 
 // The build's validation, as build.rs compiles it (it names `super::CpuBounds`).
@@ -22,14 +22,25 @@ use nalgebra::{Point2, Vector3};
 mod wgsl;
 
 /// The capabilities a kernel composed at `precision` with `reduction` needs (as build.rs asks).
-fn capabilities(kernel: Kernel, precision: Precision, reduction: Reduction) -> naga::valid::Capabilities {
-    wgsl::capabilities(precision == Precision::F64, kernel.is_cost() && reduction == Reduction::Subgroup)
+fn capabilities(
+    kernel: Kernel,
+    precision: Precision,
+    reduction: Reduction,
+) -> naga::valid::Capabilities {
+    wgsl::capabilities(
+        precision == Precision::F64,
+        kernel.is_cost() && reduction == Reduction::Subgroup,
+    )
 }
 
 /// build.rs composes with a copy of the CPU's stopping rules: the same as the engine's.
 #[test]
 fn the_build_validates_the_texts_the_engine_compiles() {
-    assert_eq!(wgsl::CPU_BOUNDS_COPY, CPU_BOUNDS, "update CPU_BOUNDS_COPY in build/wgsl.rs");
+    assert_eq!(
+        wgsl::CPU_BOUNDS_COPY,
+        CPU_BOUNDS,
+        "update CPU_BOUNDS_COPY in build/wgsl.rs"
+    );
 }
 
 /// The texts the engine compiles: every kernel in f32 and f64 with both reductions, through the build's validation with no more
@@ -41,7 +52,12 @@ fn every_shader_parses_and_validates() {
             for reduction in [Reduction::Workgroup, Reduction::Subgroup] {
                 let precision = kernel.fixed_precision().unwrap_or(precision);
                 let name = format!("{} {precision} {reduction:?}", kernel.name());
-                wgsl::check(&name, &source(kernel, precision, reduction), capabilities(kernel, precision, reduction)).unwrap_or_else(|e| panic!("{e}"));
+                wgsl::check(
+                    &name,
+                    &source(kernel, precision, reduction),
+                    capabilities(kernel, precision, reduction),
+                )
+                .unwrap_or_else(|e| panic!("{e}"));
             }
         }
     }
@@ -54,16 +70,44 @@ fn every_shader_parses_and_validates() {
 fn broken_wgsl_is_an_error_naming_the_kernel() {
     let project = source(Kernel::Project, Precision::F32, Reduction::Workgroup);
     let cases = [
-        ("project f32 (missing semicolon)", project.replace("return;", "return"), "parse error"),
-        ("project f32 (u32 + f32)", project.replace("let i = item_index(gid, groups);", "let i = item_index(gid, groups) + 1.0;"), "validation error"),
-        ("project f32 (undeclared)", format!("{project}\nfn broken() -> real {{ return no_such_value; }}\n"), "parse error"),
-        ("project f64 (without FLOAT64)", source(Kernel::Project, Precision::F64, Reduction::Workgroup), "validation error"),
-        ("ray_gap_cost f32 subgroup (without SUBGROUP)", source(Kernel::RayGapCost, Precision::F32, Reduction::Subgroup), "validation error"),
+        (
+            "project f32 (missing semicolon)",
+            project.replace("return;", "return"),
+            "parse error",
+        ),
+        (
+            "project f32 (u32 + f32)",
+            project.replace(
+                "let i = item_index(gid, groups);",
+                "let i = item_index(gid, groups) + 1.0;",
+            ),
+            "validation error",
+        ),
+        (
+            "project f32 (undeclared)",
+            format!("{project}\nfn broken() -> real {{ return no_such_value; }}\n"),
+            "parse error",
+        ),
+        (
+            "project f64 (without FLOAT64)",
+            source(Kernel::Project, Precision::F64, Reduction::Workgroup),
+            "validation error",
+        ),
+        (
+            "ray_gap_cost f32 subgroup (without SUBGROUP)",
+            source(Kernel::RayGapCost, Precision::F32, Reduction::Subgroup),
+            "validation error",
+        ),
     ];
     for (name, text, kind) in cases {
         assert_ne!(text, project, "{name}: the case changes the kernel");
-        let error = wgsl::check(name, &text, wgsl::capabilities(false, false)).err().unwrap_or_else(|| panic!("{name} validated"));
-        assert!(error.starts_with(&format!("{name}: WGSL {kind}")), "{name}: {error}");
+        let error = wgsl::check(name, &text, wgsl::capabilities(false, false))
+            .err()
+            .unwrap_or_else(|| panic!("{name} validated"));
+        assert!(
+            error.starts_with(&format!("{name}: WGSL {kind}")),
+            "{name}: {error}"
+        );
     }
     let fine = wgsl::check("project f32", &project, wgsl::capabilities(false, false));
     assert!(fine.is_ok(), "{:?}", fine.err());
@@ -71,9 +115,19 @@ fn broken_wgsl_is_an_error_naming_the_kernel() {
 
 /// The offset of `field` in naga's layout of struct `name`.
 fn member_offset(module: &naga::Module, name: &str, field: &str) -> usize {
-    let (_, ty) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("struct {name}"));
-    let naga::TypeInner::Struct { members, .. } = &ty.inner else { panic!("{name} is a struct") };
-    members.iter().find(|m| m.name.as_deref() == Some(field)).unwrap_or_else(|| panic!("{name}.{field}")).offset as usize
+    let (_, ty) = module
+        .types
+        .iter()
+        .find(|(_, t)| t.name.as_deref() == Some(name))
+        .unwrap_or_else(|| panic!("struct {name}"));
+    let naga::TypeInner::Struct { members, .. } = &ty.inner else {
+        panic!("{name} is a struct")
+    };
+    members
+        .iter()
+        .find(|m| m.name.as_deref() == Some(field))
+        .unwrap_or_else(|| panic!("{name}.{field}"))
+        .offset as usize
 }
 
 /// The host mirrors have naga's sizes and field offsets (WGSL's layout rules) in both precisions.
@@ -86,11 +140,20 @@ fn host_mirrors_have_the_wgsl_layout() {
     }
     for precision in [Precision::F32, Precision::F64] {
         let text = source(Kernel::Project, precision, Reduction::Workgroup);
-        let module = wgsl::check("project", &text, capabilities(Kernel::Project, precision, Reduction::Workgroup)).unwrap_or_else(|e| panic!("{e}"));
+        let module = wgsl::check(
+            "project",
+            &text,
+            capabilities(Kernel::Project, precision, Reduction::Workgroup),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
         let mut layouter = naga::proc::Layouter::default();
         layouter.update(module.to_ctx()).unwrap();
         let size = |name: &str| {
-            let (handle, _) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap_or_else(|| panic!("struct {name}"));
+            let (handle, _) = module
+                .types
+                .iter()
+                .find(|(_, t)| t.name.as_deref() == Some(name))
+                .unwrap_or_else(|| panic!("struct {name}"));
             layouter[handle].size as usize
         };
         let (camera_size, params_size, camera, params) = match precision {
@@ -110,29 +173,60 @@ fn host_mirrors_have_the_wgsl_layout() {
         assert_eq!(camera_size, size("Camera"), "{precision} Camera size");
         assert_eq!(params_size, size("Params"), "{precision} Params size");
         for (field, offset) in camera {
-            assert_eq!(offset, member_offset(&module, "Camera", field), "{precision} Camera.{field}");
+            assert_eq!(
+                offset,
+                member_offset(&module, "Camera", field),
+                "{precision} Camera.{field}"
+            );
         }
         for (field, offset) in params {
-            assert_eq!(offset, member_offset(&module, "Params", field), "{precision} Params.{field}");
+            assert_eq!(
+                offset,
+                member_offset(&module, "Params", field),
+                "{precision} Params.{field}"
+            );
         }
         // Every WGSL member is mirrored, in order (the mirrors add only `end_padding`).
         for name in ["Camera", "Params"] {
-            let (_, ty) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some(name)).unwrap();
-            let naga::TypeInner::Struct { members, .. } = &ty.inner else { unreachable!() };
+            let (_, ty) = module
+                .types
+                .iter()
+                .find(|(_, t)| t.name.as_deref() == Some(name))
+                .unwrap();
+            let naga::TypeInner::Struct { members, .. } = &ty.inner else {
+                unreachable!()
+            };
             let wgsl: Vec<&str> = members.iter().filter_map(|m| m.name.as_deref()).collect();
-            let host: Vec<&str> = if name == "Camera" { camera.iter().map(|(f, _)| *f).collect() } else { params.iter().map(|(f, _)| *f).collect() };
+            let host: Vec<&str> = if name == "Camera" {
+                camera.iter().map(|(f, _)| *f).collect()
+            } else {
+                params.iter().map(|(f, _)| *f).collect()
+            };
             assert_eq!(wgsl, host, "{precision} {name} members");
         }
-        let (_, ty) = module.types.iter().find(|(_, t)| t.name.as_deref() == Some("Params")).unwrap();
-        let naga::TypeInner::Struct { members, .. } = &ty.inner else { unreachable!() };
-        let naga::TypeInner::Array { stride, .. } = module.types[members[0].ty].inner else { panic!("Params.cams is an array") };
-        assert_eq!(stride as usize, camera_size, "{precision} Params.cams stride");
+        let (_, ty) = module
+            .types
+            .iter()
+            .find(|(_, t)| t.name.as_deref() == Some("Params"))
+            .unwrap();
+        let naga::TypeInner::Struct { members, .. } = &ty.inner else {
+            unreachable!()
+        };
+        let naga::TypeInner::Array { stride, .. } = module.types[members[0].ty].inner else {
+            panic!("Params.cams is an array")
+        };
+        assert_eq!(
+            stride as usize, camera_size,
+            "{precision} Params.cams stride"
+        );
     }
 }
 
 /// Random raw pixels over the image and a margin around it (some beyond the lens fold).
 fn random_pixels(random: &mut Random, n: usize) -> Vec<[f64; 2]> {
-    (0..n).map(|_| [random.range(-300.0, 1580.0), random.range(-300.0, 1324.0)]).collect()
+    (0..n)
+        .map(|_| [random.range(-300.0, 1580.0), random.range(-300.0, 1324.0)])
+        .collect()
 }
 
 /// Random points: mostly in the water in view of `camera`, some in the air or behind it.
@@ -142,7 +236,11 @@ fn random_points(random: &mut Random, camera: &RefractiveCamera, n: usize) -> Ve
             let pixel = Point2::new(random.range(0.0, 1280.0), random.range(0.0, 1024.0));
             match camera.backproject(&pixel) {
                 Ok(ray) if k % 10 != 0 => ray.point_at(random.range(1e-3, 6.0)).coords.into(),
-                _ => [random.range(-2.0, 2.0), random.range(-2.0, 2.0), random.range(-0.5, 4.0)],
+                _ => [
+                    random.range(-2.0, 2.0),
+                    random.range(-2.0, 2.0),
+                    random.range(-0.5, 4.0),
+                ],
             }
         })
         .collect()
@@ -150,7 +248,13 @@ fn random_points(random: &mut Random, camera: &RefractiveCamera, n: usize) -> Ve
 
 /// Largest |gpu − cpu| and largest |gpu − cpu| / max(1, |cpu|) over columns `cols` of rows both
 /// answered; panics on a status disagreement beyond `allowed` rows.
-fn compare<const M: usize>(what: &str, cpu: (&[[f64; M]], &[u32]), gpu: (&[[f64; M]], &[u32]), cols: std::ops::Range<usize>, allowed: usize) -> (f64, f64) {
+fn compare<const M: usize>(
+    what: &str,
+    cpu: (&[[f64; M]], &[u32]),
+    gpu: (&[[f64; M]], &[u32]),
+    cols: std::ops::Range<usize>,
+    allowed: usize,
+) -> (f64, f64) {
     let (mut abs, mut rel, mut disagreements) = (0.0f64, 0.0f64, 0);
     let mut codes = std::collections::BTreeSet::new();
     for ((c, cs), (g, gs)) in cpu.0.iter().zip(cpu.1).zip(gpu.0.iter().zip(gpu.1)) {
@@ -160,7 +264,10 @@ fn compare<const M: usize>(what: &str, cpu: (&[[f64; M]], &[u32]), gpu: (&[[f64;
             continue;
         }
         if *cs != 0 {
-            assert!(g.iter().all(|v| v.is_nan()), "{what}: rows without an answer are NaN");
+            assert!(
+                g.iter().all(|v| v.is_nan()),
+                "{what}: rows without an answer are NaN"
+            );
             continue;
         }
         for k in cols.clone() {
@@ -169,7 +276,10 @@ fn compare<const M: usize>(what: &str, cpu: (&[[f64; M]], &[u32]), gpu: (&[[f64;
             rel = rel.max(d / c[k].abs().max(1.0));
         }
     }
-    assert!(disagreements <= allowed, "{what}: {disagreements} statuses differ (allowed {allowed})");
+    assert!(
+        disagreements <= allowed,
+        "{what}: {disagreements} statuses differ (allowed {allowed})"
+    );
     assert!(codes.contains(&0), "{what}: the batch must have answers");
     (abs, rel)
 }
@@ -206,8 +316,10 @@ fn backproject_matches_cpu() {
             cpu.backproject(&camera, &pixels, &mut c, &mut cs);
             gpu.backproject(&camera, &pixels, &mut g, &mut gs).unwrap();
             let what = format!("backproject {precision} {name} camera {k}");
-            let (dir_abs, dir_rel) = compare(&what, (&c, &cs), (&g, &gs), 3..6, allowed(precision, N));
-            let (origin_abs, origin_rel) = compare(&what, (&c, &cs), (&g, &gs), 0..3, allowed(precision, N));
+            let (dir_abs, dir_rel) =
+                compare(&what, (&c, &cs), (&g, &gs), 3..6, allowed(precision, N));
+            let (origin_abs, origin_rel) =
+                compare(&what, (&c, &cs), (&g, &gs), 0..3, allowed(precision, N));
             println!("{what:60} |Δdir| {dir_abs:.1e}  |Δorigin| {origin_abs:.1e} m");
             match precision {
                 Precision::F32 => assert!(dir_abs < 2e-6 && origin_abs < 2e-6, "{what}"),
@@ -235,12 +347,21 @@ fn project_matches_cpu() {
             // Absolute pixel error over the image (1280 × 1024). Points seen at steeper angles
             // project far outside it, where the ill-conditioning of the refraction amplifies the
             // rounding of f32 inputs (about 2e-4 px at 65° incidence from the inputs alone).
-            let near_image = |p: &[f64; 2]| p[0] > 0.0 && p[0] < 1280.0 && p[1] > 0.0 && p[1] < 1024.0;
-            let in_view: Vec<usize> = (0..N).filter(|&i| cs[i] == 0 && gs[i] == 0 && near_image(&c[i])).collect();
+            let near_image =
+                |p: &[f64; 2]| p[0] > 0.0 && p[0] < 1280.0 && p[1] > 0.0 && p[1] < 1024.0;
+            let in_view: Vec<usize> = (0..N)
+                .filter(|&i| cs[i] == 0 && gs[i] == 0 && near_image(&c[i]))
+                .collect();
             assert!(in_view.len() > N / 2, "{what}: most points in view");
-            let abs = in_view.iter().map(|&i| (c[i][0] - g[i][0]).abs().max((c[i][1] - g[i][1]).abs())).fold(0.0, f64::max);
+            let abs = in_view
+                .iter()
+                .map(|&i| (c[i][0] - g[i][0]).abs().max((c[i][1] - g[i][1]).abs()))
+                .fold(0.0, f64::max);
             println!("{what:60} |Δpixel| {abs:.1e} px in the image (relative {rel:.1e} anywhere)");
-            assert!(cs.iter().any(|&s| s == NoSolution::NotInWater.code()), "{what}: batch has points out of the water");
+            assert!(
+                cs.iter().any(|&s| s == NoSolution::NotInWater.code()),
+                "{what}: batch has points out of the water"
+            );
             match precision {
                 Precision::F32 => assert!(abs < 1e-3, "{what}"),
                 Precision::F64 => assert!(rel < 1e-9, "{what}"),
@@ -275,15 +396,31 @@ fn vop_matches_cpu() {
 }
 
 /// Matches: the projections of random points in both cameras, with `noise` px added.
-fn random_matches(random: &mut Random, a: &RefractiveCamera, b: &RefractiveCamera, n: usize, noise: f64) -> Vec<[f64; 4]> {
+fn random_matches(
+    random: &mut Random,
+    a: &RefractiveCamera,
+    b: &RefractiveCamera,
+    n: usize,
+    noise: f64,
+) -> Vec<[f64; 4]> {
     let mut matches = Vec::with_capacity(n);
     while matches.len() < n {
         let p = random_points(random, a, 1)[0];
         let point = nalgebra::Point3::from(p);
         if let (Ok(pa), Ok(pb)) = (a.project(&point), b.project(&point)) {
-            matches.push([pa.x + noise * random.range(-1.0, 1.0), pa.y, pb.x + noise * random.range(-1.0, 1.0), pb.y]);
+            matches.push([
+                pa.x + noise * random.range(-1.0, 1.0),
+                pa.y,
+                pb.x + noise * random.range(-1.0, 1.0),
+                pb.y,
+            ]);
         } else if matches.len() % 50 == 0 {
-            matches.push([random.range(-500.0, 1800.0), random.range(-500.0, 1500.0), 600.0, 500.0]);
+            matches.push([
+                random.range(-500.0, 1800.0),
+                random.range(-500.0, 1500.0),
+                600.0,
+                500.0,
+            ]);
         }
     }
     matches
@@ -317,8 +454,13 @@ fn triangulate_and_binocular_vop_match_cpu() {
                         let rb = b.backproject(&Point2::new(m[2], m[3])).unwrap();
                         let p = nalgebra::Point3::new(c[i][0], c[i][1], c[i][2]);
                         let sin = ra.dir.cross(&rb.dir).norm();
-                        let bound = 2.0 * (2e-6 * ((p - ra.origin).norm() + (p - rb.origin).norm()) + 2.0 * 2e-6) / sin;
-                        let error = (0..4).map(|k| (g[i][k] - c[i][k]).abs()).fold(0.0, f64::max);
+                        let bound = 2.0
+                            * (2e-6 * ((p - ra.origin).norm() + (p - rb.origin).norm())
+                                + 2.0 * 2e-6)
+                            / sin;
+                        let error = (0..4)
+                            .map(|k| (g[i][k] - c[i][k]).abs())
+                            .fold(0.0, f64::max);
                         worst = worst.max(error / bound);
                     }
                     println!("{what:60} max |Δ| / bound {worst:.2}");
@@ -330,7 +472,8 @@ fn triangulate_and_binocular_vop_match_cpu() {
             let (mut c, mut cs) = (vec![[0.0; 8]; N], vec![0; N]);
             let (mut g, mut gs) = (vec![[0.0; 8]; N], vec![0; N]);
             cpu.binocular_vop(&a, &b, &matches, &mut c, &mut cs);
-            gpu.binocular_vop(&a, &b, &matches, &mut g, &mut gs).unwrap();
+            gpu.binocular_vop(&a, &b, &matches, &mut g, &mut gs)
+                .unwrap();
             let what = format!("binocular vop {precision} {name}");
             match precision {
                 Precision::F64 => {
@@ -344,7 +487,8 @@ fn triangulate_and_binocular_vop_match_cpu() {
                     let mut worst: f64 = 0.0;
                     for ((cr, csr), (gr, gsr)) in c.iter().zip(&cs).zip(g.iter().zip(&gs)) {
                         if *csr == 0 && *gsr == 0 && cr[7] >= 0.05 {
-                            let scale = 2e-6 * (1.0 + cr[0].abs() + cr[1].abs() + cr[2].abs()) / cr[7];
+                            let scale =
+                                2e-6 * (1.0 + cr[0].abs() + cr[1].abs() + cr[2].abs()) / cr[7];
                             for k in 0..7 {
                                 worst = worst.max((gr[k] - cr[k]).abs() / scale);
                             }
@@ -367,11 +511,14 @@ fn image_grid_backprojection_matches_pixel_buffer() {
         let camera = rig.refractive_camera(1);
         let (w, h) = (333u32, 211u32);
         let n = (w * h) as usize;
-        let pixels: Vec<[f64; 2]> = (0..h).flat_map(|v| (0..w).map(move |u| [u as f64, v as f64])).collect();
+        let pixels: Vec<[f64; 2]> = (0..h)
+            .flat_map(|v| (0..w).map(move |u| [u as f64, v as f64]))
+            .collect();
         let (mut c, mut cs) = (vec![[0.0; 6]; n], vec![0; n]);
         let (mut g, mut gs) = (vec![[0.0; 6]; n], vec![0; n]);
         cpu.backproject(&camera, &pixels, &mut c, &mut cs);
-        gpu.backproject_grid(&camera, w, h, &mut g, &mut gs).unwrap();
+        gpu.backproject_grid(&camera, w, h, &mut g, &mut gs)
+            .unwrap();
         let what = format!("backproject_grid {precision}");
         let (abs, rel) = compare(&what, (&c, &cs), (&g, &gs), 0..6, allowed(precision, n));
         println!("{what:60} max |Δ| {abs:.1e} (relative {rel:.1e})");
@@ -386,7 +533,9 @@ fn image_grid_backprojection_matches_pixel_buffer() {
 fn ray_gap_cost_matches_cpu_with_both_reductions() {
     let cpu = CpuEngine::new(None);
     for precision in [Precision::F32, Precision::F64] {
-        let Some(mut gpu) = engine(precision) else { return };
+        let Some(mut gpu) = engine(precision) else {
+            return;
+        };
         let mut random = Random(0x2545_F491_4F6C_DD1D);
         let (_, rig) = configurations().remove(2);
         let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
@@ -404,7 +553,9 @@ fn ray_gap_cost_matches_cpu_with_both_reductions() {
         let d0 = rig.interface().air_distance();
         let mut candidates: Vec<[f64; 4]> = (0..97)
             .map(|_| {
-                let n = (n0 + Vector3::new(random.range(-0.05, 0.05), random.range(-0.05, 0.05), 0.0)).normalize();
+                let n = (n0
+                    + Vector3::new(random.range(-0.05, 0.05), random.range(-0.05, 0.05), 0.0))
+                .normalize();
                 [n.x, n.y, n.z, d0 + random.range(-0.01, 0.01)]
             })
             .collect();
@@ -420,18 +571,26 @@ fn ray_gap_cost_matches_cpu_with_both_reductions() {
         for reduction in reductions {
             gpu.set_reduction(reduction).unwrap();
             let mut costs = vec![[0.0; 2]; candidates.len()];
-            gpu.ray_gap_cost(&rig, 0, 1, &air_rays, &candidates, &mut costs).unwrap();
+            gpu.ray_gap_cost(&rig, 0, 1, &air_rays, &candidates, &mut costs)
+                .unwrap();
             let mut worst: f64 = 0.0;
             for (c, g) in expected.iter().zip(&costs) {
                 match precision {
                     Precision::F64 => assert_eq!(c[1], g[1], "{reduction:?}: counts"),
-                    Precision::F32 => assert!((c[1] - g[1]).abs() <= c[1] / 500.0, "{reduction:?}: counts {} vs {}", c[1], g[1]),
+                    Precision::F32 => assert!(
+                        (c[1] - g[1]).abs() <= c[1] / 500.0,
+                        "{reduction:?}: counts {} vs {}",
+                        c[1],
+                        g[1]
+                    ),
                 }
                 if c[1] > 0.0 {
                     worst = worst.max((g[0] / g[1] - c[0] / c[1]).abs() / (c[0] / c[1]));
                 }
             }
-            println!("ray_gap_cost {precision} {reduction:?}: max relative |Δ mean residual²| {worst:.1e}");
+            println!(
+                "ray_gap_cost {precision} {reduction:?}: max relative |Δ mean residual²| {worst:.1e}"
+            );
             match precision {
                 Precision::F32 => assert!(worst < 1e-3),
                 Precision::F64 => assert!(worst < 1e-9),
@@ -456,17 +615,34 @@ fn statuses_match_where_the_cpu_has_no_answer() {
         let mut seen = std::collections::BTreeSet::new();
         for rig in &cases {
             let camera = rig.refractive_camera(0);
-            let pixels: Vec<[f64; 2]> = (0..60).flat_map(|i| (0..50).map(move |j| [-4000.0 + i as f64 * 157.3, -3000.0 + j as f64 * 143.1])).collect();
+            let pixels: Vec<[f64; 2]> = (0..60)
+                .flat_map(|i| {
+                    (0..50).map(move |j| [-4000.0 + i as f64 * 157.3, -3000.0 + j as f64 * 143.1])
+                })
+                .collect();
             let n = pixels.len();
             let (mut c, mut cs) = (vec![[0.0; 6]; n], vec![0; n]);
             let (mut g, mut gs) = (vec![[0.0; 6]; n], vec![0; n]);
             cpu.backproject(&camera, &pixels, &mut c, &mut cs);
             gpu.backproject(&camera, &pixels, &mut g, &mut gs).unwrap();
-            compare(&format!("statuses {precision}"), (&c, &cs), (&g, &gs), 0..6, allowed(precision, n));
+            compare(
+                &format!("statuses {precision}"),
+                (&c, &cs),
+                (&g, &gs),
+                0..6,
+                allowed(precision, n),
+            );
             seen.extend(cs);
         }
-        for reason in [NoSolution::OutsideLens, NoSolution::MissesInterface, NoSolution::TotalInternalReflection] {
-            assert!(seen.contains(&reason.code()), "the cases must exercise {reason}");
+        for reason in [
+            NoSolution::OutsideLens,
+            NoSolution::MissesInterface,
+            NoSolution::TotalInternalReflection,
+        ] {
+            assert!(
+                seen.contains(&reason.code()),
+                "the cases must exercise {reason}"
+            );
         }
     }
 }
@@ -474,18 +650,31 @@ fn statuses_match_where_the_cpu_has_no_answer() {
 /// Six million rows in one call: chunked under the binding cap, nothing lost or truncated.
 #[test]
 fn six_million_rows_go_through() {
-    let Some(gpu) = engine(Precision::F32) else { return };
+    let Some(gpu) = engine(Precision::F32) else {
+        return;
+    };
     let (_, rig) = configurations().remove(2);
     let camera = rig.refractive_camera(0);
     let n = 6_000_000;
-    let pixels: Vec<[f64; 2]> = (0..n).map(|i| [(i % 1280) as f64 + 0.5, ((i / 1280) % 1024) as f64 + 0.25]).collect();
+    let pixels: Vec<[f64; 2]> = (0..n)
+        .map(|i| [(i % 1280) as f64 + 0.5, ((i / 1280) % 1024) as f64 + 0.25])
+        .collect();
     let mut rays = vec![[f64::INFINITY; 6]; n];
     let mut status = vec![u32::MAX; n];
-    gpu.backproject(&camera, &pixels, &mut rays, &mut status).unwrap();
-    assert!(status.iter().all(|&s| s == 0), "every pixel of the image sees the water");
-    assert!(rays.iter().all(|r| r.iter().all(|v| v.is_finite())), "every row written");
+    gpu.backproject(&camera, &pixels, &mut rays, &mut status)
+        .unwrap();
+    assert!(
+        status.iter().all(|&s| s == 0),
+        "every pixel of the image sees the water"
+    );
+    assert!(
+        rays.iter().all(|r| r.iter().all(|v| v.is_finite())),
+        "every row written"
+    );
     for i in (0..n).step_by(9973).chain([n - 1]) {
-        let cpu = camera.backproject(&Point2::new(pixels[i][0], pixels[i][1])).unwrap();
+        let cpu = camera
+            .backproject(&Point2::new(pixels[i][0], pixels[i][1]))
+            .unwrap();
         let dir = Vector3::new(rays[i][3], rays[i][4], rays[i][5]);
         assert!((dir - cpu.dir.into_inner()).norm() < 2e-6, "row {i}");
     }
@@ -497,7 +686,11 @@ fn six_million_rows_go_through() {
 #[test]
 fn staged_and_mapped_buffers_agree() {
     for precision in [Precision::F32, Precision::F64] {
-        let (Some(mapped), Some(staged)) = (engine_with(precision, true), engine_with(precision, false)) else { return };
+        let (Some(mapped), Some(staged)) =
+            (engine_with(precision, true), engine_with(precision, false))
+        else {
+            return;
+        };
         assert!(!staged.context().maps_storage());
         let (_, rig) = configurations().remove(3);
         let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
@@ -508,26 +701,53 @@ fn staged_and_mapped_buffers_agree() {
             let (mut pixels, mut status) = (vec![[0.0; 2]; n], vec![0; n]);
             gpu.project(&a, &points, &mut pixels, &mut status).unwrap();
             let (mut rays, mut grid_status) = (vec![[0.0; 6]; 200 * 150], vec![0; 200 * 150]);
-            gpu.backproject_grid(&b, 200, 150, &mut rays, &mut grid_status).unwrap();
-            let air: Vec<[f64; 6]> = (0..500).map(|k| {
-                let v = a.dir_in_air_from_img(&Point2::new(300.0 + k as f64, 400.0)).unwrap();
-                let w = b.dir_in_air_from_img(&Point2::new(250.0 + k as f64, 410.0)).unwrap();
-                [v.x, v.y, v.z, w.x, w.y, w.z]
-            }).collect();
+            gpu.backproject_grid(&b, 200, 150, &mut rays, &mut grid_status)
+                .unwrap();
+            let air: Vec<[f64; 6]> = (0..500)
+                .map(|k| {
+                    let v = a
+                        .dir_in_air_from_img(&Point2::new(300.0 + k as f64, 400.0))
+                        .unwrap();
+                    let w = b
+                        .dir_in_air_from_img(&Point2::new(250.0 + k as f64, 410.0))
+                        .unwrap();
+                    [v.x, v.y, v.z, w.x, w.y, w.z]
+                })
+                .collect();
             let n0 = rig.interface().normal();
-            let candidates = [[n0.x, n0.y, n0.z, rig.interface().air_distance()], [0.0, 0.0, 1.0, 0.03]];
+            let candidates = [
+                [n0.x, n0.y, n0.z, rig.interface().air_distance()],
+                [0.0, 0.0, 1.0, 0.03],
+            ];
             let mut costs = [[0.0; 2]; 2];
-            gpu.ray_gap_cost(&rig, 0, 1, &air, &candidates, &mut costs).unwrap();
+            gpu.ray_gap_cost(&rig, 0, 1, &air, &candidates, &mut costs)
+                .unwrap();
             (pixels, status, rays, grid_status, costs)
         };
         let (m, s) = (run(&mapped), run(&staged));
         assert_eq!(m.1, s.1, "{precision} project statuses");
         assert_eq!(m.3, s.3, "{precision} grid statuses");
-        assert!(m.1.contains(&0) && m.1.iter().any(|&c| c != 0), "{precision}: answers and rows without");
-        let same = |x: &[f64], y: &[f64]| x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits() || (p.is_nan() && q.is_nan()));
-        assert!(same(m.0.as_flattened(), s.0.as_flattened()), "{precision} project");
-        assert!(same(m.2.as_flattened(), s.2.as_flattened()), "{precision} grid");
-        assert!(same(m.4.as_flattened(), s.4.as_flattened()), "{precision} cost");
+        assert!(
+            m.1.contains(&0) && m.1.iter().any(|&c| c != 0),
+            "{precision}: answers and rows without"
+        );
+        let same = |x: &[f64], y: &[f64]| {
+            x.iter()
+                .zip(y)
+                .all(|(p, q)| p.to_bits() == q.to_bits() || (p.is_nan() && q.is_nan()))
+        };
+        assert!(
+            same(m.0.as_flattened(), s.0.as_flattened()),
+            "{precision} project"
+        );
+        assert!(
+            same(m.2.as_flattened(), s.2.as_flattened()),
+            "{precision} grid"
+        );
+        assert!(
+            same(m.4.as_flattened(), s.4.as_flattened()),
+            "{precision} cost"
+        );
     }
 }
 
@@ -538,28 +758,73 @@ fn staged_and_mapped_buffers_agree() {
 #[test]
 fn extreme_points_are_every_number_or_none_and_agree() {
     let cpu = CpuEngine::new(None);
-    let directions = [[0.1, 0.05, 1.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.01], [-0.3, 0.2, 1.0], [100.0, 0.0, 1.0], [0.0, 1e-3, 1e17]];
-    let scales = [1.0, 1e3, 1e10, 1e20, 1e40, 1e100, 1e154, 1e155, 1e200, 1e299, 1e301, f64::MAX];
-    let points: Vec<[f64; 3]> = scales.iter().flat_map(|&s| directions.iter().map(move |d| d.map(|c| c * s))).collect();
+    let directions = [
+        [0.1, 0.05, 1.0],
+        [0.0, 0.0, 1.0],
+        [1.0, 0.0, 0.01],
+        [-0.3, 0.2, 1.0],
+        [100.0, 0.0, 1.0],
+        [0.0, 1e-3, 1e17],
+    ];
+    let scales = [
+        1.0,
+        1e3,
+        1e10,
+        1e20,
+        1e40,
+        1e100,
+        1e154,
+        1e155,
+        1e200,
+        1e299,
+        1e301,
+        f64::MAX,
+    ];
+    let points: Vec<[f64; 3]> = scales
+        .iter()
+        .flat_map(|&s| directions.iter().map(move |d| d.map(|c| c * s)))
+        .collect();
     let n = points.len();
-    let all_or_none = |row: &[f64], s: u32| if s == 0 { row.iter().all(|v| v.is_finite()) } else { row.iter().all(|v| v.is_nan()) };
+    let all_or_none = |row: &[f64], s: u32| {
+        if s == 0 {
+            row.iter().all(|v| v.is_finite())
+        } else {
+            row.iter().all(|v| v.is_nan())
+        }
+    };
     for precision in [Precision::F32, Precision::F64] {
         let Some(gpu) = engine(precision) else { return };
         each_camera(|name, rig, k| {
             let camera = rig.refractive_camera(k);
-            let (mut c, mut cs, mut g, mut gs) = (vec![[0.0; 6]; n], vec![0; n], vec![[0.0; 6]; n], vec![0; n]);
+            let (mut c, mut cs, mut g, mut gs) =
+                (vec![[0.0; 6]; n], vec![0; n], vec![[0.0; 6]; n], vec![0; n]);
             cpu.vop(&camera, &points, &mut c, &mut cs);
             gpu.vop(&camera, &points, &mut g, &mut gs).unwrap();
-            let (mut pc, mut pcs, mut pg, mut pgs) = (vec![[0.0; 2]; n], vec![0; n], vec![[0.0; 2]; n], vec![0; n]);
+            let (mut pc, mut pcs, mut pg, mut pgs) =
+                (vec![[0.0; 2]; n], vec![0; n], vec![[0.0; 2]; n], vec![0; n]);
             cpu.project(&camera, &points, &mut pc, &mut pcs);
             gpu.project(&camera, &points, &mut pg, &mut pgs).unwrap();
             for i in 0..n {
                 let what = format!("{precision} {name} camera {k} point {:?}", points[i]);
-                assert!(all_or_none(&c[i], cs[i]) && all_or_none(&g[i], gs[i]), "vop {what}: cpu {:?} {} gpu {:?} {}", c[i], cs[i], g[i], gs[i]);
-                assert!(all_or_none(&pc[i], pcs[i]) && all_or_none(&pg[i], pgs[i]), "project {what}");
+                assert!(
+                    all_or_none(&c[i], cs[i]) && all_or_none(&g[i], gs[i]),
+                    "vop {what}: cpu {:?} {} gpu {:?} {}",
+                    c[i],
+                    cs[i],
+                    g[i],
+                    gs[i]
+                );
+                assert!(
+                    all_or_none(&pc[i], pcs[i]) && all_or_none(&pg[i], pgs[i]),
+                    "project {what}"
+                );
                 let beyond = |limit: f64| points[i].iter().any(|v| v.abs() > limit);
                 if beyond(1e300) {
-                    assert_eq!((cs[i], pcs[i]), (NoSolution::OutOfRange.code(), NoSolution::OutOfRange.code()), "cpu {what}");
+                    assert_eq!(
+                        (cs[i], pcs[i]),
+                        (NoSolution::OutOfRange.code(), NoSolution::OutOfRange.code()),
+                        "cpu {what}"
+                    );
                 }
                 match precision {
                     Precision::F64 => {
@@ -568,14 +833,24 @@ fn extreme_points_are_every_number_or_none_and_agree() {
                         // 1e10 m lengths: both engines round it at that scale.
                         let scale = points[i].iter().fold(1.0f64, |m, v| m.max(v.abs()));
                         for (a, b) in c[i].iter().zip(&g[i]).filter(|(a, _)| a.is_finite()) {
-                            assert!((a - b).abs() <= 1e-9 * a.abs().max(scale), "vop {what}: cpu {a} gpu {b}");
+                            assert!(
+                                (a - b).abs() <= 1e-9 * a.abs().max(scale),
+                                "vop {what}: cpu {a} gpu {b}"
+                            );
                         }
                         for (a, b) in pc[i].iter().zip(&pg[i]).filter(|(a, _)| a.is_finite()) {
-                            assert!((a - b).abs() <= 1e-9 * a.abs().max(1.0), "project {what}: cpu {a} gpu {b}");
+                            assert!(
+                                (a - b).abs() <= 1e-9 * a.abs().max(1.0),
+                                "project {what}: cpu {a} gpu {b}"
+                            );
                         }
                     }
                     Precision::F32 if beyond(1e30) => {
-                        assert_eq!((gs[i], pgs[i]), (NoSolution::OutOfRange.code(), NoSolution::OutOfRange.code()), "gpu {what}");
+                        assert_eq!(
+                            (gs[i], pgs[i]),
+                            (NoSolution::OutOfRange.code(), NoSolution::OutOfRange.code()),
+                            "gpu {what}"
+                        );
                     }
                     Precision::F32 => {}
                 }

@@ -41,11 +41,18 @@ fn run(dir: &Path, args: &[&str]) -> (i32, String, String) {
         }
         std::thread::sleep(Duration::from_millis(10));
     };
-    (status.code().unwrap_or(-1), reader.join().unwrap(), err_reader.join().unwrap())
+    (
+        status.code().unwrap_or(-1),
+        reader.join().unwrap(),
+        err_reader.join().unwrap(),
+    )
 }
 
 fn names(dir: &Path) -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
     names.sort();
     names
 }
@@ -55,7 +62,9 @@ const RIG_OK: &str = r#"{"cameras": [{"name": "a", "width": 640, "height": 480, 
 
 /// A rig file with `interface` replaced.
 fn rig_with(interface: &str) -> String {
-    format!(r#"{{"cameras": [{{"name": "a", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240}}], "interface": {interface}}}"#)
+    format!(
+        r#"{{"cameras": [{{"name": "a", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240}}], "interface": {interface}}}"#
+    )
 }
 
 struct Case {
@@ -67,43 +76,271 @@ struct Case {
 }
 
 fn case(files: Vec<(&'static str, String)>, args: &[&'static str], says: &[&'static str]) -> Case {
-    Case { files, args: args.to_vec(), says: says.to_vec() }
+    Case {
+        files,
+        args: args.to_vec(),
+        says: says.to_vec(),
+    }
 }
 
 #[test]
 fn hostile_input_gets_a_clear_error_and_leaves_nothing_behind() {
     let rig = || ("rig.json", RIG_OK.to_string());
-    let example = || ("example.json", std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/data/example_rig.json")).unwrap());
+    let example = || {
+        (
+            "example.json",
+            std::fs::read_to_string(concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/data/example_rig.json"
+            ))
+            .unwrap(),
+        )
+    };
     let points = |text: &str| ("p.csv", text.to_string());
     let cases = vec![
         // Rig files.
-        case(vec![("rig.json", String::new()), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["rig.json"]),
-        case(vec![("rig.json", "\u{feff}[]".into()), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["rig.json"]),
-        case(vec![("rig.json", rig_with(r#"{"normal": [0, 0, -1], "distance": 0.02}"#)), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["rig.json", "normal"]),
-        case(vec![("rig.json", rig_with(r#"{"normal": [0, 0, 0], "distance": 0.02}"#)), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["rig.json", "normal"]),
-        case(vec![("rig.json", rig_with(r#"{"normal": [0, 0, 1], "distance": 0.02, "layers": [{"thickness": 0.01, "index": 0.5}]}"#)), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["rig.json", "layers[0]"]),
-        case(vec![("rig.json", rig_with(r#"{"normal": [0, 0, 1], "distance": 0.02, "colour": 3}"#)), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["rig.json", "colour"]),
-        case(vec![("rig.json", "[".repeat(100_000)), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["rig.json"]),
+        case(
+            vec![("rig.json", String::new()), points("x,y,z\n0,0,1\n")],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json"],
+        ),
+        case(
+            vec![("rig.json", "\u{feff}[]".into()), points("x,y,z\n0,0,1\n")],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json"],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    rig_with(r#"{"normal": [0, 0, -1], "distance": 0.02}"#),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json", "normal"],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    rig_with(r#"{"normal": [0, 0, 0], "distance": 0.02}"#),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json", "normal"],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    rig_with(
+                        r#"{"normal": [0, 0, 1], "distance": 0.02, "layers": [{"thickness": 0.01, "index": 0.5}]}"#,
+                    ),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json", "layers[0]"],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    rig_with(r#"{"normal": [0, 0, 1], "distance": 0.02, "colour": 3}"#),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json", "colour"],
+        ),
+        case(
+            vec![("rig.json", "[".repeat(100_000)), points("x,y,z\n0,0,1\n")],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json"],
+        ),
         // CSV files.
-        case(vec![rig(), points("")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["p.csv", "empty"]),
-        case(vec![rig(), points("x,y\n0,0\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["p.csv:1", "header"]),
-        case(vec![rig(), points("x,y,z\n0,0,1\n0,0,nan\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["p.csv:3", "z"]),
-        case(vec![rig(), points("x,y,z\n0,0,1\n\u{0}\u{1},0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["p.csv:3"]),
-        case(vec![rig(), ("p.csv", format!("x,y,z\n{},0,1\n", "7".repeat(5_000_000)))], &["project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv"], &["p.csv:2"]),
-        case(vec![rig(), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "missing.csv", "-o", "out.csv"], &["missing.csv"]),
-        case(vec![rig(), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "--camera", "-1"], &["-1"]),
-        case(vec![rig(), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "--camera", "9"], &["9"]),
-        case(vec![rig(), points("x,y,z\n0,0,1\n")], &["project", "--rig", "rig.json", "--points", "p.csv", "--device", "gpu", "--adapter", "no-such-gpu"], &["no-such-gpu"]),
+        case(
+            vec![rig(), points("")],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["p.csv", "empty"],
+        ),
+        case(
+            vec![rig(), points("x,y\n0,0\n")],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["p.csv:1", "header"],
+        ),
+        case(
+            vec![rig(), points("x,y,z\n0,0,1\n0,0,nan\n")],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["p.csv:3", "z"],
+        ),
+        case(
+            vec![rig(), points("x,y,z\n0,0,1\n\u{0}\u{1},0,1\n")],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["p.csv:3"],
+        ),
+        case(
+            vec![
+                rig(),
+                ("p.csv", format!("x,y,z\n{},0,1\n", "7".repeat(5_000_000))),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["p.csv:2"],
+        ),
+        case(
+            vec![rig(), points("x,y,z\n0,0,1\n")],
+            &[
+                "project",
+                "--rig",
+                "rig.json",
+                "--points",
+                "missing.csv",
+                "-o",
+                "out.csv",
+            ],
+            &["missing.csv"],
+        ),
+        case(
+            vec![rig(), points("x,y,z\n0,0,1\n")],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "--camera", "-1",
+            ],
+            &["-1"],
+        ),
+        case(
+            vec![rig(), points("x,y,z\n0,0,1\n")],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "--camera", "9",
+            ],
+            &["9"],
+        ),
+        case(
+            vec![rig(), points("x,y,z\n0,0,1\n")],
+            &[
+                "project",
+                "--rig",
+                "rig.json",
+                "--points",
+                "p.csv",
+                "--device",
+                "gpu",
+                "--adapter",
+                "no-such-gpu",
+            ],
+            &["no-such-gpu"],
+        ),
         // Simulation sizes and values.
-        case(vec![example()], &["simulate", "--rig", "example.json", "--views", "18446744073709551615", "-o", "scene"], &["--views"]),
-        case(vec![example()], &["simulate", "--rig", "example.json", "--board", "100000x100000@0.04", "-o", "scene"], &["100000"]),
-        case(vec![example()], &["simulate", "--rig", "example.json", "--board", "9x6@1e300", "-o", "scene"], &["metres"]),
-        case(vec![example()], &["simulate", "--rig", "example.json", "--noise", "1e300", "-o", "scene"], &["noise"]),
-        case(vec![example()], &["simulate", "--rig", "example.json", "--noise", "-1", "-o", "scene"], &["--noise"]),
-        case(vec![example()], &["simulate", "--rig", "example.json", "--max-board-tilt-deg", "180", "-o", "scene"], &["--max-board-tilt-deg"]),
+        case(
+            vec![example()],
+            &[
+                "simulate",
+                "--rig",
+                "example.json",
+                "--views",
+                "18446744073709551615",
+                "-o",
+                "scene",
+            ],
+            &["--views"],
+        ),
+        case(
+            vec![example()],
+            &[
+                "simulate",
+                "--rig",
+                "example.json",
+                "--board",
+                "100000x100000@0.04",
+                "-o",
+                "scene",
+            ],
+            &["100000"],
+        ),
+        case(
+            vec![example()],
+            &[
+                "simulate",
+                "--rig",
+                "example.json",
+                "--board",
+                "9x6@1e300",
+                "-o",
+                "scene",
+            ],
+            &["metres"],
+        ),
+        case(
+            vec![example()],
+            &[
+                "simulate",
+                "--rig",
+                "example.json",
+                "--noise",
+                "1e300",
+                "-o",
+                "scene",
+            ],
+            &["noise"],
+        ),
+        case(
+            vec![example()],
+            &[
+                "simulate",
+                "--rig",
+                "example.json",
+                "--noise",
+                "-1",
+                "-o",
+                "scene",
+            ],
+            &["--noise"],
+        ),
+        case(
+            vec![example()],
+            &[
+                "simulate",
+                "--rig",
+                "example.json",
+                "--max-board-tilt-deg",
+                "180",
+                "-o",
+                "scene",
+            ],
+            &["--max-board-tilt-deg"],
+        ),
         // Bench sizes.
         case(vec![], &["bench", "--items", "0", "--no-gpu"], &["--items"]),
-        case(vec![], &["bench", "--items", "10000000000", "--no-gpu"], &["--items"]),
+        case(
+            vec![],
+            &["bench", "--items", "10000000000", "--no-gpu"],
+            &["--items"],
+        ),
     ];
     for (k, c) in cases.iter().enumerate() {
         let dir = tempfile::tempdir().unwrap();
@@ -114,12 +351,22 @@ fn hostile_input_gets_a_clear_error_and_leaves_nothing_behind() {
         let (code, stdout, stderr) = run(dir.path(), &c.args);
         let what = format!("case {k}: flatport {:?}", c.args);
         assert!(!stderr.contains("panicked"), "{what} panicked: {stderr}");
-        assert!(code == 1 || code == 2, "{what}: exit {code}, stderr {stderr}");
+        assert!(
+            code == 1 || code == 2,
+            "{what}: exit {code}, stderr {stderr}"
+        );
         assert!(stdout.is_empty(), "{what} wrote to stdout: {stdout}");
         assert!(stderr.contains("error"), "{what}: {stderr}");
-        assert!(stderr.len() < 3000, "{what}: a message of {} bytes", stderr.len());
+        assert!(
+            stderr.len() < 3000,
+            "{what}: a message of {} bytes",
+            stderr.len()
+        );
         for word in &c.says {
-            assert!(stderr.contains(word), "{what}: the message does not name '{word}': {stderr}");
+            assert!(
+                stderr.contains(word),
+                "{what}: the message does not name '{word}': {stderr}"
+            );
         }
         assert_eq!(names(dir.path()), before, "{what} left files behind");
     }
@@ -130,16 +377,51 @@ fn edge_cases_that_are_valid_succeed() {
     let dir = tempfile::tempdir().unwrap();
     // A normal given with huge or tiny components keeps its direction.
     for normal in ["[1e308, 0, 1e308]", "[1e-320, 0, 1e-320]"] {
-        std::fs::write(dir.path().join("rig.json"), rig_with(&format!(r#"{{"normal": {normal}, "distance": 0.02}}"#))).unwrap();
+        std::fs::write(
+            dir.path().join("rig.json"),
+            rig_with(&format!(r#"{{"normal": {normal}, "distance": 0.02}}"#)),
+        )
+        .unwrap();
         let (code, stdout, stderr) = run(dir.path(), &["rig", "show", "rig.json"]);
         assert_eq!(code, 0, "{normal}: {stderr}");
         assert!(stdout.contains("tilt 45.0000°"), "{normal}: {stdout}");
     }
     // Large simulated noise still keeps every corner in the images, so calibrate accepts the file
     // (it may then find no axis, but never calls a corner outside the image).
-    std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/data/example_rig.json"), dir.path().join("example.json")).unwrap();
-    let (code, _, stderr) = run(dir.path(), &["simulate", "--rig", "example.json", "--views", "4", "--noise", "30", "-o", "noisy"]);
+    std::fs::copy(
+        concat!(env!("CARGO_MANIFEST_DIR"), "/data/example_rig.json"),
+        dir.path().join("example.json"),
+    )
+    .unwrap();
+    let (code, _, stderr) = run(
+        dir.path(),
+        &[
+            "simulate",
+            "--rig",
+            "example.json",
+            "--views",
+            "4",
+            "--noise",
+            "30",
+            "-o",
+            "noisy",
+        ],
+    );
     assert_eq!(code, 0, "{stderr}");
-    let (_, _, stderr) = run(dir.path(), &["calibrate", "--rig", "noisy/start_rig.json", "--observations", "noisy/observations.json", "-o", "c.json"]);
-    assert!(!stderr.contains("outside the") && !stderr.contains("panicked"), "{stderr}");
+    let (_, _, stderr) = run(
+        dir.path(),
+        &[
+            "calibrate",
+            "--rig",
+            "noisy/start_rig.json",
+            "--observations",
+            "noisy/observations.json",
+            "-o",
+            "c.json",
+        ],
+    );
+    assert!(
+        !stderr.contains("outside the") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
 }

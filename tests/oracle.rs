@@ -30,14 +30,18 @@ fn forward_projection_matches_bisection_over_the_tracer() {
                         worst_dir = worst_dir.max((m.dir_in_air.into_inner() - o).norm());
                         // Pixels only inside the image (±200 px): far outside it the distortion
                         // polynomial amplifies 1e-16 direction differences without bound.
-                        if let Some(pixel) = pixel_of_dir(&stack, o).filter(|p| in_image(&stack, p, 200.0)) {
+                        if let Some(pixel) =
+                            pixel_of_dir(&stack, o).filter(|p| in_image(&stack, p, 200.0))
+                        {
                             match camera.project(&point) {
                                 Ok(m) => {
                                     worst = worst.max((m - pixel).norm());
                                     compared += 1;
                                 }
                                 // Refused only where the radial map has already turned back.
-                                Err(NoSolution::OutsideLens) => assert!(beyond_radial_fold(&stack, o), "{name} {point:?}"),
+                                Err(NoSolution::OutsideLens) => {
+                                    assert!(beyond_radial_fold(&stack, o), "{name} {point:?}")
+                                }
                                 Err(e) => panic!("{name} {point:?}: {e}"),
                             }
                         }
@@ -46,9 +50,17 @@ fn forward_projection_matches_bisection_over_the_tracer() {
                     (o, m) => panic!("{name} camera {k} {point:?}: oracle {o:?}, model {m:?}"),
                 }
             }
-            assert!(compared > 20, "{name}: too few points inside the image ({compared})");
-            assert!(worst_dir < RAY_TOL, "{name} camera {k}: air direction off by {worst_dir}");
-            println!("{name:40} camera {k}: max |Δpixel| = {worst:.2e} px over {compared} points in the image, max |Δdir| = {worst_dir:.2e}");
+            assert!(
+                compared > 20,
+                "{name}: too few points inside the image ({compared})"
+            );
+            assert!(
+                worst_dir < RAY_TOL,
+                "{name} camera {k}: air direction off by {worst_dir}"
+            );
+            println!(
+                "{name:40} camera {k}: max |Δpixel| = {worst:.2e} px over {compared} points in the image, max |Δdir| = {worst_dir:.2e}"
+            );
             assert!(worst < PIXEL_TOL, "{name} camera {k}: {worst} px");
         }
     }
@@ -60,7 +72,9 @@ fn beyond_radial_fold(stack: &Stack, dir: Vector3<f64>) -> bool {
     let p = stack.cam_from_master * dir;
     let s_max = (p.x * p.x + p.y * p.y) / (p.z * p.z);
     let [k1, k2, _, _, k3] = stack.camera.distortion;
-    (0..=10_000).map(|i| s_max * i as f64 / 10_000.0).any(|s| 1.0 + 3.0 * k1 * s + 5.0 * k2 * s * s + 7.0 * k3 * s * s * s <= 1e-9)
+    (0..=10_000)
+        .map(|i| s_max * i as f64 / 10_000.0)
+        .any(|s| 1.0 + 3.0 * k1 * s + 5.0 * k2 * s * s + 7.0 * k3 * s * s * s <= 1e-9)
 }
 
 #[test]
@@ -73,15 +87,24 @@ fn back_projection_matches_the_tracer_closed_form_and_traced() {
             for i in 0..=12 {
                 for j in 0..=10 {
                     let pixel = Point2::new(i as f64 * 1279.0 / 12.0, j as f64 * 1023.0 / 10.0);
-                    let (origin, dir, _) = trace(&stack, dir_of_pixel(&stack, pixel)).expect("pixel sees the water");
-                    for ray in [camera.backproject(&pixel).unwrap(), camera.backproject_traced(&pixel).unwrap()] {
+                    let (origin, dir, _) =
+                        trace(&stack, dir_of_pixel(&stack, pixel)).expect("pixel sees the water");
+                    for ray in [
+                        camera.backproject(&pixel).unwrap(),
+                        camera.backproject_traced(&pixel).unwrap(),
+                    ] {
                         worst_dir = worst_dir.max((ray.dir.into_inner() - dir).norm());
                         worst_origin = worst_origin.max((ray.origin.coords - origin).norm());
                     }
                 }
             }
-            println!("{name:40} camera {k}: max |Δdir| = {worst_dir:.2e}, max |Δorigin| = {worst_origin:.2e} m");
-            assert!(worst_dir < RAY_TOL && worst_origin < RAY_TOL, "{name} camera {k}");
+            println!(
+                "{name:40} camera {k}: max |Δdir| = {worst_dir:.2e}, max |Δorigin| = {worst_origin:.2e} m"
+            );
+            assert!(
+                worst_dir < RAY_TOL && worst_origin < RAY_TOL,
+                "{name} camera {k}"
+            );
         }
     }
 }
@@ -91,19 +114,35 @@ fn projected_pixels_back_project_through_their_points_and_triangulate() {
     for (name, rig) in configurations() {
         let (left, right) = (rig.refractive_camera(0), rig.refractive_camera(1));
         for point in points_in_water(&rig) {
-            let (Ok(pl), Ok(pr)) = (left.project(&point), right.project(&point)) else { continue };
-            if !in_image(&Stack::of(&rig, 0), &pl, 0.0) || !in_image(&Stack::of(&rig, 1), &pr, 0.0) {
+            let (Ok(pl), Ok(pr)) = (left.project(&point), right.project(&point)) else {
+                continue;
+            };
+            if !in_image(&Stack::of(&rig, 0), &pl, 0.0) || !in_image(&Stack::of(&rig, 1), &pr, 0.0)
+            {
                 continue;
             }
-            let (a, b) = (left.backproject(&pl).unwrap(), right.backproject(&pr).unwrap());
+            let (a, b) = (
+                left.backproject(&pl).unwrap(),
+                right.backproject(&pr).unwrap(),
+            );
             for ray in [&a, &b] {
                 let miss = (point - ray.origin).cross(&ray.dir).norm();
-                assert!(miss < RAY_TOL * (1.0 + (point - ray.origin).norm()), "{name} {point:?}: {miss}");
+                assert!(
+                    miss < RAY_TOL * (1.0 + (point - ray.origin).norm()),
+                    "{name} {point:?}: {miss}"
+                );
             }
             match triangulate_rays(&a, &b) {
-                Ok(t) => assert!((t.point - point).norm() < TRIANGULATION_TOL, "{name} {point:?} → {:?}", t.point),
+                Ok(t) => assert!(
+                    (t.point - point).norm() < TRIANGULATION_TOL,
+                    "{name} {point:?} → {:?}",
+                    t.point
+                ),
                 // Only the points 0.1 mm from the glass may give nearly parallel rays.
-                Err(NoSolution::Degenerate) => assert!(rig.interface().normal().dot(&point.coords) - rig.interface().outer_distance() < 1e-3),
+                Err(NoSolution::Degenerate) => assert!(
+                    rig.interface().normal().dot(&point.coords) - rig.interface().outer_distance()
+                        < 1e-3
+                ),
                 Err(e) => panic!("{name} {point:?}: {e}"),
             }
         }
@@ -120,7 +159,9 @@ fn vop_relation_matches_the_traced_vop() {
             let stack = Stack::of(&rig, k);
             let camera = rig.refractive_camera(k);
             for point in points_in_water(&rig) {
-                let Some(air) = air_dir_by_bisection(&stack, point.coords) else { continue };
+                let Some(air) = air_dir_by_bisection(&stack, point.coords) else {
+                    continue;
+                };
                 let depth = n.dot(&point.coords) - interface.outer_distance();
                 // Traced VOP: the air ray's line meets the object axis O + s·n.
                 let traced = if air.cross(&n).norm() < 1e-12 {
@@ -131,23 +172,51 @@ fn vop_relation_matches_the_traced_vop() {
                 let vop = camera.vop(&point).unwrap();
                 assert!((vop.depth - depth).abs() < 1e-12);
                 let incidence = air.dot(&n).clamp(-1.0, 1.0).acos();
-                assert!((vop.incidence - incidence).abs() < 1e-9, "{name}: incidence {} vs {incidence} at {point:?}", vop.incidence);
-                let formula = virtual_from_real(depth, incidence, interface.layers(), interface.index_air(), interface.index_water()).unwrap();
+                assert!(
+                    (vop.incidence - incidence).abs() < 1e-9,
+                    "{name}: incidence {} vs {incidence} at {point:?}",
+                    vop.incidence
+                );
+                let formula = virtual_from_real(
+                    depth,
+                    incidence,
+                    interface.layers(),
+                    interface.index_air(),
+                    interface.index_water(),
+                )
+                .unwrap();
                 if let Some(traced) = traced {
                     let a1 = point.coords - n * depth;
                     let traced_distance = n.dot(&(traced - a1));
-                    assert!((vop.vop.coords - traced).norm() < VOP_TOL, "{name} camera {k} {point:?}: VOP off by {}", (vop.vop.coords - traced).norm());
-                    assert!((formula - traced_distance).abs() < VOP_TOL, "{name}: eq 4.8 {formula} vs traced {traced_distance}");
+                    assert!(
+                        (vop.vop.coords - traced).norm() < VOP_TOL,
+                        "{name} camera {k} {point:?}: VOP off by {}",
+                        (vop.vop.coords - traced).norm()
+                    );
+                    assert!(
+                        (formula - traced_distance).abs() < VOP_TOL,
+                        "{name}: eq 4.8 {formula} vs traced {traced_distance}"
+                    );
                     if traced_distance < 0.0 {
                         inside_glass += 1;
                     }
                 }
-                let back = real_from_virtual(formula, incidence, interface.layers(), interface.index_air(), interface.index_water()).unwrap();
+                let back = real_from_virtual(
+                    formula,
+                    incidence,
+                    interface.layers(),
+                    interface.index_air(),
+                    interface.index_water(),
+                )
+                .unwrap();
                 assert!((back - depth).abs() < VOP_TOL);
             }
         }
     }
-    assert!(inside_glass > 0, "the point set must include VOPs inside the layers (negative x̌)");
+    assert!(
+        inside_glass > 0,
+        "the point set must include VOPs inside the layers (negative x̌)"
+    );
 }
 
 #[test]
@@ -160,8 +229,15 @@ fn apparent_depth_at_normal_incidence() {
             let point = Point3::from(n * (i.outer_distance() + depth));
             let vop = camera.vop(&point).unwrap();
             let expected = i.index_air() / i.index_water() * depth
-                - i.layers().iter().map(|l| l.thickness * (1.0 - i.index_air() / l.index)).sum::<f64>();
-            assert!((vop.vop_distance - expected).abs() < 1e-15 * (1.0 + depth), "{name}: {} vs {expected}", vop.vop_distance);
+                - i.layers()
+                    .iter()
+                    .map(|l| l.thickness * (1.0 - i.index_air() / l.index))
+                    .sum::<f64>();
+            assert!(
+                (vop.vop_distance - expected).abs() < 1e-15 * (1.0 + depth),
+                "{name}: {} vs {expected}",
+                vop.vop_distance
+            );
             // The point is on the axis line up to rounding of n·(d + x).
             assert!(vop.incidence < 1e-12);
         }
@@ -178,11 +254,11 @@ fn agrawal_quartic(d: f64, x: f64, r: f64, mu_a: f64, mu_w: f64) -> [f64; 5] {
     let (a2, w2) = (mu_a * mu_a, mu_w * mu_w);
     let c = a2 - w2;
     [
-        -w2 * d * d * r * r,              // q⁰
-        2.0 * w2 * d * d * r,             // q¹
+        -w2 * d * d * r * r,                 // q⁰
+        2.0 * w2 * d * d * r,                // q¹
         c * r * r + a2 * x * x - w2 * d * d, // q²
-        -2.0 * c * r,                     // q³
-        c,                                // q⁴
+        -2.0 * c * r,                        // q³
+        c,                                   // q⁴
     ]
 }
 
@@ -209,17 +285,27 @@ fn single_interface_matches_agrawal_quartic() {
         let c = agrawal_quartic(d, z - d, r, 1.0, 1.333);
         // The physical root is the one in (0, r) that satisfies the unsquared equation; find sign
         // changes of the quartic on a fine grid, then bisect the polynomial itself.
-        let snell = |q: f64| q / (d * d + q * q).sqrt() - 1.333 * (r - q) / ((z - d).powi(2) + (r - q).powi(2)).sqrt();
+        let snell = |q: f64| {
+            q / (d * d + q * q).sqrt()
+                - 1.333 * (r - q) / ((z - d).powi(2) + (r - q).powi(2)).sqrt()
+        };
         let mut root = None;
         let steps = 20000;
         for s in 0..steps {
-            let (mut lo, mut hi) = (r * s as f64 / steps as f64, r * (s + 1) as f64 / steps as f64);
+            let (mut lo, mut hi) = (
+                r * s as f64 / steps as f64,
+                r * (s + 1) as f64 / steps as f64,
+            );
             if polynomial(&c, lo).signum() == polynomial(&c, hi).signum() {
                 continue;
             }
             for _ in 0..200 {
                 let mid = 0.5 * (lo + hi);
-                if polynomial(&c, mid).signum() == polynomial(&c, lo).signum() { lo = mid } else { hi = mid }
+                if polynomial(&c, mid).signum() == polynomial(&c, lo).signum() {
+                    lo = mid
+                } else {
+                    hi = mid
+                }
             }
             let q = 0.5 * (lo + hi);
             if snell(q).abs() < 1e-9 {
@@ -250,8 +336,12 @@ fn newton_needs_a_handful_of_steps_and_solves_the_design_equation() {
                 for a in 0..24 {
                     for b in 0..24 {
                         let (x, y) = (-1.4 + 2.8 * a as f64 / 23.0, -1.1 + 2.2 * b as f64 / 23.0);
-                        let point = Point3::from(Vector3::new(x, y, 1.0) * (depth + i.outer_distance() + 0.1));
-                        let Ok(path) = camera.air_path_to(&point) else { continue };
+                        let point = Point3::from(
+                            Vector3::new(x, y, 1.0) * (depth + i.outer_distance() + 0.1),
+                        );
+                        let Ok(path) = camera.air_path_to(&point) else {
+                            continue;
+                        };
                         iterations.push(path.iterations);
                         // DESIGN.md's f(u), u = sin a, evaluated here independently.
                         let u = path.tan_incidence / (1.0 + path.tan_incidence.powi(2)).sqrt();
@@ -287,15 +377,24 @@ fn newton_needs_a_handful_of_steps_and_solves_the_design_equation() {
     }
     in_view.sort_unstable();
     let (median_view, max_view) = (in_view[in_view.len() / 2], *in_view.last().unwrap());
-    println!("Newton iterations, {} points with incidence < 70°: median {median_view}, max {max_view}", in_view.len());
+    println!(
+        "Newton iterations, {} points with incidence < 70°: median {median_view}, max {max_view}",
+        in_view.len()
+    );
     iterations.sort_unstable();
     let median = iterations[iterations.len() / 2];
     let max = *iterations.last().unwrap();
     let p99 = iterations[iterations.len() * 99 / 100];
-    println!("Newton iterations, all {} points (incidence up to ~89°): median {median}, 99th percentile {p99}, max {max}; max |δu/u| = {worst_residual:.1e}", iterations.len());
+    println!(
+        "Newton iterations, all {} points (incidence up to ~89°): median {median}, 99th percentile {p99}, max {max}; max |δu/u| = {worst_residual:.1e}",
+        iterations.len()
+    );
     // Measured: median 3, max 7 within 70° (the steepest a real lens sees through a tilted port);
     // median 4, max 12 up to ~89°, where the air term of f(u) is near its singularity.
-    assert!(median_view <= 4 && max_view <= 8, "in view: median {median_view}, max {max_view}");
+    assert!(
+        median_view <= 4 && max_view <= 8,
+        "in view: median {median_view}, max {max_view}"
+    );
     assert!(median <= 4 && max <= 12, "all: median {median}, max {max}");
     assert!(worst_residual < 1e-12, "{worst_residual}");
 }
@@ -307,16 +406,28 @@ fn no_solution_cases_agree_with_the_oracle() {
     let n = rig.interface().normal().into_inner();
     // Inside the glass and in the air.
     for offset in [0.005, 0.025, -0.5] {
-        assert_eq!(camera.project(&Point3::from(n * offset)), Err(NoSolution::NotInWater));
+        assert_eq!(
+            camera.project(&Point3::from(n * offset)),
+            Err(NoSolution::NotInWater)
+        );
     }
     // A direction parallel to the interface misses it.
     let parallel = (n.cross(&Vector3::x()).normalize() - n * 1e-3).normalize();
-    assert_eq!(camera.ray_in_water(&as_unit(parallel)), Err(NoSolution::MissesInterface));
+    assert_eq!(
+        camera.ray_in_water(&as_unit(parallel)),
+        Err(NoSolution::MissesInterface)
+    );
     // From water into a denser "air" at a steep angle: total internal reflection in both paths.
     let rig = stereo_rig(unit(0.0, 0.0, 1.0), 0.02, vec![], 1.333, 1.0, false);
     let camera = rig.refractive_camera(0);
     let steep = unit(1.2, 0.0, 1.0);
     assert!(trace(&Stack::of(&rig, 0), steep).is_none());
-    assert_eq!(camera.ray_in_water(&as_unit(steep)), Err(NoSolution::TotalInternalReflection));
-    assert_eq!(camera.trace_ray_in_water(&as_unit(steep)), Err(NoSolution::TotalInternalReflection));
+    assert_eq!(
+        camera.ray_in_water(&as_unit(steep)),
+        Err(NoSolution::TotalInternalReflection)
+    );
+    assert_eq!(
+        camera.trace_ray_in_water(&as_unit(steep)),
+        Err(NoSolution::TotalInternalReflection)
+    );
 }

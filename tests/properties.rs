@@ -7,7 +7,10 @@ mod common;
 
 use common::*;
 use flatport::model::vop::{real_from_virtual, virtual_from_real};
-use flatport::model::{Interface, Layer, NoSolution, PinholeCamera, Rig, RigCamera, binocular_vop, normal_from_tilt_azimuth, triangulate_rays};
+use flatport::model::{
+    Interface, Layer, NoSolution, PinholeCamera, Rig, RigCamera, binocular_vop,
+    normal_from_tilt_azimuth, triangulate_rays,
+};
 use nalgebra::{Matrix3, Point2, Rotation3, Vector3};
 use proptest::prelude::*;
 
@@ -36,28 +39,40 @@ fn rig_spec() -> impl Strategy<Value = RigSpec> {
         0.03..0.15f64,
         (-0.1..0.1f64, -0.17..0.17f64, -0.1..0.1f64),
     )
-        .prop_map(|(tilt, azimuth, air, layers, index_air, index_water, distortion, baseline, turn)| RigSpec {
-            tilt,
-            azimuth,
-            air,
-            layers,
-            index_air,
-            index_water,
-            distortion,
-            baseline,
-            turn,
-        })
+        .prop_map(
+            |(tilt, azimuth, air, layers, index_air, index_water, distortion, baseline, turn)| {
+                RigSpec {
+                    tilt,
+                    azimuth,
+                    air,
+                    layers,
+                    index_air,
+                    index_water,
+                    distortion,
+                    baseline,
+                    turn,
+                }
+            },
+        )
 }
 
 fn build(spec: &RigSpec) -> Rig {
     let n = normal_from_tilt_azimuth(spec.tilt, spec.azimuth).into_inner();
-    let d = if spec.distortion { [-0.1, 0.02, 0.0005, -0.0004, -0.001] } else { [0.0; 5] };
+    let d = if spec.distortion {
+        [-0.1, 0.02, 0.0005, -0.0004, -0.001]
+    } else {
+        [0.0; 5]
+    };
     let intrinsics = PinholeCamera::new("c", 1280, 1024, 864.91, 866.0, 640.5, 511.0, d).unwrap();
     let rotation = Rotation3::from_euler_angles(spec.turn.0, spec.turn.1, spec.turn.2).into_inner();
     let centre = Vector3::new(spec.baseline, 0.003, -0.002);
     // Keep the second camera in the air: the air layer is measured from the master.
     let air = spec.air + n.dot(&centre).max(0.0);
-    let layers = spec.layers.iter().map(|&(thickness, index)| Layer { thickness, index }).collect();
+    let layers = spec
+        .layers
+        .iter()
+        .map(|&(thickness, index)| Layer { thickness, index })
+        .collect();
     Rig::new(
         vec![
             RigCamera::new("left", intrinsics, Matrix3::identity(), Vector3::zeros()).unwrap(),

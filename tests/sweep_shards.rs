@@ -6,12 +6,20 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 fn flatport(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_flatport")).args(args).env("XDG_RUNTIME_DIR", std::env::temp_dir()).output().expect("binary runs")
+    Command::new(env!("CARGO_BIN_EXE_flatport"))
+        .args(args)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("binary runs")
 }
 
 fn ok(args: &[&str]) -> String {
     let out = flatport(args);
-    assert!(out.status.success(), "flatport {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "flatport {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
@@ -30,8 +38,24 @@ fn p(path: &Path) -> &str {
 /// A simulated scene of the example rig: (rig, observations, truth).
 fn scene(dir: &Path, seed: &str) -> (PathBuf, PathBuf, PathBuf) {
     let out = dir.join(format!("scene{seed}"));
-    ok(&["simulate", "--rig", "data/example_rig.json", "--views", "5", "--noise", "0.2", "--seed", seed, "--output", p(&out)]);
-    (out.join("rig.json"), out.join("observations.json"), out.join("truth.json"))
+    ok(&[
+        "simulate",
+        "--rig",
+        "data/example_rig.json",
+        "--views",
+        "5",
+        "--noise",
+        "0.2",
+        "--seed",
+        seed,
+        "--output",
+        p(&out),
+    ]);
+    (
+        out.join("rig.json"),
+        out.join("observations.json"),
+        out.join("truth.json"),
+    )
 }
 
 fn read(path: &Path) -> Vec<u8> {
@@ -43,7 +67,16 @@ fn read(path: &Path) -> Vec<u8> {
 fn sharded_equals_whole(grid: &[&str], count: usize, files: &[&str]) {
     let dir = tempfile::tempdir().unwrap();
     let (rig, observations, truth) = scene(dir.path(), "3");
-    let mut base = vec!["sweep", "--device", "cpu", "--quiet", "--rig", p(&rig), "--observations", p(&observations)];
+    let mut base = vec![
+        "sweep",
+        "--device",
+        "cpu",
+        "--quiet",
+        "--rig",
+        p(&rig),
+        "--observations",
+        p(&observations),
+    ];
     base.extend_from_slice(grid);
     let whole = dir.path().join("whole");
     let mut args = base.clone();
@@ -66,11 +99,15 @@ fn sharded_equals_whole(grid: &[&str], count: usize, files: &[&str]) {
     args.extend(["--truth", p(&truth), "--output", p(&merged)]);
     ok(&args);
     for file in files {
-        assert!(read(&whole.join(file)) == read(&merged.join(file)), "{file} differs between the whole and the merged sweep");
+        assert!(
+            read(&whole.join(file)) == read(&merged.join(file)),
+            "{file} differs between the whole and the merged sweep"
+        );
     }
     // The summaries agree but for the timing.
     let summary = |d: &Path| {
-        let mut v: serde_json::Value = serde_json::from_slice(&read(&d.join("summary.json"))).unwrap();
+        let mut v: serde_json::Value =
+            serde_json::from_slice(&read(&d.join("summary.json"))).unwrap();
         for key in ["seconds", "cells_per_s", "cell_correspondences_per_s"] {
             v.as_object_mut().unwrap().remove(key);
         }
@@ -84,18 +121,49 @@ fn sharded_equals_whole(grid: &[&str], count: usize, files: &[&str]) {
 
 #[test]
 fn four_merged_shards_of_a_profile_sweep_equal_the_whole_sweep() {
-    sharded_equals_whole(&["--cost", "reprojection", "--tilt-deg", "0:20:7", "--azimuth-deg", "-180:180:9"], 4, &["cost.npy", "distance.npy", "cost.csv"]);
+    sharded_equals_whole(
+        &[
+            "--cost",
+            "reprojection",
+            "--tilt-deg",
+            "0:20:7",
+            "--azimuth-deg",
+            "-180:180:9",
+        ],
+        4,
+        &["cost.npy", "distance.npy", "cost.csv"],
+    );
 }
 
 #[test]
 fn merged_shards_of_a_distance_grid_equal_the_whole_sweep() {
     // 5 × 3 × 4 = 60 cells in 7 shards: boundaries inside axes' air layers.
     sharded_equals_whole(
-        &["--cost", "scene", "--tilt-deg", "4:12:5", "--azimuth-deg", "30:60:3", "--distance", "0.015:0.025:4"],
+        &[
+            "--cost",
+            "scene",
+            "--tilt-deg",
+            "4:12:5",
+            "--azimuth-deg",
+            "30:60:3",
+            "--distance",
+            "0.015:0.025:4",
+        ],
         7,
         &["cost.npy", "cost.csv"],
     );
-    sharded_equals_whole(&["--cost", "affine-grid", "--tilt-deg", "0:20:6", "--azimuth-deg", "-180:180:6"], 4, &["cost.npy", "cost.csv"]);
+    sharded_equals_whole(
+        &[
+            "--cost",
+            "affine-grid",
+            "--tilt-deg",
+            "0:20:6",
+            "--azimuth-deg",
+            "-180:180:6",
+        ],
+        4,
+        &["cost.npy", "cost.csv"],
+    );
 }
 
 #[test]
@@ -107,8 +175,24 @@ fn shards_that_do_not_belong_together_are_refused() {
         let folder = dir.path().join(name);
         let s = format!("{index}/{count}");
         ok(&[
-            "sweep", "--device", "cpu", "--quiet", "--rig", p(&rig), "--observations", p(observations), "--cost", "affine-grid", "--tilt-deg", tilts,
-            "--azimuth-deg", "0:90:4", "--shard", &s, "--output", p(&folder),
+            "sweep",
+            "--device",
+            "cpu",
+            "--quiet",
+            "--rig",
+            p(&rig),
+            "--observations",
+            p(observations),
+            "--cost",
+            "affine-grid",
+            "--tilt-deg",
+            tilts,
+            "--azimuth-deg",
+            "0:90:4",
+            "--shard",
+            &s,
+            "--output",
+            p(&folder),
         ]);
         folder
     };
@@ -122,14 +206,22 @@ fn shards_that_do_not_belong_together_are_refused() {
     };
     // A shard missing.
     let error = merge(&[&a[0], &a[2]]);
-    assert!(error.contains("1/3") && error.contains("missing"), "{error}");
+    assert!(
+        error.contains("1/3") && error.contains("missing"),
+        "{error}"
+    );
     // A shard twice.
     let error = merge(&[&a[0], &a[1], &a[1], &a[2]]);
     assert!(error.contains("both shard 1/3"), "{error}");
     // A shard of another scene's observations.
     let foreign = shard(1, 3, &other_observations, "0:10:5", "foreign");
     let error = merge(&[&a[0], &foreign, &a[2]]);
-    assert!(error.contains("different sweeps") && error.contains("observations") && error.contains("foreign"), "{error}");
+    assert!(
+        error.contains("different sweeps")
+            && error.contains("observations")
+            && error.contains("foreign"),
+        "{error}"
+    );
     // A shard of another grid.
     let other_grid = shard(1, 3, &observations, "0:12:5", "grid");
     let error = merge(&[&a[0], &other_grid, &a[2]]);
@@ -140,7 +232,10 @@ fn shards_that_do_not_belong_together_are_refused() {
     assert!(error.contains("shard counts"), "{error}");
     // A folder that is no shard, and a shard whose cost.npy lost values.
     let error = merge(&[&a[0], &dir.path().join("scene3"), &a[2]]);
-    assert!(error.contains("scene3") && error.contains("not a sweep shard"), "{error}");
+    assert!(
+        error.contains("scene3") && error.contains("not a sweep shard"),
+        "{error}"
+    );
     let npy = a[1].join("cost.npy");
     let bytes = read(&npy);
     std::fs::write(&npy, &bytes[..bytes.len() - 8]).unwrap();
@@ -149,6 +244,20 @@ fn shards_that_do_not_belong_together_are_refused() {
     // Nothing was written by the refused merges.
     assert!(!merged.join("cost.npy").exists());
     // A bad --shard is refused by clap, naming the form.
-    let error = refused(&["sweep", "--rig", p(&rig), "--observations", p(&observations), "--tilt-deg", "0:1:2", "--azimuth-deg", "0:1:2", "-o", p(&merged), "--shard", "3/3"]);
+    let error = refused(&[
+        "sweep",
+        "--rig",
+        p(&rig),
+        "--observations",
+        p(&observations),
+        "--tilt-deg",
+        "0:1:2",
+        "--azimuth-deg",
+        "0:1:2",
+        "-o",
+        p(&merged),
+        "--shard",
+        "3/3",
+    ]);
     assert!(error.contains("INDEX/COUNT"), "{error}");
 }

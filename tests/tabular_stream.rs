@@ -397,7 +397,10 @@ fn finish_renames_the_whole_file_into_place() {
     std::fs::create_dir(&folder).unwrap();
     std::fs::write(folder.join("inside.txt"), "keep").unwrap();
     let error = TableWriter::<2>::create(Some(&folder), ["u", "v"]).unwrap_err();
-    assert!(error.to_string().starts_with(&folder.display().to_string()), "{error}");
+    assert!(
+        error.to_string().starts_with(&folder.display().to_string()),
+        "{error}"
+    );
     assert!(error.to_string().contains("folder"), "{error}");
     // A rename that fails (the target became a non-empty folder while the table was written)
     // removes the temporary file and leaves the folder as it was.

@@ -12,7 +12,7 @@ use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray2};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 
-use flatport::calib::sweep::{Linspace, SweepSpec, sweep as run_sweep};
+use flatport::calib::methods::sweep::{Linspace, SweepSpec, sweep as run_sweep};
 use flatport::calib::{Board, CalibrationOptions, CostBackend, CostKind, CpuBackend, GpuBackend, Method, SceneSpec, StereoData, calibrate_with_progress, simulate as run_simulate};
 use flatport::engine::raymap::backproject_rows;
 use flatport::engine::{Device, Engine, EngineOptions};

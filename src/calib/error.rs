@@ -30,7 +30,9 @@ pub enum CalibError {
         reason: String,
     },
     /// Not one view.
-    #[error("no views: calibration needs stereo views of the board (at least 3, 10-20 recommended)")]
+    #[error(
+        "no views: calibration needs stereo views of the board (at least 3, 10-20 recommended)"
+    )]
     NoViews,
     /// A view holds a different number of corners than the board has.
     #[error("view {view}: the {} image has {got} corners, the board has {expected} (rows × cols)", side.name())]
@@ -106,7 +108,7 @@ pub enum CalibError {
     #[error("{0}")]
     Cameras(String),
     /// No axis within the search bound explains the observations (every candidate failed). The
-    /// reason ends with what the data look like ([`super::diagnose`]).
+    /// reason ends with what the data look like ([`diagnose`](crate::calib::methods::diagnose)).
     #[error("no candidate axis within a tilt of {}° lets both cameras triangulate the board: {reason}", degrees(*bound_deg))]
     NoSolution {
         /// The search bound, degrees.
@@ -115,7 +117,7 @@ pub enum CalibError {
         reason: String,
     },
     /// A view that repeats an earlier one: every corner it shares with it lies within
-    /// [`REPEAT_PX`](super::observations::REPEAT_PX) in both images, far below any detector's
+    /// [`REPEAT_PX`](crate::calib::problem::observations::REPEAT_PX) in both images, far below any detector's
     /// noise, so it is a copy of the same frame, not a second measurement.
     #[error("views[{view}] repeats views[{earlier}] (every corner within {max_px:.1e} px in both images){}: a copy of the same frame adds no information and would make the reported standard deviations too small; remove the copies", more_repeats(*more))]
     RepeatedView {
@@ -129,7 +131,9 @@ pub enum CalibError {
         more: usize,
     },
     /// The views show too few distinct board poses to constrain the axis and air layer.
-    #[error("the {views} views show only {distinct} distinct board pose(s) ({groups}): calibration needs at least {needed} poses at varied angles and depths")]
+    #[error(
+        "the {views} views show only {distinct} distinct board pose(s) ({groups}): calibration needs at least {needed} poses at varied angles and depths"
+    )]
     TooFewPoses {
         /// Views given.
         views: usize,
@@ -170,7 +174,11 @@ pub fn number(value: f64) -> String {
     }
     let text = format!("{value:.6}");
     let text = text.trim_end_matches('0').trim_end_matches('.');
-    if text == "-0" { "0".into() } else { text.into() }
+    if text == "-0" {
+        "0".into()
+    } else {
+        text.into()
+    }
 }
 
 fn more_repeats(more: usize) -> String {
@@ -193,11 +201,22 @@ impl CalibError {
             Self::BadBoard { .. } => "board".into(),
             Self::NoViews | Self::TooFewViews { .. } => "views".into(),
             Self::CornerCount { view, side, .. } => format!("views[{view}].{}", side.name()),
-            Self::CornerInOneImage { view, corner, missing } => format!("views[{view}].{}[{corner}]", missing.name()),
-            Self::CornerNotFinite { view, side, corner, .. } | Self::CornerOutsideImage { view, side, corner, .. } => {
+            Self::CornerInOneImage {
+                view,
+                corner,
+                missing,
+            } => format!("views[{view}].{}[{corner}]", missing.name()),
+            Self::CornerNotFinite {
+                view, side, corner, ..
+            }
+            | Self::CornerOutsideImage {
+                view, side, corner, ..
+            } => {
                 format!("views[{view}].{}[{corner}]", side.name())
             }
-            Self::UnusableView { view, .. } | Self::RepeatedView { view, .. } => format!("views[{view}]"),
+            Self::UnusableView { view, .. } | Self::RepeatedView { view, .. } => {
+                format!("views[{view}]")
+            }
             Self::TooFewPoses { .. } => "views".into(),
             Self::Cameras(_) => "cameras".into(),
             Self::NoSolution { .. } | Self::Options(_) | Self::Gpu(_) => String::new(),

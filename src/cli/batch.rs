@@ -48,11 +48,19 @@ pub fn stream<const N: usize, const M: usize>(
             let reason = NoSolution::from_code(code).expect("engines return NoSolution codes");
             rejections.entry(code).or_insert((reason, 0)).1 += 1;
         }
-        writer.write_rows(results.iter().zip(&status).map(|(r, &s)| (s == 0).then_some(*r)))?;
+        writer.write_rows(
+            results
+                .iter()
+                .zip(&status)
+                .map(|(r, &s)| (s == 0).then_some(*r)),
+        )?;
         done += rows.len() as u64;
         if progress {
             match total {
-                Some(t) => eprint!("\r{done} of {t} rows ({:.0} %)", 100.0 * done as f64 / t.max(1) as f64),
+                Some(t) => eprint!(
+                    "\r{done} of {t} rows ({:.0} %)",
+                    100.0 * done as f64 / t.max(1) as f64
+                ),
                 None => eprint!("\r{done} rows"),
             }
         }
@@ -72,15 +80,27 @@ pub fn stream<const N: usize, const M: usize>(
 /// a pipe such as `<(…)` or `/dev/stdin`, a FIFO) can be read only once: its bytes are copied
 /// into an unnamed temporary file (in `$TMPDIR`, removed by the system when closed, even if the
 /// process is killed), which is checked and then streamed.
-pub fn checked_input<const N: usize>(input: &Path, header: [&str; N]) -> Result<(TableReader<N>, u64), IoError> {
+pub fn checked_input<const N: usize>(
+    input: &Path,
+    header: [&str; N],
+) -> Result<(TableReader<N>, u64), IoError> {
     let from_stdin = input.as_os_str() == "-";
     if !from_stdin && std::fs::metadata(input).is_ok_and(|m| m.is_file()) {
         let total = validate_table(input, header)?;
         return Ok((TableReader::open(input, header)?, total));
     }
-    let read_error = |source| IoError::Read { path: input.to_path_buf(), source };
+    let read_error = |source| IoError::Read {
+        path: input.to_path_buf(),
+        source,
+    };
     let mut spool = tempfile::tempfile().map_err(|e| {
-        read_error(std::io::Error::new(e.kind(), format!("cannot make a temporary copy of the input in {}: {e}", std::env::temp_dir().display())))
+        read_error(std::io::Error::new(
+            e.kind(),
+            format!(
+                "cannot make a temporary copy of the input in {}: {e}",
+                std::env::temp_dir().display()
+            ),
+        ))
     })?;
     let copied = if from_stdin {
         std::io::copy(&mut std::io::stdin().lock(), &mut spool)
@@ -91,12 +111,20 @@ pub fn checked_input<const N: usize>(input: &Path, header: [&str; N]) -> Result<
     spool.rewind().map_err(read_error)?;
     // The clone shares the file offset: rewound again once the check has read to the end.
     let check_handle = spool.try_clone().map_err(read_error)?;
-    let mut check = TableReader::from_reader(Box::new(BufReader::new(check_handle)) as TableSource, input, header)?;
+    let mut check = TableReader::from_reader(
+        Box::new(BufReader::new(check_handle)) as TableSource,
+        input,
+        header,
+    )?;
     while check.next_row()?.is_some() {}
     let total = check.rows_read();
     drop(check);
     spool.rewind().map_err(read_error)?;
-    let reader = TableReader::from_reader(Box::new(BufReader::new(spool)) as TableSource, input, header)?;
+    let reader = TableReader::from_reader(
+        Box::new(BufReader::new(spool)) as TableSource,
+        input,
+        header,
+    )?;
     Ok((reader, total))
 }
 
@@ -106,6 +134,12 @@ pub fn report_rejections(total: usize, rejections: &BTreeMap<u32, (NoSolution, u
     if nan_rows == 0 {
         return;
     }
-    let reasons: Vec<String> = rejections.values().map(|(reason, n)| format!("{n} {reason}")).collect();
-    eprintln!("{nan_rows} of {total} rows have no answer (written as NaN): {}", reasons.join(", "));
+    let reasons: Vec<String> = rejections
+        .values()
+        .map(|(reason, n)| format!("{n} {reason}"))
+        .collect();
+    eprintln!(
+        "{nan_rows} of {total} rows have no answer (written as NaN): {}",
+        reasons.join(", ")
+    );
 }

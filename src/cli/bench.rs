@@ -11,9 +11,12 @@ use clap::Args;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use flatport::calib::{Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, simulate};
-use flatport::engine::{CpuEngine, CpuPath};
+use flatport::calib::{
+    Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData,
+    simulate,
+};
 use flatport::engine::workload::{Workload, without_distortion};
+use flatport::engine::{CpuEngine, CpuPath};
 use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision};
 use flatport::io::{rig_from_json_str, write_atomic};
 use flatport::model::{RefractiveCamera, Rig, normal_from_tilt_azimuth};
@@ -42,21 +45,44 @@ pub struct BenchArgs {
     #[arg(long)]
     no_gpu: bool,
     /// Axis cells of the invariant sweep figure (over about 10 000 correspondences; at most 1048576)
-    #[arg(long, value_name = "CELLS", default_value_t = 4096, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "CELLS",
+        default_value_t = 4096,
+        allow_negative_numbers = true
+    )]
     sweep_cells: usize,
 }
 
 /// The sweep workload: 185 simulated views of a 9×6 board (9 990 correspondences) by the first
 /// two cameras, and a square tilt × azimuth grid of about `cells` axes (tilts 0–20°).
 fn sweep_workload(rig: &Rig, cells: usize) -> anyhow::Result<(StereoData, Vec<Candidate>)> {
-    let scene = simulate(rig, 0, 1, &SceneSpec::new(Board { rows: 6, cols: 9, square: 0.04 }, 185, 0.1, 1))?;
+    let scene = simulate(
+        rig,
+        0,
+        1,
+        &SceneSpec::new(
+            Board {
+                rows: 6,
+                cols: 9,
+                square: 0.04,
+            },
+            185,
+            0.1,
+            1,
+        ),
+    )?;
     let data = StereoData::new(rig, [0, 1], &scene.observations)?;
     let side = (cells.max(1) as f64).sqrt().ceil() as usize;
     let candidates = (0..side * side)
         .map(|k| {
             let tilt = 20f64.to_radians() * (k / side) as f64 / side as f64;
-            let azimuth = std::f64::consts::TAU * (k % side) as f64 / side as f64 - std::f64::consts::PI;
-            Candidate { normal: normal_from_tilt_azimuth(tilt, azimuth), air_distance: f64::NAN }
+            let azimuth =
+                std::f64::consts::TAU * (k % side) as f64 / side as f64 - std::f64::consts::PI;
+            Candidate {
+                normal: normal_from_tilt_azimuth(tilt, azimuth),
+                air_distance: f64::NAN,
+            }
         })
         .collect();
     Ok((data, candidates))
@@ -120,7 +146,11 @@ struct Floor {
 
 /// Fastest of `repeats` runs of `run` on each engine after one warm-up each, the engines taking
 /// turns run by run, in seconds.
-fn alternating(repeats: usize, engines: [&CpuEngine; 2], run: &mut dyn FnMut(&CpuEngine)) -> [f64; 2] {
+fn alternating(
+    repeats: usize,
+    engines: [&CpuEngine; 2],
+    run: &mut dyn FnMut(&CpuEngine),
+) -> [f64; 2] {
     let mut best = [f64::INFINITY; 2];
     for round in 0..=repeats.max(1) {
         for (k, engine) in engines.iter().enumerate() {
@@ -152,42 +182,82 @@ fn cpu_clock_hz() -> Option<f64> {
 /// - forward projection: √ of r, the start's two ÷, per Newton iteration (mean over the workload,
 ///   measured) one √ and one ÷ per medium but the reference and the step's ÷, then √q and 1/z;
 /// - triangulation: two back-projections, the residual's √ and two ÷.
-fn where_the_time_goes(a: &RefractiveCamera, a_pinhole: &RefractiveCamera, work: &Workload, results: &[Figure], clock_hz: Option<f64>) -> Option<Floors> {
+fn where_the_time_goes(
+    a: &RefractiveCamera,
+    a_pinhole: &RefractiveCamera,
+    work: &Workload,
+    results: &[Figure],
+    clock_hz: Option<f64>,
+) -> Option<Floors> {
     let hz = clock_hz?;
     let (sqrt_s, div_s) = flatport::engine::simd::sqrt_div_seconds(200_000);
     let (sqrt_c, div_c) = (sqrt_s * hz, div_s * hz);
     let layers = a.layers().len() as f64;
     let backproject = |camera: &RefractiveCamera| {
         let steps = flatport::engine::simd::undistortion_steps(camera, &work.pixels);
-        let distorts = if camera.intrinsics().has_distortion() { 1.0 } else { 0.0 };
+        let distorts = if camera.intrinsics().has_distortion() {
+            1.0
+        } else {
+            0.0
+        };
         (2.0 + layers + distorts, 2.0 + layers + steps)
     };
     let iterations: Vec<u32> = work
         .points
         .iter()
-        .filter_map(|p| a.air_path_to(&nalgebra::Point3::new(p[0], p[1], p[2])).ok().map(|path| path.iterations))
+        .filter_map(|p| {
+            a.air_path_to(&nalgebra::Point3::new(p[0], p[1], p[2]))
+                .ok()
+                .map(|path| path.iterations)
+        })
         .collect();
-    let mean_iterations = iterations.iter().map(|&i| f64::from(i)).sum::<f64>() / iterations.len().max(1) as f64;
+    let mean_iterations =
+        iterations.iter().map(|&i| f64::from(i)).sum::<f64>() / iterations.len().max(1) as f64;
     let media = layers + 2.0;
-    let project = (2.0 + mean_iterations * (media - 1.0), 3.0 + mean_iterations * media);
+    let project = (
+        2.0 + mean_iterations * (media - 1.0),
+        3.0 + mean_iterations * media,
+    );
     let (bp, bp_pinhole) = (backproject(a), backproject(a_pinhole));
     let triangulate = (2.0 * bp.0 + 1.0, 2.0 * bp.1 + 2.0);
     let measured = |kernel: &str| {
-        results.iter().find(|f| f.kernel == kernel && f.cpu_path == Some("vector") && f.threads == 1).and_then(|f| f.cycles_per_item)
+        results
+            .iter()
+            .find(|f| f.kernel == kernel && f.cpu_path == Some("vector") && f.threads == 1)
+            .and_then(|f| f.cycles_per_item)
     };
     outln!("
 where the time goes (vector path, one thread; √ {sqrt_c:.1} and ÷ {div_c:.1} cycles per lane, measured; {mean_iterations:.2} Newton iterations per projected point):");
-    let kernels: Vec<Floor> = [("backproject", bp), ("backproject_pinhole", bp_pinhole), ("project", project), ("triangulate", triangulate)]
-        .into_iter()
-        .map(|(kernel, (sqrt, div))| {
-            let floor = sqrt * sqrt_c + div * div_c;
-            let cycles = measured(kernel);
-            let shown = cycles.map(|c| format!("{c:6.0} cycles/item = {:4.1}× the floor", c / floor)).unwrap_or_default();
-            outln!("  {kernel:19} {sqrt:5.1} √ + {div:5.1} ÷ per item: floor {floor:5.1} cycles; {shown}");
-            Floor { kernel, sqrt_per_item: sqrt, div_per_item: div, floor_cycles_per_item: floor, cycles_per_item: cycles }
-        })
-        .collect();
-    Some(Floors { sqrt_cycles_per_lane: sqrt_c, div_cycles_per_lane: div_c, kernels })
+    let kernels: Vec<Floor> = [
+        ("backproject", bp),
+        ("backproject_pinhole", bp_pinhole),
+        ("project", project),
+        ("triangulate", triangulate),
+    ]
+    .into_iter()
+    .map(|(kernel, (sqrt, div))| {
+        let floor = sqrt * sqrt_c + div * div_c;
+        let cycles = measured(kernel);
+        let shown = cycles
+            .map(|c| format!("{c:6.0} cycles/item = {:4.1}× the floor", c / floor))
+            .unwrap_or_default();
+        outln!(
+            "  {kernel:19} {sqrt:5.1} √ + {div:5.1} ÷ per item: floor {floor:5.1} cycles; {shown}"
+        );
+        Floor {
+            kernel,
+            sqrt_per_item: sqrt,
+            div_per_item: div,
+            floor_cycles_per_item: floor,
+            cycles_per_item: cycles,
+        }
+    })
+    .collect();
+    Some(Floors {
+        sqrt_cycles_per_lane: sqrt_c,
+        div_cycles_per_lane: div_c,
+        kernels,
+    })
 }
 
 /// Fastest of `repeats` runs of `f` after one warm-up, in seconds.
@@ -213,11 +283,14 @@ fn memory_stream_bandwidth() -> f64 {
     for k in 0..6 {
         let s = 0.5 + k as f64;
         let start = Instant::now();
-        a.par_chunks_mut(1 << 16).zip(b.par_chunks(1 << 16)).zip(c.par_chunks(1 << 16)).for_each(|((a, b), c)| {
-            for ((a, b), c) in a.iter_mut().zip(b).zip(c) {
-                *a = b + s * c;
-            }
-        });
+        a.par_chunks_mut(1 << 16)
+            .zip(b.par_chunks(1 << 16))
+            .zip(c.par_chunks(1 << 16))
+            .for_each(|((a, b), c)| {
+                for ((a, b), c) in a.iter_mut().zip(b).zip(c) {
+                    *a = b + s * c;
+                }
+            });
         if k > 0 {
             best = best.min(start.elapsed().as_secs_f64());
         }
@@ -227,7 +300,11 @@ fn memory_stream_bandwidth() -> f64 {
 }
 
 fn human(rate: f64) -> String {
-    if rate >= 1e9 { format!("{:7.2} G/s", rate / 1e9) } else { format!("{:7.2} M/s", rate / 1e6) }
+    if rate >= 1e9 {
+        format!("{:7.2} G/s", rate / 1e9)
+    } else {
+        format!("{:7.2} M/s", rate / 1e6)
+    }
 }
 
 /// Bytes each bench item takes on the host: the inputs (pixels 16, points 24, matches 32), the
@@ -270,9 +347,15 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         None => rig_from_json_str(EXAMPLE_RIG, Path::new("<built-in example rig>"))?,
     };
     let n = args.items.max(1);
-    eprintln!("flatport bench: {n} items per batch, fastest of {} runs", args.repeats);
+    eprintln!(
+        "flatport bench: {n} items per batch, fastest of {} runs",
+        args.repeats
+    );
     let work = Workload::new(&rig, n);
-    let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1.min(rig.cameras().len() - 1)));
+    let (a, b) = (
+        rig.refractive_camera(0),
+        rig.refractive_camera(1.min(rig.cameras().len() - 1)),
+    );
     let mut results = Vec::new();
     let (sweep_data, sweep_candidates) = sweep_workload(&rig, args.sweep_cells)?;
     let sweep_items = sweep_candidates.len() * sweep_data.corners.len();
@@ -286,22 +369,52 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     // The CPU path of the next figure (`scalar`, `vector`; none for the GPU and the sweep).
     let cpu_path = std::cell::Cell::new(None);
     let clock_hz = cpu_clock_hz();
-    let mut record = |kernel: &'static str, path: &'static str, precision: &'static str, threads: usize, stage: &'static str, seconds: f64| {
+    let mut record = |kernel: &'static str,
+                      path: &'static str,
+                      precision: &'static str,
+                      threads: usize,
+                      stage: &'static str,
+                      seconds: f64| {
         let timer = next_timer.replace("host");
         let items = if kernel == "sweep" { sweep_items } else { n };
         let items_per_s = items as f64 / seconds;
         // Cycles per item at the OS's clock, for one thread on the CPU.
-        let cycles_per_item = clock_hz.filter(|_| path == "cpu" && threads == 1).map(|hz| hz / items_per_s);
-        let figure = Figure { kernel, path, cpu_path: cpu_path.get(), precision, threads, stage, timer, items, items_per_s, cycles_per_item };
-        let clock = if timer == "host" { String::new() } else { format!("  ({timer})") };
-        let cycles = cycles_per_item.map(|c| format!("  {c:6.0} cycles/item")).unwrap_or_default();
+        let cycles_per_item = clock_hz
+            .filter(|_| path == "cpu" && threads == 1)
+            .map(|hz| hz / items_per_s);
+        let figure = Figure {
+            kernel,
+            path,
+            cpu_path: cpu_path.get(),
+            precision,
+            threads,
+            stage,
+            timer,
+            items,
+            items_per_s,
+            cycles_per_item,
+        };
+        let clock = if timer == "host" {
+            String::new()
+        } else {
+            format!("  ({timer})")
+        };
+        let cycles = cycles_per_item
+            .map(|c| format!("  {c:6.0} cycles/item"))
+            .unwrap_or_default();
         let variant = cpu_path.get().unwrap_or("");
-        outln!("{kernel:19} {path:3} {variant:6} {precision} {threads:>3} thr {stage:10} {}{clock}{cycles}", human(items_per_s));
+        outln!(
+            "{kernel:19} {path:3} {variant:6} {precision} {threads:>3} thr {stage:10} {}{clock}{cycles}",
+            human(items_per_s)
+        );
         results.push(figure);
     };
 
     let stream = memory_stream_bandwidth();
-    outln!("memory streaming bandwidth (triad, all cores): {:.2} GB/s", stream / 1e9);
+    outln!(
+        "memory streaming bandwidth (triad, all cores): {:.2} GB/s",
+        stream / 1e9
+    );
 
     let all = CpuEngine::new(None);
     let mut out6 = vec![[0.0; 6]; n];
@@ -313,7 +426,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let isa = flatport::engine::simd::instruction_set();
     eprintln!("CPU paths: scalar (the model row by row) and vector ({isa}), run by run in turn");
     for threads in [1, all.threads()] {
-        let [scalar, vector] = [CpuPath::Scalar, CpuPath::Vector].map(|path| CpuEngine::with_path(Some(threads), path));
+        let [scalar, vector] = [CpuPath::Scalar, CpuPath::Vector]
+            .map(|path| CpuEngine::with_path(Some(threads), path));
         let mut pair = |kernel: &'static str, run: &mut dyn FnMut(&CpuEngine)| {
             let [t_scalar, t_vector] = alternating(args.repeats, [&scalar, &vector], run);
             cpu_path.set(Some("scalar"));
@@ -321,21 +435,40 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             cpu_path.set(Some("vector"));
             record(kernel, "cpu", "f64", threads, "end_to_end", t_vector);
         };
-        pair("backproject", &mut |cpu| cpu.backproject(&a, &work.pixels, &mut out6, &mut status));
-        pair("backproject_pinhole", &mut |cpu| cpu.backproject(&a_pinhole, &work.pixels, &mut out6, &mut status));
-        pair("project", &mut |cpu| cpu.project(&a, &work.points, &mut out2, &mut status));
-        pair("triangulate", &mut |cpu| cpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status));
-        pair("vop", &mut |cpu| cpu.vop(&a, &work.points, &mut out6, &mut status));
+        pair("backproject", &mut |cpu| {
+            cpu.backproject(&a, &work.pixels, &mut out6, &mut status)
+        });
+        pair("backproject_pinhole", &mut |cpu| {
+            cpu.backproject(&a_pinhole, &work.pixels, &mut out6, &mut status)
+        });
+        pair("project", &mut |cpu| {
+            cpu.project(&a, &work.points, &mut out2, &mut status)
+        });
+        pair("triangulate", &mut |cpu| {
+            cpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status)
+        });
+        pair("vop", &mut |cpu| {
+            cpu.vop(&a, &work.points, &mut out6, &mut status)
+        });
     }
     let cpu_backend = CpuBackend::new(&sweep_data);
-    let t = fastest(args.repeats.min(2), || Ok(cpu_backend.costs(CostKind::AffineGrid, &sweep_candidates).map(drop)?))?;
+    let t = fastest(args.repeats.min(2), || {
+        Ok(cpu_backend
+            .costs(CostKind::AffineGrid, &sweep_candidates)
+            .map(drop)?)
+    })?;
     cpu_path.set(None);
     record("sweep", "cpu", "f64", all.threads(), "end_to_end", t);
 
     let mut adapter = None;
     if !args.no_gpu {
-        let context = GpuContext::new(args.adapter.as_deref()).context("the GPU paths need a Vulkan adapter (or pass --no-gpu)")?;
-        adapter = Some(format!("{} ({})", context.adapter().name, context.adapter().driver));
+        let context = GpuContext::new(args.adapter.as_deref())
+            .context("the GPU paths need a Vulkan adapter (or pass --no-gpu)")?;
+        adapter = Some(format!(
+            "{} ({})",
+            context.adapter().name,
+            context.adapter().driver
+        ));
         eprintln!("GPU adapter: {}", adapter.as_deref().unwrap_or_default());
         let has_f64 = context.adapter().f64;
         let mut gpu = GpuEngine::new(context, Precision::F32)?;
@@ -349,28 +482,67 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 gpu = GpuEngine::new(context, Precision::F64)?;
             }
             let p = precision.name();
-            let kernel_only = |kernel: Kernel, gpu: &GpuEngine, a: &RefractiveCamera, b: &RefractiveCamera| -> anyhow::Result<f64> {
+            let kernel_only = |kernel: Kernel,
+                               gpu: &GpuEngine,
+                               a: &RefractiveCamera,
+                               b: &RefractiveCamera|
+             -> anyhow::Result<f64> {
                 let (seconds, timer) = match kernel {
-                    Kernel::Backproject => gpu.kernel_seconds::<2, 6>(kernel, a, b, &work.pixels, args.repeats)?,
-                    Kernel::Project => gpu.kernel_seconds::<3, 2>(kernel, a, b, &work.points, args.repeats)?,
+                    Kernel::Backproject => {
+                        gpu.kernel_seconds::<2, 6>(kernel, a, b, &work.pixels, args.repeats)?
+                    }
+                    Kernel::Project => {
+                        gpu.kernel_seconds::<3, 2>(kernel, a, b, &work.points, args.repeats)?
+                    }
                     _ => gpu.kernel_seconds::<4, 4>(kernel, a, b, &work.matches, args.repeats)?,
                 };
                 next_timer.set(timer.name());
                 Ok(seconds)
             };
-            record("backproject", "gpu", p, 0, "kernel", kernel_only(Kernel::Backproject, &gpu, &a, &a)?);
-            let t = fastest(args.repeats, || Ok(gpu.backproject(&a, &work.pixels, &mut out6, &mut status)?))?;
+            record(
+                "backproject",
+                "gpu",
+                p,
+                0,
+                "kernel",
+                kernel_only(Kernel::Backproject, &gpu, &a, &a)?,
+            );
+            let t = fastest(args.repeats, || {
+                Ok(gpu.backproject(&a, &work.pixels, &mut out6, &mut status)?)
+            })?;
             record("backproject", "gpu", p, 0, "end_to_end", t);
-            record("project", "gpu", p, 0, "kernel", kernel_only(Kernel::Project, &gpu, &a, &a)?);
-            let t = fastest(args.repeats, || Ok(gpu.project(&a, &work.points, &mut out2, &mut status)?))?;
+            record(
+                "project",
+                "gpu",
+                p,
+                0,
+                "kernel",
+                kernel_only(Kernel::Project, &gpu, &a, &a)?,
+            );
+            let t = fastest(args.repeats, || {
+                Ok(gpu.project(&a, &work.points, &mut out2, &mut status)?)
+            })?;
             record("project", "gpu", p, 0, "end_to_end", t);
-            record("triangulate", "gpu", p, 0, "kernel", kernel_only(Kernel::Triangulate, &gpu, &a, &b)?);
-            let t = fastest(args.repeats, || Ok(gpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status)?))?;
+            record(
+                "triangulate",
+                "gpu",
+                p,
+                0,
+                "kernel",
+                kernel_only(Kernel::Triangulate, &gpu, &a, &b)?,
+            );
+            let t = fastest(args.repeats, || {
+                Ok(gpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status)?)
+            })?;
             record("triangulate", "gpu", p, 0, "end_to_end", t);
             // The fused affine-grid kernel runs in f64 whatever the engine's precision: one figure.
             if precision == Precision::F64 {
                 let gpu_backend = GpuBackend::new(&sweep_data, &gpu);
-                let t = fastest(args.repeats.min(2), || Ok(gpu_backend.costs(CostKind::AffineGrid, &sweep_candidates).map(drop)?))?;
+                let t = fastest(args.repeats.min(2), || {
+                    Ok(gpu_backend
+                        .costs(CostKind::AffineGrid, &sweep_candidates)
+                        .map(drop)?)
+                })?;
                 record("sweep", "gpu", p, 0, "end_to_end", t);
             }
         }
@@ -400,7 +572,12 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
 /// cannot run that reference, so it does not compare against it).
 fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
     // A CPU figure is the vector path's unless `scalar` is asked for.
-    let rate_on = |kernel: &str, path: &str, cpu_path: Option<&str>, precision: &str, threads: Option<usize>, stage: &str| {
+    let rate_on = |kernel: &str,
+                   path: &str,
+                   cpu_path: Option<&str>,
+                   precision: &str,
+                   threads: Option<usize>,
+                   stage: &str| {
         results
             .iter()
             .find(|f| {
@@ -413,7 +590,9 @@ fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
             })
             .map(|f| f.items_per_s)
     };
-    let rate = |kernel: &str, path: &str, precision: &str, threads: Option<usize>, stage: &str| rate_on(kernel, path, Some("vector"), precision, threads, stage);
+    let rate = |kernel: &str, path: &str, precision: &str, threads: Option<usize>, stage: &str| {
+        rate_on(kernel, path, Some("vector"), precision, threads, stage)
+    };
     outln!("\nratios from this run (the goals are in the README, \"Speed goals\"):");
     let cpu_all = |k: &str| rate(k, "cpu", "f64", Some(threads), "end_to_end");
     let show = |name: &str, value: Option<f64>| match value {
@@ -421,20 +600,60 @@ fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
         None => outln!("  {name:72}      n/a"),
     };
     let ratio = |x: Option<f64>, y: Option<f64>| x.zip(y).map(|(x, y)| x / y);
-    for kernel in ["backproject", "backproject_pinhole", "project", "triangulate", "vop"] {
+    for kernel in [
+        "backproject",
+        "backproject_pinhole",
+        "project",
+        "triangulate",
+        "vop",
+    ] {
         for t in [1, threads] {
             let vector = rate_on(kernel, "cpu", Some("vector"), "f64", Some(t), "end_to_end");
             let scalar = rate_on(kernel, "cpu", Some("scalar"), "f64", Some(t), "end_to_end");
-            show(&format!("{kernel} CPU vector / scalar, {t} thread(s)"), ratio(vector, scalar));
+            show(
+                &format!("{kernel} CPU vector / scalar, {t} thread(s)"),
+                ratio(vector, scalar),
+            );
         }
     }
-    show("backproject GPU f32 kernel / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "kernel"), cpu_all("backproject")));
-    show("backproject GPU f32 end to end / CPU f64 all threads", ratio(rate("backproject", "gpu", "f32", None, "end_to_end"), cpu_all("backproject")));
-    let best = results.iter().filter(|f| f.kernel == "backproject").map(|f| f.items_per_s).fold(0.0, f64::max);
-    show("best backproject × 24 B / memory streaming bandwidth", Some(best * 24.0 / stream));
-    show("project GPU f32 end to end / CPU f64 all threads", ratio(rate("project", "gpu", "f32", None, "end_to_end"), cpu_all("project")));
+    show(
+        "backproject GPU f32 kernel / CPU f64 all threads",
+        ratio(
+            rate("backproject", "gpu", "f32", None, "kernel"),
+            cpu_all("backproject"),
+        ),
+    );
+    show(
+        "backproject GPU f32 end to end / CPU f64 all threads",
+        ratio(
+            rate("backproject", "gpu", "f32", None, "end_to_end"),
+            cpu_all("backproject"),
+        ),
+    );
+    let best = results
+        .iter()
+        .filter(|f| f.kernel == "backproject")
+        .map(|f| f.items_per_s)
+        .fold(0.0, f64::max);
+    show(
+        "best backproject × 24 B / memory streaming bandwidth",
+        Some(best * 24.0 / stream),
+    );
+    show(
+        "project GPU f32 end to end / CPU f64 all threads",
+        ratio(
+            rate("project", "gpu", "f32", None, "end_to_end"),
+            cpu_all("project"),
+        ),
+    );
     // The README's sweep figure: 256 × 256 axes over 10 000 correspondences.
     let seconds = |r: Option<f64>| r.map(|r| 256.0 * 256.0 * 1e4 / r);
-    show("sweep GPU (f64 kernel): seconds for 256² axes × 10⁴ correspondences", seconds(rate("sweep", "gpu", "f64", None, "end_to_end")));
-    show("sweep CPU f64 all threads: seconds for 256² axes × 10⁴ correspondences", seconds(rate("sweep", "cpu", "f64", Some(threads), "end_to_end")));
+    show(
+        "sweep GPU (f64 kernel): seconds for 256² axes × 10⁴ correspondences",
+        seconds(rate("sweep", "gpu", "f64", None, "end_to_end")),
+    );
+    show(
+        "sweep CPU f64 all threads: seconds for 256² axes × 10⁴ correspondences",
+        seconds(rate("sweep", "cpu", "f64", Some(threads), "end_to_end")),
+    );
 }

@@ -7,14 +7,20 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 
-use flatport::calib::search::{MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text};
 use flatport::calib::simulate::{MAX_BOARD_CORNERS, MAX_SIMULATED_CORNERS};
+use flatport::calib::solvers::search::{
+    MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text,
+};
 use flatport::calib::{
-    Board, CalibError, CalibrationOptions, CalibrationProgress, CalibrationReport, CostBackend, CpuBackend, GpuBackend, Method,
-    Observations, SceneSpec, StereoData, calibrate_with_progress, simulate,
+    Board, CalibError, CalibrationOptions, CalibrationProgress, CalibrationReport, CostBackend,
+    CpuBackend, GpuBackend, Method, Observations, SceneSpec, StereoData, calibrate_with_progress,
+    simulate,
 };
 use flatport::engine::Engine;
-use flatport::io::{IoError, Truth, read_observations, read_rig, read_truth, write_observations, write_report, write_rig, write_truth};
+use flatport::io::{
+    IoError, Truth, read_observations, read_rig, read_truth, write_observations, write_report,
+    write_rig, write_truth,
+};
 use flatport::model::Rig;
 
 /// `flatport simulate`
@@ -91,7 +97,7 @@ pub struct CalibrateArgs {
     /// Largest RMS reprojection error (pixels, either camera, outlier corners left out) accepted
     /// as a fit: above it the report (if asked for) is written with what the data look like, the
     /// rig is not written, and the exit status is 1
-    #[arg(long, value_name = "PX", default_value_t = flatport::calib::calibrate::DEFAULT_MAX_RMS_PX)]
+    #[arg(long, value_name = "PX", default_value_t = flatport::calib::methods::calibrate::DEFAULT_MAX_RMS_PX)]
     max_rms_px: f64,
     /// Truth of a simulated scene (from `flatport simulate`): print the errors of the result
     #[arg(long, value_name = "TRUTH.json")]
@@ -113,7 +119,9 @@ pub fn parse_board(text: &str) -> Result<Board, String> {
     let rows: usize = rows.trim().parse().map_err(|_| error())?;
     let square: f64 = square.trim().parse().map_err(|_| error())?;
     if cols < 2 || rows < 2 || !(square > 0.0 && square.is_finite()) {
-        return Err(format!("a board needs at least 2x2 inner corners and a square > 0 m, got '{text}'"));
+        return Err(format!(
+            "a board needs at least 2x2 inner corners and a square > 0 m, got '{text}'"
+        ));
     }
     if !(MIN_SQUARE_M..=MAX_SQUARE_M).contains(&square) {
         return Err(format!(
@@ -129,15 +137,27 @@ pub fn parse_board(text: &str) -> Result<Board, String> {
 }
 
 /// Rig indices of the stereo pair: by name, else the first two cameras.
-pub fn stereo_pair(rig: &Rig, names: Option<(&str, &str)>, source: &str) -> anyhow::Result<[usize; 2]> {
+pub fn stereo_pair(
+    rig: &Rig,
+    names: Option<(&str, &str)>,
+    source: &str,
+) -> anyhow::Result<[usize; 2]> {
     if rig.cameras().len() < 2 {
-        bail!("the rig has {} camera(s): calibration needs a stereo pair", rig.cameras().len());
+        bail!(
+            "the rig has {} camera(s): calibration needs a stereo pair",
+            rig.cameras().len()
+        );
     }
-    let Some((a, b)) = names else { return Ok([0, 1]) };
+    let Some((a, b)) = names else {
+        return Ok([0, 1]);
+    };
     let index = |name: &str| {
         rig.camera_index(name).with_context(|| {
             let known: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
-            format!("{source} names camera '{name}', which the rig does not have (it has {})", known.join(", "))
+            format!(
+                "{source} names camera '{name}', which the rig does not have (it has {})",
+                known.join(", ")
+            )
         })
     };
     let pair = [index(a)?, index(b)?];
@@ -151,7 +171,10 @@ pub fn stereo_pair(rig: &Rig, names: Option<(&str, &str)>, source: &str) -> anyh
 /// the master camera's z axis and 10 mm of air. `simulate` writes it as start_rig.json, and the
 /// demo calibrates from it.
 pub fn naive_start(rig: &Rig) -> anyhow::Result<Rig> {
-    Ok(rig.with_interface(rig.interface().with_pose(nalgebra::Vector3::z(), NAIVE_AIR_DISTANCE)?)?)
+    Ok(rig.with_interface(
+        rig.interface()
+            .with_pose(nalgebra::Vector3::z(), NAIVE_AIR_DISTANCE)?,
+    )?)
 }
 
 /// The air layer of [`naive_start`], metres.
@@ -169,13 +192,23 @@ pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
         );
     }
     let rig = read_rig(&args.rig)?;
-    let pair = stereo_pair(&rig, args.cameras.as_ref().map(|(a, b)| (a.as_str(), b.as_str())), "--cameras")?;
+    let pair = stereo_pair(
+        &rig,
+        args.cameras.as_ref().map(|(a, b)| (a.as_str(), b.as_str())),
+        "--cameras",
+    )?;
     let mut spec = SceneSpec::new(args.board, args.views, args.noise, args.seed);
     spec.max_board_tilt = args.max_board_tilt_deg.to_radians();
     let scene = simulate(&rig, pair[0], pair[1], &spec)?;
-    std::fs::create_dir_all(&args.output).with_context(|| format!("cannot create {}", args.output.display()))?;
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("cannot create {}", args.output.display()))?;
     write_observations(&args.output.join("observations.json"), &scene.observations)?;
-    let truth = Truth { interface: rig.interface().clone(), master_from_board: scene.master_from_board, noise_px: args.noise, seed: args.seed };
+    let truth = Truth {
+        interface: rig.interface().clone(),
+        master_from_board: scene.master_from_board,
+        noise_px: args.noise,
+        seed: args.seed,
+    };
     write_truth(&args.output.join("truth.json"), &truth)?;
     write_rig(&args.output.join("rig.json"), &rig)?;
     write_rig(&args.output.join("start_rig.json"), &naive_start(&rig)?)?;
@@ -198,19 +231,33 @@ pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
 
 /// A calibration error about the observations, located in the file.
 fn in_file(path: &Path, error: CalibError) -> anyhow::Error {
-    IoError::Invalid { path: path.to_path_buf(), field: error.field(), reason: error.to_string() }.into()
+    IoError::Invalid {
+        path: path.to_path_buf(),
+        field: error.field(),
+        reason: error.to_string(),
+    }
+    .into()
 }
 
 /// Reads a rig and observations, checks the observations against the pair of cameras they name
 /// (errors located in the observations file), and prepares them: (rig, data, warnings).
-pub fn load_stereo_data(rig_path: &Path, observations_path: &Path) -> anyhow::Result<(Rig, StereoData, Vec<String>)> {
+pub fn load_stereo_data(
+    rig_path: &Path,
+    observations_path: &Path,
+) -> anyhow::Result<(Rig, StereoData, Vec<String>)> {
     let rig = read_rig(rig_path)?;
     let observations: Observations = read_observations(observations_path)?;
-    let names = observations.cameras.as_ref().map(|[a, b]| (a.as_str(), b.as_str()));
+    let names = observations
+        .cameras
+        .as_ref()
+        .map(|[a, b]| (a.as_str(), b.as_str()));
     let pair = stereo_pair(&rig, names, &observations_path.display().to_string())?;
     let intrinsics = pair.map(|k| rig.cameras()[k].intrinsics);
-    let warnings = observations.validate(&intrinsics[0], &intrinsics[1]).map_err(|e| in_file(observations_path, e))?;
-    let data = StereoData::new(&rig, pair, &observations).map_err(|e| in_file(observations_path, e))?;
+    let warnings = observations
+        .validate(&intrinsics[0], &intrinsics[1])
+        .map_err(|e| in_file(observations_path, e))?;
+    let data =
+        StereoData::new(&rig, pair, &observations).map_err(|e| in_file(observations_path, e))?;
     Ok((rig, data, warnings))
 }
 
@@ -224,7 +271,10 @@ pub fn cost_backend<'a>(engine: &'a Engine, data: &'a StereoData) -> Box<dyn Cos
 
 /// Checks the size of the global search grid before anything is read.
 fn check_grid_step(args: &CalibrateArgs) -> anyhow::Result<()> {
-    let (bound, spacing) = (args.max_tilt_deg.to_radians(), args.grid_step_deg.to_radians());
+    let (bound, spacing) = (
+        args.max_tilt_deg.to_radians(),
+        args.grid_step_deg.to_radians(),
+    );
     // Other values of the two options are refused by the calibration with their own message.
     if bound > 0.0 && bound < 80f64.to_radians() && spacing > 0.0 && spacing <= bound {
         let axes = cap_grid_size(bound, spacing);
@@ -259,7 +309,10 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         bail!("--huber must be a positive number of pixels");
     }
     if args.max_rms_px.is_nan() || args.max_rms_px <= 0.0 {
-        bail!("--max-rms-px must be a positive number of pixels, got {}", args.max_rms_px);
+        bail!(
+            "--max-rms-px must be a positive number of pixels, got {}",
+            args.max_rms_px
+        );
     }
     let engine = calibration_engine(&args.engine)?;
     let backend = cost_backend(&engine, &data);
@@ -272,7 +325,9 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     );
     // Errors about the data name the observations file.
     let mut status = CalibrationStatus::new();
-    let calibration = calibrate_with_progress(backend.as_ref(), &options, warnings, &mut |p| status.update(p));
+    let calibration = calibrate_with_progress(backend.as_ref(), &options, warnings, &mut |p| {
+        status.update(p)
+    });
     status.finish();
     let calibration = calibration.map_err(|e| in_file(&args.observations, e))?;
     let report = &calibration.report;
@@ -292,12 +347,21 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
             args.max_rms_px,
             report.diagnosis.join("; "),
             args.output.display(),
-            args.report.as_ref().map_or(String::new(), |p| format!("; the report is in {}", p.display()))
+            args.report.as_ref().map_or(String::new(), |p| format!(
+                "; the report is in {}",
+                p.display()
+            ))
         );
     }
     let calibrated = rig.with_interface(calibration.interface.clone())?;
     write_rig(&args.output, &calibrated)?;
-    outln!("wrote {}{}", args.output.display(), args.report.as_ref().map_or(String::new(), |p| format!(", {}", p.display())));
+    outln!(
+        "wrote {}{}",
+        args.output.display(),
+        args.report
+            .as_ref()
+            .map_or(String::new(), |p| format!(", {}", p.display()))
+    );
     Ok(())
 }
 
@@ -319,7 +383,13 @@ impl CalibrationStatus {
     const REDRAW_EVERY: Duration = Duration::from_millis(200);
 
     fn new() -> Self {
-        Self { started: Instant::now(), terminal: std::io::stderr().is_terminal(), last: None, stage: String::new(), drawn: false }
+        Self {
+            started: Instant::now(),
+            terminal: std::io::stderr().is_terminal(),
+            last: None,
+            stage: String::new(),
+            drawn: false,
+        }
     }
 
     fn update(&mut self, p: &CalibrationProgress) {
@@ -329,7 +399,11 @@ impl CalibrationStatus {
             return;
         }
         let new_stage = p.stage != self.stage;
-        let every = if self.terminal { Self::REDRAW_EVERY } else { Self::LOG_EVERY };
+        let every = if self.terminal {
+            Self::REDRAW_EVERY
+        } else {
+            Self::LOG_EVERY
+        };
         if !new_stage && self.last.is_some_and(|l| now - l < every) {
             return;
         }
@@ -341,10 +415,22 @@ impl CalibrationStatus {
             Some(total) => format!("{}/{total}", p.done),
             None => format!("iteration {}", p.done),
         };
-        let cost = if p.cost.is_finite() { format!(", cost {:.6e} {}", p.cost, p.unit) } else { String::new() };
-        let line = format!("[{:.1} s] {}: {steps}{cost}", elapsed.as_secs_f64(), p.stage);
+        let cost = if p.cost.is_finite() {
+            format!(", cost {:.6e} {}", p.cost, p.unit)
+        } else {
+            String::new()
+        };
+        let line = format!(
+            "[{:.1} s] {}: {steps}{cost}",
+            elapsed.as_secs_f64(),
+            p.stage
+        );
         let mut err = std::io::stderr().lock();
-        let _ = if self.terminal { write!(err, "\r{line}\x1b[K") } else { writeln!(err, "{line}") };
+        let _ = if self.terminal {
+            write!(err, "\r{line}\x1b[K")
+        } else {
+            writeln!(err, "{line}")
+        };
         self.drawn = true;
     }
 
@@ -360,7 +446,11 @@ impl CalibrationStatus {
 /// the local refinement takes finite differences far below f32's resolution.
 pub fn calibration_engine(args: &super::EngineArgs) -> anyhow::Result<Engine> {
     if args.precision.is_none() && args.device != super::Device::Cpu {
-        let f64_args = super::EngineArgs { device: args.device, precision: Some(super::PrecisionArg::F64), adapter: args.adapter.clone() };
+        let f64_args = super::EngineArgs {
+            device: args.device,
+            precision: Some(super::PrecisionArg::F64),
+            adapter: args.adapter.clone(),
+        };
         if let Ok(engine) = f64_args.engine_quiet() {
             return Ok(engine);
         }
@@ -370,7 +460,11 @@ pub fn calibration_engine(args: &super::EngineArgs) -> anyhow::Result<Engine> {
 
 /// Errors of a result against the truth of a simulated scene, one line.
 pub fn truth_errors(report: &CalibrationReport, truth: &Truth) -> String {
-    let axis = report.candidate.normal.angle(truth.interface.normal()).to_degrees();
+    let axis = report
+        .candidate
+        .normal
+        .angle(truth.interface.normal())
+        .to_degrees();
     let air = (report.candidate.air_distance - truth.interface.air_distance()) * 1e3;
     format!("against the truth: axis off by {axis:.5}°, air layer off by {air:+.4} mm")
 }
@@ -382,31 +476,65 @@ const MAX_LISTED_OUTLIERS: usize = 12;
 pub fn summary(report: &CalibrationReport) -> String {
     let c = &report.candidate;
     let n = c.normal;
-    let mut text = format!("calibrated ({}) in {:.3} s on {}\n", report.method.name(), report.seconds, report.backend);
+    let mut text = format!(
+        "calibrated ({}) in {:.3} s on {}\n",
+        report.method.name(),
+        report.seconds,
+        report.backend
+    );
     let std = report.std;
-    let pm = |i: usize, scale: f64, unit: &str| std.map_or(String::new(), |s| format!(" ± {:.4}{unit}", s[i] * scale));
+    let pm = |i: usize, scale: f64, unit: &str| {
+        std.map_or(String::new(), |s| format!(" ± {:.4}{unit}", s[i] * scale))
+    };
     text += &format!("  normal      [{:.6}, {:.6}, {:.6}]\n", n.x, n.y, n.z);
-    text += &format!("  tilt        {:.4}°{}\n", c.tilt().to_degrees(), pm(0, 180.0 / std::f64::consts::PI, "°"));
-    text += &format!("  azimuth     {:.4}°{}\n", c.azimuth().to_degrees(), pm(1, 180.0 / std::f64::consts::PI, "°"));
-    text += &format!("  air layer   {:.4} mm{}\n", c.air_distance * 1e3, pm(2, 1e3, " mm"));
+    text += &format!(
+        "  tilt        {:.4}°{}\n",
+        c.tilt().to_degrees(),
+        pm(0, 180.0 / std::f64::consts::PI, "°")
+    );
+    text += &format!(
+        "  azimuth     {:.4}°{}\n",
+        c.azimuth().to_degrees(),
+        pm(1, 180.0 / std::f64::consts::PI, "°")
+    );
+    text += &format!(
+        "  air layer   {:.4} mm{}\n",
+        c.air_distance * 1e3,
+        pm(2, 1e3, " mm")
+    );
     text += &format!(
         "  reprojection RMS: left {:.4} px, right {:.4} px{}\n",
         report.rms_px[0],
         report.rms_px[1],
-        report.sigma_px.map_or(String::new(), |s| format!(" (noise estimate σ {s:.4} px)"))
+        report
+            .sigma_px
+            .map_or(String::new(), |s| format!(" (noise estimate σ {s:.4} px)"))
     );
     text += &format!(
         "  3-D: board fit RMS {:.4} mm, square deviation RMS {:.4} mm\n",
         report.scene_rms_m * 1e3,
         report.square_deviation_rms_m * 1e3
     );
-    let worst = report.rms_px_per_view.iter().enumerate().max_by(|a, b| a.1[0].max(a.1[1]).total_cmp(&b.1[0].max(b.1[1])));
+    let worst = report
+        .rms_px_per_view
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1[0].max(a.1[1]).total_cmp(&b.1[0].max(b.1[1])));
     if let Some((v, rms)) = worst {
-        text += &format!("  {} views, {} corners; worst view {v}: {:.4} / {:.4} px\n", report.views, report.corners, rms[0], rms[1]);
+        text += &format!(
+            "  {} views, {} corners; worst view {v}: {:.4} / {:.4} px\n",
+            report.views, report.corners, rms[0], rms[1]
+        );
     }
-    text += &format!("  {} iterations ({})\n", report.iterations, report.termination);
+    text += &format!(
+        "  {} iterations ({})\n",
+        report.iterations, report.termination
+    );
     if !report.outlier_images.is_empty() {
-        text += &format!("  {} outlier corner(s) (view, image, corner: residual under the result):\n", report.outliers.len());
+        text += &format!(
+            "  {} outlier corner(s) (view, image, corner: residual under the result):\n",
+            report.outliers.len()
+        );
         for o in report.outlier_images.iter().take(MAX_LISTED_OUTLIERS) {
             text += &format!(
                 "    view {}, {} image ({}), corner {}: {:.2} px{}\n",
@@ -415,11 +543,18 @@ pub fn summary(report: &CalibrationReport) -> String {
                 o.camera,
                 o.corner,
                 o.residual_px,
-                if o.screened { " (off the board's shape in its image: not used by the estimate)" } else { "" }
+                if o.screened {
+                    " (off the board's shape in its image: not used by the estimate)"
+                } else {
+                    ""
+                }
             );
         }
         if report.outlier_images.len() > MAX_LISTED_OUTLIERS {
-            text += &format!("    … and {} more (all in the report)\n", report.outlier_images.len() - MAX_LISTED_OUTLIERS);
+            text += &format!(
+                "    … and {} more (all in the report)\n",
+                report.outlier_images.len() - MAX_LISTED_OUTLIERS
+            );
         }
     }
     for warning in &report.warnings {

@@ -46,11 +46,21 @@ fn example_points() -> Vec<[f64; 3]> {
 
 fn inside(rig: &Rig, camera: usize, pixel: &Point2<f64>) -> bool {
     let i = &rig.cameras()[camera].intrinsics;
-    (-0.5..i.width as f64 - 0.5).contains(&pixel.x) && (-0.5..i.height as f64 - 0.5).contains(&pixel.y)
+    (-0.5..i.width as f64 - 0.5).contains(&pixel.x)
+        && (-0.5..i.height as f64 - 0.5).contains(&pixel.y)
 }
 
-fn write(dir: &Path, name: &str, header: [&str; 2], rows: &[Result<Point2<f64>, NoSolution>]) -> anyhow::Result<()> {
-    write_table(Some(&dir.join(name)), header, rows.iter().map(|r| r.ok().map(|p| [p.x, p.y])))?;
+fn write(
+    dir: &Path,
+    name: &str,
+    header: [&str; 2],
+    rows: &[Result<Point2<f64>, NoSolution>],
+) -> anyhow::Result<()> {
+    write_table(
+        Some(&dir.join(name)),
+        header,
+        rows.iter().map(|r| r.ok().map(|p| [p.x, p.y])),
+    )?;
     Ok(())
 }
 
@@ -70,17 +80,28 @@ const NOISE_PX: f64 = 0.125;
 
 /// Simulate, calibrate from the naive start, sweep the invariant around the result.
 fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyhow::Result<()> {
+    use flatport::calib::methods::sweep::Linspace;
     use flatport::calib::{Board, CalibrationOptions, SceneSpec, StereoData, calibrate, simulate};
-    use flatport::calib::sweep::Linspace;
     use flatport::engine::Engine;
     use flatport::io::{Truth, write_observations, write_report, write_truth};
 
-    outln!("\n1. simulate: {VIEWS} stereo views of a 9x6 chessboard (40 mm squares) in the water, {NOISE_PX} px noise");
-    let board = Board { rows: 6, cols: 9, square: 0.04 };
+    outln!(
+        "\n1. simulate: {VIEWS} stereo views of a 9x6 chessboard (40 mm squares) in the water, {NOISE_PX} px noise"
+    );
+    let board = Board {
+        rows: 6,
+        cols: 9,
+        square: 0.04,
+    };
     let scene = simulate(rig, 0, 1, &SceneSpec::new(board, VIEWS, NOISE_PX, 1))?;
     write_rig(&dir.join("rig.json"), rig)?;
     write_observations(&dir.join("observations.json"), &scene.observations)?;
-    let truth = Truth { interface: rig.interface().clone(), master_from_board: scene.master_from_board.clone(), noise_px: NOISE_PX, seed: 1 };
+    let truth = Truth {
+        interface: rig.interface().clone(),
+        master_from_board: scene.master_from_board.clone(),
+        noise_px: NOISE_PX,
+        seed: 1,
+    };
     write_truth(&dir.join("truth.json"), &truth)?;
 
     let start = super::calib::naive_start(rig)?;
@@ -90,24 +111,52 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     let engine: Engine = super::calib::calibration_engine(engine_args)?;
     let backend = super::calib::cost_backend(&engine, &data);
     let calibration = calibrate(backend.as_ref(), &CalibrationOptions::default(), vec![])?;
-    write_rig(&dir.join("calibrated_rig.json"), &start.with_interface(calibration.interface.clone())?)?;
+    write_rig(
+        &dir.join("calibrated_rig.json"),
+        &start.with_interface(calibration.interface.clone())?,
+    )?;
     write_report(&dir.join("report.json"), &calibration.report)?;
     for line in super::calib::summary(&calibration.report).lines() {
         outln!("   {line}");
     }
-    outln!("   {}", super::calib::truth_errors(&calibration.report, &truth));
+    outln!(
+        "   {}",
+        super::calib::truth_errors(&calibration.report, &truth)
+    );
 
-    outln!("3. sweep the affine-grid cost over the axis (a wide view, and a close one around the result):");
+    outln!(
+        "3. sweep the affine-grid cost over the axis (a wide view, and a close one around the result):"
+    );
     let found = calibration.report.candidate;
     let (tilt, azimuth) = (found.tilt().to_degrees(), found.azimuth().to_degrees());
     // Close view: ±1° of tilt, and azimuths spanning about ±1° of arc at this tilt.
     let arc = (1.0 / tilt.to_radians().sin().max(0.05)).min(180.0);
     let sweeps = [
-        ("sweep_wide", Linspace { start: 0.0, stop: 20.0, count: 96 }, Linspace { start: -180.0, stop: 180.0, count: 96 }),
+        (
+            "sweep_wide",
+            Linspace {
+                start: 0.0,
+                stop: 20.0,
+                count: 96,
+            },
+            Linspace {
+                start: -180.0,
+                stop: 180.0,
+                count: 96,
+            },
+        ),
         (
             "sweep_close",
-            Linspace { start: (tilt - 1.0).max(0.0), stop: tilt + 1.0, count: 64 },
-            Linspace { start: azimuth - arc, stop: azimuth + arc, count: 64 },
+            Linspace {
+                start: (tilt - 1.0).max(0.0),
+                stop: tilt + 1.0,
+                count: 64,
+            },
+            Linspace {
+                start: azimuth - arc,
+                stop: azimuth + arc,
+                count: 64,
+            },
         ),
     ];
     for (name, tilt_deg, azimuth_deg) in sweeps {
@@ -123,7 +172,11 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
             chunk: 4096,
             quiet: false,
             shard: None,
-            engine: super::EngineArgs { device: engine_args.device, precision: engine_args.precision, adapter: engine_args.adapter.clone() },
+            engine: super::EngineArgs {
+                device: engine_args.device,
+                precision: engine_args.precision,
+                adapter: engine_args.adapter.clone(),
+            },
         };
         let summary = super::sweep::run_sweep(&args)?;
         let m = &summary["argmin"];
@@ -148,36 +201,67 @@ fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let rig = rig.clone();
     write_rig(&dir.join("rig.json"), &rig)?;
-    outln!("\n4. the geometry on its own: project, back-project, triangulate a grid of points, VOPs");
+    outln!(
+        "\n4. the geometry on its own: project, back-project, triangulate a grid of points, VOPs"
+    );
 
     let points = example_points();
     let (left, right) = (rig.refractive_camera(0), rig.refractive_camera(1));
-    write_table(Some(&dir.join("points.csv")), ["x", "y", "z"], points.iter().map(|&p| Some(p)))?;
+    write_table(
+        Some(&dir.join("points.csv")),
+        ["x", "y", "z"],
+        points.iter().map(|&p| Some(p)),
+    )?;
 
     // Forward projection into both cameras.
-    let paths: Vec<_> = points.iter().map(|p| left.air_path_to(&Point3::from(*p))).collect();
+    let paths: Vec<_> = points
+        .iter()
+        .map(|p| left.air_path_to(&Point3::from(*p)))
+        .collect();
     let started = Instant::now();
-    let pixels_left: Vec<_> = points.iter().map(|p| left.project(&Point3::from(*p))).collect();
-    let pixels_right: Vec<_> = points.iter().map(|p| right.project(&Point3::from(*p))).collect();
+    let pixels_left: Vec<_> = points
+        .iter()
+        .map(|p| left.project(&Point3::from(*p)))
+        .collect();
+    let pixels_right: Vec<_> = points
+        .iter()
+        .map(|p| right.project(&Point3::from(*p)))
+        .collect();
     let project_time = started.elapsed();
     write(dir, "pixels_left.csv", ["u", "v"], &pixels_left)?;
     write(dir, "pixels_right.csv", ["u", "v"], &pixels_right)?;
-    let mut iterations: Vec<u32> = paths.iter().filter_map(|p| p.ok()).map(|p| p.iterations).collect();
+    let mut iterations: Vec<u32> = paths
+        .iter()
+        .filter_map(|p| p.ok())
+        .map(|p| p.iterations)
+        .collect();
     iterations.sort_unstable();
 
     // Back-projection of the left pixels: each ray must pass through its point.
     let started = Instant::now();
-    let rays: Vec<_> = pixels_left.iter().map(|p| p.and_then(|p| left.backproject(&p))).collect();
+    let rays: Vec<_> = pixels_left
+        .iter()
+        .map(|p| p.and_then(|p| left.backproject(&p)))
+        .collect();
     let backproject_time = started.elapsed();
     write_table(
         Some(&dir.join("rays_left.csv")),
         ["ox", "oy", "oz", "dx", "dy", "dz"],
-        rays.iter().map(|r| r.ok().map(|r| [r.origin.x, r.origin.y, r.origin.z, r.dir.x, r.dir.y, r.dir.z])),
+        rays.iter().map(|r| {
+            r.ok().map(|r| {
+                [
+                    r.origin.x, r.origin.y, r.origin.z, r.dir.x, r.dir.y, r.dir.z,
+                ]
+            })
+        }),
     )?;
     let miss = points
         .iter()
         .zip(&rays)
-        .filter_map(|(p, r)| r.ok().map(|r| (Point3::from(*p) - r.origin).cross(&r.dir).norm()))
+        .filter_map(|(p, r)| {
+            r.ok()
+                .map(|r| (Point3::from(*p) - r.origin).cross(&r.dir).norm())
+        })
         .fold(0.0, f64::max);
 
     // Triangulation of the matches seen by both cameras.
@@ -189,7 +273,11 @@ fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
             _ => None,
         })
         .collect();
-    write_table(Some(&dir.join("matches.csv")), ["ul", "vl", "ur", "vr"], matches.iter().copied())?;
+    write_table(
+        Some(&dir.join("matches.csv")),
+        ["ul", "vl", "ur", "vr"],
+        matches.iter().copied(),
+    )?;
     let started = Instant::now();
     let triangulated: Vec<_> = matches
         .iter()
@@ -204,7 +292,10 @@ fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
     write_table(
         Some(&dir.join("triangulated.csv")),
         ["x", "y", "z", "residual"],
-        triangulated.iter().map(|t| t.ok().map(|t| [t.point.x, t.point.y, t.point.z, t.residual])),
+        triangulated.iter().map(|t| {
+            t.ok()
+                .map(|t| [t.point.x, t.point.y, t.point.z, t.residual])
+        }),
     )?;
     let triangulation_error = points
         .iter()
@@ -216,21 +307,45 @@ fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
     let vops: Vec<_> = points.iter().map(|p| left.vop(&Point3::from(*p))).collect();
     write_table(
         Some(&dir.join("vops_left.csv")),
-        ["depth", "vop_distance", "vop_x", "vop_y", "vop_z", "incidence"],
-        vops.iter().map(|v| v.ok().map(|v| [v.depth, v.vop_distance, v.vop.x, v.vop.y, v.vop.z, v.incidence])),
+        [
+            "depth",
+            "vop_distance",
+            "vop_x",
+            "vop_y",
+            "vop_z",
+            "incidence",
+        ],
+        vops.iter().map(|v| {
+            v.ok().map(|v| {
+                [
+                    v.depth,
+                    v.vop_distance,
+                    v.vop.x,
+                    v.vop.y,
+                    v.vop.z,
+                    v.incidence,
+                ]
+            })
+        }),
     )?;
 
     let visible = pixels_left
         .iter()
         .zip(&pixels_right)
-        .filter(|(l, r)| matches!((l, r), (Ok(l), Ok(r)) if inside(&rig, 0, l) && inside(&rig, 1, r)))
+        .filter(
+            |(l, r)| matches!((l, r), (Ok(l), Ok(r)) if inside(&rig, 0, l) && inside(&rig, 1, r)),
+        )
         .count();
     let projected = pixels_left.iter().filter(|p| p.is_ok()).count();
     let median = iterations.get(iterations.len() / 2).copied().unwrap_or(0);
     let max = iterations.last().copied().unwrap_or(0);
     let micros = |d: std::time::Duration| d.as_secs_f64() * 1e6;
 
-    outln!("{} points on 4 planes 0.3–6 m away ({} inside both images)", points.len(), visible);
+    outln!(
+        "{} points on 4 planes 0.3–6 m away ({} inside both images)",
+        points.len(),
+        visible
+    );
     outln!(
         "forward projection: {projected} of {} points, Newton iterations median {median}, max {max}, {:.0} µs for both cameras",
         points.len(),
@@ -245,13 +360,21 @@ fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
         triangulated.iter().filter(|t| t.is_ok()).count(),
         micros(triangulate_time)
     );
-    if let Some(v) = vops.iter().filter_map(|v| v.ok()).min_by(|a, b| a.vop_distance.total_cmp(&b.vop_distance)) {
+    if let Some(v) = vops
+        .iter()
+        .filter_map(|v| v.ok())
+        .min_by(|a, b| a.vop_distance.total_cmp(&b.vop_distance))
+    {
         outln!(
             "virtual object points: nearest VOP {:.4} m beyond the glass for a point {:.3} m deep",
-            v.vop_distance, v.depth
+            v.vop_distance,
+            v.depth
         );
     }
-    outln!("wrote {}/: rig.json points.csv pixels_left.csv pixels_right.csv rays_left.csv matches.csv triangulated.csv vops_left.csv", dir.display());
+    outln!(
+        "wrote {}/: rig.json points.csv pixels_left.csv pixels_right.csv rays_left.csv matches.csv triangulated.csv vops_left.csv",
+        dir.display()
+    );
     outln!(
         "try:  flatport triangulate --rig {0}/rig.json --matches {0}/matches.csv | head",
         dir.display()

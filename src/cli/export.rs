@@ -9,7 +9,10 @@ use clap::{Args, Subcommand};
 
 use flatport::engine::raymap::{backproject_rows, rows_per_band};
 use flatport::io::npy::{NpyDtype, NpyWriter};
-use flatport::io::{ColmapDialect, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, opencv_yaml, read_rig, write_atomic};
+use flatport::io::{
+    ColmapDialect, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, opencv_yaml,
+    read_rig, write_atomic,
+};
 use flatport::model::NoSolution;
 
 use super::geometry::camera_index;
@@ -124,13 +127,30 @@ pub fn run(command: ExportCommand) -> anyhow::Result<()> {
 
 fn colmap(args: ColmapArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.rig)?;
-    let dialect = if args.refrac_token { ColmapDialect::RefracToken } else { ColmapDialect::Legacy };
-    let cameras = colmap_cameras_txt_as(&rig, dialect).with_context(|| format!("{}: cannot be written for colmap_underwater", args.rig.display()))?;
+    let dialect = if args.refrac_token {
+        ColmapDialect::RefracToken
+    } else {
+        ColmapDialect::Legacy
+    };
+    let cameras = colmap_cameras_txt_as(&rig, dialect).with_context(|| {
+        format!(
+            "{}: cannot be written for colmap_underwater",
+            args.rig.display()
+        )
+    })?;
     if args.output.exists() && !args.output.is_dir() {
-        bail!("{}: --output of export colmap is a folder, and this is not one", args.output.display());
+        bail!(
+            "{}: --output of export colmap is a folder, and this is not one",
+            args.output.display()
+        );
     }
-    std::fs::create_dir_all(&args.output).with_context(|| format!("{}: cannot create the folder", args.output.display()))?;
-    for (name, text) in [("cameras.txt", cameras), ("rig_config.json", colmap_rig_config(&rig)), ("rigs.txt", colmap_rigs_txt(&rig))] {
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("{}: cannot create the folder", args.output.display()))?;
+    for (name, text) in [
+        ("cameras.txt", cameras),
+        ("rig_config.json", colmap_rig_config(&rig)),
+        ("rigs.txt", colmap_rigs_txt(&rig)),
+    ] {
         let path = args.output.join(name);
         write_atomic(&path, text.as_bytes())?;
         eprintln!("wrote {}", path.display());
@@ -142,13 +162,17 @@ fn opencv(args: OpencvArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.rig)?;
     let (a, b) = match (&args.camera, &args.cameras) {
         (Some(one), _) => (camera_index(&rig, Some(one), "--camera")?, None),
-        (None, Some((a, b))) => (camera_index(&rig, Some(a), "--cameras")?, Some(camera_index(&rig, Some(b), "--cameras")?)),
+        (None, Some((a, b))) => (
+            camera_index(&rig, Some(a), "--cameras")?,
+            Some(camera_index(&rig, Some(b), "--cameras")?),
+        ),
         (None, None) => (0, (rig.cameras().len() > 1).then_some(1)),
     };
     if Some(a) == b {
         bail!("--cameras names camera {a} twice");
     }
-    let yaml = opencv_yaml(&rig, a, b).with_context(|| format!("{}: cannot be written as OpenCV YAML", args.rig.display()))?;
+    let yaml = opencv_yaml(&rig, a, b)
+        .with_context(|| format!("{}: cannot be written as OpenCV YAML", args.rig.display()))?;
     match &args.output {
         Some(path) => {
             write_atomic(path, yaml.as_bytes())?;
@@ -177,7 +201,8 @@ fn raymap(args: RaymapArgs) -> anyhow::Result<()> {
         PrecisionArg::F32 => NpyDtype::F32,
         PrecisionArg::F64 => NpyDtype::F64,
     };
-    let mut writer = NpyWriter::create_of(&args.output, &[height as usize, width as usize, 6], dtype)?;
+    let mut writer =
+        NpyWriter::create_of(&args.output, &[height as usize, width as usize, 6], dtype)?;
     let band = rows_per_band(width, BAND_PIXELS);
     let (mut rays, mut status) = (Vec::new(), Vec::new());
     let mut rejections: BTreeMap<u32, (NoSolution, usize)> = BTreeMap::new();
@@ -198,7 +223,11 @@ fn raymap(args: RaymapArgs) -> anyhow::Result<()> {
     }
     writer.finish()?;
     super::batch::report_rejections((width * height) as usize, &rejections);
-    eprintln!("wrote {} ({height} x {width} x 6, {})", args.output.display(), dtype_name(dtype));
+    eprintln!(
+        "wrote {} ({height} x {width} x 6, {})",
+        args.output.display(),
+        dtype_name(dtype)
+    );
     Ok(())
 }
 

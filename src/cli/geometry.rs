@@ -67,9 +67,14 @@ pub fn project(args: PointsArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
     let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref(), "--camera")?);
     let engine = args.common.engine.engine()?;
-    stream(&engine, &args.points, ["x", "y", "z"], args.common.output.as_deref(), ["u", "v"], |e, points, pixels, status| {
-        e.project(&camera, points, pixels, status)
-    })
+    stream(
+        &engine,
+        &args.points,
+        ["x", "y", "z"],
+        args.common.output.as_deref(),
+        ["u", "v"],
+        |e, points, pixels, status| e.project(&camera, points, pixels, status),
+    )
 }
 
 pub fn backproject(args: BackprojectArgs) -> anyhow::Result<()> {
@@ -77,15 +82,23 @@ pub fn backproject(args: BackprojectArgs) -> anyhow::Result<()> {
     let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref(), "--camera")?);
     let engine = args.common.engine.engine()?;
     let header = ["ox", "oy", "oz", "dx", "dy", "dz"];
-    stream(&engine, &args.pixels, ["u", "v"], args.common.output.as_deref(), header, |e, pixels, rays, status| {
-        e.backproject(&camera, pixels, rays, status)
-    })
+    stream(
+        &engine,
+        &args.pixels,
+        ["u", "v"],
+        args.common.output.as_deref(),
+        header,
+        |e, pixels, rays, status| e.backproject(&camera, pixels, rays, status),
+    )
 }
 
 pub fn triangulate(args: TriangulateArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
     let (a, b) = match &args.cameras {
-        Some((a, b)) => (camera_index(&rig, Some(a), "--cameras")?, camera_index(&rig, Some(b), "--cameras")?),
+        Some((a, b)) => (
+            camera_index(&rig, Some(a), "--cameras")?,
+            camera_index(&rig, Some(b), "--cameras")?,
+        ),
         None => {
             if rig.cameras().len() < 2 {
                 bail!(
@@ -98,22 +111,42 @@ pub fn triangulate(args: TriangulateArgs) -> anyhow::Result<()> {
         }
     };
     if a == b {
-        bail!("--cameras names the same camera twice ('{}')", rig.cameras()[a].name);
+        bail!(
+            "--cameras names the same camera twice ('{}')",
+            rig.cameras()[a].name
+        );
     }
     let (first, second) = (rig.refractive_camera(a), rig.refractive_camera(b));
     let engine = args.common.engine.engine()?;
     let output = args.common.output.as_deref();
-    stream(&engine, &args.matches, ["ul", "vl", "ur", "vr"], output, ["x", "y", "z", "residual"], |e, matches, points, status| {
-        e.triangulate(&first, &second, matches, points, status)
-    })
+    stream(
+        &engine,
+        &args.matches,
+        ["ul", "vl", "ur", "vr"],
+        output,
+        ["x", "y", "z", "residual"],
+        |e, matches, points, status| e.triangulate(&first, &second, matches, points, status),
+    )
 }
 
 pub fn vop(args: PointsArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.common.rig)?;
     let camera = rig.refractive_camera(camera_index(&rig, args.camera.as_deref(), "--camera")?);
     let engine = args.common.engine.engine()?;
-    let header = ["depth", "vop_distance", "vop_x", "vop_y", "vop_z", "incidence"];
-    stream(&engine, &args.points, ["x", "y", "z"], args.common.output.as_deref(), header, |e, points, vops, status| {
-        e.vop(&camera, points, vops, status)
-    })
+    let header = [
+        "depth",
+        "vop_distance",
+        "vop_x",
+        "vop_y",
+        "vop_z",
+        "incidence",
+    ];
+    stream(
+        &engine,
+        &args.points,
+        ["x", "y", "z"],
+        args.common.output.as_deref(),
+        header,
+        |e, points, vops, status| e.vop(&camera, points, vops, status),
+    )
 }

@@ -3,11 +3,17 @@
 use flatport::gpu::adapters;
 
 pub fn run() -> anyhow::Result<()> {
-    let threads = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let threads = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
     outln!("flatport {}", env!("CARGO_PKG_VERSION"));
     outln!(
         "build: {} ({}-{})",
-        if cfg!(debug_assertions) { "debug" } else { "release" },
+        if cfg!(debug_assertions) {
+            "debug"
+        } else {
+            "release"
+        },
         std::env::consts::ARCH,
         std::env::consts::OS
     );
@@ -26,7 +32,13 @@ pub fn run() -> anyhow::Result<()> {
     }
     for (index, a) in found.iter().enumerate() {
         let yes = |b: bool| if b { "yes" } else { "no" };
-        outln!("  gpu {index}: {} [{} {}, {}]  (--adapter {index})", a.name, a.backend, a.device_type, a.driver);
+        outln!(
+            "  gpu {index}: {} [{} {}, {}]  (--adapter {index})",
+            a.name,
+            a.backend,
+            a.device_type,
+            a.driver
+        );
         outln!(
             "       features used: SHADER_F64 {}, SUBGROUP {}, TIMESTAMP_QUERY {}",
             yes(a.f64),
@@ -40,7 +52,9 @@ pub fn run() -> anyhow::Result<()> {
         );
     }
     outln!("--device cpu:  the f64 reference on all cores");
-    outln!("--device gpu:  the WGSL kernels on a Vulkan adapter above (--adapter INDEX|NAME, else $FLATPORT_ADAPTER,");
+    outln!(
+        "--device gpu:  the WGSL kernels on a Vulkan adapter above (--adapter INDEX|NAME, else $FLATPORT_ADAPTER,"
+    );
     outln!("               else the best: discrete, integrated, virtual, other, then lavapipe)");
     outln!("--device auto: (the default) a hardware GPU when there is one, otherwise the CPU");
     Ok(())

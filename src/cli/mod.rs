@@ -13,8 +13,8 @@ macro_rules! out {
 }
 
 mod batch;
-mod calib;
 mod bench;
+mod calib;
 mod demo;
 mod export;
 mod geometry;
@@ -229,8 +229,13 @@ impl EngineArgs {
     /// Builds the engine and says on stderr which device runs.
     pub fn engine(&self) -> anyhow::Result<flatport::engine::Engine> {
         let (engine, why) = flatport::engine::Engine::choose(&self.options())?;
-        if self.device == Device::Auto && self.precision == Some(PrecisionArg::F32) && matches!(engine, flatport::engine::Engine::Cpu(_)) {
-            eprintln!("note: no hardware GPU, so the f64 CPU reference runs (--precision f32 applies to GPUs)");
+        if self.device == Device::Auto
+            && self.precision == Some(PrecisionArg::F32)
+            && matches!(engine, flatport::engine::Engine::Cpu(_))
+        {
+            eprintln!(
+                "note: no hardware GPU, so the f64 CPU reference runs (--precision f32 applies to GPUs)"
+            );
         }
         if self.device == Device::Auto {
             eprintln!("device: {} ({why})", engine.describe());

@@ -15,7 +15,13 @@ pub struct Progress {
 impl Progress {
     /// A bar for `label`; drawn only when stderr is a terminal and `quiet` is false.
     pub fn new(label: &str, unit: &'static str, quiet: bool) -> Self {
-        Self { label: label.into(), unit, enabled: !quiet && std::io::stderr().is_terminal(), started: Instant::now(), last: None }
+        Self {
+            label: label.into(),
+            unit,
+            enabled: !quiet && std::io::stderr().is_terminal(),
+            started: Instant::now(),
+            last: None,
+        }
     }
 
     /// Redraws (at most 10 times a second, and always at the end).
@@ -24,7 +30,11 @@ impl Progress {
             return;
         }
         let now = Instant::now();
-        if done < total && self.last.is_some_and(|l| now - l < Duration::from_millis(100)) {
+        if done < total
+            && self
+                .last
+                .is_some_and(|l| now - l < Duration::from_millis(100))
+        {
             return;
         }
         self.last = Some(now);
@@ -33,7 +43,11 @@ impl Progress {
         let fraction = done as f64 / total.max(1) as f64;
         let width = 30;
         let filled = (fraction * width as f64).round() as usize;
-        let eta = if done > 0 && done < total { format!(", ETA {}", human_seconds((total - done) as f64 / rate)) } else { String::new() };
+        let eta = if done > 0 && done < total {
+            format!(", ETA {}", human_seconds((total - done) as f64 / rate))
+        } else {
+            String::new()
+        };
         let _ = write!(
             std::io::stderr(),
             "\r{} [{}{}] {:5.1}% {done}/{total} {}, {}/s{eta}   ",
@@ -60,5 +74,9 @@ fn human_count(x: f64) -> String {
 }
 
 fn human_seconds(s: f64) -> String {
-    if s >= 90.0 { format!("{}m{:02}s", (s / 60.0) as u64, (s % 60.0) as u64) } else { format!("{s:.1}s") }
+    if s >= 90.0 {
+        format!("{}m{:02}s", (s / 60.0) as u64, (s % 60.0) as u64)
+    } else {
+        format!("{s:.1}s")
+    }
 }

@@ -62,7 +62,9 @@ pub struct FromOpencvArgs {
 }
 
 fn parse_layer(text: &str) -> Result<Layer, String> {
-    let (t, n) = text.split_once(':').ok_or_else(|| format!("expected THICKNESS:INDEX, got '{text}'"))?;
+    let (t, n) = text
+        .split_once(':')
+        .ok_or_else(|| format!("expected THICKNESS:INDEX, got '{text}'"))?;
     let thickness = super::values::positive(t).map_err(|e| format!("thickness {e}"))?;
     let index = super::values::index(n).map_err(|e| format!("index: {e}"))?;
     Ok(Layer { thickness, index })
@@ -73,13 +75,27 @@ fn parse_vector(text: &str) -> Result<Vector3<f64>, String> {
     if values.len() != 3 {
         return Err(format!("expected X,Y,Z, got '{text}'"));
     }
-    let parse = |s: &str| s.trim().parse::<f64>().map_err(|_| format!("'{s}' is not a number"));
-    Ok(Vector3::new(parse(values[0])?, parse(values[1])?, parse(values[2])?))
+    let parse = |s: &str| {
+        s.trim()
+            .parse::<f64>()
+            .map_err(|_| format!("'{s}' is not a number"))
+    };
+    Ok(Vector3::new(
+        parse(values[0])?,
+        parse(values[1])?,
+        parse(values[2])?,
+    ))
 }
 
 fn parse_size(text: &str) -> Result<(u32, u32), String> {
-    let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{text}'"))?;
-    let parse = |s: &str| s.trim().parse::<u32>().map_err(|_| format!("'{s}' is not a pixel count"));
+    let (w, h) = text
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{text}'"))?;
+    let parse = |s: &str| {
+        s.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("'{s}' is not a pixel count"))
+    };
     Ok((parse(w)?, parse(h)?))
 }
 
@@ -95,8 +111,14 @@ pub fn run(command: RigCommand) -> anyhow::Result<()> {
 
 fn from_opencv(args: FromOpencvArgs) -> anyhow::Result<()> {
     let stereo = read_opencv_stereo(&args.yaml)?;
-    let interface = Interface::new(args.normal, args.distance, args.layers, args.index_air, args.index_water)
-        .context("invalid interface flags")?;
+    let interface = Interface::new(
+        args.normal,
+        args.distance,
+        args.layers,
+        args.index_air,
+        args.index_water,
+    )
+    .context("invalid interface flags")?;
     let (first, second) = &args.names;
     if first == second {
         bail!("--names gives the same name twice ('{first}')");
@@ -128,7 +150,10 @@ pub fn describe(rig: &Rig) -> String {
     );
     text += &format!("  index_air {}\n", interface.index_air());
     for (i, layer) in interface.layers().iter().enumerate() {
-        text += &format!("  layer {i}: {} m, index {}\n", layer.thickness, layer.index);
+        text += &format!(
+            "  layer {i}: {} m, index {}\n",
+            layer.thickness, layer.index
+        );
     }
     text += &format!("  index_water {}\n", interface.index_water());
     for (k, camera) in rig.cameras().iter().enumerate() {

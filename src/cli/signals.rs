@@ -27,7 +27,10 @@ pub fn install() {
                 SIGTERM => "SIGTERM",
                 _ => "SIGHUP",
             };
-            let _ = writeln!(std::io::stderr(), "\ninterrupted by {name}: partial outputs removed");
+            let _ = writeln!(
+                std::io::stderr(),
+                "\ninterrupted by {name}: partial outputs removed"
+            );
             std::process::exit(128 + signal);
         }
     });
@@ -64,7 +67,10 @@ pub fn print_stdout(args: std::fmt::Arguments) {
         if error.kind() == std::io::ErrorKind::BrokenPipe {
             exit_on_broken_pipe();
         }
-        let _ = writeln!(std::io::stderr(), "error: cannot write to standard output: {error}");
+        let _ = writeln!(
+            std::io::stderr(),
+            "error: cannot write to standard output: {error}"
+        );
         flatport::io::remove_temporaries();
         std::process::exit(1);
     }

@@ -7,17 +7,18 @@ use anyhow::{Context, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use serde_json::json;
 
-use flatport::calib::sweep::{
-    Linspace, MAX_SWEEP_CELLS, MinPool, Shard, SweepChunk, SweepMinimum, SweepSpec, SweepSummary, sweep, sweep_cells, too_many_cells,
+use flatport::calib::methods::sweep::{
+    Linspace, MAX_SWEEP_CELLS, MinPool, Shard, SweepChunk, SweepMinimum, SweepSpec, SweepSummary,
+    sweep, sweep_cells, too_many_cells,
 };
 use flatport::calib::{CalibError, CostKind};
 use flatport::engine::Engine;
+use flatport::io::npy::NpyReader;
 use flatport::io::npy::NpyWriter;
 use flatport::io::plot::{CostMap, write_heatmap, write_polar};
-use flatport::io::npy::NpyReader;
 use flatport::io::sweep_shard::{
-    CellRange, GridAxes, GridAxis, SHARD_FORMAT, SHARD_VERSION, ShardIndex, ShardInputs, ShardManifest, read_shard_manifest, sha256_file,
-    write_shard_manifest,
+    CellRange, GridAxes, GridAxis, SHARD_FORMAT, SHARD_VERSION, ShardIndex, ShardInputs,
+    ShardManifest, read_shard_manifest, sha256_file, write_shard_manifest,
 };
 use flatport::io::{IoError, TableWriter, Truth, read_truth, write_atomic};
 
@@ -76,7 +77,12 @@ pub struct SweepArgs {
     pub truth: Option<PathBuf>,
     /// Axis cells per batch handed to the backend (1 to 1048576; a batch holds at most 262144
     /// cells whatever the distance grid)
-    #[arg(long, value_name = "CELLS", default_value_t = 4096, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "CELLS",
+        default_value_t = 4096,
+        allow_negative_numbers = true
+    )]
     pub chunk: usize,
     /// No progress bar
     #[arg(long, short)]
@@ -98,11 +104,18 @@ fn remove_stale(path: &Path) -> anyhow::Result<()> {
     match std::fs::symlink_metadata(path) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
         Err(e) => Err(e).with_context(|| format!("cannot inspect {}", path.display())),
-        Ok(m) if m.is_file() || m.file_type().is_symlink() => {
-            std::fs::remove_file(path).with_context(|| format!("cannot remove the stale {} of an earlier sweep", path.display()))
-        }
+        Ok(m) if m.is_file() || m.file_type().is_symlink() => std::fs::remove_file(path)
+            .with_context(|| {
+                format!(
+                    "cannot remove the stale {} of an earlier sweep",
+                    path.display()
+                )
+            }),
         Ok(_) => {
-            eprintln!("warning: {} is not a file of an earlier sweep's (not written by this one), left alone", path.display());
+            eprintln!(
+                "warning: {} is not a file of an earlier sweep's (not written by this one), left alone",
+                path.display()
+            );
             Ok(())
         }
     }
@@ -112,12 +125,16 @@ fn remove_stale(path: &Path) -> anyhow::Result<()> {
 pub fn parse_linspace(text: &str) -> Result<Linspace, String> {
     let parts: Vec<&str> = text.split(':').collect();
     let error = || format!("expected START:STOP:COUNT such as 0:20:64, got '{text}'");
-    let [start, stop, count] = parts[..] else { return Err(error()) };
+    let [start, stop, count] = parts[..] else {
+        return Err(error());
+    };
     let start: f64 = start.trim().parse().map_err(|_| error())?;
     let stop: f64 = stop.trim().parse().map_err(|_| error())?;
     let count: usize = count.trim().parse().map_err(|_| error())?;
     if count == 0 || !start.is_finite() || !stop.is_finite() {
-        return Err(format!("COUNT must be ≥ 1 and START, STOP finite, got '{text}'"));
+        return Err(format!(
+            "COUNT must be ≥ 1 and START, STOP finite, got '{text}'"
+        ));
     }
     if count == 1 && start != stop {
         return Err(format!("one value needs START = STOP, got '{text}'"));
@@ -135,14 +152,21 @@ pub const PICTURE_SIDE: usize = 512;
 /// Checks the sizes the options ask for before anything is read or allocated.
 fn check_sizes(args: &SweepArgs, spec: &SweepSpec) -> anyhow::Result<()> {
     if !(1..=MAX_CHUNK).contains(&args.chunk) {
-        bail!("--chunk {}: must lie in 1..={MAX_CHUNK} axis cells per batch (larger batches gain nothing; the backend splits them anyway)", args.chunk);
+        bail!(
+            "--chunk {}: must lie in 1..={MAX_CHUNK} axis cells per batch (larger batches gain nothing; the backend splits them anyway)",
+            args.chunk
+        );
     }
-    if spec.checked_cells().is_none_or(|cells| cells > MAX_SWEEP_CELLS) {
+    if spec
+        .checked_cells()
+        .is_none_or(|cells| cells > MAX_SWEEP_CELLS)
+    {
         let options = format!(
             "--tilt-deg …:{} × --azimuth-deg …:{}{}",
             spec.tilt_deg.count,
             spec.azimuth_deg.count,
-            spec.distance.map_or(String::new(), |d| format!(" × --distance …:{}", d.count))
+            spec.distance
+                .map_or(String::new(), |d| format!(" × --distance …:{}", d.count))
         );
         bail!("{options}: {}", too_many_cells(&spec.shape()));
     }
@@ -153,7 +177,10 @@ fn check_sizes(args: &SweepArgs, spec: &SweepSpec) -> anyhow::Result<()> {
 pub fn parse_distances(text: &str) -> Result<Linspace, String> {
     let grid = parse_linspace(text)?;
     if !(grid.start > 0.0 && grid.stop > 0.0) {
-        return Err(format!("air layers must be > 0 m, got START {} and STOP {}", grid.start, grid.stop));
+        return Err(format!(
+            "air layers must be > 0 m, got START {} and STOP {}",
+            grid.start, grid.stop
+        ));
     }
     Ok(grid)
 }
@@ -167,12 +194,23 @@ fn grid_json(l: &Linspace) -> serde_json::Value {
 /// only that slice of the grid is evaluated, into the shard's files (`ShardFiles`); the
 /// summary is then the shard's manifest.
 pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
-    let missing = |option: &str| anyhow::anyhow!("flatport sweep needs {option} (see flatport sweep --help)");
-    let (rig, observations) = (args.rig.as_deref().ok_or_else(|| missing("--rig"))?, args.observations.as_deref().ok_or_else(|| missing("--observations"))?);
+    let missing =
+        |option: &str| anyhow::anyhow!("flatport sweep needs {option} (see flatport sweep --help)");
+    let (rig, observations) = (
+        args.rig.as_deref().ok_or_else(|| missing("--rig"))?,
+        args.observations
+            .as_deref()
+            .ok_or_else(|| missing("--observations"))?,
+    );
     let tilt_deg = args.tilt_deg.ok_or_else(|| missing("--tilt-deg"))?;
     let azimuth_deg = args.azimuth_deg.ok_or_else(|| missing("--azimuth-deg"))?;
     let dir = args.output.as_deref().ok_or_else(|| missing("--output"))?;
-    let spec = SweepSpec { kind: args.cost.kind(), tilt_deg, azimuth_deg, distance: args.distance };
+    let spec = SweepSpec {
+        kind: args.cost.kind(),
+        tilt_deg,
+        azimuth_deg,
+        distance: args.distance,
+    };
     check_sizes(args, &spec)?;
     spec.validate()?;
     let (_, data, _) = super::calib::load_stereo_data(rig, observations)?;
@@ -181,22 +219,36 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
     let backend = super::calib::cost_backend(&engine, &data);
     eprintln!("device: {}", engine.describe());
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let cells = args.shard.map_or(0..spec.cells(), |shard| shard.cells(spec.cells()));
+    let cells = args
+        .shard
+        .map_or(0..spec.cells(), |shard| shard.cells(spec.cells()));
     let shape = spec.shape();
     eprintln!(
         "sweeping the {} cost over {} cells ({}{}) × {} corners...",
         spec.kind.name(),
         cells.len(),
-        shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" × "),
-        args.shard.map_or(String::new(), |s| format!(", shard {s}: cells {}..{}", cells.start, cells.end)),
+        shape
+            .iter()
+            .map(|s| s.to_string())
+            .collect::<Vec<_>>()
+            .join(" × "),
+        args.shard.map_or(String::new(), |s| format!(
+            ", shard {s}: cells {}..{}",
+            cells.start, cells.end
+        )),
         data.corners.len()
     );
     let mut progress = Progress::new("sweep", "cells", args.quiet);
     if let Some(shard) = args.shard {
         let mut files = ShardFiles::create(dir, &spec, cells.len())?;
-        let summary = sweep_cells(backend.as_ref(), &spec, args.chunk, cells.clone(), &mut |chunk| files.add(&chunk), &mut |done, total| {
-            progress.update(done, total)
-        })?;
+        let summary = sweep_cells(
+            backend.as_ref(),
+            &spec,
+            args.chunk,
+            cells.clone(),
+            &mut |chunk| files.add(&chunk),
+            &mut |done, total| progress.update(done, total),
+        )?;
         let inputs = ShardInputs {
             rig_sha256: sha256_file(rig)?,
             observations_sha256: sha256_file(observations)?,
@@ -206,10 +258,21 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
         let manifest = ShardManifest {
             format: SHARD_FORMAT.into(),
             version: SHARD_VERSION,
-            shard: ShardIndex { index: shard.index, count: shard.count },
-            cells: CellRange { start: cells.start, end: cells.end, total: spec.cells() },
+            shard: ShardIndex {
+                index: shard.index,
+                count: shard.count,
+            },
+            cells: CellRange {
+                start: cells.start,
+                end: cells.end,
+                total: spec.cells(),
+            },
             cost: spec.kind.name().into(),
-            grid: GridAxes { tilt_deg: grid_axis(&spec.tilt_deg), azimuth_deg: grid_axis(&spec.azimuth_deg), distance: spec.distance.as_ref().map(grid_axis) },
+            grid: GridAxes {
+                tilt_deg: grid_axis(&spec.tilt_deg),
+                azimuth_deg: grid_axis(&spec.azimuth_deg),
+                distance: spec.distance.as_ref().map(grid_axis),
+            },
             inputs,
             device: engine.describe(),
             seconds: summary.seconds,
@@ -219,7 +282,13 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
         return Ok(serde_json::to_value(&manifest).expect("plain data"));
     }
     let mut outputs = SweepOutputs::create(dir, &spec)?;
-    let summary = sweep(backend.as_ref(), &spec, args.chunk, &mut |chunk| outputs.add(&chunk), &mut |done, total| progress.update(done, total))?;
+    let summary = sweep(
+        backend.as_ref(),
+        &spec,
+        args.chunk,
+        &mut |chunk| outputs.add(&chunk),
+        &mut |done, total| progress.update(done, total),
+    )?;
     let info = SweepInfo {
         correspondences: data.corners.len(),
         views: data.views.len(),
@@ -230,11 +299,19 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
 }
 
 fn grid_axis(l: &Linspace) -> GridAxis {
-    GridAxis { start: l.start, stop: l.stop, count: l.count }
+    GridAxis {
+        start: l.start,
+        stop: l.stop,
+        count: l.count,
+    }
 }
 
 fn linspace(g: &GridAxis) -> Linspace {
-    Linspace { start: g.start, stop: g.stop, count: g.count }
+    Linspace {
+        start: g.start,
+        stop: g.stop,
+        count: g.count,
+    }
 }
 
 /// What the summary says besides the grid's costs.
@@ -262,7 +339,10 @@ impl SweepOutputs {
         let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
         Ok(Self {
             arrays: CostArrays::create(dir, &spec.shape(), spec.profiles_air_distance())?,
-            csv: TableWriter::create(Some(&dir.join("cost.csv")), ["tilt_deg", "azimuth_deg", "distance", "cost"])?,
+            csv: TableWriter::create(
+                Some(&dir.join("cost.csv")),
+                ["tilt_deg", "azimuth_deg", "distance", "cost"],
+            )?,
             // The pictures show the lowest cost over the air layers of each axis, min-pooled to at
             // most PICTURE_SIDE² blocks: memory stays bounded by the picture and the batch.
             pool: MinPool::new(tilts, azimuths, PICTURE_SIDE),
@@ -277,11 +357,24 @@ impl SweepOutputs {
     fn add(&mut self, chunk: &SweepChunk) -> Result<(), CalibError> {
         self.arrays.add(chunk)?;
         let (tilts, azimuths, depth) = (self.tilts, self.azimuths, self.depth);
-        let rows = chunk.costs.iter().zip(chunk.distances).enumerate().map(|(k, (&cost, &distance))| {
-            let axis = (chunk.first + k) / depth;
-            Some([tilts.value(axis / azimuths.count), azimuths.value(axis % azimuths.count), distance, cost])
-        });
-        self.csv.write_rows(rows).map_err(|e| CalibError::Options(e.to_string()))?;
+        let rows =
+            chunk
+                .costs
+                .iter()
+                .zip(chunk.distances)
+                .enumerate()
+                .map(|(k, (&cost, &distance))| {
+                    let axis = (chunk.first + k) / depth;
+                    Some([
+                        tilts.value(axis / azimuths.count),
+                        azimuths.value(axis % azimuths.count),
+                        distance,
+                        cost,
+                    ])
+                });
+        self.csv
+            .write_rows(rows)
+            .map_err(|e| CalibError::Options(e.to_string()))?;
         for (k, &cost) in chunk.costs.iter().enumerate() {
             self.pool.add((chunk.first + k) / depth, cost);
         }
@@ -289,10 +382,27 @@ impl SweepOutputs {
     }
 
     /// Puts the files in place, draws the pictures and writes summary.json; returns the summary.
-    fn finish(self, dir: &Path, spec: &SweepSpec, summary: &SweepSummary, info: &SweepInfo, truth: Option<&Truth>) -> anyhow::Result<serde_json::Value> {
-        let Self { arrays, csv, pool, tilts, azimuths, .. } = self;
+    fn finish(
+        self,
+        dir: &Path,
+        spec: &SweepSpec,
+        summary: &SweepSummary,
+        info: &SweepInfo,
+        truth: Option<&Truth>,
+    ) -> anyhow::Result<serde_json::Value> {
+        let Self {
+            arrays,
+            csv,
+            pool,
+            tilts,
+            azimuths,
+            ..
+        } = self;
         let Some(minimum) = summary.minimum else {
-            bail!("no cell of the grid has a finite {} cost: every candidate leaves corners without an answer", spec.kind.name());
+            bail!(
+                "no cell of the grid has a finite {} cost: every candidate leaves corners without an answer",
+                spec.kind.name()
+            );
         };
         let profile_distance = spec.profiles_air_distance();
         arrays.finish(dir)?;
@@ -305,11 +415,20 @@ impl SweepOutputs {
                  triangulated behind the port){}",
                 summary.cells,
                 spec.kind.name(),
-                if profile_distance { "; without --distance this is often an axis whose least-squares air layer leaves a camera outside the air" } else { "" }
+                if profile_distance {
+                    "; without --distance this is often an axis whose least-squares air layer leaves a camera outside the air"
+                } else {
+                    ""
+                }
             );
         }
 
-        let truth_deg = truth.map(|t| (t.interface.tilt().to_degrees(), t.interface.azimuth().to_degrees()));
+        let truth_deg = truth.map(|t| {
+            (
+                t.interface.tilt().to_degrees(),
+                t.interface.azimuth().to_degrees(),
+            )
+        });
         let (tilt_values, azimuth_values) = (pool.tilts_deg(), pool.azimuths_deg());
         let pooled = match pool.factors() {
             (1, 1) => String::new(),
@@ -322,7 +441,11 @@ impl SweepOutputs {
             title: format!(
                 "{} cost{} over {} axes × {} corners{pooled}",
                 spec.kind.name(),
-                if spec.distance.is_some() { " (lowest over the air layers)" } else { "" },
+                if spec.distance.is_some() {
+                    " (lowest over the air layers)"
+                } else {
+                    ""
+                },
                 spec.axes(),
                 info.correspondences
             ),
@@ -332,7 +455,13 @@ impl SweepOutputs {
         };
         write_heatmap(&dir.join("heatmap.png"), &map)?;
         write_polar(&dir.join("polar.png"), &map)?;
-        let finite = |x: f64| if x.is_finite() { json!(x) } else { serde_json::Value::Null };
+        let finite = |x: f64| {
+            if x.is_finite() {
+                json!(x)
+            } else {
+                serde_json::Value::Null
+            }
+        };
         let summary_json = json!({
             "cost": spec.kind.name(),
             "unit": spec.kind.unit(),
@@ -365,7 +494,9 @@ struct ShardFiles {
 
 impl ShardFiles {
     fn create(dir: &Path, spec: &SweepSpec, cells: usize) -> anyhow::Result<Self> {
-        Ok(Self { arrays: CostArrays::create(dir, &[cells], spec.profiles_air_distance())? })
+        Ok(Self {
+            arrays: CostArrays::create(dir, &[cells], spec.profiles_air_distance())?,
+        })
     }
 
     fn add(&mut self, chunk: &SweepChunk) -> Result<(), CalibError> {
@@ -394,7 +525,11 @@ impl CostArrays {
     fn create(dir: &Path, shape: &[usize], profile_distance: bool) -> anyhow::Result<Self> {
         Ok(Self {
             cost: NpyWriter::create(&dir.join("cost.npy"), shape)?,
-            distance: if profile_distance { Some(NpyWriter::create(&dir.join("distance.npy"), shape)?) } else { None },
+            distance: if profile_distance {
+                Some(NpyWriter::create(&dir.join("distance.npy"), shape)?)
+            } else {
+                None
+            },
         })
     }
 
@@ -443,7 +578,12 @@ const MERGE_BATCH: usize = 1 << 16;
 pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
     let mut shards = Vec::with_capacity(args.shards.len());
     for dir in &args.shards {
-        let manifest = read_shard_manifest(&dir.join("shard.json")).with_context(|| format!("{} is not a sweep shard (flatport sweep --shard I/N writes one)", dir.display()))?;
+        let manifest = read_shard_manifest(&dir.join("shard.json")).with_context(|| {
+            format!(
+                "{} is not a sweep shard (flatport sweep --shard I/N writes one)",
+                dir.display()
+            )
+        })?;
         shards.push((dir.clone(), manifest));
     }
     let (first_dir, first) = &shards[0];
@@ -468,18 +608,38 @@ pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
             return Err(differs("observations files (SHA-256)"));
         }
         if m.shard.count != first.shard.count || m.cells.total != first.cells.total {
-            return Err(differs(&format!("shard counts ({}, {})", first.shard.count, m.shard.count)));
+            return Err(differs(&format!(
+                "shard counts ({}, {})",
+                first.shard.count, m.shard.count
+            )));
         }
     }
     let count = first.shard.count;
     let mut by_index: Vec<Option<usize>> = vec![None; count];
     for (k, (dir, m)) in shards.iter().enumerate() {
         if let Some(other) = by_index[m.shard.index] {
-            bail!("{} and {} are both shard {}/{count}", shards[other].0.display(), dir.display(), m.shard.index);
+            bail!(
+                "{} and {} are both shard {}/{count}",
+                shards[other].0.display(),
+                dir.display(),
+                m.shard.index
+            );
         }
-        let expected = Shard { index: m.shard.index, count }.cells(m.cells.total);
+        let expected = Shard {
+            index: m.shard.index,
+            count,
+        }
+        .cells(m.cells.total);
         if (m.cells.start, m.cells.end) != (expected.start, expected.end) {
-            bail!("{}: shard {}/{count} claims cells {}..{}, but that shard is cells {}..{}", dir.display(), m.shard.index, m.cells.start, m.cells.end, expected.start, expected.end);
+            bail!(
+                "{}: shard {}/{count} claims cells {}..{}, but that shard is cells {}..{}",
+                dir.display(),
+                m.shard.index,
+                m.cells.start,
+                m.cells.end,
+                expected.start,
+                expected.end
+            );
         }
         by_index[m.shard.index] = Some(k);
     }
@@ -491,13 +651,28 @@ pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
         })
         .collect();
     if !missing.is_empty() {
-        bail!("the shards leave cells out: shard{} {} missing", if missing.len() == 1 { "" } else { "s" }, missing.join(", "));
+        bail!(
+            "the shards leave cells out: shard{} {} missing",
+            if missing.len() == 1 { "" } else { "s" },
+            missing.join(", ")
+        );
     }
-    let kind = CostKind::from_name(&first.cost).ok_or_else(|| anyhow::anyhow!("{}: unknown cost '{}'", first_dir.display(), first.cost))?;
-    let spec = SweepSpec { kind, tilt_deg: linspace(&first.grid.tilt_deg), azimuth_deg: linspace(&first.grid.azimuth_deg), distance: first.grid.distance.as_ref().map(linspace) };
+    let kind = CostKind::from_name(&first.cost)
+        .ok_or_else(|| anyhow::anyhow!("{}: unknown cost '{}'", first_dir.display(), first.cost))?;
+    let spec = SweepSpec {
+        kind,
+        tilt_deg: linspace(&first.grid.tilt_deg),
+        azimuth_deg: linspace(&first.grid.azimuth_deg),
+        distance: first.grid.distance.as_ref().map(linspace),
+    };
     spec.validate()?;
     if spec.cells() != first.cells.total {
-        bail!("{}: the grid has {} cells, the manifest says {}", first_dir.display(), spec.cells(), first.cells.total);
+        bail!(
+            "{}: the grid has {} cells, the manifest says {}",
+            first_dir.display(),
+            spec.cells(),
+            first.cells.total
+        );
     }
     let truth = args.truth.as_deref().map(read_truth).transpose()?;
     let dir = &args.output;
@@ -518,12 +693,21 @@ pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
             let path = shard_dir.join(name);
             let reader = NpyReader::open(&path)?;
             if reader.shape() != [m.cells.end - m.cells.start] {
-                bail!("{}: shape {:?}, but the shard has {} cells", path.display(), reader.shape(), m.cells.end - m.cells.start);
+                bail!(
+                    "{}: shape {:?}, but the shard has {} cells",
+                    path.display(),
+                    reader.shape(),
+                    m.cells.end - m.cells.start
+                );
             }
             Ok(reader)
         };
         let mut cost_reader = open("cost.npy")?;
-        let mut distance_reader = if profile_distance { Some(open("distance.npy")?) } else { None };
+        let mut distance_reader = if profile_distance {
+            Some(open("distance.npy")?)
+        } else {
+            None
+        };
         let mut cell = m.cells.start;
         while cost_reader.read(MERGE_BATCH, &mut costs)? > 0 {
             match distance_reader.as_mut() {
@@ -532,7 +716,10 @@ pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
                 }
                 None => {
                     distances.clear();
-                    distances.extend((cell..cell + costs.len()).map(|c| spec.distance.map_or(f64::NAN, |d| d.value(c % depth))));
+                    distances.extend(
+                        (cell..cell + costs.len())
+                            .map(|c| spec.distance.map_or(f64::NAN, |d| d.value(c % depth))),
+                    );
                 }
             }
             for (i, &cost) in costs.iter().enumerate() {
@@ -540,16 +727,36 @@ pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
                     finite += 1;
                     if minimum.is_none_or(|best| cost < best.cost) {
                         let (tilt_deg, azimuth_deg) = spec.cell_angles_deg(cell + i);
-                        minimum = Some(SweepMinimum { cell: cell + i, tilt_deg, azimuth_deg, distance: distances[i], cost });
+                        minimum = Some(SweepMinimum {
+                            cell: cell + i,
+                            tilt_deg,
+                            azimuth_deg,
+                            distance: distances[i],
+                            cost,
+                        });
                     }
                 }
             }
-            outputs.add(&SweepChunk { first: cell, costs: &costs, distances: &distances })?;
+            outputs.add(&SweepChunk {
+                first: cell,
+                costs: &costs,
+                distances: &distances,
+            })?;
             cell += costs.len();
         }
     }
-    let summary = SweepSummary { minimum, cells: spec.cells(), finite, seconds };
-    let info = SweepInfo { correspondences: first.inputs.correspondences, views: first.inputs.views, seconds, device: devices.join("; ") };
+    let summary = SweepSummary {
+        minimum,
+        cells: spec.cells(),
+        finite,
+        seconds,
+    };
+    let info = SweepInfo {
+        correspondences: first.inputs.correspondences,
+        views: first.inputs.views,
+        seconds,
+        device: devices.join("; "),
+    };
     eprintln!("merged {count} shards of {} cells", spec.cells());
     outputs.finish(dir, &spec, &summary, &info, truth.as_ref())
 }
@@ -616,14 +823,21 @@ pub fn print_summary(summary: &serde_json::Value, dir: &Path) {
         summary["unit"].as_str().unwrap_or(""),
         m["tilt_deg"].as_f64().unwrap_or(f64::NAN),
         m["azimuth_deg"].as_f64().unwrap_or(f64::NAN),
-        m["distance"].as_f64().map_or(String::new(), |d| format!(", air layer {:.3} mm", d * 1e3))
+        m["distance"]
+            .as_f64()
+            .map_or(String::new(), |d| format!(", air layer {:.3} mm", d * 1e3))
     );
     outln!(
         "{} cells × {} corners in {:.2} s ({:.3e} cell·corners/s)",
         summary["cells"],
         summary["correspondences"],
         summary["seconds"].as_f64().unwrap_or(f64::NAN),
-        summary["cell_correspondences_per_s"].as_f64().unwrap_or(f64::NAN)
+        summary["cell_correspondences_per_s"]
+            .as_f64()
+            .unwrap_or(f64::NAN)
     );
-    outln!("wrote {}/cost.npy, cost.csv, heatmap.png, polar.png, summary.json", dir.display());
+    outln!(
+        "wrote {}/cost.npy, cost.csv, heatmap.png, polar.png, summary.json",
+        dir.display()
+    );
 }

@@ -70,7 +70,10 @@ impl CpuEngine {
         status: &mut [u32],
         kernel: impl Fn(&[[f64; N]], &mut [[f64; M]], &mut [u32]) + Sync,
     ) {
-        assert!(input.len() == output.len() && input.len() == status.len(), "input, output and status of equal length");
+        assert!(
+            input.len() == output.len() && input.len() == status.len(),
+            "input, output and status of equal length"
+        );
         if self.threads() == 1 {
             kernel(input, output, status);
             return;
@@ -78,7 +81,11 @@ impl CpuEngine {
         self.pool.install(|| {
             input
                 .par_chunks(TASK_ITEMS)
-                .zip(output.par_chunks_mut(TASK_ITEMS).zip(status.par_chunks_mut(TASK_ITEMS)))
+                .zip(
+                    output
+                        .par_chunks_mut(TASK_ITEMS)
+                        .zip(status.par_chunks_mut(TASK_ITEMS)),
+                )
                 .for_each(|(input, (output, status))| kernel(input, output, status));
         });
     }
@@ -102,23 +109,45 @@ impl CpuEngine {
     }
 
     /// See [`Engine::backproject`](super::Engine::backproject).
-    pub fn backproject(&self, camera: &RefractiveCamera, pixels: &[[f64; 2]], rays: &mut [[f64; 6]], status: &mut [u32]) {
+    pub fn backproject(
+        &self,
+        camera: &RefractiveCamera,
+        pixels: &[[f64; 2]],
+        rays: &mut [[f64; 6]],
+        status: &mut [u32],
+    ) {
         match self.path {
-            CpuPath::Vector => self.split(pixels, rays, status, |p, r, s| { simd::backproject(camera, p, r, s); }),
+            CpuPath::Vector => self.split(pixels, rays, status, |p, r, s| {
+                simd::backproject(camera, p, r, s);
+            }),
             CpuPath::Scalar => self.map(pixels, rays, status, |p| backproject_row(camera, p)),
         }
     }
 
     /// See [`Engine::project`](super::Engine::project).
-    pub fn project(&self, camera: &RefractiveCamera, points: &[[f64; 3]], pixels: &mut [[f64; 2]], status: &mut [u32]) {
+    pub fn project(
+        &self,
+        camera: &RefractiveCamera,
+        points: &[[f64; 3]],
+        pixels: &mut [[f64; 2]],
+        status: &mut [u32],
+    ) {
         match self.path {
-            CpuPath::Vector => self.split(points, pixels, status, |p, q, s| { simd::project(camera, p, q, s); }),
+            CpuPath::Vector => self.split(points, pixels, status, |p, q, s| {
+                simd::project(camera, p, q, s);
+            }),
             CpuPath::Scalar => self.map(points, pixels, status, |p| project_row(camera, p)),
         }
     }
 
     /// See [`Engine::vop`](super::Engine::vop).
-    pub fn vop(&self, camera: &RefractiveCamera, points: &[[f64; 3]], vops: &mut [[f64; 6]], status: &mut [u32]) {
+    pub fn vop(
+        &self,
+        camera: &RefractiveCamera,
+        points: &[[f64; 3]],
+        vops: &mut [[f64; 6]],
+        status: &mut [u32],
+    ) {
         match self.path {
             CpuPath::Vector => self.split(points, vops, status, |p, v, s| {
                 simd::vop(camera, p, v, s);
@@ -128,44 +157,87 @@ impl CpuEngine {
     }
 
     /// See [`Engine::triangulate`](super::Engine::triangulate).
-    pub fn triangulate(&self, a: &RefractiveCamera, b: &RefractiveCamera, matches: &[[f64; 4]], points: &mut [[f64; 4]], status: &mut [u32]) {
+    pub fn triangulate(
+        &self,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        matches: &[[f64; 4]],
+        points: &mut [[f64; 4]],
+        status: &mut [u32],
+    ) {
         match self.path {
-            CpuPath::Vector => self.split(matches, points, status, |m, p, s| { simd::triangulate(a, b, m, p, s); }),
+            CpuPath::Vector => self.split(matches, points, status, |m, p, s| {
+                simd::triangulate(a, b, m, p, s);
+            }),
             CpuPath::Scalar => self.map(matches, points, status, |m| triangulate_row(a, b, m)),
         }
     }
 
     /// See [`Engine::binocular_vop`](super::Engine::binocular_vop).
-    pub fn binocular_vop(&self, a: &RefractiveCamera, b: &RefractiveCamera, matches: &[[f64; 4]], vops: &mut [[f64; 8]], status: &mut [u32]) {
+    pub fn binocular_vop(
+        &self,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        matches: &[[f64; 4]],
+        vops: &mut [[f64; 8]],
+        status: &mut [u32],
+    ) {
         self.map(matches, vops, status, |&[ul, vl, ur, vr]| {
             let v_a = a.dir_in_air_from_img(&Point2::new(ul, vl))?;
             let v_b = b.dir_in_air_from_img(&Point2::new(ur, vr))?;
             let bv = binocular_vop(a.centre(), &v_a, b.centre(), &v_b, a.normal())?;
             let (l, r) = (bv.vop_left, bv.vop_right);
-            Ok([l.x, l.y, l.z, r.x, r.y, r.z, bv.axis_offset, bv.conditioning])
+            Ok([
+                l.x,
+                l.y,
+                l.z,
+                r.x,
+                r.y,
+                r.z,
+                bv.axis_offset,
+                bv.conditioning,
+            ])
         });
     }
 
     /// See [`Engine::ray_gap_cost`](super::Engine::ray_gap_cost).
-    pub fn ray_gap_cost(&self, rig: &Rig, a: usize, b: usize, air_rays: &[[f64; 6]], candidates: &[[f64; 4]], costs: &mut [[f64; 2]]) {
+    pub fn ray_gap_cost(
+        &self,
+        rig: &Rig,
+        a: usize,
+        b: usize,
+        air_rays: &[[f64; 6]],
+        candidates: &[[f64; 4]],
+        costs: &mut [[f64; 2]],
+    ) {
         assert_eq!(candidates.len(), costs.len(), "one cost per candidate");
         let term = |a: &RefractiveCamera, b: &RefractiveCamera, r: &[f64; 6]| -> Option<f64> {
             let v_a = Unit::new_normalize(Vector3::new(r[0], r[1], r[2]));
             let v_b = Unit::new_normalize(Vector3::new(r[3], r[4], r[5]));
-            let t = triangulate_rays(&a.ray_in_water(&v_a).ok()?, &b.ray_in_water(&v_b).ok()?).ok()?;
+            let t =
+                triangulate_rays(&a.ray_in_water(&v_a).ok()?, &b.ray_in_water(&v_b).ok()?).ok()?;
             Some(t.residual * t.residual)
         };
         self.pool.install(|| {
-            candidates.par_iter().zip(costs.par_iter_mut()).for_each(|(c, cost)| {
-                let moved = rig.interface().with_pose(Vector3::new(c[0], c[1], c[2]), c[3]).and_then(|i| rig.with_interface(i));
-                // A candidate that puts a camera outside the air has no term.
-                let Ok(moved) = moved else {
-                    *cost = [0.0, 0.0];
-                    return;
-                };
-                let (a, b) = (moved.refractive_camera(a), moved.refractive_camera(b));
-                *cost = air_rays.iter().filter_map(|r| term(&a, &b, r)).fold([0.0, 0.0], |acc, x| [acc[0] + x, acc[1] + 1.0]);
-            });
+            candidates
+                .par_iter()
+                .zip(costs.par_iter_mut())
+                .for_each(|(c, cost)| {
+                    let moved = rig
+                        .interface()
+                        .with_pose(Vector3::new(c[0], c[1], c[2]), c[3])
+                        .and_then(|i| rig.with_interface(i));
+                    // A candidate that puts a camera outside the air has no term.
+                    let Ok(moved) = moved else {
+                        *cost = [0.0, 0.0];
+                        return;
+                    };
+                    let (a, b) = (moved.refractive_camera(a), moved.refractive_camera(b));
+                    *cost = air_rays
+                        .iter()
+                        .filter_map(|r| term(&a, &b, r))
+                        .fold([0.0, 0.0], |acc, x| [acc[0] + x, acc[1] + 1.0]);
+                });
         });
     }
 }

@@ -88,9 +88,14 @@ impl Engine {
         match options.device {
             Device::Cpu => {
                 if options.precision == Some(Precision::F32) {
-                    return Err(EngineError::Options("the CPU path is f64 only: drop --precision f32 or use --device gpu".into()));
+                    return Err(EngineError::Options(
+                        "the CPU path is f64 only: drop --precision f32 or use --device gpu".into(),
+                    ));
                 }
-                Ok((Self::Cpu(CpuEngine::new(options.threads)), "asked for (--device cpu)".into()))
+                Ok((
+                    Self::Cpu(CpuEngine::new(options.threads)),
+                    "asked for (--device cpu)".into(),
+                ))
             }
             Device::Gpu => {
                 let gpu = GpuEngine::new(GpuContext::new(options.adapter.as_deref())?, precision)?;
@@ -99,21 +104,33 @@ impl Engine {
             Device::Auto => {
                 let cpu = || Self::Cpu(CpuEngine::new(options.threads));
                 let found = crate::gpu::adapters();
-                let hardware: Vec<&str> = found.iter().filter(|a| a.device_type != "Cpu").map(|a| a.name.as_str()).collect();
+                let hardware: Vec<&str> = found
+                    .iter()
+                    .filter(|a| a.device_type != "Cpu")
+                    .map(|a| a.name.as_str())
+                    .collect();
                 if hardware.is_empty() && options.adapter.is_none() {
                     let why = match found.first() {
                         Some(software) => format!(
                             "auto: no hardware GPU (only the software adapter '{}', which runs on these same cores; --device gpu takes it)",
                             software.name
                         ),
-                        None => "auto: no Vulkan adapter (flatport info says what to install)".to_string(),
+                        None => "auto: no Vulkan adapter (flatport info says what to install)"
+                            .to_string(),
                     };
                     return Ok((cpu(), why));
                 }
-                match GpuContext::new(options.adapter.as_deref()).and_then(|context| GpuEngine::new(context, precision)) {
+                match GpuContext::new(options.adapter.as_deref())
+                    .and_then(|context| GpuEngine::new(context, precision))
+                {
                     Ok(gpu) => {
                         let a = gpu.context().adapter();
-                        let why = format!("auto: the {} GPU '{}', the best of {} adapter(s)", a.device_type.to_lowercase(), a.name, found.len());
+                        let why = format!(
+                            "auto: the {} GPU '{}', the best of {} adapter(s)",
+                            a.device_type.to_lowercase(),
+                            a.name,
+                            found.len()
+                        );
                         Ok((Self::Gpu(gpu), why))
                     }
                     Err(error) => Ok((cpu(), format!("auto: the GPU could not be used ({error})"))),
@@ -126,10 +143,20 @@ impl Engine {
     /// `gpu: NVIDIA H100 (Vulkan, NVIDIA 550.54), f32`.
     pub fn describe(&self) -> String {
         match self {
-            Self::Cpu(cpu) => format!("cpu (f64 reference, {}, {} threads)", cpu.path(), cpu.threads()),
+            Self::Cpu(cpu) => format!(
+                "cpu (f64 reference, {}, {} threads)",
+                cpu.path(),
+                cpu.threads()
+            ),
             Self::Gpu(gpu) => {
                 let a = gpu.context().adapter();
-                format!("gpu: {} ({}, {}), {}", a.name, a.backend, a.driver, gpu.precision())
+                format!(
+                    "gpu: {} ({}, {}), {}",
+                    a.name,
+                    a.backend,
+                    a.driver,
+                    gpu.precision()
+                )
             }
         }
     }
@@ -138,7 +165,13 @@ impl Engine {
     /// interface and unit direction xyz, master frame.
     ///
     /// Panics if the slices differ in length.
-    pub fn backproject(&self, camera: &RefractiveCamera, pixels: &[[f64; 2]], rays: &mut [[f64; 6]], status: &mut [u32]) -> Result<(), EngineError> {
+    pub fn backproject(
+        &self,
+        camera: &RefractiveCamera,
+        pixels: &[[f64; 2]],
+        rays: &mut [[f64; 6]],
+        status: &mut [u32],
+    ) -> Result<(), EngineError> {
         match self {
             Self::Cpu(cpu) => {
                 cpu.backproject(camera, pixels, rays, status);
@@ -149,7 +182,13 @@ impl Engine {
     }
 
     /// Projects points (x, y, z, master frame) through the interface to raw pixels (u, v).
-    pub fn project(&self, camera: &RefractiveCamera, points: &[[f64; 3]], pixels: &mut [[f64; 2]], status: &mut [u32]) -> Result<(), EngineError> {
+    pub fn project(
+        &self,
+        camera: &RefractiveCamera,
+        points: &[[f64; 3]],
+        pixels: &mut [[f64; 2]],
+        status: &mut [u32],
+    ) -> Result<(), EngineError> {
         match self {
             Self::Cpu(cpu) => {
                 cpu.project(camera, points, pixels, status);
@@ -161,7 +200,13 @@ impl Engine {
 
     /// VOPs of points: depth, vop_distance, vop_x, vop_y, vop_z, incidence (radians), as
     /// [`RefractiveCamera::vop`].
-    pub fn vop(&self, camera: &RefractiveCamera, points: &[[f64; 3]], vops: &mut [[f64; 6]], status: &mut [u32]) -> Result<(), EngineError> {
+    pub fn vop(
+        &self,
+        camera: &RefractiveCamera,
+        points: &[[f64; 3]],
+        vops: &mut [[f64; 6]],
+        status: &mut [u32],
+    ) -> Result<(), EngineError> {
         match self {
             Self::Cpu(cpu) => {
                 cpu.vop(camera, points, vops, status);
@@ -211,17 +256,39 @@ impl Engine {
     /// [`project`](Self::project) for f32 rows (a pipeline's own buffers): the rows are widened
     /// to f64 in blocks of [`F32_BLOCK_ROWS`], computed as f64 and narrowed back, so memory stays
     /// bounded and the answers are the f64 answers rounded to f32.
-    pub fn project_f32(&self, camera: &RefractiveCamera, points: &[[f32; 3]], pixels: &mut [[f32; 2]], status: &mut [u32]) -> Result<(), EngineError> {
-        widened(points, pixels, status, |i, o, s| self.project(camera, i, o, s))
+    pub fn project_f32(
+        &self,
+        camera: &RefractiveCamera,
+        points: &[[f32; 3]],
+        pixels: &mut [[f32; 2]],
+        status: &mut [u32],
+    ) -> Result<(), EngineError> {
+        widened(points, pixels, status, |i, o, s| {
+            self.project(camera, i, o, s)
+        })
     }
 
     /// [`backproject`](Self::backproject) for f32 rows, as [`project_f32`](Self::project_f32).
-    pub fn backproject_f32(&self, camera: &RefractiveCamera, pixels: &[[f32; 2]], rays: &mut [[f32; 6]], status: &mut [u32]) -> Result<(), EngineError> {
-        widened(pixels, rays, status, |i, o, s| self.backproject(camera, i, o, s))
+    pub fn backproject_f32(
+        &self,
+        camera: &RefractiveCamera,
+        pixels: &[[f32; 2]],
+        rays: &mut [[f32; 6]],
+        status: &mut [u32],
+    ) -> Result<(), EngineError> {
+        widened(pixels, rays, status, |i, o, s| {
+            self.backproject(camera, i, o, s)
+        })
     }
 
     /// [`vop`](Self::vop) for f32 rows, as [`project_f32`](Self::project_f32).
-    pub fn vop_f32(&self, camera: &RefractiveCamera, points: &[[f32; 3]], vops: &mut [[f32; 6]], status: &mut [u32]) -> Result<(), EngineError> {
+    pub fn vop_f32(
+        &self,
+        camera: &RefractiveCamera,
+        points: &[[f32; 3]],
+        vops: &mut [[f32; 6]],
+        status: &mut [u32],
+    ) -> Result<(), EngineError> {
         widened(points, vops, status, |i, o, s| self.vop(camera, i, o, s))
     }
 
@@ -234,7 +301,9 @@ impl Engine {
         points: &mut [[f32; 4]],
         status: &mut [u32],
     ) -> Result<(), EngineError> {
-        widened(matches, points, status, |i, o, s| self.triangulate(a, b, i, o, s))
+        widened(matches, points, status, |i, o, s| {
+            self.triangulate(a, b, i, o, s)
+        })
     }
 
     /// The ray-gap cost of candidate interfaces for cameras `a` and `b` of `rig`. Each candidate
@@ -244,7 +313,15 @@ impl Engine {
     /// water rays are formed behind the candidate and triangulated; `costs[c] = [Σ residual²,
     /// number of pairs with an answer]`. A candidate the rig rejects (a camera outside the air)
     /// gets `[0, 0]`.
-    pub fn ray_gap_cost(&self, rig: &Rig, a: usize, b: usize, air_rays: &[[f64; 6]], candidates: &[[f64; 4]], costs: &mut [[f64; 2]]) -> Result<(), EngineError> {
+    pub fn ray_gap_cost(
+        &self,
+        rig: &Rig,
+        a: usize,
+        b: usize,
+        air_rays: &[[f64; 6]],
+        candidates: &[[f64; 4]],
+        costs: &mut [[f64; 2]],
+    ) -> Result<(), EngineError> {
         match self {
             Self::Cpu(cpu) => {
                 cpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs);
@@ -267,10 +344,17 @@ fn widened<const N: usize, const M: usize>(
     status: &mut [u32],
     mut run: impl FnMut(&[[f64; N]], &mut [[f64; M]], &mut [u32]) -> Result<(), EngineError>,
 ) -> Result<(), EngineError> {
-    assert!(input.len() == output.len() && input.len() == status.len(), "input, output and status of equal length");
+    assert!(
+        input.len() == output.len() && input.len() == status.len(),
+        "input, output and status of equal length"
+    );
     let block = F32_BLOCK_ROWS.min(input.len().max(1));
     let (mut wide_in, mut wide_out) = (Vec::with_capacity(block), vec![[0.0; M]; block]);
-    for ((rows_in, rows_out), rows_status) in input.chunks(block).zip(output.chunks_mut(block)).zip(status.chunks_mut(block)) {
+    for ((rows_in, rows_out), rows_status) in input
+        .chunks(block)
+        .zip(output.chunks_mut(block))
+        .zip(status.chunks_mut(block))
+    {
         wide_in.clear();
         wide_in.extend(rows_in.iter().map(|row| row.map(f64::from)));
         let wide_out = &mut wide_out[..rows_in.len()];

@@ -23,10 +23,13 @@ pub fn backproject_rows(
 ) -> Result<(), EngineError> {
     let width = camera.intrinsics().width;
     match engine {
-        Engine::Gpu(gpu) => Ok(gpu.backproject_grid_rows(camera, width, first_row, rows, rays, status)?),
+        Engine::Gpu(gpu) => {
+            Ok(gpu.backproject_grid_rows(camera, width, first_row, rows, rays, status)?)
+        }
         Engine::Cpu(_) => {
-            let pixels: Vec<[f64; 2]> =
-                (first_row..first_row + rows).flat_map(|v| (0..width).map(move |u| [f64::from(u), f64::from(v)])).collect();
+            let pixels: Vec<[f64; 2]> = (first_row..first_row + rows)
+                .flat_map(|v| (0..width).map(move |u| [f64::from(u), f64::from(v)]))
+                .collect();
             engine.backproject(camera, &pixels, rays, status)
         }
     }

@@ -31,7 +31,10 @@ struct Lcg(u64);
 
 impl Lcg {
     fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        self.0 = self
+            .0
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
         (self.0 >> 11) as f64 / (1u64 << 53) as f64
     }
 }
@@ -39,10 +42,18 @@ impl Lcg {
 impl Workload {
     /// `items` of each kind on cameras 0 and 1 of `rig` (camera 0 twice when there is one).
     pub fn new(rig: &Rig, items: usize) -> Self {
-        let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1.min(rig.cameras().len() - 1)));
-        let (w, h) = (rig.cameras()[0].intrinsics.width as f64, rig.cameras()[0].intrinsics.height as f64);
+        let (a, b) = (
+            rig.refractive_camera(0),
+            rig.refractive_camera(1.min(rig.cameras().len() - 1)),
+        );
+        let (w, h) = (
+            rig.cameras()[0].intrinsics.width as f64,
+            rig.cameras()[0].intrinsics.height as f64,
+        );
         let mut random = Lcg(0x2545_f491_4f6c_dd1d);
-        let pixels: Vec<[f64; 2]> = (0..items).map(|_| [random.next() * (w - 1.0), random.next() * (h - 1.0)]).collect();
+        let pixels: Vec<[f64; 2]> = (0..items)
+            .map(|_| [random.next() * (w - 1.0), random.next() * (h - 1.0)])
+            .collect();
         let mut points = Vec::with_capacity(items);
         let mut matches = Vec::with_capacity(items);
         for (i, p) in pixels.iter().enumerate() {
@@ -51,9 +62,16 @@ impl Workload {
                 Err(_) => a.centre() + a.normal().into_inner() * (1.0 + a.air_distance()),
             };
             points.push([point.x, point.y, point.z]);
-            let right = b.project(&point).map(|q| [q.x, q.y]).unwrap_or([b.intrinsics().cx, b.intrinsics().cy]);
+            let right = b
+                .project(&point)
+                .map(|q| [q.x, q.y])
+                .unwrap_or([b.intrinsics().cx, b.intrinsics().cy]);
             matches.push([p[0], p[1], right[0], right[1]]);
         }
-        Self { pixels, points, matches }
+        Self {
+            pixels,
+            points,
+            matches,
+        }
     }
 }

@@ -64,7 +64,9 @@ pub enum GpuError {
     #[error("the GPU device was lost: {0}")]
     DeviceLost(String),
     /// The device did not finish its work in time.
-    #[error("the GPU did not finish within {seconds} s (a hung or overloaded device; set {TIMEOUT_ENV} to wait longer)")]
+    #[error(
+        "the GPU did not finish within {seconds} s (a hung or overloaded device; set {TIMEOUT_ENV} to wait longer)"
+    )]
     Timeout {
         /// The wait's limit.
         seconds: u64,
@@ -106,16 +108,28 @@ fn rank(kind: wgpu::DeviceType) -> u8 {
 /// the first match); without it the best by [`rank`], the first of equals.
 ///
 /// Errors: what was looked for and what was found, for [`GpuError::NoAdapter`].
-pub(crate) fn choose_adapter(adapters: &[wgpu::AdapterInfo], wanted: Option<&str>) -> Result<usize, String> {
+pub(crate) fn choose_adapter(
+    adapters: &[wgpu::AdapterInfo],
+    wanted: Option<&str>,
+) -> Result<usize, String> {
     let found = || {
-        let names: Vec<String> = adapters.iter().enumerate().map(|(i, a)| format!("{i}: {}", a.name)).collect();
+        let names: Vec<String> = adapters
+            .iter()
+            .enumerate()
+            .map(|(i, a)| format!("{i}: {}", a.name))
+            .collect();
         list(&names)
     };
     match wanted.map(str::trim) {
-        Some(w) if !w.is_empty() && w.bytes().all(|b| b.is_ascii_digit()) => match w.parse::<usize>() {
-            Ok(i) if i < adapters.len() => Ok(i),
-            _ => Err(format!("no Vulkan adapter with index {w} (found: {})", found())),
-        },
+        Some(w) if !w.is_empty() && w.bytes().all(|b| b.is_ascii_digit()) => {
+            match w.parse::<usize>() {
+                Ok(i) if i < adapters.len() => Ok(i),
+                _ => Err(format!(
+                    "no Vulkan adapter with index {w} (found: {})",
+                    found()
+                )),
+            }
+        }
         Some(w) => adapters
             .iter()
             .position(|a| a.name.to_lowercase().contains(&w.to_lowercase()))
@@ -161,12 +175,18 @@ fn summary(adapter: &wgpu::Adapter) -> AdapterSummary {
 
 /// The summary of an adapter with these features and limits (the adapter's own, or those a
 /// device was given).
-fn summary_of(info: wgpu::AdapterInfo, features: wgpu::Features, limits: &wgpu::Limits) -> AdapterSummary {
+fn summary_of(
+    info: wgpu::AdapterInfo,
+    features: wgpu::Features,
+    limits: &wgpu::Limits,
+) -> AdapterSummary {
     AdapterSummary {
         name: info.name,
         backend: format!("{:?}", info.backend),
         device_type: format!("{:?}", info.device_type),
-        driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+        driver: format!("{} {}", info.driver, info.driver_info)
+            .trim()
+            .to_string(),
         f64: features.contains(wgpu::Features::SHADER_F64),
         subgroup: features.contains(wgpu::Features::SUBGROUP),
         timestamp: features.contains(wgpu::Features::TIMESTAMP_QUERY),
@@ -177,13 +197,20 @@ fn summary_of(info: wgpu::AdapterInfo, features: wgpu::Features, limits: &wgpu::
 
 /// The limit of one wait: [`TIMEOUT_ENV`] seconds, else [`DEFAULT_TIMEOUT_S`].
 fn wait_limit() -> std::time::Duration {
-    let seconds = std::env::var(TIMEOUT_ENV).ok().and_then(|s| s.trim().parse::<u64>().ok()).filter(|&s| s > 0).unwrap_or(DEFAULT_TIMEOUT_S);
+    let seconds = std::env::var(TIMEOUT_ENV)
+        .ok()
+        .and_then(|s| s.trim().parse::<u64>().ok())
+        .filter(|&s| s > 0)
+        .unwrap_or(DEFAULT_TIMEOUT_S);
     std::time::Duration::from_secs(seconds)
 }
 
 /// Every Vulkan adapter on this machine.
 pub fn adapters() -> Vec<AdapterSummary> {
-    pollster::block_on(instance().enumerate_adapters(wgpu::Backends::VULKAN)).iter().map(summary).collect()
+    pollster::block_on(instance().enumerate_adapters(wgpu::Backends::VULKAN))
+        .iter()
+        .map(summary)
+        .collect()
 }
 
 /// A device and queue on one adapter, reused for every kernel call.
@@ -212,13 +239,15 @@ fn take(slot: &Mutex<Option<String>>) -> Option<String> {
 }
 
 fn keep_first(slot: &Mutex<Option<String>>, message: String) {
-    slot.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(message);
+    slot.lock()
+        .unwrap_or_else(|p| p.into_inner())
+        .get_or_insert(message);
 }
 
 impl GpuContext {
     /// Opens the adapter `name` names (its index as `flatport info` lists it, or a case-insensitive
     /// part of its name), else the one `FLATPORT_ADAPTER` names, else the best one: a discrete GPU
-    /// before an integrated one, before lavapipe ([`choose_adapter`]).
+    /// before an integrated one, before lavapipe (`choose_adapter`).
     pub fn new(name: Option<&str>) -> Result<Self, GpuError> {
         Self::open(name, true)
     }
@@ -227,20 +256,33 @@ impl GpuContext {
     /// the host directly where the adapter shares its memory (`false`: always staging copies,
     /// the path of discrete GPUs; for tests and comparisons).
     pub fn open(name: Option<&str>, map_storage: bool) -> Result<Self, GpuError> {
-        let wanted = name.map(str::to_string).or_else(|| std::env::var(ADAPTER_ENV).ok());
+        let wanted = name
+            .map(str::to_string)
+            .or_else(|| std::env::var(ADAPTER_ENV).ok());
         let all = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::VULKAN));
         let infos: Vec<wgpu::AdapterInfo> = all.iter().map(|a| a.get_info()).collect();
         let index = choose_adapter(&infos, wanted.as_deref()).map_err(|tried| {
             // With adapters present the choice was wrong, not the installation.
-            let hint = if infos.is_empty() { INSTALL_HINT } else { "`flatport info` lists the adapters with their indices" };
-            GpuError::NoAdapter { tried, hint: hint.to_string() }
+            let hint = if infos.is_empty() {
+                INSTALL_HINT
+            } else {
+                "`flatport info` lists the adapters with their indices"
+            };
+            GpuError::NoAdapter {
+                tried,
+                hint: hint.to_string(),
+            }
         })?;
         let adapter = &all[index];
         let summary = summary(adapter);
-        let mut wanted_features = wgpu::Features::SHADER_F64 | wgpu::Features::SUBGROUP | wgpu::Features::TIMESTAMP_QUERY;
+        let mut wanted_features =
+            wgpu::Features::SHADER_F64 | wgpu::Features::SUBGROUP | wgpu::Features::TIMESTAMP_QUERY;
         // Where the device shares the host's memory (lavapipe, integrated GPUs), storage buffers
         // that the host maps directly save the staging copies both ways.
-        let shares_memory = matches!(adapter.get_info().device_type, wgpu::DeviceType::Cpu | wgpu::DeviceType::IntegratedGpu);
+        let shares_memory = matches!(
+            adapter.get_info().device_type,
+            wgpu::DeviceType::Cpu | wgpu::DeviceType::IntegratedGpu
+        );
         if shares_memory && map_storage {
             wanted_features |= wgpu::Features::MAPPABLE_PRIMARY_BUFFERS;
         }
@@ -250,18 +292,32 @@ impl GpuContext {
             required_limits: adapter.limits(),
             ..Default::default()
         }))
-        .map_err(|e| GpuError::Device { adapter: summary.name.clone(), reason: e.to_string() })?;
-        let mapped_storage = device.features().contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
+        .map_err(|e| GpuError::Device {
+            adapter: summary.name.clone(),
+            reason: e.to_string(),
+        })?;
+        let mapped_storage = device
+            .features()
+            .contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
         let faults = Arc::new(Faults::default());
         let sink = faults.clone();
-        device.on_uncaptured_error(Arc::new(move |error: wgpu::Error| keep_first(&sink.uncaptured, error.to_string())));
+        device.on_uncaptured_error(Arc::new(move |error: wgpu::Error| {
+            keep_first(&sink.uncaptured, error.to_string())
+        }));
         let sink = faults.clone();
         device.set_device_lost_callback(move |reason, message| {
             if reason != wgpu::DeviceLostReason::Destroyed {
                 keep_first(&sink.lost, format!("{reason:?}: {message}"));
             }
         });
-        Ok(Self { device, queue, summary, mapped_storage, faults, timeout: wait_limit() })
+        Ok(Self {
+            device,
+            queue,
+            summary,
+            mapped_storage,
+            faults,
+            timeout: wait_limit(),
+        })
     }
 
     /// A context on a device and queue the caller already has (a pipeline that renders or runs
@@ -291,7 +347,14 @@ impl GpuContext {
         let features = device.features();
         let summary = summary_of(adapter.get_info(), features, &device.limits());
         let mapped_storage = features.contains(wgpu::Features::MAPPABLE_PRIMARY_BUFFERS);
-        Self { device, queue, summary, mapped_storage, faults: Arc::new(Faults::default()), timeout: wait_limit() }
+        Self {
+            device,
+            queue,
+            summary,
+            mapped_storage,
+            faults: Arc::new(Faults::default()),
+            timeout: wait_limit(),
+        }
     }
 
     /// The queue kernels are submitted to (shared with the caller after
@@ -328,8 +391,14 @@ impl GpuContext {
             let _ = sender.send(r);
         });
         self.wait()?;
-        receiver.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
-        buffer.get_mapped_range_mut(..len).map_err(|e| GpuError::Readback(e.to_string()))?.copy_from_slice(bytes);
+        receiver
+            .recv()
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        buffer
+            .get_mapped_range_mut(..len)
+            .map_err(|e| GpuError::Readback(e.to_string()))?
+            .copy_from_slice(bytes);
         buffer.unmap();
         Ok(())
     }
@@ -348,23 +417,30 @@ impl GpuContext {
     /// default would panic).
     pub fn pipeline(&self, label: &str, source: &str) -> Result<wgpu::ComputePipeline, GpuError> {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(label),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
-        let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(label),
-            layout: None,
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &[("WORKGROUP_SIZE", f64::from(WORKGROUP_SIZE))],
-                ..Default::default()
-            },
-            cache: None,
-        });
+        let module = self
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+        let pipeline = self
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: None,
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &[("WORKGROUP_SIZE", f64::from(WORKGROUP_SIZE))],
+                    ..Default::default()
+                },
+                cache: None,
+            });
         match pollster::block_on(scope.pop()) {
-            Some(error) => Err(GpuError::Kernel { kernel: label.to_string(), reason: error.to_string() }),
+            Some(error) => Err(GpuError::Kernel {
+                kernel: label.to_string(),
+                reason: error.to_string(),
+            }),
             None => Ok(pipeline),
         }
     }
@@ -374,22 +450,41 @@ impl GpuContext {
     /// Errors: [`GpuError::OutOfMemory`] naming the buffer when `bytes` exceeds the adapter's
     /// largest buffer or the device has no memory left; [`GpuError::Validation`] when the adapter
     /// refuses the descriptor (a usage it does not allow). Both are caught in error scopes.
-    pub fn buffer(&self, label: &str, bytes: u64, usage: wgpu::BufferUsages) -> Result<wgpu::Buffer, GpuError> {
+    pub fn buffer(
+        &self,
+        label: &str,
+        bytes: u64,
+        usage: wgpu::BufferUsages,
+    ) -> Result<wgpu::Buffer, GpuError> {
         let limit = self.device.limits().max_buffer_size;
-        let refuse = |reason: String| GpuError::OutOfMemory { label: label.to_string(), bytes, reason };
+        let refuse = |reason: String| GpuError::OutOfMemory {
+            label: label.to_string(),
+            bytes,
+            reason,
+        };
         if bytes > limit {
-            return Err(refuse(format!("the adapter's largest buffer is {limit} bytes")));
+            return Err(refuse(format!(
+                "the adapter's largest buffer is {limit} bytes"
+            )));
         }
         let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size: bytes, usage, mapped_at_creation: false });
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: bytes,
+            usage,
+            mapped_at_creation: false,
+        });
         let invalid = pollster::block_on(validation.pop());
         let exhausted = pollster::block_on(memory.pop());
         if let Some(error) = exhausted {
             return Err(refuse(error.to_string()));
         }
         match invalid {
-            Some(error) => Err(GpuError::Validation { what: format!("buffer '{label}' of {bytes} bytes"), reason: error.to_string() }),
+            Some(error) => Err(GpuError::Validation {
+                what: format!("buffer '{label}' of {bytes} bytes"),
+                reason: error.to_string(),
+            }),
             None => Ok(buffer),
         }
     }
@@ -403,7 +498,10 @@ impl GpuContext {
             return Err(GpuError::DeviceLost(reason));
         }
         match take(&self.faults.uncaptured) {
-            Some(reason) => Err(GpuError::Validation { what: what.to_string(), reason }),
+            Some(reason) => Err(GpuError::Validation {
+                what: what.to_string(),
+                reason,
+            }),
             None => Ok(()),
         }
     }
@@ -439,11 +537,18 @@ impl GpuContext {
         }
         self.wait()?;
         for _ in copies {
-            receiver.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
+            receiver
+                .recv()
+                .map_err(|e| GpuError::Readback(e.to_string()))?
+                .map_err(|e| GpuError::Readback(e.to_string()))?;
         }
         let views = copies
             .iter()
-            .map(|&(_, staging, bytes)| staging.get_mapped_range(..bytes).map_err(|e| GpuError::Readback(e.to_string())))
+            .map(|&(_, staging, bytes)| {
+                staging
+                    .get_mapped_range(..bytes)
+                    .map_err(|e| GpuError::Readback(e.to_string()))
+            })
             .collect::<Result<Vec<_>, _>>()?;
         let slices: Vec<&[u8]> = views.iter().map(|v| &v[..]).collect();
         let result = read(&slices);
@@ -458,10 +563,15 @@ impl GpuContext {
     /// Blocks until every submitted command has finished, at most the context's timeout
     /// ([`TIMEOUT_ENV`]), then [`check`](Self::check)s for errors and the loss of the device.
     pub(crate) fn wait(&self) -> Result<(), GpuError> {
-        let polled = self.device.poll(wgpu::PollType::Wait { submission_index: None, timeout: Some(self.timeout) });
+        let polled = self.device.poll(wgpu::PollType::Wait {
+            submission_index: None,
+            timeout: Some(self.timeout),
+        });
         match polled {
             Ok(_) => self.check("a submitted kernel"),
-            Err(wgpu::PollError::Timeout) => Err(GpuError::Timeout { seconds: self.timeout.as_secs() }),
+            Err(wgpu::PollError::Timeout) => Err(GpuError::Timeout {
+                seconds: self.timeout.as_secs(),
+            }),
             Err(error) => {
                 self.check("a submitted kernel")?;
                 Err(GpuError::Readback(error.to_string()))
@@ -486,7 +596,11 @@ pub(crate) fn dispatch_grid(items: u32, max_per_dimension: u32) -> (u32, u32) {
 }
 
 fn list(names: &[String]) -> String {
-    if names.is_empty() { "none".to_string() } else { names.join(", ") }
+    if names.is_empty() {
+        "none".to_string()
+    } else {
+        names.join(", ")
+    }
 }
 
 #[cfg(test)]
@@ -494,34 +608,70 @@ mod tests {
     use super::{WORKGROUP_SIZE, dispatch_grid};
 
     fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
-        wgpu::AdapterInfo { name: name.into(), device_type, ..wgpu::AdapterInfo::new(wgpu::DeviceType::Other, wgpu::Backend::Vulkan) }
+        wgpu::AdapterInfo {
+            name: name.into(),
+            device_type,
+            ..wgpu::AdapterInfo::new(wgpu::DeviceType::Other, wgpu::Backend::Vulkan)
+        }
     }
 
     #[test]
     fn adapters_are_chosen_discrete_first_then_by_index_or_name() {
         use super::choose_adapter;
         use wgpu::DeviceType as T;
-        let machine = [info("llvmpipe (LLVM 15)", T::Cpu), info("Intel UHD 770", T::IntegratedGpu), info("NVIDIA H200", T::DiscreteGpu), info("NVIDIA H200", T::DiscreteGpu)];
+        let machine = [
+            info("llvmpipe (LLVM 15)", T::Cpu),
+            info("Intel UHD 770", T::IntegratedGpu),
+            info("NVIDIA H200", T::DiscreteGpu),
+            info("NVIDIA H200", T::DiscreteGpu),
+        ];
         assert_eq!(choose_adapter(&machine, None), Ok(2));
         assert_eq!(choose_adapter(&machine[..2], None), Ok(1));
         assert_eq!(choose_adapter(&machine[..1], None), Ok(0));
-        assert_eq!(choose_adapter(&machine, Some("3")), Ok(3), "the second of two identical GPUs");
+        assert_eq!(
+            choose_adapter(&machine, Some("3")),
+            Ok(3),
+            "the second of two identical GPUs"
+        );
         assert_eq!(choose_adapter(&machine, Some("h200")), Ok(2));
         assert_eq!(choose_adapter(&machine, Some("LLVMPIPE")), Ok(0));
         let error = choose_adapter(&machine, Some("4")).unwrap_err();
-        assert!(error.contains("index 4") && error.contains("3: NVIDIA H200"), "{error}");
-        assert!(choose_adapter(&machine, Some("radeon")).unwrap_err().contains("'radeon'"));
+        assert!(
+            error.contains("index 4") && error.contains("3: NVIDIA H200"),
+            "{error}"
+        );
+        assert!(
+            choose_adapter(&machine, Some("radeon"))
+                .unwrap_err()
+                .contains("'radeon'")
+        );
         assert!(choose_adapter(&[], None).is_err());
     }
 
     #[test]
     fn dispatch_grids_cover_every_item_with_fewer_spare_groups_than_rows() {
-        for items in [1u32, 63, 64, 65, 65_535 * 64, 65_535 * 64 + 1, 1 << 22, (1 << 22) + 17, u32::MAX] {
+        for items in [
+            1u32,
+            63,
+            64,
+            65,
+            65_535 * 64,
+            65_535 * 64 + 1,
+            1 << 22,
+            (1 << 22) + 17,
+            u32::MAX,
+        ] {
             let (x, y) = dispatch_grid(items, 65_535);
             let needed = items.div_ceil(WORKGROUP_SIZE) as u64;
             assert!(x <= 65_535 && y <= 65_535, "{items}: {x} × {y}");
-            assert!(x as u64 * y as u64 >= needed, "{items}: {x} × {y} misses items");
-            assert!(x as u64 * y as u64 - needed < y as u64, "{items}: {x} × {y} for {needed} groups");
+            assert!(
+                x as u64 * y as u64 >= needed,
+                "{items}: {x} × {y} misses items"
+            );
+            assert!(
+                x as u64 * y as u64 - needed < y as u64,
+                "{items}: {x} × {y} for {needed} groups"
+            );
         }
         assert_eq!(dispatch_grid(1 << 22, 65_535), (32_768, 2));
         assert_eq!(dispatch_grid(0, 65_535), (1, 1));

@@ -56,7 +56,13 @@ impl KernelTimer {
 struct Slot(Option<wgpu::Buffer>);
 
 impl Slot {
-    fn get(&mut self, context: &GpuContext, label: &str, bytes: usize, usage: wgpu::BufferUsages) -> Result<&wgpu::Buffer, GpuError> {
+    fn get(
+        &mut self,
+        context: &GpuContext,
+        label: &str,
+        bytes: usize,
+        usage: wgpu::BufferUsages,
+    ) -> Result<&wgpu::Buffer, GpuError> {
         let bytes = (bytes.max(16) as u64).next_multiple_of(16);
         match &mut self.0 {
             Some(buffer) if buffer.size() >= bytes && buffer.usage() == usage => {}
@@ -105,11 +111,14 @@ fn extend_reals(bytes: &mut Vec<u8>, precision: Precision, values: &[f64]) {
         Precision::F32 => {
             let start = bytes.len();
             bytes.resize(start + 4 * values.len(), 0);
-            bytes[start..].par_chunks_mut(4 * CONVERT_ROWS).zip(values.par_chunks(CONVERT_ROWS)).for_each(|(out, values)| {
-                for (o, v) in out.chunks_exact_mut(4).zip(values) {
-                    o.copy_from_slice(&(*v as f32).to_le_bytes());
-                }
-            });
+            bytes[start..]
+                .par_chunks_mut(4 * CONVERT_ROWS)
+                .zip(values.par_chunks(CONVERT_ROWS))
+                .for_each(|(out, values)| {
+                    for (o, v) in out.chunks_exact_mut(4).zip(values) {
+                        o.copy_from_slice(&(*v as f32).to_le_bytes());
+                    }
+                });
         }
     }
 }
@@ -119,30 +128,47 @@ fn extend_reals(bytes: &mut Vec<u8>, precision: Precision, values: &[f64]) {
 fn real_at(bytes: &[u8], precision: Precision, k: usize) -> f64 {
     match precision {
         Precision::F64 => f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().expect("8 bytes")),
-        Precision::F32 => f32::from_le_bytes(bytes[4 * k..4 * k + 4].try_into().expect("4 bytes")) as f64,
+        Precision::F32 => {
+            f32::from_le_bytes(bytes[4 * k..4 * k + 4].try_into().expect("4 bytes")) as f64
+        }
     }
 }
 
 /// Copies mapped rows into `output` where `status` is 0, NaN elsewhere (on all cores).
-fn rows_from<const M: usize>(bytes: &[u8], precision: Precision, status: &[u32], output: &mut [[f64; M]]) {
+fn rows_from<const M: usize>(
+    bytes: &[u8],
+    precision: Precision,
+    status: &[u32],
+    output: &mut [[f64; M]],
+) {
     let s = precision.size();
     let bytes = &bytes[..output.len() * M * s];
-    output.par_chunks_mut(CONVERT_ROWS).zip(status.par_chunks(CONVERT_ROWS)).zip(bytes.par_chunks(CONVERT_ROWS * M * s)).for_each(
-        |((output, status), bytes)| match precision {
+    output
+        .par_chunks_mut(CONVERT_ROWS)
+        .zip(status.par_chunks(CONVERT_ROWS))
+        .zip(bytes.par_chunks(CONVERT_ROWS * M * s))
+        .for_each(|((output, status), bytes)| match precision {
             Precision::F64 => {
                 let values: &[f64] = bytemuck::cast_slice(bytes);
                 for ((row, chunk), s) in output.iter_mut().zip(values.chunks_exact(M)).zip(status) {
-                    *row = if *s == 0 { chunk.try_into().expect("M values") } else { [f64::NAN; M] };
+                    *row = if *s == 0 {
+                        chunk.try_into().expect("M values")
+                    } else {
+                        [f64::NAN; M]
+                    };
                 }
             }
             Precision::F32 => {
                 let values: &[f32] = bytemuck::cast_slice(bytes);
                 for ((row, chunk), s) in output.iter_mut().zip(values.chunks_exact(M)).zip(status) {
-                    *row = if *s == 0 { std::array::from_fn(|k| chunk[k] as f64) } else { [f64::NAN; M] };
+                    *row = if *s == 0 {
+                        std::array::from_fn(|k| chunk[k] as f64)
+                    } else {
+                        [f64::NAN; M]
+                    };
                 }
             }
-        },
-    );
+        });
 }
 
 impl GpuEngine {
@@ -155,8 +181,19 @@ impl GpuEngine {
                 context.adapter().name
             )));
         }
-        let reduction = if context.adapter().subgroup { Reduction::Subgroup } else { Reduction::Workgroup };
-        Ok(Self { context, precision, reduction, pipelines: Mutex::default(), buffers: Mutex::default(), max_chunk_items: MAX_CHUNK_ITEMS })
+        let reduction = if context.adapter().subgroup {
+            Reduction::Subgroup
+        } else {
+            Reduction::Workgroup
+        };
+        Ok(Self {
+            context,
+            precision,
+            reduction,
+            pipelines: Mutex::default(),
+            buffers: Mutex::default(),
+            max_chunk_items: MAX_CHUNK_ITEMS,
+        })
     }
 
     /// The context (adapter, device).
@@ -178,10 +215,16 @@ impl GpuEngine {
     /// needs SUBGROUP). For tests and benchmarks.
     pub fn set_reduction(&mut self, reduction: Reduction) -> Result<(), GpuError> {
         if reduction == Reduction::Subgroup && !self.context.adapter().subgroup {
-            return Err(GpuError::Unsupported(format!("adapter '{}' has no SUBGROUP", self.context.adapter().name)));
+            return Err(GpuError::Unsupported(format!(
+                "adapter '{}' has no SUBGROUP",
+                self.context.adapter().name
+            )));
         }
         self.reduction = reduction;
-        self.pipelines.lock().expect("pipeline cache").remove(&Kernel::RayGapCost);
+        self.pipelines
+            .lock()
+            .expect("pipeline cache")
+            .remove(&Kernel::RayGapCost);
         Ok(())
     }
 
@@ -199,7 +242,10 @@ impl GpuEngine {
             return Ok(pipeline.clone());
         }
         let precision = kernel.fixed_precision().unwrap_or(self.precision);
-        let pipeline = Arc::new(self.context.pipeline(kernel.name(), &source(kernel, precision, self.reduction))?);
+        let pipeline = Arc::new(
+            self.context
+                .pipeline(kernel.name(), &source(kernel, precision, self.reduction))?,
+        );
         cache.insert(kernel, pipeline.clone());
         Ok(pipeline)
     }
@@ -212,7 +258,11 @@ impl GpuEngine {
     /// shares the host's memory, written through the queue otherwise.
     fn input_usage(&self) -> wgpu::BufferUsages {
         use wgpu::BufferUsages as U;
-        if self.context.maps_storage() { U::STORAGE | U::MAP_WRITE } else { U::STORAGE | U::COPY_DST }
+        if self.context.maps_storage() {
+            U::STORAGE | U::MAP_WRITE
+        } else {
+            U::STORAGE | U::COPY_DST
+        }
     }
 
     /// Writes `bytes` at the start of a buffer made with [`input_usage`](Self::input_usage).
@@ -227,31 +277,64 @@ impl GpuEngine {
 
     /// A buffer of `bytes` the kernels write, and the buffer the host maps to read it: the same
     /// one where the adapter shares the host's memory, a staging copy otherwise.
-    fn readable(&self, slot: &mut Slot, staging: &mut Slot, label: &str, bytes: usize) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
+    fn readable(
+        &self,
+        slot: &mut Slot,
+        staging: &mut Slot,
+        label: &str,
+        bytes: usize,
+    ) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
         use wgpu::BufferUsages as U;
         let context = &self.context;
         if context.maps_storage() {
-            let buffer = slot.get(context, label, bytes, U::STORAGE | U::MAP_READ)?.clone();
+            let buffer = slot
+                .get(context, label, bytes, U::STORAGE | U::MAP_READ)?
+                .clone();
             Ok((buffer.clone(), buffer))
         } else {
-            let buffer = slot.get(context, label, bytes, U::STORAGE | U::COPY_SRC)?.clone();
-            Ok((buffer, staging.get(context, label, bytes, U::MAP_READ | U::COPY_DST)?.clone()))
+            let buffer = slot
+                .get(context, label, bytes, U::STORAGE | U::COPY_SRC)?
+                .clone();
+            Ok((
+                buffer,
+                staging
+                    .get(context, label, bytes, U::MAP_READ | U::COPY_DST)?
+                    .clone(),
+            ))
         }
     }
 
     /// A bind group of `pipeline` with each `(binding, buffer)` bound whole.
-    fn bind_group(&self, pipeline: &wgpu::ComputePipeline, label: &str, entries: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
-        let entries: Vec<wgpu::BindGroupEntry> =
-            entries.iter().map(|&(binding, buffer)| wgpu::BindGroupEntry { binding, resource: buffer.as_entire_binding() }).collect();
-        self.context.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(label),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        })
+    fn bind_group(
+        &self,
+        pipeline: &wgpu::ComputePipeline,
+        label: &str,
+        entries: &[(u32, &wgpu::Buffer)],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = entries
+            .iter()
+            .map(|&(binding, buffer)| wgpu::BindGroupEntry {
+                binding,
+                resource: buffer.as_entire_binding(),
+            })
+            .collect();
+        self.context
+            .device
+            .create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(label),
+                layout: &pipeline.get_bind_group_layout(0),
+                entries: &entries,
+            })
     }
 
     /// An encoder holding one dispatch of `pipeline` over `groups` = (x, y) workgroups.
-    fn encode_dispatch(&self, pipeline: &wgpu::ComputePipeline, bind_group: &wgpu::BindGroup, label: &str, groups: (u32, u32)) -> wgpu::CommandEncoder {
+    fn encode_dispatch(
+        &self,
+        pipeline: &wgpu::ComputePipeline,
+        bind_group: &wgpu::BindGroup,
+        label: &str,
+        groups: (u32, u32),
+    ) -> wgpu::CommandEncoder {
         self.encode_timed_dispatch(pipeline, bind_group, label, groups, None)
     }
 
@@ -264,9 +347,15 @@ impl GpuEngine {
         groups: (u32, u32),
         timestamp_writes: Option<wgpu::ComputePassTimestampWrites>,
     ) -> wgpu::CommandEncoder {
-        let mut encoder = self.context.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+        let mut encoder = self
+            .context
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
         {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(label), timestamp_writes });
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(label),
+                timestamp_writes,
+            });
             pass.set_pipeline(pipeline);
             pass.set_bind_group(0, bind_group, &[]);
             pass.dispatch_workgroups(groups.0, groups.1, 1);
@@ -276,7 +365,8 @@ impl GpuEngine {
 
     /// Items per chunk when each item needs at most `bytes_per_item` of one binding.
     fn chunk_items(&self, bytes_per_item: usize) -> usize {
-        let cap = (self.context.max_storage_binding() as usize / bytes_per_item.max(1)).min(self.max_chunk_items);
+        let cap = (self.context.max_storage_binding() as usize / bytes_per_item.max(1))
+            .min(self.max_chunk_items);
         (cap / GROUP * GROUP).max(GROUP)
     }
 
@@ -300,7 +390,10 @@ impl GpuEngine {
         output: &mut [[f64; M]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        assert!(input.len() == output.len() && input.len() == status.len(), "input, output and status of equal length");
+        assert!(
+            input.len() == output.len() && input.len() == status.len(),
+            "input, output and status of equal length"
+        );
         Self::check_layers(a)?;
         Self::check_layers(b)?;
         let s = self.precision.size();
@@ -309,11 +402,36 @@ impl GpuEngine {
         let mut params = Params::new(self.precision, a, b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = buffers.uniform.get(&self.context, "params", params.bytes().len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
-        let in_buf = buffers.input.get(&self.context, "input", chunk * N * s, self.input_usage())?.clone();
-        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", chunk * M * s)?;
-        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", chunk * 4)?;
-        let bind_group = self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)]);
+        let uniform = buffers
+            .uniform
+            .get(
+                &self.context,
+                "params",
+                params.bytes().len(),
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            )?
+            .clone();
+        let in_buf = buffers
+            .input
+            .get(&self.context, "input", chunk * N * s, self.input_usage())?
+            .clone();
+        let (out_buf, out_staging) = self.readable(
+            &mut buffers.output,
+            &mut buffers.output_staging,
+            "output",
+            chunk * M * s,
+        )?;
+        let (status_buf, status_staging) = self.readable(
+            &mut buffers.status,
+            &mut buffers.status_staging,
+            "status",
+            chunk * 4,
+        )?;
+        let bind_group = self.bind_group(
+            &pipeline,
+            kernel.name(),
+            &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)],
+        );
         for start in (0..input.len()).step_by(chunk) {
             let end = (start + chunk).min(input.len());
             let items = end - start;
@@ -329,8 +447,16 @@ impl GpuEngine {
                 }
             };
             self.upload(&in_buf, bytes)?;
-            let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), self.context.dispatch_size(items as u32));
-            let copies = [(&out_buf, &out_staging, (items * M * s) as u64), (&status_buf, &status_staging, (items * 4) as u64)];
+            let encoder = self.encode_dispatch(
+                &pipeline,
+                &bind_group,
+                kernel.name(),
+                self.context.dispatch_size(items as u32),
+            );
+            let copies = [
+                (&out_buf, &out_staging, (items * M * s) as u64),
+                (&status_buf, &status_staging, (items * 4) as u64),
+            ];
             let (out_rows, out_status) = (&mut output[start..end], &mut status[start..end]);
             let in_rows = &input[start..end];
             self.context.read_back(encoder, &copies, |data| {
@@ -339,14 +465,22 @@ impl GpuEngine {
                 // The CPU engine's guard (`CpuEngine::map`): every row all numbers or all NaN, and
                 // inputs beyond the precision's range (f32 would read them as infinity) rejected.
                 let limit = self.precision.huge();
-                let (rows, statuses) = (out_rows.par_chunks_mut(CONVERT_ROWS), out_status.par_chunks_mut(CONVERT_ROWS));
-                in_rows.par_chunks(CONVERT_ROWS).zip(rows.zip(statuses)).for_each(|(input, (output, status))| {
-                    for ((x, y), s) in input.iter().zip(output.iter_mut()).zip(status.iter_mut()) {
-                        if out_of_range(x, limit, if *s == 0 { y } else { &[] }) {
-                            (*y, *s) = ([f64::NAN; M], NoSolution::OutOfRange.code());
+                let (rows, statuses) = (
+                    out_rows.par_chunks_mut(CONVERT_ROWS),
+                    out_status.par_chunks_mut(CONVERT_ROWS),
+                );
+                in_rows
+                    .par_chunks(CONVERT_ROWS)
+                    .zip(rows.zip(statuses))
+                    .for_each(|(input, (output, status))| {
+                        for ((x, y), s) in
+                            input.iter().zip(output.iter_mut()).zip(status.iter_mut())
+                        {
+                            if out_of_range(x, limit, if *s == 0 { y } else { &[] }) {
+                                (*y, *s) = ([f64::NAN; M], NoSolution::OutOfRange.code());
+                            }
                         }
-                    }
-                });
+                    });
             })?;
         }
         Ok(())
@@ -369,21 +503,45 @@ impl GpuEngine {
         let mut status = vec![0; input.len()];
         let chunk = self.chunk_items(N.max(M) * self.precision.size());
         if input.len() > chunk {
-            return Err(GpuError::Unsupported(format!("kernel_seconds takes one chunk ({chunk} items) at most, got {}", input.len())));
+            return Err(GpuError::Unsupported(format!(
+                "kernel_seconds takes one chunk ({chunk} items) at most, got {}",
+                input.len()
+            )));
         }
         // Uploads the data and leaves it resident in the reused buffers.
         self.run_map(kernel, a, b, input, &mut output, &mut status)?;
         let pipeline = self.pipeline(kernel)?;
         let buffers = self.buffers();
         let resident = |slot: &Slot| slot.0.clone().expect("allocated by run_map");
-        let (uniform, in_buf, out_buf, status_buf) = (resident(&buffers.uniform), resident(&buffers.input), resident(&buffers.output), resident(&buffers.status));
-        let bind_group = self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)]);
+        let (uniform, in_buf, out_buf, status_buf) = (
+            resident(&buffers.uniform),
+            resident(&buffers.input),
+            resident(&buffers.output),
+            resident(&buffers.status),
+        );
+        let bind_group = self.bind_group(
+            &pipeline,
+            kernel.name(),
+            &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)],
+        );
         let groups = self.context.dispatch_size(input.len() as u32);
         let device = self.context.device();
         let timestamps = if device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
-            let queries = device.create_query_set(&wgpu::QuerySetDescriptor { label: Some("kernel time"), ty: wgpu::QueryType::Timestamp, count: 2 });
-            let resolve = self.context.buffer("kernel time", 16, wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC)?;
-            let staging = self.context.buffer("kernel time staging", 16, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST)?;
+            let queries = device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("kernel time"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            });
+            let resolve = self.context.buffer(
+                "kernel time",
+                16,
+                wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+            )?;
+            let staging = self.context.buffer(
+                "kernel time staging",
+                16,
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            )?;
             Some((queries, resolve, staging))
         } else {
             None
@@ -393,20 +551,33 @@ impl GpuEngine {
             Some((queries, resolve, staging)) => {
                 let tick = self.context.queue.get_timestamp_period() as f64 * 1e-9;
                 for _ in 0..=repeats {
-                    let writes = wgpu::ComputePassTimestampWrites { query_set: &queries, beginning_of_pass_write_index: Some(0), end_of_pass_write_index: Some(1) };
-                    let mut encoder = self.encode_timed_dispatch(&pipeline, &bind_group, kernel.name(), groups, Some(writes));
+                    let writes = wgpu::ComputePassTimestampWrites {
+                        query_set: &queries,
+                        beginning_of_pass_write_index: Some(0),
+                        end_of_pass_write_index: Some(1),
+                    };
+                    let mut encoder = self.encode_timed_dispatch(
+                        &pipeline,
+                        &bind_group,
+                        kernel.name(),
+                        groups,
+                        Some(writes),
+                    );
                     encoder.resolve_query_set(&queries, 0..2, &resolve, 0);
-                    let ticks = self.context.read_back(encoder, &[(&resolve, &staging, 16)], |data| {
-                        let stamps: &[u64] = bytemuck::cast_slice(data[0]);
-                        stamps[1].saturating_sub(stamps[0])
-                    })?;
+                    let ticks =
+                        self.context
+                            .read_back(encoder, &[(&resolve, &staging, 16)], |data| {
+                                let stamps: &[u64] = bytemuck::cast_slice(data[0]);
+                                stamps[1].saturating_sub(stamps[0])
+                            })?;
                     best = best.min(ticks as f64 * tick);
                 }
                 Ok((best, KernelTimer::GpuTimestamp))
             }
             None => {
                 for _ in 0..=repeats {
-                    let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), groups);
+                    let encoder =
+                        self.encode_dispatch(&pipeline, &bind_group, kernel.name(), groups);
                     let started = std::time::Instant::now();
                     self.context.queue.submit([encoder.finish()]);
                     self.context.wait()?;
@@ -418,24 +589,42 @@ impl GpuEngine {
     }
 
     /// Back-projects raw pixels of `camera` into `rays` (origin xyz on the outer interface, unit
-    /// direction xyz, master frame). `status[i]` is 0 or the [`NoSolution`](crate::model::NoSolution)
+    /// direction xyz, master frame). `status[i]` is 0 or the [`NoSolution`]
     /// code, and the row NaN, exactly where the CPU path has no answer (up to rounding at the
     /// boundaries in f32).
     ///
     /// Panics if the slices differ in length.
-    pub fn backproject(&self, camera: &RefractiveCamera, pixels: &[[f64; 2]], rays: &mut [[f64; 6]], status: &mut [u32]) -> Result<(), GpuError> {
+    pub fn backproject(
+        &self,
+        camera: &RefractiveCamera,
+        pixels: &[[f64; 2]],
+        rays: &mut [[f64; 6]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
         self.run_map(Kernel::Backproject, camera, camera, pixels, rays, status)
     }
 
     /// Forward projection of points (master frame) to raw pixels; status as in
     /// [`backproject`](Self::backproject).
-    pub fn project(&self, camera: &RefractiveCamera, points: &[[f64; 3]], pixels: &mut [[f64; 2]], status: &mut [u32]) -> Result<(), GpuError> {
+    pub fn project(
+        &self,
+        camera: &RefractiveCamera,
+        points: &[[f64; 3]],
+        pixels: &mut [[f64; 2]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
         self.run_map(Kernel::Project, camera, camera, points, pixels, status)
     }
 
     /// VOPs of points: depth, vop_distance, vop xyz, incidence (radians), as
     /// [`RefractiveCamera::vop`].
-    pub fn vop(&self, camera: &RefractiveCamera, points: &[[f64; 3]], vops: &mut [[f64; 6]], status: &mut [u32]) -> Result<(), GpuError> {
+    pub fn vop(
+        &self,
+        camera: &RefractiveCamera,
+        points: &[[f64; 3]],
+        vops: &mut [[f64; 6]],
+        status: &mut [u32],
+    ) -> Result<(), GpuError> {
         self.run_map(Kernel::Vop, camera, camera, points, vops, status)?;
         // The kernel returns tan a: WGSL has no f64 arctangent.
         for row in vops.iter_mut() {
@@ -495,7 +684,10 @@ impl GpuEngine {
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         let (w, h) = (width as usize, height as usize);
-        assert!(rays.len() == w * h && status.len() == w * h, "rays and status of width · height");
+        assert!(
+            rays.len() == w * h && status.len() == w * h,
+            "rays and status of width · height"
+        );
         if w == 0 || h == 0 {
             return Ok(());
         }
@@ -506,17 +698,47 @@ impl GpuEngine {
         let mut params = Params::new(self.precision, camera, camera, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = buffers.uniform.get(&self.context, "params", params.bytes().len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
-        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", rows * w * 6 * s)?;
-        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", rows * w * 4)?;
-        let bind_group = self.bind_group(&pipeline, "backproject_grid", &[(0, &uniform), (2, &out_buf), (3, &status_buf)]);
+        let uniform = buffers
+            .uniform
+            .get(
+                &self.context,
+                "params",
+                params.bytes().len(),
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            )?
+            .clone();
+        let (out_buf, out_staging) = self.readable(
+            &mut buffers.output,
+            &mut buffers.output_staging,
+            "output",
+            rows * w * 6 * s,
+        )?;
+        let (status_buf, status_staging) = self.readable(
+            &mut buffers.status,
+            &mut buffers.status_staging,
+            "status",
+            rows * w * 4,
+        )?;
+        let bind_group = self.bind_group(
+            &pipeline,
+            "backproject_grid",
+            &[(0, &uniform), (2, &out_buf), (3, &status_buf)],
+        );
         for first in (0..h).step_by(rows) {
             let count = rows.min(h - first);
             let items = count * w;
             params.set_info([items as u32, width, first_row + first as u32, 0]);
             self.context.queue.write_buffer(&uniform, 0, params.bytes());
-            let encoder = self.encode_dispatch(&pipeline, &bind_group, "backproject_grid", (width.div_ceil(WORKGROUP_SIZE), count as u32));
-            let copies = [(&out_buf, &out_staging, (items * 6 * s) as u64), (&status_buf, &status_staging, (items * 4) as u64)];
+            let encoder = self.encode_dispatch(
+                &pipeline,
+                &bind_group,
+                "backproject_grid",
+                (width.div_ceil(WORKGROUP_SIZE), count as u32),
+            );
+            let copies = [
+                (&out_buf, &out_staging, (items * 6 * s) as u64),
+                (&status_buf, &status_staging, (items * 4) as u64),
+            ];
             let range = first * w..first * w + items;
             let (out_rows, out_status) = (&mut rays[range.clone()], &mut status[range]);
             self.context.read_back(encoder, &copies, |data| {
@@ -545,12 +767,18 @@ impl GpuEngine {
         // the kernel counts as no term, as the CPU path does.
         let candidates: Vec<[f64; 4]> = candidates
             .iter()
-            .map(|c| match rig.interface().with_pose(nalgebra::Vector3::new(c[0], c[1], c[2]), c[3]).and_then(|i| rig.with_interface(i)) {
-                Ok(moved) => {
-                    let n = moved.interface().normal();
-                    [n.x, n.y, n.z, c[3]]
+            .map(|c| {
+                match rig
+                    .interface()
+                    .with_pose(nalgebra::Vector3::new(c[0], c[1], c[2]), c[3])
+                    .and_then(|i| rig.with_interface(i))
+                {
+                    Ok(moved) => {
+                        let n = moved.interface().normal();
+                        [n.x, n.y, n.z, c[3]]
+                    }
+                    Err(_) => [0.0, 0.0, 1.0, -1.0],
                 }
-                Err(_) => [0.0, 0.0, 1.0, -1.0],
             })
             .collect();
         Self::check_layers(a)?;
@@ -560,19 +788,56 @@ impl GpuEngine {
             return Ok(());
         }
         let s = self.precision.size();
-        let pairs_per_chunk = (self.chunk_items(6 * s)).min(GROUP * MAX_GROUPS_PER_DIMENSION).min(air_rays.len());
+        let pairs_per_chunk = (self.chunk_items(6 * s))
+            .min(GROUP * MAX_GROUPS_PER_DIMENSION)
+            .min(air_rays.len());
         let groups_x = pairs_per_chunk.div_ceil(GROUP);
-        let candidates_per_chunk = (self.max_chunk_items / groups_x).clamp(1, MAX_GROUPS_PER_DIMENSION).min(candidates.len());
+        let candidates_per_chunk = (self.max_chunk_items / groups_x)
+            .clamp(1, MAX_GROUPS_PER_DIMENSION)
+            .min(candidates.len());
         let pipeline = self.pipeline(Kernel::RayGapCost)?;
         let mut params = Params::new(self.precision, a, b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
         let partial_bytes = candidates_per_chunk * groups_x * 2 * s;
-        let uniform = buffers.uniform.get(&self.context, "params", params.bytes().len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
-        let in_buf = buffers.input.get(&self.context, "input", pairs_per_chunk * 6 * s, self.input_usage())?.clone();
-        let cand_buf = buffers.candidates.get(&self.context, "candidates", candidates_per_chunk * 4 * s, self.input_usage())?.clone();
-        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", partial_bytes)?;
-        let bind_group = self.bind_group(&pipeline, "ray_gap_cost", &[(0, &uniform), (1, &in_buf), (2, &out_buf), (4, &cand_buf)]);
+        let uniform = buffers
+            .uniform
+            .get(
+                &self.context,
+                "params",
+                params.bytes().len(),
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            )?
+            .clone();
+        let in_buf = buffers
+            .input
+            .get(
+                &self.context,
+                "input",
+                pairs_per_chunk * 6 * s,
+                self.input_usage(),
+            )?
+            .clone();
+        let cand_buf = buffers
+            .candidates
+            .get(
+                &self.context,
+                "candidates",
+                candidates_per_chunk * 4 * s,
+                self.input_usage(),
+            )?
+            .clone();
+        let (out_buf, out_staging) = self.readable(
+            &mut buffers.output,
+            &mut buffers.output_staging,
+            "output",
+            partial_bytes,
+        )?;
+        let bind_group = self.bind_group(
+            &pipeline,
+            "ray_gap_cost",
+            &[(0, &uniform), (1, &in_buf), (2, &out_buf), (4, &cand_buf)],
+        );
         for pair_start in (0..air_rays.len()).step_by(pairs_per_chunk) {
             let pair_end = (pair_start + pairs_per_chunk).min(air_rays.len());
             let pairs = pair_end - pair_start;
@@ -580,15 +845,28 @@ impl GpuEngine {
             params.set_info([pairs as u32, 0, 0, 0]);
             self.context.queue.write_buffer(&uniform, 0, params.bytes());
             buffers.scratch.clear();
-            extend_reals(&mut buffers.scratch, self.precision, bytemuck::cast_slice(&air_rays[pair_start..pair_end]));
+            extend_reals(
+                &mut buffers.scratch,
+                self.precision,
+                bytemuck::cast_slice(&air_rays[pair_start..pair_end]),
+            );
             self.upload(&in_buf, &buffers.scratch)?;
             for cand_start in (0..candidates.len()).step_by(candidates_per_chunk) {
                 let cand_end = (cand_start + candidates_per_chunk).min(candidates.len());
                 let count = cand_end - cand_start;
                 buffers.scratch.clear();
-                extend_reals(&mut buffers.scratch, self.precision, bytemuck::cast_slice(&candidates[cand_start..cand_end]));
+                extend_reals(
+                    &mut buffers.scratch,
+                    self.precision,
+                    bytemuck::cast_slice(&candidates[cand_start..cand_end]),
+                );
                 self.upload(&cand_buf, &buffers.scratch)?;
-                let encoder = self.encode_dispatch(&pipeline, &bind_group, "ray_gap_cost", (groups as u32, count as u32));
+                let encoder = self.encode_dispatch(
+                    &pipeline,
+                    &bind_group,
+                    "ray_gap_cost",
+                    (groups as u32, count as u32),
+                );
                 let copies = [(&out_buf, &out_staging, (count * groups * 2 * s) as u64)];
                 let precision = self.precision;
                 let out = &mut costs[cand_start..cand_end];

@@ -124,7 +124,10 @@ mirrors!(Precision::F64, "f64", DVec4, UVec4, CameraF64, ParamsF64);
 
 /// The uniform `Params` of a kernel in its precision.
 #[derive(Debug, Clone, Copy, PartialEq)]
-#[allow(clippy::large_enum_variant, reason = "one per call, on the stack: boxing the f64 uniform buys nothing")]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one per call, on the stack: boxing the f64 uniform buys nothing"
+)]
 pub enum Params {
     /// f32 kernels.
     F32(ParamsF32),
@@ -137,8 +140,16 @@ impl Params {
     /// then per kernel: grid width, first grid row, …).
     ///
     /// Panics if a camera has more than [`MAX_LAYERS`] layers (the engine checks first).
-    pub fn new(precision: Precision, a: &RefractiveCamera, b: &RefractiveCamera, info: [u32; 4]) -> Self {
-        assert!(a.layers().len() <= MAX_LAYERS && b.layers().len() <= MAX_LAYERS, "layer count checked by the engine");
+    pub fn new(
+        precision: Precision,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        info: [u32; 4],
+    ) -> Self {
+        assert!(
+            a.layers().len() <= MAX_LAYERS && b.layers().len() <= MAX_LAYERS,
+            "layer count checked by the engine"
+        );
         match precision {
             Precision::F32 => Self::F32(ParamsF32::new(a, b, info)),
             Precision::F64 => Self::F64(ParamsF64::new(a, b, info)),
@@ -177,21 +188,44 @@ mod tests {
             let before = params.bytes().to_vec();
             params.set_info([5, 6, 7, 8]);
             let (size, info) = match precision {
-                Precision::F32 => (size_of::<ParamsF32>(), std::mem::offset_of!(ParamsF32, info)),
-                Precision::F64 => (size_of::<ParamsF64>(), std::mem::offset_of!(ParamsF64, info)),
+                Precision::F32 => (
+                    size_of::<ParamsF32>(),
+                    std::mem::offset_of!(ParamsF32, info),
+                ),
+                Precision::F64 => (
+                    size_of::<ParamsF64>(),
+                    std::mem::offset_of!(ParamsF64, info),
+                ),
             };
             let bytes = params.bytes();
             assert_eq!(bytes.len(), size);
             let (fx, expected) = match precision {
-                Precision::F32 => (f32::from_le_bytes(bytes[..4].try_into().unwrap()) as f64, a.intrinsics().fx as f32 as f64),
-                Precision::F64 => (f64::from_le_bytes(bytes[..8].try_into().unwrap()), a.intrinsics().fx),
+                Precision::F32 => (
+                    f32::from_le_bytes(bytes[..4].try_into().unwrap()) as f64,
+                    a.intrinsics().fx as f32 as f64,
+                ),
+                Precision::F64 => (
+                    f64::from_le_bytes(bytes[..8].try_into().unwrap()),
+                    a.intrinsics().fx,
+                ),
             };
             assert_eq!(fx, expected, "{precision}: fx first");
-            let words: Vec<u32> = (0..4).map(|k| u32::from_le_bytes(bytes[info + 4 * k..info + 4 * k + 4].try_into().unwrap())).collect();
+            let words: Vec<u32> = (0..4)
+                .map(|k| {
+                    u32::from_le_bytes(bytes[info + 4 * k..info + 4 * k + 4].try_into().unwrap())
+                })
+                .collect();
             assert_eq!(words, [5, 6, 7, 8], "{precision}");
-            assert_eq!(bytes[..info], before[..info], "{precision}: set_info writes info only");
+            assert_eq!(
+                bytes[..info],
+                before[..info],
+                "{precision}: set_info writes info only"
+            );
             assert_eq!(bytes[info + 16..], before[info + 16..], "{precision}");
-            assert!(bytes[info + 16..].iter().all(|&b| b == 0), "{precision}: end padding is zero");
+            assert!(
+                bytes[info + 16..].iter().all(|&b| b == 0),
+                "{precision}: end padding is zero"
+            );
         }
     }
 }

@@ -30,7 +30,11 @@ struct ViewFile {
 #[serde(deny_unknown_fields)]
 struct ObservationsFile {
     board: BoardFile,
-    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "super::rig_json::present")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "super::rig_json::present"
+    )]
     cameras: Option<[String; 2]>,
     views: Vec<ViewFile>,
 }
@@ -40,19 +44,33 @@ struct ObservationsFile {
 /// 2 × 2 corners and a positive square.
 pub fn observations_from_json_str(text: &str, path: &Path) -> Result<Observations, IoError> {
     let file: ObservationsFile = super::rig_json::parse_json(text, path)?;
-    let board = Board { rows: file.board.rows, cols: file.board.cols, square: file.board.square };
+    let board = Board {
+        rows: file.board.rows,
+        cols: file.board.cols,
+        square: file.board.square,
+    };
     let point = |c: &Option<[f64; 2]>| c.map(|[u, v]| Point2::new(u, v));
     let views = file
         .views
         .iter()
-        .map(|v| StereoView { left: v.left.iter().map(point).collect(), right: v.right.iter().map(point).collect() })
+        .map(|v| StereoView {
+            left: v.left.iter().map(point).collect(),
+            right: v.right.iter().map(point).collect(),
+        })
         .collect();
-    let observations = Observations { board, views, cameras: file.cameras };
+    let observations = Observations {
+        board,
+        views,
+        cameras: file.cameras,
+    };
     if board.rows < 2 || board.cols < 2 || !(board.square > 0.0 && board.square.is_finite()) {
         return Err(IoError::Invalid {
             path: path.to_path_buf(),
             field: "board".into(),
-            reason: format!("needs rows ≥ 2, cols ≥ 2 and a square > 0 m, got rows {}, cols {}, square {}", board.rows, board.cols, board.square),
+            reason: format!(
+                "needs rows ≥ 2, cols ≥ 2 and a square > 0 m, got rows {}, cols {}, square {}",
+                board.rows, board.cols, board.square
+            ),
         });
     }
     Ok(observations)
@@ -68,9 +86,20 @@ pub fn observations_to_json_string(observations: &Observations) -> String {
     let b = &observations.board;
     let corners = |c: &[Option<Point2<f64>>]| c.iter().map(|p| p.map(|p| [p.x, p.y])).collect();
     let file = ObservationsFile {
-        board: BoardFile { rows: b.rows, cols: b.cols, square: b.square },
+        board: BoardFile {
+            rows: b.rows,
+            cols: b.cols,
+            square: b.square,
+        },
         cameras: observations.cameras.clone(),
-        views: observations.views.iter().map(|v| ViewFile { left: corners(&v.left), right: corners(&v.right) }).collect(),
+        views: observations
+            .views
+            .iter()
+            .map(|v| ViewFile {
+                left: corners(&v.left),
+                right: corners(&v.right),
+            })
+            .collect(),
     };
     let mut text = serde_json::to_string(&file).expect("plain data always serialises");
     // One view per line keeps the file readable and diffable.
@@ -95,14 +124,20 @@ struct PoseFile {
 fn pose_to_file(pose: &Isometry3<f64>) -> PoseFile {
     let r = pose.rotation.to_rotation_matrix().into_inner();
     let t = pose.translation.vector;
-    PoseFile { rotation: std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)])), translation: [t.x, t.y, t.z] }
+    PoseFile {
+        rotation: std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)])),
+        translation: [t.x, t.y, t.z],
+    }
 }
 
 fn pose_from_file(pose: &PoseFile) -> Isometry3<f64> {
     let r = pose.rotation;
     let m = Matrix3::from_fn(|i, j| r[i][j]);
     let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&m));
-    Isometry3::from_parts(Translation3::from(Vector3::from(pose.translation)), rotation)
+    Isometry3::from_parts(
+        Translation3::from(Vector3::from(pose.translation)),
+        rotation,
+    )
 }
 
 /// The truth of a simulated scene.
@@ -154,7 +189,12 @@ pub fn write_truth(path: &Path, truth: &Truth) -> Result<(), IoError> {
 pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
     let file: TruthFile = super::rig_json::parse_json(&read_text(path)?, path)?;
     let interface = super::rig_json::interface_from_file(&file.interface, path)?;
-    Ok(Truth { interface, master_from_board: file.board_poses.iter().map(pose_from_file).collect(), noise_px: file.noise_px, seed: file.seed })
+    Ok(Truth {
+        interface,
+        master_from_board: file.board_poses.iter().map(pose_from_file).collect(),
+        noise_px: file.noise_px,
+        seed: file.seed,
+    })
 }
 
 #[derive(Debug, Serialize)]
@@ -231,7 +271,11 @@ pub fn report_to_json_string(report: &CalibrationReport) -> String {
         tilt_deg: c.tilt().to_degrees(),
         azimuth_deg: c.azimuth().to_degrees(),
         air_distance: c.air_distance,
-        std: report.std.map(|[t, a, d]| StdFile { tilt_deg: t.to_degrees(), azimuth_deg: a.to_degrees(), air_distance: d }),
+        std: report.std.map(|[t, a, d]| StdFile {
+            tilt_deg: t.to_degrees(),
+            azimuth_deg: a.to_degrees(),
+            air_distance: d,
+        }),
         sigma_px: report.sigma_px,
         rms_px: report.rms_px,
         rms_px_per_view: &report.rms_px_per_view,
@@ -298,18 +342,35 @@ mod tests {
                        "right": [[1, 2], null, [3, 4], [5, 6], [7, 8], [9, 10.25]]}]}"#;
         let observations = observations_from_json_str(text, "obs.json".as_ref()).unwrap();
         assert_eq!(observations.views[0].left[1], None);
-        assert_eq!(observations.views[0].right[5], Some(Point2::new(9.0, 10.25)));
-        let again = observations_from_json_str(&observations_to_json_string(&observations), "x".as_ref()).unwrap();
+        assert_eq!(
+            observations.views[0].right[5],
+            Some(Point2::new(9.0, 10.25))
+        );
+        let again =
+            observations_from_json_str(&observations_to_json_string(&observations), "x".as_ref())
+                .unwrap();
         assert_eq!(again, observations);
 
         let typo = text.replace("\"square\"", "\"sqare\"");
-        let error = observations_from_json_str(&typo, "obs.json".as_ref()).unwrap_err().to_string();
-        assert!(error.starts_with("obs.json:1:") && error.contains("sqare"), "{error}");
+        let error = observations_from_json_str(&typo, "obs.json".as_ref())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.starts_with("obs.json:1:") && error.contains("sqare"),
+            "{error}"
+        );
         let bad_corner = text.replace("[3.5, 4]", "[3.5]");
-        let error = observations_from_json_str(&bad_corner, "obs.json".as_ref()).unwrap_err().to_string();
+        let error = observations_from_json_str(&bad_corner, "obs.json".as_ref())
+            .unwrap_err()
+            .to_string();
         assert!(error.contains("views[0].left[2]"), "{error}");
         let no_square = text.replace("0.05", "-1");
-        let error = observations_from_json_str(&no_square, "obs.json".as_ref()).unwrap_err().to_string();
-        assert!(error.contains("board") && error.contains("square -1"), "{error}");
+        let error = observations_from_json_str(&no_square, "obs.json".as_ref())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.contains("board") && error.contains("square -1"),
+            "{error}"
+        );
     }
 }

@@ -54,7 +54,9 @@ pub enum ExportError {
         layers: usize,
     },
     /// The cameras of an OpenCV stereo file share one image size.
-    #[error("cameras '{a}' ({a_size:?}) and '{b}' ({b_size:?}) differ in image size; an OpenCV stereo file holds one")]
+    #[error(
+        "cameras '{a}' ({a_size:?}) and '{b}' ({b_size:?}) differ in image size; an OpenCV stereo file holds one"
+    )]
     ImageSize {
         /// First camera.
         a: String,
@@ -101,7 +103,11 @@ pub fn colmap_cameras_txt_as(rig: &Rig, dialect: ColmapDialect) -> Result<String
     let (thickness, index_glass) = match interface.layers() {
         [] => (0.0, interface.index_water()),
         [glass] => (glass.thickness, glass.index),
-        layers => return Err(ExportError::Layers { layers: layers.len() }),
+        layers => {
+            return Err(ExportError::Layers {
+                layers: layers.len(),
+            });
+        }
     };
     let mut text = String::from(
         "# Camera list with one line of data per camera, written by flatport export colmap:\n\
@@ -114,7 +120,12 @@ pub fn colmap_cameras_txt_as(rig: &Rig, dialect: ColmapDialect) -> Result<String
         let normal_in_cam = view.master_from_cam().transpose() * view.normal().into_inner();
         let (model, lens) = colmap_lens(&camera.intrinsics);
         let i = &camera.intrinsics;
-        let mut items: Vec<String> = vec![(k + 1).to_string(), model.to_string(), i.width.to_string(), i.height.to_string()];
+        let mut items: Vec<String> = vec![
+            (k + 1).to_string(),
+            model.to_string(),
+            i.width.to_string(),
+            i.height.to_string(),
+        ];
         items.extend(lens.iter().map(|v| v.to_string()));
         if dialect == ColmapDialect::RefracToken {
             items.push("REFRAC".into());
@@ -143,7 +154,10 @@ fn colmap_lens(i: &PinholeCamera) -> (&'static str, Vec<f64>) {
     if k3 == 0.0 {
         ("OPENCV", vec![i.fx, i.fy, cx, cy, k1, k2, p1, p2])
     } else {
-        ("FULL_OPENCV", vec![i.fx, i.fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0])
+        (
+            "FULL_OPENCV",
+            vec![i.fx, i.fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0],
+        )
     }
 }
 
@@ -154,7 +168,10 @@ fn colmap_pose(camera: &crate::model::RigCamera) -> ([f64; 4], [f64; 3]) {
     let q = pose.rotation.quaternion();
     let sign = if q.w < 0.0 { -1.0 } else { 1.0 };
     let t = pose.translation.vector;
-    ([sign * q.w, sign * q.i, sign * q.j, sign * q.k], [t.x, t.y, t.z])
+    (
+        [sign * q.w, sign * q.i, sign * q.j, sign * q.k],
+        [t.x, t.y, t.z],
+    )
 }
 
 /// COLMAP 3.12's `rigs.txt` for `rig`: one rig, the master (CAMERA 1) its reference sensor, every
@@ -165,7 +182,12 @@ pub fn colmap_rigs_txt(rig: &Rig) -> String {
          #   RIG_ID, NUM_SENSORS, REF_SENSOR_TYPE, REF_SENSOR_ID, SENSORS[] as (SENSOR_TYPE, SENSOR_ID, HAS_POSE, [QW, QX, QY, QZ, TX, TY, TZ])\n\
          # Number of rigs: 1\n",
     );
-    let mut items: Vec<String> = vec!["1".into(), rig.cameras().len().to_string(), "CAMERA".into(), "1".into()];
+    let mut items: Vec<String> = vec![
+        "1".into(),
+        rig.cameras().len().to_string(),
+        "CAMERA".into(),
+        "1".into(),
+    ];
     for (k, camera) in rig.cameras().iter().enumerate().skip(1) {
         let (q, t) = colmap_pose(camera);
         items.extend(["CAMERA".to_string(), (k + 1).to_string(), "1".to_string()]);
@@ -207,7 +229,10 @@ pub fn opencv_yaml(rig: &Rig, a: usize, b: Option<usize>) -> Result<String, Expo
     let cameras = rig.cameras();
     for index in std::iter::once(a).chain(b) {
         if index >= cameras.len() {
-            return Err(ExportError::NoCamera { index, cameras: cameras.len() });
+            return Err(ExportError::NoCamera {
+                index,
+                cameras: cameras.len(),
+            });
         }
     }
     let first = &cameras[a];
@@ -215,7 +240,13 @@ pub fn opencv_yaml(rig: &Rig, a: usize, b: Option<usize>) -> Result<String, Expo
     let mut text = String::from("%YAML:1.0\n---\n");
     let _ = writeln!(text, "image_width: {}", first.intrinsics.width);
     let _ = writeln!(text, "image_height: {}", first.intrinsics.height);
-    let _ = writeln!(text, "camera_names: [ \"{}\"{} ]", first.name, b.map(|b| format!(", \"{}\"", cameras[b].name)).unwrap_or_default());
+    let _ = writeln!(
+        text,
+        "camera_names: [ \"{}\"{} ]",
+        first.name,
+        b.map(|b| format!(", \"{}\"", cameras[b].name))
+            .unwrap_or_default()
+    );
     write_matrix(&mut text, "M1", 3, 3, &camera_matrix(&first.intrinsics));
     write_matrix(&mut text, "D1", 1, 5, &first.intrinsics.distortion);
     if let Some(b) = b {
@@ -230,8 +261,11 @@ pub fn opencv_yaml(rig: &Rig, a: usize, b: Option<usize>) -> Result<String, Expo
         }
         // X_b = R_b·X_m + t_b and X_a = R_a·X_m + t_a give X_b = (R_b R_aᵀ)·X_a + t_b − R_b R_aᵀ t_a.
         let (pose_a, pose_b) = (&first.cam_from_master, &second.cam_from_master);
-        let rotation: Matrix3<f64> = (pose_b.rotation * pose_a.rotation.inverse()).to_rotation_matrix().into_inner();
-        let translation: Vector3<f64> = pose_b.translation.vector - rotation * pose_a.translation.vector;
+        let rotation: Matrix3<f64> = (pose_b.rotation * pose_a.rotation.inverse())
+            .to_rotation_matrix()
+            .into_inner();
+        let translation: Vector3<f64> =
+            pose_b.translation.vector - rotation * pose_a.translation.vector;
         write_matrix(&mut text, "M2", 3, 3, &camera_matrix(&second.intrinsics));
         write_matrix(&mut text, "D2", 1, 5, &second.intrinsics.distortion);
         let r: Vec<f64> = (0..9).map(|i| rotation[(i / 3, i % 3)]).collect();
@@ -247,7 +281,11 @@ fn c_exponential(v: f64) -> String {
     match text.split_once('e') {
         Some((mantissa, exponent)) => {
             let exponent: i32 = exponent.parse().expect("Rust writes an integer exponent");
-            format!("{mantissa}e{}{:02}", if exponent < 0 { '-' } else { '+' }, exponent.abs())
+            format!(
+                "{mantissa}e{}{:02}",
+                if exponent < 0 { '-' } else { '+' },
+                exponent.abs()
+            )
         }
         None => text, // inf, NaN
     }
@@ -262,7 +300,10 @@ fn camera_matrix(i: &PinholeCamera) -> [f64; 9] {
 /// digits, `8.6490999999999997e+02`), as OpenCV writes doubles; it reads them back exactly.
 fn write_matrix(text: &mut String, name: &str, rows: usize, cols: usize, values: &[f64]) {
     let data: Vec<String> = values.iter().map(|&v| c_exponential(v)).collect();
-    let _ = write!(text, "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ ");
+    let _ = write!(
+        text,
+        "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ "
+    );
     for (i, chunk) in data.chunks(4).enumerate() {
         if i > 0 {
             text.push_str(",\n       ");
@@ -309,7 +350,8 @@ mod tests {
         // The right camera's own port: its normal is R n, its air layer d − n·C.
         let view = rig.refractive_camera(1);
         let n: Vec<f64> = right[13..16].iter().map(|s| s.parse().unwrap()).collect();
-        let expected = rig.cameras()[1].cam_from_master.rotation * rig.interface().normal().into_inner();
+        let expected =
+            rig.cameras()[1].cam_from_master.rotation * rig.interface().normal().into_inner();
         for i in 0..3 {
             assert!((n[i] - expected[i]).abs() < 1e-15, "{n:?} vs {expected}");
         }
@@ -319,8 +361,14 @@ mod tests {
 
     #[test]
     fn colmap_refuses_two_layers_and_writes_none_as_a_zero_glass() {
-        let two = rig(r#"[{"thickness": 0.01, "index": 1.5}, {"thickness": 0.01, "index": 1.4}]"#, STEREO);
-        assert_eq!(colmap_cameras_txt(&two), Err(ExportError::Layers { layers: 2 }));
+        let two = rig(
+            r#"[{"thickness": 0.01, "index": 1.5}, {"thickness": 0.01, "index": 1.4}]"#,
+            STEREO,
+        );
+        assert_eq!(
+            colmap_cameras_txt(&two),
+            Err(ExportError::Layers { layers: 2 })
+        );
         let none = rig("[]", STEREO);
         let text = colmap_cameras_txt(&none).unwrap();
         let last = text.lines().last().unwrap();
@@ -343,7 +391,10 @@ mod tests {
         assert_eq!(token, legacy.replace(" FLATPORT ", " REFRAC FLATPORT "));
         let rigs = colmap_rigs_txt(&rig);
         let line: Vec<&str> = rigs.lines().last().unwrap().split(' ').collect();
-        assert_eq!(&line[..8], ["1", "2", "CAMERA", "1", "CAMERA", "2", "1", line[7]]);
+        assert_eq!(
+            &line[..8],
+            ["1", "2", "CAMERA", "1", "CAMERA", "2", "1", line[7]]
+        );
         assert_eq!(line.len(), 4 + 3 + 7);
         assert_eq!(&line[11..], ["-0.06", "0.001", "0.002"]);
     }
@@ -370,25 +421,53 @@ mod tests {
         let rig = rig(r#"[{"thickness": 0.014, "index": 1.473}]"#, STEREO);
         let text = opencv_yaml(&rig, 0, Some(1)).unwrap();
         let stereo = parse_opencv_stereo(&text, Path::new("exported.yml")).unwrap();
-        let back = stereo.to_rig(["left", "right"], None, rig.interface().clone(), Path::new("exported.yml")).unwrap();
+        let back = stereo
+            .to_rig(
+                ["left", "right"],
+                None,
+                rig.interface().clone(),
+                Path::new("exported.yml"),
+            )
+            .unwrap();
         assert_eq!(back.cameras()[0].intrinsics, rig.cameras()[0].intrinsics);
         assert_eq!(back.cameras()[1].intrinsics, rig.cameras()[1].intrinsics);
-        let (a, b) = (&back.cameras()[1].cam_from_master, &rig.cameras()[1].cam_from_master);
-        assert!((a.to_homogeneous() - b.to_homogeneous()).abs().max() < 1e-15, "{a} vs {b}");
+        let (a, b) = (
+            &back.cameras()[1].cam_from_master,
+            &rig.cameras()[1].cam_from_master,
+        );
+        assert!(
+            (a.to_homogeneous() - b.to_homogeneous()).abs().max() < 1e-15,
+            "{a} vs {b}"
+        );
     }
 
     #[test]
     fn opencv_yaml_of_one_camera_and_of_a_reversed_pair() {
         let rig = rig("[]", STEREO);
         let one = opencv_yaml(&rig, 1, None).unwrap();
-        assert!(one.contains("M1: !!opencv-matrix") && one.contains("D1: !!opencv-matrix") && !one.contains("M2"));
-        assert!(one.contains("8.7000000000000000e+02") && one.contains("0.0000000000000000e+00"), "{one}");
+        assert!(
+            one.contains("M1: !!opencv-matrix")
+                && one.contains("D1: !!opencv-matrix")
+                && !one.contains("M2")
+        );
+        assert!(
+            one.contains("8.7000000000000000e+02") && one.contains("0.0000000000000000e+00"),
+            "{one}"
+        );
         // right → left: R, T invert the rig's extrinsics.
-        let reversed = parse_opencv_stereo(&opencv_yaml(&rig, 1, Some(0)).unwrap(), Path::new("r.yml")).unwrap();
+        let reversed =
+            parse_opencv_stereo(&opencv_yaml(&rig, 1, Some(0)).unwrap(), Path::new("r.yml"))
+                .unwrap();
         let pose = rig.cameras()[1].cam_from_master.inverse();
         let r = pose.rotation.to_rotation_matrix().into_inner();
         assert!((reversed.rotation - r).abs().max() < 1e-15);
         assert!((reversed.translation - pose.translation.vector).abs().max() < 1e-15);
-        assert_eq!(opencv_yaml(&rig, 2, None), Err(ExportError::NoCamera { index: 2, cameras: 2 }));
+        assert_eq!(
+            opencv_yaml(&rig, 2, None),
+            Err(ExportError::NoCamera {
+                index: 2,
+                cameras: 2
+            })
+        );
     }
 }

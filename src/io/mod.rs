@@ -4,9 +4,9 @@ pub mod calib_json;
 pub mod error;
 pub mod export;
 pub mod npy;
-pub mod plot;
 pub mod opencv;
 pub mod output;
+pub mod plot;
 pub mod rig_json;
 pub mod sweep_shard;
 pub mod tabular;
@@ -18,9 +18,12 @@ pub use calib_json::{
     report_to_json_string, write_observations, write_report, write_truth,
 };
 pub use error::IoError;
-pub use export::{ColmapDialect, ExportError, colmap_cameras_txt, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, opencv_yaml};
-pub use output::{OutputFile, remove_temporaries, write_atomic};
+pub use export::{
+    ColmapDialect, ExportError, colmap_cameras_txt, colmap_cameras_txt_as, colmap_rig_config,
+    colmap_rigs_txt, opencv_yaml,
+};
 pub use opencv::{OpenCvStereo, parse_opencv_stereo, read_opencv_stereo};
+pub use output::{OutputFile, remove_temporaries, write_atomic};
 pub use rig_json::{read_rig, rig_from_json_str, rig_to_json_string, write_rig};
 pub use tabular::{
     TableReader, TableSource, TableWriteSummary, TableWriter, read_table, read_table_from,

@@ -35,8 +35,15 @@ impl NpyDtype {
 /// [`npy_header`] for elements of `dtype`.
 pub fn npy_header_of(shape: &[usize], dtype: NpyDtype) -> Vec<u8> {
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let shape = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
-    let mut dict = format!("{{'descr': '{}', 'fortran_order': False, 'shape': {shape}, }}", dtype.descr());
+    let shape = if dims.len() == 1 {
+        format!("({},)", dims[0])
+    } else {
+        format!("({})", dims.join(", "))
+    };
+    let mut dict = format!(
+        "{{'descr': '{}', 'fortran_order': False, 'shape': {shape}, }}",
+        dtype.descr()
+    );
     let unpadded = 10 + dict.len() + 1;
     dict.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
     dict.push('\n');
@@ -66,15 +73,25 @@ impl NpyWriter {
     /// to it.
     pub fn create_of(path: &Path, shape: &[usize], dtype: NpyDtype) -> Result<Self, IoError> {
         let mut out = OutputFile::create(Some(path))?;
-        out.write_all(&npy_header_of(shape, dtype)).map_err(|source| out.write_error(source))?;
-        Ok(Self { out, dtype, expected: shape.iter().product(), written: 0 })
+        out.write_all(&npy_header_of(shape, dtype))
+            .map_err(|source| out.write_error(source))?;
+        Ok(Self {
+            out,
+            dtype,
+            expected: shape.iter().product(),
+            written: 0,
+        })
     }
 
     /// Appends values.
     pub fn write(&mut self, values: &[f64]) -> Result<(), IoError> {
         let written = match self.dtype {
-            NpyDtype::F64 => values.iter().try_for_each(|v| self.out.write_all(&v.to_le_bytes())),
-            NpyDtype::F32 => values.iter().try_for_each(|&v| self.out.write_all(&(v as f32).to_le_bytes())),
+            NpyDtype::F64 => values
+                .iter()
+                .try_for_each(|v| self.out.write_all(&v.to_le_bytes())),
+            NpyDtype::F32 => values
+                .iter()
+                .try_for_each(|&v| self.out.write_all(&(v as f32).to_le_bytes())),
         };
         written.map_err(|source| self.out.write_error(source))?;
         self.written += values.len();
@@ -124,7 +141,10 @@ impl NpyReader {
     /// Errors: [`IoError::Read`] when it cannot be read; [`IoError::Invalid`] naming the file when
     /// it is not an f64 C-order `.npy` file or its data do not match its shape.
     pub fn open(path: &Path) -> Result<Self, IoError> {
-        let read_error = |source| IoError::Read { path: path.to_path_buf(), source };
+        let read_error = |source| IoError::Read {
+            path: path.to_path_buf(),
+            source,
+        };
         let file = std::fs::File::open(path).map_err(read_error)?;
         let length = file.metadata().map_err(read_error)?.len();
         NpyReader::from_reader(std::io::BufReader::new(file), length, path)
@@ -134,21 +154,31 @@ impl NpyReader {
 impl<R: std::io::Read> NpyReader<R> {
     /// [`NpyReader::open`] over any reader holding `length` bytes; `path` only labels errors.
     pub fn from_reader(mut input: R, length: u64, path: &Path) -> Result<Self, IoError> {
-        let invalid = |reason: String| IoError::Invalid { path: path.to_path_buf(), field: String::new(), reason };
+        let invalid = |reason: String| IoError::Invalid {
+            path: path.to_path_buf(),
+            field: String::new(),
+            reason,
+        };
         let mut preamble = [0u8; 8];
-        input.read_exact(&mut preamble).map_err(|_| invalid("not a .npy file (too short)".into()))?;
+        input
+            .read_exact(&mut preamble)
+            .map_err(|_| invalid("not a .npy file (too short)".into()))?;
         if &preamble[..6] != b"\x93NUMPY" {
             return Err(invalid("not a .npy file (no \\x93NUMPY magic)".into()));
         }
         let header_len = match preamble[6] {
             1 => {
                 let mut n = [0u8; 2];
-                input.read_exact(&mut n).map_err(|_| invalid("truncated header".into()))?;
+                input
+                    .read_exact(&mut n)
+                    .map_err(|_| invalid("truncated header".into()))?;
                 u16::from_le_bytes(n) as usize
             }
             2 | 3 => {
                 let mut n = [0u8; 4];
-                input.read_exact(&mut n).map_err(|_| invalid("truncated header".into()))?;
+                input
+                    .read_exact(&mut n)
+                    .map_err(|_| invalid("truncated header".into()))?;
                 u32::from_le_bytes(n) as usize
             }
             v => return Err(invalid(format!("unknown .npy format version {v}"))),
@@ -158,23 +188,47 @@ impl<R: std::io::Read> NpyReader<R> {
             return Err(invalid("the file ends inside the header".into()));
         }
         let mut header = vec![0u8; header_len];
-        input.read_exact(&mut header).map_err(|_| invalid("the file ends inside the header".into()))?;
-        let header = String::from_utf8(header).map_err(|_| invalid("the header is not text".into()))?;
+        input
+            .read_exact(&mut header)
+            .map_err(|_| invalid("the file ends inside the header".into()))?;
+        let header =
+            String::from_utf8(header).map_err(|_| invalid("the header is not text".into()))?;
         if !header.contains("'descr': '<f8'") || !header.contains("'fortran_order': False") {
-            return Err(invalid(format!("only little-endian f64 in C order is read, the header says {}", header.trim())));
+            return Err(invalid(format!(
+                "only little-endian f64 in C order is read, the header says {}",
+                header.trim()
+            )));
         }
-        let shape_text = header.split("'shape': (").nth(1).and_then(|s| s.split(')').next()).ok_or_else(|| invalid("the header has no shape".into()))?;
+        let shape_text = header
+            .split("'shape': (")
+            .nth(1)
+            .and_then(|s| s.split(')').next())
+            .ok_or_else(|| invalid("the header has no shape".into()))?;
         let shape: Vec<usize> = shape_text
             .split(',')
             .filter(|s| !s.trim().is_empty())
-            .map(|s| s.trim().parse().map_err(|_| invalid(format!("bad shape ({shape_text})"))))
+            .map(|s| {
+                s.trim()
+                    .parse()
+                    .map_err(|_| invalid(format!("bad shape ({shape_text})")))
+            })
             .collect::<Result<_, _>>()?;
-        let values = shape.iter().try_fold(1usize, |a, &b| a.checked_mul(b)).ok_or_else(|| invalid("the shape overflows".into()))?;
+        let values = shape
+            .iter()
+            .try_fold(1usize, |a, &b| a.checked_mul(b))
+            .ok_or_else(|| invalid("the shape overflows".into()))?;
         let data = length - (prefix + header_len) as u64;
         if Some(data) != (values as u64).checked_mul(8) {
-            return Err(invalid(format!("{data} data bytes for the shape {shape:?} ({values} values of 8 bytes)")));
+            return Err(invalid(format!(
+                "{data} data bytes for the shape {shape:?} ({values} values of 8 bytes)"
+            )));
         }
-        Ok(Self { path: path.to_path_buf(), input, shape, left: values })
+        Ok(Self {
+            path: path.to_path_buf(),
+            input,
+            shape,
+            left: values,
+        })
     }
 
     /// The array's shape.
@@ -188,8 +242,17 @@ impl<R: std::io::Read> NpyReader<R> {
         values.clear();
         let n = max.max(1).min(self.left);
         let mut bytes = vec![0u8; 8 * n];
-        self.input.read_exact(&mut bytes).map_err(|source| IoError::Read { path: self.path.clone(), source })?;
-        values.extend(bytes.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))));
+        self.input
+            .read_exact(&mut bytes)
+            .map_err(|source| IoError::Read {
+                path: self.path.clone(),
+                source,
+            })?;
+        values.extend(
+            bytes
+                .chunks_exact(8)
+                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))),
+        );
         self.left -= n;
         Ok(n)
     }

@@ -732,7 +732,10 @@ nested:
 
     #[test]
     fn a_byte_order_mark_is_accepted() {
-        assert_eq!(parse(&format!("\u{feff}{STEREO}")).unwrap(), parse(STEREO).unwrap());
+        assert_eq!(
+            parse(&format!("\u{feff}{STEREO}")).unwrap(),
+            parse(STEREO).unwrap()
+        );
     }
 
     #[test]

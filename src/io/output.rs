@@ -55,7 +55,10 @@ pub struct OutputFile {
 #[derive(Debug)]
 enum Kind {
     /// Written into `temporary`, renamed onto `target` (the resolved regular file) at the end.
-    Replace { temporary: Temporary, target: PathBuf },
+    Replace {
+        temporary: Temporary,
+        target: PathBuf,
+    },
     /// A device node, FIFO, socket or descriptor path, written as it comes.
     Direct,
     Stdout,
@@ -254,7 +257,9 @@ static TEMPORARIES: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
 
 fn temporaries() -> MutexGuard<'static, Vec<PathBuf>> {
     // A writer that panicked while holding the lock left the list intact: take it.
-    TEMPORARIES.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    TEMPORARIES
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
 /// Removes every temporary file of this process and keeps any other from being created, renamed or
@@ -410,8 +415,18 @@ mod tests {
         let link2 = dir.path().join("link2.txt");
         symlink(&link, &link2).unwrap();
         write_atomic(&link2, b"new").unwrap();
-        assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
-        assert!(std::fs::symlink_metadata(&link2).unwrap().file_type().is_symlink());
+        assert!(
+            std::fs::symlink_metadata(&link)
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+        assert!(
+            std::fs::symlink_metadata(&link2)
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
         assert_eq!(std::fs::read_to_string(&real).unwrap(), "new");
         let mode = std::fs::metadata(&real).unwrap().permissions().mode() & 0o777;
         assert_eq!(mode, 0o640, "permissions kept");
@@ -424,8 +439,16 @@ mod tests {
         let link = dir.path().join("link.txt");
         symlink("made.txt", &link).unwrap();
         write_atomic(&link, b"hello").unwrap();
-        assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
-        assert_eq!(std::fs::read_to_string(dir.path().join("made.txt")).unwrap(), "hello");
+        assert!(
+            std::fs::symlink_metadata(&link)
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+        assert_eq!(
+            std::fs::read_to_string(dir.path().join("made.txt")).unwrap(),
+            "hello"
+        );
     }
 
     #[test]
@@ -442,7 +465,10 @@ mod tests {
     fn a_fifo_is_written_in_place() {
         let dir = tempfile::tempdir().unwrap();
         let fifo = dir.path().join("pipe");
-        let status = std::process::Command::new("mkfifo").arg(&fifo).status().unwrap();
+        let status = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
         assert!(status.success());
         let reader = {
             let fifo = fifo.clone();
@@ -453,7 +479,12 @@ mod tests {
         out.write_all(b"through the pipe").unwrap();
         out.finish().unwrap();
         assert_eq!(reader.join().unwrap(), b"through the pipe");
-        assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo());
+        assert!(
+            std::fs::symlink_metadata(&fifo)
+                .unwrap()
+                .file_type()
+                .is_fifo()
+        );
         assert_eq!(names(dir.path()), ["pipe"]);
     }
 
@@ -482,7 +513,10 @@ mod tests {
         assert!(out.streams());
         write_atomic(&null, b"into the void").unwrap();
         assert!(
-            std::fs::symlink_metadata(&null).unwrap().file_type().is_char_device(),
+            std::fs::symlink_metadata(&null)
+                .unwrap()
+                .file_type()
+                .is_char_device(),
             "{} is still a device node",
             null.display()
         );
@@ -491,7 +525,12 @@ mod tests {
         let link = dir.path().join("to-null");
         symlink(&null, &link).unwrap();
         write_atomic(&link, b"x").unwrap();
-        assert!(std::fs::symlink_metadata(&null).unwrap().file_type().is_char_device());
+        assert!(
+            std::fs::symlink_metadata(&null)
+                .unwrap()
+                .file_type()
+                .is_char_device()
+        );
         assert!(names(dir.path()).iter().all(|n| !n.ends_with(".tmp")));
     }
 
@@ -501,8 +540,16 @@ mod tests {
         let full = device(dir.path(), "full", 1, 7);
         let error = write_atomic(&full, &vec![b'x'; 200_000]).unwrap_err();
         assert!(matches!(error, IoError::Write { .. }), "{error}");
-        assert!(error.to_string().contains(&full.display().to_string()), "{error}");
-        assert!(std::fs::symlink_metadata(&full).unwrap().file_type().is_char_device());
+        assert!(
+            error.to_string().contains(&full.display().to_string()),
+            "{error}"
+        );
+        assert!(
+            std::fs::symlink_metadata(&full)
+                .unwrap()
+                .file_type()
+                .is_char_device()
+        );
     }
 
     #[test]

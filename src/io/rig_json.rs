@@ -29,9 +29,17 @@ struct CameraFile {
     cy: f64,
     #[serde(default)]
     distortion: Vec<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "present")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "present"
+    )]
     rotation: Option<[[f64; 3]; 3]>,
-    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "present")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "present"
+    )]
     translation: Option<[f64; 3]>,
 }
 
@@ -57,7 +65,9 @@ struct LayerFile {
 
 /// An optional key that, when present, must hold a value: `null` is an error (naming the key),
 /// not the same as leaving the key out.
-pub(crate) fn present<'de, D: serde::Deserializer<'de>, T: Deserialize<'de>>(deserializer: D) -> Result<Option<T>, D::Error> {
+pub(crate) fn present<'de, D: serde::Deserializer<'de>, T: Deserialize<'de>>(
+    deserializer: D,
+) -> Result<Option<T>, D::Error> {
     T::deserialize(deserializer).map(Some)
 }
 
@@ -71,7 +81,10 @@ fn default_index_water() -> f64 {
 
 /// Parses JSON text into `T`, naming the file, line, column and JSON path of any error; only
 /// whitespace may follow the value.
-pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Result<T, IoError> {
+pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(
+    text: &str,
+    path: &Path,
+) -> Result<T, IoError> {
     let json_error = |field: String, error: serde_json::Error| IoError::Json {
         path: path.to_path_buf(),
         field: if field == "." { String::new() } else { field },
@@ -87,7 +100,9 @@ pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(text: &str, path: &Path
         let field = e.path().to_string();
         json_error(field, e.into_inner())
     })?;
-    deserializer.end().map_err(|e| json_error(String::new(), e))?;
+    deserializer
+        .end()
+        .map_err(|e| json_error(String::new(), e))?;
     Ok(value)
 }
 
@@ -144,8 +159,22 @@ pub fn rig_from_json_str(text: &str, path: &Path) -> Result<Rig, IoError> {
 
 /// The interface of a rig file's `interface` object, validated.
 pub(crate) fn interface_from_file(i: &InterfaceFile, path: &Path) -> Result<Interface, IoError> {
-    let layers = i.layers.iter().map(|l| Layer { thickness: l.thickness, index: l.index }).collect();
-    Interface::new(Vector3::from(i.normal), i.distance, layers, i.index_air, i.index_water).map_err(|e| IoError::Invalid {
+    let layers = i
+        .layers
+        .iter()
+        .map(|l| Layer {
+            thickness: l.thickness,
+            index: l.index,
+        })
+        .collect();
+    Interface::new(
+        Vector3::from(i.normal),
+        i.distance,
+        layers,
+        i.index_air,
+        i.index_water,
+    )
+    .map_err(|e| IoError::Invalid {
         path: path.to_path_buf(),
         field: interface_field(&e),
         reason: e.to_string(),
@@ -158,7 +187,14 @@ pub(crate) fn interface_to_file(i: &Interface) -> InterfaceFile {
     InterfaceFile {
         normal: [n.x, n.y, n.z],
         distance: i.air_distance(),
-        layers: i.layers().iter().map(|l| LayerFile { thickness: l.thickness, index: l.index }).collect(),
+        layers: i
+            .layers()
+            .iter()
+            .map(|l| LayerFile {
+                thickness: l.thickness,
+                index: l.index,
+            })
+            .collect(),
         index_air: i.index_air(),
         index_water: i.index_water(),
     }
@@ -243,7 +279,10 @@ pub fn rig_to_json_string(rig: &Rig) -> String {
             }
         })
         .collect();
-    let file = RigFile { cameras, interface: interface_to_file(rig.interface()) };
+    let file = RigFile {
+        cameras,
+        interface: interface_to_file(rig.interface()),
+    };
     let mut text = serde_json::to_string_pretty(&file).expect("plain data always serialises");
     text.push('\n');
     text
@@ -280,9 +319,18 @@ mod tests {
         let rig = parse(&format!("\u{feff}{EXAMPLE}")).unwrap();
         assert_eq!(rig.cameras().len(), 2);
         for key in ["translation", "rotation"] {
-            let from = if key == "translation" { "\"translation\": [-0.06, 0, 0]" } else { "\"rotation\": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]" };
-            let message = parse(&edited(from, &format!("\"{key}\": null"))).unwrap_err().to_string();
-            assert!(message.contains(&format!("cameras[1].{key}")) && message.contains("null"), "{message}");
+            let from = if key == "translation" {
+                "\"translation\": [-0.06, 0, 0]"
+            } else {
+                "\"rotation\": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]"
+            };
+            let message = parse(&edited(from, &format!("\"{key}\": null")))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                message.contains(&format!("cameras[1].{key}")) && message.contains("null"),
+                "{message}"
+            );
         }
     }
 

@@ -113,10 +113,20 @@ pub struct ShardInputs {
 /// SHA-256 of a file's bytes, lower-case hex.
 pub fn sha256_file(path: &Path) -> Result<String, IoError> {
     use sha2::Digest;
-    let mut file = std::fs::File::open(path).map_err(|source| IoError::Read { path: path.to_path_buf(), source })?;
+    let mut file = std::fs::File::open(path).map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
     let mut hasher = sha2::Sha256::new();
-    std::io::copy(&mut file, &mut hasher).map_err(|source| IoError::Read { path: path.to_path_buf(), source })?;
-    Ok(hasher.finalize().iter().map(|b| format!("{b:02x}")).collect())
+    std::io::copy(&mut file, &mut hasher).map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok(hasher
+        .finalize()
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect())
 }
 
 /// Writes `manifest` to `path` (JSON, whole or not at all).
@@ -133,19 +143,41 @@ pub fn write_shard_manifest(path: &Path, manifest: &ShardManifest) -> Result<(),
 /// not lie in the grid.
 pub fn read_shard_manifest(path: &Path) -> Result<ShardManifest, IoError> {
     let manifest: ShardManifest = parse_json(&read_text(path)?, path)?;
-    let invalid = |field: &str, reason: String| IoError::Invalid { path: path.to_path_buf(), field: field.into(), reason };
+    let invalid = |field: &str, reason: String| IoError::Invalid {
+        path: path.to_path_buf(),
+        field: field.into(),
+        reason,
+    };
     if manifest.format != SHARD_FORMAT {
-        return Err(invalid("format", format!("'{}' is not '{SHARD_FORMAT}'", manifest.format)));
+        return Err(invalid(
+            "format",
+            format!("'{}' is not '{SHARD_FORMAT}'", manifest.format),
+        ));
     }
     if manifest.version != SHARD_VERSION {
-        return Err(invalid("version", format!("version {} is not {SHARD_VERSION}, the one this flatport reads", manifest.version)));
+        return Err(invalid(
+            "version",
+            format!(
+                "version {} is not {SHARD_VERSION}, the one this flatport reads",
+                manifest.version
+            ),
+        ));
     }
     let (shard, cells) = (manifest.shard, manifest.cells);
     if shard.count == 0 || shard.index >= shard.count {
-        return Err(invalid("shard", format!("index {} is not below count {}", shard.index, shard.count)));
+        return Err(invalid(
+            "shard",
+            format!("index {} is not below count {}", shard.index, shard.count),
+        ));
     }
     if cells.start > cells.end || cells.end > cells.total {
-        return Err(invalid("cells", format!("{}..{} is not within the grid's {} cells", cells.start, cells.end, cells.total)));
+        return Err(invalid(
+            "cells",
+            format!(
+                "{}..{} is not within the grid's {} cells",
+                cells.start, cells.end, cells.total
+            ),
+        ));
     }
     Ok(manifest)
 }
@@ -155,15 +187,36 @@ mod tests {
     use super::*;
 
     fn manifest() -> ShardManifest {
-        let axis = GridAxis { start: 0.0, stop: 20.0, count: 8 };
+        let axis = GridAxis {
+            start: 0.0,
+            stop: 20.0,
+            count: 8,
+        };
         ShardManifest {
             format: SHARD_FORMAT.into(),
             version: SHARD_VERSION,
             shard: ShardIndex { index: 1, count: 4 },
-            cells: CellRange { start: 16, end: 32, total: 64 },
+            cells: CellRange {
+                start: 16,
+                end: 32,
+                total: 64,
+            },
             cost: "affine-grid".into(),
-            grid: GridAxes { tilt_deg: axis, azimuth_deg: GridAxis { start: -180.0, stop: 180.0, count: 8 }, distance: None },
-            inputs: ShardInputs { rig_sha256: "ab".into(), observations_sha256: "cd".into(), correspondences: 10, views: 3 },
+            grid: GridAxes {
+                tilt_deg: axis,
+                azimuth_deg: GridAxis {
+                    start: -180.0,
+                    stop: 180.0,
+                    count: 8,
+                },
+                distance: None,
+            },
+            inputs: ShardInputs {
+                rig_sha256: "ab".into(),
+                observations_sha256: "cd".into(),
+                correspondences: 10,
+                views: 3,
+            },
             device: "cpu".into(),
             seconds: 0.5,
             finite_cells: 16,
@@ -183,12 +236,19 @@ mod tests {
             ("\"version\": 1", "\"version\": 2", "version"),
             ("\"index\": 1", "\"index\": 4", "shard"),
             ("\"end\": 32", "\"end\": 65", "cells"),
-            ("\"format\": \"flatport sweep shard\"", "\"format\": \"other\"", "format"),
+            (
+                "\"format\": \"flatport sweep shard\"",
+                "\"format\": \"other\"",
+                "format",
+            ),
             ("\"seconds\"", "\"second\"", "second"),
         ] {
             std::fs::write(&path, text.replace(from, to)).unwrap();
             let error = read_shard_manifest(&path).unwrap_err().to_string();
-            assert!(error.contains("shard.json") && error.contains(field), "{from}: {error}");
+            assert!(
+                error.contains("shard.json") && error.contains(field),
+                "{from}: {error}"
+            );
         }
     }
 
@@ -198,6 +258,9 @@ mod tests {
         let path = dir.path().join("abc");
         std::fs::write(&path, "abc").unwrap();
         // FIPS 180-2, appendix B.1.
-        assert_eq!(sha256_file(&path).unwrap(), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+        assert_eq!(
+            sha256_file(&path).unwrap(),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
     }
 }

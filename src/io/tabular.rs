@@ -655,7 +655,15 @@ mod tests {
         let cell = "z".repeat(1 << 20);
         let (_, column, m) = failure(&format!("x,y,z\n1,{cell},3\n"));
         assert_eq!(column, "y");
-        assert!(m.len() < 200 && m.ends_with(&format!("not a number: \"{}…\" (1048576 bytes)", "z".repeat(40))), "{}", &m[..m.len().min(300)]);
+        assert!(
+            m.len() < 200
+                && m.ends_with(&format!(
+                    "not a number: \"{}…\" (1048576 bytes)",
+                    "z".repeat(40)
+                )),
+            "{}",
+            &m[..m.len().min(300)]
+        );
         for bad in ["NaN", "nan", "inf", "-inf", "infinity", "1e999"] {
             let (line, column, m) = failure(&format!("x,y,z\n1,2,{bad}\n"));
             assert_eq!((line, column.as_str()), (2, "z"), "{bad}");

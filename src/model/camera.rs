@@ -70,7 +70,15 @@ impl PinholeCamera {
                 });
             }
         }
-        Ok(Self { width, height, fx, fy, cx, cy, distortion })
+        Ok(Self {
+            width,
+            height,
+            fx,
+            fy,
+            cx,
+            cy,
+            distortion,
+        })
     }
 
     /// True when any distortion coefficient is non-zero.
@@ -118,7 +126,8 @@ impl PinholeCamera {
         if !self.has_distortion() {
             return Some(*distorted);
         }
-        self.undistort_from(distorted, *distorted, undistort_tolerance(distorted)).map(|(p, _)| p)
+        self.undistort_from(distorted, *distorted, undistort_tolerance(distorted))
+            .map(|(p, _)| p)
     }
 
     /// [`undistort_normalized`](Self::undistort_normalized) for a caller that only accepts answers
@@ -128,7 +137,11 @@ impl PinholeCamera {
     /// fold or where the Jacobian determinant is not positive, it runs again from the distorted
     /// point as `undistort_normalized` does. Same convergence test and `None` cases; an answer
     /// beyond the fold can only come from that second run.
-    pub fn undistort_normalized_in_fold(&self, distorted: &Vector2<f64>, fold_radius2: f64) -> Option<Vector2<f64>> {
+    pub fn undistort_normalized_in_fold(
+        &self,
+        distorted: &Vector2<f64>,
+        fold_radius2: f64,
+    ) -> Option<Vector2<f64>> {
         if !self.has_distortion() {
             return Some(*distorted);
         }
@@ -138,7 +151,9 @@ impl PinholeCamera {
         let start = distorted * (1.0 - r2 * (k1 + r2 * (k2 - 3.0 * k1 * k1)));
         match self.undistort_from(distorted, start, tolerance) {
             Some((p, det)) if det > 0.0 && p.norm_squared() < fold_radius2 => Some(p),
-            _ => self.undistort_from(distorted, *distorted, tolerance).map(|(p, _)| p),
+            _ => self
+                .undistort_from(distorted, *distorted, tolerance)
+                .map(|(p, _)| p),
         }
     }
 
@@ -208,14 +223,21 @@ impl PinholeCamera {
         if !(point_in_cam.z > 0.0) {
             return None;
         }
-        let normalized = Vector2::new(point_in_cam.x / point_in_cam.z, point_in_cam.y / point_in_cam.z);
+        let normalized = Vector2::new(
+            point_in_cam.x / point_in_cam.z,
+            point_in_cam.y / point_in_cam.z,
+        );
         Some(self.img_from_normalized(&normalized))
     }
 
     /// Pixel of normalised (undistorted) coordinates: distortion, then the intrinsic matrix.
     #[inline]
     pub fn img_from_normalized(&self, normalized: &Vector2<f64>) -> Point2<f64> {
-        let d = if self.has_distortion() { self.distort_normalized(normalized) } else { *normalized };
+        let d = if self.has_distortion() {
+            self.distort_normalized(normalized)
+        } else {
+            *normalized
+        };
         Point2::new(self.fx * d.x + self.cx, self.fy * d.y + self.cy)
     }
 
@@ -286,9 +308,14 @@ mod tests {
         for i in 0..=16 {
             for j in 0..=16 {
                 let px = Point2::new(i as f64 * 1279.0 / 16.0, j as f64 * 1023.0 / 16.0);
-                let n = c.normalized_from_img(&px).expect("inside the image the lens model inverts");
+                let n = c
+                    .normalized_from_img(&px)
+                    .expect("inside the image the lens model inverts");
                 let back = c.img_from_normalized(&n);
-                assert!((back - px).norm() < 1e-9, "pixel {px:?} came back as {back:?}");
+                assert!(
+                    (back - px).norm() < 1e-9,
+                    "pixel {px:?} came back as {back:?}"
+                );
             }
         }
     }
@@ -300,23 +327,33 @@ mod tests {
         // Maximum distorted radius is r(1 + k1 r²) at r² = 2/3: ≈ 0.544. Ask for 0.8.
         assert!(c.undistort_normalized(&Vector2::new(0.8, 0.0)).is_none());
         assert!(c.undistort_normalized(&Vector2::new(0.3, 0.0)).is_some());
-        assert!(c.undistort_normalized_in_fold(&Vector2::new(0.8, 0.0), c.fold_radius2()).is_none());
-        assert!(c.undistort_normalized_in_fold(&Vector2::new(0.3, 0.0), c.fold_radius2()).is_some());
+        assert!(
+            c.undistort_normalized_in_fold(&Vector2::new(0.8, 0.0), c.fold_radius2())
+                .is_none()
+        );
+        assert!(
+            c.undistort_normalized_in_fold(&Vector2::new(0.3, 0.0), c.fold_radius2())
+                .is_some()
+        );
     }
 
     #[test]
     fn undistort_in_fold_agrees_with_the_plain_start() {
         // Barrel, pincushion with a fold, and the pure-k1 fold of the test above, over normalised
         // points out to the fold and beyond it.
-        let lenses =
-            [[-0.28, 0.09, 0.0012, -0.0007, -0.012], [0.3, -0.1, 0.002, 0.001, 0.02], [-0.5, 0.0, 0.0, 0.0, 0.0]];
+        let lenses = [
+            [-0.28, 0.09, 0.0012, -0.0007, -0.012],
+            [0.3, -0.1, 0.002, 0.001, 0.02],
+            [-0.5, 0.0, 0.0, 0.0, 0.0],
+        ];
         let mut worst: f64 = 0.0;
         for distortion in lenses {
             let c = camera(distortion);
             let fold = c.fold_radius2();
             for i in 0..=40 {
                 for j in 0..=40 {
-                    let d = Vector2::new((i as f64 / 40.0 - 0.5) * 2.4, (j as f64 / 40.0 - 0.5) * 2.0);
+                    let d =
+                        Vector2::new((i as f64 / 40.0 - 0.5) * 2.4, (j as f64 / 40.0 - 0.5) * 2.0);
                     let inside = |p: &Vector2<f64>| p.norm_squared() < fold;
                     let plain = c.undistort_normalized(&d).filter(inside);
                     let fast = c.undistort_normalized_in_fold(&d, fold).filter(inside);
@@ -339,7 +376,10 @@ mod tests {
         // k1 < 0 only: 1 + 3 k1 s = 0 at s = −1/(3 k1).
         let c = camera([-0.5, 0.0, 0.0, 0.0, 0.0]);
         assert!((c.fold_radius2() - 2.0 / 3.0).abs() < 1e-12);
-        assert_eq!(camera([0.1, 0.01, 0.0, 0.0, 0.0]).fold_radius2(), f64::INFINITY);
+        assert_eq!(
+            camera([0.1, 0.01, 0.0, 0.0, 0.0]).fold_radius2(),
+            f64::INFINITY
+        );
         assert_eq!(camera([0.0; 5]).fold_radius2(), f64::INFINITY);
         // The radial map really is one-to-one up to the fold and turns back after it.
         let c = camera([-0.28, 0.09, 0.0, 0.0, -0.012]);

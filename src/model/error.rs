@@ -108,6 +108,9 @@ pub(crate) fn check_finite(field: &str, value: f64) -> Result<f64, ModelError> {
     if value.is_finite() {
         Ok(value)
     } else {
-        Err(ModelError::NotFinite { field: field.to_string(), value })
+        Err(ModelError::NotFinite {
+            field: field.to_string(),
+            value,
+        })
     }
 }

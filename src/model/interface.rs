@@ -46,7 +46,10 @@ impl Interface {
         index_air: f64,
         index_water: f64,
     ) -> Result<Self, ModelError> {
-        for (axis, v) in ["normal[0]", "normal[1]", "normal[2]"].iter().zip(normal.iter()) {
+        for (axis, v) in ["normal[0]", "normal[1]", "normal[2]"]
+            .iter()
+            .zip(normal.iter())
+        {
             check_finite(axis, *v)?;
         }
         // Scaled by its largest component before squaring: |n|² of a normal given as
@@ -56,20 +59,33 @@ impl Interface {
         if largest == 0.0 {
             return Err(ModelError::ZeroNormal);
         }
-        let normal = if (1e-150..=1e150).contains(&largest) { normal } else { normal / largest };
+        let normal = if (1e-150..=1e150).contains(&largest) {
+            normal
+        } else {
+            normal / largest
+        };
         if normal.z <= 0.0 {
-            return Err(ModelError::NormalAwayFromWater { x: normal.x, y: normal.y, z: normal.z });
+            return Err(ModelError::NormalAwayFromWater {
+                x: normal.x,
+                y: normal.y,
+                z: normal.z,
+            });
         }
         check_finite("interface distance", air_distance)?;
         if air_distance <= 0.0 {
-            return Err(ModelError::NonPositiveAirDistance { value: air_distance });
+            return Err(ModelError::NonPositiveAirDistance {
+                value: air_distance,
+            });
         }
         check_index("index_air", index_air)?;
         check_index("index_water", index_water)?;
         for (i, layer) in layers.iter().enumerate() {
             check_finite(&format!("layer {i} thickness"), layer.thickness)?;
             if layer.thickness <= 0.0 {
-                return Err(ModelError::NonPositiveThickness { layer: i, value: layer.thickness });
+                return Err(ModelError::NonPositiveThickness {
+                    layer: i,
+                    value: layer.thickness,
+                });
             }
             check_index(&format!("layer {i}"), layer.index)?;
         }
@@ -129,7 +145,13 @@ impl Interface {
 
     /// The same stack with another system axis and air layer (validated as in [`new`](Self::new)).
     pub fn with_pose(&self, normal: Vector3<f64>, air_distance: f64) -> Result<Self, ModelError> {
-        Self::new(normal, air_distance, self.layers.clone(), self.index_air, self.index_water)
+        Self::new(
+            normal,
+            air_distance,
+            self.layers.clone(),
+            self.index_air,
+            self.index_water,
+        )
     }
 }
 
@@ -144,7 +166,10 @@ pub fn normal_from_tilt_azimuth(tilt: f64, azimuth: f64) -> Unit<Vector3<f64>> {
 fn check_index(medium: &str, value: f64) -> Result<(), ModelError> {
     check_finite(medium, value)?;
     if value < 1.0 {
-        return Err(ModelError::IndexBelowOne { medium: medium.to_string(), value });
+        return Err(ModelError::IndexBelowOne {
+            medium: medium.to_string(),
+            value,
+        });
     }
     Ok(())
 }
@@ -154,7 +179,10 @@ mod tests {
     use super::*;
 
     fn glass() -> Vec<Layer> {
-        vec![Layer { thickness: 0.014, index: 1.473 }]
+        vec![Layer {
+            thickness: 0.014,
+            index: 1.473,
+        }]
     }
 
     #[test]
@@ -178,7 +206,10 @@ mod tests {
     #[test]
     fn invalid_stacks_are_rejected() {
         let z = Vector3::z();
-        assert_eq!(Interface::new(Vector3::zeros(), 0.02, glass(), 1.0, 1.333), Err(ModelError::ZeroNormal));
+        assert_eq!(
+            Interface::new(Vector3::zeros(), 0.02, glass(), 1.0, 1.333),
+            Err(ModelError::ZeroNormal)
+        );
         assert!(matches!(
             Interface::new(Vector3::new(0.0, 0.0, -1.0), 0.02, glass(), 1.0, 1.333),
             Err(ModelError::NormalAwayFromWater { .. })
@@ -188,7 +219,16 @@ mod tests {
             Err(ModelError::NonPositiveAirDistance { .. })
         ));
         assert!(matches!(
-            Interface::new(z, 0.02, vec![Layer { thickness: -1.0, index: 1.5 }], 1.0, 1.333),
+            Interface::new(
+                z,
+                0.02,
+                vec![Layer {
+                    thickness: -1.0,
+                    index: 1.5
+                }],
+                1.0,
+                1.333
+            ),
             Err(ModelError::NonPositiveThickness { layer: 0, .. })
         ));
         assert!(matches!(
@@ -204,10 +244,18 @@ mod tests {
     #[test]
     fn huge_and_tiny_normals_keep_their_direction() {
         for scale in [1e308, 1e-320, 1.0] {
-            let i = Interface::new(Vector3::new(scale, 0.0, scale), 0.02, vec![], 1.0, 1.333).unwrap();
+            let i =
+                Interface::new(Vector3::new(scale, 0.0, scale), 0.02, vec![], 1.0, 1.333).unwrap();
             let expected = Vector3::new(1.0, 0.0, 1.0) / 2f64.sqrt();
-            assert!((i.normal().into_inner() - expected).norm() < 1e-15, "{scale}: {:?}", i.normal());
+            assert!(
+                (i.normal().into_inner() - expected).norm() < 1e-15,
+                "{scale}: {:?}",
+                i.normal()
+            );
         }
-        assert!(matches!(Interface::new(Vector3::zeros(), 0.02, vec![], 1.0, 1.333), Err(ModelError::ZeroNormal)));
+        assert!(matches!(
+            Interface::new(Vector3::zeros(), 0.02, vec![], 1.0, 1.333),
+            Err(ModelError::ZeroNormal)
+        ));
     }
 }

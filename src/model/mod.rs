@@ -90,10 +90,14 @@ impl NoSolution {
             Self::MissesInterface => "ray misses the interface",
             Self::TotalInternalReflection => "total internal reflection",
             Self::NotInWater => "point not in the water (in the air or a layer)",
-            Self::BehindCamera => "beyond the camera's field of view (light would arrive from behind its image plane)",
+            Self::BehindCamera => {
+                "beyond the camera's field of view (light would arrive from behind its image plane)"
+            }
             Self::Degenerate => "degenerate geometry (parallel rays)",
             Self::NoConvergence => "root finder did not converge",
-            Self::OutOfRange => "beyond the floating-point range (a coordinate past ±1e300, ±1e30 on f32 kernels, or an overflow)",
+            Self::OutOfRange => {
+                "beyond the floating-point range (a coordinate past ±1e300, ±1e30 on f32 kernels, or an overflow)"
+            }
         }
     }
 }

@@ -3,10 +3,10 @@
 
 use nalgebra::{Isometry3, Matrix3, Point2, Point3, Unit, Vector2, Vector3};
 
-use super::{MAX_INPUT, NoSolution};
 use super::camera::PinholeCamera;
 use super::interface::{Interface, Layer};
 use super::snell::refract;
+use super::{MAX_INPUT, NoSolution};
 
 /// A ray `origin + s·dir`, s ≥ 0.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -98,7 +98,11 @@ pub struct RefractiveCamera {
 
 impl RefractiveCamera {
     /// Prepares a camera with OpenCV extrinsics `cam_from_master` behind `interface`.
-    pub fn new(intrinsics: PinholeCamera, cam_from_master: &Isometry3<f64>, interface: &Interface) -> Self {
+    pub fn new(
+        intrinsics: PinholeCamera,
+        cam_from_master: &Isometry3<f64>,
+        interface: &Interface,
+    ) -> Self {
         let rotation = cam_from_master.rotation.to_rotation_matrix().into_inner();
         let centre = cam_from_master.inverse_transform_point(&Point3::origin());
         let normal = *interface.normal();
@@ -107,8 +111,18 @@ impl RefractiveCamera {
         let rho_water = interface.index_water() / index_air;
         let mut media: Vec<Medium> = [(air_distance, 1.0, 1.0), (0.0, rho_water, 1.0 / rho_water)]
             .into_iter()
-            .chain(interface.layers().iter().map(|l| (l.thickness, l.index / index_air, index_air / l.index)))
-            .map(|(length, rho, inv_rho)| Medium { length, rho, inv_rho, critical_top: f64::INFINITY })
+            .chain(
+                interface
+                    .layers()
+                    .iter()
+                    .map(|l| (l.thickness, l.index / index_air, index_air / l.index)),
+            )
+            .map(|(length, rho, inv_rho)| Medium {
+                length,
+                rho,
+                inv_rho,
+                critical_top: f64::INFINITY,
+            })
             .collect();
         let rhos: Vec<f64> = media.iter().map(|m| m.rho).collect();
         for medium in &mut media {
@@ -119,7 +133,8 @@ impl RefractiveCamera {
                 }
             }
         }
-        let slowest = (0..media.len()).fold(AIR, |a, i| if media[i].rho < media[a].rho { i } else { a });
+        let slowest =
+            (0..media.len()).fold(AIR, |a, i| if media[i].rho < media[a].rho { i } else { a });
         Self {
             intrinsics,
             cam_from_master: rotation,
@@ -214,11 +229,18 @@ impl RefractiveCamera {
     /// Errors: [`NoSolution::OutsideLens`] when undistortion fails or lands beyond the fold of the
     /// radial distortion ([`PinholeCamera::fold_radius2`]), where the pixel has several preimages.
     #[inline]
-    pub fn dir_in_air_from_img(&self, pixel: &Point2<f64>) -> Result<Unit<Vector3<f64>>, NoSolution> {
+    pub fn dir_in_air_from_img(
+        &self,
+        pixel: &Point2<f64>,
+    ) -> Result<Unit<Vector3<f64>>, NoSolution> {
         let i = &self.intrinsics;
-        let distorted = Vector2::new((pixel.x - i.cx) * self.inv_focal.x, (pixel.y - i.cy) * self.inv_focal.y);
+        let distorted = Vector2::new(
+            (pixel.x - i.cx) * self.inv_focal.x,
+            (pixel.y - i.cy) * self.inv_focal.y,
+        );
         let normalized = if self.distorts {
-            i.undistort_normalized_in_fold(&distorted, self.fold_radius2).ok_or(NoSolution::OutsideLens)?
+            i.undistort_normalized_in_fold(&distorted, self.fold_radius2)
+                .ok_or(NoSolution::OutsideLens)?
         } else {
             distorted
         };
@@ -275,7 +297,12 @@ impl RefractiveCamera {
         let lambda1 = cos_lambda1 * inv_cos_a;
         let mut axis_shift = self.air_distance * (1.0 - lambda1);
         let mut lateral_length = self.air_distance;
-        for &Medium { length: thickness, rho, .. } in &self.media[WATER + 1..] {
+        for &Medium {
+            length: thickness,
+            rho,
+            ..
+        } in &self.media[WATER + 1..]
+        {
             let radicand = rho * rho - sin2_a;
             if !(radicand > 0.0) {
                 return Err(NoSolution::TotalInternalReflection);
@@ -291,7 +318,10 @@ impl RefractiveCamera {
         // 1/√ from there (y ← y(3 − |bent|² y²)/2), which removes the rounding as a division would.
         let y = self.inv_rho_water;
         let scale = y * (1.5 - 0.5 * bent.norm_squared() * y * y);
-        Ok(Ray { origin, dir: Unit::new_unchecked(bent * scale) })
+        Ok(Ray {
+            origin,
+            dir: Unit::new_unchecked(bent * scale),
+        })
     }
 
     /// The ray in the water by tracing: intersect each plane in turn and apply vector Snell
@@ -306,11 +336,16 @@ impl RefractiveCamera {
         let mut dir = *dir_in_air;
         let mut index = self.index_air;
         let mut plane = self.air_distance; // offset of the next plane along n, from C_k
-        let media = self.layers.iter().map(|l| (l.thickness, l.index)).chain(std::iter::once((0.0, self.index_water)));
+        let media = self
+            .layers
+            .iter()
+            .map(|l| (l.thickness, l.index))
+            .chain(std::iter::once((0.0, self.index_water)));
         for (thickness, next_index) in media {
             // Refraction keeps n·dir > 0, so every later plane is reached.
             point += dir.into_inner() * ((plane - n.dot(&(point - self.centre))) / n.dot(&dir));
-            dir = refract(&dir, n, index / next_index).ok_or(NoSolution::TotalInternalReflection)?;
+            dir =
+                refract(&dir, n, index / next_index).ok_or(NoSolution::TotalInternalReflection)?;
             index = next_index;
             plane += thickness;
         }
@@ -344,18 +379,31 @@ impl RefractiveCamera {
     pub fn air_path_to(&self, point_in_master: &Point3<f64>) -> Result<AirPath, NoSolution> {
         let (depth, lateral, r) = self.split(point_in_master)?;
         if r == 0.0 {
-            return Ok(AirPath { dir_in_air: self.normal, tan_incidence: 0.0, depth, lateral_distance: r, iterations: 0 });
+            return Ok(AirPath {
+                dir_in_air: self.normal,
+                tan_incidence: 0.0,
+                depth,
+                lateral_distance: r,
+                iterations: 0,
+            });
         }
         let (v, rho_ref, iterations) = self.solve_incidence(depth, r)?;
         let tau = tan_incidence_from(v, rho_ref);
         let dir = if tau > SCALE_ABOVE {
             // Near grazing, where τ² would overflow: the same direction divided by τ.
             let inv_tau = 1.0 / tau;
-            (self.normal.into_inner() * inv_tau + lateral * (1.0 / r)) / (1.0 + inv_tau * inv_tau).sqrt()
+            (self.normal.into_inner() * inv_tau + lateral * (1.0 / r))
+                / (1.0 + inv_tau * inv_tau).sqrt()
         } else {
             (self.normal.into_inner() + lateral * (tau / r)) / (1.0 + tau * tau).sqrt()
         };
-        Ok(AirPath { dir_in_air: Unit::new_unchecked(dir), tan_incidence: tau, depth, lateral_distance: r, iterations })
+        Ok(AirPath {
+            dir_in_air: Unit::new_unchecked(dir),
+            tan_incidence: tau,
+            depth,
+            lateral_distance: r,
+            iterations,
+        })
     }
 
     /// (x, O − C_k − z·n, r) of [`air_path_to`](Self::air_path_to): depth, lateral offset and its
@@ -472,14 +520,34 @@ impl RefractiveCamera {
         let vop_distance = if tau > 0.0 {
             path.lateral_distance / tau - self.air_distance - self.layers_thickness
         } else {
-            super::vop::virtual_from_real(path.depth, 0.0, &self.layers, self.index_air, self.index_water)
-                .ok_or(NoSolution::TotalInternalReflection)?
+            super::vop::virtual_from_real(
+                path.depth,
+                0.0,
+                &self.layers,
+                self.index_air,
+                self.index_water,
+            )
+            .ok_or(NoSolution::TotalInternalReflection)?
         };
         let n = self.normal.into_inner();
         let vop = point_in_master + n * (vop_distance - path.depth);
-        let result = Vop { depth: path.depth, vop_distance, vop, incidence: tau.atan() };
+        let result = Vop {
+            depth: path.depth,
+            vop_distance,
+            vop,
+            incidence: tau.atan(),
+        };
         // Every number or none: an overflow anywhere is a rejection, never a partly NaN row.
-        let all_finite = [result.depth, result.vop_distance, vop.x, vop.y, vop.z, result.incidence].iter().all(|v| v.is_finite());
+        let all_finite = [
+            result.depth,
+            result.vop_distance,
+            vop.x,
+            vop.y,
+            vop.z,
+            result.incidence,
+        ]
+        .iter()
+        .all(|v| v.is_finite());
         if !all_finite {
             return Err(NoSolution::OutOfRange);
         }
@@ -518,7 +586,11 @@ impl PathMedia<'_> {
     /// Length along the axis of medium `i`.
     #[inline(always)]
     fn length(&self, i: usize) -> f64 {
-        if i == WATER { self.depth } else { self.media[i].length }
+        if i == WATER {
+            self.depth
+        } else {
+            self.media[i].length
+        }
     }
 
     /// The safeguarded Newton iteration of [`RefractiveCamera::air_path_to`] for lateral distance
@@ -557,16 +629,32 @@ impl PathMedia<'_> {
                 // NaN: v reached a critical-angle cap within rounding, or (a point more than 1e150
                 // times farther to the side than the air layer is thick, tan a > 1e150) v²
                 // overflowed. Never a silent root.
-                return Err(if r / self.length(AIR) > SCALE_ABOVE { NoSolution::OutOfRange } else { NoSolution::NoConvergence });
+                return Err(if r / self.length(AIR) > SCALE_ABOVE {
+                    NoSolution::OutOfRange
+                } else {
+                    NoSolution::NoConvergence
+                });
             }
             if self.media[dominant].rho != self.media[reference].rho {
-                self.reparametrise(&mut reference, dominant, [&mut v, &mut lo, &mut hi], &mut df, r);
+                self.reparametrise(
+                    &mut reference,
+                    dominant,
+                    [&mut v, &mut lo, &mut hi],
+                    &mut df,
+                    r,
+                );
             }
             let mut step = f / df;
             if v - step >= hi && slowest_rho != self.media[reference].rho {
                 // The step leaves through the critical angle of the slowest medium: its term is
                 // about to dominate, so continue in its angle, where that term is linear.
-                self.reparametrise(&mut reference, slowest, [&mut v, &mut lo, &mut hi], &mut df, r);
+                self.reparametrise(
+                    &mut reference,
+                    slowest,
+                    [&mut v, &mut lo, &mut hi],
+                    &mut df,
+                    r,
+                );
                 step = f / df;
             }
             if v == f64::INFINITY {
@@ -594,7 +682,11 @@ impl PathMedia<'_> {
             }
             v = next;
         }
-        Err(if r / self.length(AIR) > SCALE_ABOVE { NoSolution::OutOfRange } else { NoSolution::NoConvergence })
+        Err(if r / self.length(AIR) > SCALE_ABOVE {
+            NoSolution::OutOfRange
+        } else {
+            NoSolution::NoConvergence
+        })
     }
 
     /// f(v), f′(v) of [`RefractiveCamera::air_path_to`] in the variable of medium `reference`
@@ -637,11 +729,22 @@ impl PathMedia<'_> {
     /// lateral miss in every variable; v and the bracket map through T(·; ρ_ref/ρ_to), and f′ is
     /// divided by T′ (chain rule). The mapped bracket top is capped by `to`'s own bound.
     #[inline(never)]
-    fn reparametrise(&self, reference: &mut usize, to: usize, [v, lo, hi]: [&mut f64; 3], df: &mut f64, r: f64) {
+    fn reparametrise(
+        &self,
+        reference: &mut usize,
+        to: usize,
+        [v, lo, hi]: [&mut f64; 3],
+        df: &mut f64,
+        r: f64,
+    ) {
         let k = self.media[*reference].rho / self.media[to].rho;
         let map = |x: f64| {
             let q = 1.0 + (1.0 - k * k) * x * x;
-            if q > 0.0 { k * x / q.sqrt() } else { f64::INFINITY }
+            if q > 0.0 {
+                k * x / q.sqrt()
+            } else {
+                f64::INFINITY
+            }
         };
         let q = 1.0 + (1.0 - k * k) * *v * *v;
         *df /= k / (q * q.sqrt());
@@ -660,7 +763,11 @@ pub(crate) const SCALE_ABOVE: f64 = 1e150;
 #[inline]
 fn length(v: &Vector3<f64>) -> f64 {
     let largest = v.amax();
-    if largest > SCALE_ABOVE { largest * (v * (1.0 / largest)).norm() } else { v.norm() }
+    if largest > SCALE_ABOVE {
+        largest * (v * (1.0 / largest)).norm()
+    } else {
+        v.norm()
+    }
 }
 
 /// tan a = T(v; k_air) from the tangent v of the angle in the reference medium of index ρ_ref.
@@ -677,11 +784,19 @@ mod tests {
 
     /// The example rig's port (8° tilt, glass), an undistorted master camera.
     fn camera() -> RefractiveCamera {
-        let intrinsics = PinholeCamera::new("left", 1280, 1024, 864.91, 864.91, 640.0, 512.0, [0.0; 5]).unwrap();
-        let master = RigCamera::new("left", intrinsics, Matrix3::identity(), Vector3::zeros()).unwrap();
-        let layers = vec![Layer { thickness: 0.014, index: 1.473 }];
-        let interface = Interface::new(Vector3::new(0.1, 0.1, 1.0), 0.02, layers, 1.003, 1.333).unwrap();
-        Rig::new(vec![master], interface).unwrap().refractive_camera(0)
+        let intrinsics =
+            PinholeCamera::new("left", 1280, 1024, 864.91, 864.91, 640.0, 512.0, [0.0; 5]).unwrap();
+        let master =
+            RigCamera::new("left", intrinsics, Matrix3::identity(), Vector3::zeros()).unwrap();
+        let layers = vec![Layer {
+            thickness: 0.014,
+            index: 1.473,
+        }];
+        let interface =
+            Interface::new(Vector3::new(0.1, 0.1, 1.0), 0.02, layers, 1.003, 1.333).unwrap();
+        Rig::new(vec![master], interface)
+            .unwrap()
+            .refractive_camera(0)
     }
 
     /// Far from the port (depth ≫ d_k + Σtᵢ) the path is the water ray alone: with θw the angle
@@ -700,14 +815,33 @@ mod tests {
         let (a, tan_a) = (sin_a.asin(), sin_a / (1.0 - sin_a * sin_a).sqrt());
         for exponent in [20, 100, 154, 155, 160, 200, 250, 299] {
             let s = 10f64.powi(exponent);
-            let vop = camera.vop(&Point3::from(direction * s)).unwrap_or_else(|e| panic!("1e{exponent}: {e}"));
-            assert!((vop.incidence - a).abs() < 1e-12, "1e{exponent}: incidence {} vs {a}", vop.incidence);
-            assert!((vop.depth / (z * s) - 1.0).abs() < 1e-12, "1e{exponent}: depth {}", vop.depth);
+            let vop = camera
+                .vop(&Point3::from(direction * s))
+                .unwrap_or_else(|e| panic!("1e{exponent}: {e}"));
+            assert!(
+                (vop.incidence - a).abs() < 1e-12,
+                "1e{exponent}: incidence {} vs {a}",
+                vop.incidence
+            );
+            assert!(
+                (vop.depth / (z * s) - 1.0).abs() < 1e-12,
+                "1e{exponent}: depth {}",
+                vop.depth
+            );
             let expected = lateral * s / tan_a;
-            assert!((vop.vop_distance / expected - 1.0).abs() < 1e-12, "1e{exponent}: x̌ {} vs {expected}", vop.vop_distance);
-            let pixel = camera.project(&Point3::from(direction * s)).unwrap_or_else(|e| panic!("1e{exponent}: {e}"));
+            assert!(
+                (vop.vop_distance / expected - 1.0).abs() < 1e-12,
+                "1e{exponent}: x̌ {} vs {expected}",
+                vop.vop_distance
+            );
+            let pixel = camera
+                .project(&Point3::from(direction * s))
+                .unwrap_or_else(|e| panic!("1e{exponent}: {e}"));
             let reference = camera.project(&Point3::from(direction * 1e20)).unwrap();
-            assert!((pixel - reference).norm() < 1e-6, "1e{exponent}: pixel {pixel} vs {reference}");
+            assert!(
+                (pixel - reference).norm() < 1e-6,
+                "1e{exponent}: pixel {pixel} vs {reference}"
+            );
         }
         // Far down the optical axis: a finite pixel, not "behind the camera".
         let far = camera.project(&Point3::new(0.0, 0.0, 1e300)).unwrap();
@@ -718,11 +852,25 @@ mod tests {
     #[test]
     fn inputs_beyond_the_range_are_out_of_range() {
         let camera = camera();
-        for point in [[0.0, 0.0, 2e300], [-1e301, 0.0, 1.0], [f64::MAX, f64::MAX, f64::MAX], [f64::NAN, 0.0, 1.0], [0.0, 0.0, f64::INFINITY]] {
+        for point in [
+            [0.0, 0.0, 2e300],
+            [-1e301, 0.0, 1.0],
+            [f64::MAX, f64::MAX, f64::MAX],
+            [f64::NAN, 0.0, 1.0],
+            [0.0, 0.0, f64::INFINITY],
+        ] {
             let point = Point3::from(point);
             assert_eq!(camera.vop(&point), Err(NoSolution::OutOfRange), "{point}");
-            assert_eq!(camera.project(&point), Err(NoSolution::OutOfRange), "{point}");
-            assert_eq!(camera.air_path_to(&point), Err(NoSolution::OutOfRange), "{point}");
+            assert_eq!(
+                camera.project(&point),
+                Err(NoSolution::OutOfRange),
+                "{point}"
+            );
+            assert_eq!(
+                camera.air_path_to(&point),
+                Err(NoSolution::OutOfRange),
+                "{point}"
+            );
         }
     }
 
@@ -733,22 +881,43 @@ mod tests {
     /// returned τ = ∞ and a wrong x̌ = −d_k, before).
     #[test]
     fn far_to_the_side_points_reach_the_grazing_limit() {
-        let intrinsics = PinholeCamera::new("left", 1280, 1024, 864.91, 864.91, 640.0, 512.0, [0.0; 5]).unwrap();
-        let master = RigCamera::new("left", intrinsics, Matrix3::identity(), Vector3::zeros()).unwrap();
-        let interface = Interface::new(Vector3::new(0.12, -0.08, 1.0), 0.03, vec![], 1.0, 1.333).unwrap();
-        let camera = Rig::new(vec![master], interface).unwrap().refractive_camera(0);
-        let limit = camera.vop(&Point3::new(1e10, 0.0, 1e8)).unwrap().vop_distance;
+        let intrinsics =
+            PinholeCamera::new("left", 1280, 1024, 864.91, 864.91, 640.0, 512.0, [0.0; 5]).unwrap();
+        let master =
+            RigCamera::new("left", intrinsics, Matrix3::identity(), Vector3::zeros()).unwrap();
+        let interface =
+            Interface::new(Vector3::new(0.12, -0.08, 1.0), 0.03, vec![], 1.0, 1.333).unwrap();
+        let camera = Rig::new(vec![master], interface)
+            .unwrap()
+            .refractive_camera(0);
+        let limit = camera
+            .vop(&Point3::new(1e10, 0.0, 1e8))
+            .unwrap()
+            .vop_distance;
         for exponent in [12, 20, 30, 38, 40, 60, 100, 140] {
             let s = 10f64.powi(exponent);
-            let vop = camera.vop(&Point3::new(100.0 * s, 0.0, s)).unwrap_or_else(|e| panic!("1e{exponent}: {e}"));
-            assert!((vop.vop_distance - limit).abs() < 1e-9 * limit, "1e{exponent}: x̌ {} vs {limit}", vop.vop_distance);
-            assert!((vop.incidence - std::f64::consts::FRAC_PI_2).abs() < 1e-9, "1e{exponent}");
+            let vop = camera
+                .vop(&Point3::new(100.0 * s, 0.0, s))
+                .unwrap_or_else(|e| panic!("1e{exponent}: {e}"));
+            assert!(
+                (vop.vop_distance - limit).abs() < 1e-9 * limit,
+                "1e{exponent}: x̌ {} vs {limit}",
+                vop.vop_distance
+            );
+            assert!(
+                (vop.incidence - std::f64::consts::FRAC_PI_2).abs() < 1e-9,
+                "1e{exponent}"
+            );
         }
         // tan a beyond 1e150 (r / d_k): the limit, or no number at all (never another number).
         for exponent in [160, 200, 290] {
             let point = Point3::new(100.0 * 10f64.powi(exponent), 0.0, 10f64.powi(exponent));
             match camera.vop(&point) {
-                Ok(vop) => assert!((vop.vop_distance - limit).abs() < 1e-9 * limit, "1e{exponent}: x̌ {}", vop.vop_distance),
+                Ok(vop) => assert!(
+                    (vop.vop_distance - limit).abs() < 1e-9 * limit,
+                    "1e{exponent}: x̌ {}",
+                    vop.vop_distance
+                ),
                 Err(e) => assert_eq!(e, NoSolution::OutOfRange, "1e{exponent}"),
             }
         }

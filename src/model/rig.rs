@@ -34,7 +34,10 @@ impl RigCamera {
         translation: Vector3<f64>,
     ) -> Result<Self, ModelError> {
         for (i, v) in rotation.iter().enumerate() {
-            check_finite(&format!("camera '{name}' rotation[{}][{}]", i % 3, i / 3), *v)?;
+            check_finite(
+                &format!("camera '{name}' rotation[{}][{}]", i % 3, i / 3),
+                *v,
+            )?;
         }
         for (i, v) in translation.iter().enumerate() {
             check_finite(&format!("camera '{name}' translation[{i}]"), *v)?;
@@ -48,7 +51,8 @@ impl RigCamera {
                 determinant,
             });
         }
-        let rotation = UnitQuaternion::from_matrix_eps(&rotation, 1e-15, 100, UnitQuaternion::identity());
+        let rotation =
+            UnitQuaternion::from_matrix_eps(&rotation, 1e-15, 100, UnitQuaternion::identity());
         Ok(Self {
             name: name.to_string(),
             intrinsics,
@@ -58,7 +62,8 @@ impl RigCamera {
 
     /// Camera centre in the master frame, C_k = −R_kᵀ t_k.
     pub fn centre_in_master(&self) -> Point3<f64> {
-        self.cam_from_master.inverse_transform_point(&Point3::origin())
+        self.cam_from_master
+            .inverse_transform_point(&Point3::origin())
     }
 }
 
@@ -77,11 +82,15 @@ impl Rig {
         let master = cameras.first().ok_or(ModelError::NoCameras)?;
         let iso = &master.cam_from_master;
         if iso.translation.vector.norm() > 1e-12 || iso.rotation.angle() > 1e-9 {
-            return Err(ModelError::MasterNotIdentity { camera: master.name.clone() });
+            return Err(ModelError::MasterNotIdentity {
+                camera: master.name.clone(),
+            });
         }
         for (i, camera) in cameras.iter().enumerate() {
             if cameras[..i].iter().any(|c| c.name == camera.name) {
-                return Err(ModelError::DuplicateCameraName { name: camera.name.clone() });
+                return Err(ModelError::DuplicateCameraName {
+                    name: camera.name.clone(),
+                });
             }
         }
         let rig = Self { cameras, interface };
@@ -91,10 +100,13 @@ impl Rig {
 
     fn check_cameras_in_air(&self, interface: &Interface) -> Result<(), ModelError> {
         for camera in &self.cameras {
-            let air_distance =
-                interface.air_distance() - interface.normal().dot(&camera.centre_in_master().coords);
+            let air_distance = interface.air_distance()
+                - interface.normal().dot(&camera.centre_in_master().coords);
             if !(air_distance > 0.0) {
-                return Err(ModelError::CameraNotInAir { camera: camera.name.clone(), air_distance });
+                return Err(ModelError::CameraNotInAir {
+                    camera: camera.name.clone(),
+                    air_distance,
+                });
             }
         }
         Ok(())
@@ -113,7 +125,10 @@ impl Rig {
     /// The same rig behind another interface (validated: every camera must stay in the air).
     pub fn with_interface(&self, interface: Interface) -> Result<Self, ModelError> {
         self.check_cameras_in_air(&interface)?;
-        Ok(Self { cameras: self.cameras.clone(), interface })
+        Ok(Self {
+            cameras: self.cameras.clone(),
+            interface,
+        })
     }
 
     /// Index of a camera given by name, or by its position as a decimal number (`0` = master).
@@ -121,7 +136,10 @@ impl Rig {
         if let Some(i) = self.cameras.iter().position(|c| c.name == name_or_index) {
             return Some(i);
         }
-        name_or_index.parse::<usize>().ok().filter(|&i| i < self.cameras.len())
+        name_or_index
+            .parse::<usize>()
+            .ok()
+            .filter(|&i| i < self.cameras.len())
     }
 
     /// Camera `index` prepared for refractive projection and back-projection.
@@ -144,13 +162,29 @@ mod tests {
     }
 
     fn interface(distance: f64) -> Interface {
-        Interface::new(Vector3::new(0.1, 0.1, 1.0), distance, vec![Layer { thickness: 0.014, index: 1.473 }], 1.0, 1.333)
-            .unwrap()
+        Interface::new(
+            Vector3::new(0.1, 0.1, 1.0),
+            distance,
+            vec![Layer {
+                thickness: 0.014,
+                index: 1.473,
+            }],
+            1.0,
+            1.333,
+        )
+        .unwrap()
     }
 
     fn stereo(distance: f64) -> Result<Rig, ModelError> {
-        let left = RigCamera::new("left", intrinsics(), Matrix3::identity(), Vector3::zeros()).unwrap();
-        let right = RigCamera::new("right", intrinsics(), Matrix3::identity(), Vector3::new(-0.06, 0.0, 0.0)).unwrap();
+        let left =
+            RigCamera::new("left", intrinsics(), Matrix3::identity(), Vector3::zeros()).unwrap();
+        let right = RigCamera::new(
+            "right",
+            intrinsics(),
+            Matrix3::identity(),
+            Vector3::new(-0.06, 0.0, 0.0),
+        )
+        .unwrap();
         Rig::new(vec![left, right], interface(distance))
     }
 
@@ -167,7 +201,10 @@ mod tests {
     #[test]
     fn camera_outside_the_air_is_rejected() {
         // n·C_right = 0.06·0.1/|n| ≈ 0.00594 > d = 0.005.
-        assert!(matches!(stereo(0.005), Err(ModelError::CameraNotInAir { .. })));
+        assert!(matches!(
+            stereo(0.005),
+            Err(ModelError::CameraNotInAir { .. })
+        ));
         assert!(stereo(0.007).is_ok());
     }
 
@@ -184,13 +221,25 @@ mod tests {
 
     #[test]
     fn master_must_be_identity_and_names_unique() {
-        let moved = RigCamera::new("m", intrinsics(), Matrix3::identity(), Vector3::new(0.1, 0.0, 0.0)).unwrap();
-        assert!(matches!(Rig::new(vec![moved], interface(0.02)), Err(ModelError::MasterNotIdentity { .. })));
+        let moved = RigCamera::new(
+            "m",
+            intrinsics(),
+            Matrix3::identity(),
+            Vector3::new(0.1, 0.0, 0.0),
+        )
+        .unwrap();
+        assert!(matches!(
+            Rig::new(vec![moved], interface(0.02)),
+            Err(ModelError::MasterNotIdentity { .. })
+        ));
         let a = RigCamera::new("a", intrinsics(), Matrix3::identity(), Vector3::zeros()).unwrap();
         assert!(matches!(
             Rig::new(vec![a.clone(), a], interface(0.02)),
             Err(ModelError::DuplicateCameraName { .. })
         ));
-        assert_eq!(Rig::new(vec![], interface(0.02)), Err(ModelError::NoCameras));
+        assert_eq!(
+            Rig::new(vec![], interface(0.02)),
+            Err(ModelError::NoCameras)
+        );
     }
 }

@@ -42,7 +42,11 @@ pub fn binocular_vop(
     dir_right: &Unit<Vector3<f64>>,
     normal: &Unit<Vector3<f64>>,
 ) -> Result<BinocularVop, NoSolution> {
-    let m = Matrix3::from_columns(&[dir_left.into_inner(), normal.into_inner(), -dir_right.into_inner()]);
+    let m = Matrix3::from_columns(&[
+        dir_left.into_inner(),
+        normal.into_inner(),
+        -dir_right.into_inner(),
+    ]);
     let det = m.determinant();
     if !(det.abs() >= MIN_BINOCULAR_CONDITIONING) {
         return Err(NoSolution::Degenerate);
@@ -96,7 +100,10 @@ pub fn triangulate_rays(a: &Ray, b: &Ray) -> Result<Triangulation, NoSolution> {
         return Err(NoSolution::NotInWater);
     }
     let (pa, pb) = (a.point_at(s), b.point_at(t));
-    Ok(Triangulation { point: nalgebra::center(&pa, &pb), residual: (pa - pb).norm() })
+    Ok(Triangulation {
+        point: nalgebra::center(&pa, &pb),
+        residual: (pa - pb).norm(),
+    })
 }
 
 #[cfg(test)]
@@ -110,19 +117,35 @@ mod tests {
     #[test]
     fn crossing_rays_meet_at_their_intersection() {
         let target = Point3::new(0.1, -0.2, 1.5);
-        let a = Ray { origin: Point3::new(0.0, 0.0, 0.03), dir: Unit::new_normalize(target - Point3::new(0.0, 0.0, 0.03)) };
-        let b = Ray { origin: Point3::new(0.1, 0.0, 0.03), dir: Unit::new_normalize(target - Point3::new(0.1, 0.0, 0.03)) };
+        let a = Ray {
+            origin: Point3::new(0.0, 0.0, 0.03),
+            dir: Unit::new_normalize(target - Point3::new(0.0, 0.0, 0.03)),
+        };
+        let b = Ray {
+            origin: Point3::new(0.1, 0.0, 0.03),
+            dir: Unit::new_normalize(target - Point3::new(0.1, 0.0, 0.03)),
+        };
         let t = triangulate_rays(&a, &b).unwrap();
         // Rounding is amplified by 1/sin²(angle between rays) ≈ 230 here: ε·1.5·230 ≈ 8e-14.
-        assert!((t.point - target).norm() < 2e-13, "{}", (t.point - target).norm());
+        assert!(
+            (t.point - target).norm() < 2e-13,
+            "{}",
+            (t.point - target).norm()
+        );
         assert!(t.residual < 2e-13);
     }
 
     #[test]
     fn skew_rays_give_midpoint_and_distance() {
         // x axis at z = 0 and y axis shifted to z = 0.2: closest points (0,0,0) and (0,0,0.2).
-        let a = Ray { origin: Point3::new(-1.0, 0.0, 0.0), dir: unit(1.0, 0.0, 0.0) };
-        let b = Ray { origin: Point3::new(0.0, -1.0, 0.2), dir: unit(0.0, 1.0, 0.0) };
+        let a = Ray {
+            origin: Point3::new(-1.0, 0.0, 0.0),
+            dir: unit(1.0, 0.0, 0.0),
+        };
+        let b = Ray {
+            origin: Point3::new(0.0, -1.0, 0.2),
+            dir: unit(0.0, 1.0, 0.0),
+        };
         let t = triangulate_rays(&a, &b).unwrap();
         assert!((t.point - Point3::new(0.0, 0.0, 0.1)).norm() < 1e-15);
         assert!((t.residual - 0.2).abs() < 1e-15);
@@ -130,10 +153,19 @@ mod tests {
 
     #[test]
     fn parallel_and_diverging_rays_are_refused() {
-        let a = Ray { origin: Point3::new(0.0, 0.0, 0.0), dir: unit(0.0, 0.0, 1.0) };
-        let b = Ray { origin: Point3::new(0.1, 0.0, 0.0), dir: unit(0.0, 0.0, 1.0) };
+        let a = Ray {
+            origin: Point3::new(0.0, 0.0, 0.0),
+            dir: unit(0.0, 0.0, 1.0),
+        };
+        let b = Ray {
+            origin: Point3::new(0.1, 0.0, 0.0),
+            dir: unit(0.0, 0.0, 1.0),
+        };
         assert_eq!(triangulate_rays(&a, &b), Err(NoSolution::Degenerate));
-        let c = Ray { origin: Point3::new(0.1, 0.0, 0.0), dir: unit(0.1, 0.0, 1.0) };
+        let c = Ray {
+            origin: Point3::new(0.1, 0.0, 0.0),
+            dir: unit(0.1, 0.0, 1.0),
+        };
         assert_eq!(triangulate_rays(&a, &c), Err(NoSolution::NotInWater));
     }
 

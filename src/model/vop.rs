@@ -73,7 +73,12 @@ pub fn real_from_virtual(
 }
 
 /// λ1 and T = Σ tᵢ (1 − λ2,ᵢ) at angle of incidence a: the two quantities of eqs 4.7 and 4.8.
-fn lambda1_and_shift(incidence: f64, layers: &[Layer], index_air: f64, index_water: f64) -> Option<(f64, f64)> {
+fn lambda1_and_shift(
+    incidence: f64,
+    layers: &[Layer],
+    index_air: f64,
+    index_water: f64,
+) -> Option<(f64, f64)> {
     let (sin_a, cos_a) = incidence.sin_cos();
     let sin2_a = sin_a * sin_a;
     let lambda1 = lambda_ratio(sin2_a, cos_a, index_water / index_air)? / cos_a;
@@ -84,7 +89,10 @@ fn lambda1_and_shift(incidence: f64, layers: &[Layer], index_air: f64, index_wat
 mod tests {
     use super::*;
 
-    const GLASS: [Layer; 1] = [Layer { thickness: 0.014, index: 1.473 }];
+    const GLASS: [Layer; 1] = [Layer {
+        thickness: 0.014,
+        index: 1.473,
+    }];
 
     #[test]
     fn lambdas_are_tangent_ratios() {

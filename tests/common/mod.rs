@@ -22,7 +22,11 @@ impl Stack {
     pub fn of(rig: &Rig, k: usize) -> Self {
         let i = rig.interface();
         let cam = &rig.cameras()[k];
-        let r = cam.cam_from_master.rotation.to_rotation_matrix().into_inner();
+        let r = cam
+            .cam_from_master
+            .rotation
+            .to_rotation_matrix()
+            .into_inner();
         let t = cam.cam_from_master.translation.vector;
         let centre = -(r.transpose() * t);
         let normal = i.normal().into_inner();
@@ -33,7 +37,14 @@ impl Stack {
             indices.push(l.index);
         }
         indices.push(i.index_water());
-        Stack { centre, normal, planes, indices, cam_from_master: r, camera: cam.intrinsics }
+        Stack {
+            centre,
+            normal,
+            planes,
+            indices,
+            cam_from_master: r,
+            camera: cam.intrinsics,
+        }
     }
 
     pub fn outer(&self) -> f64 {
@@ -42,7 +53,12 @@ impl Stack {
 }
 
 /// Snell in angle form: split `dir` into normal and tangential parts, sin θ₂ = μ1/μ2 · sin θ₁.
-pub fn snell_angle_form(dir: Vector3<f64>, n: Vector3<f64>, mu1: f64, mu2: f64) -> Option<Vector3<f64>> {
+pub fn snell_angle_form(
+    dir: Vector3<f64>,
+    n: Vector3<f64>,
+    mu1: f64,
+    mu2: f64,
+) -> Option<Vector3<f64>> {
     let cos1 = dir.dot(&n);
     if cos1 <= 0.0 {
         return None;
@@ -62,7 +78,10 @@ pub fn snell_angle_form(dir: Vector3<f64>, n: Vector3<f64>, mu1: f64, mu2: f64) 
 
 /// Traces a ray from the camera centre through every plane. Returns (origin on the outer
 /// interface, unit direction in the water, every direction along the way).
-pub fn trace(stack: &Stack, dir_in_air: Vector3<f64>) -> Option<(Vector3<f64>, Vector3<f64>, Vec<Vector3<f64>>)> {
+pub fn trace(
+    stack: &Stack,
+    dir_in_air: Vector3<f64>,
+) -> Option<(Vector3<f64>, Vector3<f64>, Vec<Vector3<f64>>)> {
     let n = stack.normal;
     let mut p = stack.centre;
     let mut d = dir_in_air.normalize();
@@ -109,7 +128,11 @@ pub fn air_dir_by_bisection(stack: &Stack, point: Vector3<f64>) -> Option<Vector
     let (mut lo, mut hi) = (0.0f64, std::f64::consts::FRAC_PI_2);
     for _ in 0..200 {
         let mid = 0.5 * (lo + hi);
-        if reach(mid) < r { lo = mid } else { hi = mid }
+        if reach(mid) < r {
+            lo = mid
+        } else {
+            hi = mid
+        }
         if hi - lo < 1e-17 {
             break;
         }
@@ -123,7 +146,10 @@ pub fn distort(c: &PinholeCamera, x: f64, y: f64) -> (f64, f64) {
     let [k1, k2, p1, p2, k3] = c.distortion;
     let r2 = x * x + y * y;
     let radial = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2;
-    (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x), y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
+    (
+        x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+        y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
+    )
 }
 
 /// Pixel of a master-frame direction from the camera centre.
@@ -133,7 +159,10 @@ pub fn pixel_of_dir(stack: &Stack, dir: Vector3<f64>) -> Option<Point2<f64>> {
         return None;
     }
     let (xd, yd) = distort(&stack.camera, p.x / p.z, p.y / p.z);
-    Some(Point2::new(stack.camera.fx * xd + stack.camera.cx, stack.camera.fy * yd + stack.camera.cy))
+    Some(Point2::new(
+        stack.camera.fx * xd + stack.camera.cx,
+        stack.camera.fy * yd + stack.camera.cy,
+    ))
 }
 
 /// Undistortion by OpenCV's fixed-point iteration, run to convergence.
@@ -159,7 +188,12 @@ pub fn dir_of_pixel(stack: &Stack, pixel: Point2<f64>) -> Vector3<f64> {
 
 /// Closest point on line (p, u) to line (q, w): the traced VOP is the closest point of the air
 /// ray's backward extension to the object axis.
-pub fn closest_on_first(p: Vector3<f64>, u: Vector3<f64>, q: Vector3<f64>, w: Vector3<f64>) -> Vector3<f64> {
+pub fn closest_on_first(
+    p: Vector3<f64>,
+    u: Vector3<f64>,
+    q: Vector3<f64>,
+    w: Vector3<f64>,
+) -> Vector3<f64> {
     let w0 = p - q;
     let (a, b, c, d, e) = (u.dot(&u), u.dot(&w), w.dot(&w), u.dot(&w0), w.dot(&w0));
     let s = (b * e - c * d) / (a * c - b * b);
@@ -171,8 +205,19 @@ pub fn unit(x: f64, y: f64, z: f64) -> Vector3<f64> {
 }
 
 /// A stereo rig: master plus a second camera 0.08 m to the right, turned 3° about y and 1° about x.
-pub fn stereo_rig(normal: Vector3<f64>, distance: f64, layers: Vec<Layer>, index_air: f64, index_water: f64, distortion: bool) -> Rig {
-    let d = if distortion { [-0.12, 0.03, 0.0008, -0.0005, -0.002] } else { [0.0; 5] };
+pub fn stereo_rig(
+    normal: Vector3<f64>,
+    distance: f64,
+    layers: Vec<Layer>,
+    index_air: f64,
+    index_water: f64,
+    distortion: bool,
+) -> Rig {
+    let d = if distortion {
+        [-0.12, 0.03, 0.0008, -0.0005, -0.002]
+    } else {
+        [0.0; 5]
+    };
     let left = PinholeCamera::new("left", 1280, 1024, 864.91, 866.2, 641.3, 509.8, d).unwrap();
     let right = PinholeCamera::new("right", 1280, 1024, 870.0, 870.0, 630.0, 515.0, d).unwrap();
     let r = Rotation3::from_euler_angles(1f64.to_radians(), -3f64.to_radians(), 0.0).into_inner();
@@ -192,18 +237,59 @@ pub fn stereo_rig(normal: Vector3<f64>, distance: f64, layers: Vec<Layer>, index
 pub fn configurations() -> Vec<(&'static str, Rig)> {
     let tilt = unit(0.12, -0.08, 1.0);
     let steep = unit(0.35, 0.3, 1.0); // ≈ 25° tilt
-    let glass = Layer { thickness: 0.014, index: 1.473 };
+    let glass = Layer {
+        thickness: 0.014,
+        index: 1.473,
+    };
     vec![
-        ("single interface", stereo_rig(tilt, 0.03, vec![], 1.0, 1.333, false)),
-        ("single interface, distorted", stereo_rig(steep, 0.045, vec![], 1.0003, 1.34, true)),
-        ("one glass layer", stereo_rig(tilt, 0.02, vec![glass], 1.003, 1.333, true)),
-        ("two layers", stereo_rig(steep, 0.045, vec![glass, Layer { thickness: 0.006, index: 1.49 }], 1.0, 1.333, true)),
+        (
+            "single interface",
+            stereo_rig(tilt, 0.03, vec![], 1.0, 1.333, false),
+        ),
+        (
+            "single interface, distorted",
+            stereo_rig(steep, 0.045, vec![], 1.0003, 1.34, true),
+        ),
+        (
+            "one glass layer",
+            stereo_rig(tilt, 0.02, vec![glass], 1.003, 1.333, true),
+        ),
+        (
+            "two layers",
+            stereo_rig(
+                steep,
+                0.045,
+                vec![
+                    glass,
+                    Layer {
+                        thickness: 0.006,
+                        index: 1.49,
+                    },
+                ],
+                1.0,
+                1.333,
+                true,
+            ),
+        ),
         (
             "three layers",
             stereo_rig(
                 tilt,
                 0.015,
-                vec![Layer { thickness: 0.01, index: 1.52 }, Layer { thickness: 0.002, index: 1.38 }, Layer { thickness: 0.02, index: 1.7 }],
+                vec![
+                    Layer {
+                        thickness: 0.01,
+                        index: 1.52,
+                    },
+                    Layer {
+                        thickness: 0.002,
+                        index: 1.38,
+                    },
+                    Layer {
+                        thickness: 0.02,
+                        index: 1.7,
+                    },
+                ],
                 1.0,
                 1.345,
                 true,
@@ -214,7 +300,20 @@ pub fn configurations() -> Vec<(&'static str, Rig)> {
             stereo_rig(
                 tilt,
                 0.05,
-                vec![Layer { thickness: 0.01, index: 1.5 }, Layer { thickness: 0.3, index: 1.333 }, Layer { thickness: 0.01, index: 1.5 }],
+                vec![
+                    Layer {
+                        thickness: 0.01,
+                        index: 1.5,
+                    },
+                    Layer {
+                        thickness: 0.3,
+                        index: 1.333,
+                    },
+                    Layer {
+                        thickness: 0.01,
+                        index: 1.5,
+                    },
+                ],
                 1.0,
                 1.0,
                 true,
@@ -249,7 +348,10 @@ pub fn points_in_water(rig: &Rig) -> Vec<Point3<f64>> {
 /// True when the pixel lies in the image (where a lens model is meaningful), with a margin.
 pub fn in_image(stack: &Stack, pixel: &Point2<f64>, margin: f64) -> bool {
     let c = &stack.camera;
-    pixel.x > -margin && pixel.y > -margin && pixel.x < c.width as f64 + margin && pixel.y < c.height as f64 + margin
+    pixel.x > -margin
+        && pixel.y > -margin
+        && pixel.x < c.width as f64 + margin
+        && pixel.y < c.height as f64 + margin
 }
 
 pub fn as_unit(v: Vector3<f64>) -> Unit<Vector3<f64>> {

@@ -13,8 +13,15 @@ pub fn engine(precision: Precision) -> Option<GpuEngine> {
 pub fn engine_with(precision: Precision, map_storage: bool) -> Option<GpuEngine> {
     match GpuContext::open(None, map_storage) {
         Ok(context) => {
-            eprintln!("GPU adapter: {} ({}), {precision}", context.adapter().name, context.adapter().driver);
-            Some(GpuEngine::new(context, precision).expect("lavapipe and the GPUs we test have SHADER_F64"))
+            eprintln!(
+                "GPU adapter: {} ({}), {precision}",
+                context.adapter().name,
+                context.adapter().driver
+            );
+            Some(
+                GpuEngine::new(context, precision)
+                    .expect("lavapipe and the GPUs we test have SHADER_F64"),
+            )
         }
         Err(e) if std::env::var_os("CI").is_none() => {
             eprintln!("SKIPPED (no Vulkan adapter; CI fails here instead): {e}");

@@ -115,4 +115,3 @@ pub fn build(spec: &RigSpec) -> Fixture {
     ];
     Fixture::build("random", stack, cams)
 }
-

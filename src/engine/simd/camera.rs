@@ -1,5 +1,5 @@
 //! Lane twin of [`crate::model::camera`]: OpenCV distortion, its Jacobian, and the undistortion
-//! Newton iteration, for [`LANES`] normalised points at once.
+//! Newton iteration, for [`LANES`](super::lanes::LANES) normalised points at once.
 
 use super::lanes::{F64s, Mask};
 use crate::model::PinholeCamera;
@@ -68,7 +68,12 @@ impl Distortion {
     /// `ok` needs the scalar function: its second run, or its `None`); `steps` the Newton steps
     /// the block took (one ÷ each).
     #[inline(always)]
-    pub fn undistort_in_fold(&self, xd: F64s, yd: F64s, fold_radius2: f64) -> (F64s, F64s, Mask, u32) {
+    pub fn undistort_in_fold(
+        &self,
+        xd: F64s,
+        yd: F64s,
+        fold_radius2: f64,
+    ) -> (F64s, F64s, Mask, u32) {
         let (k1, k2) = (self.k1, self.k2);
         let r2 = xd * xd + yd * yd;
         let tolerance = 1e-14 * (1.0 + r2.sqrt());

@@ -245,7 +245,11 @@ impl Vec3s {
     /// The same vector in every lane.
     #[inline(always)]
     pub fn splat(v: [f64; 3]) -> Self {
-        Self { x: F64s::splat(v[0]), y: F64s::splat(v[1]), z: F64s::splat(v[2]) }
+        Self {
+            x: F64s::splat(v[0]),
+            y: F64s::splat(v[1]),
+            z: F64s::splat(v[2]),
+        }
     }
 
     /// a·b, summed as nalgebra does for 3-vectors: (x·x + y·y) + z·z.
@@ -263,19 +267,31 @@ impl Vec3s {
     /// a × b.
     #[inline(always)]
     pub fn cross(self, b: Vec3s) -> Vec3s {
-        Vec3s { x: self.y * b.z - self.z * b.y, y: self.z * b.x - self.x * b.z, z: self.x * b.y - self.y * b.x }
+        Vec3s {
+            x: self.y * b.z - self.z * b.y,
+            y: self.z * b.x - self.x * b.z,
+            z: self.x * b.y - self.y * b.x,
+        }
     }
 
     /// Every component times `s`.
     #[inline(always)]
     pub fn scale(self, s: F64s) -> Vec3s {
-        Vec3s { x: self.x * s, y: self.y * s, z: self.z * s }
+        Vec3s {
+            x: self.x * s,
+            y: self.y * s,
+            z: self.z * s,
+        }
     }
 
     /// Lane-wise `if mask { a } else { b }`.
     #[inline(always)]
     pub fn select(mask: Mask, a: Vec3s, b: Vec3s) -> Vec3s {
-        Vec3s { x: mask.select(a.x, b.x), y: mask.select(a.y, b.y), z: mask.select(a.z, b.z) }
+        Vec3s {
+            x: mask.select(a.x, b.x),
+            y: mask.select(a.y, b.y),
+            z: mask.select(a.z, b.z),
+        }
     }
 
     /// Whether every component of each lane is finite.
@@ -289,7 +305,11 @@ impl Add for Vec3s {
     type Output = Vec3s;
     #[inline(always)]
     fn add(self, b: Vec3s) -> Vec3s {
-        Vec3s { x: self.x + b.x, y: self.y + b.y, z: self.z + b.z }
+        Vec3s {
+            x: self.x + b.x,
+            y: self.y + b.y,
+            z: self.z + b.z,
+        }
     }
 }
 
@@ -297,14 +317,22 @@ impl Sub for Vec3s {
     type Output = Vec3s;
     #[inline(always)]
     fn sub(self, b: Vec3s) -> Vec3s {
-        Vec3s { x: self.x - b.x, y: self.y - b.y, z: self.z - b.z }
+        Vec3s {
+            x: self.x - b.x,
+            y: self.y - b.y,
+            z: self.z - b.z,
+        }
     }
 }
 
 /// A constant vector times a lane of scalars: `v·s` per lane, with v the same in every lane.
 #[inline(always)]
 pub fn scaled(v: [f64; 3], s: F64s) -> Vec3s {
-    Vec3s { x: v[0] * s, y: v[1] * s, z: v[2] * s }
+    Vec3s {
+        x: v[0] * s,
+        y: v[1] * s,
+        z: v[2] * s,
+    }
 }
 
 #[cfg(test)]
@@ -342,7 +370,13 @@ mod tests {
         assert!(!a.is_finite().any());
         assert!(!a.within(1.0).any());
         assert_eq!(a.min(one), one, "min takes the number, as f64::min");
-        assert!(F64s::splat(f64::INFINITY).within(f64::MAX).0.iter().all(|&b| !b));
+        assert!(
+            F64s::splat(f64::INFINITY)
+                .within(f64::MAX)
+                .0
+                .iter()
+                .all(|&b| !b)
+        );
     }
 
     #[test]
@@ -360,6 +394,13 @@ mod tests {
         let b = Vec3s::splat([-2.0, 0.5, 4.0]);
         assert_eq!(a.dot(b).0[3], 1.0 * -2.0 + 2.0 * 0.5 + 3.0 * 4.0);
         let c = a.cross(b);
-        assert_eq!([c.x.0[0], c.y.0[0], c.z.0[0]], [2.0 * 4.0 - 3.0 * 0.5, 3.0 * -2.0 - 1.0 * 4.0, 1.0 * 0.5 - 2.0 * -2.0]);
+        assert_eq!(
+            [c.x.0[0], c.y.0[0], c.z.0[0]],
+            [
+                2.0 * 4.0 - 3.0 * 0.5,
+                3.0 * -2.0 - 1.0 * 4.0,
+                1.0 * 0.5 - 2.0 * -2.0
+            ]
+        );
     }
 }

@@ -2,7 +2,7 @@
 //! [`LANES`] rows held as structures of arrays, so that one vector instruction serves 4–8 rays.
 //!
 //! Layout (each file the twin of the scalar module of the same name):
-//! - [`lanes`]: the vocabulary, [`F64s`](lanes::F64s) (16 f64), [`Mask`](lanes::Mask), 3-vectors;
+//! - [`lanes`]: the vocabulary, [`F64s`] (16 f64), [`Mask`], 3-vectors;
 //! - [`camera`]: distortion and the undistortion Newton iteration;
 //! - [`refractive_camera`]: back-projection and forward projection (its safeguarded Newton
 //!   iteration, every lane until the slowest converges);
@@ -68,8 +68,15 @@ pub fn instruction_set() -> &'static str {
 /// ±[`MAX_INPUT`] or a result that is not finite is [`NoSolution::OutOfRange`]; a row without an
 /// answer is NaN. The CPU engine's scalar path and the vector path's fallback are both this.
 #[inline]
-pub fn scalar_row<const N: usize, const M: usize>(input: &[f64; N], f: impl Fn(&[f64; N]) -> Result<[f64; M], NoSolution>) -> ([f64; M], u32) {
-    let result = if input.iter().all(|x| x.abs() <= MAX_INPUT) { f(input) } else { Err(NoSolution::OutOfRange) };
+pub fn scalar_row<const N: usize, const M: usize>(
+    input: &[f64; N],
+    f: impl Fn(&[f64; N]) -> Result<[f64; M], NoSolution>,
+) -> ([f64; M], u32) {
+    let result = if input.iter().all(|x| x.abs() <= MAX_INPUT) {
+        f(input)
+    } else {
+        Err(NoSolution::OutOfRange)
+    };
     match result {
         Ok(value) if value.iter().all(|y| y.is_finite()) => (value, 0),
         Ok(_) => ([f64::NAN; M], NoSolution::OutOfRange.code()),
@@ -79,7 +86,10 @@ pub fn scalar_row<const N: usize, const M: usize>(input: &[f64; N], f: impl Fn(&
 
 /// [`RefractiveCamera::backproject`] as a batch row: origin xyz, direction xyz.
 #[inline]
-pub fn backproject_row(camera: &RefractiveCamera, &[u, v]: &[f64; 2]) -> Result<[f64; 6], NoSolution> {
+pub fn backproject_row(
+    camera: &RefractiveCamera,
+    &[u, v]: &[f64; 2],
+) -> Result<[f64; 6], NoSolution> {
     let ray = camera.backproject(&Point2::new(u, v))?;
     let (o, d) = (ray.origin, ray.dir);
     Ok([o.x, o.y, o.z, d.x, d.y, d.z])
@@ -87,7 +97,10 @@ pub fn backproject_row(camera: &RefractiveCamera, &[u, v]: &[f64; 2]) -> Result<
 
 /// [`RefractiveCamera::project`] as a batch row: u, v.
 #[inline]
-pub fn project_row(camera: &RefractiveCamera, &[x, y, z]: &[f64; 3]) -> Result<[f64; 2], NoSolution> {
+pub fn project_row(
+    camera: &RefractiveCamera,
+    &[x, y, z]: &[f64; 3],
+) -> Result<[f64; 2], NoSolution> {
     camera.project(&Point3::new(x, y, z)).map(|p| [p.x, p.y])
 }
 
@@ -95,12 +108,23 @@ pub fn project_row(camera: &RefractiveCamera, &[x, y, z]: &[f64; 3]) -> Result<[
 #[inline]
 pub fn vop_row(camera: &RefractiveCamera, &[x, y, z]: &[f64; 3]) -> Result<[f64; 6], NoSolution> {
     let v = camera.vop(&Point3::new(x, y, z))?;
-    Ok([v.depth, v.vop_distance, v.vop.x, v.vop.y, v.vop.z, v.incidence])
+    Ok([
+        v.depth,
+        v.vop_distance,
+        v.vop.x,
+        v.vop.y,
+        v.vop.z,
+        v.incidence,
+    ])
 }
 
 /// Triangulation of a match (ul, vl, ur, vr) as a batch row: x, y, z, residual.
 #[inline]
-pub fn triangulate_row(a: &RefractiveCamera, b: &RefractiveCamera, &[ul, vl, ur, vr]: &[f64; 4]) -> Result<[f64; 4], NoSolution> {
+pub fn triangulate_row(
+    a: &RefractiveCamera,
+    b: &RefractiveCamera,
+    &[ul, vl, ur, vr]: &[f64; 4],
+) -> Result<[f64; 4], NoSolution> {
     let ray_a = a.backproject(&Point2::new(ul, vl))?;
     let ray_b = b.backproject(&Point2::new(ur, vr))?;
     let t = triangulate_rays(&ray_a, &ray_b)?;
@@ -128,7 +152,11 @@ fn column<const N: usize>(rows: &[[f64; N]], c: usize) -> F64s {
 /// Writes lane `l` of a block: the lane's values, or NaN and its status code.
 #[inline(always)]
 fn store<const M: usize>(row: &mut [f64; M], status: &mut u32, code: u32, values: [f64; M]) {
-    (*row, *status) = if code == 0 { (values, 0) } else { ([f64::NAN; M], code) };
+    (*row, *status) = if code == 0 {
+        (values, 0)
+    } else {
+        ([f64::NAN; M], code)
+    };
 }
 
 // The four batch loops below share their shape on purpose. Folded into one generic loop (the
@@ -271,6 +299,8 @@ pub fn undistortion_steps(camera: &RefractiveCamera, pixels: &[[f64; 2]]) -> f64
     let lanes = CameraLanes::new(camera);
     let blocks = pixels.chunks(LANES);
     let count = blocks.len().max(1);
-    let steps: u64 = blocks.map(|b| u64::from(lanes.undistortion_steps(column(b, 0), column(b, 1)))).sum();
+    let steps: u64 = blocks
+        .map(|b| u64::from(lanes.undistortion_steps(column(b, 0), column(b, 1))))
+        .sum();
     steps as f64 / count as f64
 }

@@ -145,7 +145,9 @@ impl<'a> CameraLanes<'a> {
             return 0;
         }
         let (xd, yd) = self.normalized_distorted(u, v);
-        self.distortion.undistort_in_fold(xd, yd, self.fold_radius2).3
+        self.distortion
+            .undistort_in_fold(xd, yd, self.fold_radius2)
+            .3
     }
 
     /// The distorted normalised coordinates ((u − c_x)/f_x, (v − c_y)/f_y) of raw pixels.
@@ -159,7 +161,10 @@ impl<'a> CameraLanes<'a> {
     #[inline(always)]
     pub fn backproject(&self, u: F64s, v: F64s) -> Rays {
         let mut status = Status::ok();
-        status.fail(!(u.within(MAX_INPUT) & v.within(MAX_INPUT)), NoSolution::OutOfRange);
+        status.fail(
+            !(u.within(MAX_INPUT) & v.within(MAX_INPUT)),
+            NoSolution::OutOfRange,
+        );
         // dir_in_air_from_img
         let (xd, yd) = self.normalized_distorted(u, v);
         let (x, y, scalar) = if self.distorts {
@@ -169,7 +174,10 @@ impl<'a> CameraLanes<'a> {
             (xd, yd, Mask::splat(false))
         };
         let radius2 = x * x + y * y;
-        status.fail(!radius2.lt(F64s::splat(self.fold_radius2)), NoSolution::OutsideLens);
+        status.fail(
+            !radius2.lt(F64s::splat(self.fold_radius2)),
+            NoSolution::OutsideLens,
+        );
         let [c0, c1, c2] = self.master_from_cam;
         let scale = 1.0 / (radius2 + 1.0).sqrt();
         let dir_in_air = Vec3s {
@@ -183,15 +191,26 @@ impl<'a> CameraLanes<'a> {
         status.fail(!cos_a.gt(F64s::splat(0.0)), NoSolution::MissesInterface);
         let sin2_a = (1.0 - cos_a * cos_a).max(F64s::splat(0.0));
         let water_radicand = self.rho_water * self.rho_water - sin2_a;
-        status.fail(!water_radicand.gt(F64s::splat(0.0)), NoSolution::TotalInternalReflection);
+        status.fail(
+            !water_radicand.gt(F64s::splat(0.0)),
+            NoSolution::TotalInternalReflection,
+        );
         let inv_cos_a = 1.0 / cos_a;
         let cos_lambda1 = water_radicand.sqrt();
         let lambda1 = cos_lambda1 * inv_cos_a;
         let mut axis_shift = self.air_distance * (1.0 - lambda1);
         let mut lateral_length = F64s::splat(self.air_distance);
-        for &Medium { length: thickness, rho, .. } in &self.media[WATER + 1..] {
+        for &Medium {
+            length: thickness,
+            rho,
+            ..
+        } in &self.media[WATER + 1..]
+        {
             let radicand = rho * rho - sin2_a;
-            status.fail(!radicand.gt(F64s::splat(0.0)), NoSolution::TotalInternalReflection);
+            status.fail(
+                !radicand.gt(F64s::splat(0.0)),
+                NoSolution::TotalInternalReflection,
+            );
             let lambda2 = cos_a / radicand.sqrt();
             axis_shift += thickness * (1.0 - lambda1 * lambda2);
             lateral_length += thickness * lambda2;
@@ -202,8 +221,16 @@ impl<'a> CameraLanes<'a> {
         let y = self.inv_rho_water;
         let scale = y * (1.5 - 0.5 * bent.norm_squared() * y * y);
         let dir = bent.scale(scale);
-        status.fail(!(origin.is_finite() & dir.is_finite()), NoSolution::OutOfRange);
-        Rays { origin, dir, status, scalar }
+        status.fail(
+            !(origin.is_finite() & dir.is_finite()),
+            NoSolution::OutOfRange,
+        );
+        Rays {
+            origin,
+            dir,
+            status,
+            scalar,
+        }
     }
 
     /// `split` and `solve_incidence` of [`RefractiveCamera::air_path_to`] for a block of points in
@@ -212,7 +239,10 @@ impl<'a> CameraLanes<'a> {
     fn air_path(&self, point: Vec3s) -> AirPathLanes {
         let zero = F64s::splat(0.0);
         let mut status = Status::ok();
-        status.fail(!(point.x.within(MAX_INPUT) & point.y.within(MAX_INPUT) & point.z.within(MAX_INPUT)), NoSolution::OutOfRange);
+        status.fail(
+            !(point.x.within(MAX_INPUT) & point.y.within(MAX_INPUT) & point.z.within(MAX_INPUT)),
+            NoSolution::OutOfRange,
+        );
         let n = Vec3s::splat(self.normal);
         let offset = point - Vec3s::splat(self.centre);
         let z = n.dot(offset);
@@ -221,18 +251,30 @@ impl<'a> CameraLanes<'a> {
         let lateral = offset - scaled(self.normal, z);
         let largest = lateral.x.abs().max(lateral.y.abs()).max(lateral.z.abs());
         // Lengths beyond 1e150 (scaled before squaring) and tan a beyond 1e150 take the scalar path.
-        let scalar = status.answered() & (largest.gt(F64s::splat(SCALE_ABOVE)) | (largest / self.air_distance).gt(F64s::splat(SCALE_ABOVE * 0.5)));
+        let scalar = status.answered()
+            & (largest.gt(F64s::splat(SCALE_ABOVE))
+                | (largest / self.air_distance).gt(F64s::splat(SCALE_ABOVE * 0.5)));
         let r = lateral.norm_squared().sqrt();
         let on_axis = r.eq(zero);
         // Solve where a lane still needs it; lanes already decided get a harmless r.
         let solving = status.answered().and_not(scalar).and_not(on_axis);
-        let root = PathLanes { media: self.media, depth: solving.select(depth, F64s::splat(1.0)) }.solve(
-            self.slowest,
-            solving.select(r, F64s::splat(1.0)),
-            solving,
-        );
+        let root = PathLanes {
+            media: self.media,
+            depth: solving.select(depth, F64s::splat(1.0)),
+        }
+        .solve(self.slowest, solving.select(r, F64s::splat(1.0)), solving);
         let scalar = scalar | (solving & root.scalar);
-        AirPathLanes { depth, lateral, r, on_axis, v: root.v, k: root.rho_ref, solving, status, scalar }
+        AirPathLanes {
+            depth,
+            lateral,
+            r,
+            on_axis,
+            v: root.v,
+            k: root.rho_ref,
+            solving,
+            status,
+            scalar,
+        }
     }
 
     /// [`RefractiveCamera::vop`] (with the CPU engine's row checks) for a block of points in the
@@ -242,7 +284,16 @@ impl<'a> CameraLanes<'a> {
     #[inline(always)]
     pub fn vop(&self, point: Vec3s) -> Vops {
         let zero = F64s::splat(0.0);
-        let AirPathLanes { depth, r, on_axis, v, k, mut status, mut scalar, .. } = self.air_path(point);
+        let AirPathLanes {
+            depth,
+            r,
+            on_axis,
+            v,
+            k,
+            mut status,
+            mut scalar,
+            ..
+        } = self.air_path(point);
         let tau = k * v / (1.0 + (1.0 - k * k) * v * v).sqrt();
         scalar = scalar | (status.answered() & (on_axis | !tau.gt(zero)));
         let vop_distance = r / tau - self.air_distance - self.layers_thickness;
@@ -250,9 +301,15 @@ impl<'a> CameraLanes<'a> {
         let vop = point + scaled(self.normal, shift);
         let incidence = F64s(tau.0.map(f64::atan));
         let values = [depth, vop_distance, vop.x, vop.y, vop.z, incidence];
-        let finite = values.iter().fold(Mask::splat(true), |all, v| all & v.is_finite());
+        let finite = values
+            .iter()
+            .fold(Mask::splat(true), |all, v| all & v.is_finite());
         status.fail(!finite, NoSolution::OutOfRange);
-        Vops { values, status, scalar }
+        Vops {
+            values,
+            status,
+            scalar,
+        }
     }
 
     /// [`RefractiveCamera::project`] (with the CPU engine's row checks) for a block of points in
@@ -260,7 +317,17 @@ impl<'a> CameraLanes<'a> {
     #[inline(always)]
     pub fn project(&self, point: Vec3s) -> Pixels {
         let zero = F64s::splat(0.0);
-        let AirPathLanes { depth: _, lateral, r, on_axis, v, k, solving, mut status, mut scalar } = self.air_path(point);
+        let AirPathLanes {
+            depth: _,
+            lateral,
+            r,
+            on_axis,
+            v,
+            k,
+            solving,
+            mut status,
+            mut scalar,
+        } = self.air_path(point);
         let [r0, r1, r2] = self.cam_from_master;
         let lateral_in_cam = Vec3s {
             x: r0[0] * lateral.x + r0[1] * lateral.y + r0[2] * lateral.z,
@@ -276,7 +343,10 @@ impl<'a> CameraLanes<'a> {
         status.fail(!dir.z.gt(zero), NoSolution::BehindCamera);
         let inv_z = 1.0 / dir.z;
         let (x, y) = (dir.x * inv_z, dir.y * inv_z);
-        status.fail(!(x * x + y * y).lt(F64s::splat(self.fold_radius2)), NoSolution::OutsideLens);
+        status.fail(
+            !(x * x + y * y).lt(F64s::splat(self.fold_radius2)),
+            NoSolution::OutsideLens,
+        );
         let (xd, yd) = if self.distorts {
             let d = self.distortion.distort_with_jacobian(x, y);
             (d.x, d.y)
@@ -285,7 +355,12 @@ impl<'a> CameraLanes<'a> {
         };
         let (u, v) = (self.fx * xd + self.cx, self.fy * yd + self.cy);
         status.fail(!(u.is_finite() & v.is_finite()), NoSolution::OutOfRange);
-        Pixels { u, v, status, scalar }
+        Pixels {
+            u,
+            v,
+            status,
+            scalar,
+        }
     }
 }
 
@@ -337,7 +412,11 @@ fn pick(index: F64s, table: impl Iterator<Item = F64s>) -> F64s {
 impl PathLanes<'_> {
     #[inline(always)]
     fn length(&self, i: usize) -> F64s {
-        if i == WATER { self.depth } else { F64s::splat(self.media[i].length) }
+        if i == WATER {
+            self.depth
+        } else {
+            F64s::splat(self.media[i].length)
+        }
     }
 
     #[inline(always)]
@@ -353,7 +432,8 @@ impl PathLanes<'_> {
     /// `PathMedia::bracket_top` per lane: min(r / L_ref, critical top of ref).
     #[inline(always)]
     fn bracket_top(&self, reference: F64s, r: F64s) -> F64s {
-        (r / pick(reference, self.lengths())).min(pick(reference, self.constants(|m| m.critical_top)))
+        (r / pick(reference, self.lengths()))
+            .min(pick(reference, self.constants(|m| m.critical_top)))
     }
 
     /// `PathMedia::solve` for the lanes of `active`: the same start, Newton steps, bracket,
@@ -394,13 +474,27 @@ impl PathLanes<'_> {
             let rho_dominant = pick(dominant, self.constants(|m| m.rho));
             let switch = active & !rho_dominant.eq(rho_ref);
             if switch.any() {
-                self.reparametrise(switch, [&mut reference, &mut rho_ref], dominant, [&mut v, &mut lo, &mut hi], &mut df, r);
+                self.reparametrise(
+                    switch,
+                    [&mut reference, &mut rho_ref],
+                    dominant,
+                    [&mut v, &mut lo, &mut hi],
+                    &mut df,
+                    r,
+                );
             }
             let mut step = f / df;
             let leaving = active & (v - step).ge(hi) & !F64s::splat(slowest_rho).eq(rho_ref);
             if leaving.any() {
                 let to = F64s::splat(slowest as f64);
-                self.reparametrise(leaving, [&mut reference, &mut rho_ref], to, [&mut v, &mut lo, &mut hi], &mut df, r);
+                self.reparametrise(
+                    leaving,
+                    [&mut reference, &mut rho_ref],
+                    to,
+                    [&mut v, &mut lo, &mut hi],
+                    &mut df,
+                    r,
+                );
                 step = f / df;
             }
             // An iterate mapped to infinity (at a critical angle within rounding): the scalar
@@ -409,7 +503,10 @@ impl PathLanes<'_> {
             scalar = scalar | infinite;
             active = active.and_not(infinite);
             let converged = active & step.abs().le(PROJECT_TOLERANCE * v);
-            (root, root_rho) = (converged.select(v - step, root), converged.select(rho_ref, root_rho));
+            (root, root_rho) = (
+                converged.select(v - step, root),
+                converged.select(rho_ref, root_rho),
+            );
             active = active.and_not(converged);
             let mut next = v - step;
             next = (next.gt(lo) & next.lt(hi)).select(next, 0.5 * (lo + hi));
@@ -418,13 +515,23 @@ impl PathLanes<'_> {
             active = active.and_not(narrow);
             v = active.select(next, v);
         }
-        Root { v: root, rho_ref: root_rho, scalar: scalar | active }
+        Root {
+            v: root,
+            rho_ref: root_rho,
+            scalar: scalar | active,
+        }
     }
 
     /// `PathMedia::incidence_equation`: f(v), f′(v) in the variable of each lane's reference
     /// medium, and the medium whose term contributes most to f′.
     #[inline(always)]
-    fn incidence_equation(&self, v: F64s, reference: F64s, rho_ref: F64s, r: F64s) -> (F64s, F64s, F64s) {
+    fn incidence_equation(
+        &self,
+        v: F64s,
+        reference: F64s,
+        rho_ref: F64s,
+        r: F64s,
+    ) -> (F64s, F64s, F64s) {
         let v2 = v * v;
         let (mut f, mut df) = (-r, F64s::splat(0.0));
         let (mut dominant, mut dominant_slope) = (F64s::splat(AIR as f64), F64s::splat(0.0));
@@ -435,7 +542,10 @@ impl PathLanes<'_> {
             let q = 1.0 + (1.0 - k * k) * v2;
             let inv_q = 1.0 / q;
             let lk = length * k * (q.sqrt() * inv_q);
-            let (lk, slope) = (is_reference.select(length, lk), is_reference.select(length, lk * inv_q));
+            let (lk, slope) = (
+                is_reference.select(length, lk),
+                is_reference.select(length, lk * inv_q),
+            );
             f += lk * v;
             df += slope;
             let steeper = slope.gt(dominant_slope);
@@ -448,18 +558,31 @@ impl PathLanes<'_> {
     /// `PathMedia::reparametrise` for the lanes of `mask`: v and the bracket map through
     /// T(·; ρ_ref/ρ_to), f′ is divided by T′, the top is capped by the new medium's bound.
     #[inline(always)]
-    fn reparametrise(&self, mask: Mask, [reference, rho_ref]: [&mut F64s; 2], to: F64s, [v, lo, hi]: [&mut F64s; 3], df: &mut F64s, r: F64s) {
+    fn reparametrise(
+        &self,
+        mask: Mask,
+        [reference, rho_ref]: [&mut F64s; 2],
+        to: F64s,
+        [v, lo, hi]: [&mut F64s; 3],
+        df: &mut F64s,
+        r: F64s,
+    ) {
         let rho_to = pick(to, self.constants(|m| m.rho));
         let k = *rho_ref / rho_to;
         let map = |x: F64s| {
             let q = 1.0 + (1.0 - k * k) * x * x;
-            q.gt(F64s::splat(0.0)).select(k * x / q.sqrt(), F64s::splat(f64::INFINITY))
+            q.gt(F64s::splat(0.0))
+                .select(k * x / q.sqrt(), F64s::splat(f64::INFINITY))
         };
         let q = 1.0 + (1.0 - k * k) * *v * *v;
         *df = mask.select(*df / (k / (q * q.sqrt())), *df);
         let (v_to, lo_to) = (map(*v), map(*lo));
         let hi_to = map(*hi).min(self.bracket_top(to, r));
-        (*v, *lo, *hi) = (mask.select(v_to, *v), mask.select(lo_to, *lo), mask.select(hi_to, *hi));
+        (*v, *lo, *hi) = (
+            mask.select(v_to, *v),
+            mask.select(lo_to, *lo),
+            mask.select(hi_to, *hi),
+        );
         *reference = mask.select(to, *reference);
         *rho_ref = mask.select(rho_to, *rho_ref);
     }

@@ -39,7 +39,10 @@ pub fn triangulate(a: &Rays, b: &Rays, in_range: Mask) -> Triangulated {
     let w0 = a.origin - b.origin;
     let cos = da.dot(db);
     let sin2 = da.cross(db).norm_squared();
-    status.fail(!sin2.ge(F64s::splat(MIN_RAY_ANGLE_SIN2)), NoSolution::Degenerate);
+    status.fail(
+        !sin2.ge(F64s::splat(MIN_RAY_ANGLE_SIN2)),
+        NoSolution::Degenerate,
+    );
     let (d, e) = (da.dot(w0), db.dot(w0));
     let s = (cos * e - d) / sin2;
     let t = (e - cos * d) / sin2;
@@ -50,6 +53,13 @@ pub fn triangulate(a: &Rays, b: &Rays, in_range: Mask) -> Triangulated {
     let half = F64s::splat(0.5);
     let point = (pa + pb).scale(half);
     let residual = (pa - pb).norm_squared().sqrt();
-    status.fail(!(point.is_finite() & residual.is_finite()), NoSolution::OutOfRange);
-    Triangulated { point, residual, status }
+    status.fail(
+        !(point.is_finite() & residual.is_finite()),
+        NoSolution::OutOfRange,
+    );
+    Triangulated {
+        point,
+        residual,
+        status,
+    }
 }

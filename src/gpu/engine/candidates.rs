@@ -35,7 +35,17 @@ impl GpuEngine {
         points: &mut [[f64; 4]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_candidates(Kernel::CalibTriangulate, rig, cameras, air_rays, Rows::PerCorner, air_rays.len(), candidates, points, status)
+        self.run_candidates(
+            Kernel::CalibTriangulate,
+            rig,
+            cameras,
+            air_rays,
+            Rows::PerCorner,
+            air_rays.len(),
+            candidates,
+            points,
+            status,
+        )
     }
 
     /// Projects points into both cameras under every candidate interface: `points[c · corners + j]`
@@ -54,12 +64,22 @@ impl GpuEngine {
         pixels: &mut [[f64; 4]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_candidates(Kernel::CalibProject, rig, cameras, points, Rows::PerItem, corners, candidates, pixels, status)
+        self.run_candidates(
+            Kernel::CalibProject,
+            rig,
+            cameras,
+            points,
+            Rows::PerItem,
+            corners,
+            candidates,
+            pixels,
+            status,
+        )
     }
 
     /// The binocular VOP of every corner under every candidate axis (unit, master frame; the
     /// fourth value is ignored), projected along n into the plane ⟂ n, and its Jacobian for
-    /// pixel noise, as [`calib::invariants::projected_vop`](crate::calib::invariants::projected_vop):
+    /// pixel noise, as [`calib::invariants::projected_vop`](crate::calib::costs::invariants::projected_vop):
     /// `corners` holds v_l, v_r, ∂v_l/∂u, ∂v_l/∂v, ∂v_r/∂u, ∂v_r/∂v (xyz each); `vops` gets
     /// q₁, q₂ and J = ∂q/∂(u_l, v_l, u_r, v_r) column by column. Status 6 (degenerate) where the
     /// VOP is undetermined.
@@ -74,12 +94,22 @@ impl GpuEngine {
         vops: &mut [[f64; 10]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_candidates(Kernel::CalibProjectedVop, rig, cameras, corners, Rows::PerCorner, corners.len(), axes, vops, status)
+        self.run_candidates(
+            Kernel::CalibProjectedVop,
+            rig,
+            cameras,
+            corners,
+            Rows::PerCorner,
+            corners.len(),
+            axes,
+            vops,
+            status,
+        )
     }
 
     /// The gap line of every corner under every candidate axis (fourth value ignored): the
     /// signed distance between the two water rays as a function of the air layer, g(d) = a·d + b,
-    /// with |w_l × w_r|, as [`calib::air_layer::GapLine`](crate::calib::air_layer::GapLine);
+    /// with |w_l × w_r|, as [`calib::air_layer::GapLine`](crate::calib::costs::air_layer::GapLine);
     /// `air_rays` as in [`calib_triangulate`](Self::calib_triangulate).
     ///
     /// Panics if `lines` and `status` are not `axes.len() · air_rays.len()` long.
@@ -92,7 +122,17 @@ impl GpuEngine {
         lines: &mut [[f64; 3]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_candidates(Kernel::CalibGapLine, rig, cameras, air_rays, Rows::PerCorner, air_rays.len(), axes, lines, status)
+        self.run_candidates(
+            Kernel::CalibGapLine,
+            rig,
+            cameras,
+            air_rays,
+            Rows::PerCorner,
+            air_rays.len(),
+            axes,
+            lines,
+            status,
+        )
     }
 
     /// Runs a candidate kernel over `candidates` × `corners` items, chunked over candidates so
@@ -112,12 +152,18 @@ impl GpuEngine {
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         let items = candidates.len() * corners;
-        assert!(output.len() == items && status.len() == items, "output and status of candidates · corners");
+        assert!(
+            output.len() == items && status.len() == items,
+            "output and status of candidates · corners"
+        );
         match rows {
             Rows::PerCorner => assert_eq!(input.len(), corners, "one input row per corner"),
             Rows::PerItem => assert_eq!(input.len(), items, "one input row per item"),
         }
-        let (a, b) = (rig.refractive_camera(cameras[0]), rig.refractive_camera(cameras[1]));
+        let (a, b) = (
+            rig.refractive_camera(cameras[0]),
+            rig.refractive_camera(cameras[1]),
+        );
         Self::check_layers(&a)?;
         Self::check_layers(&b)?;
         if items == 0 {
@@ -145,13 +191,56 @@ impl GpuEngine {
             Rows::PerCorner => corners,
             Rows::PerItem => per_chunk * corners,
         };
-        let uniform = buffers.uniform.get(&self.context, "params", params.bytes().len(), wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)?.clone();
-        let in_buf = buffers.input.get(&self.context, "input", input_rows * N * s, self.input_usage())?.clone();
-        let cand_buf = buffers.candidates.get(&self.context, "candidates", per_chunk * 4 * s, self.input_usage())?.clone();
-        let (out_buf, out_staging) = self.readable(&mut buffers.output, &mut buffers.output_staging, "output", per_chunk * corners * M * s)?;
-        let (status_buf, status_staging) = self.readable(&mut buffers.status, &mut buffers.status_staging, "status", per_chunk * corners * 4)?;
-        let bind_group =
-            self.bind_group(&pipeline, kernel.name(), &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf), (4, &cand_buf)]);
+        let uniform = buffers
+            .uniform
+            .get(
+                &self.context,
+                "params",
+                params.bytes().len(),
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            )?
+            .clone();
+        let in_buf = buffers
+            .input
+            .get(
+                &self.context,
+                "input",
+                input_rows * N * s,
+                self.input_usage(),
+            )?
+            .clone();
+        let cand_buf = buffers
+            .candidates
+            .get(
+                &self.context,
+                "candidates",
+                per_chunk * 4 * s,
+                self.input_usage(),
+            )?
+            .clone();
+        let (out_buf, out_staging) = self.readable(
+            &mut buffers.output,
+            &mut buffers.output_staging,
+            "output",
+            per_chunk * corners * M * s,
+        )?;
+        let (status_buf, status_staging) = self.readable(
+            &mut buffers.status,
+            &mut buffers.status_staging,
+            "status",
+            per_chunk * corners * 4,
+        )?;
+        let bind_group = self.bind_group(
+            &pipeline,
+            kernel.name(),
+            &[
+                (0, &uniform),
+                (1, &in_buf),
+                (2, &out_buf),
+                (3, &status_buf),
+                (4, &cand_buf),
+            ],
+        );
         if rows == Rows::PerCorner {
             self.upload_reals(&mut buffers.scratch, &in_buf, bytemuck::cast_slice(input))?;
         }
@@ -161,12 +250,28 @@ impl GpuEngine {
             let count = range.len();
             params.set_info([count as u32, corners as u32, 0, 0]);
             self.context.queue.write_buffer(&uniform, 0, params.bytes());
-            self.upload_reals(&mut buffers.scratch, &cand_buf, bytemuck::cast_slice(&candidates[first..last]))?;
+            self.upload_reals(
+                &mut buffers.scratch,
+                &cand_buf,
+                bytemuck::cast_slice(&candidates[first..last]),
+            )?;
             if rows == Rows::PerItem {
-                self.upload_reals(&mut buffers.scratch, &in_buf, bytemuck::cast_slice(&input[range.clone()]))?;
+                self.upload_reals(
+                    &mut buffers.scratch,
+                    &in_buf,
+                    bytemuck::cast_slice(&input[range.clone()]),
+                )?;
             }
-            let encoder = self.encode_dispatch(&pipeline, &bind_group, kernel.name(), self.context.dispatch_size(count as u32));
-            let copies = [(&out_buf, &out_staging, (count * M * s) as u64), (&status_buf, &status_staging, (count * 4) as u64)];
+            let encoder = self.encode_dispatch(
+                &pipeline,
+                &bind_group,
+                kernel.name(),
+                self.context.dispatch_size(count as u32),
+            );
+            let copies = [
+                (&out_buf, &out_staging, (count * M * s) as u64),
+                (&status_buf, &status_staging, (count * 4) as u64),
+            ];
             let (out_rows, out_status) = (&mut output[range.clone()], &mut status[range]);
             self.context.read_back(encoder, &copies, |data| {
                 out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
@@ -177,7 +282,12 @@ impl GpuEngine {
     }
 
     /// Uploads f64 `values` in the kernel precision (through `scratch` for f32).
-    fn upload_reals(&self, scratch: &mut Vec<u8>, buffer: &wgpu::Buffer, values: &[f64]) -> Result<(), GpuError> {
+    fn upload_reals(
+        &self,
+        scratch: &mut Vec<u8>,
+        buffer: &wgpu::Buffer,
+        values: &[f64],
+    ) -> Result<(), GpuError> {
         match self.precision {
             Precision::F64 => self.upload(buffer, bytemuck::cast_slice(values)),
             Precision::F32 => {

@@ -129,11 +129,17 @@ impl Kernel {
             Self::Triangulate => include_str!("../../../shaders/kernels/triangulate.wgsl"),
             Self::BinocularVop => include_str!("../../../shaders/kernels/binocular_vop.wgsl"),
             Self::RayGapCost => include_str!("../../../shaders/kernels/ray_gap_cost.wgsl"),
-            Self::CalibTriangulate => include_str!("../../../shaders/kernels/calib_triangulate.wgsl"),
+            Self::CalibTriangulate => {
+                include_str!("../../../shaders/kernels/calib_triangulate.wgsl")
+            }
             Self::CalibProject => include_str!("../../../shaders/kernels/calib_project.wgsl"),
-            Self::CalibProjectedVop => include_str!("../../../shaders/kernels/calib_projected_vop.wgsl"),
+            Self::CalibProjectedVop => {
+                include_str!("../../../shaders/kernels/calib_projected_vop.wgsl")
+            }
             Self::CalibGapLine => include_str!("../../../shaders/kernels/calib_gap_line.wgsl"),
-            Self::CalibAffineGrid => include_str!("../../../shaders/kernels/calib_affine_grid.wgsl"),
+            Self::CalibAffineGrid => {
+                include_str!("../../../shaders/kernels/calib_affine_grid.wgsl")
+            }
         }
     }
 
@@ -143,10 +149,17 @@ impl Kernel {
     fn bindings(self) -> &'static str {
         match self {
             Self::BackprojectGrid | Self::RayGapCost | Self::CalibAffineGrid => "",
-            Self::CalibTriangulate | Self::CalibProject | Self::CalibProjectedVop | Self::CalibGapLine => {
+            Self::CalibTriangulate
+            | Self::CalibProject
+            | Self::CalibProjectedVop
+            | Self::CalibGapLine => {
                 include_str!("../../../shaders/kernels/candidate_bindings.wgsl")
             }
-            Self::Backproject | Self::Project | Self::Vop | Self::Triangulate | Self::BinocularVop => {
+            Self::Backproject
+            | Self::Project
+            | Self::Vop
+            | Self::Triangulate
+            | Self::BinocularVop => {
                 include_str!("../../../shaders/kernels/map_bindings.wgsl")
             }
         }
@@ -200,7 +213,13 @@ pub fn prelude(precision: Precision, bounds: &CpuBounds) -> String {
     };
     let huge = precision.huge();
     let real = precision.name();
-    let CpuBounds { undistort_max_iterations, project_max_iterations, min_ray_angle_sin2, min_binocular_conditioning, .. } = bounds;
+    let CpuBounds {
+        undistort_max_iterations,
+        project_max_iterations,
+        min_ray_angle_sin2,
+        min_binocular_conditioning,
+        ..
+    } = bounds;
     format!(
         "alias real = {real};\nalias vec2r = vec2<{real}>;\nalias vec3r = vec3<{real}>;\nalias vec4r = vec4<{real}>;\n\
          const REAL_HUGE: real = {huge:e};\n\
@@ -215,10 +234,23 @@ pub fn prelude(precision: Precision, bounds: &CpuBounds) -> String {
 
 /// The composed WGSL module of `kernel` at `precision` with the stopping rules `bounds`;
 /// `reduction` picks the entry point of cost kernels (ignored by the others).
-pub fn source(kernel: Kernel, precision: Precision, reduction: Reduction, bounds: &CpuBounds) -> String {
-    let reduction = if kernel.is_cost() { reduction } else { Reduction::Workgroup };
+pub fn source(
+    kernel: Kernel,
+    precision: Precision,
+    reduction: Reduction,
+    bounds: &CpuBounds,
+) -> String {
+    let reduction = if kernel.is_cost() {
+        reduction
+    } else {
+        Reduction::Workgroup
+    };
     let mut text = prelude(precision, bounds);
-    for part in [COMMON].into_iter().chain(LIBRARY).chain([kernel.bindings(), kernel.file()]) {
+    for part in [COMMON]
+        .into_iter()
+        .chain(LIBRARY)
+        .chain([kernel.bindings(), kernel.file()])
+    {
         text.push_str(part);
         text.push('\n');
     }

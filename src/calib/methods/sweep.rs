@@ -9,10 +9,10 @@
 use std::ops::Range;
 use std::time::Instant;
 
-use super::backend::CostBackend;
-use super::costs::CostKind;
-use super::data::Candidate;
-use super::error::CalibError;
+use crate::calib::backends::CostBackend;
+use crate::calib::costs::CostKind;
+use crate::calib::error::CalibError;
+use crate::calib::problem::data::Candidate;
 use crate::model::normal_from_tilt_azimuth;
 
 /// `count` values from `start` to `stop`, both included (numpy's `linspace`).
@@ -29,7 +29,11 @@ pub struct Linspace {
 impl Linspace {
     /// Value `i`: start + i·(stop − start)/(count − 1).
     pub fn value(&self, i: usize) -> f64 {
-        if self.count <= 1 { self.start } else { self.start + (self.stop - self.start) * i as f64 / (self.count - 1) as f64 }
+        if self.count <= 1 {
+            self.start
+        } else {
+            self.start + (self.stop - self.start) * i as f64 / (self.count - 1) as f64
+        }
     }
 
     /// Every value.
@@ -39,7 +43,11 @@ impl Linspace {
 
     /// Spacing between neighbours (0 for a single value).
     pub fn step(&self) -> f64 {
-        if self.count <= 1 { 0.0 } else { (self.stop - self.start) / (self.count - 1) as f64 }
+        if self.count <= 1 {
+            0.0
+        } else {
+            (self.stop - self.start) / (self.count - 1) as f64
+        }
     }
 }
 
@@ -61,10 +69,16 @@ impl SweepSpec {
     /// positive air layers.
     pub fn validate(&self) -> Result<(), CalibError> {
         let bad = |what: &str| Err(CalibError::Options(what.to_string()));
-        if self.tilt_deg.count == 0 || self.azimuth_deg.count == 0 || self.distance.is_some_and(|d| d.count == 0) {
+        if self.tilt_deg.count == 0
+            || self.azimuth_deg.count == 0
+            || self.distance.is_some_and(|d| d.count == 0)
+        {
             return bad("every grid needs at least one value (COUNT ≥ 1)");
         }
-        if self.checked_cells().is_none_or(|cells| cells > MAX_SWEEP_CELLS) {
+        if self
+            .checked_cells()
+            .is_none_or(|cells| cells > MAX_SWEEP_CELLS)
+        {
             return bad(&too_many_cells(&self.shape()));
         }
         for t in [self.tilt_deg.start, self.tilt_deg.stop] {
@@ -77,7 +91,10 @@ impl SweepSpec {
         }
         if let Some(d) = self.distance {
             if !(d.start > 0.0 && d.stop > 0.0 && d.start.is_finite() && d.stop.is_finite()) {
-                return bad(&format!("air layers must be positive: got {}:{}", d.start, d.stop));
+                return bad(&format!(
+                    "air layers must be positive: got {}:{}",
+                    d.start, d.stop
+                ));
             }
         }
         Ok(())
@@ -100,7 +117,9 @@ impl SweepSpec {
 
     /// Number of cells, `None` when it overflows.
     pub fn checked_cells(&self) -> Option<usize> {
-        self.shape().iter().try_fold(1usize, |a, &b| a.checked_mul(b))
+        self.shape()
+            .iter()
+            .try_fold(1usize, |a, &b| a.checked_mul(b))
     }
 
     /// Whether every axis takes its own least-squares air layer (no `--distance` grid, and a cost
@@ -113,7 +132,10 @@ impl SweepSpec {
     /// Tilt and azimuth (degrees) of cell `cell` (row-major: tilt, azimuth, then air layer).
     pub fn cell_angles_deg(&self, cell: usize) -> (f64, f64) {
         let axis = cell / self.distance.map_or(1, |d| d.count);
-        (self.tilt_deg.value(axis / self.azimuth_deg.count), self.azimuth_deg.value(axis % self.azimuth_deg.count))
+        (
+            self.tilt_deg.value(axis / self.azimuth_deg.count),
+            self.azimuth_deg.value(axis % self.azimuth_deg.count),
+        )
     }
 
     /// Number of axis cells (tilt × azimuth), saturating.
@@ -136,11 +158,21 @@ pub const MAX_BATCH_CELLS: usize = 1 << 18;
 
 /// Why a grid of `shape` is refused (more than [`MAX_SWEEP_CELLS`] cells).
 pub fn too_many_cells(shape: &[usize]) -> String {
-    let dims = shape.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" × ");
-    let cells = shape.iter().try_fold(1u128, |a, &b| a.checked_mul(b as u128));
+    let dims = shape
+        .iter()
+        .map(|s| s.to_string())
+        .collect::<Vec<_>>()
+        .join(" × ");
+    let cells = shape
+        .iter()
+        .try_fold(1u128, |a, &b| a.checked_mul(b as u128));
     let size = cells.map_or("more than 10³⁸".into(), |c| format!("{c}"));
     let disk = cells.map_or(String::new(), |c| {
-        format!(" (cost.npy {:.3e} bytes and cost.csv up to {:.3e} bytes)", (8 * c) as f64, (CSV_BYTES_PER_CELL as u128 * c) as f64)
+        format!(
+            " (cost.npy {:.3e} bytes and cost.csv up to {:.3e} bytes)",
+            (8 * c) as f64,
+            (CSV_BYTES_PER_CELL as u128 * c) as f64
+        )
     });
     format!(
         "the grid {dims} has {size} cells{disk}; a sweep evaluates at most {MAX_SWEEP_CELLS} cells (cost.npy takes 8 bytes a cell, cost.csv up to {CSV_BYTES_PER_CELL}): use fewer values"
@@ -170,7 +202,14 @@ impl MinPool {
         let azimuth_factor = azimuths.count.div_ceil(max_side).max(1);
         let rows = tilts.count.div_ceil(tilt_factor);
         let columns = azimuths.count.div_ceil(azimuth_factor);
-        Self { tilts, azimuths, tilt_factor, azimuth_factor, columns, values: vec![f64::INFINITY; rows * columns] }
+        Self {
+            tilts,
+            azimuths,
+            tilt_factor,
+            azimuth_factor,
+            columns,
+            values: vec![f64::INFINITY; rows * columns],
+        }
     }
 
     /// Takes the cost of axis cell `axis` (row-major over tilt × azimuth); NaN is ignored.
@@ -207,7 +246,11 @@ fn block_centres(grid: &Linspace, factor: usize) -> Vec<f64> {
     (0..grid.count.div_ceil(factor))
         .map(|b| {
             let (first, last) = (b * factor, ((b + 1) * factor).min(grid.count) - 1);
-            if first == last { grid.value(first) } else { 0.5 * (grid.value(first) + grid.value(last)) }
+            if first == last {
+                grid.value(first)
+            } else {
+                0.5 * (grid.value(first) + grid.value(last))
+            }
         })
         .collect()
 }
@@ -269,7 +312,11 @@ pub const MAX_SHARDS: usize = 100_000;
 impl Shard {
     /// Parses `INDEX/COUNT` with 0 ≤ INDEX < COUNT ≤ [`MAX_SHARDS`].
     pub fn parse(text: &str) -> Result<Self, String> {
-        let error = || format!("expected INDEX/COUNT with 0 ≤ INDEX < COUNT (0-based, such as 0/4 … 3/4), got '{text}'");
+        let error = || {
+            format!(
+                "expected INDEX/COUNT with 0 ≤ INDEX < COUNT (0-based, such as 0/4 … 3/4), got '{text}'"
+            )
+        };
         let (index, count) = text.split_once('/').ok_or_else(error)?;
         let index: usize = index.trim().parse().map_err(|_| error())?;
         let count: usize = count.trim().parse().map_err(|_| error())?;
@@ -327,11 +374,21 @@ pub fn sweep_cells(
     let (tilts, azimuths) = (spec.tilt_deg, spec.azimuth_deg);
     let depth = spec.distance.map_or(1, |d| d.count);
     if cells.start > cells.end || cells.end > spec.cells() {
-        return Err(CalibError::Options(format!("cells {}..{} are not within the grid's {} cells", cells.start, cells.end, spec.cells())));
+        return Err(CalibError::Options(format!(
+            "cells {}..{} are not within the grid's {} cells",
+            cells.start,
+            cells.end,
+            spec.cells()
+        )));
     }
     let total = cells.end;
     let per_batch = chunk.max(1).saturating_mul(depth).min(MAX_BATCH_CELLS);
-    let normal_of = |a: usize| normal_from_tilt_azimuth(tilts.value(a / azimuths.count).to_radians(), azimuths.value(a % azimuths.count).to_radians());
+    let normal_of = |a: usize| {
+        normal_from_tilt_azimuth(
+            tilts.value(a / azimuths.count).to_radians(),
+            azimuths.value(a % azimuths.count).to_radians(),
+        )
+    };
     let mut minimum: Option<SweepMinimum> = None;
     let mut finite = 0;
     let mut first = cells.start;
@@ -343,17 +400,38 @@ pub fn sweep_cells(
         let (costs, distances) = match spec.distance {
             None => {
                 let (candidates, costs) = backend.profile(spec.kind, &normals)?;
-                (costs, candidates.iter().map(|c| c.air_distance).collect::<Vec<_>>())
+                (
+                    costs,
+                    candidates
+                        .iter()
+                        .map(|c| c.air_distance)
+                        .collect::<Vec<_>>(),
+                )
             }
             Some(grid) if spec.kind.axis_only() => {
                 // The air layer does not enter: one evaluation per axis, repeated along d.
-                let candidates: Vec<Candidate> = normals.iter().map(|n| Candidate { normal: *n, air_distance: f64::NAN }).collect();
+                let candidates: Vec<Candidate> = normals
+                    .iter()
+                    .map(|n| Candidate {
+                        normal: *n,
+                        air_distance: f64::NAN,
+                    })
+                    .collect();
                 let per_axis = backend.costs(spec.kind, &candidates)?;
-                ((first..end).map(|c| per_axis[c / depth - first_axis]).collect(), (first..end).map(|c| grid.value(c % depth)).collect())
+                (
+                    (first..end)
+                        .map(|c| per_axis[c / depth - first_axis])
+                        .collect(),
+                    (first..end).map(|c| grid.value(c % depth)).collect(),
+                )
             }
             Some(grid) => {
-                let candidates: Vec<Candidate> =
-                    (first..end).map(|c| Candidate { normal: normals[c / depth - first_axis], air_distance: grid.value(c % depth) }).collect();
+                let candidates: Vec<Candidate> = (first..end)
+                    .map(|c| Candidate {
+                        normal: normals[c / depth - first_axis],
+                        air_distance: grid.value(c % depth),
+                    })
+                    .collect();
                 let costs = backend.costs(spec.kind, &candidates)?;
                 (costs, candidates.iter().map(|c| c.air_distance).collect())
             }
@@ -374,11 +452,20 @@ pub fn sweep_cells(
                 }
             }
         }
-        sink(SweepChunk { first, costs: &costs, distances: &distances })?;
+        sink(SweepChunk {
+            first,
+            costs: &costs,
+            distances: &distances,
+        })?;
         first = end;
         progress(first - cells.start, cells.len());
     }
-    Ok(SweepSummary { minimum, cells: cells.len(), finite, seconds: started.elapsed().as_secs_f64() })
+    Ok(SweepSummary {
+        minimum,
+        cells: cells.len(),
+        finite,
+        seconds: started.elapsed().as_secs_f64(),
+    })
 }
 
 #[cfg(test)]
@@ -407,15 +494,35 @@ mod tests {
 
     #[test]
     fn linspace_includes_both_ends() {
-        let l = Linspace { start: -180.0, stop: 180.0, count: 5 };
+        let l = Linspace {
+            start: -180.0,
+            stop: 180.0,
+            count: 5,
+        };
         assert_eq!(l.values(), vec![-180.0, -90.0, 0.0, 90.0, 180.0]);
-        assert_eq!(Linspace { start: 3.0, stop: 9.0, count: 1 }.values(), vec![3.0]);
+        assert_eq!(
+            Linspace {
+                start: 3.0,
+                stop: 9.0,
+                count: 1
+            }
+            .values(),
+            vec![3.0]
+        );
     }
 
     #[test]
     fn min_pool_keeps_small_grids_and_takes_block_minima_of_large_ones() {
-        let tilts = Linspace { start: 0.0, stop: 4.0, count: 5 };
-        let azimuths = Linspace { start: 0.0, stop: 6.0, count: 7 };
+        let tilts = Linspace {
+            start: 0.0,
+            stop: 4.0,
+            count: 5,
+        };
+        let azimuths = Linspace {
+            start: 0.0,
+            stop: 6.0,
+            count: 7,
+        };
         let value = |axis: usize| ((axis * 37) % 11) as f64;
         // Cell for cell when the grid fits.
         let mut exact = MinPool::new(tilts, azimuths, 7);
@@ -429,20 +536,51 @@ mod tests {
         pooled.add(0, f64::NAN);
         assert_eq!(pooled.factors(), (3, 4));
         let brute = |rows: std::ops::Range<usize>, cols: std::ops::Range<usize>| {
-            rows.flat_map(|t| cols.clone().map(move |a| value(t * 7 + a))).fold(f64::INFINITY, f64::min)
+            rows.flat_map(|t| cols.clone().map(move |a| value(t * 7 + a)))
+                .fold(f64::INFINITY, f64::min)
         };
-        assert_eq!(pooled.values(), [brute(0..3, 0..4), brute(0..3, 4..7), brute(3..5, 0..4), brute(3..5, 4..7)]);
+        assert_eq!(
+            pooled.values(),
+            [
+                brute(0..3, 0..4),
+                brute(0..3, 4..7),
+                brute(3..5, 0..4),
+                brute(3..5, 4..7)
+            ]
+        );
         assert_eq!(pooled.tilts_deg(), vec![1.0, 3.5]);
         assert_eq!(pooled.azimuths_deg(), vec![1.5, 5.0]);
     }
 
     #[test]
     fn grids_too_large_are_refused_without_overflow() {
-        let huge = Linspace { start: 0.0, stop: 1.0, count: usize::MAX };
-        let small = Linspace { start: 0.0, stop: 1.0, count: 3 };
+        let huge = Linspace {
+            start: 0.0,
+            stop: 1.0,
+            count: usize::MAX,
+        };
+        let small = Linspace {
+            start: 0.0,
+            stop: 1.0,
+            count: 3,
+        };
         for spec in [
-            SweepSpec { kind: CostKind::AffineGrid, tilt_deg: huge, azimuth_deg: huge, distance: None },
-            SweepSpec { kind: CostKind::AffineGrid, tilt_deg: small, azimuth_deg: small, distance: Some(Linspace { start: 0.01, stop: 0.02, count: MAX_SWEEP_CELLS }) },
+            SweepSpec {
+                kind: CostKind::AffineGrid,
+                tilt_deg: huge,
+                azimuth_deg: huge,
+                distance: None,
+            },
+            SweepSpec {
+                kind: CostKind::AffineGrid,
+                tilt_deg: small,
+                azimuth_deg: small,
+                distance: Some(Linspace {
+                    start: 0.01,
+                    stop: 0.02,
+                    count: MAX_SWEEP_CELLS,
+                }),
+            },
         ] {
             let message = spec.validate().unwrap_err().to_string();
             assert!(message.contains("at most 1000000000 cells"), "{message}");

@@ -29,8 +29,8 @@
 use nalgebra::{Matrix3, Point2, SMatrix, SVector, Vector2, Vector3};
 use rayon::prelude::*;
 
-use super::data::StereoData;
-use super::error::Side;
+use crate::calib::error::Side;
+use crate::calib::problem::data::StereoData;
 
 /// Width of the block of grid positions a corner is predicted from.
 pub const WINDOW: usize = 5;
@@ -103,7 +103,10 @@ fn images(data: &StereoData) -> Vec<(usize, Side, Image)> {
                 .map(|c| {
                     let d = rotation * c.dirs[k].into_inner();
                     let (r, col) = data.board.grid_position(c.index);
-                    (Vector2::new(col as f64, r as f64), Vector2::new(fx * d.x / d.z, fy * d.y / d.z))
+                    (
+                        Vector2::new(col as f64, r as f64),
+                        Vector2::new(fx * d.x / d.z, fy * d.y / d.z),
+                    )
                 })
                 .collect();
             let homography = fit_homography(&points);
@@ -123,7 +126,11 @@ fn normalisation(points: impl Iterator<Item = Vector2<f64>> + Clone) -> Matrix3<
     let n = points.clone().count().max(1) as f64;
     let mean = points.clone().fold(Vector2::zeros(), |a, p| a + p) / n;
     let spread = points.map(|p| (p - mean).norm()).sum::<f64>() / n;
-    let s = if spread > 0.0 { std::f64::consts::SQRT_2 / spread } else { 1.0 };
+    let s = if spread > 0.0 {
+        std::f64::consts::SQRT_2 / spread
+    } else {
+        1.0
+    };
     Matrix3::new(s, 0.0, -s * mean.x, 0.0, s, -s * mean.y, 0.0, 0.0, 1.0)
 }
 
@@ -141,8 +148,28 @@ fn fit_homography(points: &[(Vector2<f64>, Vector2<f64>)]) -> Option<Matrix3<f64
         let g = tg * Vector3::new(g.x, g.y, 1.0);
         let p = tp * Vector3::new(p.x, p.y, 1.0);
         let rows = [
-            SVector::<f64, 9>::from_column_slice(&[-g.x, -g.y, -1.0, 0.0, 0.0, 0.0, p.x * g.x, p.x * g.y, p.x]),
-            SVector::<f64, 9>::from_column_slice(&[0.0, 0.0, 0.0, -g.x, -g.y, -1.0, p.y * g.x, p.y * g.y, p.y]),
+            SVector::<f64, 9>::from_column_slice(&[
+                -g.x,
+                -g.y,
+                -1.0,
+                0.0,
+                0.0,
+                0.0,
+                p.x * g.x,
+                p.x * g.y,
+                p.x,
+            ]),
+            SVector::<f64, 9>::from_column_slice(&[
+                0.0,
+                0.0,
+                0.0,
+                -g.x,
+                -g.y,
+                -1.0,
+                p.y * g.x,
+                p.y * g.y,
+                p.y,
+            ]),
         ];
         for row in rows {
             ata += row * row.transpose();
@@ -153,7 +180,10 @@ fn fit_homography(points: &[(Vector2<f64>, Vector2<f64>)]) -> Option<Matrix3<f64
     let h = eigen.eigenvectors.column(smallest);
     let normalised = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
     let homography = tp.try_inverse()? * normalised * tg;
-    homography.iter().all(|v| v.is_finite()).then_some(homography)
+    homography
+        .iter()
+        .all(|v| v.is_finite())
+        .then_some(homography)
 }
 
 fn apply(h: &Matrix3<f64>, g: &Vector2<f64>) -> Vector2<f64> {
@@ -163,7 +193,8 @@ fn apply(h: &Matrix3<f64>, g: &Vector2<f64>) -> Vector2<f64> {
 
 /// The first of `WINDOW` consecutive grid lines around `at` inside `0..size`.
 fn window_start(at: usize, size: usize) -> usize {
-    at.saturating_sub(WINDOW / 2).min(size.saturating_sub(WINDOW))
+    at.saturating_sub(WINDOW / 2)
+        .min(size.saturating_sub(WINDOW))
 }
 
 /// The standardised deviation of corner `index` from the polynomial through the other corners
@@ -196,7 +227,11 @@ fn deviation(data: &StereoData, image: &Image, excluded: &[bool], index: usize) 
         return None;
     }
     let (_, p) = image[index]?;
-    let (predicted, leverage) = if cubic { predict::<10>(&points)? } else { predict::<6>(&points)? };
+    let (predicted, leverage) = if cubic {
+        predict::<10>(&points)?
+    } else {
+        predict::<6>(&points)?
+    };
     Some((p.coords - predicted).norm() / (1.0 + leverage).sqrt())
 }
 
@@ -206,7 +241,18 @@ fn predict<const N: usize>(points: &[(f64, f64, Point2<f64>)]) -> Option<(Vector
     let mut normal = SMatrix::<f64, N, N>::zeros();
     let (mut rhs_u, mut rhs_v) = (SVector::<f64, N>::zeros(), SVector::<f64, N>::zeros());
     for &(x, y, p) in points {
-        let all = [1.0, x, y, x * x, x * y, y * y, x * x * x, x * x * y, x * y * y, y * y * y];
+        let all = [
+            1.0,
+            x,
+            y,
+            x * x,
+            x * y,
+            y * y,
+            x * x * x,
+            x * x * y,
+            x * y * y,
+            y * y * y,
+        ];
         let phi = SVector::<f64, N>::from_fn(|k, _| all[k]);
         normal += phi * phi.transpose();
         rhs_u += phi * p.x;
@@ -215,7 +261,9 @@ fn predict<const N: usize>(points: &[(f64, f64, Point2<f64>)]) -> Option<(Vector
     // The prediction at (0, 0) is θ₀ = e₀ᵀ(ΦᵀΦ)⁻¹Φᵀp; its variance factor is the (0, 0) entry of
     // (ΦᵀΦ)⁻¹, and e₀ᵀ(ΦᵀΦ)⁻¹ is the solution of (ΦᵀΦ) w = e₀.
     let cholesky = normal.cholesky()?;
-    let w = cholesky.solve(&SVector::<f64, N>::from_fn(|k, _| if k == 0 { 1.0 } else { 0.0 }));
+    let w = cholesky.solve(&SVector::<f64, N>::from_fn(
+        |k, _| if k == 0 { 1.0 } else { 0.0 },
+    ));
     Some((Vector2::new(w.dot(&rhs_u), w.dot(&rhs_v)), w[0]))
 }
 
@@ -239,10 +287,17 @@ pub fn screen(data: &StereoData) -> Screening {
     let images = images(data);
     let none = vec![false; data.board.corners()];
     // Every image alone, in parallel: first without exclusions (for σ̂), then removing suspects.
-    let first: Vec<Vec<(usize, f64)>> = images.par_iter().map(|(_, _, image)| deviations(data, image, &none)).collect();
+    let first: Vec<Vec<(usize, f64)>> = images
+        .par_iter()
+        .map(|(_, _, image)| deviations(data, image, &none))
+        .collect();
     let mut all: Vec<f64> = first.iter().flatten().map(|&(_, d)| d).collect();
     let Some(median_first) = median(&mut all) else {
-        return Screening { suspects: Vec::new(), noise_px: None, threshold_px: f64::INFINITY };
+        return Screening {
+            suspects: Vec::new(),
+            noise_px: None,
+            threshold_px: f64::INFINITY,
+        };
     };
     let threshold = (THRESHOLD_SIGMAS * median_first / MEDIAN_NORM).max(MIN_THRESHOLD_PX);
     let screened: Vec<(Vec<Suspect>, Vec<f64>)> = images
@@ -258,7 +313,13 @@ pub fn screen(data: &StereoData) -> Screening {
                     Some((i, d)) if d > threshold && 4 * (suspects.len() + 1) <= present => {
                         excluded[i] = true;
                         let position = image[i].expect("present").0;
-                        suspects.push(Suspect { view: *view, side: *side, corner: i, position, deviation_px: d });
+                        suspects.push(Suspect {
+                            view: *view,
+                            side: *side,
+                            corner: i,
+                            position,
+                            deviation_px: d,
+                        });
                         found = deviations(data, image, &excluded);
                     }
                     _ => return (suspects, found.into_iter().map(|(_, d)| d).collect()),
@@ -266,30 +327,41 @@ pub fn screen(data: &StereoData) -> Screening {
             }
         })
         .collect();
-    let mut suspects: Vec<Suspect> = screened.iter().flat_map(|(s, _)| s.iter().copied()).collect();
+    let mut suspects: Vec<Suspect> = screened
+        .iter()
+        .flat_map(|(s, _)| s.iter().copied())
+        .collect();
     let mut kept: Vec<f64> = screened.into_iter().flat_map(|(_, k)| k).collect();
     suspects.sort_by(|a, b| b.deviation_px.total_cmp(&a.deviation_px));
     let noise_px = median(&mut kept).map(|m| m / MEDIAN_NORM);
-    Screening { suspects, noise_px, threshold_px: threshold }
+    Screening {
+        suspects,
+        noise_px,
+        threshold_px: threshold,
+    }
 }
 
 /// `data` without the corners marked in `mask` (views keep their indices; a view may be left
 /// with fewer corners). `None` when a view would keep fewer than
-/// [`MIN_VIEW_CORNERS`](super::observations::MIN_VIEW_CORNERS).
+/// [`MIN_VIEW_CORNERS`](crate::calib::problem::observations::MIN_VIEW_CORNERS).
 pub fn without_corners(data: &StereoData, mask: &[bool]) -> Option<StereoData> {
     let mut corners = Vec::with_capacity(data.corners.len());
     let mut views = Vec::with_capacity(data.views.len());
     for range in &data.views {
         let start = corners.len();
         corners.extend(range.clone().filter(|&j| !mask[j]).map(|j| data.corners[j]));
-        if corners.len() - start < super::observations::MIN_VIEW_CORNERS {
+        if corners.len() - start < crate::calib::problem::observations::MIN_VIEW_CORNERS {
             return None;
         }
         views.push(start..corners.len());
     }
-    let mut reduced = StereoData { rig: data.rig.clone(), cameras: data.cameras, board: data.board, corners, views, affine_rows: Vec::new() };
-    reduced.affine_rows = super::affine_grid::affine_rows(&reduced);
-    Some(reduced)
+    Some(StereoData {
+        rig: data.rig.clone(),
+        cameras: data.cameras,
+        board: data.board,
+        corners,
+        views,
+    })
 }
 
 #[cfg(test)]
@@ -298,14 +370,37 @@ mod tests {
     use crate::calib::{Board, SceneSpec, simulate};
 
     /// A simulated scene with gross errors (view, corner, image, pixels) added.
-    fn data_with(noise: f64, seed: u64, tilt_deg: f64, errors: &[(usize, usize, usize, f64)]) -> StereoData {
-        let rig = crate::io::rig_from_json_str(include_str!("../../data/example_rig.json"), "example".as_ref()).unwrap();
-        let mut spec = SceneSpec::new(Board { rows: 6, cols: 9, square: 0.04 }, 12, noise, seed);
+    fn data_with(
+        noise: f64,
+        seed: u64,
+        tilt_deg: f64,
+        errors: &[(usize, usize, usize, f64)],
+    ) -> StereoData {
+        let rig = crate::io::rig_from_json_str(
+            include_str!("../../../data/example_rig.json"),
+            "example".as_ref(),
+        )
+        .unwrap();
+        let mut spec = SceneSpec::new(
+            Board {
+                rows: 6,
+                cols: 9,
+                square: 0.04,
+            },
+            12,
+            noise,
+            seed,
+        );
         spec.max_board_tilt = tilt_deg.to_radians();
         let mut scene = simulate(&rig, 0, 1, &spec).unwrap();
         for &(v, i, k, size) in errors {
             let view = &mut scene.observations.views[v];
-            let p = if k == 0 { view.left[i].as_mut() } else { view.right[i].as_mut() }.unwrap();
+            let p = if k == 0 {
+                view.left[i].as_mut()
+            } else {
+                view.right[i].as_mut()
+            }
+            .unwrap();
             p.x += size * 0.6;
             p.y -= size * 0.8;
         }
@@ -318,18 +413,41 @@ mod tests {
 
     #[test]
     fn clean_boards_have_no_suspects_and_the_noise_is_estimated() {
-        for (noise, seed, tilt) in [(0.0, 1, 60.0), (0.0, 6, 45.0), (0.125, 2, 45.0), (0.125, 7, 60.0), (0.5, 3, 60.0), (1.0, 4, 30.0)] {
+        for (noise, seed, tilt) in [
+            (0.0, 1, 60.0),
+            (0.0, 6, 45.0),
+            (0.125, 2, 45.0),
+            (0.125, 7, 60.0),
+            (0.5, 3, 60.0),
+            (1.0, 4, 30.0),
+        ] {
             let screening = screen(&data(noise, seed, tilt));
             let largest = screening.suspects.first().map_or(0.0, |s| s.deviation_px);
             let images = images(&data(noise, seed, tilt));
             let none = vec![false; 54];
-            let d = images.iter().flat_map(|(_, _, image)| deviations(&data(noise, seed, tilt), image, &none)).map(|(_, d)| d).fold(0.0, f64::max);
-            println!("noise {noise} px: σ̂ {:?} px, threshold {:.2} px, {} suspects, largest deviation {d:.3} px", screening.noise_px, screening.threshold_px, screening.suspects.len());
-            assert!(screening.suspects.is_empty(), "noise {noise}: {:?} (largest {largest})", screening.suspects);
+            let d = images
+                .iter()
+                .flat_map(|(_, _, image)| deviations(&data(noise, seed, tilt), image, &none))
+                .map(|(_, d)| d)
+                .fold(0.0, f64::max);
+            println!(
+                "noise {noise} px: σ̂ {:?} px, threshold {:.2} px, {} suspects, largest deviation {d:.3} px",
+                screening.noise_px,
+                screening.threshold_px,
+                screening.suspects.len()
+            );
+            assert!(
+                screening.suspects.is_empty(),
+                "noise {noise}: {:?} (largest {largest})",
+                screening.suspects
+            );
             let sigma = screening.noise_px.unwrap();
             // Standardised residuals are unbiased; the model error of the local cubic adds 0.006 px
             // RMS (largest deviation without noise: 0.6 px at a board's corner).
-            assert!((sigma - noise).abs() < 0.1 * noise + 0.02, "noise {noise}: σ̂ {sigma}");
+            assert!(
+                (sigma - noise).abs() < 0.1 * noise + 0.02,
+                "noise {noise}: σ̂ {sigma}"
+            );
         }
     }
 
@@ -337,13 +455,24 @@ mod tests {
     fn gross_errors_are_found_where_they_are() {
         // Corner positions (view, corner) with a gross error in one image: interior, edge, the
         // board's corner, and two neighbours in one view.
-        let errors = [(0, 3, 0, 40.0), (2, 17, 1, 12.0), (5, 0, 0, 25.0), (7, 30, 1, 50.0), (7, 31, 1, 30.0), (9, 53, 0, 6.0)];
+        let errors = [
+            (0, 3, 0, 40.0),
+            (2, 17, 1, 12.0),
+            (5, 0, 0, 25.0),
+            (7, 30, 1, 50.0),
+            (7, 31, 1, 30.0),
+            (9, 53, 0, 6.0),
+        ];
         let data = data_with(0.2, 5, 45.0, &errors);
         let screening = screen(&data);
-        let mut found: Vec<(usize, usize, usize)> =
-            screening.suspects.iter().map(|s| (s.view, s.corner, if s.side == Side::Left { 0 } else { 1 })).collect();
+        let mut found: Vec<(usize, usize, usize)> = screening
+            .suspects
+            .iter()
+            .map(|s| (s.view, s.corner, if s.side == Side::Left { 0 } else { 1 }))
+            .collect();
         found.sort();
-        let mut expected: Vec<(usize, usize, usize)> = errors.iter().map(|&(v, i, k, _)| (v, i, k)).collect();
+        let mut expected: Vec<(usize, usize, usize)> =
+            errors.iter().map(|&(v, i, k, _)| (v, i, k)).collect();
         expected.sort();
         assert_eq!(found, expected, "{:?}", screening.suspects);
         let mask = screening.mask(data.corners.len());

@@ -5,9 +5,9 @@ use std::ops::Range;
 
 use nalgebra::{Matrix3x2, Point2, Unit, Vector3};
 
-use super::board::Board;
-use super::error::{CalibError, Side};
-use super::observations::Observations;
+use crate::calib::error::{CalibError, Side};
+use crate::calib::problem::board::Board;
+use crate::calib::problem::observations::Observations;
 use crate::model::{Interface, RefractiveCamera, Rig};
 
 /// A candidate interface pose: system axis and air layer (master frame); the layers and indices
@@ -23,7 +23,10 @@ pub struct Candidate {
 impl Candidate {
     /// The candidate of an interface.
     pub fn of(interface: &Interface) -> Self {
-        Self { normal: *interface.normal(), air_distance: interface.air_distance() }
+        Self {
+            normal: *interface.normal(),
+            air_distance: interface.air_distance(),
+        }
     }
 
     /// Tilt from the master z axis, radians.
@@ -65,8 +68,6 @@ pub struct StereoData {
     pub corners: Vec<Corner>,
     /// `corners[views[v].clone()]` are the corners of view v.
     pub views: Vec<Range<usize>>,
-    /// The corners' rows of the fused affine-grid invariant ([`super::affine_grid::affine_rows`]).
-    pub affine_rows: Vec<[f64; super::affine_grid::ROW]>,
 }
 
 /// Pixel step of the central differences for ∂dir/∂pixel (error ~1e-12 relative).
@@ -77,14 +78,21 @@ impl StereoData {
     ///
     /// Errors: a corner that the lens model cannot undistort (beyond the fold of the radial
     /// distortion), named by view, image and corner.
-    pub fn new(rig: &Rig, cameras: [usize; 2], observations: &Observations) -> Result<Self, CalibError> {
+    pub fn new(
+        rig: &Rig,
+        cameras: [usize; 2],
+        observations: &Observations,
+    ) -> Result<Self, CalibError> {
         let refractive = cameras.map(|k| rig.refractive_camera(k));
         let mut corners = Vec::with_capacity(observations.matched_corners());
         let mut views = Vec::with_capacity(observations.views.len());
         for (v, view) in observations.views.iter().enumerate() {
             let start = corners.len();
             for i in view.matched() {
-                let pixels = [view.left[i].expect("matched"), view.right[i].expect("matched")];
+                let pixels = [
+                    view.left[i].expect("matched"),
+                    view.right[i].expect("matched"),
+                ];
                 let mut dirs = [Unit::new_unchecked(Vector3::z()); 2];
                 let mut dir_jacobians = [Matrix3x2::zeros(); 2];
                 for (k, side) in [Side::Left, Side::Right].into_iter().enumerate() {
@@ -98,40 +106,62 @@ impl StereoData {
                             pixels[k].y
                         ),
                     };
-                    let dir = |p: Point2<f64>| camera.dir_in_air_from_img(&p).map_err(|_| unusable());
+                    let dir =
+                        |p: Point2<f64>| camera.dir_in_air_from_img(&p).map_err(|_| unusable());
                     dirs[k] = dir(pixels[k])?;
                     for axis in 0..2 {
                         let mut step = nalgebra::Vector2::zeros();
                         step[axis] = PIXEL_STEP;
                         let plus = dir(pixels[k] + step)?;
                         let minus = dir(pixels[k] - step)?;
-                        dir_jacobians[k].set_column(axis, &((plus.into_inner() - minus.into_inner()) / (2.0 * PIXEL_STEP)));
+                        dir_jacobians[k].set_column(
+                            axis,
+                            &((plus.into_inner() - minus.into_inner()) / (2.0 * PIXEL_STEP)),
+                        );
                     }
                 }
-                corners.push(Corner { view: v, index: i, pixels, dirs, dir_jacobians });
+                corners.push(Corner {
+                    view: v,
+                    index: i,
+                    pixels,
+                    dirs,
+                    dir_jacobians,
+                });
             }
             views.push(start..corners.len());
         }
-        let mut data = Self { rig: rig.clone(), cameras, board: observations.board, corners, views, affine_rows: Vec::new() };
-        data.affine_rows = super::affine_grid::affine_rows(&data);
-        Ok(data)
+        Ok(Self {
+            rig: rig.clone(),
+            cameras,
+            board: observations.board,
+            corners,
+            views,
+        })
     }
 
     /// The two cameras behind a candidate interface, or `None` when it puts a camera outside the
     /// air (or is not a valid interface).
     pub fn cameras_behind(&self, candidate: &Candidate) -> Option<[RefractiveCamera; 2]> {
-        let interface = self.rig.interface().with_pose(candidate.normal.into_inner(), candidate.air_distance).ok()?;
+        let interface = self
+            .rig
+            .interface()
+            .with_pose(candidate.normal.into_inner(), candidate.air_distance)
+            .ok()?;
         let rig = self.rig.with_interface(interface).ok()?;
         Some(self.cameras.map(|k| rig.refractive_camera(k)))
     }
 
     /// Camera centres C_l, C_r in the master frame.
     pub fn centres(&self) -> [nalgebra::Point3<f64>; 2] {
-        self.cameras.map(|k| self.rig.cameras()[k].centre_in_master())
+        self.cameras
+            .map(|k| self.rig.cameras()[k].centre_in_master())
     }
 
     /// The smallest air layer d that keeps both cameras in the air under `normal`: max_k n·C_k.
     pub fn min_air_distance(&self, normal: &Unit<Vector3<f64>>) -> f64 {
-        self.centres().iter().map(|c| normal.dot(&c.coords)).fold(0.0, f64::max)
+        self.centres()
+            .iter()
+            .map(|c| normal.dot(&c.coords))
+            .fold(0.0, f64::max)
     }
 }

@@ -1,16 +1,19 @@
 //! Where batches of candidate costs are evaluated: the host optimisers hand a whole batch
 //! (a search grid, a finite-difference stencil) to a [`CostBackend`] in one call.
 
+pub mod gpu;
+
 use std::ops::Deref;
 use std::sync::Arc;
 
 use nalgebra::{Unit, Vector3};
 use rayon::prelude::*;
 
-use super::air_layer::air_distance_for_axis;
-use super::costs::{CostKind, cost};
-use super::data::{Candidate, StereoData};
-use super::error::CalibError;
+use crate::calib::costs::affine_grid::{ROW, affine_rows};
+use crate::calib::costs::air_layer::air_distance_for_axis;
+use crate::calib::costs::{CostKind, cost_prepared};
+use crate::calib::error::CalibError;
+use crate::calib::problem::data::{Candidate, StereoData};
 
 /// Evaluates calibration costs for batches of candidate interfaces.
 pub trait CostBackend: Sync {
@@ -21,7 +24,7 @@ pub trait CostBackend: Sync {
     fn data(&self) -> &StereoData;
 
     /// A backend of the same kind over other data: the consecutive method runs on the corners
-    /// that the screening ([`super::screen`]) kept. The default evaluates on the CPU.
+    /// that the screening ([`screen`](crate::calib::problem::screen)) kept. The default evaluates on the CPU.
     fn over<'b>(&'b self, data: &'b StereoData) -> Box<dyn CostBackend + 'b> {
         Box::new(CpuBackend::new(data))
     }
@@ -31,14 +34,24 @@ pub trait CostBackend: Sync {
 
     /// The least-squares air layer of every axis (DESIGN.md's linear solve), in order; `None`
     /// where an axis has none.
-    fn air_distances(&self, normals: &[Unit<Vector3<f64>>]) -> Result<Vec<Option<f64>>, CalibError> {
-        Ok(normals.par_iter().map(|n| air_distance_for_axis(self.data(), n).map(|(d, _)| d)).collect())
+    fn air_distances(
+        &self,
+        normals: &[Unit<Vector3<f64>>],
+    ) -> Result<Vec<Option<f64>>, CalibError> {
+        Ok(normals
+            .par_iter()
+            .map(|n| air_distance_for_axis(self.data(), n).map(|(d, _)| d))
+            .collect())
     }
 
     /// The cost of each axis with the air layer solved per axis (a profile): axis-only costs
     /// ignore the air layer; the others take the least-squares air layer of that axis, and an
     /// axis without one costs +∞. Returns the candidates evaluated and their costs.
-    fn profile(&self, kind: CostKind, normals: &[Unit<Vector3<f64>>]) -> Result<(Vec<Candidate>, Vec<f64>), CalibError> {
+    fn profile(
+        &self,
+        kind: CostKind,
+        normals: &[Unit<Vector3<f64>>],
+    ) -> Result<(Vec<Candidate>, Vec<f64>), CalibError> {
         let distances: Vec<Option<f64>> = if kind.axis_only() {
             vec![Some(f64::NAN); normals.len()]
         } else {
@@ -47,10 +60,18 @@ pub trait CostBackend: Sync {
         let data = self.data();
         // Axes with an air layer that keeps both cameras in the air are evaluated; the rest cost +∞.
         let valid: Vec<usize> = (0..normals.len())
-            .filter(|&i| distances[i].is_some_and(|d| d.is_nan() || d > data.min_air_distance(&normals[i])))
+            .filter(|&i| {
+                distances[i].is_some_and(|d| d.is_nan() || d > data.min_air_distance(&normals[i]))
+            })
             .collect();
-        let candidates: Vec<Candidate> =
-            normals.iter().zip(&distances).map(|(n, d)| Candidate { normal: *n, air_distance: d.unwrap_or(f64::NAN) }).collect();
+        let candidates: Vec<Candidate> = normals
+            .iter()
+            .zip(&distances)
+            .map(|(n, d)| Candidate {
+                normal: *n,
+                air_distance: d.unwrap_or(f64::NAN),
+            })
+            .collect();
         let batch: Vec<Candidate> = valid.iter().map(|&i| candidates[i]).collect();
         let values = self.costs(kind, &batch)?;
         let mut costs = vec![f64::INFINITY; normals.len()];
@@ -69,18 +90,24 @@ pub trait CostBackend: Sync {
 #[derive(Debug)]
 pub struct CpuBackend<D = Arc<StereoData>> {
     data: D,
+    /// The affine-grid invariant's per-corner rows, prepared once.
+    affine_rows: Vec<[f64; ROW]>,
 }
 
 impl<D: Deref<Target = StereoData>> CpuBackend<D> {
     /// A backend over `data`.
     pub fn new(data: D) -> Self {
-        Self { data }
+        let affine_rows = affine_rows(&data);
+        Self { data, affine_rows }
     }
 }
 
 impl<D: Deref<Target = StereoData> + Sync> CostBackend for CpuBackend<D> {
     fn describe(&self) -> String {
-        format!("cpu (f64 reference, {} threads)", rayon::current_num_threads())
+        format!(
+            "cpu (f64 reference, {} threads)",
+            rayon::current_num_threads()
+        )
     }
 
     fn data(&self) -> &StereoData {
@@ -88,6 +115,9 @@ impl<D: Deref<Target = StereoData> + Sync> CostBackend for CpuBackend<D> {
     }
 
     fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
-        Ok(candidates.par_iter().map(|c| cost(&self.data, kind, c)).collect())
+        Ok(candidates
+            .par_iter()
+            .map(|c| cost_prepared(&self.data, &self.affine_rows, kind, c))
+            .collect())
     }
 }

@@ -8,7 +8,7 @@
 //! z = 0, Π(w) = (w_x − w_z t_x, w_y − w_z t_y), is an affine image of the projection onto the
 //! plane ⟂ n, and Π(C_l) is the same for every corner of a view; the weighted affine fit is
 //! invariant under both, so the position q = s·Π(v_l) gives exactly the χ² of
-//! [`invariants::affine_grid`](super::invariants::affine_grid). Its Jacobian for pixel noise is
+//! [`invariants::affine_grid`](crate::calib::costs::invariants::affine_grid). Its Jacobian for pixel noise is
 //! made of dot products of t with per-corner vectors computed once ([`affine_rows`]):
 //! ∂s/∂u_l = −s (t·a)/(t·m) with a = ∂v_l/∂u × v_r, ∂s/∂u_r = (t·c − s t·e)/(t·m) with
 //! c = b × ∂v_r/∂u, e = v_l × ∂v_r/∂u; ∂q = ∂s Π(v_l) + s Π(∂v_l). Σ = J Jᵀ for 1 px of noise,
@@ -29,7 +29,7 @@
 // Indexed loops over the small fixed-size sums and the 6×6 factor mirror the kernel's.
 #![allow(clippy::needless_range_loop)]
 
-use super::data::{Corner, StereoData};
+use crate::calib::problem::data::{Corner, StereoData};
 
 /// Reals per corner row: v_l, p, m, ∂v_l/∂u, ∂v_l/∂v, a_u, a_v, c_u, c_v, e_u, e_v (3 each),
 /// g_x, g_y (centred), padding.
@@ -46,7 +46,11 @@ pub const MIN_DENOMINATOR: f64 = 1e-12;
 const MIN_CORNERS: u32 = 4;
 
 fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 fn dot(a: &[f64; 3], b: &[f64]) -> f64 {
@@ -65,11 +69,17 @@ pub fn affine_rows(data: &StereoData) -> Vec<[f64; ROW]> {
             let (r, col) = data.board.grid_position(c.index);
             [col as f64 * data.board.square, r as f64 * data.board.square]
         };
-        let mean = corners.iter().map(grid).fold([0.0; 2], |a, g| [a[0] + g[0], a[1] + g[1]]).map(|s| s / corners.len().max(1) as f64);
+        let mean = corners
+            .iter()
+            .map(grid)
+            .fold([0.0; 2], |a, g| [a[0] + g[0], a[1] + g[1]])
+            .map(|s| s / corners.len().max(1) as f64);
         for corner in corners {
             let v_l: [f64; 3] = corner.dirs[0].into_inner().into();
             let v_r: [f64; 3] = corner.dirs[1].into_inner().into();
-            let column = |k: usize, axis: usize| -> [f64; 3] { corner.dir_jacobians[k].column(axis).into_owned().into() };
+            let column = |k: usize, axis: usize| -> [f64; 3] {
+                corner.dir_jacobians[k].column(axis).into_owned().into()
+            };
             let (dl_u, dl_v, dr_u, dr_v) = (column(0, 0), column(0, 1), column(1, 0), column(1, 1));
             let parts = [
                 v_l,
@@ -138,7 +148,10 @@ fn corner_terms(row: &[f64; ROW], t: &[f64; 3], kappa: f64) -> Option<CornerTerm
     // columns are cₖ·Π(v_l): only ρ = c₁² + c₂² enters Σ and its determinant.
     let left = |ta: f64, dv: &[f64]| {
         let p = project(dv);
-        [numerator * (d * p[0] - ta * pv[0]), numerator * (d * p[1] - ta * pv[1])]
+        [
+            numerator * (d * p[0] - ta * pv[0]),
+            numerator * (d * p[1] - ta * pv[1]),
+        ]
     };
     let (j0, j1) = (left(ta_u, &row[9..12]), left(ta_v, &row[12..15]));
     let (c1, c2) = (tc_u * d - numerator * te_u, tc_v * d - numerator * te_v);
@@ -200,7 +213,10 @@ fn accumulate(sums: &mut ViewSums, c: &CornerTerms) {
     }
     // Wq = d⁵·inverse·adj·q′ = d·d4_inverse·adj·q′, qᵀWq = d4_inverse·q′ᵀ adj q′.
     let q = c.q_prime;
-    let adj_q = [c.adj[0] * q[0] + c.adj[1] * q[1], c.adj[1] * q[0] + c.adj[2] * q[1]];
+    let adj_q = [
+        c.adj[0] * q[0] + c.adj[1] * q[1],
+        c.adj[1] * q[0] + c.adj[2] * q[1],
+    ];
     let wq_scale = c.d * c.d4_inverse;
     let g3 = [gx, gy, 1.0];
     for k in 0..3 {
@@ -230,7 +246,9 @@ fn solve(sums: &ViewSums) -> Option<(f64, f64, [f64; 6])> {
             a[r + 3][c + 3] = b22[r][c];
         }
     }
-    let rhs = [sums.r1[0], sums.r1[1], sums.r1[2], sums.r2[0], sums.r2[1], sums.r2[2]];
+    let rhs = [
+        sums.r1[0], sums.r1[1], sums.r1[2], sums.r2[0], sums.r2[1], sums.r2[2],
+    ];
     // Cholesky a = L Lᵀ in place (lower triangle), then y = L⁻¹ rhs; multiplications by 1/Lₖₖ
     // as in the kernel, so the two round alike.
     let mut inverse = [0.0; 6];
@@ -271,7 +289,11 @@ fn solve(sums: &ViewSums) -> Option<(f64, f64, [f64; 6])> {
         }
         theta[r] = value * inverse[r];
     }
-    Some(((sums.qwq - explained).max(0.0), 2.0 * sums.weight - 6.0, theta))
+    Some((
+        (sums.qwq - explained).max(0.0),
+        2.0 * sums.weight - 6.0,
+        theta,
+    ))
 }
 
 /// Σ rᵀWr of one corner under the fitted map θ (the exact second pass).
@@ -302,20 +324,25 @@ fn view_chi2_tapered(rows: &[[f64; ROW]], normal: &[f64; 3], kappa: f64) -> Opti
     }
     let (mut chi2, dof, theta) = solve(&sums)?;
     if chi2 < CANCELLATION * sums.qwq {
-        chi2 = rows.iter().filter_map(|row| corner_terms(row, &t, kappa)).map(|c| residual_term(&c, &theta)).sum();
+        chi2 = rows
+            .iter()
+            .filter_map(|row| corner_terms(row, &t, kappa))
+            .map(|c| residual_term(&c, &theta))
+            .sum();
     }
     Some((chi2, dof))
 }
 
-/// The affine-grid cost Σχ² / Σdof of all views under `normal`; `None` when a view cannot be
+/// The affine-grid cost Σχ² / Σdof of all views of `data` under `normal`, from the corners' rows
+/// ([`affine_rows`]`(data)`, which the backends compute once); `None` when a view cannot be
 /// fitted or no degree of freedom is left.
-pub fn affine_grid_cost(data: &StereoData, normal: &[f64; 3]) -> Option<f64> {
+pub fn affine_grid_cost(data: &StereoData, rows: &[[f64; ROW]], normal: &[f64; 3]) -> Option<f64> {
     if !(normal[2] > 0.0) {
         return None;
     }
     let (mut chi2, mut dof) = (0.0, 0.0);
     for range in &data.views {
-        let (c, d) = view_chi2(&data.affine_rows[range.clone()], normal)?;
+        let (c, d) = view_chi2(&rows[range.clone()], normal)?;
         chi2 += c;
         dof += d;
     }
@@ -325,24 +352,51 @@ pub fn affine_grid_cost(data: &StereoData, normal: &[f64; 3]) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calib::costs::invariants::{affine_grid, projected_vops};
     use crate::calib::{Board, SceneSpec, simulate};
-    use crate::calib::invariants::{affine_grid, projected_vops};
     use crate::model::normal_from_tilt_azimuth;
 
     /// Without the taper the fused χ² equals the explicit weighted fit of
-    /// [`invariants::affine_grid`](crate::calib::invariants::affine_grid) (binocular VOPs solved by
+    /// [`invariants::affine_grid`](crate::calib::costs::invariants::affine_grid) (binocular VOPs solved by
     /// a 3×3 system, projected orthogonally, fitted by a 6×6 generalised least squares): another
     /// derivation of the same number.
     #[test]
     fn fused_sums_equal_the_explicit_weighted_fit() {
-        let rig = crate::io::rig_from_json_str(include_str!("../../data/example_rig.json"), "example".as_ref()).unwrap();
-        let scene = simulate(&rig, 0, 1, &SceneSpec::new(Board { rows: 6, cols: 9, square: 0.04 }, 6, 0.2, 3)).unwrap();
+        let rig = crate::io::rig_from_json_str(
+            include_str!("../../../data/example_rig.json"),
+            "example".as_ref(),
+        )
+        .unwrap();
+        let scene = simulate(
+            &rig,
+            0,
+            1,
+            &SceneSpec::new(
+                Board {
+                    rows: 6,
+                    cols: 9,
+                    square: 0.04,
+                },
+                6,
+                0.2,
+                3,
+            ),
+        )
+        .unwrap();
         let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
         let mut worst: f64 = 0.0;
-        for (tilt, azimuth) in [(8.05, 45.0), (0.0, 0.0), (3.0, -100.0), (15.0, 170.0), (25.0, 80.0)] {
+        for (tilt, azimuth) in [
+            (8.05, 45.0),
+            (0.0, 0.0),
+            (3.0, -100.0),
+            (15.0, 170.0),
+            (25.0, 80.0),
+        ] {
             let n = normal_from_tilt_azimuth(f64::to_radians(tilt), f64::to_radians(azimuth));
             for range in &data.views {
-                let fused = view_chi2_tapered(&data.affine_rows[range.clone()], &[n.x, n.y, n.z], 0.0).unwrap();
+                let fused =
+                    view_chi2_tapered(&affine_rows(&data)[range.clone()], &[n.x, n.y, n.z], 0.0)
+                        .unwrap();
                 let vops = projected_vops(&data, &data.corners[range.clone()], &n);
                 let (chi2, dof) = affine_grid(&data, &vops).unwrap();
                 assert_eq!(fused.1, dof as f64);
@@ -350,7 +404,11 @@ mod tests {
                 worst = worst.max(relative);
                 // χ² = Σ qᵀWq − |y|² cancels up to ~1e7-fold near the minimum (Σ qᵀWq/χ² measured
                 // ≥ 4.5e3 at the truth, larger for single views), so f64 rounding leaves ~1e-9.
-                assert!(relative < 1e-8, "tilt {tilt} azimuth {azimuth}: {} vs {chi2}", fused.0);
+                assert!(
+                    relative < 1e-8,
+                    "tilt {tilt} azimuth {azimuth}: {} vs {chi2}",
+                    fused.0
+                );
             }
         }
         println!("fused vs explicit affine-grid χ²: {worst:.1e} relative");
@@ -358,9 +416,15 @@ mod tests {
 
     #[test]
     fn the_kernel_uses_the_same_taper() {
-        let kernel = include_str!("../../shaders/kernels/calib_affine_grid.wgsl");
-        assert!(kernel.contains(&format!("const TAPER: real = {TAPER:?};")), "TAPER differs from {TAPER}");
+        let kernel = include_str!("../../../shaders/kernels/calib_affine_grid.wgsl");
+        assert!(
+            kernel.contains(&format!("const TAPER: real = {TAPER:?};")),
+            "TAPER differs from {TAPER}"
+        );
         assert!(kernel.contains(&format!("const ROW: u32 = {ROW}u;")));
-        assert!(kernel.contains(&format!("const CANCELLATION: real = {CANCELLATION:e};")), "CANCELLATION differs");
+        assert!(
+            kernel.contains(&format!("const CANCELLATION: real = {CANCELLATION:e};")),
+            "CANCELLATION differs"
+        );
     }
 }

@@ -12,12 +12,12 @@
 //! The affine-grid residual therefore weights each corner by the inverse of its covariance,
 //! propagated from isotropic 1-pixel noise in both images (a χ² per degree of freedom, ≈ σ² in px²
 //! at the true axis). [`affine_grid`] is its explicit per-view form, the reference the batch path
-//! [`super::affine_grid`] (which adds a taper near the degenerate plane) is tested against; PFE
+//! [`affine_grid`](crate::calib::costs::affine_grid) (which adds a taper near the degenerate plane) is tested against; PFE
 //! and PAE are the thesis' plain forms.
 
 use nalgebra::{Matrix2, Matrix2x4, Matrix3, Matrix6, Point3, Unit, Vector2, Vector3, Vector6};
 
-use super::data::{Corner, StereoData};
+use crate::calib::problem::data::{Corner, StereoData};
 use crate::model::binocular_vop;
 
 /// A corner's binocular VOP projected along n into a plane ⟂ n, with its covariance for 1 px of
@@ -46,28 +46,48 @@ impl ProjectedVop {
     /// that Σ is positive semi-definite even for corners near the degenerate plane, whose Σ has a
     /// condition number up to ~1e12 (f32 entries of Σ itself can give it a negative determinant).
     pub fn from_jacobian(index: usize, position: Vector2<f64>, jacobian: &Matrix2x4<f64>) -> Self {
-        Self { index, position, covariance: jacobian * jacobian.transpose() }
+        Self {
+            index,
+            position,
+            covariance: jacobian * jacobian.transpose(),
+        }
     }
 
     /// From a packed row (q₁, q₂, then J column by column), as the `calib_projected_vop` kernel
     /// writes it.
     pub fn from_packed(index: usize, row: &[f64; 10]) -> Self {
-        Self::from_jacobian(index, Vector2::new(row[0], row[1]), &Matrix2x4::from_column_slice(&row[2..]))
+        Self::from_jacobian(
+            index,
+            Vector2::new(row[0], row[1]),
+            &Matrix2x4::from_column_slice(&row[2..]),
+        )
     }
 }
 
 /// The projected VOPs of one view's corners under `normal`. Corners in the degenerate plane
 /// (binocular VOP undetermined) carry no position and are left out.
-pub fn projected_vops(data: &StereoData, corners: &[Corner], normal: &Unit<Vector3<f64>>) -> Vec<ProjectedVop> {
+pub fn projected_vops(
+    data: &StereoData,
+    corners: &[Corner],
+    normal: &Unit<Vector3<f64>>,
+) -> Vec<ProjectedVop> {
     let centres = data.centres();
     let basis = plane_basis(normal);
-    corners.iter().filter_map(|c| projected_vop(&centres, &basis, normal, c)).collect()
+    corners
+        .iter()
+        .filter_map(|c| projected_vop(&centres, &basis, normal, c))
+        .collect()
 }
 
 /// The binocular VOP of one corner under `normal`, projected along n with `basis` =
 /// [`plane_basis`]`(normal)`, and its covariance; `centres` = C_l, C_r. `None` where the VOP is
 /// undetermined. CPU twin of the `calib_projected_vop` kernel.
-pub fn projected_vop(centres: &[Point3<f64>; 2], basis: &[Vector3<f64>; 2], normal: &Unit<Vector3<f64>>, c: &Corner) -> Option<ProjectedVop> {
+pub fn projected_vop(
+    centres: &[Point3<f64>; 2],
+    basis: &[Vector3<f64>; 2],
+    normal: &Unit<Vector3<f64>>,
+    c: &Corner,
+) -> Option<ProjectedVop> {
     let [centre_l, centre_r] = centres;
     let [e1, e2] = basis;
     let [v_l, v_r] = c.dirs;
@@ -141,10 +161,19 @@ fn fit_line(points: &[Vector2<f64>]) -> Option<(f64, Vector2<f64>)> {
         return None;
     }
     let mean = points.iter().sum::<Vector2<f64>>() / points.len() as f64;
-    let scatter = points.iter().fold(Matrix2::zeros(), |s, p| s + (p - mean) * (p - mean).transpose());
+    let scatter = points.iter().fold(Matrix2::zeros(), |s, p| {
+        s + (p - mean) * (p - mean).transpose()
+    });
     let eigen = scatter.symmetric_eigen();
-    let (small, large) = if eigen.eigenvalues[0] <= eigen.eigenvalues[1] { (0, 1) } else { (1, 0) };
-    Some((eigen.eigenvalues[small].max(0.0), eigen.eigenvectors.column(large).into_owned()))
+    let (small, large) = if eigen.eigenvalues[0] <= eigen.eigenvalues[1] {
+        (0, 1)
+    } else {
+        (1, 0)
+    };
+    Some((
+        eigen.eigenvalues[small].max(0.0),
+        eigen.eigenvectors.column(large).into_owned(),
+    ))
 }
 
 /// The lines of one view: every board row and column with at least 3 projected corners, as
@@ -158,7 +187,11 @@ fn grid_lines(data: &StereoData, vops: &[ProjectedVop]) -> Vec<(bool, Vec<Vector
         rows[r].push(vop.position);
         cols[c].push(vop.position);
     }
-    rows.into_iter().map(|p| (true, p)).chain(cols.into_iter().map(|p| (false, p))).filter(|(_, p)| p.len() >= 3).collect()
+    rows.into_iter()
+        .map(|p| (true, p))
+        .chain(cols.into_iter().map(|p| (false, p)))
+        .filter(|(_, p)| p.len() >= 3)
+        .collect()
 }
 
 /// Plane fitting error of one view: (Σ squared distances of the projected corners to their row's
@@ -177,18 +210,24 @@ pub fn plane_angles(data: &StereoData, vops: &[ProjectedVop]) -> (f64, usize) {
     let mut sum = 0.0;
     let mut count = 0;
     for family in [true, false] {
-        let dirs: Vec<Vector2<f64>> =
-            lines.iter().filter(|(row, _)| *row == family).filter_map(|(_, p)| fit_line(p).map(|(_, d)| d)).collect();
+        let dirs: Vec<Vector2<f64>> = lines
+            .iter()
+            .filter(|(row, _)| *row == family)
+            .filter_map(|(_, p)| fit_line(p).map(|(_, d)| d))
+            .collect();
         if dirs.len() < 2 {
             continue;
         }
         // Mean of an axial direction: average the doubled angles.
-        let doubled = dirs.iter().fold(Vector2::zeros(), |a, d| a + Vector2::new(d.x * d.x - d.y * d.y, 2.0 * d.x * d.y));
+        let doubled = dirs.iter().fold(Vector2::zeros(), |a, d| {
+            a + Vector2::new(d.x * d.x - d.y * d.y, 2.0 * d.x * d.y)
+        });
         let mean_angle = 0.5 * doubled.y.atan2(doubled.x);
         for d in &dirs {
             let mut delta = d.y.atan2(d.x) - mean_angle;
             // Lines have no sign: fold into (−π/2, π/2].
-            delta = (delta + std::f64::consts::FRAC_PI_2).rem_euclid(std::f64::consts::PI) - std::f64::consts::FRAC_PI_2;
+            delta = (delta + std::f64::consts::FRAC_PI_2).rem_euclid(std::f64::consts::PI)
+                - std::f64::consts::FRAC_PI_2;
             sum += delta * delta;
         }
         count += dirs.len() - 1;

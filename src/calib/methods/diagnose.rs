@@ -19,9 +19,9 @@
 
 use nalgebra::{Point2, Point3, Unit, Vector3};
 
-use super::costs::triangulate_corner;
-use super::data::{Candidate, StereoData};
-use super::observations::view_list;
+use crate::calib::costs::triangulate_corner;
+use crate::calib::problem::data::{Candidate, StereoData};
+use crate::calib::problem::observations::view_list;
 use crate::model::{Ray, triangulate_rays};
 
 /// How the in-air rays of one view's corners meet.
@@ -39,7 +39,11 @@ pub struct Meeting {
 impl Meeting {
     /// The share of corners whose rays meet in front.
     pub fn front_share(&self) -> f64 {
-        if self.corners == 0 { 0.0 } else { self.in_front as f64 / self.corners as f64 }
+        if self.corners == 0 {
+            0.0
+        } else {
+            self.in_front as f64 / self.corners as f64
+        }
     }
 
     fn fits(&self) -> bool {
@@ -56,13 +60,22 @@ pub const CLOSER: f64 = 5.0;
 /// Ratio of the triangulated to the board's square beyond which (either way) the scale is wrong.
 pub const SCALE_TOLERANCE: f64 = 0.05;
 
-fn meeting(centres: &[Point3<f64>; 2], pairs: impl Iterator<Item = Option<[Unit<Vector3<f64>>; 2]>>) -> Meeting {
+fn meeting(
+    centres: &[Point3<f64>; 2],
+    pairs: impl Iterator<Item = Option<[Unit<Vector3<f64>>; 2]>>,
+) -> Meeting {
     let (mut corners, mut gaps) = (0, Vec::new());
     for pair in pairs {
         corners += 1;
         let Some([left, right]) = pair else { continue };
-        let a = Ray { origin: centres[0], dir: left };
-        let b = Ray { origin: centres[1], dir: right };
+        let a = Ray {
+            origin: centres[0],
+            dir: left,
+        };
+        let b = Ray {
+            origin: centres[1],
+            dir: right,
+        };
         if let Ok(t) = triangulate_rays(&a, &b) {
             let distance = (t.point - centres[0]).norm();
             if distance > 0.0 {
@@ -73,12 +86,19 @@ fn meeting(centres: &[Point3<f64>; 2], pairs: impl Iterator<Item = Option<[Unit<
     let in_front = gaps.len();
     gaps.sort_by(f64::total_cmp);
     let median_gap = gaps.get(gaps.len() / 2).copied().unwrap_or(f64::INFINITY);
-    Meeting { corners, in_front, median_gap }
+    Meeting {
+        corners,
+        in_front,
+        median_gap,
+    }
 }
 
 /// The in-air air direction of a raw pixel of rig camera `camera`, master frame.
 fn dir(data: &StereoData, camera: usize, pixel: &Point2<f64>) -> Option<Unit<Vector3<f64>>> {
-    data.rig.refractive_camera(camera).dir_in_air_from_img(pixel).ok()
+    data.rig
+        .refractive_camera(camera)
+        .dir_in_air_from_img(pixel)
+        .ok()
 }
 
 /// How the rays of every view meet as given, with the images exchanged, and with one image's
@@ -95,12 +115,25 @@ pub fn pairings(data: &StereoData) -> Vec<[Meeting; 3]> {
             // Exchanged: the left list was the second camera's image and the right list the first's.
             let exchanged = meeting(
                 &swapped_centres,
-                corners.iter().map(|c| Some([dir(data, data.cameras[1], &c.pixels[0])?, dir(data, data.cameras[0], &c.pixels[1])?])),
+                corners.iter().map(|c| {
+                    Some([
+                        dir(data, data.cameras[1], &c.pixels[0])?,
+                        dir(data, data.cameras[0], &c.pixels[1])?,
+                    ])
+                }),
             );
-            let by_index: std::collections::HashMap<usize, usize> = corners.iter().enumerate().map(|(j, c)| (c.index, j)).collect();
+            let by_index: std::collections::HashMap<usize, usize> = corners
+                .iter()
+                .enumerate()
+                .map(|(j, c)| (c.index, j))
+                .collect();
             let reversed = meeting(
                 &centres,
-                corners.iter().map(|c| by_index.get(&(n - 1 - c.index)).map(|&j| [c.dirs[0], corners[j].dirs[1]])),
+                corners.iter().map(|c| {
+                    by_index
+                        .get(&(n - 1 - c.index))
+                        .map(|&j| [c.dirs[0], corners[j].dirs[1]])
+                }),
             );
             [given, exchanged, reversed]
         })
@@ -116,14 +149,20 @@ pub fn pairing_findings(data: &StereoData) -> Vec<String> {
     for (v, [given, exchanged, flipped]) in meetings.iter().enumerate() {
         if !given.fits() && exchanged.fits() {
             swapped.push(v);
-        } else if flipped.fits() && (!given.fits() || flipped.median_gap * CLOSER < given.median_gap) {
+        } else if flipped.fits()
+            && (!given.fits() || flipped.median_gap * CLOSER < given.median_gap)
+        {
             reversed.push(v);
         }
     }
     let mut findings = Vec::new();
     let names = data.cameras.map(|k| data.rig.cameras()[k].name.as_str());
     if !swapped.is_empty() {
-        let share: f64 = swapped.iter().map(|&v| meetings[v][0].front_share()).sum::<f64>() / swapped.len() as f64;
+        let share: f64 = swapped
+            .iter()
+            .map(|&v| meetings[v][0].front_share())
+            .sum::<f64>()
+            / swapped.len() as f64;
         findings.push(format!(
             "the left and right images look swapped (views {}): as given, the two cameras' rays meet in front of both for only {:.0} % of the corners; exchanged, for {:.0} %. Exchange the \"left\" and \"right\" lists, or the \"cameras\" order ({}, {})",
             view_list(&swapped),
@@ -151,13 +190,19 @@ pub fn square_ratio(data: &StereoData, candidate: &Candidate) -> Option<f64> {
     let mut ratios = Vec::new();
     for range in &data.views {
         let corners = &data.corners[range.clone()];
-        let points: std::collections::HashMap<usize, Point3<f64>> =
-            corners.iter().filter_map(|c| triangulate_corner(&cameras, c).map(|t| (c.index, t.point))).collect();
+        let points: std::collections::HashMap<usize, Point3<f64>> = corners
+            .iter()
+            .filter_map(|c| triangulate_corner(&cameras, c).map(|t| (c.index, t.point)))
+            .collect();
         for (&i, p) in &points {
             let (r, c) = data.board.grid_position(i);
             let right = (c + 1 < data.board.cols).then(|| i + 1);
             let below = (r + 1 < data.board.rows).then(|| i + data.board.cols);
-            for q in [right, below].into_iter().flatten().filter_map(|j| points.get(&j)) {
+            for q in [right, below]
+                .into_iter()
+                .flatten()
+                .filter_map(|j| points.get(&j))
+            {
                 ratios.push((q - p).norm() / data.board.square);
             }
         }
@@ -173,13 +218,21 @@ pub fn square_ratio(data: &StereoData, candidate: &Candidate) -> Option<f64> {
 /// triangulated board under `candidate` (or the rig's interface), and a summary line of the
 /// data (views, corners, the corner noise `noise_px` seen in the images when known, how the
 /// in-air rays meet).
-pub fn explain(data: &StereoData, candidate: Option<&Candidate>, noise_px: Option<f64>) -> Vec<String> {
+pub fn explain(
+    data: &StereoData,
+    candidate: Option<&Candidate>,
+    noise_px: Option<f64>,
+) -> Vec<String> {
     let mut findings = pairing_findings(data);
     let rig_candidate = Candidate::of(data.rig.interface());
     let under = candidate.copied().unwrap_or(rig_candidate);
     if let Some(ratio) = square_ratio(data, &under) {
         if (ratio - 1.0).abs() > SCALE_TOLERANCE {
-            let what = if candidate.is_some() { "under the fitted interface" } else { "under the rig's start interface" };
+            let what = if candidate.is_some() {
+                "under the fitted interface"
+            } else {
+                "under the rig's start interface"
+            };
             let hint = if !(0.2..=5.0).contains(&ratio) && findings.is_empty() {
                 " (a factor this large suggests a unit: a baseline or square in millimetres instead of metres?)"
             } else {
@@ -195,9 +248,15 @@ pub fn explain(data: &StereoData, candidate: Option<&Candidate>, noise_px: Optio
     let meetings = pairings(data);
     let corners: usize = meetings.iter().map(|m| m[0].corners).sum();
     let in_front: usize = meetings.iter().map(|m| m[0].in_front).sum();
-    let mut gaps: Vec<f64> = meetings.iter().map(|m| m[0].median_gap).filter(|g| g.is_finite()).collect();
+    let mut gaps: Vec<f64> = meetings
+        .iter()
+        .map(|m| m[0].median_gap)
+        .filter(|g| g.is_finite())
+        .collect();
     gaps.sort_by(f64::total_cmp);
-    let gap = gaps.get(gaps.len() / 2).map_or("none meet".into(), |g| format!("median gap {:.2} mrad", g * 1e3));
+    let gap = gaps.get(gaps.len() / 2).map_or("none meet".into(), |g| {
+        format!("median gap {:.2} mrad", g * 1e3)
+    });
     findings.push(format!(
         "{} views of a {}×{} board ({} mm squares), {} corners seen in both images{}; in air, {:.0} % of the corners' two rays meet in front of both cameras ({gap})",
         data.views.len(),
@@ -217,8 +276,27 @@ mod tests {
     use crate::calib::{Board, Observations, SceneSpec, StereoView, simulate};
 
     fn scene(seed: u64) -> (crate::model::Rig, Observations) {
-        let rig = crate::io::rig_from_json_str(include_str!("../../data/example_rig.json"), "example".as_ref()).unwrap();
-        let scene = simulate(&rig, 0, 1, &SceneSpec::new(Board { rows: 6, cols: 9, square: 0.04 }, 8, 0.2, seed)).unwrap();
+        let rig = crate::io::rig_from_json_str(
+            include_str!("../../../data/example_rig.json"),
+            "example".as_ref(),
+        )
+        .unwrap();
+        let scene = simulate(
+            &rig,
+            0,
+            1,
+            &SceneSpec::new(
+                Board {
+                    rows: 6,
+                    cols: 9,
+                    square: 0.04,
+                },
+                8,
+                0.2,
+                seed,
+            ),
+        )
+        .unwrap();
         (rig, scene.observations)
     }
 
@@ -247,12 +325,21 @@ mod tests {
             std::mem::swap(&mut view.left, &mut view.right);
         }
         let view = &observations.views[5];
-        observations.views[5] = StereoView { left: view.left.clone(), right: view.right.iter().rev().copied().collect() };
+        observations.views[5] = StereoView {
+            left: view.left.clone(),
+            right: view.right.iter().rev().copied().collect(),
+        };
         let data = StereoData::new(&rig, [0, 1], &observations).unwrap();
         let findings = pairing_findings(&data);
         assert_eq!(findings.len(), 2, "{findings:?}");
-        assert!(findings[0].starts_with("the left and right images look swapped (views 1–3)"), "{findings:?}");
-        assert!(findings[1].starts_with("the corner order of one image looks reversed (views 5)"), "{findings:?}");
+        assert!(
+            findings[0].starts_with("the left and right images look swapped (views 1–3)"),
+            "{findings:?}"
+        );
+        assert!(
+            findings[1].starts_with("the corner order of one image looks reversed (views 5)"),
+            "{findings:?}"
+        );
     }
 
     #[test]
@@ -261,7 +348,16 @@ mod tests {
         observations.board.square = 0.03;
         let data = StereoData::new(&rig, [0, 1], &observations).unwrap();
         let findings = explain(&data, Some(&Candidate::of(rig.interface())), Some(0.2));
-        assert!(findings[0].contains("measure 40.0") && findings[0].contains("give 30.00 mm"), "{findings:?}");
-        assert!(findings.last().unwrap().starts_with("8 views of a 9×6 board"), "{findings:?}");
+        assert!(
+            findings[0].contains("measure 40.0") && findings[0].contains("give 30.00 mm"),
+            "{findings:?}"
+        );
+        assert!(
+            findings
+                .last()
+                .unwrap()
+                .starts_with("8 views of a 9×6 board"),
+            "{findings:?}"
+        );
     }
 }

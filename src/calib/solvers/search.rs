@@ -3,11 +3,11 @@
 
 use nalgebra::{Matrix2, Unit, Vector2, Vector3};
 
-use super::backend::CostBackend;
-use super::costs::CostKind;
-use super::data::Candidate;
-use super::error::CalibError;
-use super::invariants::plane_basis;
+use crate::calib::backends::CostBackend;
+use crate::calib::costs::CostKind;
+use crate::calib::costs::invariants::plane_basis;
+use crate::calib::error::CalibError;
+use crate::calib::problem::data::Candidate;
 
 /// Most axes of a global search grid ([`cap_grid`]): every axis costs one evaluation over all
 /// corners in each global search (two in the auto method), so 10⁵ axes already take minutes on a
@@ -31,7 +31,10 @@ pub fn min_cap_grid_spacing(bound: f64) -> f64 {
 /// [`min_cap_grid_spacing`] in degrees, rounded up to 4 decimals (so that the value printed is
 /// accepted).
 pub fn min_cap_grid_spacing_deg_text(bound: f64) -> String {
-    format!("{:.4}", (min_cap_grid_spacing(bound).to_degrees() * 1e4).ceil() / 1e4)
+    format!(
+        "{:.4}",
+        (min_cap_grid_spacing(bound).to_degrees() * 1e4).ceil() / 1e4
+    )
 }
 
 /// Axes with a tilt from the master z axis of at most `bound` (radians), spread evenly over that
@@ -40,7 +43,9 @@ pub fn min_cap_grid_spacing_deg_text(bound: f64) -> String {
 /// refuse it first with a message, see [`cap_grid_size`]).
 pub fn cap_grid(bound: f64, spacing: f64) -> Vec<Unit<Vector3<f64>>> {
     let area = std::f64::consts::TAU * (1.0 - bound.cos());
-    let count = (area / (spacing * spacing)).ceil().clamp(1.0, (MAX_CAP_GRID_AXES - 1) as f64) as usize;
+    let count = (area / (spacing * spacing))
+        .ceil()
+        .clamp(1.0, (MAX_CAP_GRID_AXES - 1) as f64) as usize;
     let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
     let mut normals = vec![Unit::new_unchecked(Vector3::z())];
     for i in 0..count {
@@ -48,7 +53,11 @@ pub fn cap_grid(bound: f64, spacing: f64) -> Vec<Unit<Vector3<f64>>> {
         let z = 1.0 - (1.0 - bound.cos()) * (i as f64 + 0.5) / count as f64;
         let r = (1.0 - z * z).max(0.0).sqrt();
         let phi = golden * i as f64;
-        normals.push(Unit::new_normalize(Vector3::new(r * phi.cos(), r * phi.sin(), z)));
+        normals.push(Unit::new_normalize(Vector3::new(
+            r * phi.cos(),
+            r * phi.sin(),
+            z,
+        )));
     }
     normals
 }
@@ -86,7 +95,15 @@ pub fn refine_axis(
     min_step: f64,
     max_iterations: usize,
 ) -> Result<Refined, CalibError> {
-    refine_axis_observed(backend, kind, start, step, min_step, max_iterations, &mut |_, _| {})
+    refine_axis_observed(
+        backend,
+        kind,
+        start,
+        step,
+        min_step,
+        max_iterations,
+        &mut |_, _| {},
+    )
 }
 
 /// [`refine_axis`], calling `progress(iteration, best cost)` after every iteration.
@@ -107,8 +124,10 @@ pub fn refine_axis_observed(
     while h >= min_step && iterations < max_iterations {
         iterations += 1;
         let centre = best.normal;
-        let offsets: Vec<Vector2<f64>> =
-            (-1..=1).flat_map(|i| (-1..=1).map(move |j| Vector2::new(i as f64, j as f64) * h)).filter(|o| o.norm() > 0.0).collect();
+        let offsets: Vec<Vector2<f64>> = (-1..=1)
+            .flat_map(|i| (-1..=1).map(move |j| Vector2::new(i as f64, j as f64) * h))
+            .filter(|o| o.norm() > 0.0)
+            .collect();
         let normals: Vec<_> = offsets.iter().map(|o| tangent_step(&centre, o)).collect();
         let (stencil, values) = backend.profile(kind, &normals)?;
         evaluations += normals.len();
@@ -116,7 +135,10 @@ pub fn refine_axis_observed(
             if i == 0 && j == 0 {
                 return best_cost;
             }
-            let k = offsets.iter().position(|o| o.x == i as f64 * h && o.y == j as f64 * h).expect("stencil point");
+            let k = offsets
+                .iter()
+                .position(|o| o.x == i as f64 * h && o.y == j as f64 * h)
+                .expect("stencil point");
             values[k]
         };
         let mut moved = false;
@@ -144,7 +166,10 @@ pub fn refine_axis_observed(
             }
         }
         // The stencil's best point, when it beats the Newton step.
-        if let Some(k) = (0..values.len()).filter(|&k| values[k] < best_cost).min_by(|&a, &b| values[a].total_cmp(&values[b])) {
+        if let Some(k) = (0..values.len())
+            .filter(|&k| values[k] < best_cost)
+            .min_by(|&a, &b| values[a].total_cmp(&values[b]))
+        {
             best = stencil[k];
             best_cost = values[k];
             moved = true;
@@ -161,10 +186,18 @@ pub fn refine_axis_observed(
     if !best_cost.is_finite() {
         return Err(CalibError::NoSolution {
             bound_deg: f64::NAN,
-            reason: format!("the {} cost is infinite at and around the start axis", kind.name()),
+            reason: format!(
+                "the {} cost is infinite at and around the start axis",
+                kind.name()
+            ),
         });
     }
-    Ok(Refined { candidate: best, cost: best_cost, iterations, evaluations })
+    Ok(Refined {
+        candidate: best,
+        cost: best_cost,
+        iterations,
+        evaluations,
+    })
 }
 
 /// Largest air layer [`fit_air_distance`] considers, metres.
@@ -174,7 +207,11 @@ pub const MAX_AIR_DISTANCE: f64 = 0.5;
 /// geometrically from just outside the cameras to [`MAX_AIR_DISTANCE`], then batches of 8 ever
 /// closer around the best (golden-section-like shrinking) until the bracket is below 1e-9 m.
 /// `None` when every air layer costs +∞.
-pub fn fit_air_distance(backend: &dyn CostBackend, kind: CostKind, normal: &Unit<Vector3<f64>>) -> Result<Option<(f64, f64)>, CalibError> {
+pub fn fit_air_distance(
+    backend: &dyn CostBackend,
+    kind: CostKind,
+    normal: &Unit<Vector3<f64>>,
+) -> Result<Option<(f64, f64)>, CalibError> {
     let low = backend.data().min_air_distance(normal) + 1e-4;
     if !(low < MAX_AIR_DISTANCE) {
         return Ok(None);
@@ -185,21 +222,41 @@ pub fn fit_air_distance(backend: &dyn CostBackend, kind: CostKind, normal: &Unit
     let (mut best_d, mut best_cost) = (f64::NAN, f64::INFINITY);
     let mut bracket;
     loop {
-        let candidates: Vec<Candidate> = distances.iter().map(|&d| Candidate { normal: *normal, air_distance: d }).collect();
+        let candidates: Vec<Candidate> = distances
+            .iter()
+            .map(|&d| Candidate {
+                normal: *normal,
+                air_distance: d,
+            })
+            .collect();
         let costs = backend.costs(kind, &candidates)?;
-        let Some(k) = (0..costs.len()).filter(|&k| costs[k].is_finite()).min_by(|&a, &b| costs[a].total_cmp(&costs[b])) else {
+        let Some(k) = (0..costs.len())
+            .filter(|&k| costs[k].is_finite())
+            .min_by(|&a, &b| costs[a].total_cmp(&costs[b]))
+        else {
             return Ok(best_cost.is_finite().then_some((best_d, best_cost)));
         };
         if costs[k] < best_cost {
             (best_d, best_cost) = (distances[k], costs[k]);
         }
-        let below = if k > 0 { distances[k - 1] } else { (best_d - (distances[1] - distances[0])).max(low) };
-        let above = if k + 1 < distances.len() { distances[k + 1] } else { best_d + (distances[k] - distances[k - 1]) };
+        let below = if k > 0 {
+            distances[k - 1]
+        } else {
+            (best_d - (distances[1] - distances[0])).max(low)
+        };
+        let above = if k + 1 < distances.len() {
+            distances[k + 1]
+        } else {
+            best_d + (distances[k] - distances[k - 1])
+        };
         bracket = above - below;
         if bracket < 1e-9 {
             break;
         }
-        distances = (0..=8).map(|i| below + bracket * i as f64 / 8.0).filter(|&d| d >= low).collect();
+        distances = (0..=8)
+            .map(|i| below + bracket * i as f64 / 8.0)
+            .filter(|&d| d >= low)
+            .collect();
     }
     Ok(Some((best_d, best_cost)))
 }

@@ -7,13 +7,14 @@
 //! (translation, m) with master_from_board ← (τ, exp(ω)) · master_from_board.
 
 use nalgebra::{
-    Cholesky, DMatrix, DVector, Dyn, Isometry3, Matrix6, OMatrix, Translation3, U6, Unit, UnitQuaternion, Vector2, Vector3, Vector6,
+    Cholesky, DMatrix, DVector, Dyn, Isometry3, Matrix6, OMatrix, Translation3, U6, Unit,
+    UnitQuaternion, Vector2, Vector3, Vector6,
 };
 use rayon::prelude::*;
 
-use super::data::{Candidate, StereoData};
-use super::lm::{LeastSquares, NormalEquations};
-use super::search::tangent_step;
+use crate::calib::problem::data::{Candidate, StereoData};
+use crate::calib::solvers::lm::{LeastSquares, NormalEquations};
+use crate::calib::solvers::search::tangent_step;
 use crate::engine::simd;
 use crate::model::RefractiveCamera;
 
@@ -123,11 +124,17 @@ impl NormalEquations for BlockNormalEquations {
     }
 
     fn gradient_amax(&self) -> f64 {
-        self.views.iter().map(|b| b.gradient.amax()).fold(self.global_gradient.amax(), f64::max)
+        self.views
+            .iter()
+            .map(|b| b.gradient.amax())
+            .fold(self.global_gradient.amax(), f64::max)
     }
 
     fn max_diagonal(&self) -> f64 {
-        self.views.iter().map(|b| b.pose.diagonal().max()).fold(self.global.diagonal().max(), f64::max)
+        self.views
+            .iter()
+            .map(|b| b.pose.diagonal().max())
+            .fold(self.global.diagonal().max(), f64::max)
     }
 
     fn solve_damped(&self, damping: f64, floor: f64) -> Option<DVector<f64>> {
@@ -137,8 +144,10 @@ impl NormalEquations for BlockNormalEquations {
         let mut step = DVector::zeros(self.dimension());
         step.rows_mut(0, g).copy_from(&global_step);
         for (v, (block, factor)) in self.views.iter().zip(&factors).enumerate() {
-            let pose_step = -factor.solve(&(block.gradient + block.coupling.transpose() * &global_step));
-            step.fixed_rows_mut::<POSE_PARAMETERS>(g + POSE_PARAMETERS * v).copy_from(&pose_step);
+            let pose_step =
+                -factor.solve(&(block.gradient + block.coupling.transpose() * &global_step));
+            step.fixed_rows_mut::<POSE_PARAMETERS>(g + POSE_PARAMETERS * v)
+                .copy_from(&pose_step);
         }
         Some(step)
     }
@@ -164,10 +173,24 @@ impl<'a> Bundle<'a> {
     /// Residuals (projected − observed, px) of the corners of `view`, left and right, in
     /// `data.corners` order; `None` when one does not project. The view's corners are projected
     /// together, in the lanes of the CPU engine's vector path.
-    fn view_residuals(&self, cameras: &[RefractiveCamera; 2], view: usize, pose: &Isometry3<f64>, out: &mut Vec<Vector2<f64>>) -> Option<()> {
+    fn view_residuals(
+        &self,
+        cameras: &[RefractiveCamera; 2],
+        view: usize,
+        pose: &Isometry3<f64>,
+        out: &mut Vec<Vector2<f64>>,
+    ) -> Option<()> {
         let corners = &self.data.corners[self.data.views[view].clone()];
-        let points: Vec<[f64; 3]> = corners.iter().map(|c| (pose * self.data.board.point_in_board(c.index)).coords.into()).collect();
-        let [left, right] = [&cameras[0], &cameras[1]].map(|camera| simd::project_all(camera, &points));
+        let points: Vec<[f64; 3]> = corners
+            .iter()
+            .map(|c| {
+                (pose * self.data.board.point_in_board(c.index))
+                    .coords
+                    .into()
+            })
+            .collect();
+        let [left, right] =
+            [&cameras[0], &cameras[1]].map(|camera| simd::project_all(camera, &points));
         let (left, right) = (left?, right?);
         for ((corner, l), r) in corners.iter().zip(&left).zip(&right) {
             out.push(Vector2::new(l[0], l[1]) - corner.pixels[0].coords);
@@ -185,7 +208,8 @@ impl<'a> Bundle<'a> {
             .enumerate()
             .map(|(v, pose)| {
                 let mut out = Vec::with_capacity(2 * self.data.views[v].len());
-                self.view_residuals(&cameras, v, pose, &mut out).map(|()| out)
+                self.view_residuals(&cameras, v, pose, &mut out)
+                    .map(|()| out)
             })
             .collect();
         Some(per_view?.concat())
@@ -226,7 +250,12 @@ impl LeastSquares for Bundle<'_> {
     }
 
     fn cost(&self, state: &BundleState) -> Option<f64> {
-        Some(self.residuals(state)?.iter().map(|r| self.robust(r.norm_squared()).0).sum())
+        Some(
+            self.residuals(state)?
+                .iter()
+                .map(|r| self.robust(r.norm_squared()).0)
+                .sum(),
+        )
     }
 
     fn normal_equations(&self, state: &BundleState) -> Option<BlockNormalEquations> {
@@ -302,12 +331,21 @@ impl LeastSquares for Bundle<'_> {
             global_gradient += jtr.rows(0, globals);
             cost += share_cost;
             views.push(PoseBlock {
-                pose: jtj.fixed_view::<POSE_PARAMETERS, POSE_PARAMETERS>(globals, globals).into_owned(),
-                coupling: jtj.generic_view((0, globals), (Dyn(globals), U6)).into_owned(),
+                pose: jtj
+                    .fixed_view::<POSE_PARAMETERS, POSE_PARAMETERS>(globals, globals)
+                    .into_owned(),
+                coupling: jtj
+                    .generic_view((0, globals), (Dyn(globals), U6))
+                    .into_owned(),
                 gradient: jtr.fixed_rows::<POSE_PARAMETERS>(globals).into_owned(),
             });
         }
-        Some(BlockNormalEquations { global, global_gradient, views, cost })
+        Some(BlockNormalEquations {
+            global,
+            global_gradient,
+            views,
+            cost,
+        })
     }
 
     fn retract(&self, state: &BundleState, delta: &DVector<f64>) -> BundleState {
@@ -331,11 +369,20 @@ impl LeastSquares for Bundle<'_> {
 /// inverse of the Schur complement, [`BlockNormalEquations::global_covariance`]) scaled by the
 /// residual variance σ̂² = cost / (residuals − parameters), with the tangent-plane axis
 /// parameters carried to tilt and azimuth by their derivatives at `candidate`. Also returns σ̂.
-pub fn interface_std(candidate: &Candidate, normal: &BlockNormalEquations, cost: f64, residuals: usize) -> Option<([f64; 3], f64)> {
+pub fn interface_std(
+    candidate: &Candidate,
+    normal: &BlockNormalEquations,
+    cost: f64,
+    residuals: usize,
+) -> Option<([f64; 3], f64)> {
     let parameters = normal.dimension();
     let dof = residuals.checked_sub(parameters).filter(|&d| d > 0)?;
     let sigma2 = cost / dof as f64;
-    let covariance = normal.global_covariance()?.fixed_view::<3, 3>(0, 0).into_owned() * sigma2;
+    let covariance = normal
+        .global_covariance()?
+        .fixed_view::<3, 3>(0, 0)
+        .into_owned()
+        * sigma2;
     // ∂(tilt, azimuth)/∂(δ₁, δ₂) by central differences on the unit sphere.
     let h = 1e-7;
     let angles = |n: &Unit<Vector3<f64>>| (n.z.clamp(-1.0, 1.0).acos(), n.y.atan2(n.x));
@@ -348,22 +395,35 @@ pub fn interface_std(candidate: &Candidate, normal: &BlockNormalEquations, cost:
         let minus = angles(&tangent_step(&candidate.normal, &offset));
         jacobian[(0, p)] = (plus.0 - minus.0) / (2.0 * h);
         let mut d_azimuth = plus.1 - minus.1;
-        d_azimuth = (d_azimuth + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+        d_azimuth = (d_azimuth + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
         jacobian[(1, p)] = d_azimuth / (2.0 * h);
     }
     let propagated = jacobian * covariance * jacobian.transpose();
-    Some(([propagated[(0, 0)].sqrt(), propagated[(1, 1)].sqrt(), propagated[(2, 2)].sqrt()], sigma2.sqrt()))
+    Some((
+        [
+            propagated[(0, 0)].sqrt(),
+            propagated[(1, 1)].sqrt(),
+            propagated[(2, 2)].sqrt(),
+        ],
+        sigma2.sqrt(),
+    ))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::lm::DenseNormalEquations;
-    use crate::calib::rng::Rng;
+    use crate::calib::simulate::rng::Rng;
+    use crate::calib::solvers::lm::DenseNormalEquations;
 
     /// A random block-sparse Jacobian (each residual row depends on the G globals and one view's
     /// pose), its block normal equations, and the dense JᵀJ, Jᵀr of the same J built directly.
-    fn random_problem(globals: usize, views: usize, rows_per_view: usize, seed: u64) -> (BlockNormalEquations, DenseNormalEquations) {
+    fn random_problem(
+        globals: usize,
+        views: usize,
+        rows_per_view: usize,
+        seed: u64,
+    ) -> (BlockNormalEquations, DenseNormalEquations) {
         let mut rng = Rng::new(seed);
         let n = globals + POSE_PARAMETERS * views;
         let rows = views * rows_per_view;
@@ -377,12 +437,17 @@ mod tests {
                 }
                 for c in 0..POSE_PARAMETERS {
                     // Pose columns of a different scale, as in the bundle (radians vs metres).
-                    j[(row, globals + POSE_PARAMETERS * v + c)] = rng.normal() * if c < 3 { 300.0 } else { 2000.0 };
+                    j[(row, globals + POSE_PARAMETERS * v + c)] =
+                        rng.normal() * if c < 3 { 300.0 } else { 2000.0 };
                 }
                 r[row] = rng.normal();
             }
         }
-        let dense = DenseNormalEquations { jtj: j.transpose() * &j, jtr: j.transpose() * &r, cost: r.norm_squared() };
+        let dense = DenseNormalEquations {
+            jtj: j.transpose() * &j,
+            jtr: j.transpose() * &r,
+            cost: r.norm_squared(),
+        };
         let jg = j.columns(0, globals);
         let blocks = (0..views)
             .map(|v| {
@@ -390,10 +455,19 @@ mod tests {
                 let jg = rows.columns(0, globals);
                 let jp = rows.fixed_columns::<POSE_PARAMETERS>(globals + POSE_PARAMETERS * v);
                 let rv = r.rows(v * rows_per_view, rows_per_view);
-                PoseBlock { pose: jp.transpose() * jp, coupling: jg.transpose() * jp, gradient: jp.transpose() * rv }
+                PoseBlock {
+                    pose: jp.transpose() * jp,
+                    coupling: jg.transpose() * jp,
+                    gradient: jp.transpose() * rv,
+                }
             })
             .collect();
-        let block = BlockNormalEquations { global: jg.transpose() * jg, global_gradient: jg.transpose() * &r, views: blocks, cost: r.norm_squared() };
+        let block = BlockNormalEquations {
+            global: jg.transpose() * jg,
+            global_gradient: jg.transpose() * &r,
+            views: blocks,
+            cost: r.norm_squared(),
+        };
         (block, dense)
     }
 
@@ -408,26 +482,39 @@ mod tests {
             let (block, dense) = random_problem(globals, views, 20, seed);
             assert_eq!(block.dimension(), dense.jtj.nrows());
             assert_eq!(block.max_diagonal(), dense.max_diagonal());
-            assert!((block.gradient_amax() - dense.gradient_amax()).abs() <= 1e-12 * dense.gradient_amax());
+            assert!(
+                (block.gradient_amax() - dense.gradient_amax()).abs()
+                    <= 1e-12 * dense.gradient_amax()
+            );
             for (damping, floor) in [(0.0, 0.0), (1e-4, 1e-12), (10.0, 1e3)] {
                 let step = block.solve_damped(damping, floor).unwrap();
                 let reference = dense.solve_damped(damping, floor).unwrap();
                 let error = (&step - &reference).norm() / reference.norm();
-                assert!(error < 1e-9, "G {globals}, damping {damping}: step relative error {error:e}");
+                assert!(
+                    error < 1e-9,
+                    "G {globals}, damping {damping}: step relative error {error:e}"
+                );
             }
             // The global block of the inverse of the full JᵀJ.
             let inverse = dense.jtj.clone().cholesky().unwrap().inverse();
             let reference = inverse.view((0, 0), (globals, globals)).into_owned();
             let covariance = block.global_covariance().unwrap();
             let error = relative(&covariance, &reference);
-            assert!(error < 1e-9, "G {globals}: covariance relative error {error:e}");
+            assert!(
+                error < 1e-9,
+                "G {globals}: covariance relative error {error:e}"
+            );
         }
     }
 
     #[test]
     fn a_singular_pose_block_is_refused() {
         let (mut block, _) = random_problem(3, 3, 20, 4);
-        block.views[1] = PoseBlock { pose: Matrix6::zeros(), coupling: OMatrix::<f64, Dyn, U6>::zeros(3), gradient: Vector6::zeros() };
+        block.views[1] = PoseBlock {
+            pose: Matrix6::zeros(),
+            coupling: OMatrix::<f64, Dyn, U6>::zeros(3),
+            gradient: Vector6::zeros(),
+        };
         assert!(block.solve_damped(0.0, 0.0).is_none());
         assert!(block.global_covariance().is_none());
         // Damping with a positive floor makes it definite again.

@@ -18,7 +18,9 @@ impl Rng {
             z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
             z ^ (z >> 31)
         };
-        Self { state: [next(), next(), next(), next()] }
+        Self {
+            state: [next(), next(), next(), next()],
+        }
     }
 
     /// The next 64 random bits.
@@ -67,7 +69,10 @@ mod tests {
         let mean = samples.iter().sum::<f64>() / n as f64;
         let var = samples.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n as f64;
         // Standard errors: 1/√n ≈ 0.0022 for the mean, √(2/n) ≈ 0.0032 for the variance.
-        assert!(mean.abs() < 0.012 && (var - 1.0).abs() < 0.016, "{mean} {var}");
+        assert!(
+            mean.abs() < 0.012 && (var - 1.0).abs() < 0.016,
+            "{mean} {var}"
+        );
         let u: Vec<f64> = (0..n).map(|_| rng.uniform()).collect();
         assert!(u.iter().all(|x| (0.0..1.0).contains(x)));
         assert!((u.iter().sum::<f64>() / n as f64 - 0.5).abs() < 0.005);

@@ -6,17 +6,21 @@
 //! - [`CostKind::Scene`]: the same fit's RMS 3-D residual, metres (the 3-D scene error).
 //! - [`CostKind::RayGap`]: RMS distance between the two water rays of each corner, metres.
 //! - [`CostKind::AffineGrid`]: the weighted affine-grid invariant, fused per view
-//!   ([`super::affine_grid`]); [`CostKind::PlaneFitting`], [`CostKind::PlaneAngles`]: the thesis'
-//!   plane errors ([`super::invariants`]). These ignore the air layer.
+//!   ([`affine_grid`]); [`CostKind::PlaneFitting`], [`CostKind::PlaneAngles`]: the thesis'
+//!   plane errors ([`invariants`]). These ignore the air layer.
 //!
 //! A candidate under which some corner has no answer (a camera outside the air, a ray that is
 //! totally reflected, a point that triangulates behind the port) costs +∞.
 
+pub mod affine_grid;
+pub mod air_layer;
+pub mod invariants;
+
 use nalgebra::{Isometry3, Point2, Point3, Vector2};
 
-use super::board::{RigidFit, fit_rigid};
-use super::data::{Candidate, Corner, StereoData};
-use super::invariants::{ProjectedVop, plane_angles, plane_fitting, projected_vops};
+use crate::calib::costs::invariants::{ProjectedVop, plane_angles, plane_fitting, projected_vops};
+use crate::calib::problem::board::{RigidFit, fit_rigid};
+use crate::calib::problem::data::{Candidate, Corner, StereoData};
 use crate::engine::simd;
 use crate::model::{RefractiveCamera, Triangulation, triangulate_rays};
 
@@ -39,12 +43,21 @@ pub enum CostKind {
 
 impl CostKind {
     /// Every cost.
-    pub const ALL: [CostKind; 6] =
-        [Self::Reprojection, Self::Scene, Self::RayGap, Self::AffineGrid, Self::PlaneFitting, Self::PlaneAngles];
+    pub const ALL: [CostKind; 6] = [
+        Self::Reprojection,
+        Self::Scene,
+        Self::RayGap,
+        Self::AffineGrid,
+        Self::PlaneFitting,
+        Self::PlaneAngles,
+    ];
 
     /// Whether the cost depends on the axis only (not on the air layer).
     pub fn axis_only(self) -> bool {
-        matches!(self, Self::AffineGrid | Self::PlaneFitting | Self::PlaneAngles)
+        matches!(
+            self,
+            Self::AffineGrid | Self::PlaneFitting | Self::PlaneAngles
+        )
     }
 
     /// Short name (`reprojection`, `scene`, `ray-gap`, `affine-grid`, `plane-fitting`, `plane-angles`).
@@ -103,12 +116,19 @@ impl SceneFit {
     /// Fits the board to each view of corners already triangulated (`points`, `gaps` in
     /// `data.corners` order, from [`triangulate_corner`] or its GPU twin). `None` when a view
     /// cannot be fitted.
-    pub fn from_triangulated(data: &StereoData, points: Vec<Point3<f64>>, gaps: Vec<f64>) -> Option<Self> {
+    pub fn from_triangulated(
+        data: &StereoData,
+        points: Vec<Point3<f64>>,
+        gaps: Vec<f64>,
+    ) -> Option<Self> {
         let fits = data
             .views
             .iter()
             .map(|range| {
-                let model: Vec<_> = data.corners[range.clone()].iter().map(|c| data.board.point_in_board(c.index)).collect();
+                let model: Vec<_> = data.corners[range.clone()]
+                    .iter()
+                    .map(|c| data.board.point_in_board(c.index))
+                    .collect();
                 fit_rigid(&model, &points[range.clone()])
             })
             .collect::<Option<Vec<_>>>()?;
@@ -123,7 +143,10 @@ impl SceneFit {
     /// Every corner of the fitted boards, master frame, in `data.corners` order: what
     /// [`reprojection_residuals`] projects.
     pub fn fitted_points(&self, data: &StereoData) -> Vec<Point3<f64>> {
-        data.corners.iter().map(|c| fitted_corner(data, &self.fits[c.view].master_from_board, c)).collect()
+        data.corners
+            .iter()
+            .map(|c| fitted_corner(data, &self.fits[c.view].master_from_board, c))
+            .collect()
     }
 
     /// RMS of the rigid-fit residuals over all corners, metres.
@@ -137,40 +160,64 @@ impl SceneFit {
         let (mut sum, mut count) = (0.0, 0usize);
         for range in &data.views {
             let corners = &data.corners[range.clone()];
-            let lookup: std::collections::HashMap<usize, usize> =
-                corners.iter().enumerate().map(|(j, c)| (c.index, range.start + j)).collect();
+            let lookup: std::collections::HashMap<usize, usize> = corners
+                .iter()
+                .enumerate()
+                .map(|(j, c)| (c.index, range.start + j))
+                .collect();
             for c in corners {
                 let (r, col) = data.board.grid_position(c.index);
                 let here = lookup[&c.index];
-                let neighbours = [(col + 1 < data.board.cols).then(|| c.index + 1), (r + 1 < data.board.rows).then(|| c.index + data.board.cols)];
-                for next in neighbours.into_iter().flatten().filter_map(|i| lookup.get(&i)) {
+                let neighbours = [
+                    (col + 1 < data.board.cols).then(|| c.index + 1),
+                    (r + 1 < data.board.rows).then(|| c.index + data.board.cols),
+                ];
+                for next in neighbours
+                    .into_iter()
+                    .flatten()
+                    .filter_map(|i| lookup.get(&i))
+                {
                     let distance = (self.points[here] - self.points[*next]).norm();
                     sum += (distance - data.board.square).powi(2);
                     count += 1;
                 }
             }
         }
-        if count == 0 { 0.0 } else { (sum / count as f64).sqrt() }
+        if count == 0 {
+            0.0
+        } else {
+            (sum / count as f64).sqrt()
+        }
     }
 }
 
 /// The corner triangulated behind `cameras`: both air rays into the water, midpoint of their
 /// closest approach and the gap there. `None` when a ray or the triangulation has no answer. CPU
 /// twin of the `calib_triangulate` kernel.
-pub fn triangulate_corner(cameras: &[RefractiveCamera; 2], corner: &Corner) -> Option<Triangulation> {
+pub fn triangulate_corner(
+    cameras: &[RefractiveCamera; 2],
+    corner: &Corner,
+) -> Option<Triangulation> {
     let left = cameras[0].ray_in_water(&corner.dirs[0]).ok()?;
     let right = cameras[1].ray_in_water(&corner.dirs[1]).ok()?;
     triangulate_rays(&left, &right).ok()
 }
 
 /// Corner `corner` of the board at pose `master_from_board`, master frame.
-pub fn fitted_corner(data: &StereoData, master_from_board: &Isometry3<f64>, corner: &Corner) -> Point3<f64> {
+pub fn fitted_corner(
+    data: &StereoData,
+    master_from_board: &Isometry3<f64>,
+    corner: &Corner,
+) -> Point3<f64> {
     master_from_board * data.board.point_in_board(corner.index)
 }
 
 /// Observed − projected pixel of a corner in both images, `[left, right]`.
 pub fn pixel_residuals(corner: &Corner, projected: [Point2<f64>; 2]) -> [Vector2<f64>; 2] {
-    [corner.pixels[0] - projected[0], corner.pixels[1] - projected[1]]
+    [
+        corner.pixels[0] - projected[0],
+        corner.pixels[1] - projected[1],
+    ]
 }
 
 /// Pixel residuals (observed − projected) of the fitted boards in both cameras, `[left, right]`
@@ -181,16 +228,29 @@ pub fn reprojection_residuals(
     poses: &[Isometry3<f64>],
 ) -> Option<Vec<[Vector2<f64>; 2]>> {
     // Every corner at once, in the lanes of the CPU engine's vector path.
-    let points: Vec<[f64; 3]> = data.corners.iter().map(|c| fitted_corner(data, &poses[c.view], c).coords.into()).collect();
+    let points: Vec<[f64; 3]> = data
+        .corners
+        .iter()
+        .map(|c| fitted_corner(data, &poses[c.view], c).coords.into())
+        .collect();
     let left = simd::project_all(&cameras[0], &points)?;
     let right = simd::project_all(&cameras[1], &points)?;
     let pixel = |p: &[f64; 2]| Point2::new(p[0], p[1]);
-    Some(data.corners.iter().zip(left.iter().zip(&right)).map(|(c, (l, r))| pixel_residuals(c, [pixel(l), pixel(r)])).collect())
+    Some(
+        data.corners
+            .iter()
+            .zip(left.iter().zip(&right))
+            .map(|(c, (l, r))| pixel_residuals(c, [pixel(l), pixel(r)]))
+            .collect(),
+    )
 }
 
 /// [`CostKind::Reprojection`] from the residuals of every corner: √(Σ |r_l|² + |r_r|² / 2N), pixels.
 pub fn reprojection_rms(residuals: &[[Vector2<f64>; 2]]) -> f64 {
-    let sum: f64 = residuals.iter().map(|[l, r]| l.norm_squared() + r.norm_squared()).sum();
+    let sum: f64 = residuals
+        .iter()
+        .map(|[l, r]| l.norm_squared() + r.norm_squared())
+        .sum();
     (sum / (2 * residuals.len()) as f64).sqrt()
 }
 
@@ -200,39 +260,88 @@ pub fn ray_gap_rms(gaps: &[f64]) -> f64 {
     (sum / gaps.len() as f64).sqrt()
 }
 
-/// The cost `kind` of one candidate, +∞ where the candidate explains no corner.
+/// The cost `kind` of one candidate, +∞ where the candidate explains no corner. The affine-grid
+/// invariant's per-corner rows are prepared by each call here; the backends prepare them once
+/// ([`cost_prepared`]).
 pub fn cost(data: &StereoData, kind: CostKind, candidate: &Candidate) -> f64 {
-    evaluate(data, kind, candidate).unwrap_or(f64::INFINITY)
+    let rows = if kind == CostKind::AffineGrid {
+        affine_grid::affine_rows(data)
+    } else {
+        Vec::new()
+    };
+    cost_prepared(data, &rows, kind, candidate)
 }
 
-fn evaluate(data: &StereoData, kind: CostKind, candidate: &Candidate) -> Option<f64> {
+/// [`cost`] with the affine-grid rows ([`affine_grid::affine_rows`]) prepared by the caller (only
+/// read for [`CostKind::AffineGrid`]).
+pub fn cost_prepared(
+    data: &StereoData,
+    affine_rows: &[[f64; affine_grid::ROW]],
+    kind: CostKind,
+    candidate: &Candidate,
+) -> f64 {
+    evaluate(data, affine_rows, kind, candidate).unwrap_or(f64::INFINITY)
+}
+
+fn evaluate(
+    data: &StereoData,
+    affine_rows: &[[f64; affine_grid::ROW]],
+    kind: CostKind,
+    candidate: &Candidate,
+) -> Option<f64> {
     if kind == CostKind::AffineGrid {
         let n = candidate.normal;
-        return super::affine_grid::affine_grid_cost(data, &[n.x, n.y, n.z]);
+        return affine_grid::affine_grid_cost(data, affine_rows, &[n.x, n.y, n.z]);
     }
     if kind.axis_only() {
-        return plane_cost(data, kind, data.views.iter().map(|range| projected_vops(data, &data.corners[range.clone()], &candidate.normal)));
+        return plane_cost(
+            data,
+            kind,
+            data.views
+                .iter()
+                .map(|range| projected_vops(data, &data.corners[range.clone()], &candidate.normal)),
+        );
     }
     let cameras = data.cameras_behind(candidate)?;
     if kind == CostKind::RayGap {
-        let gaps = data.corners.iter().map(|c| triangulate_corner(&cameras, c).map(|t| t.residual)).collect::<Option<Vec<_>>>()?;
+        let gaps = data
+            .corners
+            .iter()
+            .map(|c| triangulate_corner(&cameras, c).map(|t| t.residual))
+            .collect::<Option<Vec<_>>>()?;
         return Some(ray_gap_rms(&gaps));
     }
     let fit = SceneFit::new(data, &cameras)?;
     match kind {
         CostKind::Scene => Some(fit.scene_rms()),
-        _ => Some(reprojection_rms(&reprojection_residuals(data, &cameras, &fit.poses())?)),
+        _ => Some(reprojection_rms(&reprojection_residuals(
+            data,
+            &cameras,
+            &fit.poses(),
+        )?)),
     }
 }
 
 /// A plane error ([`CostKind::PlaneFitting`] or [`CostKind::PlaneAngles`]) from the projected VOPs
 /// of each view in turn (corners whose VOP is undetermined left out): √(Σ/dof). `None` when no
-/// degree of freedom is left. ([`CostKind::AffineGrid`] is [`super::affine_grid`]'s.)
-pub fn plane_cost(data: &StereoData, kind: CostKind, views: impl IntoIterator<Item = Vec<ProjectedVop>>) -> Option<f64> {
-    debug_assert!(matches!(kind, CostKind::PlaneFitting | CostKind::PlaneAngles), "plane_cost of {}", kind.name());
+/// degree of freedom is left. ([`CostKind::AffineGrid`] is [`affine_grid`]'s.)
+pub fn plane_cost(
+    data: &StereoData,
+    kind: CostKind,
+    views: impl IntoIterator<Item = Vec<ProjectedVop>>,
+) -> Option<f64> {
+    debug_assert!(
+        matches!(kind, CostKind::PlaneFitting | CostKind::PlaneAngles),
+        "plane_cost of {}",
+        kind.name()
+    );
     let (mut sum, mut dof) = (0.0, 0usize);
     for vops in views {
-        let (s, d) = if kind == CostKind::PlaneFitting { plane_fitting(data, &vops) } else { plane_angles(data, &vops) };
+        let (s, d) = if kind == CostKind::PlaneFitting {
+            plane_fitting(data, &vops)
+        } else {
+            plane_angles(data, &vops)
+        };
         sum += s;
         dof += d;
     }

@@ -1,12 +1,14 @@
 //! Simulated calibration scenes: random board poses in the water seen fully by both cameras,
 //! corners projected exactly through the interface, Gaussian pixel noise.
 
+pub mod rng;
+
 use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector3};
 
-use super::board::Board;
-use super::error::CalibError;
-use super::observations::{Observations, StereoView};
-use super::rng::Rng;
+use crate::calib::error::CalibError;
+use crate::calib::problem::board::Board;
+use crate::calib::problem::observations::{Observations, StereoView};
+use crate::calib::simulate::rng::Rng;
 use crate::model::{RefractiveCamera, Rig};
 
 /// How to simulate a scene.
@@ -29,7 +31,14 @@ pub struct SceneSpec {
 impl SceneSpec {
     /// Defaults: boards turned up to 45° toward the camera, corners 10 px inside the images.
     pub fn new(board: Board, views: usize, noise_px: f64, seed: u64) -> Self {
-        Self { board, views, noise_px, seed, max_board_tilt: 45f64.to_radians(), margin_px: 10.0 }
+        Self {
+            board,
+            views,
+            noise_px,
+            seed,
+            max_board_tilt: 45f64.to_radians(),
+            margin_px: 10.0,
+        }
     }
 }
 
@@ -82,16 +91,26 @@ pub const MAX_NOISE_PX: f64 = 100.0;
 /// Errors: [`CalibError::Options`] when no pose that both cameras see fully is found (board too
 /// large for the common field of view, or cameras that do not overlap), or when the scene is
 /// larger than [`check_scene_size`] allows.
-pub fn simulate(rig: &Rig, left: usize, right: usize, spec: &SceneSpec) -> Result<Scene, CalibError> {
+pub fn simulate(
+    rig: &Rig,
+    left: usize,
+    right: usize,
+    spec: &SceneSpec,
+) -> Result<Scene, CalibError> {
     let board = &spec.board;
     if board.rows < 2 || board.cols < 2 || !(board.square > 0.0) {
-        return Err(CalibError::BadBoard { reason: format!("{} × {} corners of {} m", board.rows, board.cols, board.square) });
+        return Err(CalibError::BadBoard {
+            reason: format!(
+                "{} × {} corners of {} m",
+                board.rows, board.cols, board.square
+            ),
+        });
     }
     check_scene_size(board, spec.views)?;
     if !(spec.noise_px >= 0.0 && spec.noise_px <= MAX_NOISE_PX) {
         return Err(CalibError::Options(format!(
             "noise must lie in [0, {MAX_NOISE_PX}] px (a corner detector's error is a fraction of a pixel), got {}",
-            super::error::number(spec.noise_px)
+            crate::calib::error::number(spec.noise_px)
         )));
     }
     // Noisy corners must stay inside the images, as a detector reports them: the poses keep
@@ -104,8 +123,12 @@ pub fn simulate(rig: &Rig, left: usize, right: usize, spec: &SceneSpec) -> Resul
     let interface = rig.interface();
     // Depth range from the field of view in water of the master camera: the board must fit.
     let intrinsics = rig.cameras()[left].intrinsics;
-    let half_fov_air = (0.5 * (intrinsics.width as f64 / intrinsics.fx).min(intrinsics.height as f64 / intrinsics.fy)).atan();
-    let tan_half_fov_water = (half_fov_air.sin() * interface.index_air() / interface.index_water()).asin().tan();
+    let half_fov_air = (0.5
+        * (intrinsics.width as f64 / intrinsics.fx).min(intrinsics.height as f64 / intrinsics.fy))
+    .atan();
+    let tan_half_fov_water = (half_fov_air.sin() * interface.index_air() / interface.index_water())
+        .asin()
+        .tan();
     let diagonal = ((board.rows - 1) as f64).hypot((board.cols - 1) as f64) * board.square;
     let near = (0.5 * diagonal / tan_half_fov_water).max(interface.outer_distance() + 0.05);
     let far = 3.0 * near;
@@ -121,7 +144,7 @@ pub fn simulate(rig: &Rig, left: usize, right: usize, spec: &SceneSpec) -> Resul
             .ok_or_else(|| {
                 CalibError::Options(format!(
                     "view {v}: found no pose in which both cameras see the whole {}×{} board of {} m squares",
-                    board.rows, board.cols, super::error::number(board.square)
+                    board.rows, board.cols, crate::calib::error::number(board.square)
                 ))
             })?;
         let mut draw = || loop {
@@ -133,16 +156,36 @@ pub fn simulate(rig: &Rig, left: usize, right: usize, spec: &SceneSpec) -> Resul
         let mut noisy = |p: &Point2<f64>| Some(Point2::new(p.x + draw(), p.y + draw()));
         let left_corners = pixels[0].iter().map(&mut noisy).collect();
         let right_corners = pixels[1].iter().map(&mut noisy).collect();
-        views.push(StereoView { left: left_corners, right: right_corners });
+        views.push(StereoView {
+            left: left_corners,
+            right: right_corners,
+        });
         poses.push(pose);
     }
-    let names = [rig.cameras()[left].name.clone(), rig.cameras()[right].name.clone()];
-    Ok(Scene { observations: Observations { board: *board, views, cameras: Some(names) }, master_from_board: poses })
+    let names = [
+        rig.cameras()[left].name.clone(),
+        rig.cameras()[right].name.clone(),
+    ];
+    Ok(Scene {
+        observations: Observations {
+            board: *board,
+            views,
+            cameras: Some(names),
+        },
+        master_from_board: poses,
+    })
 }
 
 /// A board pose: centre at a random depth in [near, far] inside the central part of the view,
 /// facing the camera within `max_tilt`, turned in its plane by up to ±30°.
-fn random_pose(rng: &mut Rng, board: &Board, near: f64, far: f64, tan_half_fov: f64, max_tilt: f64) -> Isometry3<f64> {
+fn random_pose(
+    rng: &mut Rng,
+    board: &Board,
+    near: f64,
+    far: f64,
+    tan_half_fov: f64,
+    max_tilt: f64,
+) -> Isometry3<f64> {
     let z = rng.range(near, far);
     let reach = 0.7 * z * tan_half_fov;
     let centre = Vector3::new(rng.range(-reach, reach), rng.range(-reach, reach), z);
@@ -167,7 +210,10 @@ fn visible_corners(
     pose: &Isometry3<f64>,
     margin: f64,
 ) -> Option<[Vec<Point2<f64>>; 2]> {
-    let mut out = [Vec::with_capacity(board.corners()), Vec::with_capacity(board.corners())];
+    let mut out = [
+        Vec::with_capacity(board.corners()),
+        Vec::with_capacity(board.corners()),
+    ];
     for (k, camera) in cameras.iter().enumerate() {
         let i = &rig.cameras()[indices[k]].intrinsics;
         for c in 0..board.corners() {

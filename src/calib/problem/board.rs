@@ -92,7 +92,11 @@ pub fn fit_rigid(model: &[Point3<f64>], measured: &[Point3<f64>]) -> Option<Rigi
         .zip(measured)
         .map(|(p, x)| (master_from_board * p - x).norm_squared())
         .sum();
-    Some(RigidFit { master_from_board, rms: (sum_squares * inv).sqrt(), sum_squares })
+    Some(RigidFit {
+        master_from_board,
+        rms: (sum_squares * inv).sqrt(),
+        sum_squares,
+    })
 }
 
 #[cfg(test)]
@@ -101,7 +105,11 @@ mod tests {
 
     #[test]
     fn corners_are_row_major() {
-        let board = Board { rows: 6, cols: 9, square: 0.04 };
+        let board = Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        };
         assert_eq!(board.corners(), 54);
         assert_eq!(board.point_in_board(10), Point3::new(0.04, 0.04, 0.0));
         assert_eq!(board.grid_position(53), (5, 8));
@@ -110,8 +118,14 @@ mod tests {
 
     #[test]
     fn kabsch_recovers_a_known_motion() {
-        let board = Board { rows: 4, cols: 5, square: 0.03 };
-        let model: Vec<_> = (0..board.corners()).map(|i| board.point_in_board(i)).collect();
+        let board = Board {
+            rows: 4,
+            cols: 5,
+            square: 0.03,
+        };
+        let model: Vec<_> = (0..board.corners())
+            .map(|i| board.point_in_board(i))
+            .collect();
         let motion = Isometry3::new(Vector3::new(0.1, -0.2, 0.9), Vector3::new(0.3, -2.8, 0.5));
         let measured: Vec<_> = model.iter().map(|p| motion * p).collect();
         let fit = fit_rigid(&model, &measured).unwrap();
@@ -121,9 +135,19 @@ mod tests {
         // (det +1) and leaves a residual. (A planar set's mirror image is a rotation of it.)
         let mut solid = model.clone();
         solid.push(Point3::new(0.05, 0.05, 0.1));
-        let mirrored: Vec<_> = solid.iter().map(|p| motion * Point3::new(-p.x, p.y, p.z)).collect();
+        let mirrored: Vec<_> = solid
+            .iter()
+            .map(|p| motion * Point3::new(-p.x, p.y, p.z))
+            .collect();
         let fit = fit_rigid(&solid, &mirrored).unwrap();
-        assert!(fit.master_from_board.rotation.to_rotation_matrix().matrix().determinant() > 0.0);
+        assert!(
+            fit.master_from_board
+                .rotation
+                .to_rotation_matrix()
+                .matrix()
+                .determinant()
+                > 0.0
+        );
         assert!(fit.rms > 1e-3);
         // Collinear points leave the rotation undetermined.
         let line: Vec<_> = (0..5).map(|i| Point3::new(i as f64, 0.0, 0.0)).collect();

@@ -18,12 +18,16 @@ use std::sync::Arc;
 use nalgebra::{Point2, Point3, Unit, Vector3};
 use rayon::prelude::*;
 
-use super::air_layer::{GapLine, least_squares_air_distance, sample_cameras};
-use super::backend::CostBackend;
-use super::costs::{CostKind, SceneFit, pixel_residuals, plane_cost, ray_gap_rms, reprojection_rms};
-use super::data::{Candidate, StereoData};
-use super::error::CalibError;
-use super::invariants::ProjectedVop;
+use crate::calib::backends::CostBackend;
+use crate::calib::costs::affine_grid::affine_rows;
+use crate::calib::costs::air_layer::{GapLine, least_squares_air_distance, sample_cameras};
+use crate::calib::costs::cost_prepared;
+use crate::calib::costs::invariants::ProjectedVop;
+use crate::calib::costs::{
+    CostKind, SceneFit, pixel_residuals, plane_cost, ray_gap_rms, reprojection_rms,
+};
+use crate::calib::error::CalibError;
+use crate::calib::problem::data::{Candidate, StereoData};
 use crate::gpu::{AffineGridInput, GpuEngine};
 
 /// The costs of candidate batches evaluated by a [`GpuEngine`] (any adapter, f32 or f64).
@@ -45,7 +49,11 @@ pub struct GpuBackend<D = Arc<StereoData>, E = Arc<GpuEngine>> {
 impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, E> {
     /// A backend over `data` running on `engine` (whose pipelines and buffers it reuses).
     pub fn new(data: D, engine: E) -> Self {
-        let air_rays = data.corners.iter().map(|c| std::array::from_fn(|i| c.dirs[i / 3][i % 3])).collect();
+        let air_rays = data
+            .corners
+            .iter()
+            .map(|c| std::array::from_fn(|i| c.dirs[i / 3][i % 3]))
+            .collect();
         let vop_rows = data
             .corners
             .iter()
@@ -62,8 +70,14 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             })
             .collect();
         let views: Vec<(usize, usize)> = data.views.iter().map(|r| (r.start, r.len())).collect();
-        let affine_input = AffineGridInput::new(&data.affine_rows, &views);
-        Self { data, engine, air_rays, vop_rows, affine_input }
+        let affine_input = AffineGridInput::new(&affine_rows(&data), &views);
+        Self {
+            data,
+            engine,
+            air_rays,
+            vop_rows,
+            affine_input,
+        }
     }
 
     /// The engine the kernels run on.
@@ -72,7 +86,11 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
     }
 
     /// Reprojection, scene or ray-gap costs: triangulation on the device, fits on the host.
-    fn scene_costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
+    fn scene_costs(
+        &self,
+        kind: CostKind,
+        candidates: &[Candidate],
+    ) -> Result<Vec<f64>, CalibError> {
         let data: &StereoData = &self.data;
         let corners = data.corners.len();
         let mut costs = vec![f64::INFINITY; candidates.len()];
@@ -90,14 +108,32 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
         }
         let mut rows = vec![[0.0; 4]; interfaces.len() * corners];
         let mut status = vec![0; rows.len()];
-        self.engine.calib_triangulate(&data.rig, data.cameras, &self.air_rays, &interfaces, &mut rows, &mut status)?;
-        let answered = |c: usize| status[c * corners..(c + 1) * corners].iter().all(|&s| s == 0);
+        self.engine.calib_triangulate(
+            &data.rig,
+            data.cameras,
+            &self.air_rays,
+            &interfaces,
+            &mut rows,
+            &mut status,
+        )?;
+        let answered = |c: usize| {
+            status[c * corners..(c + 1) * corners]
+                .iter()
+                .all(|&s| s == 0)
+        };
         if kind == CostKind::RayGap {
             let values: Vec<f64> = (0..valid.len())
                 .into_par_iter()
                 .map(|c| {
-                    let gaps: Vec<f64> = rows[c * corners..(c + 1) * corners].iter().map(|r| r[3]).collect();
-                    if answered(c) { ray_gap_rms(&gaps) } else { f64::INFINITY }
+                    let gaps: Vec<f64> = rows[c * corners..(c + 1) * corners]
+                        .iter()
+                        .map(|r| r[3])
+                        .collect();
+                    if answered(c) {
+                        ray_gap_rms(&gaps)
+                    } else {
+                        f64::INFINITY
+                    }
                 })
                 .collect();
             valid.iter().zip(values).for_each(|(&i, v)| costs[i] = v);
@@ -115,7 +151,9 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             })
             .collect();
         if kind == CostKind::Scene {
-            valid.iter().zip(&fits).for_each(|(&i, fit)| costs[i] = fit.as_ref().map_or(f64::INFINITY, SceneFit::scene_rms));
+            valid.iter().zip(&fits).for_each(|(&i, fit)| {
+                costs[i] = fit.as_ref().map_or(f64::INFINITY, SceneFit::scene_rms)
+            });
             return Ok(costs);
         }
         // Reprojection: project every fitted board behind its own candidate.
@@ -125,12 +163,27 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
         }
         let points: Vec<[f64; 3]> = fitted
             .par_iter()
-            .flat_map_iter(|&c| fits[c].as_ref().expect("fitted").fitted_points(data).into_iter().map(|p| [p.x, p.y, p.z]))
+            .flat_map_iter(|&c| {
+                fits[c]
+                    .as_ref()
+                    .expect("fitted")
+                    .fitted_points(data)
+                    .into_iter()
+                    .map(|p| [p.x, p.y, p.z])
+            })
             .collect();
         let fitted_interfaces: Vec<[f64; 4]> = fitted.iter().map(|&c| interfaces[c]).collect();
         let mut pixels = vec![[0.0; 4]; points.len()];
         let mut status = vec![0; points.len()];
-        self.engine.calib_project(&data.rig, data.cameras, corners, &points, &fitted_interfaces, &mut pixels, &mut status)?;
+        self.engine.calib_project(
+            &data.rig,
+            data.cameras,
+            corners,
+            &points,
+            &fitted_interfaces,
+            &mut pixels,
+            &mut status,
+        )?;
         let values: Vec<f64> = (0..fitted.len())
             .into_par_iter()
             .map(|f| {
@@ -142,12 +195,17 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
                     .corners
                     .iter()
                     .zip(&pixels[range])
-                    .map(|(corner, p)| pixel_residuals(corner, [Point2::new(p[0], p[1]), Point2::new(p[2], p[3])]))
+                    .map(|(corner, p)| {
+                        pixel_residuals(corner, [Point2::new(p[0], p[1]), Point2::new(p[2], p[3])])
+                    })
                     .collect();
                 reprojection_rms(&residuals)
             })
             .collect();
-        fitted.iter().zip(values).for_each(|(&c, v)| costs[valid[c]] = v);
+        fitted
+            .iter()
+            .zip(values)
+            .for_each(|(&c, v)| costs[valid[c]] = v);
         Ok(costs)
     }
 
@@ -156,40 +214,82 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
     fn affine_grid_costs(&self, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
         let data: &StereoData = &self.data;
         if !self.engine.context().adapter().f64 {
-            return Ok(candidates.par_iter().map(|c| super::costs::cost(data, CostKind::AffineGrid, c)).collect());
+            let rows = affine_rows(data);
+            return Ok(candidates
+                .par_iter()
+                .map(|c| cost_prepared(data, &rows, CostKind::AffineGrid, c))
+                .collect());
         }
         let views = self.affine_input.views();
-        let axes: Vec<[f64; 4]> = candidates.iter().map(|c| [c.normal.x, c.normal.y, c.normal.z, 0.0]).collect();
+        let axes: Vec<[f64; 4]> = candidates
+            .iter()
+            .map(|c| [c.normal.x, c.normal.y, c.normal.z, 0.0])
+            .collect();
         let mut fits = vec![[0.0; 2]; axes.len() * views];
         let mut status = vec![0; fits.len()];
-        self.engine.calib_affine_grid(&data.rig, data.cameras, &self.affine_input, &axes, &mut fits, &mut status)?;
+        self.engine.calib_affine_grid(
+            &data.rig,
+            data.cameras,
+            &self.affine_input,
+            &axes,
+            &mut fits,
+            &mut status,
+        )?;
         Ok(candidates
             .iter()
             .enumerate()
             .map(|(c, candidate)| {
                 let range = c * views..(c + 1) * views;
-                let fitted = status[range.clone()].iter().all(|&s| s == 0) && candidate.normal.z > 0.0;
-                let (chi2, dof) = fits[range].iter().fold((0.0, 0.0), |(a, b), f| (a + f[0], b + f[1]));
-                if fitted && dof > 0.0 { chi2 / dof } else { f64::INFINITY }
+                let fitted =
+                    status[range.clone()].iter().all(|&s| s == 0) && candidate.normal.z > 0.0;
+                let (chi2, dof) = fits[range]
+                    .iter()
+                    .fold((0.0, 0.0), |(a, b), f| (a + f[0], b + f[1]));
+                if fitted && dof > 0.0 {
+                    chi2 / dof
+                } else {
+                    f64::INFINITY
+                }
             })
             .collect())
     }
 
     /// The plane errors: projected VOPs on the device, per-view line fits on the host.
-    fn plane_costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
+    fn plane_costs(
+        &self,
+        kind: CostKind,
+        candidates: &[Candidate],
+    ) -> Result<Vec<f64>, CalibError> {
         let data: &StereoData = &self.data;
         let corners = data.corners.len();
-        let axes: Vec<[f64; 4]> = candidates.iter().map(|c| [c.normal.x, c.normal.y, c.normal.z, 0.0]).collect();
+        let axes: Vec<[f64; 4]> = candidates
+            .iter()
+            .map(|c| [c.normal.x, c.normal.y, c.normal.z, 0.0])
+            .collect();
         let mut rows = vec![[0.0; 10]; axes.len() * corners];
         let mut status = vec![0; rows.len()];
-        self.engine.calib_projected_vop(&data.rig, data.cameras, &self.vop_rows, &axes, &mut rows, &mut status)?;
+        self.engine.calib_projected_vop(
+            &data.rig,
+            data.cameras,
+            &self.vop_rows,
+            &axes,
+            &mut rows,
+            &mut status,
+        )?;
         Ok((0..candidates.len())
             .into_par_iter()
             .map(|c| {
-                let (rows, status) = (&rows[c * corners..(c + 1) * corners], &status[c * corners..(c + 1) * corners]);
+                let (rows, status) = (
+                    &rows[c * corners..(c + 1) * corners],
+                    &status[c * corners..(c + 1) * corners],
+                );
                 // Corners whose binocular VOP is undetermined are left out, as on the CPU.
                 let views = data.views.iter().map(|range| {
-                    range.clone().filter(|&j| status[j] == 0).map(|j| ProjectedVop::from_packed(data.corners[j].index, &rows[j])).collect()
+                    range
+                        .clone()
+                        .filter(|&j| status[j] == 0)
+                        .map(|j| ProjectedVop::from_packed(data.corners[j].index, &rows[j]))
+                        .collect()
                 });
                 plane_cost(data, kind, views).unwrap_or(f64::INFINITY)
             })
@@ -197,10 +297,18 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
     }
 }
 
-impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> CostBackend for GpuBackend<D, E> {
+impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> CostBackend
+    for GpuBackend<D, E>
+{
     fn describe(&self) -> String {
         let a = self.engine.context().adapter();
-        format!("gpu: {} ({}, {}), {}", a.name, a.backend, a.driver, self.engine.precision())
+        format!(
+            "gpu: {} ({}, {}), {}",
+            a.name,
+            a.backend,
+            a.driver,
+            self.engine.precision()
+        )
     }
 
     fn data(&self) -> &StereoData {
@@ -219,19 +327,33 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
         }
     }
 
-    fn air_distances(&self, normals: &[Unit<Vector3<f64>>]) -> Result<Vec<Option<f64>>, CalibError> {
+    fn air_distances(
+        &self,
+        normals: &[Unit<Vector3<f64>>],
+    ) -> Result<Vec<Option<f64>>, CalibError> {
         let data: &StereoData = &self.data;
         let corners = data.corners.len();
         let mut distances = vec![None; normals.len()];
         // Axes that are interface normals at all (the CPU reference samples the rays there).
-        let (valid, axes): (Vec<usize>, Vec<[f64; 4]>) =
-            normals.par_iter().enumerate().filter(|(_, n)| sample_cameras(data, n).is_some()).map(|(i, n)| (i, [n.x, n.y, n.z, 0.0])).unzip();
+        let (valid, axes): (Vec<usize>, Vec<[f64; 4]>) = normals
+            .par_iter()
+            .enumerate()
+            .filter(|(_, n)| sample_cameras(data, n).is_some())
+            .map(|(i, n)| (i, [n.x, n.y, n.z, 0.0]))
+            .unzip();
         if valid.is_empty() {
             return Ok(distances);
         }
         let mut rows = vec![[0.0; 3]; axes.len() * corners];
         let mut status = vec![0; rows.len()];
-        self.engine.calib_gap_line(&data.rig, data.cameras, &self.air_rays, &axes, &mut rows, &mut status)?;
+        self.engine.calib_gap_line(
+            &data.rig,
+            data.cameras,
+            &self.air_rays,
+            &axes,
+            &mut rows,
+            &mut status,
+        )?;
         let values: Vec<Option<f64>> = (0..valid.len())
             .into_par_iter()
             .map(|c| {
@@ -239,12 +361,21 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
                 let lines: Vec<Option<GapLine>> = rows[range.clone()]
                     .iter()
                     .zip(&status[range])
-                    .map(|(r, &s)| (s == 0).then_some(GapLine { a: r[0], b: r[1], sin_angle: r[2] }))
+                    .map(|(r, &s)| {
+                        (s == 0).then_some(GapLine {
+                            a: r[0],
+                            b: r[1],
+                            sin_angle: r[2],
+                        })
+                    })
                     .collect();
                 least_squares_air_distance(&lines).map(|(d, _)| d)
             })
             .collect();
-        valid.iter().zip(values).for_each(|(&i, d)| distances[i] = d);
+        valid
+            .iter()
+            .zip(values)
+            .for_each(|(&i, d)| distances[i] = d);
         Ok(distances)
     }
 }

@@ -4,16 +4,16 @@ use std::time::Instant;
 
 use nalgebra::{Isometry3, Unit, Vector3};
 
-use super::backend::CostBackend;
-use super::bundle::{Bundle, BundleState, interface_std};
-use super::costs::{CostKind, SceneFit, reprojection_residuals};
-use super::data::{Candidate, StereoData};
-use super::diagnose;
-use super::error::{CalibError, Side, degrees};
-use super::lm::{LmOptions, Termination, levenberg_marquardt_observed};
-use super::observations::{ViewCorners, compare_views, describe_pose_groups};
-use super::screen::{Screening, screen, without_corners};
-use super::search::{cap_grid, fit_air_distance, refine_axis_observed};
+use crate::calib::backends::CostBackend;
+use crate::calib::costs::{CostKind, SceneFit, reprojection_residuals};
+use crate::calib::error::{CalibError, Side, degrees};
+use crate::calib::methods::bundle::{Bundle, BundleState, interface_std};
+use crate::calib::methods::diagnose;
+use crate::calib::problem::data::{Candidate, StereoData};
+use crate::calib::problem::observations::{ViewCorners, compare_views, describe_pose_groups};
+use crate::calib::problem::screen::{Screening, screen, without_corners};
+use crate::calib::solvers::lm::{LmOptions, Termination, levenberg_marquardt_observed};
+use crate::calib::solvers::search::{cap_grid, fit_air_distance, refine_axis_observed};
 use crate::model::Interface;
 
 /// Which estimator.
@@ -90,7 +90,7 @@ pub struct Outlier {
     pub corner: usize,
     /// Its reprojection residual in that image under the result, pixels.
     pub residual_px: f64,
-    /// Whether the screening of the images ([`super::screen`]) found it before any fit; such
+    /// Whether the screening of the images ([`screen`](crate::calib::problem::screen)) found it before any fit; such
     /// corners are left out of the estimate.
     pub screened: bool,
 }
@@ -149,14 +149,14 @@ pub struct CalibrationReport {
     /// RMS reprojection error per camera [left, right] over the images that are not outliers, pixels.
     pub inlier_rms_px: [f64; 2],
     /// The corner noise σ per coordinate seen in the images themselves (the scatter about the
-    /// board's smooth shape, [`super::screen`]), pixels: what the reprojection RMS should come
+    /// board's smooth shape, [`screen`](crate::calib::problem::screen)), pixels: what the reprojection RMS should come
     /// close to. `None` for boards under 3 × 3.
     pub noise_px: Option<f64>,
     /// Whether the result fits: the larger of [`Self::inlier_rms_px`] is at most the
     /// [`CalibrationOptions::max_rms_px`]. The CLI writes no rig otherwise.
     pub fits: bool,
     /// What the data look like, when the RMS is far above the noise or above the bound
-    /// ([`super::diagnose::explain`]); empty otherwise.
+    /// ([`crate::calib::methods::diagnose::explain`]); empty otherwise.
     pub diagnosis: Vec<String>,
     /// Everything worth a second look.
     pub warnings: Vec<String>,
@@ -206,11 +206,15 @@ pub struct CalibrationProgress<'a> {
 /// are fewer than [`MIN_VIEWS`] distinct board poses ([`CalibError::TooFewPoses`]); views whose
 /// images look swapped or whose corner order looks reversed are warned about
 /// ([`diagnose::pairing_findings`]); corners off the board's shape in their image by far more
-/// than the noise ([`super::screen`]) are left out of the estimate, whatever the method. Every
+/// than the noise ([`screen`](crate::calib::problem::screen)) are left out of the estimate, whatever the method. Every
 /// method reports the corner images whose residuals under the result are far above the rest. When no axis explains the data the error says what the data look
 /// like ([`diagnose::explain`]); so does [`CalibrationReport::diagnosis`] when the RMS of the
 /// result is far above the noise or above [`CalibrationOptions::max_rms_px`].
-pub fn calibrate(backend: &dyn CostBackend, options: &CalibrationOptions, warnings: Vec<String>) -> Result<Calibration, CalibError> {
+pub fn calibrate(
+    backend: &dyn CostBackend,
+    options: &CalibrationOptions,
+    warnings: Vec<String>,
+) -> Result<Calibration, CalibError> {
     calibrate_with_progress(backend, options, warnings, &mut |_| {})
 }
 
@@ -224,23 +228,36 @@ pub fn calibrate_with_progress(
 ) -> Result<Calibration, CalibError> {
     let data = backend.data();
     let mut screening = None;
-    calibrate_screened(backend, options, warnings, &mut screening, progress).map_err(|error| match error {
-        CalibError::NoSolution { reason, .. } => {
-            let noise = screening.as_ref().and_then(|s: &Screening| s.noise_px);
-            // The local refinement does not know the search bound (it reports NaN): every
-            // NoSolution here is under the options' bound.
-            CalibError::NoSolution {
-                bound_deg: options.max_tilt.to_degrees(),
-                reason: format!("{reason}. What the data look like: {}", diagnose::explain(data, None, noise).join("; ")),
+    calibrate_screened(backend, options, warnings, &mut screening, progress).map_err(|error| {
+        match error {
+            CalibError::NoSolution { reason, .. } => {
+                let noise = screening.as_ref().and_then(|s: &Screening| s.noise_px);
+                // The local refinement does not know the search bound (it reports NaN): every
+                // NoSolution here is under the options' bound.
+                CalibError::NoSolution {
+                    bound_deg: options.max_tilt.to_degrees(),
+                    reason: format!(
+                        "{reason}. What the data look like: {}",
+                        diagnose::explain(data, None, noise).join("; ")
+                    ),
+                }
             }
+            other => other,
         }
-        other => other,
     })
 }
 
 /// The corners of every view of `data` for [`compare_views`].
 fn view_corners(data: &StereoData) -> Vec<ViewCorners> {
-    data.views.iter().map(|range| data.corners[range.clone()].iter().map(|c| (c.index, c.pixels)).collect()).collect()
+    data.views
+        .iter()
+        .map(|range| {
+            data.corners[range.clone()]
+                .iter()
+                .map(|c| (c.index, c.pixels))
+                .collect()
+        })
+        .collect()
 }
 
 /// RMS reprojection error, pixels, at or below which the noise explains a maximum-likelihood
@@ -261,10 +278,16 @@ fn calibrate_screened(
     let data = backend.data();
     let mut warnings = warnings;
     if data.views.len() < MIN_VIEWS {
-        return Err(CalibError::TooFewViews { usable: data.views.len(), needed: MIN_VIEWS });
+        return Err(CalibError::TooFewViews {
+            usable: data.views.len(),
+            needed: MIN_VIEWS,
+        });
     }
     if !(options.max_tilt > 0.0 && options.max_tilt < 80f64.to_radians()) {
-        return Err(CalibError::Options(format!("the tilt bound must lie in (0°, 80°), got {}°", degrees(options.max_tilt.to_degrees()))));
+        return Err(CalibError::Options(format!(
+            "the tilt bound must lie in (0°, 80°), got {}°",
+            degrees(options.max_tilt.to_degrees())
+        )));
     }
     if !(options.grid_spacing > 0.0 && options.grid_spacing <= options.max_tilt) {
         return Err(CalibError::Options(format!(
@@ -272,33 +295,52 @@ fn calibrate_screened(
             degrees(options.grid_spacing.to_degrees())
         )));
     }
-    if super::search::cap_grid_size(options.max_tilt, options.grid_spacing) > super::search::MAX_CAP_GRID_AXES as f64 {
+    if crate::calib::solvers::search::cap_grid_size(options.max_tilt, options.grid_spacing)
+        > crate::calib::solvers::search::MAX_CAP_GRID_AXES as f64
+    {
         return Err(CalibError::Options(format!(
             "a grid spacing of {}° over a {}° tilt bound gives {:.3e} axes; the global search takes at most {} (each costs an evaluation over every corner): use a spacing ≥ {}°",
             degrees(options.grid_spacing.to_degrees()),
             degrees(options.max_tilt.to_degrees()),
-            super::search::cap_grid_size(options.max_tilt, options.grid_spacing),
-            super::search::MAX_CAP_GRID_AXES,
-            super::search::min_cap_grid_spacing_deg_text(options.max_tilt)
+            crate::calib::solvers::search::cap_grid_size(options.max_tilt, options.grid_spacing),
+            crate::calib::solvers::search::MAX_CAP_GRID_AXES,
+            crate::calib::solvers::search::min_cap_grid_spacing_deg_text(options.max_tilt)
         )));
     }
     if !(options.max_rms_px > 0.0) {
-        return Err(CalibError::Options(format!("the largest accepted RMS must be a positive number of pixels, got {}", options.max_rms_px)));
+        return Err(CalibError::Options(format!(
+            "the largest accepted RMS must be a positive number of pixels, got {}",
+            options.max_rms_px
+        )));
     }
     // Views that repeat another, or too few distinct poses: the answer would look confident and
     // be wrong (the copies shrink the standard deviations by √copies).
     let groups = compare_views(&view_corners(data));
     if let Some(&(view, earlier, max_px)) = groups.repeats.first() {
-        return Err(CalibError::RepeatedView { view, earlier, max_px, more: groups.repeats.len() - 1 });
+        return Err(CalibError::RepeatedView {
+            view,
+            earlier,
+            max_px,
+            more: groups.repeats.len() - 1,
+        });
     }
     if groups.distinct < MIN_VIEWS {
-        return Err(CalibError::TooFewPoses { views: data.views.len(), distinct: groups.distinct, groups: describe_pose_groups(&groups), needed: MIN_VIEWS });
+        return Err(CalibError::TooFewPoses {
+            views: data.views.len(),
+            distinct: groups.distinct,
+            groups: describe_pose_groups(&groups),
+            needed: MIN_VIEWS,
+        });
     }
     if groups.distinct < FEW_VIEWS {
         let poses = if groups.distinct == data.views.len() {
             format!("only {} views", data.views.len())
         } else {
-            format!("only {} distinct board poses among {} views", groups.distinct, data.views.len())
+            format!(
+                "only {} distinct board poses among {} views",
+                groups.distinct,
+                data.views.len()
+            )
         };
         warnings.push(format!("{poses}: the axis and air layer are weakly determined (15-20 views at varied depths and angles are recommended)"));
     }
@@ -307,7 +349,11 @@ fn calibrate_screened(
     // Gross corner errors, found from each image alone, are left out of every estimate (the
     // report lists them with their residuals under the result).
     let screening = screen(data);
-    let reduced = if screening.suspects.is_empty() { None } else { without_corners(data, &screening.mask(data.corners.len())) };
+    let reduced = if screening.suspects.is_empty() {
+        None
+    } else {
+        without_corners(data, &screening.mask(data.corners.len()))
+    };
     if let Some(worst) = screening.suspects.first() {
         warnings.push(format!(
             "{} corner(s) lie off the board's shape in their image by more than {:.2} px (largest {:.1} px: view {} corner {}, {} image){}",
@@ -329,12 +375,25 @@ fn calibrate_screened(
     // 1. Consecutive: axis from the weighted affine-grid invariant, global then local.
     let consecutive = axis_search(clean, CostKind::AffineGrid, options, &mut stages, progress)?;
     let linear_started = Instant::now();
-    let (air_distance, gap) = super::air_layer::air_distance_for_axis(clean_data, &consecutive.normal).ok_or_else(|| CalibError::NoSolution {
-        bound_deg: options.max_tilt.to_degrees(),
-        reason: "the air layer has no least-squares solution under the invariant's axis".into(),
-    })?;
-    let mut consecutive = Candidate { normal: consecutive.normal, air_distance };
-    stages.push(stage("air layer (linear least squares on the ray gaps)", consecutive, gap, "m", 1, linear_started));
+    let (air_distance, gap) =
+        crate::calib::costs::air_layer::air_distance_for_axis(clean_data, &consecutive.normal)
+            .ok_or_else(|| CalibError::NoSolution {
+                bound_deg: options.max_tilt.to_degrees(),
+                reason: "the air layer has no least-squares solution under the invariant's axis"
+                    .into(),
+            })?;
+    let mut consecutive = Candidate {
+        normal: consecutive.normal,
+        air_distance,
+    };
+    stages.push(stage(
+        "air layer (linear least squares on the ray gaps)",
+        consecutive,
+        gap,
+        "m",
+        1,
+        linear_started,
+    ));
     if !triangulates(clean_data, &consecutive) {
         // The ray gaps hardly depend on d when both cameras see a corner at similar incidence,
         // so noise can throw the linear solve far off: take the air layer that best explains
@@ -348,25 +407,60 @@ fn calibrate_screened(
             d * 1e3
         ));
         consecutive.air_distance = d;
-        stages.push(stage("air layer (1-D search on the reprojection error)", consecutive, cost, "px", 1, t));
+        stages.push(stage(
+            "air layer (1-D search on the reprojection error)",
+            consecutive,
+            cost,
+            "px",
+            1,
+            t,
+        ));
     }
 
     // Board poses of a start, fitted to the corners the screening kept (views are the same).
-    let start_poses = |start: &Candidate| clean_data.cameras_behind(start).and_then(|c| SceneFit::new(clean_data, &c)).map(|f| f.poses());
+    let start_poses = |start: &Candidate| {
+        clean_data
+            .cameras_behind(start)
+            .and_then(|c| SceneFit::new(clean_data, &c))
+            .map(|f| f.poses())
+    };
     let (final_candidate, poses, ml) = match options.method {
         Method::Consecutive => {
-            clean_data.cameras_behind(&consecutive).ok_or_else(|| no_solution(options, "the consecutive result puts a camera outside the air"))?;
-            let poses = start_poses(&consecutive).ok_or_else(|| no_solution(options, "the consecutive result cannot triangulate every corner"))?;
+            clean_data.cameras_behind(&consecutive).ok_or_else(|| {
+                no_solution(
+                    options,
+                    "the consecutive result puts a camera outside the air",
+                )
+            })?;
+            let poses = start_poses(&consecutive).ok_or_else(|| {
+                no_solution(
+                    options,
+                    "the consecutive result cannot triangulate every corner",
+                )
+            })?;
             (consecutive, poses, None)
         }
         Method::Simultaneous | Method::Auto => {
             let mut starts = vec![("the consecutive result".to_string(), consecutive)];
             if options.method == Method::Auto {
-                let profile = axis_search(clean, CostKind::Reprojection, options, &mut stages, progress)?;
+                let profile = axis_search(
+                    clean,
+                    CostKind::Reprojection,
+                    options,
+                    &mut stages,
+                    progress,
+                )?;
                 starts.push(("the reprojection profile's minimum".into(), profile));
-                starts.push(("the rig's start guess".into(), Candidate::of(data.rig.interface())));
+                starts.push((
+                    "the rig's start guess".into(),
+                    Candidate::of(data.rig.interface()),
+                ));
             }
-            let mut best: Option<(BundleState, super::lm::LmReport, Option<super::bundle::BlockNormalEquations>)> = None;
+            let mut best: Option<(
+                BundleState,
+                crate::calib::solvers::lm::LmReport,
+                Option<crate::calib::methods::bundle::BlockNormalEquations>,
+            )> = None;
             let mut finals = Vec::new();
             for (name, start) in &starts {
                 let t = Instant::now();
@@ -379,15 +473,35 @@ fn calibrate_screened(
                     continue;
                 };
                 let bundle = Bundle::new(clean_data, options.huber);
-                let lm_options = LmOptions { max_iterations: options.max_iterations, ..LmOptions::default() };
+                let lm_options = LmOptions {
+                    max_iterations: options.max_iterations,
+                    ..LmOptions::default()
+                };
                 let stage_name = format!("maximum likelihood from {name}");
                 // The cost in the report's unit: RMS over the 4 coordinates of each corner.
                 let rms = |cost: f64| (cost / (4 * clean_data.corners.len()) as f64).sqrt();
-                let (state, report, jtj) = levenberg_marquardt_observed(&bundle, BundleState { candidate: *start, poses }, &lm_options, &mut |i| {
-                    progress(&CalibrationProgress { stage: &stage_name, done: i.iteration, total: None, cost: rms(i.cost), unit: "px" })
-                });
+                let (state, report, jtj) = levenberg_marquardt_observed(
+                    &bundle,
+                    BundleState {
+                        candidate: *start,
+                        poses,
+                    },
+                    &lm_options,
+                    &mut |i| {
+                        progress(&CalibrationProgress {
+                            stage: &stage_name,
+                            done: i.iteration,
+                            total: None,
+                            cost: rms(i.cost),
+                            unit: "px",
+                        })
+                    },
+                );
                 stages.push(Stage {
-                    name: format!("maximum likelihood from {name} ({})", report.termination.describe()),
+                    name: format!(
+                        "maximum likelihood from {name} ({})",
+                        report.termination.describe()
+                    ),
                     candidate: state.candidate,
                     cost: (report.final_cost / (4 * clean_data.corners.len()) as f64).sqrt(),
                     unit: "px",
@@ -395,11 +509,19 @@ fn calibrate_screened(
                     seconds: t.elapsed().as_secs_f64(),
                 });
                 finals.push((name.clone(), state.candidate, report.final_cost));
-                if best.as_ref().is_none_or(|(_, r, _)| report.final_cost < r.final_cost) {
+                if best
+                    .as_ref()
+                    .is_none_or(|(_, r, _)| report.final_cost < r.final_cost)
+                {
                     best = Some((state, report, jtj));
                 }
             }
-            let (state, report, jtj) = best.ok_or_else(|| no_solution(options, "no start lets both cameras triangulate every corner"))?;
+            let (state, report, jtj) = best.ok_or_else(|| {
+                no_solution(
+                    options,
+                    "no start lets both cameras triangulate every corner",
+                )
+            })?;
             let best_cost = report.final_cost;
             for (name, candidate, cost) in &finals {
                 let apart = candidate.normal.angle(&state.candidate.normal).to_degrees();
@@ -413,19 +535,30 @@ fn calibrate_screened(
                 }
             }
             if !report.termination.converged() {
-                warnings.push(format!("the maximum-likelihood refinement stopped early: {}", report.termination.describe()));
+                warnings.push(format!(
+                    "the maximum-likelihood refinement stopped early: {}",
+                    report.termination.describe()
+                ));
             }
             (state.candidate, state.poses, Some((report, jtj)))
         }
     };
 
     // The report: residuals under the final interface and poses, over every corner.
-    let cameras = data.cameras_behind(&final_candidate).ok_or_else(|| no_solution(options, "the result puts a camera outside the air"))?;
-    let residuals = reprojection_residuals(data, &cameras, &poses).ok_or_else(|| no_solution(options, "a fitted corner does not project"))?;
+    let cameras = data
+        .cameras_behind(&final_candidate)
+        .ok_or_else(|| no_solution(options, "the result puts a camera outside the air"))?;
+    let residuals = reprojection_residuals(data, &cameras, &poses)
+        .ok_or_else(|| no_solution(options, "a fitted corner does not project"))?;
     // The 3-D errors over every corner, else (an outlier that does not triangulate) over the kept ones.
     let (scene, scene_data) = match SceneFit::new(data, &cameras) {
         Some(fit) => (Some(fit), data),
-        None => (clean_data.cameras_behind(&final_candidate).and_then(|c| SceneFit::new(clean_data, &c)), clean_data),
+        None => (
+            clean_data
+                .cameras_behind(&final_candidate)
+                .and_then(|c| SceneFit::new(clean_data, &c)),
+            clean_data,
+        ),
     };
     let mut per_view = Vec::with_capacity(data.views.len());
     let mut total = [0.0; 2];
@@ -459,10 +592,31 @@ fn calibrate_screened(
     let inlier_rms_px = inlier_rms(data, &residuals, &outlier_images);
     let (std, sigma_px, iterations, termination) = match &ml {
         Some((report, jtj)) => {
-            let std = jtj.as_ref().and_then(|j| interface_std(&final_candidate, j, report.final_cost, 4 * clean_data.corners.len()));
-            (std.map(|s| s.0), std.map(|s| s.1), report.iterations, report.termination.describe().to_string())
+            let std = jtj.as_ref().and_then(|j| {
+                interface_std(
+                    &final_candidate,
+                    j,
+                    report.final_cost,
+                    4 * clean_data.corners.len(),
+                )
+            });
+            (
+                std.map(|s| s.0),
+                std.map(|s| s.1),
+                report.iterations,
+                report.termination.describe().to_string(),
+            )
         }
-        None => (None, None, stages.iter().rev().find(|s| s.name.starts_with("refine")).map_or(0, |s| s.iterations), "converged".into()),
+        None => (
+            None,
+            None,
+            stages
+                .iter()
+                .rev()
+                .find(|s| s.name.starts_with("refine"))
+                .map_or(0, |s| s.iterations),
+            "converged".into(),
+        ),
     };
     if let Some([tilt_std, _, _]) = std {
         if final_candidate.tilt() < 3.0 * tilt_std {
@@ -490,7 +644,10 @@ fn calibrate_screened(
     let fits = worst_rms <= options.max_rms_px;
     // Only a maximum-likelihood fit is expected to come down to the noise; the consecutive
     // result (no fit of the images) is held to the bound alone.
-    let noise_bound = screening.noise_px.filter(|_| ml.is_some()).map(|s| NOISE_FACTOR * s + NOISE_MARGIN_PX);
+    let noise_bound = screening
+        .noise_px
+        .filter(|_| ml.is_some())
+        .map(|s| NOISE_FACTOR * s + NOISE_MARGIN_PX);
     let mut diagnosis = Vec::new();
     if !fits || noise_bound.is_some_and(|b| worst_rms > b) {
         diagnosis = diagnose::explain(data, Some(&final_candidate), screening.noise_px);
@@ -507,8 +664,16 @@ fn calibrate_screened(
     let interface = data
         .rig
         .interface()
-        .with_pose(final_candidate.normal.into_inner(), final_candidate.air_distance)
-        .map_err(|e| no_solution(options, &format!("the result is not a valid interface: {e}")))?;
+        .with_pose(
+            final_candidate.normal.into_inner(),
+            final_candidate.air_distance,
+        )
+        .map_err(|e| {
+            no_solution(
+                options,
+                &format!("the result is not a valid interface: {e}"),
+            )
+        })?;
     let report = CalibrationReport {
         method: options.method,
         candidate: final_candidate,
@@ -517,7 +682,9 @@ fn calibrate_screened(
         rms_px,
         rms_px_per_view: per_view,
         scene_rms_m: scene.as_ref().map_or(f64::NAN, |s| s.scene_rms()),
-        square_deviation_rms_m: scene.as_ref().map_or(f64::NAN, |s| s.square_deviation_rms(scene_data)),
+        square_deviation_rms_m: scene
+            .as_ref()
+            .map_or(f64::NAN, |s| s.square_deviation_rms(scene_data)),
         poses,
         stages,
         iterations,
@@ -544,15 +711,34 @@ pub const WEAK_AIR_STD_M: f64 = 5e-3;
 
 /// Whether every corner triangulates and every view can be fitted under `candidate`.
 fn triangulates(data: &StereoData, candidate: &Candidate) -> bool {
-    data.cameras_behind(candidate).and_then(|c| SceneFit::new(data, &c)).is_some()
+    data.cameras_behind(candidate)
+        .and_then(|c| SceneFit::new(data, &c))
+        .is_some()
 }
 
 fn no_solution(options: &CalibrationOptions, reason: &str) -> CalibError {
-    CalibError::NoSolution { bound_deg: options.max_tilt.to_degrees(), reason: reason.into() }
+    CalibError::NoSolution {
+        bound_deg: options.max_tilt.to_degrees(),
+        reason: reason.into(),
+    }
 }
 
-fn stage(name: &str, candidate: Candidate, cost: f64, unit: &'static str, iterations: usize, since: Instant) -> Stage {
-    Stage { name: name.into(), candidate, cost, unit, iterations, seconds: since.elapsed().as_secs_f64() }
+fn stage(
+    name: &str,
+    candidate: Candidate,
+    cost: f64,
+    unit: &'static str,
+    iterations: usize,
+    since: Instant,
+) -> Stage {
+    Stage {
+        name: name.into(),
+        candidate,
+        cost,
+        unit,
+        iterations,
+        seconds: since.elapsed().as_secs_f64(),
+    }
 }
 
 /// Axes of the global grid per backend call (progress is reported after each).
@@ -576,40 +762,88 @@ fn axis_search(
     // In batches, to report progress (each axis is evaluated alone, so the costs do not depend on
     // the batching).
     let global_name = format!("global search ({}, {} axes)", kind.name(), grid.len());
-    let (mut candidates, mut costs) = (Vec::with_capacity(grid.len()), Vec::with_capacity(grid.len()));
+    let (mut candidates, mut costs) = (
+        Vec::with_capacity(grid.len()),
+        Vec::with_capacity(grid.len()),
+    );
     for batch in grid.chunks(GLOBAL_BATCH) {
         let (c, v) = backend.profile(kind, batch)?;
         candidates.extend(c);
         costs.extend(v);
-        let best = costs.iter().copied().filter(|c| c.is_finite()).fold(f64::INFINITY, f64::min);
-        progress(&CalibrationProgress { stage: &global_name, done: costs.len(), total: Some(grid.len()), cost: best, unit: kind.unit() });
+        let best = costs
+            .iter()
+            .copied()
+            .filter(|c| c.is_finite())
+            .fold(f64::INFINITY, f64::min);
+        progress(&CalibrationProgress {
+            stage: &global_name,
+            done: costs.len(),
+            total: Some(grid.len()),
+            cost: best,
+            unit: kind.unit(),
+        });
     }
     let mut order: Vec<usize> = (0..grid.len()).filter(|&i| costs[i].is_finite()).collect();
     if order.is_empty() {
         return Err(CalibError::NoSolution {
             bound_deg: options.max_tilt.to_degrees(),
-            reason: format!("the {} cost is undefined on every one of {} grid axes", kind.name(), grid.len()),
+            reason: format!(
+                "the {} cost is undefined on every one of {} grid axes",
+                kind.name(),
+                grid.len()
+            ),
         });
     }
     order.sort_by(|&a, &b| costs[a].total_cmp(&costs[b]));
     let mut starts: Vec<Unit<Vector3<f64>>> = Vec::new();
     for &i in &order {
-        if starts.iter().all(|s| s.angle(&grid[i]).to_degrees() > DISTINCT_DEG) {
+        if starts
+            .iter()
+            .all(|s| s.angle(&grid[i]).to_degrees() > DISTINCT_DEG)
+        {
             starts.push(grid[i]);
             if starts.len() == LOCAL_STARTS {
                 break;
             }
         }
     }
-    stages.push(stage(&global_name, candidates[order[0]], costs[order[0]], kind.unit(), grid.len(), t));
-    let mut best: Option<super::search::Refined> = None;
+    stages.push(stage(
+        &global_name,
+        candidates[order[0]],
+        costs[order[0]],
+        kind.unit(),
+        grid.len(),
+        t,
+    ));
+    let mut best: Option<crate::calib::solvers::search::Refined> = None;
     for start in starts {
         let t = Instant::now();
         let refine_name = format!("refine axis ({})", kind.name());
-        let refined = refine_axis_observed(backend, kind, start, options.grid_spacing, 1e-9, 300, &mut |i, cost| {
-            progress(&CalibrationProgress { stage: &refine_name, done: i, total: None, cost, unit: kind.unit() })
-        })?;
-        stages.push(stage(&format!("refine axis ({})", kind.name()), refined.candidate, refined.cost, kind.unit(), refined.iterations, t));
+        let refined = refine_axis_observed(
+            backend,
+            kind,
+            start,
+            options.grid_spacing,
+            1e-9,
+            300,
+            &mut |i, cost| {
+                progress(&CalibrationProgress {
+                    stage: &refine_name,
+                    done: i,
+                    total: None,
+                    cost,
+                    unit: kind.unit(),
+                })
+            },
+        )?;
+        stages.push(stage(
+            &format!("refine axis ({})", kind.name()),
+            refined.candidate,
+            refined.cost,
+            kind.unit(),
+            refined.iterations,
+            t,
+        ));
         if best.is_none_or(|b| refined.cost < b.cost) {
             best = Some(refined);
         }
@@ -621,13 +855,24 @@ fn axis_search(
 /// (1.4826 × the median of every corner's larger residual)); those the screening found are
 /// marked (a screened image that the result explains is not an outlier).
 /// Returns the corners (view, corner, larger residual), worst first, and the images, worst first.
-fn find_outliers(data: &StereoData, residuals: &[[nalgebra::Vector2<f64>; 2]], screening: &Screening) -> (Vec<(usize, usize, f64)>, Vec<Outlier>) {
-    let lengths: Vec<[f64; 2]> = residuals.iter().map(|[l, r]| [l.norm(), r.norm()]).collect();
+fn find_outliers(
+    data: &StereoData,
+    residuals: &[[nalgebra::Vector2<f64>; 2]],
+    screening: &Screening,
+) -> (Vec<(usize, usize, f64)>, Vec<Outlier>) {
+    let lengths: Vec<[f64; 2]> = residuals
+        .iter()
+        .map(|[l, r]| [l.norm(), r.norm()])
+        .collect();
     let mut sorted: Vec<f64> = lengths.iter().map(|[l, r]| l.max(*r)).collect();
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];
     let threshold = (5.0 * 1.4826 * median).max(1.0);
-    let screened: std::collections::HashSet<(usize, Side)> = screening.suspects.iter().map(|s| (s.position, s.side)).collect();
+    let screened: std::collections::HashSet<(usize, Side)> = screening
+        .suspects
+        .iter()
+        .map(|s| (s.position, s.side))
+        .collect();
     let mut images = Vec::new();
     let mut corners = Vec::new();
     for (j, pair) in lengths.iter().enumerate() {
@@ -657,8 +902,15 @@ fn find_outliers(data: &StereoData, residuals: &[[nalgebra::Vector2<f64>; 2]], s
 }
 
 /// RMS reprojection error per camera over the images that are not in `outliers`, pixels.
-fn inlier_rms(data: &StereoData, residuals: &[[nalgebra::Vector2<f64>; 2]], outliers: &[Outlier]) -> [f64; 2] {
-    let flagged: std::collections::HashSet<(usize, usize, Side)> = outliers.iter().map(|o| (o.view, o.corner, o.side)).collect();
+fn inlier_rms(
+    data: &StereoData,
+    residuals: &[[nalgebra::Vector2<f64>; 2]],
+    outliers: &[Outlier],
+) -> [f64; 2] {
+    let flagged: std::collections::HashSet<(usize, usize, Side)> = outliers
+        .iter()
+        .map(|o| (o.view, o.corner, o.side))
+        .collect();
     let (mut sums, mut counts) = ([0.0; 2], [0usize; 2]);
     for (j, pair) in residuals.iter().enumerate() {
         let c = &data.corners[j];
@@ -669,5 +921,11 @@ fn inlier_rms(data: &StereoData, residuals: &[[nalgebra::Vector2<f64>; 2]], outl
             }
         }
     }
-    [0, 1].map(|k| if counts[k] == 0 { f64::NAN } else { (sums[k] / counts[k] as f64).sqrt() })
+    [0, 1].map(|k| {
+        if counts[k] == 0 {
+            f64::NAN
+        } else {
+            (sums[k] / counts[k] as f64).sqrt()
+        }
+    })
 }

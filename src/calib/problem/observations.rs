@@ -2,8 +2,8 @@
 
 use nalgebra::{Matrix2, Point2, Vector2};
 
-use super::board::Board;
-use super::error::{CalibError, Side};
+use crate::calib::error::{CalibError, Side};
+use crate::calib::problem::board::Board;
 use crate::model::PinholeCamera;
 
 /// One stereo view: corner `i` (row-major) in the left and the right image, raw (distorted)
@@ -19,7 +19,8 @@ pub struct StereoView {
 impl StereoView {
     /// Indices of the corners seen in both images.
     pub fn matched(&self) -> impl Iterator<Item = usize> + '_ {
-        (0..self.left.len()).filter(|&i| self.left[i].is_some() && self.right.get(i).is_some_and(|c| c.is_some()))
+        (0..self.left.len())
+            .filter(|&i| self.left[i].is_some() && self.right.get(i).is_some_and(|c| c.is_some()))
     }
 
     /// The corners of one image.
@@ -126,7 +127,7 @@ const MAX_GROUP_COMPARISONS: usize = 64;
 /// Each view is compared with every earlier one, latest first; the sum of squared differences
 /// stops as soon as it exceeds the tolerance, which for views of different poses is after the
 /// first corner or two. Once a view matches the pose of an earlier one only the other views of
-/// that pose (at most [`MAX_GROUP_COMPARISONS`]) are searched for a copy. Views with fewer than
+/// that pose (at most `MAX_GROUP_COMPARISONS`, 64) are searched for a copy. Views with fewer than
 /// [`MIN_VIEW_CORNERS`] corners in common, or less than half of either's, are not compared.
 pub fn compare_views(views: &[ViewCorners]) -> ViewGroups {
     let n = views.len();
@@ -146,7 +147,9 @@ pub fn compare_views(views: &[ViewCorners]) -> ViewGroups {
                     break;
                 }
             }
-            let Some((_, largest)) = view_difference(&views[i], &views[j], SAME_POSE_PX) else { continue };
+            let Some((_, largest)) = view_difference(&views[i], &views[j], SAME_POSE_PX) else {
+                continue;
+            };
             let (ri, rj) = (root(&mut pose_parent, i), root(&mut pose_parent, j));
             pose_parent[ri.max(rj)] = ri.min(rj);
             pose = Some(root(&mut pose_parent, j));
@@ -165,14 +168,19 @@ pub fn compare_views(views: &[ViewCorners]) -> ViewGroups {
         if copy != v {
             groups.repeats.push((v, copy, gap));
         }
-        members.entry(root(&mut pose_parent, v)).or_default().push(v);
+        members
+            .entry(root(&mut pose_parent, v))
+            .or_default()
+            .push(v);
     }
     groups.distinct = members.len();
     for (first, views_of_pose) in members {
         if views_of_pose.len() > 1 {
             let spread = views_of_pose[1..]
                 .iter()
-                .filter_map(|&v| view_difference(&views[v], &views[first], f64::INFINITY).map(|d| d.0))
+                .filter_map(|&v| {
+                    view_difference(&views[v], &views[first], f64::INFINITY).map(|d| d.0)
+                })
                 .fold(0.0, f64::max);
             groups.same_pose.push((views_of_pose, spread));
         }
@@ -217,15 +225,27 @@ impl Observations {
     /// [`MIN_VIEW_CORNERS`] matched corners per view that span the board (not edge-on).
     ///
     /// Returns the warnings for views that can be used but are weak (oblique views).
-    pub fn validate(&self, left: &PinholeCamera, right: &PinholeCamera) -> Result<Vec<String>, CalibError> {
+    pub fn validate(
+        &self,
+        left: &PinholeCamera,
+        right: &PinholeCamera,
+    ) -> Result<Vec<String>, CalibError> {
         let board = &self.board;
         if board.rows < 2 || board.cols < 2 {
             return Err(CalibError::BadBoard {
-                reason: format!("needs at least 2 × 2 inner corners, got rows {} × cols {}", board.rows, board.cols),
+                reason: format!(
+                    "needs at least 2 × 2 inner corners, got rows {} × cols {}",
+                    board.rows, board.cols
+                ),
             });
         }
         if !(board.square > 0.0 && board.square.is_finite()) {
-            return Err(CalibError::BadBoard { reason: format!("square must be a positive length in metres, got {}", board.square) });
+            return Err(CalibError::BadBoard {
+                reason: format!(
+                    "square must be a positive length in metres, got {}",
+                    board.square
+                ),
+            });
         }
         if self.views.is_empty() {
             return Err(CalibError::NoViews);
@@ -233,14 +253,28 @@ impl Observations {
         let expected = board.corners();
         let mut warnings = Vec::new();
         for (v, view) in self.views.iter().enumerate() {
-            for (side, corners, camera) in [(Side::Left, &view.left, left), (Side::Right, &view.right, right)] {
+            for (side, corners, camera) in [
+                (Side::Left, &view.left, left),
+                (Side::Right, &view.right, right),
+            ] {
                 if corners.len() != expected {
-                    return Err(CalibError::CornerCount { view: v, side, got: corners.len(), expected });
+                    return Err(CalibError::CornerCount {
+                        view: v,
+                        side,
+                        got: corners.len(),
+                        expected,
+                    });
                 }
                 for (i, corner) in corners.iter().enumerate() {
                     let Some(p) = corner else { continue };
                     if !(p.x.is_finite() && p.y.is_finite()) {
-                        return Err(CalibError::CornerNotFinite { view: v, side, corner: i, u: p.x, v: p.y });
+                        return Err(CalibError::CornerNotFinite {
+                            view: v,
+                            side,
+                            corner: i,
+                            u: p.x,
+                            v: p.y,
+                        });
                     }
                     // Pixel centres run from 0 to size − 1; a corner may lie up to half a pixel beyond.
                     let inside = (-0.5..=camera.width as f64 - 0.5).contains(&p.x)
@@ -260,8 +294,20 @@ impl Observations {
             }
             for i in 0..expected {
                 match (view.left[i], view.right[i]) {
-                    (Some(_), None) => return Err(CalibError::CornerInOneImage { view: v, corner: i, missing: Side::Right }),
-                    (None, Some(_)) => return Err(CalibError::CornerInOneImage { view: v, corner: i, missing: Side::Left }),
+                    (Some(_), None) => {
+                        return Err(CalibError::CornerInOneImage {
+                            view: v,
+                            corner: i,
+                            missing: Side::Right,
+                        });
+                    }
+                    (None, Some(_)) => {
+                        return Err(CalibError::CornerInOneImage {
+                            view: v,
+                            corner: i,
+                            missing: Side::Left,
+                        });
+                    }
                     _ => {}
                 }
             }
@@ -269,14 +315,21 @@ impl Observations {
             if matched < MIN_VIEW_CORNERS {
                 return Err(CalibError::UnusableView {
                     view: v,
-                    reason: format!("{matched} corners seen in both images; a view needs at least {MIN_VIEW_CORNERS}"),
+                    reason: format!(
+                        "{matched} corners seen in both images; a view needs at least {MIN_VIEW_CORNERS}"
+                    ),
                 });
             }
             let mut worst = f64::INFINITY;
             for side in [Side::Left, Side::Right] {
-                let ratio = spread_ratio(board, view.side(side)).ok_or_else(|| CalibError::UnusableView {
-                    view: v,
-                    reason: format!("the {} corners do not span the board (all on one row or column)", side.name()),
+                let ratio = spread_ratio(board, view.side(side)).ok_or_else(|| {
+                    CalibError::UnusableView {
+                        view: v,
+                        reason: format!(
+                            "the {} corners do not span the board (all on one row or column)",
+                            side.name()
+                        ),
+                    }
                 })?;
                 worst = worst.min(ratio);
             }
@@ -296,7 +349,12 @@ impl Observations {
         }
         let groups = compare_views(&self.view_corners());
         if let Some(&(view, earlier, max_px)) = groups.repeats.first() {
-            return Err(CalibError::RepeatedView { view, earlier, max_px, more: groups.repeats.len() - 1 });
+            return Err(CalibError::RepeatedView {
+                view,
+                earlier,
+                max_px,
+                more: groups.repeats.len() - 1,
+            });
         }
         for (views, rms) in &groups.same_pose {
             warnings.push(format!(
@@ -309,7 +367,19 @@ impl Observations {
 
     /// The corners seen in both images of every view, for [`compare_views`].
     pub fn view_corners(&self) -> Vec<ViewCorners> {
-        self.views.iter().map(|v| v.matched().map(|i| (i, [v.left[i].expect("matched"), v.right[i].expect("matched")])).collect()).collect()
+        self.views
+            .iter()
+            .map(|v| {
+                v.matched()
+                    .map(|i| {
+                        (
+                            i,
+                            [v.left[i].expect("matched"), v.right[i].expect("matched")],
+                        )
+                    })
+                    .collect()
+            })
+            .collect()
     }
 
     /// Number of corners seen in both images, over all views.
@@ -365,48 +435,96 @@ mod tests {
         (0..board.corners())
             .map(|i| {
                 let (r, c) = board.grid_position(i);
-                Some(Point2::new(100.0 + 20.0 * c as f64, 100.0 + shear * 20.0 * r as f64 + 2.0 * c as f64))
+                Some(Point2::new(
+                    100.0 + 20.0 * c as f64,
+                    100.0 + shear * 20.0 * r as f64 + 2.0 * c as f64,
+                ))
             })
             .collect()
     }
 
     fn observations(views: Vec<StereoView>) -> Observations {
-        Observations { board: Board { rows: 4, cols: 5, square: 0.04 }, views, cameras: None }
+        Observations {
+            board: Board {
+                rows: 4,
+                cols: 5,
+                square: 0.04,
+            },
+            views,
+            cameras: None,
+        }
     }
 
     #[test]
     fn good_views_pass_and_bad_ones_are_named() {
-        let board = Board { rows: 4, cols: 5, square: 0.04 };
-        let good = StereoView { left: grid(&board, 1.0), right: grid(&board, 1.0) };
-        assert_eq!(observations(vec![good.clone()]).validate(&camera(), &camera()), Ok(vec![]));
+        let board = Board {
+            rows: 4,
+            cols: 5,
+            square: 0.04,
+        };
+        let good = StereoView {
+            left: grid(&board, 1.0),
+            right: grid(&board, 1.0),
+        };
+        assert_eq!(
+            observations(vec![good.clone()]).validate(&camera(), &camera()),
+            Ok(vec![])
+        );
 
         let mut short = good.clone();
         short.right.pop();
         assert!(matches!(
             observations(vec![good.clone(), short]).validate(&camera(), &camera()),
-            Err(CalibError::CornerCount { view: 1, side: Side::Right, got: 19, expected: 20 })
+            Err(CalibError::CornerCount {
+                view: 1,
+                side: Side::Right,
+                got: 19,
+                expected: 20
+            })
         ));
 
         let mut outside = good.clone();
         outside.left[3] = Some(Point2::new(700.0, 10.0));
-        let error = observations(vec![outside]).validate(&camera(), &camera()).unwrap_err();
-        assert!(matches!(error, CalibError::CornerOutsideImage { view: 0, side: Side::Left, corner: 3, .. }));
+        let error = observations(vec![outside])
+            .validate(&camera(), &camera())
+            .unwrap_err();
+        assert!(matches!(
+            error,
+            CalibError::CornerOutsideImage {
+                view: 0,
+                side: Side::Left,
+                corner: 3,
+                ..
+            }
+        ));
         assert_eq!(error.field(), "views[0].left[3]");
 
         let mut one_sided = good.clone();
         one_sided.right[7] = None;
         assert!(matches!(
             observations(vec![one_sided]).validate(&camera(), &camera()),
-            Err(CalibError::CornerInOneImage { view: 0, corner: 7, missing: Side::Right })
+            Err(CalibError::CornerInOneImage {
+                view: 0,
+                corner: 7,
+                missing: Side::Right
+            })
         ));
 
-        let edge_on = StereoView { left: grid(&board, 0.0), right: grid(&board, 0.0) };
+        let edge_on = StereoView {
+            left: grid(&board, 0.0),
+            right: grid(&board, 0.0),
+        };
         assert!(matches!(
             observations(vec![edge_on]).validate(&camera(), &camera()),
             Err(CalibError::UnusableView { view: 0, .. })
         ));
-        let oblique = StereoView { left: grid(&board, 0.12), right: grid(&board, 1.0) };
-        let warnings = observations(vec![oblique]).validate(&camera(), &camera()).unwrap();
+        let oblique = StereoView {
+            left: grid(&board, 0.12),
+            right: grid(&board, 1.0),
+        };
+        let warnings = observations(vec![oblique])
+            .validate(&camera(), &camera())
+            .unwrap();
         assert_eq!(warnings.len(), 1, "{warnings:?}");
 
         let mut sparse = good;
@@ -418,30 +536,72 @@ mod tests {
             observations(vec![sparse]).validate(&camera(), &camera()),
             Err(CalibError::UnusableView { view: 0, .. })
         ));
-        assert_eq!(observations(vec![]).validate(&camera(), &camera()), Err(CalibError::NoViews));
+        assert_eq!(
+            observations(vec![]).validate(&camera(), &camera()),
+            Err(CalibError::NoViews)
+        );
     }
 
     /// A view moved by `shift` pixels in both images (a different pose when large).
     fn shifted(view: &StereoView, shift: f64) -> StereoView {
-        let move_all = |c: &Vec<Option<Point2<f64>>>| c.iter().map(|p| p.map(|p| Point2::new(p.x + shift, p.y - 0.5 * shift))).collect();
-        StereoView { left: move_all(&view.left), right: move_all(&view.right) }
+        let move_all = |c: &Vec<Option<Point2<f64>>>| {
+            c.iter()
+                .map(|p| p.map(|p| Point2::new(p.x + shift, p.y - 0.5 * shift)))
+                .collect()
+        };
+        StereoView {
+            left: move_all(&view.left),
+            right: move_all(&view.right),
+        }
     }
 
     #[test]
     fn repeated_views_are_named_and_same_poses_grouped() {
-        let board = Board { rows: 4, cols: 5, square: 0.04 };
-        let a = StereoView { left: grid(&board, 1.0), right: grid(&board, 1.1) };
-        let views = vec![a.clone(), shifted(&a, 30.0), shifted(&a, 60.0), a.clone(), shifted(&a, 30.004)];
-        let error = observations(views).validate(&camera(), &camera()).unwrap_err();
-        assert!(matches!(error, CalibError::RepeatedView { view: 3, earlier: 0, more: 1, .. }), "{error:?}");
+        let board = Board {
+            rows: 4,
+            cols: 5,
+            square: 0.04,
+        };
+        let a = StereoView {
+            left: grid(&board, 1.0),
+            right: grid(&board, 1.1),
+        };
+        let views = vec![
+            a.clone(),
+            shifted(&a, 30.0),
+            shifted(&a, 60.0),
+            a.clone(),
+            shifted(&a, 30.004),
+        ];
+        let error = observations(views)
+            .validate(&camera(), &camera())
+            .unwrap_err();
+        assert!(
+            matches!(
+                error,
+                CalibError::RepeatedView {
+                    view: 3,
+                    earlier: 0,
+                    more: 1,
+                    ..
+                }
+            ),
+            "{error:?}"
+        );
         assert_eq!(error.field(), "views[3]");
-        assert!(error.to_string().starts_with("views[3] repeats views[0]") && error.to_string().contains("1 more"), "{error}");
+        assert!(
+            error.to_string().starts_with("views[3] repeats views[0]")
+                && error.to_string().contains("1 more"),
+            "{error}"
+        );
 
         // A copy with a few corners missing is still a copy.
         let mut partial = a.clone();
         partial.left[4] = None;
         partial.right[4] = None;
-        let groups = compare_views(&observations(vec![shifted(&a, 10.0), a.clone(), partial]).view_corners());
+        let groups = compare_views(
+            &observations(vec![shifted(&a, 10.0), a.clone(), partial]).view_corners(),
+        );
         assert_eq!(groups.repeats, vec![(2, 1, 0.0)]);
 
         // Fifteen copies: one pose.
@@ -452,14 +612,24 @@ mod tests {
 
         // Re-detections of one pose (0.3 px apart) are not copies but one pose; 5 px apart is
         // another pose.
-        let views = vec![a.clone(), shifted(&a, 0.3), shifted(&a, 5.0), shifted(&a, -0.2)];
+        let views = vec![
+            a.clone(),
+            shifted(&a, 0.3),
+            shifted(&a, 5.0),
+            shifted(&a, -0.2),
+        ];
         let groups = compare_views(&observations(views.clone()).view_corners());
         assert!(groups.repeats.is_empty(), "{groups:?}");
         assert_eq!(groups.distinct, 2);
         assert_eq!(groups.same_pose.len(), 1);
         assert_eq!(groups.same_pose[0].0, vec![0, 1, 3]);
         let warnings = observations(views).validate(&camera(), &camera()).unwrap();
-        assert!(warnings.iter().any(|w| w.starts_with("views 0, 1, 3 show the same board pose")), "{warnings:?}");
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.starts_with("views 0, 1, 3 show the same board pose")),
+            "{warnings:?}"
+        );
         assert_eq!(view_list(&[0, 1, 2, 3, 7, 9, 10]), "0–3, 7, 9, 10");
     }
 }

@@ -8,7 +8,7 @@
 
 use nalgebra::{Unit, Vector3};
 
-use super::data::{Candidate, StereoData};
+use crate::calib::problem::data::{Candidate, StereoData};
 use crate::model::RefractiveCamera;
 
 /// The least-squares air layer for the axis `normal`, with the RMS ray gap there (metres).
@@ -18,18 +18,31 @@ use crate::model::RefractiveCamera;
 /// (Σ a² ≈ 0: both cameras see every corner at the same incidence).
 pub fn air_distance_for_axis(data: &StereoData, normal: &Unit<Vector3<f64>>) -> Option<(f64, f64)> {
     let (d0, near, far) = sample_cameras(data, normal)?;
-    let lines: Vec<Option<GapLine>> = data.corners.iter().map(|corner| gap_line(&near, &far, corner, d0)).collect();
+    let lines: Vec<Option<GapLine>> = data
+        .corners
+        .iter()
+        .map(|corner| gap_line(&near, &far, corner, d0))
+        .collect();
     least_squares_air_distance(&lines)
 }
 
 /// The cameras behind `normal` at two air layers d0 and d0 + 1 m that keep them in the air (any
 /// two do: the rays are exactly linear in d), as (d0, near, far). `None` when `normal` is not an
 /// interface axis (zero or pointing backward).
-pub fn sample_cameras(data: &StereoData, normal: &Unit<Vector3<f64>>) -> Option<(f64, [RefractiveCamera; 2], [RefractiveCamera; 2])> {
+pub fn sample_cameras(
+    data: &StereoData,
+    normal: &Unit<Vector3<f64>>,
+) -> Option<(f64, [RefractiveCamera; 2], [RefractiveCamera; 2])> {
     let d0 = data.min_air_distance(normal) + 0.01;
     let d1 = d0 + 1.0;
-    let near = data.cameras_behind(&Candidate { normal: *normal, air_distance: d0 })?;
-    let far = data.cameras_behind(&Candidate { normal: *normal, air_distance: d1 })?;
+    let near = data.cameras_behind(&Candidate {
+        normal: *normal,
+        air_distance: d0,
+    })?;
+    let far = data.cameras_behind(&Candidate {
+        normal: *normal,
+        air_distance: d1,
+    })?;
     Some((d0, near, far))
 }
 
@@ -71,7 +84,12 @@ pub fn least_squares_air_distance(lines: &[Option<GapLine>]) -> Option<(f64, f64
 
 /// The gap line of `corner` from its water rays behind the cameras at air layers d0 (`near`) and
 /// d0 + 1 m (`far`). `None` when a ray has no answer. CPU twin of the `calib_gap_line` kernel.
-fn gap_line(near: &[RefractiveCamera; 2], far: &[RefractiveCamera; 2], corner: &super::data::Corner, d0: f64) -> Option<GapLine> {
+fn gap_line(
+    near: &[RefractiveCamera; 2],
+    far: &[RefractiveCamera; 2],
+    corner: &crate::calib::problem::data::Corner,
+    d0: f64,
+) -> Option<GapLine> {
     let ray = |cams: &[RefractiveCamera; 2], k: usize| cams[k].ray_in_water(&corner.dirs[k]).ok();
     let (l0, r0, l1, r1) = (ray(near, 0)?, ray(near, 1)?, ray(far, 0)?, ray(far, 1)?);
     let cross = l0.dir.cross(&r0.dir);
@@ -80,5 +98,9 @@ fn gap_line(near: &[RefractiveCamera; 2], far: &[RefractiveCamera; 2], corner: &
     let g0 = m.dot(&(l0.origin - r0.origin));
     let g1 = m.dot(&(l1.origin - r1.origin));
     let a = g1 - g0; // per metre of d (d1 − d0 = 1)
-    Some(GapLine { a, b: g0 - a * d0, sin_angle: norm })
+    Some(GapLine {
+        a,
+        b: g0 - a * d0,
+        sin_angle: norm,
+    })
 }

@@ -102,7 +102,12 @@ pub struct LmOptions {
 
 impl Default for LmOptions {
     fn default() -> Self {
-        Self { max_iterations: 200, cost_tolerance: 1e-10, gradient_tolerance: 1e-18, initial_damping: 1e-4 }
+        Self {
+            max_iterations: 200,
+            cost_tolerance: 1e-10,
+            gradient_tolerance: 1e-18,
+            initial_damping: 1e-4,
+        }
     }
 }
 
@@ -135,7 +140,10 @@ impl Termination {
 
     /// Whether the solver ended at a minimum.
     pub fn converged(self) -> bool {
-        matches!(self, Self::CostConverged | Self::GradientConverged | Self::NoDescent)
+        matches!(
+            self,
+            Self::CostConverged | Self::GradientConverged | Self::NoDescent
+        )
     }
 }
 
@@ -154,7 +162,11 @@ pub struct LmReport {
 
 /// Minimises `problem` from `start`. Returns the final state, the report, and the normal
 /// equations at the final state (for covariances).
-pub fn levenberg_marquardt<P: LeastSquares>(problem: &P, start: P::State, options: &LmOptions) -> (P::State, LmReport, Option<P::Normal>) {
+pub fn levenberg_marquardt<P: LeastSquares>(
+    problem: &P,
+    start: P::State,
+    options: &LmOptions,
+) -> (P::State, LmReport, Option<P::Normal>) {
     levenberg_marquardt_observed(problem, start, options, &mut |_| {})
 }
 
@@ -167,7 +179,12 @@ pub fn levenberg_marquardt_observed<P: LeastSquares>(
 ) -> (P::State, LmReport, Option<P::Normal>) {
     let mut state = start;
     let Some(mut normal) = problem.normal_equations(&state) else {
-        let report = LmReport { iterations: 0, initial_cost: f64::INFINITY, final_cost: f64::INFINITY, termination: Termination::InvalidStart };
+        let report = LmReport {
+            iterations: 0,
+            initial_cost: f64::INFINITY,
+            final_cost: f64::INFINITY,
+            termination: Termination::InvalidStart,
+        };
         return (state, report, None);
     };
     let mut cost = normal.cost();
@@ -186,7 +203,11 @@ pub fn levenberg_marquardt_observed<P: LeastSquares>(
         // data barely see.
         let Some(delta) = normal.solve_damped(damping, 1e-12 * max_diagonal) else {
             damping *= 10.0;
-            observer(&LmIteration { iteration: iterations, cost, accepted: false });
+            observer(&LmIteration {
+                iteration: iterations,
+                cost,
+                accepted: false,
+            });
             continue;
         };
         let candidate = problem.retract(&state, &delta);
@@ -205,14 +226,22 @@ pub fn levenberg_marquardt_observed<P: LeastSquares>(
                         break;
                     }
                 }
-                observer(&LmIteration { iteration: iterations, cost, accepted: true });
+                observer(&LmIteration {
+                    iteration: iterations,
+                    cost,
+                    accepted: true,
+                });
                 if improvement < options.cost_tolerance {
                     termination = Termination::CostConverged;
                     break;
                 }
             }
             _ => {
-                observer(&LmIteration { iteration: iterations, cost, accepted: false });
+                observer(&LmIteration {
+                    iteration: iterations,
+                    cost,
+                    accepted: false,
+                });
                 damping *= 4.0;
                 if damping > 1e16 * max_diagonal.max(1e-300) {
                     termination = Termination::NoDescent;
@@ -221,7 +250,12 @@ pub fn levenberg_marquardt_observed<P: LeastSquares>(
             }
         }
     }
-    let report = LmReport { iterations, initial_cost, final_cost: cost, termination };
+    let report = LmReport {
+        iterations,
+        initial_cost,
+        final_cost: cost,
+        termination,
+    };
     (state, report, Some(normal))
 }
 
@@ -244,7 +278,11 @@ mod tests {
         fn normal_equations(&self, s: &Self::State) -> Option<DenseNormalEquations> {
             let r = DVector::from_vec(vec![10.0 * (s[1] - s[0] * s[0]), 1.0 - s[0]]);
             let j = DMatrix::from_row_slice(2, 2, &[-20.0 * s[0], 10.0, -1.0, 0.0]);
-            Some(DenseNormalEquations { jtj: j.transpose() * &j, jtr: j.transpose() * &r, cost: r.norm_squared() })
+            Some(DenseNormalEquations {
+                jtj: j.transpose() * &j,
+                jtr: j.transpose() * &r,
+                cost: r.norm_squared(),
+            })
         }
         fn retract(&self, s: &Self::State, delta: &DVector<f64>) -> Self::State {
             s + delta
@@ -255,7 +293,10 @@ mod tests {
     fn solves_rosenbrock_and_says_why_it_stopped() {
         let start = DVector::from_vec(vec![-1.2, 1.0]);
         let (end, report, _) = levenberg_marquardt(&Rosenbrock, start, &LmOptions::default());
-        assert!((end[0] - 1.0).abs() < 1e-10 && (end[1] - 1.0).abs() < 1e-10, "{end}");
+        assert!(
+            (end[0] - 1.0).abs() < 1e-10 && (end[1] - 1.0).abs() < 1e-10,
+            "{end}"
+        );
         assert!(report.termination.converged(), "{report:?}");
         assert!(report.final_cost < 1e-20 && report.initial_cost > 1.0);
     }
