@@ -27,10 +27,21 @@ fn trial(views: usize, noise: f64, seed: u64) -> Trial {
     let azimuth = Rng::new(seed ^ 0xA5A5).range(-180.0, 180.0);
     let n = normal_from_tilt_azimuth(8f64.to_radians(), azimuth.to_radians());
     let truth = base
-        .with_interface(base.interface().with_pose(n.into_inner(), 0.02).unwrap())
+        .with_interface(
+            base.shared_interface()
+                .unwrap()
+                .with_pose(n.into_inner(), 0.02)
+                .unwrap(),
+        )
         .unwrap();
     let start = truth
-        .with_interface(truth.interface().with_pose(Vector3::z(), 0.01).unwrap())
+        .with_interface(
+            truth
+                .shared_interface()
+                .unwrap()
+                .with_pose(Vector3::z(), 0.01)
+                .unwrap(),
+        )
         .unwrap();
     let scene = simulate(
         &truth,

@@ -74,7 +74,7 @@ fn stereo_data(views: usize, seed: u64) -> StereoData {
 /// 20° toward +x needs d > 20.5 mm) and one close to that limit.
 fn candidates(data: &StereoData, n: usize, seed: u64) -> Vec<Candidate> {
     let mut random = Random(seed);
-    let mut out = vec![Candidate::of(data.rig.interface())];
+    let mut out = vec![Candidate::of(data.rig.shared_interface().unwrap())];
     while out.len() < n - 3 {
         let (tilt, azimuth) = (
             random.range(0.0, 20f64.to_radians()),

@@ -22,13 +22,23 @@ const EXAMPLE_RIG: &str = include_str!("../data/example_rig.json");
 fn rig(tilt_deg: f64, azimuth_deg: f64) -> Rig {
     let base = rig_from_json_str(EXAMPLE_RIG, "example".as_ref()).unwrap();
     let n = normal_from_tilt_azimuth(tilt_deg.to_radians(), azimuth_deg.to_radians());
-    base.with_interface(base.interface().with_pose(n.into_inner(), 0.02).unwrap())
-        .unwrap()
+    base.with_interface(
+        base.shared_interface()
+            .unwrap()
+            .with_pose(n.into_inner(), 0.02)
+            .unwrap(),
+    )
+    .unwrap()
 }
 
 fn naive(rig: &Rig) -> Rig {
-    rig.with_interface(rig.interface().with_pose(Vector3::z(), 0.01).unwrap())
-        .unwrap()
+    rig.with_interface(
+        rig.shared_interface()
+            .unwrap()
+            .with_pose(Vector3::z(), 0.01)
+            .unwrap(),
+    )
+    .unwrap()
 }
 
 fn board() -> Board {
@@ -246,7 +256,7 @@ fn the_consecutive_method_withstands_gross_outliers_and_reports_them() {
         let axis = calibration
             .interface
             .normal()
-            .angle(truth.interface().normal())
+            .angle(truth.shared_interface().unwrap().normal())
             .to_degrees();
         let from_clean = calibration
             .interface
@@ -259,7 +269,7 @@ fn the_consecutive_method_withstands_gross_outliers_and_reports_them() {
             reference
                 .interface
                 .normal()
-                .angle(truth.interface().normal())
+                .angle(truth.shared_interface().unwrap().normal())
                 .to_degrees(),
             air * 1e3
         );

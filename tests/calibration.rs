@@ -21,14 +21,24 @@ const EXAMPLE_RIG: &str = include_str!("../data/example_rig.json");
 fn rig(tilt_deg: f64, azimuth_deg: f64) -> Rig {
     let base = rig_from_json_str(EXAMPLE_RIG, "example".as_ref()).unwrap();
     let n = normal_from_tilt_azimuth(tilt_deg.to_radians(), azimuth_deg.to_radians());
-    base.with_interface(base.interface().with_pose(n.into_inner(), 0.02).unwrap())
-        .unwrap()
+    base.with_interface(
+        base.shared_interface()
+            .unwrap()
+            .with_pose(n.into_inner(), 0.02)
+            .unwrap(),
+    )
+    .unwrap()
 }
 
 /// The naive start: the axis on the camera's z axis, a 10 mm air layer.
 fn naive(rig: &Rig) -> Rig {
-    rig.with_interface(rig.interface().with_pose(Vector3::z(), 0.01).unwrap())
-        .unwrap()
+    rig.with_interface(
+        rig.shared_interface()
+            .unwrap()
+            .with_pose(Vector3::z(), 0.01)
+            .unwrap(),
+    )
+    .unwrap()
 }
 
 fn board() -> Board {
@@ -62,9 +72,10 @@ fn run(
     let axis = calibration
         .interface
         .normal()
-        .angle(truth.interface().normal())
+        .angle(truth.shared_interface().unwrap().normal())
         .to_degrees();
-    let air = calibration.interface.air_distance() - truth.interface().air_distance();
+    let air =
+        calibration.interface.air_distance() - truth.shared_interface().unwrap().air_distance();
     (axis, air, calibration)
 }
 
@@ -156,7 +167,7 @@ fn reported_standard_deviations_match_the_spread_over_scenes() {
             .std
             .expect("maximum likelihood gives standard deviations");
         let found = Candidate::of(&c.interface);
-        let t = Candidate::of(truth.interface());
+        let t = Candidate::of(truth.shared_interface().unwrap());
         let d_azimuth = (found.azimuth() - t.azimuth() + std::f64::consts::PI)
             .rem_euclid(std::f64::consts::TAU)
             - std::f64::consts::PI;
@@ -209,7 +220,7 @@ fn costs_vanish_at_the_truth_and_the_linear_air_layer_is_exact() {
     let scene = simulate(&truth, 0, 1, &SceneSpec::new(board(), 8, 0.0, 5)).unwrap();
     let data = StereoData::new(&naive(&truth), [0, 1], &scene.observations).unwrap();
     let backend = CpuBackend::new(&data);
-    let at_truth = Candidate::of(truth.interface());
+    let at_truth = Candidate::of(truth.shared_interface().unwrap());
     let off = Candidate {
         normal: normal_from_tilt_azimuth(9f64.to_radians(), 45f64.to_radians()),
         air_distance: 0.02,
@@ -229,7 +240,8 @@ fn costs_vanish_at_the_truth_and_the_linear_air_layer_is_exact() {
             kind.name()
         );
     }
-    let (d, gap) = air_distance_for_axis(&data, truth.interface().normal()).unwrap();
+    let (d, gap) =
+        air_distance_for_axis(&data, truth.shared_interface().unwrap().normal()).unwrap();
     assert!((d - 0.02).abs() < 1e-10 && gap < 1e-10, "{d} {gap}");
 }
 
@@ -255,7 +267,7 @@ fn huber_loss_withstands_outlier_corners_and_they_are_reported() {
     let axis = c
         .interface
         .normal()
-        .angle(truth.interface().normal())
+        .angle(truth.shared_interface().unwrap().normal())
         .to_degrees();
     let air = c.interface.air_distance() - 0.02;
     println!(

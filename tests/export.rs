@@ -256,8 +256,8 @@ fn calibration_backends_can_own_their_data() {
     let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
     let borrowed = CpuBackend::new(&data);
     let candidate = flatport::calib::Candidate {
-        normal: *rig.interface().normal(),
-        air_distance: rig.interface().air_distance(),
+        normal: *rig.shared_interface().unwrap().normal(),
+        air_distance: rig.shared_interface().unwrap().air_distance(),
     };
     let expected = borrowed
         .costs(CostKind::Reprojection, &[candidate])

@@ -549,8 +549,8 @@ fn ray_gap_cost_matches_cpu_with_both_reductions() {
                 Some([va.x, va.y, va.z, vb.x, vb.y, vb.z])
             })
             .collect();
-        let n0 = rig.interface().normal().into_inner();
-        let d0 = rig.interface().air_distance();
+        let n0 = rig.shared_interface().unwrap().normal().into_inner();
+        let d0 = rig.shared_interface().unwrap().air_distance();
         let mut candidates: Vec<[f64; 4]> = (0..97)
             .map(|_| {
                 let n = (n0
@@ -714,9 +714,14 @@ fn staged_and_mapped_buffers_agree() {
                     [v.x, v.y, v.z, w.x, w.y, w.z]
                 })
                 .collect();
-            let n0 = rig.interface().normal();
+            let n0 = rig.shared_interface().unwrap().normal();
             let candidates = [
-                [n0.x, n0.y, n0.z, rig.interface().air_distance()],
+                [
+                    n0.x,
+                    n0.y,
+                    n0.z,
+                    rig.shared_interface().unwrap().air_distance(),
+                ],
                 [0.0, 0.0, 1.0, 0.03],
             ];
             let mut costs = [[0.0; 2]; 2];

@@ -140,7 +140,8 @@ fn projected_pixels_back_project_through_their_points_and_triangulate() {
                 ),
                 // Only the points 0.1 mm from the glass may give nearly parallel rays.
                 Err(NoSolution::Degenerate) => assert!(
-                    rig.interface().normal().dot(&point.coords) - rig.interface().outer_distance()
+                    rig.shared_interface().unwrap().normal().dot(&point.coords)
+                        - rig.shared_interface().unwrap().outer_distance()
                         < 1e-3
                 ),
                 Err(e) => panic!("{name} {point:?}: {e}"),
@@ -153,7 +154,7 @@ fn projected_pixels_back_project_through_their_points_and_triangulate() {
 fn vop_relation_matches_the_traced_vop() {
     let mut inside_glass = 0;
     for (name, rig) in configurations() {
-        let interface = rig.interface();
+        let interface = rig.shared_interface().unwrap();
         let n = interface.normal().into_inner();
         for k in 0..2 {
             let stack = Stack::of(&rig, k);
@@ -222,7 +223,7 @@ fn vop_relation_matches_the_traced_vop() {
 #[test]
 fn apparent_depth_at_normal_incidence() {
     for (name, rig) in configurations() {
-        let i = rig.interface();
+        let i = rig.shared_interface().unwrap();
         let n = i.normal().into_inner();
         let camera = rig.refractive_camera(0);
         for &depth in &[1e-4, 0.05, 1.0, 7.5] {
@@ -326,7 +327,7 @@ fn newton_needs_a_handful_of_steps_and_solves_the_design_equation() {
     let (mut iterations, mut in_view) = (Vec::new(), Vec::new());
     let mut worst_residual: f64 = 0.0;
     for (_, rig) in configurations() {
-        let i = rig.interface();
+        let i = rig.shared_interface().unwrap();
         for k in 0..2 {
             let stack = Stack::of(&rig, k);
             let camera = rig.refractive_camera(k);
@@ -403,7 +404,7 @@ fn newton_needs_a_handful_of_steps_and_solves_the_design_equation() {
 fn no_solution_cases_agree_with_the_oracle() {
     let (_, rig) = configurations().remove(2);
     let camera = rig.refractive_camera(0);
-    let n = rig.interface().normal().into_inner();
+    let n = rig.shared_interface().unwrap().normal().into_inner();
     // Inside the glass and in the air.
     for offset in [0.005, 0.025, -0.5] {
         assert_eq!(

@@ -104,9 +104,9 @@ proptest! {
                 prop_assert!((closed.origin.coords - origin).norm() < 1e-9 * scale);
                 prop_assert!((traced.origin.coords - origin).norm() < 1e-9 * scale);
                 // Snell across the stack: μ_air |v × n| = μ_w |w × n|, v, n, w coplanar.
-                let n = rig.interface().normal().into_inner();
+                let n = rig.shared_interface().unwrap().normal().into_inner();
                 let air = dirs[0];
-                let i = rig.interface();
+                let i = rig.shared_interface().unwrap();
                 prop_assert!((i.index_air() * air.cross(&n).norm() - i.index_water() * closed.dir.cross(&n).norm()).abs() < 1e-12);
                 prop_assert!(air.cross(&n).dot(&closed.dir).abs() < 1e-12);
                 // On the outer interface.
@@ -137,7 +137,7 @@ proptest! {
     #[test]
     fn stereo_triangulation_and_binocular_vops(spec in rig_spec(), x in -0.5..0.5f64, y in -0.4..0.4f64, depth in 0.05..6.0f64) {
         let rig = build(&spec);
-        let interface = rig.interface();
+        let interface = rig.shared_interface().unwrap();
         let n = interface.normal().into_inner();
         let base = Vector3::new(x, y, 0.0) * (0.2 + depth);
         let point = nalgebra::Point3::from(base + n * ((interface.outer_distance() + depth - n.dot(&base)) / 1.0));

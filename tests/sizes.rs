@@ -124,7 +124,7 @@ fn bundle_schur_step_and_covariance_equal_a_dense_solve() {
     .unwrap();
     let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
     // A state off the truth so the residuals and the gradient are far from zero.
-    let truth = Candidate::of(rig.interface());
+    let truth = Candidate::of(rig.shared_interface().unwrap());
     let start = Candidate {
         normal: flatport::calib::solvers::search::tangent_step(
             &truth.normal,

@@ -151,6 +151,15 @@ pub enum CalibError {
     /// [`GpuError`](crate::gpu::GpuError)'s message.
     #[error("GPU backend: {0}")]
     Gpu(String),
+    /// Something wrong with one image (or one corner) of a view in the general observations form,
+    /// at observations-file path `field` (`views[3].cam2[12]`).
+    #[error("{field}: {reason}")]
+    Observation {
+        /// The observations-file path.
+        field: String,
+        /// What is wrong.
+        reason: String,
+    },
 }
 
 /// An angle in degrees as a reader wants it: at most 6 decimals, no trailing zeros
@@ -219,6 +228,7 @@ impl CalibError {
             }
             Self::TooFewPoses { .. } => "views".into(),
             Self::Cameras(_) => "cameras".into(),
+            Self::Observation { field, .. } => field.clone(),
             Self::NoSolution { .. } | Self::Options(_) | Self::Gpu(_) => String::new(),
         }
     }

@@ -33,4 +33,6 @@ pub use methods::calibrate::{
 pub use problem::board::{Board, RigidFit, fit_rigid};
 pub use problem::data::{Candidate, StereoData};
 pub use problem::observations::{Observations, StereoView, ViewGroups, compare_views};
+pub use problem::rig_observations::{CameraKey, Image, RigObservations, RigView, SeenView};
+pub use problem::target::Target;
 pub use simulate::{Scene, SceneSpec, simulate};

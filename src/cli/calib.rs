@@ -21,7 +21,7 @@ use flatport::io::{
     IoError, Truth, read_observations, read_rig, read_truth, write_observations, write_report,
     write_rig, write_truth,
 };
-use flatport::model::Rig;
+use flatport::model::{Interface, Ports, Rig};
 
 /// `flatport simulate`
 #[derive(Debug, Args)]
@@ -171,10 +171,14 @@ pub fn stereo_pair(
 /// the master camera's z axis and 10 mm of air. `simulate` writes it as start_rig.json, and the
 /// demo calibrates from it.
 pub fn naive_start(rig: &Rig) -> anyhow::Result<Rig> {
-    Ok(rig.with_interface(
-        rig.interface()
-            .with_pose(nalgebra::Vector3::z(), NAIVE_AIR_DISTANCE)?,
-    )?)
+    let naive = |port: &Interface| port.with_pose(nalgebra::Vector3::z(), NAIVE_AIR_DISTANCE);
+    let ports = match rig.ports() {
+        Ports::Shared(interface) => Ports::Shared(naive(interface)?),
+        Ports::PerCamera(ports) => {
+            Ports::PerCamera(ports.iter().map(naive).collect::<Result<_, _>>()?)
+        }
+    };
+    Ok(rig.with_new_ports(ports)?)
 }
 
 /// The air layer of [`naive_start`], metres.
@@ -204,7 +208,7 @@ pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
         .with_context(|| format!("cannot create {}", args.output.display()))?;
     write_observations(&args.output.join("observations.json"), &scene.observations)?;
     let truth = Truth {
-        interface: rig.interface().clone(),
+        interface: rig.port_in_master(pair[0]),
         master_from_board: scene.master_from_board,
         noise_px: args.noise,
         seed: args.seed,
@@ -212,7 +216,7 @@ pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
     write_truth(&args.output.join("truth.json"), &truth)?;
     write_rig(&args.output.join("rig.json"), &rig)?;
     write_rig(&args.output.join("start_rig.json"), &naive_start(&rig)?)?;
-    let i = rig.interface();
+    let i = rig.port_in_master(pair[0]);
     outln!(
         "simulated {} views of a {}x{} board ({} m squares), {} px noise, seed {}\ntruth: tilt {:.4}°, azimuth {:.4}°, air layer {:.3} mm\nwrote {}/observations.json, truth.json, rig.json (the truth), start_rig.json (a naive start: axis on the camera's z, 10 mm air)",
         args.views,

@@ -97,7 +97,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     write_rig(&dir.join("rig.json"), rig)?;
     write_observations(&dir.join("observations.json"), &scene.observations)?;
     let truth = Truth {
-        interface: rig.interface().clone(),
+        interface: rig.port_in_master(0),
         master_from_board: scene.master_from_board.clone(),
         noise_px: NOISE_PX,
         seed: 1,

@@ -7,7 +7,7 @@ use clap::{Args, Subcommand};
 use nalgebra::Vector3;
 
 use flatport::io::{read_opencv_stereo, read_rig, rig_to_json_string, write_atomic};
-use flatport::model::{Interface, Layer, Rig, interface};
+use flatport::model::{Interface, Layer, Ports, Rig, interface};
 
 /// `flatport rig …`
 #[derive(Debug, Subcommand)]
@@ -135,12 +135,11 @@ fn from_opencv(args: FromOpencvArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Human summary of a rig.
-pub fn describe(rig: &Rig) -> String {
-    let interface = rig.interface();
+/// Human summary of one port: its axis (in the frame it is given in), air layer and media.
+fn describe_port(title: &str, interface: &Interface) -> String {
     let n = interface.normal();
     let mut text = format!(
-        "interface: normal [{:.6}, {:.6}, {:.6}] (tilt {:.4}°, azimuth {:.4}°), air layer {} m\n",
+        "{title}: normal [{:.6}, {:.6}, {:.6}] (tilt {:.4}°, azimuth {:.4}°), air layer {} m\n",
         n.x,
         n.y,
         n.z,
@@ -156,6 +155,22 @@ pub fn describe(rig: &Rig) -> String {
         );
     }
     text += &format!("  index_water {}\n", interface.index_water());
+    text
+}
+
+/// Human summary of a rig.
+pub fn describe(rig: &Rig) -> String {
+    let mut text = match rig.ports() {
+        Ports::Shared(interface) => describe_port("interface", interface),
+        Ports::PerCamera(ports) => rig
+            .cameras()
+            .iter()
+            .zip(ports)
+            .map(|(camera, port)| {
+                describe_port(&format!("port of '{}' (its own frame)", camera.name), port)
+            })
+            .collect(),
+    };
     for (k, camera) in rig.cameras().iter().enumerate() {
         let view = rig.refractive_camera(k);
         let c = view.centre();

@@ -4,7 +4,9 @@
 use rayon::prelude::*;
 
 use super::simd::{self, backproject_row, project_row, scalar_row, triangulate_row, vop_row};
-use crate::model::{NoSolution, RefractiveCamera, Rig, binocular_vop, triangulate_rays};
+use crate::model::{
+    ModelError, NoSolution, RefractiveCamera, Rig, binocular_vop, triangulate_rays,
+};
 use nalgebra::{Point2, Unit, Vector3};
 
 /// Items per rayon task: large enough to amortise scheduling, small enough to balance.
@@ -224,8 +226,9 @@ impl CpuEngine {
                 .zip(costs.par_iter_mut())
                 .for_each(|(c, cost)| {
                     let moved = rig
-                        .interface()
-                        .with_pose(Vector3::new(c[0], c[1], c[2]), c[3])
+                        .shared_interface()
+                        .ok_or(ModelError::MixedPorts("no shared port".into()))
+                        .and_then(|i| i.with_pose(Vector3::new(c[0], c[1], c[2]), c[3]))
                         .and_then(|i| rig.with_interface(i));
                     // A candidate that puts a camera outside the air has no term.
                     let Ok(moved) = moved else {

@@ -312,7 +312,7 @@ impl Engine {
     /// xyz, master frame: [`RefractiveCamera::dir_in_air_from_img`] of a correspondence) both
     /// water rays are formed behind the candidate and triangulated; `costs[c] = [Σ residual²,
     /// number of pairs with an answer]`. A candidate the rig rejects (a camera outside the air)
-    /// gets `[0, 0]`.
+    /// gets `[0, 0]`, and so does every candidate of a rig with a port per camera (no shared port to move).
     pub fn ray_gap_cost(
         &self,
         rig: &Rig,

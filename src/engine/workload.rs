@@ -12,7 +12,7 @@ pub fn without_distortion(rig: &Rig) -> Result<Rig, ModelError> {
     for camera in &mut cameras {
         camera.intrinsics.distortion = [0.0; 5];
     }
-    Rig::new(cameras, rig.interface().clone())
+    Rig::with_ports(cameras, rig.ports().clone())
 }
 
 /// Batches of one size for cameras 0 and 1 of a rig.

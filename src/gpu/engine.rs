@@ -769,12 +769,18 @@ impl GpuEngine {
             .iter()
             .map(|c| {
                 match rig
-                    .interface()
-                    .with_pose(nalgebra::Vector3::new(c[0], c[1], c[2]), c[3])
+                    .shared_interface()
+                    .ok_or(crate::model::ModelError::MixedPorts(
+                        "no shared port".into(),
+                    ))
+                    .and_then(|i| i.with_pose(nalgebra::Vector3::new(c[0], c[1], c[2]), c[3]))
                     .and_then(|i| rig.with_interface(i))
                 {
                     Ok(moved) => {
-                        let n = moved.interface().normal();
+                        let n = moved
+                            .shared_interface()
+                            .expect("moved behind a shared port")
+                            .normal();
                         [n.x, n.y, n.z, c[3]]
                     }
                     Err(_) => [0.0, 0.0, 1.0, -1.0],

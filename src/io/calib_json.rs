@@ -8,6 +8,8 @@ use serde::{Deserialize, Serialize};
 
 use super::rig_json::interface_to_file;
 use super::{IoError, read_text, write_atomic};
+use crate::calib::problem::rig_observations::{CameraKey, Image, RigObservations, RigView};
+use crate::calib::problem::target::Target;
 use crate::calib::{Board, CalibrationReport, Observations, StereoView};
 use crate::model::Interface;
 
@@ -113,6 +115,241 @@ pub fn write_observations(path: &Path, observations: &Observations) -> Result<()
     write_atomic(path, observations_to_json_string(observations).as_bytes())
 }
 
+/// A view of the general form: camera name → corners, in file order; a key given twice is an
+/// error (a map type would keep only the last silently).
+#[derive(Debug, Default)]
+struct GeneralView(Vec<(String, Vec<Option<[f64; 2]>>)>);
+
+impl<'de> Deserialize<'de> for GeneralView {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = GeneralView;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(
+                    "an object whose keys are camera names, each holding a list of [u, v] or null",
+                )
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<GeneralView, A::Error> {
+                let mut images: Vec<(String, Vec<Option<[f64; 2]>>)> = Vec::new();
+                while let Some(key) = map.next_key::<String>()? {
+                    if images.iter().any(|(k, _)| *k == key) {
+                        return Err(serde::de::Error::custom(format!(
+                            "camera '{key}' appears twice in this view"
+                        )));
+                    }
+                    let corners = map.next_value()?;
+                    images.push((key, corners));
+                }
+                Ok(GeneralView(images))
+            }
+        }
+        deserializer.deserialize_map(Visitor)
+    }
+}
+
+impl Serialize for GeneralView {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = serializer.serialize_map(Some(self.0.len()))?;
+        for (key, corners) in &self.0 {
+            map.serialize_entry(key, corners)?;
+        }
+        map.end()
+    }
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TargetFile {
+    points: Vec<[f64; 3]>,
+}
+
+/// The observations file in its general form (DESIGN.md §3b), the stereo form included.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GeneralFile {
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "super::rig_json::present"
+    )]
+    board: Option<BoardFile>,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "super::rig_json::present"
+    )]
+    target: Option<TargetFile>,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "super::rig_json::present"
+    )]
+    cameras: Option<[String; 2]>,
+    views: Vec<GeneralView>,
+}
+
+/// Parses observations in the general form (views keyed by rig camera names, a board or a 3-D
+/// target) or the stereo form (`left`/`right`, optional `"cameras": [A, B]`); `path` only labels
+/// errors. Camera names are checked against the rig later ([`RigObservations::resolve`]).
+pub fn rig_observations_from_json_str(text: &str, path: &Path) -> Result<RigObservations, IoError> {
+    let file: GeneralFile = super::rig_json::parse_json(text, path)?;
+    let invalid = |field: &str, reason: String| IoError::Invalid {
+        path: path.to_path_buf(),
+        field: field.into(),
+        reason,
+    };
+    let target = match (&file.board, &file.target) {
+        (Some(_), Some(_)) => {
+            return Err(invalid(
+                "target",
+                "give either a board or a target, not both".into(),
+            ));
+        }
+        (None, None) => {
+            return Err(invalid(
+                "board",
+                "missing: give the board (rows, cols, square) or a target (points)".into(),
+            ));
+        }
+        (Some(b), None) => {
+            if b.rows < 2 || b.cols < 2 || !(b.square > 0.0 && b.square.is_finite()) {
+                return Err(invalid(
+                    "board",
+                    format!(
+                        "needs rows ≥ 2, cols ≥ 2 and a square > 0 m, got rows {}, cols {}, square {}",
+                        b.rows, b.cols, b.square
+                    ),
+                ));
+            }
+            Target::Board(Board {
+                rows: b.rows,
+                cols: b.cols,
+                square: b.square,
+            })
+        }
+        (None, Some(t)) => {
+            if let Some(i) = t
+                .points
+                .iter()
+                .position(|p| !p.iter().all(|x| x.is_finite()))
+            {
+                return Err(invalid(
+                    &format!("target.points[{i}]"),
+                    format!("{:?} is not finite", t.points[i]),
+                ));
+            }
+            if t.points.len() < 4 {
+                return Err(invalid(
+                    "target.points",
+                    format!("{} points: a target needs at least 4", t.points.len()),
+                ));
+            }
+            Target::Points(
+                t.points
+                    .iter()
+                    .map(|&p| nalgebra::Point3::from(p))
+                    .collect(),
+            )
+        }
+    };
+    let stereo = file.cameras.as_ref();
+    let mut views = Vec::with_capacity(file.views.len());
+    for (v, view) in file.views.iter().enumerate() {
+        let mut images = Vec::with_capacity(view.0.len());
+        for (key, corners) in &view.0 {
+            let camera = match (stereo, key.as_str()) {
+                (Some(names), "left") => CameraKey::Name(names[0].clone()),
+                (Some(names), "right") => CameraKey::Name(names[1].clone()),
+                (Some(_), _) => {
+                    return Err(invalid(&format!("views[{v}].{key}"), "with \"cameras\": [A, B] (the stereo form) a view holds only \"left\" and \"right\"".into()));
+                }
+                (None, name) => CameraKey::Name(name.to_string()),
+            };
+            let corners = corners
+                .iter()
+                .map(|c| c.map(|[u, v]| Point2::new(u, v)))
+                .collect();
+            images.push(Image {
+                camera,
+                key: key.clone(),
+                corners,
+            });
+        }
+        views.push(RigView { images });
+    }
+    Ok(RigObservations { target, views })
+}
+
+/// Reads an observations file in either form (`-` = standard input).
+pub fn read_rig_observations(path: &Path) -> Result<RigObservations, IoError> {
+    rig_observations_from_json_str(&read_text(path)?, path)
+}
+
+/// Observations in the general form, one view per line, every value at full f64 precision; each
+/// image under its key as given (a camera name).
+pub fn rig_observations_to_json_string(observations: &RigObservations) -> String {
+    let (board, target) = match &observations.target {
+        Target::Board(b) => (
+            Some(BoardFile {
+                rows: b.rows,
+                cols: b.cols,
+                square: b.square,
+            }),
+            None,
+        ),
+        Target::Points(points) => (
+            None,
+            Some(TargetFile {
+                points: points.iter().map(|p| [p.x, p.y, p.z]).collect(),
+            }),
+        ),
+    };
+    let views = observations
+        .views
+        .iter()
+        .map(|v| {
+            GeneralView(
+                v.images
+                    .iter()
+                    .map(|i| {
+                        (
+                            i.key.clone(),
+                            i.corners.iter().map(|p| p.map(|p| [p.x, p.y])).collect(),
+                        )
+                    })
+                    .collect(),
+            )
+        })
+        .collect();
+    let file = GeneralFile {
+        board,
+        target,
+        cameras: None,
+        views,
+    };
+    let mut text = serde_json::to_string(&file).expect("plain data always serialises");
+    // One view per line keeps the file readable and diffable.
+    text = text
+        .replacen("\"views\":[", "\"views\":[\n  ", 1)
+        .replace("]]},{", "]]},\n  {")
+        .replace("null]},{", "null]},\n  {");
+    text.push('\n');
+    text
+}
+
+/// Writes observations in the general form atomically.
+pub fn write_rig_observations(path: &Path, observations: &RigObservations) -> Result<(), IoError> {
+    write_atomic(
+        path,
+        rig_observations_to_json_string(observations).as_bytes(),
+    )
+}
+
 /// A board pose in a file: X_master = R·X_board + t, R as rows.
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -188,7 +425,7 @@ pub fn write_truth(path: &Path, truth: &Truth) -> Result<(), IoError> {
 /// Reads a truth file.
 pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
     let file: TruthFile = super::rig_json::parse_json(&read_text(path)?, path)?;
-    let interface = super::rig_json::interface_from_file(&file.interface, path)?;
+    let interface = super::rig_json::interface_from_file(&file.interface, "interface", path)?;
     Ok(Truth {
         interface,
         master_from_board: file.board_poses.iter().map(pose_from_file).collect(),
@@ -372,5 +609,62 @@ mod tests {
             error.contains("board") && error.contains("square -1"),
             "{error}"
         );
+    }
+
+    fn parse_general(text: &str) -> Result<RigObservations, IoError> {
+        rig_observations_from_json_str(text, Path::new("obs.json"))
+    }
+
+    #[test]
+    fn the_general_form_reads_writes_and_names_what_is_wrong() {
+        let text = r#"{"target": {"points": [[0,0,0],[0.1,0,0],[0,0.1,0],[0,0,0.1]]},
+                       "views": [{"cam2": [[1,2],null,[3,4],[5,6]], "cam0": [[7,8],[9,10],null,null]}, {}]}"#;
+        let observations = parse_general(text).unwrap();
+        assert!(matches!(&observations.target, Target::Points(p) if p.len() == 4));
+        assert_eq!(observations.views.len(), 2);
+        // File order kept; keys are names.
+        let keys: Vec<&str> = observations.views[0]
+            .images
+            .iter()
+            .map(|i| i.key.as_str())
+            .collect();
+        assert_eq!(keys, ["cam2", "cam0"]);
+        assert_eq!(
+            observations.views[0].images[0].corners[2],
+            Some(Point2::new(3.0, 4.0))
+        );
+        assert_eq!(
+            parse_general(&rig_observations_to_json_string(&observations)).unwrap(),
+            observations
+        );
+        // The stereo form with "cameras" maps left/right onto the names.
+        let stereo = parse_general(r#"{"board": {"rows": 2, "cols": 2, "square": 0.1}, "cameras": ["b", "a"], "views": [{"left": [null,null,null,null], "right": [null,null,null,null]}]}"#).unwrap();
+        assert_eq!(
+            stereo.views[0].images[0].camera,
+            CameraKey::Name("b".into())
+        );
+        let cases = [
+            (
+                r#"{"board": {"rows": 2, "cols": 2, "square": 0.1}, "target": {"points": [[0,0,0],[1,0,0],[0,1,0],[0,0,1]]}, "views": []}"#,
+                "not both",
+            ),
+            (r#"{"views": []}"#, "missing"),
+            (
+                r#"{"board": {"rows": 2, "cols": 2, "square": 0.1}, "views": [{"a": [], "a": []}]}"#,
+                "appears twice",
+            ),
+            (
+                r#"{"board": {"rows": 2, "cols": 2, "square": 0.1}, "cameras": ["a", "b"], "views": [{"c": []}]}"#,
+                "views[0].c",
+            ),
+            (
+                r#"{"target": {"points": [[0,0,0]]}, "views": []}"#,
+                "at least 4",
+            ),
+        ];
+        for (text, expected) in cases {
+            let message = parse_general(text).unwrap_err().to_string();
+            assert!(message.contains(expected), "{text}: {message}");
+        }
     }
 }

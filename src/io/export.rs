@@ -99,16 +99,6 @@ pub fn colmap_cameras_txt(rig: &Rig) -> Result<String, ExportError> {
 
 /// [`colmap_cameras_txt`] in either dialect.
 pub fn colmap_cameras_txt_as(rig: &Rig, dialect: ColmapDialect) -> Result<String, ExportError> {
-    let interface = rig.interface();
-    let (thickness, index_glass) = match interface.layers() {
-        [] => (0.0, interface.index_water()),
-        [glass] => (glass.thickness, glass.index),
-        layers => {
-            return Err(ExportError::Layers {
-                layers: layers.len(),
-            });
-        }
-    };
     let mut text = String::from(
         "# Camera list with one line of data per camera, written by flatport export colmap:\n\
          #   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[], REFRAC_MODEL, REFRAC_PARAMS[]\n\
@@ -116,6 +106,16 @@ pub fn colmap_cameras_txt_as(rig: &Rig, dialect: ColmapDialect) -> Result<String
     );
     let _ = writeln!(text, "# Number of cameras: {}", rig.cameras().len());
     for (k, camera) in rig.cameras().iter().enumerate() {
+        let interface = rig.port_in_master(k);
+        let (thickness, index_glass) = match interface.layers() {
+            [] => (0.0, interface.index_water()),
+            [glass] => (glass.thickness, glass.index),
+            layers => {
+                return Err(ExportError::Layers {
+                    layers: layers.len(),
+                });
+            }
+        };
         let view = rig.refractive_camera(k);
         let normal_in_cam = view.master_from_cam().transpose() * view.normal().into_inner();
         let (model, lens) = colmap_lens(&camera.intrinsics);
@@ -350,8 +350,8 @@ mod tests {
         // The right camera's own port: its normal is R n, its air layer d − n·C.
         let view = rig.refractive_camera(1);
         let n: Vec<f64> = right[13..16].iter().map(|s| s.parse().unwrap()).collect();
-        let expected =
-            rig.cameras()[1].cam_from_master.rotation * rig.interface().normal().into_inner();
+        let expected = rig.cameras()[1].cam_from_master.rotation
+            * rig.shared_interface().unwrap().normal().into_inner();
         for i in 0..3 {
             assert!((n[i] - expected[i]).abs() < 1e-15, "{n:?} vs {expected}");
         }
@@ -425,7 +425,7 @@ mod tests {
             .to_rig(
                 ["left", "right"],
                 None,
-                rig.interface().clone(),
+                rig.shared_interface().unwrap().clone(),
                 Path::new("exported.yml"),
             )
             .unwrap();

@@ -1,4 +1,5 @@
-//! The rig file (DESIGN.md §1): JSON with `cameras` (master first) and `interface`.
+//! The rig file (DESIGN.md §1, §3b): JSON with `cameras` (master first) and the top-level
+//! `interface` shared by every camera, or an `interface` in every camera (its own port).
 //! Unknown keys are rejected by name; the model validates the values.
 
 use std::path::Path;
@@ -8,13 +9,19 @@ use serde::{Deserialize, Serialize};
 
 use super::{IoError, read_text, write_atomic};
 use crate::model::interface::{DEFAULT_INDEX_AIR, DEFAULT_INDEX_WATER};
-use crate::model::{Interface, Layer, ModelError, PinholeCamera, Rig, RigCamera};
+use crate::model::{Interface, Layer, ModelError, PinholeCamera, Ports, Rig, RigCamera};
 
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RigFile {
     cameras: Vec<CameraFile>,
-    interface: InterfaceFile,
+    /// The port shared by every camera (master frame); absent when every camera has its own.
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "present"
+    )]
+    interface: Option<InterfaceFile>,
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -41,6 +48,13 @@ struct CameraFile {
         deserialize_with = "present"
     )]
     translation: Option<[f64; 3]>,
+    /// This camera's own port, in its own frame (DESIGN.md §3b).
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "present"
+    )]
+    interface: Option<InterfaceFile>,
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -152,13 +166,63 @@ pub fn rig_from_json_str(text: &str, path: &Path) -> Result<Rig, IoError> {
             })?;
         cameras.push(camera);
     }
-    let interface = interface_from_file(&file.interface, path)?;
+    let ports = ports_from_file(&file, path)?;
     let names: Vec<&str> = file.cameras.iter().map(|c| c.name.as_str()).collect();
-    Rig::new(cameras, interface).map_err(|e| invalid(rig_field(&e, &names), e))
+    Rig::with_ports(cameras, ports).map_err(|e| invalid(rig_field(&e, &names), e))
+}
+
+/// The rig's ports: the top-level `interface`, or an `interface` in every camera; both at once, or
+/// ports on some cameras only, is an error that names the cameras.
+fn ports_from_file(file: &RigFile, path: &Path) -> Result<Ports, IoError> {
+    let mixed = |field: &str, reason: String| IoError::Invalid {
+        path: path.to_path_buf(),
+        field: field.into(),
+        reason,
+    };
+    let with: Vec<usize> = (0..file.cameras.len())
+        .filter(|&k| file.cameras[k].interface.is_some())
+        .collect();
+    let without: Vec<String> = file
+        .cameras
+        .iter()
+        .filter(|c| c.interface.is_none())
+        .map(|c| format!("'{}'", c.name))
+        .collect();
+    match &file.interface {
+        Some(_) if !with.is_empty() => Err(mixed(
+            &format!("cameras[{}].interface", with[0]),
+            "a rig has either the top-level interface (one port shared by every camera) or an interface in every camera (a port each), not both".into(),
+        )),
+        Some(shared) => Ok(Ports::Shared(interface_from_file(shared, "interface", path)?)),
+        None if with.is_empty() => Err(mixed(
+            "interface",
+            "missing: give the top-level interface (one port shared by every camera, master frame) or an interface in every camera (its own port, in its own frame)".into(),
+        )),
+        None if !without.is_empty() => Err(mixed(
+            &format!("cameras[{}].interface", file.cameras.iter().position(|c| c.interface.is_none()).expect("one lacks it")),
+            format!(
+                "with per-camera ports every camera needs its own interface; {} {} none",
+                without.join(", "),
+                if without.len() == 1 { "has" } else { "have" }
+            ),
+        )),
+        None => file
+            .cameras
+            .iter()
+            .enumerate()
+            .map(|(k, c)| interface_from_file(c.interface.as_ref().expect("every camera has one"), &format!("cameras[{k}].interface"), path))
+            .collect::<Result<Vec<_>, _>>()
+            .map(Ports::PerCamera),
+    }
 }
 
 /// The interface of a rig file's `interface` object, validated.
-pub(crate) fn interface_from_file(i: &InterfaceFile, path: &Path) -> Result<Interface, IoError> {
+/// `field` is where the object sits in the file (`interface`, `cameras[1].interface`).
+pub(crate) fn interface_from_file(
+    i: &InterfaceFile,
+    field: &str,
+    path: &Path,
+) -> Result<Interface, IoError> {
     let layers = i
         .layers
         .iter()
@@ -176,7 +240,7 @@ pub(crate) fn interface_from_file(i: &InterfaceFile, path: &Path) -> Result<Inte
     )
     .map_err(|e| IoError::Invalid {
         path: path.to_path_buf(),
-        field: interface_field(&e),
+        field: interface_field(&e, field),
         reason: e.to_string(),
     })
 }
@@ -201,20 +265,20 @@ pub(crate) fn interface_to_file(i: &Interface) -> InterfaceFile {
 }
 
 /// The rig-file field an interface error is about.
-fn interface_field(error: &ModelError) -> String {
+fn interface_field(error: &ModelError, object: &str) -> String {
     match error {
         ModelError::ZeroNormal | ModelError::NormalAwayFromWater { .. } => {
-            "interface.normal".into()
+            format!("{object}.normal")
         }
-        ModelError::NonPositiveAirDistance { .. } => "interface.distance".into(),
+        ModelError::NonPositiveAirDistance { .. } => format!("{object}.distance"),
         ModelError::NonPositiveThickness { layer, .. } => {
-            format!("interface.layers[{layer}].thickness")
+            format!("{object}.layers[{layer}].thickness")
         }
         ModelError::IndexBelowOne { medium, .. } => match medium.strip_prefix("layer ") {
-            Some(layer) => format!("interface.layers[{layer}].index"),
-            None => format!("interface.{medium}"),
+            Some(layer) => format!("{object}.layers[{layer}].index"),
+            None => format!("{object}.{medium}"),
         },
-        _ => "interface".into(),
+        _ => object.into(),
     }
 }
 
@@ -276,12 +340,16 @@ pub fn rig_to_json_string(rig: &Rig) -> String {
                 distortion: i.distortion.to_vec(),
                 rotation,
                 translation,
+                interface: match rig.ports() {
+                    Ports::PerCamera(ports) => Some(interface_to_file(&ports[k])),
+                    Ports::Shared(_) => None,
+                },
             }
         })
         .collect();
     let file = RigFile {
         cameras,
-        interface: interface_to_file(rig.interface()),
+        interface: rig.shared_interface().map(interface_to_file),
     };
     let mut text = serde_json::to_string_pretty(&file).expect("plain data always serialises");
     text.push('\n');
@@ -371,23 +439,26 @@ mod tests {
     #[test]
     fn design_example_parses_with_normalised_normal() {
         let rig = parse(EXAMPLE).unwrap();
-        let n = rig.interface().normal();
+        let n = rig.shared_interface().unwrap().normal();
         // (0.1, 0.1, 1) / √1.02
         let norm = 1.02f64.sqrt();
         assert!((n.into_inner() - Vector3::new(0.1 / norm, 0.1 / norm, 1.0 / norm)).norm() < 1e-15);
         assert_eq!(rig.cameras().len(), 2);
         assert_eq!(rig.cameras()[0].name, "left");
         assert_eq!(rig.cameras()[1].intrinsics.fx, 864.91);
-        assert_eq!(rig.interface().air_distance(), 0.02);
+        assert_eq!(rig.shared_interface().unwrap().air_distance(), 0.02);
         assert_eq!(
-            rig.interface().layers(),
+            rig.shared_interface().unwrap().layers(),
             &[Layer {
                 thickness: 0.014,
                 index: 1.473
             }]
         );
         assert_eq!(
-            (rig.interface().index_air(), rig.interface().index_water()),
+            (
+                rig.shared_interface().unwrap().index_air(),
+                rig.shared_interface().unwrap().index_water()
+            ),
             (1.003, 1.333)
         );
         // t = (−0.06, 0, 0), R = I ⇒ C = −Rᵀt = (0.06, 0, 0).
@@ -406,10 +477,19 @@ mod tests {
             rig.cameras()[0].intrinsics.distortion,
             [0.1, 0.0, 0.0, 0.0, 0.0]
         );
-        assert_eq!(rig.interface().index_air(), DEFAULT_INDEX_AIR);
-        assert_eq!(rig.interface().index_water(), DEFAULT_INDEX_WATER);
-        assert!(rig.interface().layers().is_empty());
-        assert_eq!(rig.interface().normal().into_inner(), Vector3::z());
+        assert_eq!(
+            rig.shared_interface().unwrap().index_air(),
+            DEFAULT_INDEX_AIR
+        );
+        assert_eq!(
+            rig.shared_interface().unwrap().index_water(),
+            DEFAULT_INDEX_WATER
+        );
+        assert!(rig.shared_interface().unwrap().layers().is_empty());
+        assert_eq!(
+            rig.shared_interface().unwrap().normal().into_inner(),
+            Vector3::z()
+        );
     }
 
     #[test]
@@ -492,7 +572,10 @@ mod tests {
 
             let text = rig_to_json_string(&rig);
             let back = parse(&text).unwrap_or_else(|e| panic!("{e}\n{text}"));
-            let (a, b) = (rig.interface(), back.interface());
+            let (a, b) = (
+                rig.shared_interface().unwrap(),
+                back.shared_interface().unwrap(),
+            );
             // The stored normal is already unit; normalising it again may move its last bit.
             assert!(
                 (a.normal().into_inner() - b.normal().into_inner()).amax() <= 1e-15,
@@ -607,10 +690,11 @@ mod tests {
             field == "interfaces" && m.contains("unknown field `interfaces`"),
             "{m}"
         );
-        let (field, _, m) = json_error(r#"{"cameras": []}"#);
+        // No port at all: neither the shared one nor a port per camera.
+        let (field, m) = invalid(&edited("\"interface\": {", "\"port\": {").replace(",\n  \"port\": {\"normal\": [0.1, 0.1, 1.0], \"distance\": 0.02,\n                \"layers\": [{\"thickness\": 0.014, \"index\": 1.473}],\n                \"index_air\": 1.003, \"index_water\": 1.333}", ""));
         assert!(
-            field.is_empty() && m.contains("missing field `interface`"),
-            "{m}"
+            field == "interface" && m.contains("missing"),
+            "{field}: {m}"
         );
     }
 
@@ -667,5 +751,74 @@ mod tests {
         let (field, _) =
             invalid(r#"{"cameras": [], "interface": {"normal": [0, 0, 1], "distance": 0.01}}"#);
         assert_eq!(field, "cameras");
+    }
+
+    const OWN_PORTS: &str = r#"{
+  "cameras": [
+    {"name": "a", "width": 1280, "height": 1024, "fx": 864.91, "fy": 864.91, "cx": 640.0, "cy": 512.0,
+     "interface": {"normal": [0, 0, 1], "distance": 0.01, "layers": [{"thickness": 0.01, "index": 1.49}]}},
+    {"name": "b", "width": 1280, "height": 1024, "fx": 864.91, "fy": 864.91, "cx": 640.0, "cy": 512.0,
+     "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "translation": [-0.3, 0, 0],
+     "interface": {"normal": [0.05, 0, 1], "distance": 0.02, "layers": [{"thickness": 0.012, "index": 1.49}]}}
+  ]
+}"#;
+
+    #[test]
+    fn a_port_per_camera_reads_writes_and_refuses_mixing() {
+        let rig = parse(OWN_PORTS).unwrap();
+        let Ports::PerCamera(ports) = rig.ports() else {
+            panic!("per-camera ports expected")
+        };
+        assert_eq!(ports[1].air_distance(), 0.02);
+        assert_eq!(ports[1].layers()[0].thickness, 0.012);
+        // Camera b's own air layer is its port's distance, whatever its position.
+        assert!((rig.refractive_camera(1).air_distance() - 0.02).abs() < 1e-15);
+        // Written and read back: the same ports (the normal renormalised to the last bit).
+        let back = parse(&rig_to_json_string(&rig)).unwrap();
+        assert_eq!(back.cameras(), rig.cameras());
+        let Ports::PerCamera(read) = back.ports() else {
+            panic!("per-camera ports expected")
+        };
+        for (a, b) in ports.iter().zip(read) {
+            assert!((a.normal().into_inner() - b.normal().into_inner()).norm() < 1e-15);
+            assert_eq!(
+                (a.air_distance(), a.layers()),
+                (b.air_distance(), b.layers())
+            );
+        }
+        // Both kinds at once.
+        let both = OWN_PORTS.replacen(
+            "\n  ]\n}",
+            "\n  ],\n  \"interface\": {\"normal\": [0, 0, 1], \"distance\": 0.02}\n}",
+            1,
+        );
+        let message = parse(&both).unwrap_err().to_string();
+        assert!(
+            message.contains("cameras[0].interface") && message.contains("not both"),
+            "{message}"
+        );
+        // A port on one camera only.
+        let one = OWN_PORTS.replacen(r#",
+     "interface": {"normal": [0.05, 0, 1], "distance": 0.02, "layers": [{"thickness": 0.012, "index": 1.49}]}"#, "", 1);
+        let message = parse(&one).unwrap_err().to_string();
+        assert!(
+            message.contains("cameras[1].interface") && message.contains("'b' has none"),
+            "{message}"
+        );
+        // No port at all.
+        let none = one.replacen(r#",
+     "interface": {"normal": [0, 0, 1], "distance": 0.01, "layers": [{"thickness": 0.01, "index": 1.49}]}"#, "", 1);
+        let message = parse(&none).unwrap_err().to_string();
+        assert!(
+            message.contains("interface") && message.contains("missing"),
+            "{message}"
+        );
+        // A bad value names the camera's port.
+        let bad = OWN_PORTS.replacen(r#""distance": 0.02"#, r#""distance": -0.02"#, 1);
+        let message = parse(&bad).unwrap_err().to_string();
+        assert!(
+            message.contains("cameras[1].interface.distance"),
+            "{message}"
+        );
     }
 }

@@ -93,6 +93,9 @@ pub enum ModelError {
         /// d_k = d − n·C_k.
         air_distance: f64,
     },
+    /// A camera's own port was given on some cameras and not on others, or next to a shared one.
+    #[error("{0}")]
+    MixedPorts(String),
     /// A rig without cameras.
     #[error("a rig needs at least one camera")]
     NoCameras,

@@ -143,6 +143,44 @@ impl Interface {
         self.normal.y.atan2(self.normal.x)
     }
 
+    /// The same stack seen from another frame B, with X_B = `b_from_a`·X_A (this stack given in A):
+    /// n_B = R n_A and d_B = d_A + n_B·t. A camera's own port (normal and distance in that camera's
+    /// frame) becomes the master frame's by its `cam_from_master` inverse. Not revalidated: the
+    /// normal may point anywhere in B (n·z > 0 holds in the frame of the camera that looks through it).
+    pub fn transformed(&self, b_from_a: &nalgebra::Isometry3<f64>) -> Self {
+        let normal = b_from_a.rotation * self.normal;
+        Self {
+            normal,
+            air_distance: self.air_distance + normal.dot(&b_from_a.translation.vector),
+            ..self.clone()
+        }
+    }
+
+    /// The same stack with other layer thicknesses (indices kept; validated as in [`new`](Self::new)).
+    pub fn with_thicknesses(&self, thicknesses: &[f64]) -> Result<Self, ModelError> {
+        assert_eq!(
+            thicknesses.len(),
+            self.layers.len(),
+            "one thickness per layer"
+        );
+        let layers = self
+            .layers
+            .iter()
+            .zip(thicknesses)
+            .map(|(l, &thickness)| Layer {
+                thickness,
+                index: l.index,
+            })
+            .collect();
+        Self::new(
+            self.normal.into_inner(),
+            self.air_distance,
+            layers,
+            self.index_air,
+            self.index_water,
+        )
+    }
+
     /// The same stack with another system axis and air layer (validated as in [`new`](Self::new)).
     pub fn with_pose(&self, normal: Vector3<f64>, air_distance: f64) -> Result<Self, ModelError> {
         Self::new(

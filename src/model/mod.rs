@@ -17,7 +17,7 @@ pub use camera::PinholeCamera;
 pub use error::ModelError;
 pub use interface::{Interface, Layer, normal_from_tilt_azimuth};
 pub use refractive_camera::{AirPath, Ray, RefractiveCamera, Vop};
-pub use rig::{Rig, RigCamera};
+pub use rig::{Ports, Rig, RigCamera};
 pub use stereo::{BinocularVop, Triangulation, binocular_vop, triangulate_rays};
 
 /// Why a point, pixel or ray has no answer. Not an error: batches report these per element (as a

@@ -1,5 +1,5 @@
 //! Rigs: a master camera that defines the world frame, more cameras with OpenCV `stereoCalibrate`
-//! extrinsics, and the flat interface they all look through.
+//! extrinsics, and the flat ports they look through: one shared by all, or one per camera.
 
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 
@@ -67,18 +67,37 @@ impl RigCamera {
     }
 }
 
-/// Cameras behind one shared flat interface. The first camera is the master: its frame is the
-/// world frame, so its extrinsics are the identity.
+/// The ports of a rig: one flat port shared by every camera, or a port per camera (a housing
+/// each, DESIGN.md §3b).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Ports {
+    /// One port in front of every camera, in the master frame.
+    Shared(Interface),
+    /// Each camera's own port, in rig camera order, each in *that camera's* frame: its centre at the
+    /// origin, the normal into the water, the distance from the centre to the first interface
+    /// (colmap_underwater's FLATPORT convention).
+    PerCamera(Vec<Interface>),
+}
+
+/// Cameras behind flat ports. The first camera is the master: its frame is the world frame, so
+/// its extrinsics are the identity.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Rig {
     cameras: Vec<RigCamera>,
-    interface: Interface,
+    ports: Ports,
 }
 
 impl Rig {
-    /// Builds and validates a rig: at least one camera, unique names, identity master extrinsics,
-    /// every camera centre on the air side of the first interface (d_k = d − n·C_k > 0).
+    /// Builds and validates a rig behind one shared port: at least one camera, unique names,
+    /// identity master extrinsics, every camera centre on the air side of the first interface
+    /// (d_k = d − n·C_k > 0).
     pub fn new(cameras: Vec<RigCamera>, interface: Interface) -> Result<Self, ModelError> {
+        Self::with_ports(cameras, Ports::Shared(interface))
+    }
+
+    /// Builds and validates a rig with the given ports ([`Rig::new`]'s checks; per-camera ports:
+    /// exactly one per camera).
+    pub fn with_ports(cameras: Vec<RigCamera>, ports: Ports) -> Result<Self, ModelError> {
         let master = cameras.first().ok_or(ModelError::NoCameras)?;
         let iso = &master.cam_from_master;
         if iso.translation.vector.norm() > 1e-12 || iso.rotation.angle() > 1e-9 {
@@ -93,12 +112,26 @@ impl Rig {
                 });
             }
         }
-        let rig = Self { cameras, interface };
-        rig.check_cameras_in_air(&rig.interface)?;
+        if let Ports::PerCamera(ports) = &ports
+            && ports.len() != cameras.len()
+        {
+            return Err(ModelError::MixedPorts(format!(
+                "{} ports for {} cameras: with per-camera ports every camera has its own",
+                ports.len(),
+                cameras.len()
+            )));
+        }
+        let rig = Self { cameras, ports };
+        rig.check_cameras_in_air()?;
         Ok(rig)
     }
 
-    fn check_cameras_in_air(&self, interface: &Interface) -> Result<(), ModelError> {
+    /// Every camera in the air: d_k = d − n·C_k > 0 behind a shared port (a camera's own port
+    /// has d_k = its distance, > 0 by construction).
+    fn check_cameras_in_air(&self) -> Result<(), ModelError> {
+        let Ports::Shared(interface) = &self.ports else {
+            return Ok(());
+        };
         for camera in &self.cameras {
             let air_distance = interface.air_distance()
                 - interface.normal().dot(&camera.centre_in_master().coords);
@@ -117,18 +150,56 @@ impl Rig {
         &self.cameras
     }
 
-    /// The shared interface.
-    pub fn interface(&self) -> &Interface {
-        &self.interface
+    /// The ports.
+    pub fn ports(&self) -> &Ports {
+        &self.ports
     }
 
-    /// The same rig behind another interface (validated: every camera must stay in the air).
+    /// The shared port (master frame), or `None` when every camera has its own.
+    pub fn shared_interface(&self) -> Option<&Interface> {
+        match &self.ports {
+            Ports::Shared(interface) => Some(interface),
+            Ports::PerCamera(_) => None,
+        }
+    }
+
+    /// The port camera `index` looks through, in the master frame.
+    ///
+    /// # Panics
+    /// When `index` is out of range.
+    pub fn port_in_master(&self, index: usize) -> Interface {
+        match &self.ports {
+            Ports::Shared(interface) => interface.clone(),
+            Ports::PerCamera(ports) => {
+                ports[index].transformed(&self.cameras[index].cam_from_master.inverse())
+            }
+        }
+    }
+
+    /// The same rig behind another shared interface (validated: every camera must stay in the air).
     pub fn with_interface(&self, interface: Interface) -> Result<Self, ModelError> {
-        self.check_cameras_in_air(&interface)?;
-        Ok(Self {
-            cameras: self.cameras.clone(),
-            interface,
-        })
+        self.with_new_ports(Ports::Shared(interface))
+    }
+
+    /// The same cameras behind other ports (validated).
+    pub fn with_new_ports(&self, ports: Ports) -> Result<Self, ModelError> {
+        Self::with_ports(self.cameras.clone(), ports)
+    }
+
+    /// The same rig with camera `index` (not the master) moved to `cam_from_master` (validated:
+    /// behind a shared port it must stay in the air).
+    ///
+    /// # Panics
+    /// When `index` is 0 or out of range.
+    pub fn with_extrinsics(
+        &self,
+        index: usize,
+        cam_from_master: Isometry3<f64>,
+    ) -> Result<Self, ModelError> {
+        assert!(index > 0, "the master camera defines the frame");
+        let mut cameras = self.cameras.clone();
+        cameras[index].cam_from_master = cam_from_master;
+        Self::with_ports(cameras, self.ports.clone())
     }
 
     /// Index of a camera given by name, or by its position as a decimal number (`0` = master).
@@ -148,7 +219,16 @@ impl Rig {
     /// When `index` is out of range.
     pub fn refractive_camera(&self, index: usize) -> RefractiveCamera {
         let camera = &self.cameras[index];
-        RefractiveCamera::new(camera.intrinsics, &camera.cam_from_master, &self.interface)
+        match &self.ports {
+            Ports::Shared(interface) => {
+                RefractiveCamera::new(camera.intrinsics, &camera.cam_from_master, interface)
+            }
+            Ports::PerCamera(_) => RefractiveCamera::new(
+                camera.intrinsics,
+                &camera.cam_from_master,
+                &self.port_in_master(index),
+            ),
+        }
     }
 }
 
@@ -241,5 +321,57 @@ mod tests {
             Rig::new(vec![], interface(0.02)),
             Err(ModelError::NoCameras)
         );
+    }
+
+    #[test]
+    fn a_port_per_camera_equals_the_shared_port_it_describes() {
+        // Camera 1 turned 20° about y and moved: its own port, written by hand from DESIGN.md's
+        // relations (n_k = R_k n, d_k = d − n·C_k), must project and back-project as the shared
+        // port does.
+        let shared = interface(0.2);
+        let rotation =
+            nalgebra::Rotation3::from_euler_angles(0.05, 20f64.to_radians(), -0.1).into_inner();
+        let right = RigCamera::new(
+            "right",
+            intrinsics(),
+            rotation,
+            Vector3::new(-0.12, 0.01, 0.004),
+        )
+        .unwrap();
+        let left =
+            RigCamera::new("left", intrinsics(), Matrix3::identity(), Vector3::zeros()).unwrap();
+        let cameras = vec![left, right];
+        let rig = Rig::new(cameras.clone(), shared.clone()).unwrap();
+        let ports: Vec<Interface> = cameras
+            .iter()
+            .map(|c| {
+                let n = c.cam_from_master.rotation * shared.normal().into_inner();
+                let d = shared.air_distance() - shared.normal().dot(&c.centre_in_master().coords);
+                shared.with_pose(n, d).unwrap()
+            })
+            .collect();
+        let own = Rig::with_ports(cameras, Ports::PerCamera(ports)).unwrap();
+        assert!(own.shared_interface().is_none());
+        for k in 0..2 {
+            let (a, b) = (rig.refractive_camera(k), own.refractive_camera(k));
+            assert!((a.air_distance() - b.air_distance()).abs() < 1e-15);
+            for point in [
+                Point3::new(0.3, -0.2, 1.5),
+                Point3::new(-1.0, 0.4, 3.0),
+                Point3::new(0.02, 0.01, 0.4),
+            ] {
+                let (pa, pb) = (a.project(&point).unwrap(), b.project(&point).unwrap());
+                assert!((pa - pb).norm() < 1e-9, "camera {k}: {pa} vs {pb}");
+                let (ra, rb) = (a.backproject(&pa).unwrap(), b.backproject(&pa).unwrap());
+                assert!((ra.dir.into_inner() - rb.dir.into_inner()).norm() < 1e-12);
+                assert!((ra.origin - rb.origin).norm() < 1e-12);
+            }
+        }
+        // As many ports as cameras.
+        let one = vec![interface(0.02)];
+        assert!(matches!(
+            Rig::with_ports(own.cameras().to_vec(), Ports::PerCamera(one)),
+            Err(ModelError::MixedPorts(_))
+        ));
     }
 }

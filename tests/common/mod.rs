@@ -20,7 +20,7 @@ pub struct Stack {
 
 impl Stack {
     pub fn of(rig: &Rig, k: usize) -> Self {
-        let i = rig.interface();
+        let i = rig.shared_interface().unwrap();
         let cam = &rig.cameras()[k];
         let r = cam
             .cam_from_master
@@ -325,8 +325,8 @@ pub fn configurations() -> Vec<(&'static str, Rig)> {
 /// Points in the water in front of the cameras: a grid over depth and lateral offset, plus points on
 /// the master's axis line (r = 0) and points 0.1 mm beyond the outer interface.
 pub fn points_in_water(rig: &Rig) -> Vec<Point3<f64>> {
-    let n = rig.interface().normal().into_inner();
-    let outer = rig.interface().outer_distance();
+    let n = rig.shared_interface().unwrap().normal().into_inner();
+    let outer = rig.shared_interface().unwrap().outer_distance();
     let mut points = Vec::new();
     for &depth in &[0.2, 0.7, 1.5, 5.0] {
         for i in -3..=3 {

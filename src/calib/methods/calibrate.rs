@@ -451,10 +451,7 @@ fn calibrate_screened(
                     progress,
                 )?;
                 starts.push(("the reprojection profile's minimum".into(), profile));
-                starts.push((
-                    "the rig's start guess".into(),
-                    Candidate::of(data.rig.interface()),
-                ));
+                starts.push(("the rig's start guess".into(), Candidate::of(data.port())));
             }
             let mut best: Option<(
                 BundleState,
@@ -662,8 +659,7 @@ fn calibrate_screened(
         ));
     }
     let interface = data
-        .rig
-        .interface()
+        .port()
         .with_pose(
             final_candidate.normal.into_inner(),
             final_candidate.air_distance,

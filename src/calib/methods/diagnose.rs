@@ -224,7 +224,7 @@ pub fn explain(
     noise_px: Option<f64>,
 ) -> Vec<String> {
     let mut findings = pairing_findings(data);
-    let rig_candidate = Candidate::of(data.rig.interface());
+    let rig_candidate = Candidate::of(data.port());
     let under = candidate.copied().unwrap_or(rig_candidate);
     if let Some(ratio) = square_ratio(data, &under) {
         if (ratio - 1.0).abs() > SCALE_TOLERANCE {
@@ -312,7 +312,8 @@ mod tests {
                 assert!(!(reversed.fits() && reversed.median_gap * CLOSER < given.median_gap));
             }
             assert!(pairing_findings(&data).is_empty());
-            let ratio = square_ratio(&data, &Candidate::of(rig.interface())).unwrap();
+            let ratio =
+                square_ratio(&data, &Candidate::of(rig.shared_interface().unwrap())).unwrap();
             assert!((ratio - 1.0).abs() < 0.01, "{ratio}");
         }
     }
@@ -347,7 +348,11 @@ mod tests {
         let (rig, mut observations) = scene(3);
         observations.board.square = 0.03;
         let data = StereoData::new(&rig, [0, 1], &observations).unwrap();
-        let findings = explain(&data, Some(&Candidate::of(rig.interface())), Some(0.2));
+        let findings = explain(
+            &data,
+            Some(&Candidate::of(rig.shared_interface().unwrap())),
+            Some(0.2),
+        );
         assert!(
             findings[0].contains("measure 40.0") && findings[0].contains("give 30.00 mm"),
             "{findings:?}"

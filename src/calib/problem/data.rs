@@ -8,7 +8,7 @@ use nalgebra::{Matrix3x2, Point2, Unit, Vector3};
 use crate::calib::error::{CalibError, Side};
 use crate::calib::problem::board::Board;
 use crate::calib::problem::observations::Observations;
-use crate::model::{Interface, RefractiveCamera, Rig};
+use crate::model::{Interface, Ports, RefractiveCamera, Rig};
 
 /// A candidate interface pose: system axis and air layer (master frame); the layers and indices
 /// are the rig's.
@@ -142,13 +142,40 @@ impl StereoData {
     /// The two cameras behind a candidate interface, or `None` when it puts a camera outside the
     /// air (or is not a valid interface).
     pub fn cameras_behind(&self, candidate: &Candidate) -> Option<[RefractiveCamera; 2]> {
-        let interface = self
-            .rig
-            .interface()
+        let rig = self.rig_behind(candidate)?;
+        Some(self.cameras.map(|k| rig.refractive_camera(k)))
+    }
+
+    /// The port the candidates move: the shared one (master frame), or with a port per camera the
+    /// first camera's own (in its frame; the other ports stay as the rig has them).
+    pub fn port(&self) -> &Interface {
+        match self.rig.ports() {
+            Ports::Shared(interface) => interface,
+            Ports::PerCamera(ports) => &ports[self.cameras[0]],
+        }
+    }
+
+    /// The rig with [`Self::port`] moved to `candidate`, or `None` when it puts a camera outside
+    /// the air (or is not a valid interface).
+    pub fn rig_behind(&self, candidate: &Candidate) -> Option<Rig> {
+        let port = self
+            .port()
             .with_pose(candidate.normal.into_inner(), candidate.air_distance)
             .ok()?;
-        let rig = self.rig.with_interface(interface).ok()?;
-        Some(self.cameras.map(|k| rig.refractive_camera(k)))
+        match self.rig.ports() {
+            Ports::Shared(_) => self.rig.with_interface(port).ok(),
+            Ports::PerCamera(ports) => {
+                let mut ports = ports.clone();
+                ports[self.cameras[0]] = port;
+                self.rig.with_new_ports(Ports::PerCamera(ports)).ok()
+            }
+        }
+    }
+
+    /// Whether both cameras look through one shared port: the binocular invariants (VOPs of
+    /// the pair on one axis) need it.
+    pub fn shared_port(&self) -> bool {
+        matches!(self.rig.ports(), Ports::Shared(_))
     }
 
     /// Camera centres C_l, C_r in the master frame.
@@ -157,8 +184,12 @@ impl StereoData {
             .map(|k| self.rig.cameras()[k].centre_in_master())
     }
 
-    /// The smallest air layer d that keeps both cameras in the air under `normal`: max_k n·C_k.
+    /// The smallest air layer d that keeps both cameras in the air under `normal`: max_k n·C_k
+    /// behind a shared port (a camera's own port only needs d > 0).
     pub fn min_air_distance(&self, normal: &Unit<Vector3<f64>>) -> f64 {
+        if !self.shared_port() {
+            return 0.0;
+        }
         self.centres()
             .iter()
             .map(|c| normal.dot(&c.coords))

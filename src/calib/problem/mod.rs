@@ -6,4 +6,6 @@
 pub mod board;
 pub mod data;
 pub mod observations;
+pub mod rig_observations;
 pub mod screen;
+pub mod target;

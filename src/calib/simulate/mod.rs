@@ -120,7 +120,7 @@ pub fn simulate(
     let margin = spec.margin_px.max(5.0 * spec.noise_px);
     let cameras = [rig.refractive_camera(left), rig.refractive_camera(right)];
     let mut rng = Rng::new(spec.seed);
-    let interface = rig.interface();
+    let interface = rig.port_in_master(left);
     // Depth range from the field of view in water of the master camera: the board must fit.
     let intrinsics = rig.cameras()[left].intrinsics;
     let half_fov_air = (0.5
