@@ -7,6 +7,11 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 
+use flatport::calib::RigObservations;
+use flatport::calib::methods::rig_bundle::Estimate;
+use flatport::calib::methods::rig_calibrate::{
+    Estimated, RigCalibrationOptions, RigReport, calibrate_rig,
+};
 use flatport::calib::simulate::{MAX_BOARD_CORNERS, MAX_SIMULATED_CORNERS};
 use flatport::calib::solvers::search::{
     MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text,
@@ -21,6 +26,7 @@ use flatport::io::{
     IoError, Truth, read_observations, read_rig, read_truth, write_observations, write_report,
     write_rig, write_truth,
 };
+use flatport::io::{read_rig_observations, rig_report_to_json_string, write_atomic};
 use flatport::model::{Interface, Ports, Rig};
 
 /// `flatport simulate`
@@ -82,6 +88,11 @@ pub struct CalibrateArgs {
     /// Estimator
     #[arg(long, value_enum, default_value_t = MethodArg::Auto)]
     method: MethodArg,
+    /// What to estimate, comma-separated: axis, distance, layers (every layer thickness; indices
+    /// stay known), extrinsics (R, t of every camera but the master). With a port per camera every
+    /// port is estimated
+    #[arg(long, value_name = "LIST", default_value = "axis,distance", value_parser = parse_estimate)]
+    estimate: Estimate,
     /// Largest axis tilt from the master camera's z axis that the global search covers (degrees)
     #[arg(long, value_name = "DEG", default_value_t = 30.0, value_parser = super::values::tilt_bound, allow_negative_numbers = true)]
     max_tilt_deg: f64,
@@ -294,8 +305,30 @@ fn check_grid_step(args: &CalibrateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn parse_estimate(text: &str) -> Result<Estimate, String> {
+    Estimate::parse(text)
+}
+
+/// Whether the stereo method of the thesis' issue serves: two cameras behind one shared port, a
+/// board, the axis and the air distance estimated, and every view seen by both cameras. Then
+/// `calibrate` runs it exactly as before; every other rig goes to [`run_rig_calibrate`].
+fn stereo_case(rig: &Rig, observations: &RigObservations, estimate: &Estimate) -> bool {
+    rig.shared_interface().is_some()
+        && rig.cameras().len() == 2
+        && observations.target.board().is_some()
+        && *estimate == Estimate::default()
+        && observations.views.iter().all(|v| v.images.len() == 2)
+}
+
 pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     check_grid_step(&args)?;
+    {
+        let rig = read_rig(&args.rig)?;
+        let observations = read_rig_observations(&args.observations)?;
+        if !stereo_case(&rig, &observations, &args.estimate) {
+            return run_rig_calibrate(&args, &rig, &observations);
+        }
+    }
     let (rig, data, warnings) = load_stereo_data(&args.rig, &args.observations)?;
     let options = CalibrationOptions {
         method: match args.method {
@@ -563,6 +596,142 @@ pub fn summary(report: &CalibrationReport) -> String {
     }
     for warning in &report.warnings {
         text += &format!("warning: {warning}\n");
+    }
+    text
+}
+
+/// `calibrate` for any rig (one camera, N cameras, a port per camera, a 3-D target, more
+/// estimated than the axis and air distance): [`calibrate_rig`], its summary, the report, and the
+/// rig only when the fit is within `--max-rms-px`.
+fn run_rig_calibrate(
+    args: &CalibrateArgs,
+    rig: &Rig,
+    observations: &RigObservations,
+) -> anyhow::Result<()> {
+    if args.max_rms_px.is_nan() || args.max_rms_px <= 0.0 {
+        bail!(
+            "--max-rms-px must be a positive number of pixels, got {}",
+            args.max_rms_px
+        );
+    }
+    let options = RigCalibrationOptions {
+        estimate: args.estimate,
+        method: match args.method {
+            MethodArg::Consecutive => Method::Consecutive,
+            MethodArg::Simultaneous => Method::Simultaneous,
+            MethodArg::Auto => Method::Auto,
+        },
+        max_tilt: args.max_tilt_deg.to_radians(),
+        huber: args.huber,
+        max_iterations: args.max_iterations,
+        max_rms_px: args.max_rms_px,
+    };
+    eprintln!(
+        "calibrating {} camera(s) ({}) from {} views, estimating {}...",
+        rig.cameras().len(),
+        if rig.shared_interface().is_some() {
+            "one shared port"
+        } else {
+            "a port per camera"
+        },
+        observations.views.len(),
+        options.estimate.name()
+    );
+    let calibration =
+        calibrate_rig(rig, observations, &options).map_err(|e| in_file(&args.observations, e))?;
+    let report = &calibration.report;
+    if let Some(path) = &args.report {
+        write_atomic(path, rig_report_to_json_string(report).as_bytes())?;
+    }
+    out!("{}", rig_summary(report));
+    if !report.fits {
+        let worst = report
+            .cameras
+            .iter()
+            .map(|c| c.rms_px)
+            .filter(|r| !r.is_nan())
+            .fold(0.0, f64::max);
+        bail!(
+            "{}: the calibration does not fit: the reprojection RMS is {worst:.2} px in the worst camera, above --max-rms-px {}. What the data look like: {}. {} not written{}",
+            args.observations.display(),
+            args.max_rms_px,
+            report.diagnosis.join("; "),
+            args.output.display(),
+            args.report.as_ref().map_or(String::new(), |p| format!(
+                "; the report is in {}",
+                p.display()
+            ))
+        );
+    }
+    write_rig(&args.output, &calibration.rig)?;
+    outln!(
+        "wrote {}{}",
+        args.output.display(),
+        args.report
+            .as_ref()
+            .map_or(String::new(), |p| format!(", {}", p.display()))
+    );
+    Ok(())
+}
+
+/// A value with its standard deviation, in `unit` after multiplying by `scale`.
+fn with_std(value: &Estimated, scale: f64, unit: &str) -> String {
+    match value.std {
+        Some(s) => format!("{:.4} ± {:.4} {unit}", value.value * scale, s * scale),
+        None => format!("{:.4} {unit}", value.value * scale),
+    }
+}
+
+/// The human summary of a rig calibration.
+pub fn rig_summary(report: &RigReport) -> String {
+    let mut text = format!("method: {}\n", report.method);
+    for port in &report.ports {
+        text += &format!(
+            "port {}: tilt {}, azimuth {}, air distance {}",
+            port.name,
+            with_std(&port.tilt, 180.0 / std::f64::consts::PI, "°"),
+            with_std(&port.azimuth, 180.0 / std::f64::consts::PI, "°"),
+            with_std(&port.distance, 1e3, "mm")
+        );
+        for (i, t) in port.thicknesses.iter().enumerate() {
+            text += &format!(", layer {i} {}", with_std(t, 1e3, "mm"));
+        }
+        text += "\n";
+    }
+    for camera in &report.cameras {
+        text += &format!(
+            "camera {}: {} views, {} corners, RMS {:.4} px",
+            camera.name, camera.views, camera.observations, camera.rms_px
+        );
+        if let Some((r, t)) = camera.extrinsics_std {
+            let d = 180.0 / std::f64::consts::PI;
+            text += &format!(
+                ", extrinsics σ R [{:.4}, {:.4}, {:.4}]°, t [{:.3}, {:.3}, {:.3}] mm",
+                r[0] * d,
+                r[1] * d,
+                r[2] * d,
+                t[0] * 1e3,
+                t[1] * 1e3,
+                t[2] * 1e3
+            );
+        }
+        text += "\n";
+    }
+    text += &format!(
+        "RMS {:.4} px over {} corner observations in {} views, σ̂ {:.4} px; {} iterations ({}), {:.2} s\n",
+        report.rms_px,
+        report.observations,
+        report.views,
+        report.sigma_px,
+        report.iterations,
+        report.termination,
+        report.seconds
+    );
+    for warning in &report.warnings {
+        text += &format!("warning: {warning}\n");
+    }
+    for finding in &report.diagnosis {
+        text += &format!("diagnosis: {finding}\n");
     }
     text
 }

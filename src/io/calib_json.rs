@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use super::rig_json::interface_to_file;
 use super::{IoError, read_text, write_atomic};
+use crate::calib::methods::rig_calibrate::{Estimated, RigReport};
 use crate::calib::problem::rig_observations::{CameraKey, Image, RigObservations, RigView};
 use crate::calib::problem::target::Target;
 use crate::calib::{Board, CalibrationReport, Observations, StereoView};
@@ -348,6 +349,106 @@ pub fn write_rig_observations(path: &Path, observations: &RigObservations) -> Re
         path,
         rig_observations_to_json_string(observations).as_bytes(),
     )
+}
+
+#[derive(Debug, Serialize)]
+struct EstimatedFile {
+    value: f64,
+    std: Option<f64>,
+}
+
+#[derive(Debug, Serialize)]
+struct PortReportFile<'a> {
+    name: &'a str,
+    normal: [f64; 3],
+    tilt_deg: EstimatedFile,
+    azimuth_deg: EstimatedFile,
+    distance: EstimatedFile,
+    thicknesses: Vec<EstimatedFile>,
+}
+
+#[derive(Debug, Serialize)]
+struct CameraReportFile<'a> {
+    name: &'a str,
+    views: usize,
+    observations: usize,
+    rms_px: f64,
+    rotation_std_deg: Option<[f64; 3]>,
+    translation_std_m: Option<[f64; 3]>,
+}
+
+#[derive(Debug, Serialize)]
+struct RigReportFile<'a> {
+    method: &'a str,
+    estimate: String,
+    ports: Vec<PortReportFile<'a>>,
+    cameras: Vec<CameraReportFile<'a>>,
+    sigma_px: f64,
+    rms_px: f64,
+    fits: bool,
+    diagnosis: &'a [String],
+    warnings: &'a [String],
+    iterations: usize,
+    termination: &'a str,
+    seconds: f64,
+    views: usize,
+    observations: usize,
+    target_poses: Vec<PoseFile>,
+}
+
+/// A rig calibration's report as JSON: every port (`tilt_deg`, `azimuth_deg`, `distance`,
+/// `thicknesses`, each `{value, std}`), every camera (RMS, extrinsics σ), σ̂, fit and diagnosis.
+pub fn rig_report_to_json_string(report: &RigReport) -> String {
+    let degrees = |e: &Estimated| EstimatedFile {
+        value: e.value.to_degrees(),
+        std: e.std.map(f64::to_degrees),
+    };
+    let plain = |e: &Estimated| EstimatedFile {
+        value: e.value,
+        std: e.std,
+    };
+    let file = RigReportFile {
+        method: &report.method,
+        estimate: report.estimate.name(),
+        ports: report
+            .ports
+            .iter()
+            .map(|p| PortReportFile {
+                name: &p.name,
+                normal: p.normal,
+                tilt_deg: degrees(&p.tilt),
+                azimuth_deg: degrees(&p.azimuth),
+                distance: plain(&p.distance),
+                thicknesses: p.thicknesses.iter().map(plain).collect(),
+            })
+            .collect(),
+        cameras: report
+            .cameras
+            .iter()
+            .map(|c| CameraReportFile {
+                name: &c.name,
+                views: c.views,
+                observations: c.observations,
+                rms_px: c.rms_px,
+                rotation_std_deg: c.extrinsics_std.map(|(r, _)| r.map(f64::to_degrees)),
+                translation_std_m: c.extrinsics_std.map(|(_, t)| t),
+            })
+            .collect(),
+        sigma_px: report.sigma_px,
+        rms_px: report.rms_px,
+        fits: report.fits,
+        diagnosis: &report.diagnosis,
+        warnings: &report.warnings,
+        iterations: report.iterations,
+        termination: &report.termination,
+        seconds: report.seconds,
+        views: report.views,
+        observations: report.observations,
+        target_poses: report.poses.iter().map(pose_to_file).collect(),
+    };
+    let mut text = serde_json::to_string_pretty(&file).expect("plain data always serialises");
+    text.push('\n');
+    text
 }
 
 /// A board pose in a file: X_master = R·X_board + t, R as rows.

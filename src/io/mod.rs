@@ -16,8 +16,8 @@ use std::path::Path;
 pub use calib_json::{
     Truth, observations_from_json_str, observations_to_json_string, read_observations,
     read_rig_observations, read_truth, report_to_json_string, rig_observations_from_json_str,
-    rig_observations_to_json_string, write_observations, write_report, write_rig_observations,
-    write_truth,
+    rig_observations_to_json_string, rig_report_to_json_string, write_observations, write_report,
+    write_rig_observations, write_truth,
 };
 pub use error::IoError;
 pub use export::{

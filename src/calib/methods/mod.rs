@@ -6,4 +6,6 @@
 pub mod bundle;
 pub mod calibrate;
 pub mod diagnose;
+pub mod rig_bundle;
+pub mod rig_calibrate;
 pub mod sweep;

@@ -1,0 +1,565 @@
+//! Maximum likelihood for any rig: Levenberg–Marquardt over what is estimated (each port's axis,
+//! air distance and layer thicknesses; the extrinsics of every camera but the master) and every
+//! target pose, minimising the reprojection error of every corner in every camera that saw it
+//! (optionally under a Huber loss). One camera, two or N, a shared port or a port per camera, a
+//! board or a 3-D target are the same problem.
+//!
+//! The normal equations are the block form of [`bundle`](super::bundle) (Schur complement on the
+//! poses), with as many global parameters as are estimated. Derivatives are central differences;
+//! a global parameter only moves the residuals of the cameras it belongs to.
+
+use nalgebra::{
+    DMatrix, DVector, Dyn, Isometry3, Translation3, U6, Unit, UnitQuaternion, Vector2, Vector3,
+};
+use rayon::prelude::*;
+
+use super::bundle::{BlockNormalEquations, POSE_PARAMETERS, PoseBlock};
+use crate::calib::problem::rig_observations::SeenView;
+use crate::calib::problem::target::Target;
+use crate::calib::solvers::lm::LeastSquares;
+use crate::calib::solvers::search::tangent_step;
+use crate::engine::simd;
+use crate::model::{Interface, Ports, RefractiveCamera, Rig};
+
+/// What a calibration estimates (`--estimate`); the rest is known.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Estimate {
+    /// The axis of every port (2 degrees of freedom each).
+    pub axis: bool,
+    /// The air distance of every port.
+    pub distance: bool,
+    /// Every layer thickness of every port (indices stay known).
+    pub layers: bool,
+    /// R, t of every camera but the master.
+    pub extrinsics: bool,
+}
+
+impl Default for Estimate {
+    fn default() -> Self {
+        Self {
+            axis: true,
+            distance: true,
+            layers: false,
+            extrinsics: false,
+        }
+    }
+}
+
+impl Estimate {
+    /// Parses a comma-separated list of `axis`, `distance`, `layers`, `extrinsics`.
+    pub fn parse(list: &str) -> Result<Self, String> {
+        let mut estimate = Self {
+            axis: false,
+            distance: false,
+            layers: false,
+            extrinsics: false,
+        };
+        for word in list.split(',').map(str::trim) {
+            match word {
+                "axis" => estimate.axis = true,
+                "distance" => estimate.distance = true,
+                "layers" => estimate.layers = true,
+                "extrinsics" => estimate.extrinsics = true,
+                other => {
+                    return Err(format!(
+                        "'{other}' is not something to estimate: choose from axis, distance, layers, extrinsics (comma-separated)"
+                    ));
+                }
+            }
+        }
+        Ok(estimate)
+    }
+
+    /// The list as `--estimate` takes it.
+    pub fn name(&self) -> String {
+        let words = [
+            (self.axis, "axis"),
+            (self.distance, "distance"),
+            (self.layers, "layers"),
+            (self.extrinsics, "extrinsics"),
+        ];
+        words
+            .iter()
+            .filter(|(on, _)| *on)
+            .map(|(_, w)| *w)
+            .collect::<Vec<_>>()
+            .join(",")
+    }
+}
+
+/// One port's pose: its axis and air distance in the frame it is given in (the master's for a
+/// shared port, its camera's own otherwise) and its layer thicknesses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PortPose {
+    /// Unit axis, into the water.
+    pub normal: Unit<Vector3<f64>>,
+    /// Air distance, metres.
+    pub distance: f64,
+    /// Layer thicknesses, metres.
+    pub thicknesses: Vec<f64>,
+}
+
+impl PortPose {
+    fn of(interface: &Interface) -> Self {
+        Self {
+            normal: *interface.normal(),
+            distance: interface.air_distance(),
+            thicknesses: interface.layers().iter().map(|l| l.thickness).collect(),
+        }
+    }
+}
+
+/// The rig and target poses being refined.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RigState {
+    /// The ports (one when shared), in rig camera order.
+    pub ports: Vec<PortPose>,
+    /// cam_from_master of every camera (the master's is the identity).
+    pub extrinsics: Vec<Isometry3<f64>>,
+    /// X_master = R·X_target + t per view.
+    pub poses: Vec<Isometry3<f64>>,
+}
+
+impl RigState {
+    /// The state of `rig` with target poses `poses`.
+    pub fn of(rig: &Rig, poses: Vec<Isometry3<f64>>) -> Self {
+        let ports = match rig.ports() {
+            Ports::Shared(interface) => vec![PortPose::of(interface)],
+            Ports::PerCamera(ports) => ports.iter().map(PortPose::of).collect(),
+        };
+        Self {
+            ports,
+            extrinsics: rig.cameras().iter().map(|c| c.cam_from_master).collect(),
+            poses,
+        }
+    }
+
+    /// The rig this state describes (`base` gives names, intrinsics, indices); `None` when it is
+    /// not a valid rig (a camera outside the air, a thickness ≤ 0, an axis away from the water).
+    pub fn rig(&self, base: &Rig) -> Option<Rig> {
+        let port = |template: &Interface, pose: &PortPose| {
+            template
+                .with_thicknesses(&pose.thicknesses)
+                .ok()?
+                .with_pose(pose.normal.into_inner(), pose.distance)
+                .ok()
+        };
+        let ports = match base.ports() {
+            Ports::Shared(interface) => Ports::Shared(port(interface, &self.ports[0])?),
+            Ports::PerCamera(ports) => Ports::PerCamera(
+                ports
+                    .iter()
+                    .zip(&self.ports)
+                    .map(|(t, p)| port(t, p))
+                    .collect::<Option<_>>()?,
+            ),
+        };
+        let mut cameras = base.cameras().to_vec();
+        for (camera, extrinsics) in cameras.iter_mut().zip(&self.extrinsics) {
+            camera.cam_from_master = *extrinsics;
+        }
+        Rig::with_ports(cameras, ports).ok()
+    }
+}
+
+/// One global parameter of the step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Parameter {
+    /// Port p's axis moved in its tangent plane along direction 0 or 1, radians.
+    Axis(usize, usize),
+    /// Port p's air distance, metres.
+    Distance(usize),
+    /// Port p's layer i thickness, metres.
+    Thickness(usize, usize),
+    /// Camera k's rotation about axis 0..3 (applied on the left of cam_from_master), radians.
+    Rotation(usize, usize),
+    /// Camera k's translation along axis 0..3 (of cam_from_master), metres.
+    Translation(usize, usize),
+}
+
+/// Central-difference step of every parameter (rad or m), as in [`bundle`](super::bundle).
+const DIFFERENCE_STEP: f64 = 1e-6;
+
+/// The reprojection problem of any rig.
+pub struct RigBundle<'a> {
+    base: &'a Rig,
+    target: &'a Target,
+    views: &'a [SeenView],
+    globals: Vec<Parameter>,
+    huber: Option<f64>,
+    /// Every target corner, target frame.
+    points: Vec<[f64; 3]>,
+}
+
+impl<'a> RigBundle<'a> {
+    /// The problem of `views` of `target` by `base` (which gives everything known), estimating
+    /// `estimate`, with an optional Huber threshold (pixels).
+    pub fn new(
+        base: &'a Rig,
+        target: &'a Target,
+        views: &'a [SeenView],
+        estimate: Estimate,
+        huber: Option<f64>,
+    ) -> Self {
+        let mut globals = Vec::new();
+        let ports = match base.ports() {
+            Ports::Shared(interface) => vec![interface.layers().len()],
+            Ports::PerCamera(ports) => ports.iter().map(|p| p.layers().len()).collect(),
+        };
+        for (p, &layers) in ports.iter().enumerate() {
+            if estimate.axis {
+                globals.extend([Parameter::Axis(p, 0), Parameter::Axis(p, 1)]);
+            }
+            if estimate.distance {
+                globals.push(Parameter::Distance(p));
+            }
+            if estimate.layers {
+                globals.extend((0..layers).map(|i| Parameter::Thickness(p, i)));
+            }
+        }
+        if estimate.extrinsics {
+            for k in 1..base.cameras().len() {
+                globals.extend((0..3).map(|a| Parameter::Rotation(k, a)));
+                globals.extend((0..3).map(|a| Parameter::Translation(k, a)));
+            }
+        }
+        let points = (0..target.len())
+            .map(|i| target.point(i).coords.into())
+            .collect();
+        Self {
+            base,
+            target,
+            views,
+            globals,
+            huber,
+            points,
+        }
+    }
+
+    /// The same problem estimating only the global parameters `keep` accepts (a search over one
+    /// port leaves the others' parameters out: no image it uses depends on them).
+    pub fn keeping(mut self, keep: impl Fn(Parameter) -> bool) -> Self {
+        self.globals.retain(|&g| keep(g));
+        self
+    }
+
+    /// The global parameters, in step order.
+    pub fn globals(&self) -> &[Parameter] {
+        &self.globals
+    }
+
+    /// The residual count: two per corner per camera that saw it.
+    pub fn residuals(&self) -> usize {
+        2 * self.views.iter().map(SeenView::observations).sum::<usize>()
+    }
+
+    /// The target.
+    pub fn target(&self) -> &Target {
+        self.target
+    }
+
+    /// The camera parameter `parameter` moves (`None`: every camera, a shared port).
+    fn camera_of(&self, parameter: Parameter) -> Option<usize> {
+        match parameter {
+            Parameter::Axis(p, _) | Parameter::Distance(p) | Parameter::Thickness(p, _) => {
+                match self.base.ports() {
+                    Ports::Shared(_) => None,
+                    Ports::PerCamera(_) => Some(p),
+                }
+            }
+            Parameter::Rotation(k, _) | Parameter::Translation(k, _) => Some(k),
+        }
+    }
+
+    /// The refractive cameras of `state`, `None` when it is not a valid rig.
+    pub fn cameras(&self, state: &RigState) -> Option<Vec<RefractiveCamera>> {
+        let rig = state.rig(self.base)?;
+        Some(
+            (0..rig.cameras().len())
+                .map(|k| rig.refractive_camera(k))
+                .collect(),
+        )
+    }
+
+    /// Residuals (projected − observed, px) of view `v` under target pose `pose`, camera by
+    /// camera in the view's order, corners in target order; only camera `only` when given.
+    fn view_residuals(
+        &self,
+        cameras: &[RefractiveCamera],
+        v: usize,
+        pose: &Isometry3<f64>,
+        only: Option<usize>,
+        out: &mut Vec<Vector2<f64>>,
+    ) -> Option<()> {
+        for (k, corners) in &self.views[v].cameras {
+            if only.is_some_and(|o| o != *k) {
+                continue;
+            }
+            let points: Vec<[f64; 3]> = corners
+                .iter()
+                .map(|(i, _)| {
+                    (pose * nalgebra::Point3::from(self.points[*i]))
+                        .coords
+                        .into()
+                })
+                .collect();
+            let pixels = simd::project_all(&cameras[*k], &points)?;
+            out.extend(
+                corners
+                    .iter()
+                    .zip(&pixels)
+                    .map(|((_, observed), p)| Vector2::new(p[0], p[1]) - observed.coords),
+            );
+        }
+        Some(())
+    }
+
+    /// Every residual at `state`, views in order.
+    pub fn all_residuals(&self, state: &RigState) -> Option<Vec<Vec<Vector2<f64>>>> {
+        let cameras = self.cameras(state)?;
+        state
+            .poses
+            .par_iter()
+            .enumerate()
+            .map(|(v, pose)| {
+                let mut out = Vec::new();
+                self.view_residuals(&cameras, v, pose, None, &mut out)
+                    .map(|()| out)
+            })
+            .collect()
+    }
+
+    /// RMS reprojection error of every camera (NaN for a camera that saw nothing), pixels.
+    pub fn rms_per_camera(&self, state: &RigState) -> Option<Vec<f64>> {
+        let residuals = self.all_residuals(state)?;
+        let mut sums = vec![(0.0, 0usize); self.base.cameras().len()];
+        for (view, r) in self.views.iter().zip(&residuals) {
+            let mut offset = 0;
+            for (k, corners) in &view.cameras {
+                for r in &r[offset..offset + corners.len()] {
+                    sums[*k].0 += r.norm_squared();
+                    sums[*k].1 += 1;
+                }
+                offset += corners.len();
+            }
+        }
+        Some(
+            sums.iter()
+                .map(|&(s, n)| {
+                    if n == 0 {
+                        f64::NAN
+                    } else {
+                        (s / (2 * n) as f64).sqrt()
+                    }
+                })
+                .collect(),
+        )
+    }
+
+    /// (cost contribution, weight) of a residual of length² `r2` (Huber as in the stereo bundle).
+    fn robust(&self, r2: f64) -> (f64, f64) {
+        match self.huber {
+            Some(k) if r2 > k * k => {
+                let r = r2.sqrt();
+                (2.0 * k * r - k * k, k / r)
+            }
+            _ => (r2, 1.0),
+        }
+    }
+
+    fn moved(&self, state: &RigState, parameter: Parameter, delta: f64) -> RigState {
+        let mut state = state.clone();
+        match parameter {
+            Parameter::Axis(p, a) => {
+                let mut offset = Vector2::zeros();
+                offset[a] = delta;
+                state.ports[p].normal = tangent_step(&state.ports[p].normal, &offset);
+            }
+            Parameter::Distance(p) => state.ports[p].distance += delta,
+            Parameter::Thickness(p, i) => state.ports[p].thicknesses[i] += delta,
+            Parameter::Rotation(k, a) => {
+                let mut w = Vector3::zeros();
+                w[a] = delta;
+                state.extrinsics[k] = Isometry3::from_parts(
+                    Translation3::identity(),
+                    UnitQuaternion::from_scaled_axis(w),
+                ) * state.extrinsics[k];
+            }
+            Parameter::Translation(k, a) => state.extrinsics[k].translation.vector[a] += delta,
+        }
+        state
+    }
+}
+
+fn move_pose(pose: &Isometry3<f64>, delta: &[f64]) -> Isometry3<f64> {
+    let rotation = UnitQuaternion::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2]));
+    Isometry3::from_parts(Translation3::new(delta[3], delta[4], delta[5]), rotation) * pose
+}
+
+impl LeastSquares for RigBundle<'_> {
+    type State = RigState;
+    type Normal = BlockNormalEquations;
+
+    fn dimension(&self, state: &RigState) -> usize {
+        self.globals.len() + POSE_PARAMETERS * state.poses.len()
+    }
+
+    fn cost(&self, state: &RigState) -> Option<f64> {
+        let residuals = self.all_residuals(state)?;
+        Some(
+            residuals
+                .iter()
+                .flatten()
+                .map(|r| self.robust(r.norm_squared()).0)
+                .sum(),
+        )
+    }
+
+    fn normal_equations(&self, state: &RigState) -> Option<BlockNormalEquations> {
+        let globals = self.globals.len();
+        let cameras = self.cameras(state)?;
+        // The cameras of the state moved by ±h along each global parameter.
+        let shifted: Vec<[Vec<RefractiveCamera>; 2]> = self
+            .globals
+            .iter()
+            .map(|&p| {
+                Some([
+                    self.cameras(&self.moved(state, p, DIFFERENCE_STEP))?,
+                    self.cameras(&self.moved(state, p, -DIFFERENCE_STEP))?,
+                ])
+            })
+            .collect::<Option<_>>()?;
+        let shares: Vec<(DMatrix<f64>, DVector<f64>, f64)> = state
+            .poses
+            .par_iter()
+            .enumerate()
+            .map(|(v, pose)| {
+                let mut base = Vec::new();
+                self.view_residuals(&cameras, v, pose, None, &mut base)?;
+                let count = base.len();
+                let columns = globals + POSE_PARAMETERS;
+                // jacobian[p * count + i] = ∂r_i/∂(parameter p), globals first.
+                let mut jacobian = vec![Vector2::zeros(); columns * count];
+                // Where each camera's residuals start in this view.
+                let mut offsets = Vec::with_capacity(self.views[v].cameras.len());
+                let mut offset = 0;
+                for (k, corners) in &self.views[v].cameras {
+                    offsets.push((*k, offset));
+                    offset += corners.len();
+                }
+                let (mut plus, mut minus) = (Vec::with_capacity(count), Vec::with_capacity(count));
+                for p in 0..columns {
+                    plus.clear();
+                    minus.clear();
+                    // Rows this column fills: a camera's block, or the whole view.
+                    let start = if p < globals {
+                        let only = self.camera_of(self.globals[p]);
+                        if only.is_some_and(|k| !offsets.iter().any(|(c, _)| *c == k)) {
+                            continue;
+                        }
+                        self.view_residuals(&shifted[p][0], v, pose, only, &mut plus)?;
+                        self.view_residuals(&shifted[p][1], v, pose, only, &mut minus)?;
+                        only.map_or(0, |k| {
+                            offsets.iter().find(|(c, _)| *c == k).expect("seen").1
+                        })
+                    } else {
+                        let mut delta = [0.0; POSE_PARAMETERS];
+                        delta[p - globals] = DIFFERENCE_STEP;
+                        self.view_residuals(
+                            &cameras,
+                            v,
+                            &move_pose(pose, &delta),
+                            None,
+                            &mut plus,
+                        )?;
+                        delta[p - globals] = -DIFFERENCE_STEP;
+                        self.view_residuals(
+                            &cameras,
+                            v,
+                            &move_pose(pose, &delta),
+                            None,
+                            &mut minus,
+                        )?;
+                        0
+                    };
+                    for (i, (a, b)) in plus.iter().zip(&minus).enumerate() {
+                        jacobian[p * count + start + i] = (a - b) / (2.0 * DIFFERENCE_STEP);
+                    }
+                }
+                let mut jtj = DMatrix::zeros(columns, columns);
+                let mut jtr = DVector::zeros(columns);
+                let mut cost = 0.0;
+                for (i, r) in base.iter().enumerate() {
+                    let (contribution, weight) = self.robust(r.norm_squared());
+                    cost += contribution;
+                    for a in 0..columns {
+                        let ja = jacobian[a * count + i];
+                        if ja == Vector2::zeros() {
+                            continue;
+                        }
+                        jtr[a] += weight * ja.dot(r);
+                        for b in a..columns {
+                            jtj[(a, b)] += weight * ja.dot(&jacobian[b * count + i]);
+                        }
+                    }
+                }
+                jtj.fill_lower_triangle_with_upper_triangle();
+                Some((jtj, jtr, cost))
+            })
+            .collect::<Option<_>>()?;
+        let mut global = DMatrix::zeros(globals, globals);
+        let mut global_gradient = DVector::zeros(globals);
+        let mut cost = 0.0;
+        let mut views = Vec::with_capacity(shares.len());
+        for (jtj, jtr, share_cost) in shares {
+            global += jtj.view((0, 0), (globals, globals));
+            global_gradient += jtr.rows(0, globals);
+            cost += share_cost;
+            views.push(PoseBlock {
+                pose: jtj
+                    .fixed_view::<POSE_PARAMETERS, POSE_PARAMETERS>(globals, globals)
+                    .into_owned(),
+                coupling: jtj
+                    .generic_view((0, globals), (Dyn(globals), U6))
+                    .into_owned(),
+                gradient: jtr.fixed_rows::<POSE_PARAMETERS>(globals).into_owned(),
+            });
+        }
+        Some(BlockNormalEquations {
+            global,
+            global_gradient,
+            views,
+            cost,
+        })
+    }
+
+    fn retract(&self, state: &RigState, delta: &DVector<f64>) -> RigState {
+        let d = delta.as_slice();
+        let mut moved = state.clone();
+        // A port's two axis steps move its axis together, in the tangent basis of the axis the
+        // derivatives were taken at.
+        let mut axis_steps = vec![Vector2::zeros(); state.ports.len()];
+        for (p, &parameter) in self.globals.iter().enumerate() {
+            match parameter {
+                Parameter::Axis(port, a) => axis_steps[port][a] = d[p],
+                _ => moved = self.moved(&moved, parameter, d[p]),
+            }
+        }
+        for (port, step) in moved.ports.iter_mut().zip(&axis_steps) {
+            port.normal = tangent_step(&port.normal, step);
+        }
+        let g = self.globals.len();
+        moved.poses = state
+            .poses
+            .iter()
+            .enumerate()
+            .map(|(v, pose)| {
+                move_pose(
+                    pose,
+                    &d[g + POSE_PARAMETERS * v..g + POSE_PARAMETERS * (v + 1)],
+                )
+            })
+            .collect();
+        moved
+    }
+}
