@@ -146,7 +146,13 @@ pub fn project_all(camera: &RefractiveCamera, points: &[[f64; 3]]) -> Option<Vec
 #[inline(always)]
 fn column<const N: usize>(rows: &[[f64; N]], c: usize) -> F64s {
     let last = rows.len() - 1;
-    F64s(std::array::from_fn(|l| rows[l.min(last)][c]))
+    // A plain loop rather than `array::from_fn`, which the compiler left out of line (a scalar
+    // call per column) in the batch functions compiled for a wider instruction set.
+    let mut lanes = [0.0; LANES];
+    for (l, lane) in lanes.iter_mut().enumerate() {
+        *lane = rows[l.min(last)][c];
+    }
+    F64s(lanes)
 }
 
 /// Writes lane `l` of a block: the lane's values, or NaN and its status code.
