@@ -20,7 +20,7 @@ use rayon::prelude::*;
 
 use crate::calib::backends::CostBackend;
 use crate::calib::costs::affine_grid::affine_rows;
-use crate::calib::costs::air_layer::{GapLine, least_squares_air_distance, sample_cameras};
+use crate::calib::costs::air_layer::sample_cameras;
 use crate::calib::costs::cost_prepared;
 use crate::calib::costs::invariants::ProjectedVop;
 use crate::calib::costs::{
@@ -28,7 +28,7 @@ use crate::calib::costs::{
 };
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
-use crate::gpu::{AffineGridInput, GpuEngine};
+use crate::gpu::{AffineGridInput, GpuEngine, SCENE_ROW, SceneFitInput, SceneSum};
 
 /// The costs of candidate batches evaluated by a [`GpuEngine`] (any adapter, f32 or f64).
 ///
@@ -44,6 +44,9 @@ pub struct GpuBackend<D = Arc<StereoData>, E = Arc<GpuEngine>> {
     vop_rows: Vec<[f64; 18]>,
     /// The affine-grid rows and view table, packed for the fused kernel.
     affine_input: AffineGridInput,
+    /// Air rays, board points and pixels of every corner with the view table, packed for the
+    /// scene-fit kernel (gap lines, 3-D scene and reprojection costs reduced per view).
+    scene_input: SceneFitInput,
 }
 
 impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, E> {
@@ -71,12 +74,26 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             .collect();
         let views: Vec<(usize, usize)> = data.views.iter().map(|r| (r.start, r.len())).collect();
         let affine_input = AffineGridInput::new(&affine_rows(&data), &views);
+        let scene_rows: Vec<[f64; SCENE_ROW]> = data
+            .corners
+            .iter()
+            .map(|c| {
+                let p = data.board.point_in_board(c.index);
+                let (v, px) = (c.dirs, c.pixels);
+                [
+                    v[0].x, v[0].y, v[0].z, v[1].x, v[1].y, v[1].z, p.x, p.y, px[0].x, px[0].y,
+                    px[1].x, px[1].y,
+                ]
+            })
+            .collect();
+        let scene_input = SceneFitInput::new(&scene_rows, &views);
         Self {
             data,
             engine,
             air_rays,
             vop_rows,
             affine_input,
+            scene_input,
         }
     }
 
@@ -104,6 +121,36 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             })
             .unzip();
         if valid.is_empty() || corners == 0 {
+            return Ok(costs);
+        }
+        if kind != CostKind::RayGap {
+            // Triangulation, rigid fit and sums per (candidate, view) on the device.
+            let what = if kind == CostKind::Scene {
+                SceneSum::Scene
+            } else {
+                SceneSum::Reprojection
+            };
+            let views = self.scene_input.views();
+            let mut sums = vec![[0.0; 4]; interfaces.len() * views];
+            let mut status = vec![0; sums.len()];
+            self.engine.calib_scene_fit(
+                &data.rig,
+                data.cameras,
+                &self.scene_input,
+                what,
+                &interfaces,
+                &mut sums,
+                &mut status,
+            )?;
+            // scene_rms: √(Σ/N); reprojection_rms: √(Σ/2N).
+            let per_value = if kind == CostKind::Scene { 1 } else { 2 };
+            for (c, &i) in valid.iter().enumerate() {
+                let range = c * views..(c + 1) * views;
+                if status[range.clone()].iter().all(|&s| s == 0) {
+                    let sum: f64 = sums[range].iter().map(|s| s[0]).sum();
+                    costs[i] = (sum / (per_value * corners) as f64).sqrt();
+                }
+            }
             return Ok(costs);
         }
         let mut rows = vec![[0.0; 4]; interfaces.len() * corners];
@@ -344,32 +391,30 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
         if valid.is_empty() {
             return Ok(distances);
         }
-        let mut rows = vec![[0.0; 3]; axes.len() * corners];
-        let mut status = vec![0; rows.len()];
-        self.engine.calib_gap_line(
+        // The gap lines' normal equation per (axis, view) on the device, summed here.
+        let views = self.scene_input.views();
+        let mut sums = vec![[0.0; 4]; axes.len() * views];
+        let mut status = vec![0; sums.len()];
+        self.engine.calib_scene_fit(
             &data.rig,
             data.cameras,
-            &self.air_rays,
+            &self.scene_input,
+            SceneSum::GapLines,
             &axes,
-            &mut rows,
+            &mut sums,
             &mut status,
         )?;
         let values: Vec<Option<f64>> = (0..valid.len())
-            .into_par_iter()
             .map(|c| {
-                let range = c * corners..(c + 1) * corners;
-                let lines: Vec<Option<GapLine>> = rows[range.clone()]
+                let range = c * views..(c + 1) * views;
+                if status[range.clone()].iter().any(|&s| s != 0) {
+                    return None;
+                }
+                let (aa, ab) = sums[range]
                     .iter()
-                    .zip(&status[range])
-                    .map(|(r, &s)| {
-                        (s == 0).then_some(GapLine {
-                            a: r[0],
-                            b: r[1],
-                            sin_angle: r[2],
-                        })
-                    })
-                    .collect();
-                least_squares_air_distance(&lines).map(|(d, _)| d)
+                    .fold((0.0, 0.0), |(aa, ab), s| (aa + s[0], ab + s[1]));
+                // least_squares_air_distance's test and solution.
+                (aa > 1e-18 * corners as f64).then(|| -ab / aa)
             })
             .collect();
         valid
