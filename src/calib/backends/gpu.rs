@@ -1,21 +1,20 @@
 //! The calibration costs on the GPU: a [`CostBackend`] whose per-(candidate, corner) work runs in
-//! WGSL kernels over the whole batch ([`GpuEngine::calib_triangulate`],
-//! [`GpuEngine::calib_project`], [`GpuEngine::calib_projected_vop`],
-//! [`GpuEngine::calib_gap_line`]), in f32 or f64, while the host finishes each candidate with the
-//! same functions as the CPU reference ([`SceneFit::from_triangulated`], [`reprojection_rms`],
-//! [`ray_gap_rms`], [`plane_cost`], [`least_squares_air_distance`]): one definition of each
-//! cost.
+//! WGSL kernels over the whole batch, in f32 or f64.
 //!
-//! Per cost: the triangulating costs run one dispatch over candidates × corners, then the Kabsch
-//! fits on the host; [`CostKind::Reprojection`] runs a second dispatch that projects the fitted
-//! boards of every candidate. The invariants run one dispatch of projected VOPs, then the
-//! per-view fits on the host. A candidate that puts a camera outside the air, or under which a
-//! corner has no answer, costs +∞ as on the CPU.
+//! Per cost: [`CostKind::Scene`] and [`CostKind::Reprojection`] are reduced on the device per
+//! (candidate, view) ([`GpuEngine::calib_scene_fit`]: triangulation, the rigid board fit and the
+//! view's sum of squares), and the host adds the views; the profile's air layers come from the
+//! same kernel's gap-line sums per (axis, view). [`CostKind::RayGap`] triangulates per corner on
+//! the device ([`GpuEngine::calib_triangulate`]) and sums on the host ([`ray_gap_rms`]). The
+//! affine-grid invariant is fused per (axis, view) ([`GpuEngine::calib_affine_grid`]); the plane
+//! errors run one dispatch of projected VOPs ([`GpuEngine::calib_projected_vop`]), then the
+//! per-view fits on the host ([`plane_cost`]). A candidate that puts a camera outside the air, or
+//! under which a corner has no answer, costs +∞ as on the CPU.
 
 use std::ops::Deref;
 use std::sync::Arc;
 
-use nalgebra::{Point2, Point3, Unit, Vector3};
+use nalgebra::{Unit, Vector3};
 use rayon::prelude::*;
 
 use crate::calib::backends::CostBackend;
@@ -23,9 +22,7 @@ use crate::calib::costs::affine_grid::affine_rows;
 use crate::calib::costs::air_layer::sample_cameras;
 use crate::calib::costs::cost_prepared;
 use crate::calib::costs::invariants::ProjectedVop;
-use crate::calib::costs::{
-    CostKind, SceneFit, pixel_residuals, plane_cost, ray_gap_rms, reprojection_rms,
-};
+use crate::calib::costs::{CostKind, plane_cost, ray_gap_rms};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
 use crate::gpu::{AffineGridInput, GpuEngine, SCENE_ROW, SceneFitInput, SceneSum};
@@ -102,7 +99,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
         &self.engine
     }
 
-    /// Reprojection, scene or ray-gap costs: triangulation on the device, fits on the host.
+    /// Reprojection and scene costs reduced per (candidate, view) on the device; the ray gap
+    /// triangulated per corner on the device and summed on the host.
     fn scene_costs(
         &self,
         kind: CostKind,
@@ -168,91 +166,22 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
                 .iter()
                 .all(|&s| s == 0)
         };
-        if kind == CostKind::RayGap {
-            let values: Vec<f64> = (0..valid.len())
-                .into_par_iter()
-                .map(|c| {
-                    let gaps: Vec<f64> = rows[c * corners..(c + 1) * corners]
-                        .iter()
-                        .map(|r| r[3])
-                        .collect();
-                    if answered(c) {
-                        ray_gap_rms(&gaps)
-                    } else {
-                        f64::INFINITY
-                    }
-                })
-                .collect();
-            valid.iter().zip(values).for_each(|(&i, v)| costs[i] = v);
-            return Ok(costs);
-        }
-        let fits: Vec<Option<SceneFit>> = (0..valid.len())
+        // The ray gap: per corner on the device, summed here.
+        let values: Vec<f64> = (0..valid.len())
             .into_par_iter()
             .map(|c| {
-                if !answered(c) {
-                    return None;
-                }
-                let rows = &rows[c * corners..(c + 1) * corners];
-                let points = rows.iter().map(|r| Point3::new(r[0], r[1], r[2])).collect();
-                SceneFit::from_triangulated(data, points, rows.iter().map(|r| r[3]).collect())
-            })
-            .collect();
-        if kind == CostKind::Scene {
-            valid.iter().zip(&fits).for_each(|(&i, fit)| {
-                costs[i] = fit.as_ref().map_or(f64::INFINITY, SceneFit::scene_rms)
-            });
-            return Ok(costs);
-        }
-        // Reprojection: project every fitted board behind its own candidate.
-        let fitted: Vec<usize> = (0..valid.len()).filter(|&c| fits[c].is_some()).collect();
-        if fitted.is_empty() {
-            return Ok(costs);
-        }
-        let points: Vec<[f64; 3]> = fitted
-            .par_iter()
-            .flat_map_iter(|&c| {
-                fits[c]
-                    .as_ref()
-                    .expect("fitted")
-                    .fitted_points(data)
-                    .into_iter()
-                    .map(|p| [p.x, p.y, p.z])
-            })
-            .collect();
-        let fitted_interfaces: Vec<[f64; 4]> = fitted.iter().map(|&c| interfaces[c]).collect();
-        let mut pixels = vec![[0.0; 4]; points.len()];
-        let mut status = vec![0; points.len()];
-        self.engine.calib_project(
-            &data.rig,
-            data.cameras,
-            corners,
-            &points,
-            &fitted_interfaces,
-            &mut pixels,
-            &mut status,
-        )?;
-        let values: Vec<f64> = (0..fitted.len())
-            .into_par_iter()
-            .map(|f| {
-                let range = f * corners..(f + 1) * corners;
-                if status[range.clone()].iter().any(|&s| s != 0) {
-                    return f64::INFINITY;
-                }
-                let residuals: Vec<_> = data
-                    .corners
+                let gaps: Vec<f64> = rows[c * corners..(c + 1) * corners]
                     .iter()
-                    .zip(&pixels[range])
-                    .map(|(corner, p)| {
-                        pixel_residuals(corner, [Point2::new(p[0], p[1]), Point2::new(p[2], p[3])])
-                    })
+                    .map(|r| r[3])
                     .collect();
-                reprojection_rms(&residuals)
+                if answered(c) {
+                    ray_gap_rms(&gaps)
+                } else {
+                    f64::INFINITY
+                }
             })
             .collect();
-        fitted
-            .iter()
-            .zip(values)
-            .for_each(|(&c, v)| costs[valid[c]] = v);
+        valid.iter().zip(values).for_each(|(&i, v)| costs[i] = v);
         Ok(costs)
     }
 

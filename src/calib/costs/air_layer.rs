@@ -8,8 +8,8 @@
 
 use nalgebra::{Unit, Vector3};
 
-use crate::calib::problem::data::{Candidate, StereoData};
 use crate::calib::costs::scene::AxisRays;
+use crate::calib::problem::data::{Candidate, StereoData};
 use crate::model::RefractiveCamera;
 
 /// The least-squares air layer for the axis `normal`, with the RMS ray gap there (metres).

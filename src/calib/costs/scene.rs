@@ -32,8 +32,17 @@ impl SceneRows {
     /// The rows of `data`.
     pub fn new(data: &StereoData) -> Self {
         Self {
-            dirs: [0, 1].map(|k| data.corners.iter().map(|c| <[f64; 3]>::from(c.dirs[k].into_inner())).collect()),
-            model: data.corners.iter().map(|c| data.board.point_in_board(c.index)).collect(),
+            dirs: [0, 1].map(|k| {
+                data.corners
+                    .iter()
+                    .map(|c| <[f64; 3]>::from(c.dirs[k].into_inner()))
+                    .collect()
+            }),
+            model: data
+                .corners
+                .iter()
+                .map(|c| data.board.point_in_board(c.index))
+                .collect(),
         }
     }
 }
@@ -63,12 +72,18 @@ impl AxisRays {
     /// reflected under it (then no air layer explains every corner: each cost is +∞).
     pub fn new(data: &StereoData, normal: &Unit<Vector3<f64>>) -> Option<Self> {
         let mut rays = Self::default();
-        rays.fill(data, &SceneRows::new(data), normal).then_some(rays)
+        rays.fill(data, &SceneRows::new(data), normal)
+            .then_some(rays)
     }
 
     /// [`new`](Self::new) in place, reusing the buffers, with `data`'s rows prepared; false where
     /// `new` is `None`.
-    pub fn fill(&mut self, data: &StereoData, prepared: &SceneRows, normal: &Unit<Vector3<f64>>) -> bool {
+    pub fn fill(
+        &mut self,
+        data: &StereoData,
+        prepared: &SceneRows,
+        normal: &Unit<Vector3<f64>>,
+    ) -> bool {
         self.normal = None;
         let Some((d0, near, _)) = sample_cameras(data, normal) else {
             return false;
@@ -77,7 +92,12 @@ impl AxisRays {
         self.status.resize(corners, 0);
         for k in 0..2 {
             self.rays[k].resize(corners, [0.0; 9]);
-            simd::rays_in_water(&near[k], &prepared.dirs[k], &mut self.rays[k], &mut self.status);
+            simd::rays_in_water(
+                &near[k],
+                &prepared.dirs[k],
+                &mut self.rays[k],
+                &mut self.status,
+            );
             if self.status.iter().any(|&s| s != 0) {
                 return false;
             }
@@ -125,7 +145,13 @@ impl AxisRays {
     /// same fits ([`fit_rigid`] per view) and sums; `None` where that is +∞ (a camera outside the
     /// air, a corner that does not triangulate in the water, a view that cannot be fitted, a
     /// fitted corner that does not project).
-    pub fn cost(&mut self, data: &StereoData, prepared: &SceneRows, kind: CostKind, d: f64) -> Option<f64> {
+    pub fn cost(
+        &mut self,
+        data: &StereoData,
+        prepared: &SceneRows,
+        kind: CostKind,
+        d: f64,
+    ) -> Option<f64> {
         debug_assert!(!kind.axis_only(), "AxisRays::cost of {}", kind.name());
         let cameras = data.cameras_behind(&Candidate {
             normal: self.normal?,
@@ -134,7 +160,13 @@ impl AxisRays {
         let corners = data.corners.len();
         self.rows.resize(corners, [0.0; 4]);
         self.status.resize(corners, 0);
-        simd::triangulate_shifted(&self.rays[0], &self.rays[1], d - self.d0, &mut self.rows, &mut self.status);
+        simd::triangulate_shifted(
+            &self.rays[0],
+            &self.rays[1],
+            d - self.d0,
+            &mut self.rows,
+            &mut self.status,
+        );
         if self.status.iter().any(|&s| s != 0) {
             return None;
         }
@@ -144,7 +176,8 @@ impl AxisRays {
             return Some((sum / corners as f64).sqrt());
         }
         self.points.clear();
-        self.points.extend(self.rows.iter().map(|r| Point3::new(r[0], r[1], r[2])));
+        self.points
+            .extend(self.rows.iter().map(|r| Point3::new(r[0], r[1], r[2])));
         self.fitted.clear();
         // SceneFit::scene_rms's and reprojection_residuals's sums, in order.
         let mut sum_squares = 0.0;
@@ -167,7 +200,12 @@ impl AxisRays {
         }
         for k in 0..2 {
             self.pixels[k].resize(corners, [0.0; 2]);
-            simd::project(&cameras[k], &self.fitted, &mut self.pixels[k], &mut self.status);
+            simd::project(
+                &cameras[k],
+                &self.fitted,
+                &mut self.pixels[k],
+                &mut self.status,
+            );
             if self.status.iter().any(|&s| s != 0) {
                 return None;
             }
@@ -212,6 +250,9 @@ pub fn profile_cost(
         if !(d > data.min_air_distance(normal)) {
             return (d, f64::INFINITY);
         }
-        (d, rays.cost(data, prepared, kind, d).unwrap_or(f64::INFINITY))
+        (
+            d,
+            rays.cost(data, prepared, kind, d).unwrap_or(f64::INFINITY),
+        )
     })
 }

@@ -168,10 +168,22 @@ fn store<const M: usize>(row: &mut [f64; M], status: &mut u32, code: u32, values
 /// A block of [`rays_in_water`] rows as lanes of rays, origins moved by `shift`·∂origin/∂d.
 #[inline(always)]
 fn shifted_rays(rows: &[[f64; 9]], shift: f64) -> refractive_camera::Rays {
-    let slope = Vec3s { x: column(rows, 6), y: column(rows, 7), z: column(rows, 8) };
+    let slope = Vec3s {
+        x: column(rows, 6),
+        y: column(rows, 7),
+        z: column(rows, 8),
+    };
     refractive_camera::Rays {
-        origin: Vec3s { x: column(rows, 0), y: column(rows, 1), z: column(rows, 2) } + slope.scale(F64s::splat(shift)),
-        dir: Vec3s { x: column(rows, 3), y: column(rows, 4), z: column(rows, 5) },
+        origin: Vec3s {
+            x: column(rows, 0),
+            y: column(rows, 1),
+            z: column(rows, 2),
+        } + slope.scale(F64s::splat(shift)),
+        dir: Vec3s {
+            x: column(rows, 3),
+            y: column(rows, 4),
+            z: column(rows, 5),
+        },
         status: refractive_camera::Status::ok(),
         scalar: Mask::splat(false),
     }

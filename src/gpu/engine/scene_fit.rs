@@ -184,7 +184,11 @@ impl GpuEngine {
                 *slot = candidates[(first + k).min(last - 1)];
             }
             buffers.scratch.clear();
-            extend_reals(&mut buffers.scratch, precision, bytemuck::cast_slice(&chunk));
+            extend_reals(
+                &mut buffers.scratch,
+                precision,
+                bytemuck::cast_slice(&chunk),
+            );
             self.upload(&cand_buf, &buffers.scratch)?;
             for view_first in (0..view_count).step_by(views_per_chunk) {
                 let view_last = (view_first + views_per_chunk).min(view_count);

@@ -154,9 +154,10 @@ impl Kernel {
     /// (`shaders/kernels/candidate_bindings.wgsl`), or none (the kernel declares its own).
     fn bindings(self) -> &'static str {
         match self {
-            Self::BackprojectGrid | Self::RayGapCost | Self::CalibAffineGrid | Self::CalibSceneFit => {
-                ""
-            }
+            Self::BackprojectGrid
+            | Self::RayGapCost
+            | Self::CalibAffineGrid
+            | Self::CalibSceneFit => "",
             Self::CalibTriangulate
             | Self::CalibProject
             | Self::CalibProjectedVop
