@@ -19,8 +19,10 @@ use crate::model::{NoSolution, RefractiveCamera, Rig, out_of_range};
 
 mod affine_grid;
 mod candidates;
+mod scene_fit;
 
 pub use affine_grid::AffineGridInput;
+pub use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
 
 /// Largest number of items per dispatch whatever the binding cap: bounds the device and staging
 /// memory (4 Mi items: 96 MiB of f32 rays, 192 MiB in f64 split over two chunks by the cap).

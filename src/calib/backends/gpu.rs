@@ -1,34 +1,31 @@
 //! The calibration costs on the GPU: a [`CostBackend`] whose per-(candidate, corner) work runs in
-//! WGSL kernels over the whole batch ([`GpuEngine::calib_triangulate`],
-//! [`GpuEngine::calib_project`], [`GpuEngine::calib_projected_vop`],
-//! [`GpuEngine::calib_gap_line`]), in f32 or f64, while the host finishes each candidate with the
-//! same functions as the CPU reference ([`SceneFit::from_triangulated`], [`reprojection_rms`],
-//! [`ray_gap_rms`], [`plane_cost`], [`least_squares_air_distance`]): one definition of each
-//! cost.
+//! WGSL kernels over the whole batch, in f32 or f64.
 //!
-//! Per cost: the triangulating costs run one dispatch over candidates × corners, then the Kabsch
-//! fits on the host; [`CostKind::Reprojection`] runs a second dispatch that projects the fitted
-//! boards of every candidate. The invariants run one dispatch of projected VOPs, then the
-//! per-view fits on the host. A candidate that puts a camera outside the air, or under which a
-//! corner has no answer, costs +∞ as on the CPU.
+//! Per cost: [`CostKind::Scene`] and [`CostKind::Reprojection`] are reduced on the device per
+//! (candidate, view) ([`GpuEngine::calib_scene_fit`]: triangulation, the rigid board fit and the
+//! view's sum of squares), and the host adds the views; the profile's air layers come from the
+//! same kernel's gap-line sums per (axis, view). [`CostKind::RayGap`] triangulates per corner on
+//! the device ([`GpuEngine::calib_triangulate`]) and sums on the host ([`ray_gap_rms`]). The
+//! affine-grid invariant is fused per (axis, view) ([`GpuEngine::calib_affine_grid`]); the plane
+//! errors run one dispatch of projected VOPs ([`GpuEngine::calib_projected_vop`]), then the
+//! per-view fits on the host ([`plane_cost`]). A candidate that puts a camera outside the air, or
+//! under which a corner has no answer, costs +∞ as on the CPU.
 
 use std::ops::Deref;
 use std::sync::Arc;
 
-use nalgebra::{Point2, Point3, Unit, Vector3};
+use nalgebra::{Unit, Vector3};
 use rayon::prelude::*;
 
 use crate::calib::backends::CostBackend;
 use crate::calib::costs::affine_grid::affine_rows;
-use crate::calib::costs::air_layer::{GapLine, least_squares_air_distance, sample_cameras};
+use crate::calib::costs::air_layer::sample_cameras;
 use crate::calib::costs::cost_prepared;
 use crate::calib::costs::invariants::ProjectedVop;
-use crate::calib::costs::{
-    CostKind, SceneFit, pixel_residuals, plane_cost, ray_gap_rms, reprojection_rms,
-};
+use crate::calib::costs::{CostKind, plane_cost, ray_gap_rms};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
-use crate::gpu::{AffineGridInput, GpuEngine};
+use crate::gpu::{AffineGridInput, GpuEngine, SCENE_ROW, SceneFitInput, SceneSum};
 
 /// The costs of candidate batches evaluated by a [`GpuEngine`] (any adapter, f32 or f64).
 ///
@@ -44,6 +41,9 @@ pub struct GpuBackend<D = Arc<StereoData>, E = Arc<GpuEngine>> {
     vop_rows: Vec<[f64; 18]>,
     /// The affine-grid rows and view table, packed for the fused kernel.
     affine_input: AffineGridInput,
+    /// Air rays, board points and pixels of every corner with the view table, packed for the
+    /// scene-fit kernel (gap lines, 3-D scene and reprojection costs reduced per view).
+    scene_input: SceneFitInput,
 }
 
 impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, E> {
@@ -71,12 +71,26 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             .collect();
         let views: Vec<(usize, usize)> = data.views.iter().map(|r| (r.start, r.len())).collect();
         let affine_input = AffineGridInput::new(&affine_rows(&data), &views);
+        let scene_rows: Vec<[f64; SCENE_ROW]> = data
+            .corners
+            .iter()
+            .map(|c| {
+                let p = data.board.point_in_board(c.index);
+                let (v, px) = (c.dirs, c.pixels);
+                [
+                    v[0].x, v[0].y, v[0].z, v[1].x, v[1].y, v[1].z, p.x, p.y, px[0].x, px[0].y,
+                    px[1].x, px[1].y,
+                ]
+            })
+            .collect();
+        let scene_input = SceneFitInput::new(&scene_rows, &views);
         Self {
             data,
             engine,
             air_rays,
             vop_rows,
             affine_input,
+            scene_input,
         }
     }
 
@@ -85,7 +99,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
         &self.engine
     }
 
-    /// Reprojection, scene or ray-gap costs: triangulation on the device, fits on the host.
+    /// Reprojection and scene costs reduced per (candidate, view) on the device; the ray gap
+    /// triangulated per corner on the device and summed on the host.
     fn scene_costs(
         &self,
         kind: CostKind,
@@ -106,6 +121,36 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
         if valid.is_empty() || corners == 0 {
             return Ok(costs);
         }
+        if kind != CostKind::RayGap {
+            // Triangulation, rigid fit and sums per (candidate, view) on the device.
+            let what = if kind == CostKind::Scene {
+                SceneSum::Scene
+            } else {
+                SceneSum::Reprojection
+            };
+            let views = self.scene_input.views();
+            let mut sums = vec![[0.0; 4]; interfaces.len() * views];
+            let mut status = vec![0; sums.len()];
+            self.engine.calib_scene_fit(
+                &data.rig,
+                data.cameras,
+                &self.scene_input,
+                what,
+                &interfaces,
+                &mut sums,
+                &mut status,
+            )?;
+            // scene_rms: √(Σ/N); reprojection_rms: √(Σ/2N).
+            let per_value = if kind == CostKind::Scene { 1 } else { 2 };
+            for (c, &i) in valid.iter().enumerate() {
+                let range = c * views..(c + 1) * views;
+                if status[range.clone()].iter().all(|&s| s == 0) {
+                    let sum: f64 = sums[range].iter().map(|s| s[0]).sum();
+                    costs[i] = (sum / (per_value * corners) as f64).sqrt();
+                }
+            }
+            return Ok(costs);
+        }
         let mut rows = vec![[0.0; 4]; interfaces.len() * corners];
         let mut status = vec![0; rows.len()];
         self.engine.calib_triangulate(
@@ -121,91 +166,22 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
                 .iter()
                 .all(|&s| s == 0)
         };
-        if kind == CostKind::RayGap {
-            let values: Vec<f64> = (0..valid.len())
-                .into_par_iter()
-                .map(|c| {
-                    let gaps: Vec<f64> = rows[c * corners..(c + 1) * corners]
-                        .iter()
-                        .map(|r| r[3])
-                        .collect();
-                    if answered(c) {
-                        ray_gap_rms(&gaps)
-                    } else {
-                        f64::INFINITY
-                    }
-                })
-                .collect();
-            valid.iter().zip(values).for_each(|(&i, v)| costs[i] = v);
-            return Ok(costs);
-        }
-        let fits: Vec<Option<SceneFit>> = (0..valid.len())
+        // The ray gap: per corner on the device, summed here.
+        let values: Vec<f64> = (0..valid.len())
             .into_par_iter()
             .map(|c| {
-                if !answered(c) {
-                    return None;
-                }
-                let rows = &rows[c * corners..(c + 1) * corners];
-                let points = rows.iter().map(|r| Point3::new(r[0], r[1], r[2])).collect();
-                SceneFit::from_triangulated(data, points, rows.iter().map(|r| r[3]).collect())
-            })
-            .collect();
-        if kind == CostKind::Scene {
-            valid.iter().zip(&fits).for_each(|(&i, fit)| {
-                costs[i] = fit.as_ref().map_or(f64::INFINITY, SceneFit::scene_rms)
-            });
-            return Ok(costs);
-        }
-        // Reprojection: project every fitted board behind its own candidate.
-        let fitted: Vec<usize> = (0..valid.len()).filter(|&c| fits[c].is_some()).collect();
-        if fitted.is_empty() {
-            return Ok(costs);
-        }
-        let points: Vec<[f64; 3]> = fitted
-            .par_iter()
-            .flat_map_iter(|&c| {
-                fits[c]
-                    .as_ref()
-                    .expect("fitted")
-                    .fitted_points(data)
-                    .into_iter()
-                    .map(|p| [p.x, p.y, p.z])
-            })
-            .collect();
-        let fitted_interfaces: Vec<[f64; 4]> = fitted.iter().map(|&c| interfaces[c]).collect();
-        let mut pixels = vec![[0.0; 4]; points.len()];
-        let mut status = vec![0; points.len()];
-        self.engine.calib_project(
-            &data.rig,
-            data.cameras,
-            corners,
-            &points,
-            &fitted_interfaces,
-            &mut pixels,
-            &mut status,
-        )?;
-        let values: Vec<f64> = (0..fitted.len())
-            .into_par_iter()
-            .map(|f| {
-                let range = f * corners..(f + 1) * corners;
-                if status[range.clone()].iter().any(|&s| s != 0) {
-                    return f64::INFINITY;
-                }
-                let residuals: Vec<_> = data
-                    .corners
+                let gaps: Vec<f64> = rows[c * corners..(c + 1) * corners]
                     .iter()
-                    .zip(&pixels[range])
-                    .map(|(corner, p)| {
-                        pixel_residuals(corner, [Point2::new(p[0], p[1]), Point2::new(p[2], p[3])])
-                    })
+                    .map(|r| r[3])
                     .collect();
-                reprojection_rms(&residuals)
+                if answered(c) {
+                    ray_gap_rms(&gaps)
+                } else {
+                    f64::INFINITY
+                }
             })
             .collect();
-        fitted
-            .iter()
-            .zip(values)
-            .for_each(|(&c, v)| costs[valid[c]] = v);
+        valid.iter().zip(values).for_each(|(&i, v)| costs[i] = v);
         Ok(costs)
     }
 
@@ -344,32 +320,30 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
         if valid.is_empty() {
             return Ok(distances);
         }
-        let mut rows = vec![[0.0; 3]; axes.len() * corners];
-        let mut status = vec![0; rows.len()];
-        self.engine.calib_gap_line(
+        // The gap lines' normal equation per (axis, view) on the device, summed here.
+        let views = self.scene_input.views();
+        let mut sums = vec![[0.0; 4]; axes.len() * views];
+        let mut status = vec![0; sums.len()];
+        self.engine.calib_scene_fit(
             &data.rig,
             data.cameras,
-            &self.air_rays,
+            &self.scene_input,
+            SceneSum::GapLines,
             &axes,
-            &mut rows,
+            &mut sums,
             &mut status,
         )?;
         let values: Vec<Option<f64>> = (0..valid.len())
-            .into_par_iter()
             .map(|c| {
-                let range = c * corners..(c + 1) * corners;
-                let lines: Vec<Option<GapLine>> = rows[range.clone()]
+                let range = c * views..(c + 1) * views;
+                if status[range.clone()].iter().any(|&s| s != 0) {
+                    return None;
+                }
+                let (aa, ab) = sums[range]
                     .iter()
-                    .zip(&status[range])
-                    .map(|(r, &s)| {
-                        (s == 0).then_some(GapLine {
-                            a: r[0],
-                            b: r[1],
-                            sin_angle: r[2],
-                        })
-                    })
-                    .collect();
-                least_squares_air_distance(&lines).map(|(d, _)| d)
+                    .fold((0.0, 0.0), |(aa, ab), s| (aa + s[0], ab + s[1]));
+                // least_squares_air_distance's test and solution.
+                (aa > 1e-18 * corners as f64).then(|| -ab / aa)
             })
             .collect();
         valid

@@ -11,6 +11,7 @@ use rayon::prelude::*;
 
 use crate::calib::costs::affine_grid::{ROW, affine_rows};
 use crate::calib::costs::air_layer::air_distance_for_axis;
+use crate::calib::costs::scene::{SceneRows, profile_cost};
 use crate::calib::costs::{CostKind, cost_prepared};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
@@ -92,13 +93,20 @@ pub struct CpuBackend<D = Arc<StereoData>> {
     data: D,
     /// The affine-grid invariant's per-corner rows, prepared once.
     affine_rows: Vec<[f64; ROW]>,
+    /// The triangulating costs' per-corner rows, prepared once.
+    scene_rows: SceneRows,
 }
 
 impl<D: Deref<Target = StereoData>> CpuBackend<D> {
     /// A backend over `data`.
     pub fn new(data: D) -> Self {
         let affine_rows = affine_rows(&data);
-        Self { data, affine_rows }
+        let scene_rows = SceneRows::new(&data);
+        Self {
+            data,
+            affine_rows,
+            scene_rows,
+        }
     }
 }
 
@@ -119,5 +127,38 @@ impl<D: Deref<Target = StereoData> + Sync> CostBackend for CpuBackend<D> {
             .par_iter()
             .map(|c| cost_prepared(&self.data, &self.affine_rows, kind, c))
             .collect())
+    }
+
+    /// The default's candidates and costs, with the water rays of each axis computed once for
+    /// its air-layer solve and its cost ([`profile_cost`]).
+    fn profile(
+        &self,
+        kind: CostKind,
+        normals: &[Unit<Vector3<f64>>],
+    ) -> Result<(Vec<Candidate>, Vec<f64>), CalibError> {
+        if kind.axis_only() {
+            let candidates: Vec<Candidate> = normals
+                .iter()
+                .map(|n| Candidate {
+                    normal: *n,
+                    air_distance: f64::NAN,
+                })
+                .collect();
+            let costs = self.costs(kind, &candidates)?;
+            return Ok((candidates, costs));
+        }
+        Ok(normals
+            .par_iter()
+            .map(|n| {
+                let (air_distance, cost) = profile_cost(&self.data, &self.scene_rows, kind, n);
+                (
+                    Candidate {
+                        normal: *n,
+                        air_distance,
+                    },
+                    cost,
+                )
+            })
+            .unzip())
     }
 }

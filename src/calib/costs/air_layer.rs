@@ -8,6 +8,7 @@
 
 use nalgebra::{Unit, Vector3};
 
+use crate::calib::costs::scene::AxisRays;
 use crate::calib::problem::data::{Candidate, StereoData};
 use crate::model::RefractiveCamera;
 
@@ -17,13 +18,7 @@ use crate::model::RefractiveCamera;
 /// reflected), when the two rays of a corner are parallel, or when the gaps do not depend on d
 /// (Σ a² ≈ 0: both cameras see every corner at the same incidence).
 pub fn air_distance_for_axis(data: &StereoData, normal: &Unit<Vector3<f64>>) -> Option<(f64, f64)> {
-    let (d0, near, far) = sample_cameras(data, normal)?;
-    let lines: Vec<Option<GapLine>> = data
-        .corners
-        .iter()
-        .map(|corner| gap_line(&near, &far, corner, d0))
-        .collect();
-    least_squares_air_distance(&lines)
+    AxisRays::new(data, normal)?.air_distance()
 }
 
 /// The cameras behind `normal` at two air layers d0 and d0 + 1 m that keep them in the air (any
@@ -80,27 +75,4 @@ pub fn least_squares_air_distance(lines: &[Option<GapLine>]) -> Option<(f64, f64
     let d = -ab / aa;
     let sum_squares = (bb - ab * ab / aa).max(0.0);
     Some((d, (sum_squares / lines.len() as f64).sqrt()))
-}
-
-/// The gap line of `corner` from its water rays behind the cameras at air layers d0 (`near`) and
-/// d0 + 1 m (`far`). `None` when a ray has no answer. CPU twin of the `calib_gap_line` kernel.
-fn gap_line(
-    near: &[RefractiveCamera; 2],
-    far: &[RefractiveCamera; 2],
-    corner: &crate::calib::problem::data::Corner,
-    d0: f64,
-) -> Option<GapLine> {
-    let ray = |cams: &[RefractiveCamera; 2], k: usize| cams[k].ray_in_water(&corner.dirs[k]).ok();
-    let (l0, r0, l1, r1) = (ray(near, 0)?, ray(near, 1)?, ray(far, 0)?, ray(far, 1)?);
-    let cross = l0.dir.cross(&r0.dir);
-    let norm = cross.norm();
-    let m = cross / norm;
-    let g0 = m.dot(&(l0.origin - r0.origin));
-    let g1 = m.dot(&(l1.origin - r1.origin));
-    let a = g1 - g0; // per metre of d (d1 − d0 = 1)
-    Some(GapLine {
-        a,
-        b: g0 - a * d0,
-        sin_angle: norm,
-    })
 }

@@ -15,6 +15,7 @@
 pub mod affine_grid;
 pub mod air_layer;
 pub mod invariants;
+pub mod scene;
 
 use nalgebra::{Isometry3, Point2, Point3, Vector2};
 

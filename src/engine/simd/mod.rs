@@ -146,7 +146,13 @@ pub fn project_all(camera: &RefractiveCamera, points: &[[f64; 3]]) -> Option<Vec
 #[inline(always)]
 fn column<const N: usize>(rows: &[[f64; N]], c: usize) -> F64s {
     let last = rows.len() - 1;
-    F64s(std::array::from_fn(|l| rows[l.min(last)][c]))
+    // A plain loop rather than `array::from_fn`, which the compiler left out of line (a scalar
+    // call per column) in the batch functions compiled for a wider instruction set.
+    let mut lanes = [0.0; LANES];
+    for (l, lane) in lanes.iter_mut().enumerate() {
+        *lane = rows[l.min(last)][c];
+    }
+    F64s(lanes)
 }
 
 /// Writes lane `l` of a block: the lane's values, or NaN and its status code.
@@ -157,6 +163,30 @@ fn store<const M: usize>(row: &mut [f64; M], status: &mut u32, code: u32, values
     } else {
         ([f64::NAN; M], code)
     };
+}
+
+/// A block of [`rays_in_water`] rows as lanes of rays, origins moved by `shift`·∂origin/∂d.
+#[inline(always)]
+fn shifted_rays(rows: &[[f64; 9]], shift: f64) -> refractive_camera::Rays {
+    let slope = Vec3s {
+        x: column(rows, 6),
+        y: column(rows, 7),
+        z: column(rows, 8),
+    };
+    refractive_camera::Rays {
+        origin: Vec3s {
+            x: column(rows, 0),
+            y: column(rows, 1),
+            z: column(rows, 2),
+        } + slope.scale(F64s::splat(shift)),
+        dir: Vec3s {
+            x: column(rows, 3),
+            y: column(rows, 4),
+            z: column(rows, 5),
+        },
+        status: refractive_camera::Status::ok(),
+        scalar: Mask::splat(false),
+    }
 }
 
 // The four batch loops below share their shape on purpose. Folded into one generic loop (the
@@ -250,6 +280,48 @@ dispatched! {
             }
         }
         by_scalar
+    }
+}
+
+dispatched! {
+    /// [`RefractiveCamera::ray_in_water`] of every unit air direction `dirs` (master frame) on the
+    /// vector path, one thread: `rays` gets the origin on the outer interface, the unit water
+    /// direction and the origin's derivative with respect to the air layer, v/(n·v) (raising the
+    /// interfaces by δ moves the whole water path by v·δ/(n·v): the water ray is linear in the air
+    /// layer, DESIGN.md §2), xyz each; `status` 0 or the [`NoSolution`] code, the row NaN where
+    /// not 0. The same expressions as the scalar model, bit for bit. Panics if the slices differ
+    /// in length.
+    pub fn rays_in_water(camera: &RefractiveCamera, dirs: &[[f64; 3]], rays: &mut [[f64; 9]], status: &mut [u32]) {
+        assert!(dirs.len() == rays.len() && dirs.len() == status.len(), "input, output and status of equal length");
+        let lanes = CameraLanes::new(camera);
+        let normal = Vec3s::splat(camera.normal().into_inner().into());
+        for ((dirs, rays), status) in dirs.chunks(LANES).zip(rays.chunks_mut(LANES)).zip(status.chunks_mut(LANES)) {
+            let v = Vec3s { x: column(dirs, 0), y: column(dirs, 1), z: column(dirs, 2) };
+            let mut out = refractive_camera::Status::ok();
+            let (o, d) = lanes.ray_in_water(v, &mut out);
+            let inv_cos_a = 1.0 / normal.dot(v);
+            let slope = v.scale(inv_cos_a);
+            for l in 0..dirs.len() {
+                let values = [o.x.0[l], o.y.0[l], o.z.0[l], d.x.0[l], d.y.0[l], d.z.0[l], slope.x.0[l], slope.y.0[l], slope.z.0[l]];
+                store(&mut rays[l], &mut status[l], out.0[l], values);
+            }
+        }
+    }
+
+    /// [`triangulate_rays`] of the ray pairs `a[j]`, `b[j]` (rows of [`rays_in_water`]: origin,
+    /// unit direction, ∂origin/∂d) with their origins moved to the air layer `shift` metres
+    /// from the one they were computed at (origin + shift·∂origin/∂d), on the vector path, one
+    /// thread: `points` gets x, y, z, residual; `status` 0 or the [`NoSolution`] code. Panics if
+    /// the slices differ in length.
+    pub fn triangulate_shifted(a: &[[f64; 9]], b: &[[f64; 9]], shift: f64, points: &mut [[f64; 4]], status: &mut [u32]) {
+        assert!(a.len() == b.len() && a.len() == points.len() && a.len() == status.len(), "inputs, output and status of equal length");
+        for (((a, b), points), status) in a.chunks(LANES).zip(b.chunks(LANES)).zip(points.chunks_mut(LANES)).zip(status.chunks_mut(LANES)) {
+            let out = stereo::triangulate(&shifted_rays(a, shift), &shifted_rays(b, shift), Mask::splat(true));
+            let p = out.point;
+            for l in 0..a.len() {
+                store(&mut points[l], &mut status[l], out.status.0[l], [p.x.0[l], p.y.0[l], p.z.0[l], out.residual.0[l]]);
+            }
+        }
     }
 }
 

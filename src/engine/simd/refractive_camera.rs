@@ -185,7 +185,20 @@ impl<'a> CameraLanes<'a> {
             y: (c0[1] * x + c1[1] * y + c2[1]) * scale,
             z: (c0[2] * x + c1[2] * y + c2[2]) * scale,
         };
-        // ray_in_water
+        let (origin, dir) = self.ray_in_water(dir_in_air, &mut status);
+        Rays {
+            origin,
+            dir,
+            status,
+            scalar,
+        }
+    }
+
+    /// [`RefractiveCamera::ray_in_water`] for a block of unit air directions (master frame):
+    /// origin on the outer interface and unit direction in the water, the reasons recorded in
+    /// `status` (with the CPU engine's check that the results are finite).
+    #[inline(always)]
+    pub fn ray_in_water(&self, dir_in_air: Vec3s, status: &mut Status) -> (Vec3s, Vec3s) {
         let n = Vec3s::splat(self.normal);
         let cos_a = n.dot(dir_in_air);
         status.fail(!cos_a.gt(F64s::splat(0.0)), NoSolution::MissesInterface);
@@ -225,12 +238,7 @@ impl<'a> CameraLanes<'a> {
             !(origin.is_finite() & dir.is_finite()),
             NoSolution::OutOfRange,
         );
-        Rays {
-            origin,
-            dir,
-            status,
-            scalar,
-        }
+        (origin, dir)
     }
 
     /// `split` and `solve_incidence` of [`RefractiveCamera::air_path_to`] for a block of points in

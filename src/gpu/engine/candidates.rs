@@ -282,7 +282,7 @@ impl GpuEngine {
     }
 
     /// Uploads f64 `values` in the kernel precision (through `scratch` for f32).
-    fn upload_reals(
+    pub(super) fn upload_reals(
         &self,
         scratch: &mut Vec<u8>,
         buffer: &wgpu::Buffer,

@@ -83,11 +83,14 @@ pub enum Kernel {
     /// Candidate axes × views (fused corner rows) → weighted affine-grid χ² and degrees of freedom;
     /// always f64.
     CalibAffineGrid,
+    /// Candidate interfaces × views (air rays, board points, pixels) → the view's gap-line sums,
+    /// or its rigid board fit's 3-D or reprojection sum of squares.
+    CalibSceneFit,
 }
 
 impl Kernel {
     /// Every kernel.
-    pub const ALL: [Kernel; 12] = [
+    pub const ALL: [Kernel; 13] = [
         Self::Backproject,
         Self::BackprojectGrid,
         Self::Project,
@@ -100,6 +103,7 @@ impl Kernel {
         Self::CalibProjectedVop,
         Self::CalibGapLine,
         Self::CalibAffineGrid,
+        Self::CalibSceneFit,
     ];
 
     /// Name (file name in `shaders/kernels/`).
@@ -117,6 +121,7 @@ impl Kernel {
             Self::CalibProjectedVop => "calib_projected_vop",
             Self::CalibGapLine => "calib_gap_line",
             Self::CalibAffineGrid => "calib_affine_grid",
+            Self::CalibSceneFit => "calib_scene_fit",
         }
     }
 
@@ -140,6 +145,7 @@ impl Kernel {
             Self::CalibAffineGrid => {
                 include_str!("../../../shaders/kernels/calib_affine_grid.wgsl")
             }
+            Self::CalibSceneFit => include_str!("../../../shaders/kernels/calib_scene_fit.wgsl"),
         }
     }
 
@@ -148,7 +154,10 @@ impl Kernel {
     /// (`shaders/kernels/candidate_bindings.wgsl`), or none (the kernel declares its own).
     fn bindings(self) -> &'static str {
         match self {
-            Self::BackprojectGrid | Self::RayGapCost | Self::CalibAffineGrid => "",
+            Self::BackprojectGrid
+            | Self::RayGapCost
+            | Self::CalibAffineGrid
+            | Self::CalibSceneFit => "",
             Self::CalibTriangulate
             | Self::CalibProject
             | Self::CalibProjectedVop
