@@ -29,15 +29,20 @@ fn measure() {
     spec.margin_px = 40.0;
     let scene = simulate(&rig, 0, 1, &spec).unwrap();
     let engine = cpu();
-    let options = RenderOptions { noise: 2.0, blur_px: 0.7, ..RenderOptions::default() };
+    let options = RenderOptions { noise: std::env::var("N").map(|v| v.parse().unwrap()).unwrap_or(2.0), blur_px: std::env::var("B").map(|v| v.parse().unwrap()).unwrap_or(0.7), ..RenderOptions::default() };
     let (mut sum, mut count, mut max) = (0.0, 0usize, 0.0f64);
     let t = std::time::Instant::now();
     for (v, pose) in scene.master_from_board.iter().enumerate() {
         for k in 0..2 {
+            let tr = std::time::Instant::now();
             let image = render_board(&engine, &rig.refractive_camera(k), &board, pose, &RenderOptions { seed: (v * 2 + k) as u64, ..options.clone() }).unwrap();
+            println!("render {:.3}s", tr.elapsed().as_secs_f64());
+            let t0 = std::time::Instant::now();
             let image = grey(&image);
             let truth: Vec<Point2<f64>> = if k == 0 { &scene.observations.views[v].left } else { &scene.observations.views[v].right }.iter().map(|p| p.unwrap()).collect();
+            let t1 = std::time::Instant::now();
             let d = detect_board(&image, &board);
+            println!("detect {:.3}s", t1.elapsed().as_secs_f64()); let _ = t0;
             let Ok(d) = d else { println!("view {v} cam {k}: {:?}", d.unwrap_err()); continue };
             let choice = colour_rule(&image, &board, &d.orderings);
             println!("view {v} cam {k}: {} orderings, colour {:?}", d.orderings.len(), choice);

@@ -1,12 +1,15 @@
 //! File formats: rig JSON, OpenCV FileStorage YAML, CSV tables. No geometry here.
 
 pub mod calib_json;
+pub mod detections;
 pub mod error;
 pub mod export;
+pub mod image;
 pub mod npy;
 pub mod plot;
 pub mod opencv;
 pub mod output;
+pub mod overlay;
 pub mod rig_json;
 pub mod sweep_shard;
 pub mod tabular;
@@ -17,7 +20,9 @@ pub use calib_json::{
     Truth, observations_from_json_str, observations_to_json_string, read_observations, read_truth,
     report_to_json_string, write_observations, write_report, write_truth,
 };
+pub use detections::{DetectedView, detections_to_json_string, write_detections};
 pub use error::IoError;
+pub use self::image::{image_size, read_grey_image, write_grey16_png, write_grey_png, write_rgb_png};
 pub use export::{ColmapDialect, ExportError, colmap_cameras_txt, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, opencv_yaml};
 pub use output::{OutputFile, remove_temporaries, write_atomic};
 pub use opencv::{OpenCvStereo, parse_opencv_stereo, read_opencv_stereo};

@@ -199,11 +199,16 @@ pub fn render_board(
         image = blur(&image, options.blur_px);
     }
     if options.noise > 0.0 {
-        let mut rng = Rng::new(options.seed);
+        // One generator per image row, seeded from the seed and the row: the same image whatever
+        // the number of threads.
         let sigma = (options.noise / 255.0) as f32;
-        for p in &mut image.pixels {
-            *p += sigma * rng.normal() as f32;
-        }
+        let seed = options.seed;
+        image.pixels.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+            let mut rng = Rng::new(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(v as u64));
+            for p in row {
+                *p += sigma * rng.normal() as f32;
+            }
+        });
     }
     Ok(image)
 }
