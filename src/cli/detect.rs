@@ -22,28 +22,28 @@ pub struct DetectArgs {
     /// Board as COLSxROWS@SQUARE: inner corners per row × per column (OpenCV's patternSize) and
     /// the square in metres
     #[arg(long, value_name = "COLSxROWS@M", value_parser = super::calib::parse_board)]
-    board: Board,
+    pub board: Board,
     /// A camera's images as CAMERA=GLOB (quote the glob), once per camera; the images of each
     /// camera are taken in sorted file-name order and the n-th images of all cameras form view n
     #[arg(long = "images", value_name = "CAMERA=GLOB", required = true, value_parser = parse_images)]
-    images: Vec<(String, String)>,
+    pub images: Vec<(String, String)>,
     /// The observations file to write (JSON; the calibration's input)
     #[arg(long, short, value_name = "OBS.json")]
-    output: PathBuf,
+    pub output: PathBuf,
     /// Rig file (cameras calibrated in air, a guess of the port): the camera names must be the
     /// rig's, every image must have its camera's size, and on colour-symmetric boards the cameras
     /// of a view are paired by their rays
     #[arg(long, value_name = "RIG.json")]
-    rig: Option<PathBuf>,
+    pub rig: Option<PathBuf>,
     /// Folder for overlays: every image with its corners, corner 0 and the row direction drawn
     #[arg(long, value_name = "DIR")]
-    overlay: Option<PathBuf>,
+    pub overlay: Option<PathBuf>,
     /// ChArUco board with this ArUco dictionary (e.g. DICT_4X4_50): not supported yet
     #[arg(long, value_name = "DICT")]
-    charuco: Option<String>,
+    pub charuco: Option<String>,
     /// No progress bar
     #[arg(long, short)]
-    quiet: bool,
+    pub quiet: bool,
 }
 
 fn parse_images(text: &str) -> Result<(String, String), String> {

@@ -205,8 +205,15 @@ pub fn render_board(
         let seed = options.seed;
         image.pixels.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
             let mut rng = Rng::new(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(v as u64));
-            for p in row {
-                *p += sigma * rng.normal() as f32;
+            // Box–Muller, both of its normal deviates (Rng::normal keeps one).
+            for pair in row.chunks_mut(2) {
+                let (u, a) = (1.0 - rng.uniform(), std::f64::consts::TAU * rng.uniform());
+                let r = sigma * (-2.0 * u.ln()).sqrt() as f32;
+                let (sin, cos) = a.sin_cos();
+                pair[0] += r * cos as f32;
+                if let Some(p) = pair.get_mut(1) {
+                    *p += r * sin as f32;
+                }
             }
         });
     }
