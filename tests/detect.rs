@@ -182,6 +182,39 @@ fn the_gpu_renders_what_the_cpu_renders() {
     assert!(mean < 1e-4 && max <= 2.0 * contrast / 64.0 + 1e-6, "mean {mean}, largest {max}");
 }
 
+#[test]
+fn png_jpeg_tiff_grey_and_colour_8_and_16_bit_give_the_same_corners() {
+    let rig = example_rig();
+    let board = Board { rows: 6, cols: 9, square: 0.04 };
+    let pose = poses(&board, 1, 6)[0];
+    let rendered = render_board(&cpu(), &rig.refractive_camera(0), &board, &pose, &RenderOptions { noise: 1.0, ..RenderOptions::default() }).unwrap();
+    let truth = exact(&rig, 0, &board, &pose);
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (rendered.width, rendered.height);
+    let grey8 = grey(&rendered);
+    let grey16 = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w, h, rendered.to_u16()).unwrap();
+    let colour = image::DynamicImage::ImageLuma8(grey8.clone()).to_rgb8();
+    let files = [
+        ("grey8.png", image::DynamicImage::ImageLuma8(grey8.clone())),
+        ("grey16.png", image::DynamicImage::ImageLuma16(grey16.clone())),
+        ("grey16.tif", image::DynamicImage::ImageLuma16(grey16)),
+        ("colour.png", image::DynamicImage::ImageRgb8(colour.clone())),
+        ("colour.jpg", image::DynamicImage::ImageRgb8(colour)),
+    ];
+    for (name, picture) in files {
+        let path = dir.path().join(name);
+        picture.save(&path).unwrap();
+        let read = flatport::io::read_grey_image(&path).unwrap();
+        let detection = detect_board(&read, &board).unwrap_or_else(|m| panic!("{name}: {m}"));
+        let found = Found::new(&read, &board, detection);
+        let chosen = resolve_view(&board, &["left".to_string()], None, &[Some(found.clone())]).unwrap()[0].unwrap().0;
+        let (rms, max) = rms_and_max(&found.detection.orderings[chosen], &truth);
+        // JPEG's blocks cost a little; the lossless files are the 8-bit image (16-bit rounds to it).
+        let bound = if name.ends_with(".jpg") { 0.1 } else { 0.05 };
+        assert!(rms <= bound && max <= 5.0 * bound, "{name}: RMS {rms} px, largest {max} px");
+    }
+}
+
 // ---- through the binary ----
 
 fn flatport(args: &[&str]) -> Output {
@@ -250,7 +283,7 @@ fn detect_writes_the_exact_corners_of_rendered_16_bit_images_and_draws_overlays(
     }
     for camera in ["left", "right"] {
         for v in 0..3 {
-            let path = overlays.join(camera).join(format!("view_{v:03}.png"));
+            let path = overlays.join(camera).join(format!("view_{v:03}.jpg"));
             let image = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             assert_eq!((image.width(), image.height()), (1280, 1024));
         }
@@ -339,7 +372,7 @@ fn the_demo_calibrates_from_detected_corners_as_well_as_simulated_corners_allow(
     let air_error = (report["air_distance"].as_f64().unwrap() - truth.interface.air_distance()).abs();
     assert!(axis_error <= 0.06 && air_error <= 1.5e-3, "axis off by {axis_error}°, air layer by {air_error} m");
     for camera in ["left", "right"] {
-        assert!(out.join("overlays").join(camera).join("view_014.png").exists());
+        assert!(out.join("overlays").join(camera).join("view_014.jpg").exists());
         assert!(out.join("images").join(camera).join("view_014.png").exists());
     }
 }

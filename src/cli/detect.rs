@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use flatport::calib::Board;
 use flatport::detect::{Found, Miss, Rule, detect_board, resolve_view};
 use flatport::io::overlay::overlay;
-use flatport::io::{DetectedView, read_grey_image, read_rig, write_detections, write_rgb_png};
+use flatport::io::{DetectedView, read_grey_image, read_rig, write_detections, write_rgb_jpeg};
 use flatport::model::Rig;
 
 use super::progress::Progress;
@@ -260,7 +260,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// One overlay per image that holds a board: DIR/CAMERA/<file stem>.png.
+/// One overlay per image: DIR/CAMERA/<file stem>.jpg.
 fn write_overlays(
     dir: &Path,
     board: &Board,
@@ -288,7 +288,7 @@ fn write_overlays(
             (Err(miss), ..) => (Vec::new(), format!("view {v}, {}: {miss}", names[k]), true),
         };
         let drawn = overlay(image, &corners, board.cols, &caption, warning);
-        write_rgb_png(&dir.join(&names[k]).join(format!("{stem}.png")), &drawn)?;
+        write_rgb_jpeg(&dir.join(&names[k]).join(format!("{stem}.jpg")), &drawn)?;
         Ok(())
     })
 }

@@ -22,7 +22,7 @@ pub use calib_json::{
 };
 pub use detections::{DetectedView, detections_to_json_string, write_detections};
 pub use error::IoError;
-pub use self::image::{image_size, read_grey_image, write_grey16_png, write_grey_png, write_rgb_png};
+pub use self::image::{image_size, read_grey_image, write_grey16_png, write_grey_png, write_rgb_jpeg};
 pub use export::{ColmapDialect, ExportError, colmap_cameras_txt, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, opencv_yaml};
 pub use output::{OutputFile, remove_temporaries, write_atomic};
 pub use opencv::{OpenCvStereo, parse_opencv_stereo, read_opencv_stereo};
