@@ -8,7 +8,10 @@
 //! pixel (its centre's board point and the central differences to its neighbours' centres); the
 //! map from pixels to the board is smooth (perspective, refraction, distortion), so over one pixel
 //! this is exact to about 10⁻⁴ px (second derivative ≈ tan(board tilt)/f per pixel). Only pixels
-//! whose footprint crosses an edge of the pattern are supersampled; the others are uniform.
+//! whose footprint crosses an edge of the pattern are supersampled; the others are uniform. A
+//! pixel whose centre and four neighbours' centres all see the water is water: the board's outer
+//! edge may clip a corner of such a pixel's footprint (less than an eighth of it), never an edge
+//! of the pattern, so the corners are unaffected.
 
 use nalgebra::{Isometry3, Point3, Vector3};
 use thiserror::Error;
@@ -160,8 +163,20 @@ pub fn render_board(
                 *out = shades.background as f32;
                 continue;
             }
-            // Central differences (one-sided at the border or next to a pixel without a ray).
             let at = |uu: usize, vv: usize| board_points[vv * w + uu];
+            // Water all round: the pixel's centre and its four neighbours' centres see the water
+            // (most pixels; the pattern's features are many pixels wide, the white border too).
+            let water = |q: [f64; 2]| region(board, border, q[0], q[1]) == 2;
+            if water(p)
+                && (u == 0 || water(at(u - 1, v)))
+                && (u + 1 == w || water(at(u + 1, v)))
+                && (v == 0 || water(at(u, v - 1)))
+                && (v + 1 == h || water(at(u, v + 1)))
+            {
+                *out = shades.background as f32;
+                continue;
+            }
+            // Central differences (one-sided at the border or next to a pixel without a ray).
             let diff = |a: Option<[f64; 2]>, b: Option<[f64; 2]>, scale: f64| match (a, b) {
                 (Some(a), Some(b)) if a[0].is_finite() && b[0].is_finite() => Some([(b[0] - a[0]) * scale, (b[1] - a[1]) * scale]),
                 _ => None,
@@ -205,14 +220,19 @@ pub fn render_board(
         let seed = options.seed;
         image.pixels.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
             let mut rng = Rng::new(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(v as u64));
-            // Box–Muller, both of its normal deviates (Rng::normal keeps one).
+            // Marsaglia's polar method: two normal deviates per accepted point, no trigonometry.
             for pair in row.chunks_mut(2) {
-                let (u, a) = (1.0 - rng.uniform(), std::f64::consts::TAU * rng.uniform());
-                let r = sigma * (-2.0 * u.ln()).sqrt() as f32;
-                let (sin, cos) = a.sin_cos();
-                pair[0] += r * cos as f32;
+                let (x, y, s) = loop {
+                    let (x, y) = (2.0 * rng.uniform() - 1.0, 2.0 * rng.uniform() - 1.0);
+                    let s = x * x + y * y;
+                    if s > 0.0 && s < 1.0 {
+                        break (x, y, s);
+                    }
+                };
+                let scale = sigma * (-2.0 * s.ln() / s).sqrt() as f32;
+                pair[0] += scale * x as f32;
                 if let Some(p) = pair.get_mut(1) {
-                    *p += r * sin as f32;
+                    *p += scale * y as f32;
                 }
             }
         });
