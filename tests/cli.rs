@@ -275,7 +275,8 @@ fn demo_runs_end_to_end() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
     let text = run_ok(&["demo", "--output", out.to_str().unwrap(), "--device", "cpu"]);
-    // The calibration story: simulated scene, calibration from the naive start, two sweeps.
+    // The calibration story: rendered images, detected corners, calibration from the naive start,
+    // two sweeps.
     for file in ["rig.json", "truth.json", "observations.json", "start_rig.json", "calibrated_rig.json", "report.json"] {
         assert!(out.join(file).exists(), "demo wrote no {file}");
     }

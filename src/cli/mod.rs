@@ -188,7 +188,7 @@ slice I of N into its own folder, `flatport sweep merge` joins the folders into 
     /// Export a rig for other tools (colmap_underwater, OpenCV) or a camera's per-pixel ray map (.npy)
     #[command(subcommand)]
     Export(export::ExportCommand),
-    /// Run the built-in example end to end: simulate a rig, calibrate it, sweep the cost, tour the geometry
+    /// Run the built-in example end to end: render a rig's views of a board, detect the corners, calibrate, sweep the cost, tour the geometry
     #[command(after_help = "\
 Example:
   flatport demo --output flatport-demo")]
