@@ -201,7 +201,7 @@ fn bad_rigs_and_arguments_give_clear_errors() {
 
 #[test]
 fn every_command_has_help_with_an_example() {
-    for command in ["project", "backproject", "triangulate", "vop", "demo"] {
+    for command in ["project", "backproject", "triangulate", "vop", "demo", "detect", "render"] {
         let help = run_ok(&[command, "--help"]);
         assert!(help.contains("Example"), "{command} --help has no example:\n{help}");
         assert!(help.contains("flatport"), "{command}");
