@@ -82,9 +82,9 @@ fn corners_on_rendered_images_match_the_exact_projections() {
     for (v, pose) in poses(&board, 4, 11).iter().enumerate() {
         let options = if v % 2 == 0 { &sharp } else { &blurred };
         let found = detect_view(&rig, &board, pose, options, false).expect("the colours decide on a 9×6 board");
-        for k in 0..2 {
+        for (k, corners) in found.iter().enumerate() {
             let truth = exact(&rig, k, &board, pose);
-            let (rms, largest) = rms_and_max(&found[k], &truth);
+            let (rms, largest) = rms_and_max(corners, &truth);
             assert!(rms < 1.0, "view {v} camera {k}: RMS {rms} px: corner 0 at the wrong end?");
             sum += rms * rms * truth.len() as f64;
             count += truth.len();
@@ -105,8 +105,8 @@ fn the_colours_put_corner_0_at_the_same_physical_corner_however_the_board_is_tur
     for pose in poses(&board, 2, 3) {
         for pose in [pose, turned(&board, &pose)] {
             let found = detect_view(&rig, &board, &pose, &options, false).unwrap();
-            for k in 0..2 {
-                let (rms, _) = rms_and_max(&found[k], &exact(&rig, k, &board, &pose));
+            for (k, corners) in found.iter().enumerate() {
+                let (rms, _) = rms_and_max(corners, &exact(&rig, k, &board, &pose));
                 assert!(rms < 0.1, "camera {k}: corner 0 is not the board's corner 0 (RMS {rms} px against the exact order)");
             }
         }

@@ -75,6 +75,9 @@ fn chess_config() -> DetectorConfig {
 /// "Detecting corners".
 pub const PRE_BLUR_PX: f32 = 1.0;
 
+/// Board corner (column, row) → grid label (i, j), given the grid's width and height.
+type Turn = fn(usize, usize, usize, usize) -> (usize, usize);
+
 /// Finds `board` in a grey image: all its `rows · cols` inner corners, or why not.
 pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss> {
     let params = ChessboardParams::sweep_default();
@@ -113,7 +116,7 @@ pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss>
     let at = |i: usize, j: usize| grid[j * w + i];
     // An ordering maps board corner (c, r) to grid (i, j); the four turns of the board in its
     // plane keep the chirality (rows to the right ⇒ next row below).
-    let turns: [fn(usize, usize, usize, usize) -> (usize, usize); 4] = [
+    let turns: [Turn; 4] = [
         |c, r, _, _| (c, r),                 // rows run right
         |c, r, w, h| (w - 1 - c, h - 1 - r), // rows run left
         |c, r, w, _| (w - 1 - r, c),         // rows run down
@@ -330,23 +333,23 @@ impl Rule {
 /// each camera's ordering and the rule that chose it, or why the view cannot be resolved.
 pub fn resolve_view(board: &Board, names: &[String], rig: Option<(&Rig, &[usize])>, found: &[Option<Found>]) -> Result<Vec<Option<(usize, Rule)>>, String> {
     let mut chosen: Vec<Option<(usize, Rule)>> = vec![None; found.len()];
-    let seen: Vec<usize> = (0..found.len()).filter(|&k| found[k].is_some()).collect();
-    let get = |k: usize| found[k].as_ref().expect("seen");
-    let image_choice = |k: usize| image_rule(board, &get(k).detection.orderings, &get(k).candidates());
+    // The cameras that saw the board, with what they found.
+    let seen: Vec<(usize, &Found)> = found.iter().enumerate().filter_map(|(k, f)| f.as_ref().map(|f| (k, f))).collect();
+    let image_choice = |f: &Found| image_rule(board, &f.detection.orderings, &f.candidates());
     match rig {
         Some((rig, indices)) if seen.len() > 1 => {
-            let reference = seen.iter().copied().find(|&k| get(k).by_colour().is_some()).unwrap_or(seen[0]);
-            let by_colour = get(reference).by_colour();
+            let (reference, first) = seen.iter().copied().find(|(_, f)| f.by_colour().is_some()).unwrap_or(seen[0]);
+            let by_colour = first.by_colour();
             let (ordering, rule) = match by_colour {
                 Some(o) => (o, Rule::Colour),
-                None => (image_choice(reference).unwrap_or(get(reference).candidates()[0]), Rule::Reference),
+                None => (image_choice(first).unwrap_or(first.candidates()[0]), Rule::Reference),
             };
             chosen[reference] = Some((ordering, rule));
-            let corners = &get(reference).detection.orderings[ordering];
-            for &k in seen.iter().filter(|&&k| k != reference) {
-                let all: Vec<usize> = (0..get(k).detection.orderings.len()).collect();
-                let (rays, gaps) = pair_by_rays(rig, indices[reference], corners, indices[k], &get(k).detection.orderings, &all);
-                let colour = if by_colour.is_some() { get(k).by_colour() } else { None };
+            let corners = &first.detection.orderings[ordering];
+            for &(k, f) in seen.iter().filter(|(k, _)| *k != reference) {
+                let all: Vec<usize> = (0..f.detection.orderings.len()).collect();
+                let (rays, gaps) = pair_by_rays(rig, indices[reference], corners, indices[k], &f.detection.orderings, &all);
+                let colour = if by_colour.is_some() { f.by_colour() } else { None };
                 chosen[k] = Some(match (colour, rays) {
                     (Some(c), Some(r)) if c == r => (r, Rule::Rays),
                     (Some(c), Some(r)) => {
@@ -370,15 +373,15 @@ pub fn resolve_view(board: &Board, names: &[String], rig: Option<(&Rig, &[usize]
             }
         }
         _ => {
-            let all_by_colour = seen.iter().all(|&k| get(k).by_colour().is_some());
-            for &k in &seen {
-                chosen[k] = Some(if all_by_colour {
-                    (get(k).by_colour().expect("checked"), Rule::Colour)
-                } else if let Some(o) = image_choice(k) {
+            let all_by_colour = seen.iter().all(|(_, f)| f.by_colour().is_some());
+            for &(k, f) in &seen {
+                chosen[k] = Some(if let (true, Some(o)) = (all_by_colour, f.by_colour()) {
+                    (o, Rule::Colour)
+                } else if let Some(o) = image_choice(f) {
                     (o, Rule::Image)
                 } else if seen.len() == 1 {
                     // One camera alone: either end serves, the board's pose is free.
-                    (get(k).candidates()[0], Rule::Reference)
+                    (f.candidates()[0], Rule::Reference)
                 } else {
                     return Err(format!(
                         "camera {}: the colours do not decide and the board's rows run too close to vertical in the image to tell \
