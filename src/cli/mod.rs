@@ -113,7 +113,9 @@ view: the inner corner at the board's black corner square when the board's colou
 apart (squares per side add up to an odd number, e.g. 9x6 = 10 x 7 squares); otherwise, with
 --rig, the cameras follow the first one by their rays, and without it each image takes the order
 whose rows run left to right. Views that cannot be resolved, and views no camera found, are left
-out and listed on stderr. A camera that found no board is absent from that view.
+out and listed on stderr. A camera that found no board is absent from that view; for two cameras
+the file has the stereo form the calibration reads today, which holds only views both cameras saw,
+so a view one camera saw is left out and listed too.
 
 Examples:
   flatport detect --board 9x6@0.04 --images left='shots/left/*.png' --images right='shots/right/*.png' \\
