@@ -88,10 +88,10 @@ fn list_images(images: &[(String, String)]) -> anyhow::Result<Vec<Vec<PathBuf>>>
     Ok(lists)
 }
 
-/// What one image gave.
+/// What one image gave (the image itself is read again for its overlay: memory stays bounded
+/// whatever the number of images).
 struct ImageResult {
     found: Result<Found, Miss>,
-    image: Option<image::GrayImage>,
 }
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
@@ -153,7 +153,6 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
 
     let progress = Mutex::new(Progress::new("detect", "images", args.quiet));
     let done = AtomicUsize::new(0);
-    let keep_images = args.overlay.is_some();
     let results: Vec<ImageResult> = jobs
         .par_iter()
         .map(|&(v, k)| {
@@ -164,7 +163,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
             if let Ok(mut p) = progress.lock() {
                 p.update(n, jobs.len());
             }
-            Ok(ImageResult { found, image: keep_images.then_some(image) })
+            Ok(ImageResult { found })
         })
         .collect::<anyhow::Result<_>>()?;
 
@@ -276,8 +275,8 @@ fn write_overlays(
     let count = names.len();
     (0..results.len()).into_par_iter().try_for_each(|i| -> anyhow::Result<()> {
         let (v, k) = (i / count, i % count);
-        let Some(image) = &results[i].image else { return Ok(()) };
         let path = &files[k][v];
+        let image = read_grey_image(path)?;
         let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| format!("view_{v:03}"));
         let (corners, caption, warning) = match (&results[i].found, chosen[i], &notes[v]) {
             (Ok(found), Some((o, rule)), _) => {
@@ -287,7 +286,7 @@ fn write_overlays(
             (Ok(found), None, None) => (found.detection.orderings[0].clone(), format!("view {v}, {}", names[k]), true),
             (Err(miss), ..) => (Vec::new(), format!("view {v}, {}: {miss}", names[k]), true),
         };
-        let drawn = overlay(image, &corners, board.cols, &caption, warning);
+        let drawn = overlay(&image, &corners, board.cols, &caption, warning);
         write_rgb_jpeg(&dir.join(&names[k]).join(format!("{stem}.jpg")), &drawn)?;
         Ok(())
     })
