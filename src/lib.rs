@@ -49,7 +49,9 @@
 pub struct ReadmeDoctests;
 
 pub mod calib;
+pub mod detect;
 pub mod engine;
 pub mod gpu;
 pub mod io;
 pub mod model;
+pub mod render;

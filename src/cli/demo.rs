@@ -1,6 +1,7 @@
-//! `flatport demo`: the built-in example end to end. The calibration story (simulate the documented
-//! rig, calibrate it from a naive start, sweep the invariant around the result) in DIR, and the
-//! geometry tour (project, back-project, triangulate, VOPs) in DIR/geometry.
+//! `flatport demo`: the built-in example end to end. The calibration story from pixels (render the
+//! documented rig's views of a board, detect the corners, calibrate from a naive start, sweep the
+//! invariant around the result) in DIR, and the geometry tour (project, back-project,
+//! triangulate, VOPs) in DIR/geometry.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -9,7 +10,7 @@ use anyhow::Context;
 use clap::Args;
 use nalgebra::{Point2, Point3};
 
-use flatport::io::{rig_from_json_str, write_rig, write_table};
+use flatport::io::{rig_from_json_str, write_rig, write_table, write_truth};
 use flatport::model::{NoSolution, Rig, triangulate_rays};
 
 use super::rig::describe;
@@ -74,41 +75,65 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     geometry_tour(&rig, &dir.join("geometry"))
 }
 
-/// Scene of the story: 15 views of a 9×6 board of 40 mm squares, 0.125 px of noise.
+/// Scene of the story: 15 views of a 9×6 board of 40 mm squares, rendered with mild noise and
+/// blur.
 const VIEWS: usize = 15;
-const NOISE_PX: f64 = 0.125;
+const NOISE_GREY: f64 = 2.0;
+const BLUR_PX: f64 = 0.6;
 
-/// Simulate, calibrate from the naive start, sweep the invariant around the result.
+/// Render, detect, calibrate from the naive start, sweep the invariant around the result.
 fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyhow::Result<()> {
     use flatport::calib::methods::sweep::Linspace;
     use flatport::calib::{Board, CalibrationOptions, SceneSpec, StereoData, calibrate, simulate};
     use flatport::engine::Engine;
-    use flatport::io::{Truth, write_observations, write_report, write_truth};
+    use flatport::io::{Truth, read_observations, write_report};
+    use flatport::render::RenderOptions;
 
+    let board = Board { rows: 6, cols: 9, square: 0.04 };
     outln!(
-        "\n1. simulate: {VIEWS} stereo views of a 9x6 chessboard (40 mm squares) in the water, {NOISE_PX} px noise"
+        "\n1. render: {VIEWS} views of a 9x6 chessboard (40 mm squares) in the water, as both cameras see it through the port\n   \
+         (every pixel back-projected, edges supersampled 8×8, lens distortion, blur {BLUR_PX} px, noise {NOISE_GREY} grey levels)"
     );
-    let board = Board {
-        rows: 6,
-        cols: 9,
-        square: 0.04,
-    };
-    let scene = simulate(rig, 0, 1, &SceneSpec::new(board, VIEWS, NOISE_PX, 1))?;
+    let mut spec = SceneSpec::new(board, VIEWS, 0.0, 1);
+    spec.margin_px = 40.0;
+    let poses = simulate(rig, 0, 1, &spec)?.master_from_board;
+    let scene = super::render::Scene { rig: rig.clone(), board, poses };
+    let options = RenderOptions { blur_px: BLUR_PX, noise: NOISE_GREY, seed: 1, ..RenderOptions::default() };
+    let engine: Engine = super::calib::calibration_engine(engine_args)?;
+    let images = dir.join("images");
+    let started = Instant::now();
+    super::render::render_scene(&scene, &options, 8, &engine, &images, false)?;
+    outln!("   {} images in {:.2} s: {}/left/ and right/", 2 * VIEWS, started.elapsed().as_secs_f64(), images.display());
     write_rig(&dir.join("rig.json"), rig)?;
-    write_observations(&dir.join("observations.json"), &scene.observations)?;
-    let truth = Truth {
-        interface: rig.port_in_master(0),
-        master_from_board: scene.master_from_board.clone(),
-        noise_px: NOISE_PX,
-        seed: 1,
-    };
+    let truth = Truth { interface: rig.port_in_master(0), master_from_board: scene.poses.clone(), noise_px: 0.0, seed: 1 };
+
+    outln!("2. detect the corners (calib-targets, corner 0 by the board's colours), overlays in overlays/:");
+    let started = Instant::now();
+    let glob = |camera: &str| (camera.to_string(), format!("{}/{camera}/*.png", glob_escape(&images)));
+    super::detect::run(super::detect::DetectArgs {
+        board,
+        images: vec![glob("left"), glob("right")],
+        output: dir.join("observations.json"),
+        rig: Some(dir.join("rig.json")),
+        overlay: Some(dir.join("overlays")),
+        charuco: None,
+        quiet: false,
+    })?;
+    let observations = read_observations(&dir.join("observations.json"))?;
+    let exact = read_observations(&images.join("corners.json"))?;
+    let seconds = started.elapsed().as_secs_f64();
+    match corner_errors(&observations, &exact) {
+        Some((rms, max)) => {
+            outln!("   in {seconds:.2} s; against the exact corners (projected through the port): RMS {rms:.4} px, largest {max:.4} px")
+        }
+        None => outln!("   in {seconds:.2} s; some views were left out (see above), so the corners are not compared with the exact ones"),
+    }
     write_truth(&dir.join("truth.json"), &truth)?;
 
     let start = super::calib::naive_start(rig)?;
     write_rig(&dir.join("start_rig.json"), &start)?;
-    outln!("2. calibrate from a naive start (axis on the camera's z axis, 10 mm air layer):");
-    let data = StereoData::new(&start, [0, 1], &scene.observations)?;
-    let engine: Engine = super::calib::calibration_engine(engine_args)?;
+    outln!("3. calibrate from a naive start (axis on the camera's z axis, 10 mm air layer):");
+    let data = StereoData::new(&start, [0, 1], &observations)?;
     let backend = super::calib::cost_backend(&engine, &data);
     let calibration = calibrate(backend.as_ref(), &CalibrationOptions::default(), vec![])?;
     write_rig(
@@ -124,9 +149,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
         super::calib::truth_errors(&calibration.report, &truth)
     );
 
-    outln!(
-        "3. sweep the affine-grid cost over the axis (a wide view, and a close one around the result):"
-    );
+    outln!("4. sweep the affine-grid cost over the axis (a wide view, and a close one around the result):");
     let found = calibration.report.candidate;
     let (tilt, azimuth) = (found.tilt().to_degrees(), found.azimuth().to_degrees());
     // Close view: ±1° of tilt, and azimuths spanning about ±1° of arc at this tilt.
@@ -190,10 +213,36 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
         );
     }
     outln!(
-        "\nwrote {0}/: rig.json (the truth) truth.json observations.json start_rig.json calibrated_rig.json report.json\n       {0}/sweep_wide/ and {0}/sweep_close/: heatmap.png polar.png cost.npy cost.csv summary.json",
+        "\nwrote {0}/: rig.json (the truth) truth.json observations.json start_rig.json calibrated_rig.json report.json\n       {0}/images/ (the rendered images, corners.json the exact corners), {0}/overlays/ (the detections drawn)\n       {0}/sweep_wide/ and {0}/sweep_close/: heatmap.png polar.png cost.npy cost.csv summary.json",
         dir.display()
     );
     Ok(())
+}
+
+/// A path as a glob pattern that matches itself: `[`, `]`, `*`, `?` escaped.
+fn glob_escape(path: &Path) -> String {
+    glob::Pattern::escape(&path.to_string_lossy())
+}
+
+/// RMS and largest distance (pixels) between the corners of `found` and `exact`, view by view,
+/// over the corners both hold; `None` when they hold different numbers of views (some view was
+/// left out, so they no longer pair by position).
+fn corner_errors(found: &flatport::calib::Observations, exact: &flatport::calib::Observations) -> Option<(f64, f64)> {
+    if found.views.len() != exact.views.len() {
+        return None;
+    }
+    let (mut sum, mut count, mut max) = (0.0, 0usize, 0.0f64);
+    for (a, b) in found.views.iter().zip(&exact.views) {
+        for (p, q) in a.left.iter().zip(&b.left).chain(a.right.iter().zip(&b.right)) {
+            if let (Some(p), Some(q)) = (p, q) {
+                let e = (p - q).norm();
+                sum += e * e;
+                count += 1;
+                max = max.max(e);
+            }
+        }
+    }
+    Some(((sum / count.max(1) as f64).sqrt(), max))
 }
 
 /// Project a grid of points, back-project and triangulate them, VOPs: into `dir`.
@@ -201,9 +250,7 @@ fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let rig = rig.clone();
     write_rig(&dir.join("rig.json"), &rig)?;
-    outln!(
-        "\n4. the geometry on its own: project, back-project, triangulate a grid of points, VOPs"
-    );
+    outln!("\n5. the geometry on its own: project, back-project, triangulate a grid of points, VOPs");
 
     let points = example_points();
     let (left, right) = (rig.refractive_camera(0), rig.refractive_camera(1));

@@ -16,10 +16,12 @@ mod batch;
 mod bench;
 mod calib;
 mod demo;
+mod detect;
 mod export;
 mod geometry;
 mod info;
 mod progress;
+mod render;
 mod rig;
 mod signals;
 mod sweep;
@@ -101,6 +103,40 @@ Examples:
   flatport calibrate --rig scene/start_rig.json --observations scene/observations.json \\
       -o calibrated.json --truth scene/truth.json")]
     Simulate(calib::SimulateArgs),
+    /// Find chessboard corners in every camera's images and write the observations file
+    #[command(after_help = "\
+Each --images CAMERA=GLOB gives one camera's images (PNG, JPEG or TIFF; 8 or 16 bit; grey or
+colour); quote the glob so that the shell leaves it alone. Every camera's files are sorted by name
+and the n-th files of all cameras form view n. The corners are written row-major as OpenCV's
+findChessboardCorners orders them, with corner 0 the same physical corner in every camera of a
+view: the inner corner at the board's black corner square when the board's colours tell its ends
+apart (squares per side add up to an odd number, e.g. 9x6 = 10 x 7 squares); otherwise, with
+--rig, the cameras follow the first one by their rays, and without it each image takes the order
+whose rows run left to right. Views that cannot be resolved, and views no camera found, are left
+out and listed on stderr. A camera that found no board is absent from that view; for two cameras
+the file has the stereo form the calibration reads today, which holds only views both cameras saw,
+so a view one camera saw is left out and listed too.
+
+Examples:
+  flatport detect --board 9x6@0.04 --images left='shots/left/*.png' --images right='shots/right/*.png' \\
+      --rig rig.json --output observations.json --overlay overlays
+  flatport calibrate --rig rig.json --observations observations.json -o calibrated.json")]
+    Detect(detect::DetectArgs),
+    /// Render images of a chessboard seen through the port by every camera (with exact corners)
+    #[command(after_help = "\
+Every pixel is back-projected through the port (on the GPU the pixel grid is made in the shader),
+its water ray meets the board, and the board's shade there is the pixel's value; pixels on an
+edge of the pattern are supersampled (anti-aliasing). Lens distortion comes from the rig, noise
+and blur are optional. The poses come from a truth file (`flatport simulate`) or are drawn as
+simulate draws them. Writes DIR/CAMERA/view_NNN.png, DIR/rig.json (the rig with the true port),
+DIR/truth.json and DIR/corners.json (the exact corners, the observations file's format: every
+board corner projected through the port by the model).
+
+Examples:
+  flatport render --rig data/example_rig.json --board 9x6@0.04 --views 15 --seed 1 --noise 2 --output shots
+  flatport render --rig rig.json --truth scene/truth.json --board 9x6@0.04 --blur 0.8 --output shots
+  flatport detect --board 9x6@0.04 --images left='shots/left/*.png' --images right='shots/right/*.png' -o obs.json")]
+    Render(render::RenderArgs),
     /// Calibrate the interface (axis and air layer) of a stereo rig from views of a chessboard
     #[command(after_help = "\
 The rig's cameras are calibrated in air (intrinsics, distortion, extrinsics); its interface is the
@@ -154,7 +190,7 @@ slice I of N into its own folder, `flatport sweep merge` joins the folders into 
     /// Export a rig for other tools (colmap_underwater, OpenCV) or a camera's per-pixel ray map (.npy)
     #[command(subcommand)]
     Export(export::ExportCommand),
-    /// Run the built-in example end to end: simulate a rig, calibrate it, sweep the cost, tour the geometry
+    /// Run the built-in example end to end: render a rig's views of a board, detect the corners, calibrate, sweep the cost, tour the geometry
     #[command(after_help = "\
 Example:
   flatport demo --output flatport-demo")]
@@ -327,6 +363,8 @@ pub fn main() -> ExitCode {
         Command::Calibrate(args) => calib::run_calibrate(args),
         Command::Sweep(args) => sweep::run(args),
         Command::Demo(args) => demo::run(args),
+        Command::Detect(args) => detect::run(args),
+        Command::Render(args) => render::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Info => info::run(),
     };

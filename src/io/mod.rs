@@ -1,11 +1,14 @@
 //! File formats: rig JSON, OpenCV FileStorage YAML, CSV tables. No geometry here.
 
 pub mod calib_json;
+pub mod detections;
 pub mod error;
 pub mod export;
+pub mod image;
 pub mod npy;
 pub mod opencv;
 pub mod output;
+pub mod overlay;
 pub mod plot;
 pub mod rig_json;
 pub mod sweep_shard;
@@ -19,11 +22,10 @@ pub use calib_json::{
     rig_observations_to_json_string, rig_report_to_json_string, write_observations, write_report,
     write_rig_observations, write_truth,
 };
+pub use detections::{DetectedView, detections_to_json_string, write_detections};
 pub use error::IoError;
-pub use export::{
-    ColmapDialect, ExportError, colmap_cameras_txt, colmap_cameras_txt_as, colmap_rig_config,
-    colmap_rigs_txt, opencv_yaml,
-};
+pub use self::image::{image_size, read_grey_image, write_grey16_png, write_grey_png, write_rgb_jpeg};
+pub use export::{ColmapDialect, ExportError, colmap_cameras_txt, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, opencv_yaml};
 pub use opencv::{OpenCvStereo, parse_opencv_stereo, read_opencv_stereo};
 pub use output::{OutputFile, remove_temporaries, write_atomic};
 pub use rig_json::{read_rig, rig_from_json_str, rig_to_json_string, write_rig};

@@ -42,7 +42,7 @@ pub struct CostMap<'a> {
 
 const FONT: &[u8] = include_bytes!("../../data/fonts/DejaVuSans.ttf");
 
-fn register_font() {
+pub(crate) fn register_font() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         // The font is compiled in and valid; a failure would only lose the labels.

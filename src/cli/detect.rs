@@ -1,0 +1,293 @@
+//! `flatport detect`: chessboard corners in every camera's images → the observations file.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use anyhow::{Context, bail};
+use clap::Args;
+use rayon::prelude::*;
+
+use flatport::calib::Board;
+use flatport::detect::{Found, Miss, Rule, detect_board, resolve_view};
+use flatport::io::overlay::overlay;
+use flatport::io::{DetectedView, read_grey_image, read_rig, write_detections, write_rgb_jpeg};
+use flatport::model::Rig;
+
+use super::progress::Progress;
+
+/// `flatport detect`
+#[derive(Debug, Args)]
+pub struct DetectArgs {
+    /// Board as COLSxROWS@SQUARE: inner corners per row × per column (OpenCV's patternSize) and
+    /// the square in metres
+    #[arg(long, value_name = "COLSxROWS@M", value_parser = super::calib::parse_board)]
+    pub board: Board,
+    /// A camera's images as CAMERA=GLOB (quote the glob), once per camera; the images of each
+    /// camera are taken in sorted file-name order and the n-th images of all cameras form view n
+    #[arg(long = "images", value_name = "CAMERA=GLOB", required = true, value_parser = parse_images)]
+    pub images: Vec<(String, String)>,
+    /// The observations file to write (JSON; the calibration's input)
+    #[arg(long, short, value_name = "OBS.json")]
+    pub output: PathBuf,
+    /// Rig file (cameras calibrated in air, a guess of the port): the camera names must be the
+    /// rig's, every image must have its camera's size, and on colour-symmetric boards the cameras
+    /// of a view are paired by their rays
+    #[arg(long, value_name = "RIG.json")]
+    pub rig: Option<PathBuf>,
+    /// Folder for overlays: every image with its corners, corner 0 and the row direction drawn
+    #[arg(long, value_name = "DIR")]
+    pub overlay: Option<PathBuf>,
+    /// ChArUco board with this ArUco dictionary (e.g. DICT_4X4_50): not supported yet
+    #[arg(long, value_name = "DICT")]
+    pub charuco: Option<String>,
+    /// No progress bar
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+fn parse_images(text: &str) -> Result<(String, String), String> {
+    match text.split_once('=') {
+        Some((camera, glob)) if !camera.trim().is_empty() && !glob.is_empty() => Ok((camera.trim().to_string(), glob.to_string())),
+        _ => Err(format!("expected CAMERA=GLOB such as left='images/left/*.png', got '{text}'")),
+    }
+}
+
+/// The files of each camera, sorted by file name (then by path).
+fn list_images(images: &[(String, String)]) -> anyhow::Result<Vec<Vec<PathBuf>>> {
+    let mut lists = Vec::new();
+    for (i, (camera, pattern)) in images.iter().enumerate() {
+        if images[..i].iter().any(|(c, _)| c == camera) {
+            bail!("--images names camera '{camera}' twice");
+        }
+        let paths = glob::glob(pattern).with_context(|| format!("--images {camera}={pattern}: not a valid glob"))?;
+        let mut files = Vec::new();
+        for path in paths {
+            let path = path.with_context(|| format!("--images {camera}={pattern}"))?;
+            if path.is_file() {
+                files.push(path);
+            }
+        }
+        if files.is_empty() {
+            bail!("--images {camera}={pattern}: no file matches");
+        }
+        files.sort_by(|a, b| a.file_name().cmp(&b.file_name()).then_with(|| a.cmp(b)));
+        lists.push(files);
+    }
+    for (k, files) in lists.iter().enumerate().skip(1) {
+        if files.len() != lists[0].len() {
+            bail!(
+                "camera '{}' has {} images and camera '{}' has {}: the images are paired by position, so every camera needs as many",
+                images[0].0,
+                lists[0].len(),
+                images[k].0,
+                files.len()
+            );
+        }
+    }
+    Ok(lists)
+}
+
+/// What one image gave (the image itself is read again for its overlay: memory stays bounded
+/// whatever the number of images).
+struct ImageResult {
+    found: Result<Found, Miss>,
+}
+
+pub fn run(args: DetectArgs) -> anyhow::Result<()> {
+    if let Some(dictionary) = &args.charuco {
+        bail!("--charuco {dictionary}: ChArUco boards are not supported yet; print a plain chessboard (see the README, \"Detecting corners\")");
+    }
+    let board = args.board;
+    let names: Vec<String> = args.images.iter().map(|(c, _)| c.clone()).collect();
+    let rig: Option<Rig> = args.rig.as_deref().map(read_rig).transpose()?;
+    let rig_cameras: Option<Vec<usize>> = match &rig {
+        Some(rig) => Some(
+            names
+                .iter()
+                .map(|name| {
+                    rig.cameras().iter().position(|c| &c.name == name).with_context(|| {
+                        let known: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
+                        format!("--images names camera '{name}', which the rig does not have (it has {})", known.join(", "))
+                    })
+                })
+                .collect::<anyhow::Result<_>>()?,
+        ),
+        None => None,
+    };
+    let files = list_images(&args.images)?;
+    let views = files[0].len();
+    let jobs: Vec<(usize, usize)> = (0..views).flat_map(|v| (0..names.len()).map(move |k| (v, k))).collect();
+
+    // Sizes first, from the headers: a wrong image fails before any detection runs.
+    for (k, list) in files.iter().enumerate() {
+        let expected = match (&rig, &rig_cameras) {
+            (Some(rig), Some(indices)) => {
+                let i = &rig.cameras()[indices[k]].intrinsics;
+                Some((i.width, i.height))
+            }
+            _ => None,
+        };
+        let mut first: Option<(u32, u32, &Path)> = None;
+        for path in list {
+            let size = flatport::io::image_size(path)?;
+            if let Some((w, h)) = expected
+                && size != (w, h)
+            {
+                bail!("{}: {}×{} pixels, but the rig's camera '{}' takes {w}×{h}", path.display(), size.0, size.1, names[k]);
+            }
+            match first {
+                Some((w, h, other)) if size != (w, h) => bail!(
+                    "{}: {}×{} pixels, but {} of the same camera '{}' has {w}×{h}",
+                    path.display(),
+                    size.0,
+                    size.1,
+                    other.display(),
+                    names[k]
+                ),
+                None => first = Some((size.0, size.1, path)),
+                _ => {}
+            }
+        }
+    }
+
+    let progress = Mutex::new(Progress::new("detect", "images", args.quiet));
+    let done = AtomicUsize::new(0);
+    let results: Vec<ImageResult> = jobs
+        .par_iter()
+        .map(|&(v, k)| {
+            let path = &files[k][v];
+            let image = read_grey_image(path)?;
+            let found = detect_board(&image, &board).map(|d| Found::new(&image, &board, d));
+            let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+            if let Ok(mut p) = progress.lock() {
+                p.update(n, jobs.len());
+            }
+            Ok(ImageResult { found })
+        })
+        .collect::<anyhow::Result<_>>()?;
+
+    // Corner 0 in every view, and the file's views.
+    let mut detected: Vec<DetectedView> = Vec::new();
+    let mut kept_views: Vec<usize> = Vec::new();
+    let mut dropped: Vec<String> = Vec::new();
+    let mut unresolved: Vec<String> = Vec::new();
+    let mut misses: Vec<String> = Vec::new();
+    let mut chosen_per_image: Vec<Option<(usize, Rule)>> = vec![None; jobs.len()];
+    let mut view_notes: Vec<Option<String>> = vec![None; views];
+    let file_list = |v: usize| files.iter().map(|f| f[v].display().to_string()).collect::<Vec<_>>().join(", ");
+    for v in 0..views {
+        let found: Vec<Option<Found>> = (0..names.len()).map(|k| results[v * names.len() + k].found.clone().ok()).collect();
+        for k in 0..names.len() {
+            if let Err(miss) = &results[v * names.len() + k].found {
+                misses.push(format!("{}: {miss}", files[k][v].display()));
+            }
+        }
+        if found.iter().all(Option::is_none) {
+            dropped.push(format!("view {v} ({}): no camera found the board", file_list(v)));
+            continue;
+        }
+        let pair = rig.as_ref().zip(rig_cameras.as_deref());
+        match resolve_view(&board, &names, pair, &found) {
+            Ok(chosen) => {
+                let view: DetectedView = chosen
+                    .iter()
+                    .zip(&found)
+                    .map(|(c, f)| c.and_then(|(o, _)| f.as_ref().map(|f| f.detection.orderings[o].clone())))
+                    .collect();
+                for (k, c) in chosen.iter().enumerate() {
+                    chosen_per_image[v * names.len() + k] = *c;
+                }
+                detected.push(view);
+                kept_views.push(v);
+            }
+            Err(why) => {
+                view_notes[v] = Some(why.clone());
+                unresolved.push(format!("view {v} ({}): {why}", file_list(v)));
+            }
+        }
+    }
+    let left_out = write_detections(&args.output, &board, &names, &detected)?;
+    let left_out: Vec<String> = left_out
+        .iter()
+        .map(|&i| {
+            let v = kept_views[i];
+            let saw: Vec<&str> = (0..names.len()).filter(|&k| detected[i][k].is_some()).map(|k| names[k].as_str()).collect();
+            format!(
+                "view {v} ({}): only {} found the board, and today's stereo observations file holds views both cameras saw",
+                file_list(v),
+                saw.join(", ")
+            )
+        })
+        .collect();
+
+    if let Some(dir) = &args.overlay {
+        write_overlays(dir, &board, &names, &files, &results, &chosen_per_image, &view_notes)?;
+    }
+
+    for line in &misses {
+        eprintln!("no board: {line}");
+    }
+    for line in &dropped {
+        eprintln!("dropped: {line}");
+    }
+    for line in &unresolved {
+        eprintln!("warning: corner 0 unresolved, view left out: {line}");
+    }
+    for line in &left_out {
+        eprintln!("left out: {line}");
+    }
+    let per_camera: Vec<String> = names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let count = (0..views).filter(|&v| results[v * names.len() + k].found.is_ok()).count();
+            format!("{name} {count}/{views}")
+        })
+        .collect();
+    let written = detected.len() - left_out.len();
+    outln!(
+        "boards found: {}; wrote {} of {views} views to {}{}",
+        per_camera.join(", "),
+        written,
+        args.output.display(),
+        if let Some(dir) = &args.overlay { format!(", overlays in {}", dir.display()) } else { String::new() }
+    );
+    if written == 0 {
+        bail!("no view of the board in any camera could be used: {} holds no views", args.output.display());
+    }
+    Ok(())
+}
+
+/// One overlay per image: DIR/CAMERA/<file stem>.jpg.
+fn write_overlays(
+    dir: &Path,
+    board: &Board,
+    names: &[String],
+    files: &[Vec<PathBuf>],
+    results: &[ImageResult],
+    chosen: &[Option<(usize, Rule)>],
+    notes: &[Option<String>],
+) -> anyhow::Result<()> {
+    for name in names {
+        std::fs::create_dir_all(dir.join(name)).with_context(|| format!("cannot create {}", dir.join(name).display()))?;
+    }
+    let count = names.len();
+    (0..results.len()).into_par_iter().try_for_each(|i| -> anyhow::Result<()> {
+        let (v, k) = (i / count, i % count);
+        let path = &files[k][v];
+        let image = read_grey_image(path)?;
+        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| format!("view_{v:03}"));
+        let (corners, caption, warning) = match (&results[i].found, chosen[i], &notes[v]) {
+            (Ok(found), Some((o, rule)), _) => {
+                (found.detection.orderings[o].clone(), format!("view {v}, {}: {} corners, corner 0 by {}", names[k], board.corners(), rule.name()), false)
+            }
+            (Ok(found), None, Some(why)) => (found.detection.orderings[0].clone(), format!("view {v}, {}: UNRESOLVED, left out: {why}", names[k]), true),
+            (Ok(found), None, None) => (found.detection.orderings[0].clone(), format!("view {v}, {}", names[k]), true),
+            (Err(miss), ..) => (Vec::new(), format!("view {v}, {}: {miss}", names[k]), true),
+        };
+        let drawn = overlay(&image, &corners, board.cols, &caption, warning);
+        write_rgb_jpeg(&dir.join(&names[k]).join(format!("{stem}.jpg")), &drawn)?;
+        Ok(())
+    })
+}

@@ -1,0 +1,201 @@
+//! `flatport render`: images of a chessboard seen through the port by every camera of a rig.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+use anyhow::Context;
+use clap::Args;
+use nalgebra::{Isometry3, Point2};
+
+use flatport::calib::{Board, SceneSpec, simulate};
+use flatport::engine::Engine;
+use flatport::io::{DetectedView, Truth, read_rig, read_truth, write_detections, write_grey16_png, write_grey_png, write_rig, write_truth};
+use flatport::model::Rig;
+use flatport::render::{RenderOptions, render_board};
+
+use super::progress::Progress;
+
+/// `flatport render`
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Rig file: the cameras, and the port (unless --truth gives it)
+    #[arg(long, value_name = "RIG.json")]
+    rig: PathBuf,
+    /// Truth file of a simulated scene (`flatport simulate`): its port and board poses
+    #[arg(long, value_name = "TRUTH.json", conflicts_with_all = ["views", "seed"])]
+    truth: Option<PathBuf>,
+    /// Board as COLSxROWS@SQUARE: inner corners per row × per column (OpenCV's patternSize) and
+    /// the square in metres
+    #[arg(long, value_name = "COLSxROWS@M", default_value = "9x6@0.04", value_parser = super::calib::parse_board)]
+    board: Board,
+    /// Number of random board poses (as `flatport simulate` draws them), without --truth
+    #[arg(long, default_value_t = 15)]
+    views: usize,
+    /// Seed of the poses (and of the noise)
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// The board's corners keep this many pixels from the image border (poses drawn without --truth)
+    #[arg(long, value_name = "PX", default_value_t = 40.0, value_parser = super::values::non_negative)]
+    margin_px: f64,
+    /// Sub-samples per axis of every pixel that crosses an edge of the pattern (1 = no anti-aliasing)
+    #[arg(long, value_name = "N", default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=32))]
+    supersample: u32,
+    /// Standard deviation of the Gaussian image noise, grey levels of 255
+    #[arg(long, value_name = "GREY", default_value_t = 0.0, value_parser = super::values::non_negative)]
+    noise: f64,
+    /// Standard deviation of a Gaussian blur, pixels
+    #[arg(long, value_name = "PX", default_value_t = 0.0, value_parser = super::values::non_negative)]
+    blur: f64,
+    /// White border around the board's outer squares, in squares
+    #[arg(long, value_name = "SQUARES", default_value_t = 1.0, value_parser = super::values::non_negative)]
+    border: f64,
+    /// Bits per pixel of the PNG files
+    #[arg(long, default_value_t = 8, value_parser = parse_bits)]
+    bits: u8,
+    /// Output folder (created if missing): CAMERA/view_NNN.png per camera, truth.json, rig.json,
+    /// corners.json (the exact corners: the board's corners projected through the port)
+    #[arg(long, short, value_name = "DIR")]
+    output: PathBuf,
+    /// No progress bar
+    #[arg(long, short)]
+    quiet: bool,
+    #[command(flatten)]
+    engine: super::EngineArgs,
+}
+
+fn parse_bits(text: &str) -> Result<u8, String> {
+    match text {
+        "8" => Ok(8),
+        "16" => Ok(16),
+        _ => Err(format!("8 or 16 bits per pixel, got '{text}'")),
+    }
+}
+
+/// What to render: the rig with the true port, the board, the poses.
+pub struct Scene {
+    pub rig: Rig,
+    pub board: Board,
+    pub poses: Vec<Isometry3<f64>>,
+}
+
+/// Renders every camera's image of every pose into `dir`/CAMERA/view_NNN.png, writes rig.json,
+/// truth.json and corners.json (the exact corners). Returns the image paths per camera.
+pub fn render_scene(scene: &Scene, options: &RenderOptions, bits: u8, engine: &Engine, dir: &Path, quiet: bool) -> anyhow::Result<Vec<Vec<PathBuf>>> {
+    let names: Vec<String> = scene.rig.cameras().iter().map(|c| c.name.clone()).collect();
+    for name in &names {
+        std::fs::create_dir_all(dir.join(name)).with_context(|| format!("cannot create {}", dir.join(name).display()))?;
+    }
+    write_rig(&dir.join("rig.json"), &scene.rig)?;
+    let truth = Truth { interface: scene.rig.port_in_master(0), master_from_board: scene.poses.clone(), noise_px: 0.0, seed: options.seed };
+    write_truth(&dir.join("truth.json"), &truth)?;
+    // The exact corners: every board corner projected through the port by the model.
+    let cameras: Vec<_> = (0..names.len()).map(|k| scene.rig.refractive_camera(k)).collect();
+    let exact: Vec<DetectedView> = scene
+        .poses
+        .iter()
+        .map(|pose| {
+            cameras
+                .iter()
+                .map(|camera| {
+                    let i = camera.intrinsics();
+                    (0..scene.board.corners())
+                        .map(|c| {
+                            camera.project(&(pose * scene.board.point_in_board(c))).ok().filter(|p: &Point2<f64>| {
+                                p.x >= -0.5 && p.y >= -0.5 && p.x < i.width as f64 - 0.5 && p.y < i.height as f64 - 0.5
+                            })
+                        })
+                        .collect::<Option<Vec<_>>>()
+                })
+                .collect()
+        })
+        .collect();
+    write_detections(&dir.join("corners.json"), &scene.board, &names, &exact)?;
+
+    let total = scene.poses.len() * names.len();
+    let progress = Mutex::new(Progress::new("render", "images", quiet));
+    let done = AtomicUsize::new(0);
+    let mut paths = vec![Vec::new(); names.len()];
+    // Images one after the other (each one is parallel inside), PNG encoding beside the next one.
+    let (sender, receiver) = std::sync::mpsc::sync_channel::<(PathBuf, flatport::render::GreyImage)>(2);
+    std::thread::scope(|s| -> anyhow::Result<()> {
+        let writer = s.spawn(move || -> anyhow::Result<()> {
+            for (path, image) in receiver {
+                if bits == 16 {
+                    write_grey16_png(&path, &image.to_u16(), image.width, image.height)?;
+                } else {
+                    write_grey_png(&path, &image.to_u8(), image.width, image.height)?;
+                }
+                let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+                if let Ok(mut p) = progress.lock() {
+                    p.update(n, total);
+                }
+            }
+            Ok(())
+        });
+        let mut result = Ok(());
+        'views: for (v, pose) in scene.poses.iter().enumerate() {
+            for (k, camera) in cameras.iter().enumerate() {
+                let seed = options.seed.wrapping_mul(1_000_003).wrapping_add((v * names.len() + k) as u64);
+                let image = match render_board(engine, camera, &scene.board, pose, &RenderOptions { seed, ..options.clone() }) {
+                    Ok(image) => image,
+                    Err(e) => {
+                        result = Err(anyhow::Error::from(e));
+                        break 'views;
+                    }
+                };
+                let path = dir.join(&names[k]).join(format!("view_{v:03}.png"));
+                paths[k].push(path.clone());
+                if sender.send((path, image)).is_err() {
+                    break 'views;
+                }
+            }
+        }
+        drop(sender);
+        writer.join().expect("the PNG writer does not panic")?;
+        result
+    })?;
+    Ok(paths)
+}
+
+pub fn run(args: RenderArgs) -> anyhow::Result<()> {
+    let rig = read_rig(&args.rig)?;
+    let board = args.board;
+    let scene = match &args.truth {
+        Some(path) => {
+            let truth = read_truth(path)?;
+            let rig = rig.with_interface(truth.interface.clone()).with_context(|| format!("{}: its port does not fit the rig", path.display()))?;
+            Scene { rig, board, poses: truth.master_from_board }
+        }
+        None => {
+            if rig.cameras().len() < 2 {
+                anyhow::bail!("poses are drawn as `flatport simulate` draws them, for a stereo pair: the rig has one camera (give --truth)");
+            }
+            let mut spec = SceneSpec::new(board, args.views, 0.0, args.seed);
+            spec.margin_px = args.margin_px;
+            let simulated = simulate(&rig, 0, 1, &spec)?;
+            Scene { rig, board, poses: simulated.master_from_board }
+        }
+    };
+    let options = RenderOptions {
+        supersample: args.supersample,
+        blur_px: args.blur,
+        noise: args.noise,
+        seed: args.seed,
+        border_squares: args.border,
+        ..RenderOptions::default()
+    };
+    let engine = args.engine.engine()?;
+    let started = std::time::Instant::now();
+    let paths = render_scene(&scene, &options, args.bits, &engine, &args.output, args.quiet)?;
+    outln!(
+        "rendered {} images ({} views × {} cameras) in {:.2} s into {}/: {}/view_NNN.png, rig.json, truth.json, corners.json",
+        paths.iter().map(Vec::len).sum::<usize>(),
+        scene.poses.len(),
+        paths.len(),
+        started.elapsed().as_secs_f64(),
+        args.output.display(),
+        scene.rig.cameras().iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join("/, ")
+    );
+    Ok(())
+}

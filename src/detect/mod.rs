@@ -1,0 +1,421 @@
+//! Chessboard corners in images, in the order the calibration needs: row-major as OpenCV's
+//! `findChessboardCorners` gives them (corner `r·cols + c` at board point (c·s, r·s)), with the
+//! same physical corner 0 in every camera of a view.
+//!
+//! The corners come from the `calib-targets` crate (ChESS corners, its chessboard grid, the
+//! saddle-point sub-pixel refiner). Its grid labels say which corner is next to which, not which
+//! end of the board is corner 0: a chessboard looks the same turned by 180° (and by 90° when it
+//! is square), up to the colours of its squares. [`Detection::orderings`] holds every ordering the
+//! image allows; [`colour_rule`], [`image_rule`] and [`pair_by_rays`] choose among them.
+//!
+//! **Corner 0 (the documented rule).** Corner 0 is the inner corner at the board's black corner
+//! square: the square between corners 0, 1, cols and cols + 1 is black. On a board whose squares
+//! per side (cols + 1, rows + 1) add up to an odd number (9×6: 10 × 7 squares) the two ends of the
+//! board have corner squares of opposite colours, so the colour decides in every image. On a
+//! colour-symmetric board (both ends alike, e.g. 8×6 or 9×7) the colour cannot decide: with a rig,
+//! the other cameras of a view take the ordering whose rays meet those of the first camera; without
+//! one, each image takes the ordering whose rows run most nearly left to right in the image, and a
+//! view where some image's rows run too close to vertical for that is reported, not guessed.
+//! Chirality is fixed: with the rows running right in the image, the next row lies below, so the
+//! board frame's z axis (row direction × column direction) points away from the camera, as in
+//! the calibration's board model.
+
+use image::GrayImage;
+use nalgebra::Point2;
+
+use crate::calib::Board;
+use crate::model::{Rig, triangulate_rays};
+
+use calib_targets::chessboard::ChessboardParams;
+use calib_targets::core::{DetectorConfig, ImageRefiner};
+
+/// Why an image gave no board.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Miss {
+    /// No chessboard grid at all.
+    NoBoard,
+    /// A grid, but not the whole board.
+    Partial {
+        /// Corners found (the largest grid).
+        found: usize,
+        /// Its extent, corners across × down the image.
+        extent: (usize, usize),
+    },
+}
+
+impl std::fmt::Display for Miss {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Miss::NoBoard => write!(f, "no chessboard found"),
+            Miss::Partial { found, extent: (w, h) } => {
+                write!(f, "found a grid of {found} corners ({w} × {h}), not the whole board")
+            }
+        }
+    }
+}
+
+/// The board found in one image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Detection {
+    /// Every row-major ordering of the corners the image allows (2, or 4 for a square board),
+    /// each `rows · cols` pixels; they differ by turns of the board in its plane.
+    pub orderings: Vec<Vec<Point2<f64>>>,
+}
+
+/// The ChESS front end: the workspace defaults of calib-targets with the saddle-point refiner,
+/// which replaces the centre of mass of the response (measured on rendered images: see the
+/// README, "Detecting corners").
+fn chess_config() -> DetectorConfig {
+    calib_targets::detect::default_chess_config().with_refiner(ImageRefiner::saddle_point())
+}
+
+/// Standard deviation (pixels) of the Gaussian blur before the corners are found. On sharp
+/// rendered images (anti-aliased, no blur) the saddle-point refiner's worst corner was 0.37 px
+/// off without it and 0.07 px with 0.8–1.2 px (RMS 0.02 px either way); see the README,
+/// "Detecting corners".
+pub const PRE_BLUR_PX: f32 = 1.0;
+
+/// Board corner (column, row) → grid label (i, j), given the grid's width and height.
+type Turn = fn(usize, usize, usize, usize) -> (usize, usize);
+
+/// Finds `board` in a grey image: all its `rows · cols` inner corners, or why not.
+pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss> {
+    let params = ChessboardParams::sweep_default();
+    let smoothed = calib_targets::detect::preprocess(image, PRE_BLUR_PX);
+    let image = &smoothed;
+    let detection = calib_targets::detect::detect_chessboard_best(image, &chess_config(), &params).map_err(|_| Miss::NoBoard)?;
+    let corners = &detection.corners;
+    if corners.is_empty() {
+        return Err(Miss::NoBoard);
+    }
+    let min_u = corners.iter().map(|c| c.grid.u).min().unwrap_or(0);
+    let min_v = corners.iter().map(|c| c.grid.v).min().unwrap_or(0);
+    let w = (corners.iter().map(|c| c.grid.u).max().unwrap_or(0) - min_u + 1) as usize;
+    let h = (corners.iter().map(|c| c.grid.v).max().unwrap_or(0) - min_v + 1) as usize;
+    let whole = corners.len() == board.corners() && w * h == board.corners() && (w == board.cols || w == board.rows);
+    if !whole {
+        return Err(Miss::Partial { found: corners.len(), extent: (w, h) });
+    }
+    // grid[j][i], i across the image (right), j down.
+    let mut grid = vec![None; w * h];
+    for c in corners {
+        let (i, j) = ((c.grid.u - min_u) as usize, (c.grid.v - min_v) as usize);
+        grid[j * w + i] = Some(Point2::new(f64::from(c.position.x), f64::from(c.position.y)));
+    }
+    // The labels should run right and down in the image (i × j = +z, image y down); mirror them
+    // if they do not, so that the orderings below keep the board's chirality.
+    let (Some(origin), Some(along_i), Some(along_j)) = (grid[0], grid[w - 1], grid[(h - 1) * w]) else {
+        return Err(Miss::Partial { found: corners.len(), extent: (w, h) });
+    };
+    let (di, dj) = (along_i - origin, along_j - origin);
+    if di.x * dj.y - di.y * dj.x < 0.0 {
+        for row in grid.chunks_mut(w) {
+            row.reverse();
+        }
+    }
+    let at = |i: usize, j: usize| grid[j * w + i];
+    // An ordering maps board corner (c, r) to grid (i, j); the four turns of the board in its
+    // plane keep the chirality (rows to the right ⇒ next row below).
+    let turns: [Turn; 4] = [
+        |c, r, _, _| (c, r),                 // rows run right
+        |c, r, w, h| (w - 1 - c, h - 1 - r), // rows run left
+        |c, r, w, _| (w - 1 - r, c),         // rows run down
+        |c, r, _, h| (r, h - 1 - c),         // rows run up
+    ];
+    let mut orderings = Vec::new();
+    for (k, turn) in turns.iter().enumerate() {
+        let fits = if k < 2 { w == board.cols && h == board.rows } else { w == board.rows && h == board.cols };
+        if !fits {
+            continue;
+        }
+        let ordering: Option<Vec<_>> = (0..board.corners())
+            .map(|n| {
+                let (r, c) = board.grid_position(n);
+                let (i, j) = turn(c, r, w, h);
+                at(i, j)
+            })
+            .collect();
+        orderings.extend(ordering);
+    }
+    if orderings.is_empty() {
+        return Err(Miss::Partial { found: corners.len(), extent: (w, h) });
+    }
+    Ok(Detection { orderings })
+}
+
+/// True when the two ends of the board have corner squares of opposite colours, so that the
+/// colour tells corner 0 from the last corner: cols + rows odd.
+pub fn colour_decides(board: &Board) -> bool {
+    (board.cols + board.rows) % 2 == 1
+}
+
+/// Mean grey level (0 … 255) inside the quadrilateral of corners a, b, c, d (a–b one side, c–d
+/// the opposite side), sampled on a 4 × 4 grid over its middle half, bilinear.
+fn quad_mean(image: &GrayImage, a: Point2<f64>, b: Point2<f64>, c: Point2<f64>, d: Point2<f64>) -> f64 {
+    let mut sum = 0.0;
+    let mut count = 0.0;
+    for i in 0..4 {
+        for j in 0..4 {
+            let (s, t) = (0.25 + 0.5 * (i as f64 + 0.5) / 4.0, 0.25 + 0.5 * (j as f64 + 0.5) / 4.0);
+            let p = a.coords * ((1.0 - s) * (1.0 - t)) + b.coords * (s * (1.0 - t)) + c.coords * ((1.0 - s) * t) + d.coords * (s * t);
+            if let Some(v) = bilinear(image, p.x, p.y) {
+                sum += v;
+                count += 1.0;
+            }
+        }
+    }
+    if count > 0.0 { sum / count } else { f64::NAN }
+}
+
+fn bilinear(image: &GrayImage, x: f64, y: f64) -> Option<f64> {
+    let (w, h) = (image.width() as f64, image.height() as f64);
+    if !(x >= 0.0 && y >= 0.0 && x <= w - 1.0 && y <= h - 1.0) {
+        return None;
+    }
+    let (x0, y0) = (x.floor() as u32, y.floor() as u32);
+    let (x1, y1) = ((x0 + 1).min(image.width() - 1), (y0 + 1).min(image.height() - 1));
+    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    let g = |x, y| f64::from(image.get_pixel(x, y).0[0]);
+    Some((g(x0, y0) * (1.0 - fx) + g(x1, y0) * fx) * (1.0 - fy) + (g(x0, y1) * (1.0 - fx) + g(x1, y1) * fx) * fy)
+}
+
+/// Smallest difference in grey levels (of 255) between the first square and its neighbour that
+/// the colour rule trusts.
+pub const MIN_CONTRAST: f64 = 12.0;
+
+/// The orderings whose first square (corners 0, 1, cols, cols + 1) is black, judged against the
+/// next square along the row; `None` when the contrast is below [`MIN_CONTRAST`] for some
+/// ordering (the image does not show the colours clearly).
+pub fn colour_rule(image: &GrayImage, board: &Board, orderings: &[Vec<Point2<f64>>]) -> Option<Vec<usize>> {
+    let cols = board.cols;
+    let mut dark = Vec::new();
+    for (k, p) in orderings.iter().enumerate() {
+        let first = quad_mean(image, p[0], p[1], p[cols], p[cols + 1]);
+        let next = quad_mean(image, p[1], p[2], p[cols + 1], p[cols + 2]);
+        if !((first - next).abs() >= MIN_CONTRAST) {
+            return None;
+        }
+        if first < next {
+            dark.push(k);
+        }
+    }
+    Some(dark)
+}
+
+/// Unit direction of the first row (corner 0 → corner cols − 1) in the image.
+fn row_direction(board: &Board, p: &[Point2<f64>]) -> nalgebra::Vector2<f64> {
+    (p[board.cols - 1] - p[0]).normalize()
+}
+
+/// Smallest lead, in cosine of the row direction against the image's u axis, of the best ordering
+/// over the next for [`image_rule`] to decide: two orderings 180° apart are told apart unless the
+/// rows lie within 14.5° of vertical (|cos| < 0.25).
+pub const MIN_IMAGE_RULE_LEAD: f64 = 0.5;
+
+/// Among `candidates` (indices into `orderings`), the one whose rows run most nearly to the right
+/// in the image; `None` when the runner-up is within [`MIN_IMAGE_RULE_LEAD`].
+pub fn image_rule(board: &Board, orderings: &[Vec<Point2<f64>>], candidates: &[usize]) -> Option<usize> {
+    let mut scored: Vec<(f64, usize)> = candidates.iter().map(|&k| (row_direction(board, &orderings[k]).x, k)).collect();
+    scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+    match scored[..] {
+        [(_, k)] => Some(k),
+        [(best, k), (next, _), ..] if best - next >= MIN_IMAGE_RULE_LEAD => Some(k),
+        _ => None,
+    }
+}
+
+/// How much better the chosen pairing's rays must meet than the next one's (ratio of RMS gaps)
+/// for [`pair_by_rays`] to decide.
+pub const MIN_RAY_GAP_RATIO: f64 = 4.0;
+
+/// The ordering among `candidates` of rig camera `camera` whose corners' water rays meet those of
+/// `reference` (rig camera `reference_camera`'s corners in their chosen order) best, with the RMS
+/// gap (metres) of the best and of the runner-up; `None` as the choice when the runner-up is within
+/// [`MIN_RAY_GAP_RATIO`] or no pairing triangulates.
+pub fn pair_by_rays(
+    rig: &Rig,
+    reference_camera: usize,
+    reference: &[Point2<f64>],
+    camera: usize,
+    orderings: &[Vec<Point2<f64>>],
+    candidates: &[usize],
+) -> (Option<usize>, Vec<(usize, f64)>) {
+    let (a, b) = (rig.refractive_camera(reference_camera), rig.refractive_camera(camera));
+    let mut gaps: Vec<(usize, f64)> = candidates
+        .iter()
+        .map(|&k| {
+            let mut sum = 0.0;
+            let mut count = 0usize;
+            for (p, q) in reference.iter().zip(&orderings[k]) {
+                let gap = a.backproject(p).and_then(|ra| b.backproject(q).and_then(|rb| triangulate_rays(&ra, &rb)));
+                if let Ok(t) = gap {
+                    sum += t.residual * t.residual;
+                    count += 1;
+                }
+            }
+            // Pairs without an answer count as far apart: a flipped pairing often has none.
+            let missing = reference.len() - count;
+            (k, if count == 0 { f64::INFINITY } else { ((sum + missing as f64) / reference.len() as f64).sqrt() })
+        })
+        .collect();
+    gaps.sort_by(|x, y| x.1.total_cmp(&y.1));
+    let choice = match gaps[..] {
+        [(k, best)] if best.is_finite() => Some(k),
+        [(k, best), (_, next), ..] if best.is_finite() && next >= MIN_RAY_GAP_RATIO * best => Some(k),
+        _ => None,
+    };
+    (choice, gaps)
+}
+
+/// What one image gave: the board (or why not) and, where the board's colours decide, the
+/// orderings whose first square is black ([`colour_rule`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Found {
+    /// The orderings the image allows.
+    pub detection: Detection,
+    /// [`colour_rule`]'s answer: `None` when the colours do not decide (colour-symmetric board,
+    /// low contrast).
+    pub colour: Option<Vec<usize>>,
+}
+
+impl Found {
+    /// Runs [`colour_rule`] where the board's colours can decide.
+    pub fn new(image: &GrayImage, board: &Board, detection: Detection) -> Self {
+        let colour = if colour_decides(board) { colour_rule(image, board, &detection.orderings).filter(|c| !c.is_empty()) } else { None };
+        Self { detection, colour }
+    }
+
+    /// The single ordering the colours leave, if they leave one.
+    fn by_colour(&self) -> Option<usize> {
+        match self.colour.as_deref() {
+            Some([k]) => Some(*k),
+            _ => None,
+        }
+    }
+
+    fn candidates(&self) -> Vec<usize> {
+        match &self.colour {
+            Some(c) => c.clone(),
+            None => (0..self.detection.orderings.len()).collect(),
+        }
+    }
+}
+
+/// Which rule chose an image's corner 0.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Rule {
+    /// The black corner square ([`colour_rule`]).
+    Colour,
+    /// The rows run most nearly to the right ([`image_rule`]).
+    Image,
+    /// The rays meet those of the view's first camera ([`pair_by_rays`]).
+    Rays,
+    /// The first camera of a view with a rig and no colour to go by: any ordering will do, the
+    /// others follow it by their rays.
+    Reference,
+}
+
+impl Rule {
+    /// A short name for reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Rule::Colour => "colour",
+            Rule::Image => "image",
+            Rule::Rays => "rays",
+            Rule::Reference => "reference",
+        }
+    }
+}
+
+/// Chooses corner 0 in every image of one view, so that it is the same physical corner in all of
+/// them (the rules in the module's documentation). `found[k]` is camera `names[k]`'s result (`None` when
+/// it did not see the board); with a rig, `rig_cameras[k]` is camera k's index in it. Returns
+/// each camera's ordering and the rule that chose it, or why the view cannot be resolved.
+pub fn resolve_view(board: &Board, names: &[String], rig: Option<(&Rig, &[usize])>, found: &[Option<Found>]) -> Result<Vec<Option<(usize, Rule)>>, String> {
+    let mut chosen: Vec<Option<(usize, Rule)>> = vec![None; found.len()];
+    // The cameras that saw the board, with what they found.
+    let seen: Vec<(usize, &Found)> = found.iter().enumerate().filter_map(|(k, f)| f.as_ref().map(|f| (k, f))).collect();
+    let image_choice = |f: &Found| image_rule(board, &f.detection.orderings, &f.candidates());
+    match rig {
+        Some((rig, indices)) if seen.len() > 1 => {
+            let (reference, first) = seen.iter().copied().find(|(_, f)| f.by_colour().is_some()).unwrap_or(seen[0]);
+            let by_colour = first.by_colour();
+            let (ordering, rule) = match by_colour {
+                Some(o) => (o, Rule::Colour),
+                None => (image_choice(first).unwrap_or(first.candidates()[0]), Rule::Reference),
+            };
+            chosen[reference] = Some((ordering, rule));
+            let corners = &first.detection.orderings[ordering];
+            for &(k, f) in seen.iter().filter(|(k, _)| *k != reference) {
+                let all: Vec<usize> = (0..f.detection.orderings.len()).collect();
+                let (rays, gaps) = pair_by_rays(rig, indices[reference], corners, indices[k], &f.detection.orderings, &all);
+                let colour = if by_colour.is_some() { f.by_colour() } else { None };
+                chosen[k] = Some(match (colour, rays) {
+                    (Some(c), Some(r)) if c == r => (r, Rule::Rays),
+                    (Some(c), Some(r)) => {
+                        return Err(format!(
+                            "camera {}: the colours put corner 0 at one end of the board (ordering {c}) and the rays at the other (ordering {r})",
+                            names[k]
+                        ));
+                    }
+                    (None, Some(r)) => (r, Rule::Rays),
+                    (Some(c), None) => (c, Rule::Colour),
+                    (None, None) => {
+                        let text: Vec<String> = gaps.iter().map(|(o, g)| format!("ordering {o}: {:.1} mm", g * 1e3)).collect();
+                        return Err(format!(
+                            "camera {}: no colour to go by and its rays meet those of camera {} about equally well either way round ({})",
+                            names[k],
+                            names[reference],
+                            text.join(", ")
+                        ));
+                    }
+                });
+            }
+        }
+        _ => {
+            let all_by_colour = seen.iter().all(|(_, f)| f.by_colour().is_some());
+            for &(k, f) in &seen {
+                chosen[k] = Some(if let (true, Some(o)) = (all_by_colour, f.by_colour()) {
+                    (o, Rule::Colour)
+                } else if let Some(o) = image_choice(f) {
+                    (o, Rule::Image)
+                } else if seen.len() == 1 {
+                    // One camera alone: either end serves, the board's pose is free.
+                    (f.candidates()[0], Rule::Reference)
+                } else {
+                    return Err(format!(
+                        "camera {}: the colours do not decide and the board's rows run too close to vertical in the image to tell \
+                         its ends apart (give --rig to pair the cameras by their rays)",
+                        names[k]
+                    ));
+                });
+            }
+        }
+    }
+    Ok(chosen)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_colour_decides_on_boards_with_an_odd_number_of_squares() {
+        assert!(colour_decides(&Board { rows: 6, cols: 9, square: 0.04 }));
+        assert!(!colour_decides(&Board { rows: 6, cols: 8, square: 0.04 }));
+        assert!(!colour_decides(&Board { rows: 7, cols: 9, square: 0.04 }));
+    }
+
+    #[test]
+    fn the_image_rule_picks_rows_running_right_and_refuses_near_vertical_rows() {
+        let board = Board { rows: 2, cols: 2, square: 1.0 };
+        let p = |x: f64, y: f64| Point2::new(x, y);
+        let right = vec![p(0.0, 0.0), p(10.0, 1.0), p(0.0, 10.0), p(10.0, 11.0)];
+        let left: Vec<_> = right.iter().rev().copied().collect();
+        assert_eq!(image_rule(&board, &[right.clone(), left.clone()], &[0, 1]), Some(0));
+        assert_eq!(image_rule(&board, &[left, right], &[0, 1]), Some(1));
+        let down = vec![p(0.0, 0.0), p(1.0, 10.0), p(-10.0, 0.0), p(-9.0, 10.0)];
+        let up: Vec<_> = down.iter().rev().copied().collect();
+        assert_eq!(image_rule(&board, &[down, up], &[0, 1]), None);
+    }
+}

@@ -1,0 +1,102 @@
+//! The observations file that `flatport detect` and `flatport render` write: the corners every
+//! camera found, per view. One function writes it ([`detections_to_json_string`]), so that the
+//! form can follow the reader.
+//!
+//! The general form (docs/DESIGN.md §3b) is `{"board": {rows, cols, square}, "views": [{CAMERA:
+//! [[u, v] | null, …], …}, …]}`, keys the rig's camera names, a camera that did not see a view
+//! absent from it. Today's reader ([`observations_from_json_str`](super::observations_from_json_str))
+//! takes the stereo form: keys `left` and `right` in every view, `"cameras": [A, B]` naming the
+//! rig cameras when they are not called `left` and `right`. So for two cameras this writes the
+//! stereo form, which for cameras named `left` and `right` is the general form itself, and leaves
+//! out the views only one camera saw (returned, for the caller to report); for any other number
+//! of cameras it writes the general form.
+
+use std::path::Path;
+
+use nalgebra::Point2;
+use serde_json::{Map, Value, json};
+
+use super::{IoError, observations_to_json_string, write_atomic};
+use crate::calib::{Board, Observations, StereoView};
+
+/// Corners of one view: per camera (in the order of the camera names), the camera's corners
+/// (row-major, `rows · cols`) or `None` when it did not see the board.
+pub type DetectedView = Vec<Option<Vec<Point2<f64>>>>;
+
+/// The file's text and the views left out of it (indices into `views`).
+pub fn detections_to_json_string(board: &Board, cameras: &[String], views: &[DetectedView]) -> (String, Vec<usize>) {
+    if let [a, b] = cameras {
+        let mut left_out = Vec::new();
+        let mut stereo = Vec::new();
+        for (v, view) in views.iter().enumerate() {
+            let point = |c: &Vec<Point2<f64>>| c.iter().map(|p| Some(*p)).collect();
+            match (&view[0], &view[1]) {
+                (Some(l), Some(r)) => stereo.push(StereoView { left: point(l), right: point(r) }),
+                _ => left_out.push(v),
+            }
+        }
+        let named = a == "left" && b == "right";
+        let observations = Observations { board: *board, views: stereo, cameras: (!named).then(|| [a.clone(), b.clone()]) };
+        return (observations_to_json_string(&observations), left_out);
+    }
+    let mut text = format!("{{\"board\": {},\n \"views\": [", json!({"rows": board.rows, "cols": board.cols, "square": board.square}));
+    for (v, view) in views.iter().enumerate() {
+        let mut map = Map::new();
+        for (name, corners) in cameras.iter().zip(view) {
+            if let Some(corners) = corners {
+                map.insert(name.clone(), Value::Array(corners.iter().map(|p| json!([p.x, p.y])).collect()));
+            }
+        }
+        text += if v == 0 { "\n  " } else { ",\n  " };
+        text += &Value::Object(map).to_string();
+    }
+    text += "]}\n";
+    (text, Vec::new())
+}
+
+/// Writes the file atomically; returns the views left out ([`detections_to_json_string`]).
+pub fn write_detections(path: &Path, board: &Board, cameras: &[String], views: &[DetectedView]) -> Result<Vec<usize>, IoError> {
+    let (text, left_out) = detections_to_json_string(board, cameras, views);
+    write_atomic(path, text.as_bytes())?;
+    Ok(left_out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::observations_from_json_str;
+
+    #[test]
+    fn two_cameras_write_what_todays_reader_reads_and_leave_out_one_sided_views() {
+        let board = Board { rows: 2, cols: 2, square: 0.05 };
+        let corners = |x: f64| Some((0..4).map(|i| Point2::new(x + i as f64, 2.0 * i as f64)).collect::<Vec<_>>());
+        let views = vec![vec![corners(1.0), corners(5.0)], vec![corners(1.0), None], vec![corners(2.0), corners(7.5)]];
+        let names = ["left".to_string(), "right".to_string()];
+        let (text, left_out) = detections_to_json_string(&board, &names, &views);
+        assert_eq!(left_out, vec![1]);
+        assert!(!text.contains("cameras"), "{text}");
+        let read = observations_from_json_str(&text, "x".as_ref()).unwrap();
+        assert_eq!(read.views.len(), 2);
+        assert_eq!(read.views[1].right[3], Some(Point2::new(10.5, 6.0)));
+
+        let names = ["port".to_string(), "starboard".to_string()];
+        let (text, _) = detections_to_json_string(&board, &names, &views);
+        let read = observations_from_json_str(&text, "x".as_ref()).unwrap();
+        assert_eq!(read.cameras, Some(names.clone()));
+    }
+
+    #[test]
+    fn other_camera_counts_write_the_general_form() {
+        let board = Board { rows: 2, cols: 2, square: 0.05 };
+        let corners = Some(vec![Point2::new(1.0, 2.0); 4]);
+        let views = vec![vec![corners.clone(), None, corners]];
+        let names = ["a".to_string(), "b".to_string(), "c".to_string()];
+        let (text, left_out) = detections_to_json_string(&board, &names, &views);
+        assert!(left_out.is_empty());
+        let value: Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(value["board"]["cols"], 2);
+        let view = value["views"][0].as_object().unwrap();
+        assert_eq!(view.keys().collect::<Vec<_>>(), vec!["a", "c"]);
+        assert_eq!(view["c"][3], json!([1.0, 2.0]));
+    }
+}

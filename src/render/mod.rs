@@ -1,0 +1,320 @@
+//! Images of a chessboard in the water as a camera sees it through the port: every pixel is
+//! back-projected through the interface by the [`Engine`] (on the GPU the pixel grid is made in
+//! the shader, [`backproject_rows`]), the water ray meets the board's plane, and the board's
+//! albedo there is the pixel's value. Anti-aliasing by supersampling, optional Gaussian blur and
+//! noise. Lens distortion comes with the back-projection (pixels are undistorted first).
+//!
+//! Supersampling: the board coordinates of a pixel's sub-samples come from the affine map of that
+//! pixel (its centre's board point and the central differences to its neighbours' centres); the
+//! map from pixels to the board is smooth (perspective, refraction, distortion), so over one pixel
+//! this is exact to about 10⁻⁴ px (second derivative ≈ tan(board tilt)/f per pixel). Only pixels
+//! whose footprint crosses an edge of the pattern are supersampled; the others are uniform. A
+//! pixel whose centre and four neighbours' centres all see the water is water: the board's outer
+//! edge may clip a corner of such a pixel's footprint (less than an eighth of it), never an edge
+//! of the pattern, so the corners are unaffected.
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use thiserror::Error;
+
+use crate::calib::Board;
+use crate::calib::simulate::rng::Rng;
+use crate::engine::raymap::{backproject_rows, rows_per_band};
+use crate::engine::{Engine, EngineError};
+use crate::model::RefractiveCamera;
+
+/// Grey levels (0 … 1) of the rendered scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Shades {
+    /// The board's black squares.
+    pub black: f64,
+    /// The board's white squares and its white border.
+    pub white: f64,
+    /// Everything that is not the board (the water).
+    pub background: f64,
+}
+
+impl Default for Shades {
+    /// Black 0.12, white 0.85, water 0.40: a printed board under water, not a perfect one.
+    fn default() -> Self {
+        Self { black: 0.12, white: 0.85, background: 0.40 }
+    }
+}
+
+/// How to render.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderOptions {
+    /// Sub-samples per axis of a pixel that crosses an edge of the pattern (1 = no anti-aliasing).
+    pub supersample: u32,
+    /// Standard deviation of the Gaussian blur, pixels (0 = none).
+    pub blur_px: f64,
+    /// Standard deviation of the Gaussian noise, grey levels of 255 (0 = none).
+    pub noise: f64,
+    /// Seed of the noise.
+    pub seed: u64,
+    /// White border around the outer squares, in squares.
+    pub border_squares: f64,
+    /// Grey levels.
+    pub shades: Shades,
+}
+
+impl Default for RenderOptions {
+    /// 8 × 8 sub-samples on edges, no blur, no noise, a white border of one square.
+    fn default() -> Self {
+        Self { supersample: 8, blur_px: 0.0, noise: 0.0, seed: 1, border_squares: 1.0, shades: Shades::default() }
+    }
+}
+
+/// Why an image could not be rendered.
+#[derive(Debug, Error)]
+pub enum RenderError {
+    /// The engine failed (GPU lost, …).
+    #[error(transparent)]
+    Engine(#[from] EngineError),
+    /// An option out of range.
+    #[error("render option {option}: {reason}")]
+    Option {
+        /// The option.
+        option: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// A grey image, row-major, values 0 … 1.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GreyImage {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// `width · height` values, row-major.
+    pub pixels: Vec<f32>,
+}
+
+impl GreyImage {
+    /// The image as 8-bit grey levels (rounded, clamped).
+    pub fn to_u8(&self) -> Vec<u8> {
+        self.pixels.iter().map(|&p| (p * 255.0).round().clamp(0.0, 255.0) as u8).collect()
+    }
+
+    /// The image as 16-bit grey levels (rounded, clamped).
+    pub fn to_u16(&self) -> Vec<u16> {
+        self.pixels.iter().map(|&p| (p * 65535.0).round().clamp(0.0, 65535.0) as u16).collect()
+    }
+}
+
+/// Pixels per band of the back-projection: bounds memory (48 bytes a ray) whatever the image.
+const BAND_PIXELS: usize = 1 << 18;
+
+/// What lies at board point (x, y) in squares (corner `(c, r)` at (c, r)): 0 black, 1 white
+/// (squares and border), 2 background. The outer squares span [−1, cols] × [−1, rows]; square
+/// (a, b) = (⌊x⌋ + 1, ⌊y⌋ + 1) is black when a + b is even, so the square at corner 0's outer
+/// diagonal is black.
+fn region(board: &Board, border: f64, x: f64, y: f64) -> u8 {
+    let (cols, rows) = (board.cols as f64, board.rows as f64);
+    if !(x >= -1.0 - border && x <= cols + border && y >= -1.0 - border && y <= rows + border) {
+        return 2; // also NaN: a ray that does not reach the board
+    }
+    if x < -1.0 || x >= cols || y < -1.0 || y >= rows {
+        return 1;
+    }
+    let (a, b) = ((x.floor() as i64) + 1, (y.floor() as i64) + 1);
+    if (a + b) % 2 == 0 { 0 } else { 1 }
+}
+
+/// Which cell of the pattern a board point lies in: equal cells have equal shade and are convex,
+/// so a pixel whose footprint's four corners share a cell is uniform.
+fn cell(board: &Board, border: f64, x: f64, y: f64) -> (u8, i64, i64) {
+    match region(board, border, x, y) {
+        0 | 1 if x >= -1.0 && x < board.cols as f64 && y >= -1.0 && y < board.rows as f64 => {
+            (0, x.floor() as i64, y.floor() as i64)
+        }
+        r => (r + 1, 0, 0),
+    }
+}
+
+/// Renders `camera`'s image of `board` at `master_from_board` (X_master = R·X_board + t).
+pub fn render_board(
+    engine: &Engine,
+    camera: &RefractiveCamera,
+    board: &Board,
+    master_from_board: &Isometry3<f64>,
+    options: &RenderOptions,
+) -> Result<GreyImage, RenderError> {
+    check_options(options)?;
+    let intrinsics = camera.intrinsics();
+    let (width, height) = (intrinsics.width, intrinsics.height);
+    let board_points = board_points(engine, camera, board, master_from_board)?;
+    let (w, h) = (width as usize, height as usize);
+    let shades = options.shades;
+    let shade = |r: u8| match r {
+        0 => shades.black,
+        1 => shades.white,
+        _ => shades.background,
+    };
+    let n = options.supersample.max(1) as usize;
+    let border = options.border_squares;
+    let mut pixels = vec![0f32; w * h];
+    use rayon::prelude::*;
+    pixels.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+        for (u, out) in row.iter_mut().enumerate() {
+            let p = board_points[v * w + u];
+            if !(p[0].is_finite() && p[1].is_finite()) {
+                *out = shades.background as f32;
+                continue;
+            }
+            let at = |uu: usize, vv: usize| board_points[vv * w + uu];
+            // Water all round: the pixel's centre and its four neighbours' centres see the water
+            // (most pixels; the pattern's features are many pixels wide, the white border too).
+            let water = |q: [f64; 2]| region(board, border, q[0], q[1]) == 2;
+            if water(p)
+                && (u == 0 || water(at(u - 1, v)))
+                && (u + 1 == w || water(at(u + 1, v)))
+                && (v == 0 || water(at(u, v - 1)))
+                && (v + 1 == h || water(at(u, v + 1)))
+            {
+                *out = shades.background as f32;
+                continue;
+            }
+            // Central differences (one-sided at the border or next to a pixel without a ray).
+            let diff = |a: Option<[f64; 2]>, b: Option<[f64; 2]>, scale: f64| match (a, b) {
+                (Some(a), Some(b)) if a[0].is_finite() && b[0].is_finite() => Some([(b[0] - a[0]) * scale, (b[1] - a[1]) * scale]),
+                _ => None,
+            };
+            let left = (u > 0).then(|| at(u - 1, v));
+            let right = (u + 1 < w).then(|| at(u + 1, v));
+            let up = (v > 0).then(|| at(u, v - 1));
+            let down = (v + 1 < h).then(|| at(u, v + 1));
+            let du = diff(left, right, 0.5).or_else(|| diff(Some(p), right, 1.0)).or_else(|| diff(left, Some(p), 1.0));
+            let dv = diff(up, down, 0.5).or_else(|| diff(Some(p), down, 1.0)).or_else(|| diff(up, Some(p), 1.0));
+            let (Some(du), Some(dv)) = (du, dv) else {
+                *out = shade(region(board, border, p[0], p[1])) as f32;
+                continue;
+            };
+            let sample = |a: f64, b: f64| [p[0] + a * du[0] + b * dv[0], p[1] + a * du[1] + b * dv[1]];
+            let corners = [sample(-0.5, -0.5), sample(0.5, -0.5), sample(-0.5, 0.5), sample(0.5, 0.5)];
+            let first = cell(board, border, corners[0][0], corners[0][1]);
+            if n == 1 || corners[1..].iter().all(|c| cell(board, border, c[0], c[1]) == first) {
+                *out = shade(region(board, border, p[0], p[1])) as f32;
+                continue;
+            }
+            let mut sum = 0.0;
+            for i in 0..n {
+                for j in 0..n {
+                    let (a, b) = ((i as f64 + 0.5) / n as f64 - 0.5, (j as f64 + 0.5) / n as f64 - 0.5);
+                    let q = sample(a, b);
+                    sum += shade(region(board, border, q[0], q[1]));
+                }
+            }
+            *out = (sum / (n * n) as f64) as f32;
+        }
+    });
+    let mut image = GreyImage { width, height, pixels };
+    if options.blur_px > 0.0 {
+        image = blur(&image, options.blur_px);
+    }
+    if options.noise > 0.0 {
+        // One generator per image row, seeded from the seed and the row: the same image whatever
+        // the number of threads.
+        let sigma = (options.noise / 255.0) as f32;
+        let seed = options.seed;
+        image.pixels.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+            let mut rng = Rng::new(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(v as u64));
+            // Marsaglia's polar method: two normal deviates per accepted point, no trigonometry.
+            for pair in row.chunks_mut(2) {
+                let (x, y, s) = loop {
+                    let (x, y) = (2.0 * rng.uniform() - 1.0, 2.0 * rng.uniform() - 1.0);
+                    let s = x * x + y * y;
+                    if s > 0.0 && s < 1.0 {
+                        break (x, y, s);
+                    }
+                };
+                let scale = sigma * (-2.0 * s.ln() / s).sqrt() as f32;
+                pair[0] += scale * x as f32;
+                if let Some(p) = pair.get_mut(1) {
+                    *p += scale * y as f32;
+                }
+            }
+        });
+    }
+    Ok(image)
+}
+
+fn check_options(options: &RenderOptions) -> Result<(), RenderError> {
+    let bad = |option, reason: String| Err(RenderError::Option { option, reason });
+    if !(1..=32).contains(&options.supersample) {
+        return bad("supersample", format!("1 to 32 sub-samples per axis, got {}", options.supersample));
+    }
+    if !(options.blur_px >= 0.0 && options.blur_px <= 20.0) {
+        return bad("blur", format!("0 to 20 px, got {}", options.blur_px));
+    }
+    if !(options.noise >= 0.0 && options.noise <= 100.0) {
+        return bad("noise", format!("0 to 100 grey levels, got {}", options.noise));
+    }
+    if !(options.border_squares >= 0.0 && options.border_squares <= 100.0) {
+        return bad("border", format!("0 to 100 squares, got {}", options.border_squares));
+    }
+    Ok(())
+}
+
+/// The board point (in squares) each pixel centre sees, NaN where its ray has no answer or does
+/// not meet the board's plane in front of the port.
+fn board_points(engine: &Engine, camera: &RefractiveCamera, board: &Board, master_from_board: &Isometry3<f64>) -> Result<Vec<[f64; 2]>, RenderError> {
+    let (width, height) = (camera.intrinsics().width, camera.intrinsics().height);
+    let normal: Vector3<f64> = master_from_board.rotation * Vector3::z();
+    let origin: Point3<f64> = master_from_board * Point3::origin();
+    let board_from_master = master_from_board.inverse();
+    let band = rows_per_band(width, BAND_PIXELS);
+    let mut points = Vec::with_capacity(width as usize * height as usize);
+    let mut rays = Vec::new();
+    let mut status = Vec::new();
+    let mut first = 0;
+    while first < height {
+        let rows = band.min(height - first);
+        let count = rows as usize * width as usize;
+        rays.resize(count, [0.0; 6]);
+        status.resize(count, 0);
+        backproject_rows(engine, camera, first, rows, &mut rays, &mut status)?;
+        points.extend(rays.iter().zip(&status).map(|(r, &s)| {
+            if s != 0 {
+                return [f64::NAN; 2];
+            }
+            let (o, d) = (Point3::new(r[0], r[1], r[2]), Vector3::new(r[3], r[4], r[5]));
+            // o + s·d on the plane n·(X − origin) = 0, in front of the port.
+            let s = normal.dot(&(origin - o)) / normal.dot(&d);
+            if !(s > 0.0 && s.is_finite()) {
+                return [f64::NAN; 2];
+            }
+            let p = board_from_master * (o + s * d);
+            [p.x / board.square, p.y / board.square]
+        }));
+        first += rows;
+    }
+    Ok(points)
+}
+
+/// Gaussian blur of standard deviation `sigma` pixels (the `image` crate's).
+fn blur(image: &GreyImage, sigma: f64) -> GreyImage {
+    let buffer = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(image.width, image.height, image.pixels.clone())
+        .expect("width · height pixels");
+    let blurred = image::imageops::blur(&buffer, sigma as f32);
+    GreyImage { width: image.width, height: image.height, pixels: blurred.into_raw() }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_pattern_has_a_black_square_at_corner_zero_and_alternates() {
+        let board = Board { rows: 6, cols: 9, square: 0.04 };
+        assert_eq!(region(&board, 1.0, -0.5, -0.5), 0, "the outer square at corner 0 is black");
+        assert_eq!(region(&board, 1.0, 0.5, -0.5), 1);
+        assert_eq!(region(&board, 1.0, 0.5, 0.5), 0);
+        // 10 × 7 squares: the opposite corner square has the other colour.
+        assert_eq!(region(&board, 1.0, 8.5, 5.5), 1);
+        assert_eq!(region(&board, 1.0, -1.5, 2.0), 1, "white border");
+        assert_eq!(region(&board, 1.0, -2.5, 2.0), 2, "water beyond the border");
+        assert_eq!(region(&board, 1.0, f64::NAN, 0.0), 2);
+    }
+}
