@@ -101,6 +101,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
         master_from_board: scene.master_from_board.clone(),
         noise_px: NOISE_PX,
         seed: 1,
+        rig: Some(rig.clone()),
     };
     write_truth(&dir.join("truth.json"), &truth)?;
 
