@@ -23,14 +23,21 @@ fn stderr(o: &Output) -> String {
 
 fn run_ok(args: &[&str]) -> String {
     let o = flatport(args);
-    assert!(o.status.success(), "flatport {args:?} failed: {}", stderr(&o));
+    assert!(
+        o.status.success(),
+        "flatport {args:?} failed: {}",
+        stderr(&o)
+    );
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
 fn run_err(args: &[&str]) -> String {
     let o = flatport(args);
     assert!(!o.status.success(), "flatport {args:?} should fail");
-    assert!(o.stdout.is_empty(), "a failing command writes nothing to stdout");
+    assert!(
+        o.stdout.is_empty(),
+        "a failing command writes nothing to stdout"
+    );
     stderr(&o)
 }
 
@@ -42,11 +49,50 @@ fn p(path: &Path) -> &str {
     path.to_str().unwrap()
 }
 
+/// The same rig to rounding: a rotation written as a matrix and read back through a quaternion
+/// moves by ~1e-16, so equality is per value within 1e-12.
+fn assert_same_rig(a: &Rig, b: &Rig, what: &str) {
+    assert_eq!(a.cameras().len(), b.cameras().len(), "{what}");
+    for (k, (ca, cb)) in a.cameras().iter().zip(b.cameras()).enumerate() {
+        assert_eq!(
+            (&ca.name, &ca.intrinsics),
+            (&cb.name, &cb.intrinsics),
+            "{what}"
+        );
+        let gap =
+            (ca.cam_from_master.to_homogeneous() - cb.cam_from_master.to_homogeneous()).norm();
+        assert!(gap < 1e-12, "{what}: camera {k} moved by {gap}");
+        let (pa, pb) = (a.port_in_master(k), b.port_in_master(k));
+        assert!(
+            (pa.normal().into_inner() - pb.normal().into_inner()).norm() < 1e-12,
+            "{what}"
+        );
+        assert!(
+            (pa.air_distance() - pb.air_distance()).abs() < 1e-12,
+            "{what}"
+        );
+        assert_eq!(pa.layers(), pb.layers(), "{what}");
+        assert_eq!(
+            (pa.index_air(), pa.index_water()),
+            (pb.index_air(), pb.index_water())
+        );
+    }
+    assert_eq!(
+        matches!(a.ports(), Ports::Shared(_)),
+        matches!(b.ports(), Ports::Shared(_)),
+        "{what}: the kind of ports"
+    );
+}
+
 /// Parses a CSV output into rows of numbers (header dropped).
 fn table(text: &str) -> Vec<Vec<f64>> {
     text.lines()
         .skip(1)
-        .map(|l| l.split(',').map(|v| v.trim().parse::<f64>().unwrap()).collect())
+        .map(|l| {
+            l.split(',')
+                .map(|v| v.trim().parse::<f64>().unwrap())
+                .collect()
+        })
         .collect()
 }
 
@@ -63,8 +109,16 @@ fn stereo_simulation_is_unchanged() {
         ),
         (
             vec![
-                "--views", "2", "--seed", "11", "--cameras", "right,left", "--board", "3x3@0.06",
-                "--noise", "0.3",
+                "--views",
+                "2",
+                "--seed",
+                "11",
+                "--cameras",
+                "right,left",
+                "--board",
+                "3x3@0.06",
+                "--noise",
+                "0.3",
             ],
             "simulate_stereo_right_left_3x3_seed11.json",
         ),
@@ -73,15 +127,19 @@ fn stereo_simulation_is_unchanged() {
         let mut all = vec!["simulate", "--rig", &rig, "--output", p(&out)];
         all.extend(args);
         run_ok(&all);
-        let expected =
-            std::fs::read(format!("{}/tests/golden/{golden}", env!("CARGO_MANIFEST_DIR"))).unwrap();
+        let expected = std::fs::read(format!(
+            "{}/tests/golden/{golden}",
+            env!("CARGO_MANIFEST_DIR")
+        ))
+        .unwrap();
         assert!(
             std::fs::read(out.join("observations.json")).unwrap() == expected,
             "{golden} differs"
         );
         // The truth now holds the whole rig, and reads back.
         let truth = read_truth(&out.join("truth.json")).unwrap();
-        assert_eq!(truth.rig.as_ref(), Some(&read_rig(Path::new(&rig)).unwrap()));
+        let expected = read_rig(Path::new(&rig)).unwrap();
+        assert_same_rig(truth.rig.as_ref().unwrap(), &expected, golden);
     }
 }
 
@@ -105,20 +163,36 @@ fn every_example_rig_simulates_in_the_general_form() {
         let out = dir.path().join(format!("case{n}"));
         let rig_path = data(file);
         let mut args = vec![
-            "simulate", "--rig", &rig_path, "--views", "6", "--noise", "0", "--seed", "3",
-            "--output", p(&out),
+            "simulate",
+            "--rig",
+            &rig_path,
+            "--views",
+            "6",
+            "--noise",
+            "0",
+            "--seed",
+            "3",
+            "--output",
+            p(&out),
         ];
         args.extend(extra.iter().copied());
         let printed = run_ok(&args);
         assert!(printed.contains("general form"), "{file}: {printed}");
         let rig = read_rig(Path::new(&rig_path)).unwrap();
-        assert_eq!(read_rig(&out.join("rig.json")).unwrap(), rig);
+        assert_same_rig(&read_rig(&out.join("rig.json")).unwrap(), &rig, file);
         let truth = read_truth(&out.join("truth.json")).unwrap();
-        assert_eq!(truth.rig.as_ref(), Some(&rig), "{file}");
-        assert_eq!(truth.interface, rig.port_in_master(0));
+        assert_same_rig(truth.rig.as_ref().unwrap(), &rig, file);
+        let master = rig.port_in_master(0);
+        let normal_gap =
+            (truth.interface.normal().into_inner() - master.normal().into_inner()).norm();
+        assert!(normal_gap < 1e-15, "{file}");
+        assert_eq!(truth.interface.air_distance(), master.air_distance());
         let observations = read_rig_observations(&out.join("observations.json")).unwrap();
         if extra.contains(&"--target") {
-            assert_eq!(observations.target, read_target(Path::new(&target)).unwrap());
+            assert_eq!(
+                observations.target,
+                read_target(Path::new(&target)).unwrap()
+            );
         } else {
             assert!(matches!(observations.target, Target::Board(_)));
         }
@@ -136,7 +210,10 @@ fn every_example_rig_simulates_in_the_general_form() {
                     let exact = camera.project(&point).unwrap();
                     // The file holds the pixels at full precision; the pose is written as a
                     // rotation matrix and read back through a quaternion.
-                    assert!((pixel - exact).norm() < 1e-6, "{file} view {v} camera {k} corner {i}");
+                    assert!(
+                        (pixel - exact).norm() < 1e-6,
+                        "{file} view {v} camera {k} corner {i}"
+                    );
                 }
             }
         }
@@ -149,7 +226,11 @@ fn every_example_rig_simulates_in_the_general_form() {
                 assert!(naive(s) && s.layers() == t.layers(), "{file}")
             }
             (Ports::PerCamera(s), Ports::PerCamera(t)) => {
-                assert!(s.iter().zip(t).all(|(s, t)| naive(s) && s.layers() == t.layers()))
+                assert!(
+                    s.iter()
+                        .zip(t)
+                        .all(|(s, t)| naive(s) && s.layers() == t.layers())
+                )
             }
             _ => panic!("{file}: start_rig.json changed the kind of ports"),
         }
@@ -157,8 +238,19 @@ fn every_example_rig_simulates_in_the_general_form() {
     // The array: more than one camera sees views, and the seed reproduces the scene.
     let again = dir.path().join("again");
     run_ok(&[
-        "simulate", "--rig", &data("array_2x2.json"), "--views", "6", "--noise", "0", "--seed",
-        "3", "--min-cameras", "2", "--output", p(&again),
+        "simulate",
+        "--rig",
+        &data("array_2x2.json"),
+        "--views",
+        "6",
+        "--noise",
+        "0",
+        "--seed",
+        "3",
+        "--min-cameras",
+        "2",
+        "--output",
+        p(&again),
     ]);
     assert_eq!(
         std::fs::read(again.join("observations.json")).unwrap(),
@@ -173,25 +265,87 @@ fn simulate_refuses_what_it_cannot_do_and_says_why() {
     let target = data("target_v.json");
     let housings = data("housings.json");
     let err = run_err(&[
-        "simulate", "--rig", &housings, "--target", &target, "--board", "4x4@0.04", "-o", p(&out),
+        "simulate",
+        "--rig",
+        &housings,
+        "--target",
+        &target,
+        "--board",
+        "4x4@0.04",
+        "-o",
+        p(&out),
     ]);
     assert!(err.contains("--target") && err.contains("--board"), "{err}");
-    let err = run_err(&["simulate", "--rig", &housings, "--cameras", "left,right", "-o", p(&out)]);
-    assert!(err.contains("--cameras") && err.contains("a port per camera"), "{err}");
     let err = run_err(&[
-        "simulate", "--rig", &data("array_2x2.json"), "--min-cameras", "5", "-o", p(&out),
+        "simulate",
+        "--rig",
+        &housings,
+        "--cameras",
+        "left,right",
+        "-o",
+        p(&out),
     ]);
-    assert!(err.contains("--min-cameras 5") && err.contains("1 to 4"), "{err}");
+    assert!(
+        err.contains("--cameras") && err.contains("a port per camera"),
+        "{err}"
+    );
+    let err = run_err(&[
+        "simulate",
+        "--rig",
+        &data("array_2x2.json"),
+        "--min-cameras",
+        "5",
+        "-o",
+        p(&out),
+    ]);
+    assert!(
+        err.contains("--min-cameras 5") && err.contains("1 to 4"),
+        "{err}"
+    );
+    let err = run_err(&[
+        "simulate",
+        "--rig",
+        &data("array_2x2.json"),
+        "--views",
+        "50000",
+        "-o",
+        p(&out),
+    ]);
+    // 10⁷ corners / (54 corners × 4 cameras) = 46 296 views.
+    assert!(
+        err.contains("--views 50000") && err.contains("1 to 46296"),
+        "{err}"
+    );
     // Target files: unknown keys, too few points, all points in one place, not finite.
     for (text, words) in [
-        (r#"{"points": [[0,0,0],[1,0,0],[0,1,0],[1,1,0]], "unit": "m"}"#, vec!["unit"]),
-        (r#"{"points": [[0,0,0],[1,0,0],[0,1,0]]}"#, vec!["points", "at least 4"]),
-        (r#"{"points": [[0,0,0],[0,0,0],[0,0,0],[0,0,0]]}"#, vec!["points", "same point"]),
-        (r#"{"points": [[0,0,0],[1,0,0],[0,1,0],[1,1,1e999]]}"#, vec!["points"]),
+        (
+            r#"{"points": [[0,0,0],[1,0,0],[0,1,0],[1,1,0]], "unit": "m"}"#,
+            vec!["unit"],
+        ),
+        (
+            r#"{"points": [[0,0,0],[1,0,0],[0,1,0]]}"#,
+            vec!["points", "at least 4"],
+        ),
+        (
+            r#"{"points": [[0,0,0],[0,0,0],[0,0,0],[0,0,0]]}"#,
+            vec!["points", "same point"],
+        ),
+        (
+            r#"{"points": [[0,0,0],[1,0,0],[0,1,0],[1,1,1e999]]}"#,
+            vec!["points"],
+        ),
     ] {
         let path = dir.path().join("target.json");
         std::fs::write(&path, text).unwrap();
-        let err = run_err(&["simulate", "--rig", &housings, "--target", p(&path), "-o", p(&out)]);
+        let err = run_err(&[
+            "simulate",
+            "--rig",
+            &housings,
+            "--target",
+            p(&path),
+            "-o",
+            p(&out),
+        ]);
         assert!(err.contains("target.json"), "{err}");
         for word in words {
             assert!(err.contains(word), "{text}: {err}");
@@ -199,12 +353,26 @@ fn simulate_refuses_what_it_cannot_do_and_says_why() {
     }
     // 100 px of noise keeps every corner 500 px from the border: no pose fits the target in.
     let err = run_err(&[
-        "simulate", "--rig", &housings, "--target", &target, "--noise", "100", "-o", p(&out),
+        "simulate",
+        "--rig",
+        &housings,
+        "--target",
+        &target,
+        "--noise",
+        "100",
+        "-o",
+        p(&out),
     ]);
-    assert!(err.contains("target_v.json") && err.contains("found no pose"), "{err}");
+    assert!(
+        err.contains("target_v.json") && err.contains("found no pose"),
+        "{err}"
+    );
     assert!(!out.exists(), "nothing written");
     let help = run_ok(&["simulate", "--help"]);
-    assert!(help.contains("--target") && help.contains("Examples:"), "{help}");
+    assert!(
+        help.contains("--target") && help.contains("Examples:"),
+        "{help}"
+    );
 }
 
 const YAML_MM: &str = "%YAML:1.0
@@ -250,19 +418,40 @@ fn from_opencv_refuses_millimetres_and_converts_them_with_unit_mm() {
     std::fs::write(&yaml, YAML_MM).unwrap();
     let out = dir.path().join("rig.json");
     let err = run_err(&[
-        "rig", "from-opencv", p(&yaml), "--distance", "0.02", "--output", p(&out),
+        "rig",
+        "from-opencv",
+        p(&yaml),
+        "--distance",
+        "0.02",
+        "--output",
+        p(&out),
     ]);
-    assert!(err.contains("stereo_mm.yml") && err.contains("--unit mm"), "{err}");
+    assert!(
+        err.contains("stereo_mm.yml") && err.contains("--unit mm"),
+        "{err}"
+    );
     assert!(!out.exists());
     run_ok(&[
-        "rig", "from-opencv", p(&yaml), "--distance", "0.02", "--unit", "mm", "--output", p(&out),
+        "rig",
+        "from-opencv",
+        p(&yaml),
+        "--distance",
+        "0.02",
+        "--unit",
+        "mm",
+        "--output",
+        p(&out),
     ]);
     let rig = read_rig(&out).unwrap();
     let t = rig.cameras()[1].cam_from_master.translation.vector;
     assert_eq!(t, Vector3::new(-0.06, 0.003, 0.0015));
     // Metres stay as they are with the default and with --unit m.
     let metres = dir.path().join("stereo_m.yml");
-    std::fs::write(&metres, YAML_MM.replace("-60., 3., 1.5", "-0.06, 0.003, 0.0015")).unwrap();
+    std::fs::write(
+        &metres,
+        YAML_MM.replace("-60., 3., 1.5", "-0.06, 0.003, 0.0015"),
+    )
+    .unwrap();
     for unit in [&[][..], &["--unit", "m"][..]] {
         let mut args = vec!["rig", "from-opencv", p(&metres), "--distance", "0.02"];
         args.extend(unit);
@@ -270,7 +459,15 @@ fn from_opencv_refuses_millimetres_and_converts_them_with_unit_mm() {
         let back = flatport::io::rig_from_json_str(&text, Path::new("stdout")).unwrap();
         assert_eq!(back, rig);
     }
-    let err = run_err(&["rig", "from-opencv", p(&yaml), "--distance", "0.02", "--unit", "km"]);
+    let err = run_err(&[
+        "rig",
+        "from-opencv",
+        p(&yaml),
+        "--distance",
+        "0.02",
+        "--unit",
+        "km",
+    ]);
     assert!(err.contains("--unit"), "{err}");
 }
 
@@ -286,14 +483,27 @@ fn shared_and_own_ports(dir: &Path) -> (PathBuf, PathBuf) {
     let centre = -(rotation.transpose() * translation);
     let media = r#""layers": [{"thickness": 0.014, "index": 1.473}], "index_air": 1.003, "index_water": 1.333"#;
     let port = |n: Vector3<f64>, d: f64| {
-        format!(r#"{{"normal": [{:?}, {:?}, {:?}], "distance": {d:?}, {media}}}"#, n.x, n.y, n.z)
+        format!(
+            r#"{{"normal": [{:?}, {:?}, {:?}], "distance": {d:?}, {media}}}"#,
+            n.x, n.y, n.z
+        )
     };
     let left = r#""name": "left", "width": 1280, "height": 1024, "fx": 864.91, "fy": 870.2, "cx": 640.5, "cy": 511.0, "distortion": [-0.08, 0.012, 0.0004, -0.0003, 0.001]"#;
     let r = rotation;
     let right = format!(
         r#""name": "right", "width": 1024, "height": 768, "fx": 700.0, "fy": 700.0, "cx": 512.0, "cy": 384.0, "distortion": [-0.05, 0.01, 0, 0, 0], "rotation": [[{:?}, {:?}, {:?}], [{:?}, {:?}, {:?}], [{:?}, {:?}, {:?}]], "translation": [{:?}, {:?}, {:?}]"#,
-        r[(0, 0)], r[(0, 1)], r[(0, 2)], r[(1, 0)], r[(1, 1)], r[(1, 2)], r[(2, 0)], r[(2, 1)],
-        r[(2, 2)], translation.x, translation.y, translation.z
+        r[(0, 0)],
+        r[(0, 1)],
+        r[(0, 2)],
+        r[(1, 0)],
+        r[(1, 1)],
+        r[(1, 2)],
+        r[(2, 0)],
+        r[(2, 1)],
+        r[(2, 2)],
+        translation.x,
+        translation.y,
+        translation.z
     );
     let shared = format!(
         "{{\"cameras\": [{{{left}}}, {{{right}}}], \"interface\": {}}}",
@@ -316,35 +526,53 @@ fn shared_and_own_ports(dir: &Path) -> (PathBuf, PathBuf) {
 /// one in the air), pixels over the images, matches of the points in both cameras.
 fn inputs(dir: &Path, shared: &Path) -> [PathBuf; 3] {
     let mut points = String::from("x,y,z\n");
+    // Inside both cameras' views: |x/z| ≤ 0.45, |y/z| ≤ 0.35, depths 0.3 to 4 m.
     for i in 0..300 {
-        let (x, y, z) = (
-            (i % 15) as f64 * 0.06 - 0.45,
-            (i / 15) as f64 * 0.035 - 0.35,
-            0.3 + (i % 11) as f64 * 0.37,
+        let z = 0.3 + (i % 11) as f64 * 0.37;
+        let (x, y) = (
+            ((i % 15) as f64 / 14.0 - 0.5) * 0.9 * z,
+            ((i / 15) as f64 / 19.0 - 0.5) * 0.7 * z,
         );
         points.push_str(&format!("{x},{y},{z}\n"));
     }
     points.push_str("0,0,0.01\n");
     let mut pixels = String::from("u,v\n");
     for i in 0..200 {
-        pixels.push_str(&format!("{},{}\n", (i % 20) as f64 * 50.3 + 3.0, (i / 20) as f64 * 75.1 + 4.0));
+        pixels.push_str(&format!(
+            "{},{}\n",
+            (i % 20) as f64 * 50.3 + 3.0,
+            (i / 20) as f64 * 75.1 + 4.0
+        ));
     }
     let points_path = dir.join("points.csv");
     std::fs::write(&points_path, &points).unwrap();
     let project = |camera: &str| {
         table(&run_ok(&[
-            "project", "--rig", p(shared), "--points", p(&points_path), "--camera", camera,
-            "--device", "cpu",
+            "project",
+            "--rig",
+            p(shared),
+            "--points",
+            p(&points_path),
+            "--camera",
+            camera,
+            "--device",
+            "cpu",
         ]))
     };
     let (l, r) = (project("left"), project("right"));
     let mut matches = String::from("ul,vl,ur,vr\n");
+    let mut swapped = matches.clone();
     for (a, b) in l.iter().zip(&r) {
         if a[0].is_finite() && b[0].is_finite() {
             matches.push_str(&format!("{:?},{:?},{:?},{:?}\n", a[0], a[1], b[0], b[1]));
+            swapped.push_str(&format!("{:?},{:?},{:?},{:?}\n", b[0], b[1], a[0], a[1]));
         }
     }
-    assert!(matches.lines().count() > 150, "most points are seen by both cameras");
+    assert!(
+        matches.lines().count() > 250,
+        "the points are seen by both cameras"
+    );
+    std::fs::write(dir.join("matches_right_left.csv"), swapped).unwrap();
     let (pixels_path, matches_path) = (dir.join("pixels.csv"), dir.join("matches.csv"));
     std::fs::write(&pixels_path, pixels).unwrap();
     std::fs::write(&matches_path, matches).unwrap();
@@ -363,7 +591,13 @@ fn commands(inputs: &[PathBuf; 3]) -> Vec<(String, Vec<String>)> {
         ] {
             all.push((
                 format!("{command} {camera}"),
-                vec![command.into(), flag.into(), file.clone(), "--camera".into(), camera.into()],
+                vec![
+                    command.into(),
+                    flag.into(),
+                    file.clone(),
+                    "--camera".into(),
+                    camera.into(),
+                ],
             ));
         }
     }
@@ -376,7 +610,7 @@ fn commands(inputs: &[PathBuf; 3]) -> Vec<(String, Vec<String>)> {
         vec![
             "triangulate".into(),
             "--matches".into(),
-            matches,
+            matches.replace("matches.csv", "matches_right_left.csv"),
             "--cameras".into(),
             "right,left".into(),
         ],
@@ -405,7 +639,8 @@ fn assert_close(what: &str, a: &[Vec<f64>], b: &[Vec<f64>], absolute: f64, relat
         answered += usize::from(!ra[0].is_nan());
         for (x, y) in ra.iter().zip(rb) {
             assert!(
-                x.is_nan() == y.is_nan() && (x.is_nan() || (x - y).abs() <= absolute + relative * y.abs()),
+                x.is_nan() == y.is_nan()
+                    && (x.is_nan() || (x - y).abs() <= absolute + relative * y.abs()),
                 "{what}, row {row}: {ra:?} vs {rb:?}"
             );
         }
@@ -427,7 +662,10 @@ fn a_port_per_camera_matches_the_shared_port_in_every_command() {
         assert_close(&what, &a, &b, absolute, 1e-12);
     }
     // export colmap writes each camera's own port: the same numbers from both files.
-    let (ca, cb) = (dir.path().join("colmap-own"), dir.path().join("colmap-shared"));
+    let (ca, cb) = (
+        dir.path().join("colmap-own"),
+        dir.path().join("colmap-shared"),
+    );
     run_ok(&["export", "colmap", "--rig", p(&own), "--output", p(&ca)]);
     run_ok(&["export", "colmap", "--rig", p(&shared), "--output", p(&cb)]);
     for file in ["cameras.txt", "rig_config.json", "rigs.txt"] {
@@ -443,7 +681,10 @@ fn a_port_per_camera_matches_the_shared_port_in_every_command() {
         assert_eq!(ta.len(), tb.len(), "{file}");
         for (x, y) in ta.iter().zip(&tb) {
             match (x.parse::<f64>(), y.parse::<f64>()) {
-                (Ok(x), Ok(y)) => assert!((x - y).abs() <= 1e-15 + 1e-12 * y.abs(), "{file}: {x} vs {y}"),
+                (Ok(x), Ok(y)) => assert!(
+                    (x - y).abs() <= 1e-15 + 1e-12 * y.abs(),
+                    "{file}: {x} vs {y}"
+                ),
                 _ => assert_eq!(x, y, "{file}"),
             }
         }
@@ -461,7 +702,11 @@ fn a_port_per_camera_on_the_gpu_agrees_with_the_cpu() {
     for (what, command) in commands(&inputs) {
         let cpu = run_table(&with_rig(&command, &own, &["--device", "cpu"]));
         for precision in ["f32", "f64"] {
-            let args = with_rig(&command, &own, &["--device", "gpu", "--precision", precision]);
+            let args = with_rig(
+                &command,
+                &own,
+                &["--device", "gpu", "--precision", precision],
+            );
             let refs: Vec<&str> = args.iter().map(String::as_str).collect();
             let o = flatport(&refs);
             if !o.status.success()
@@ -476,7 +721,9 @@ fn a_port_per_camera_on_the_gpu_agrees_with_the_cpu() {
             match (precision, command[0].as_str()) {
                 ("f64", _) => assert_close(&format!("{what} f64"), &gpu, &cpu, 1e-12, 1e-9),
                 ("f32", "project") => assert_close(&format!("{what} f32"), &gpu, &cpu, 1e-3, 0.0),
-                ("f32", "backproject") => assert_close(&format!("{what} f32"), &gpu, &cpu, 2e-6, 0.0),
+                ("f32", "backproject") => {
+                    assert_close(&format!("{what} f32"), &gpu, &cpu, 2e-6, 0.0)
+                }
                 // Triangulated points and VOPs in f32 amplify the ray errors with depth; their
                 // f32 bounds are tests/gpu.rs's business. The rows that have an answer agree.
                 _ => assert_eq!(

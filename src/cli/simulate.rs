@@ -5,11 +5,13 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use clap::Args;
 
-use flatport::calib::simulate::{MAX_SIMULATED_CORNERS, RigSceneSpec, simulate_rig};
+use flatport::calib::simulate::{
+    MAX_SIMULATED_CORNERS, RigSceneSpec, check_rig_scene_size, simulate_rig,
+};
 use flatport::calib::{Board, CalibError, SceneSpec, Target, simulate};
 use flatport::io::{
-    IoError, Truth, read_rig, read_target, write_observations, write_rig,
-    write_rig_observations, write_truth,
+    IoError, Truth, read_rig, read_target, write_observations, write_rig, write_rig_observations,
+    write_truth,
 };
 use flatport::model::{Ports, Rig};
 
@@ -151,6 +153,11 @@ fn simulate_general(rig: &Rig, args: &SimulateArgs) -> anyhow::Result<()> {
         Some(path) => read_target(path)?,
         None => Target::Board(args.board),
     };
+    if let Err(CalibError::Options(reason)) =
+        check_rig_scene_size(&target, rig.cameras().len(), args.views)
+    {
+        bail!("--views {}: {reason}", args.views);
+    }
     let mut spec = RigSceneSpec::new(target.clone(), args.views, args.noise, args.seed);
     spec.max_target_tilt = args.max_board_tilt_deg.to_radians();
     if let Some(n) = args.min_cameras {
@@ -191,7 +198,9 @@ fn simulate_general(rig: &Rig, args: &SimulateArgs) -> anyhow::Result<()> {
         Target::Points(p) => format!(
             "the {}-point target of {}",
             p.len(),
-            args.target.as_ref().map_or(String::new(), |t| t.display().to_string())
+            args.target
+                .as_ref()
+                .map_or(String::new(), |t| t.display().to_string())
         ),
     };
     let ports = match rig.ports() {

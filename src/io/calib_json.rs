@@ -460,22 +460,24 @@ pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
     let interface = super::rig_json::interface_from_file(&file.interface, "interface", path)?;
     let rig = match &file.rig {
         None => None,
-        Some(rig) => Some(super::rig_json::rig_from_file(rig, path).map_err(|e| match e {
-            IoError::Invalid {
-                path,
-                field,
-                reason,
-            } => IoError::Invalid {
-                path,
-                field: if field.is_empty() {
-                    "rig".into()
-                } else {
-                    format!("rig.{field}")
+        Some(rig) => Some(
+            super::rig_json::rig_from_file(rig, path).map_err(|e| match e {
+                IoError::Invalid {
+                    path,
+                    field,
+                    reason,
+                } => IoError::Invalid {
+                    path,
+                    field: if field.is_empty() {
+                        "rig".into()
+                    } else {
+                        format!("rig.{field}")
+                    },
+                    reason,
                 },
-                reason,
-            },
-            other => other,
-        })?),
+                other => other,
+            })?,
+        ),
     };
     Ok(Truth {
         interface,
@@ -717,6 +719,77 @@ mod tests {
         for (text, expected) in cases {
             let message = parse_general(text).unwrap_err().to_string();
             assert!(message.contains(expected), "{text}: {message}");
+        }
+    }
+
+    #[test]
+    fn truth_holds_the_rig_and_old_truth_files_still_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("truth.json");
+        let rig = crate::io::rig_from_json_str(
+            r#"{"cameras": [
+                {"name": "a", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240,
+                 "interface": {"normal": [0.1, 0, 1], "distance": 0.02}},
+                {"name": "b", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240,
+                 "translation": [-0.1, 0, 0], "interface": {"normal": [0, 0.05, 1], "distance": 0.015}}]}"#,
+            Path::new("rig.json"),
+        )
+        .unwrap();
+        let pose = Isometry3::new(Vector3::new(0.1, -0.2, 1.5), Vector3::new(0.1, 0.2, -0.3));
+        let truth = Truth {
+            interface: rig.port_in_master(0),
+            master_from_board: vec![pose],
+            noise_px: 0.25,
+            seed: 7,
+            rig: Some(rig.clone()),
+        };
+        write_truth(&path, &truth).unwrap();
+        let back = read_truth(&path).unwrap();
+        assert_eq!(back.rig, Some(rig));
+        assert_eq!(back.interface, truth.interface);
+        assert!(
+            (back.master_from_board[0].to_homogeneous() - pose.to_homogeneous()).norm() < 1e-15
+        );
+        // A file written before the rig was added (no "rig" key) reads, without a rig.
+        let mut value: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        value.as_object_mut().unwrap().remove("rig");
+        std::fs::write(&path, value.to_string()).unwrap();
+        assert_eq!(read_truth(&path).unwrap().rig, None);
+        // A bad rig inside names its place.
+        let text = truth_to_json_string(&truth).replace("\"fx\": 500.0", "\"fx\": -500.0");
+        std::fs::write(&path, text).unwrap();
+        let error = read_truth(&path).unwrap_err().to_string();
+        assert!(error.contains("rig.cameras[0].fx"), "{error}");
+    }
+
+    #[test]
+    fn target_files_read_and_name_what_is_wrong() {
+        let target = target_from_json_str(
+            r#"{"points": [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]]}"#,
+            Path::new("t.json"),
+        )
+        .unwrap();
+        assert_eq!(target.len(), 4);
+        assert!(!target.is_planar());
+        for (text, place) in [
+            (
+                r#"{"points": [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]]}"#,
+                "points",
+            ),
+            (
+                r#"{"points": [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0]]}"#,
+                "points[3]",
+            ),
+            (r#"{"points": [], "board": 1}"#, "board"),
+        ] {
+            let error = target_from_json_str(text, Path::new("t.json"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                error.contains("t.json") && error.contains(place),
+                "{text}: {error}"
+            );
         }
     }
 }

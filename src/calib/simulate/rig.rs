@@ -10,9 +10,7 @@ use crate::calib::error::{CalibError, number};
 use crate::calib::problem::rig_observations::{CameraKey, Image, RigObservations, RigView};
 use crate::calib::problem::target::Target;
 use crate::calib::simulate::rng::Rng;
-use crate::calib::simulate::{
-    MAX_BOARD_CORNERS, MAX_NOISE_PX, MAX_SIMULATED_CORNERS, random_pose,
-};
+use crate::calib::simulate::{MAX_BOARD_CORNERS, MAX_NOISE_PX, MAX_SIMULATED_CORNERS, random_pose};
 use crate::model::Rig;
 
 /// How to simulate a scene for a rig.
@@ -112,18 +110,30 @@ pub fn simulate_rig(rig: &Rig, spec: &RigSceneSpec) -> Result<RigScene, CalibErr
         && (board.rows < 2 || board.cols < 2 || !(board.square > 0.0 && board.square.is_finite()))
     {
         return Err(CalibError::BadBoard {
-            reason: format!("{} × {} corners of {} m", board.rows, board.cols, board.square),
+            reason: format!(
+                "{} × {} corners of {} m",
+                board.rows, board.cols, board.square
+            ),
         });
     }
     check_rig_scene_size(target, count, spec.views)?;
     let points: Vec<_> = (0..target.len()).map(|i| target.point(i)).collect();
-    if let Some(i) = points.iter().position(|p| !p.coords.iter().all(|x| x.is_finite())) {
+    if let Some(i) = points
+        .iter()
+        .position(|p| !p.coords.iter().all(|x| x.is_finite()))
+    {
         return Err(CalibError::BadBoard {
-            reason: format!("target point {i} {:?} is not finite", points[i].coords.as_slice()),
+            reason: format!(
+                "target point {i} {:?} is not finite",
+                points[i].coords.as_slice()
+            ),
         });
     }
     let centre = points.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / points.len() as f64;
-    let radius = points.iter().map(|p| (p.coords - centre).norm()).fold(0.0, f64::max);
+    let radius = points
+        .iter()
+        .map(|p| (p.coords - centre).norm())
+        .fold(0.0, f64::max);
     if !(radius > 0.0) {
         return Err(CalibError::BadBoard {
             reason: "every target point is the same point".into(),
@@ -284,7 +294,8 @@ mod tests {
 
     /// Two housings: camera 1 moved 0.2 m right and turned 3° inward, each with its own tilted port.
     fn housings() -> Rig {
-        let master = RigCamera::new("a", intrinsics(), Matrix3::identity(), Vector3::zeros()).unwrap();
+        let master =
+            RigCamera::new("a", intrinsics(), Matrix3::identity(), Vector3::zeros()).unwrap();
         let r = Rotation3::from_euler_angles(0.0, -3f64.to_radians(), 0.0).into_inner();
         let c = Vector3::new(0.2, 0.0, 0.0);
         let second = RigCamera::new("b", intrinsics(), r, -(r * c)).unwrap();
@@ -316,16 +327,23 @@ mod tests {
                 // The oracle: each camera's port written in the master frame by hand from the
                 // camera's own frame (n = Rᵀ n_k, d = d_k + n·C), projected through a rig with
                 // that port shared.
-                let Ports::PerCamera(ports) = rig.ports() else { unreachable!() };
+                let Ports::PerCamera(ports) = rig.ports() else {
+                    unreachable!()
+                };
                 let cam = &rig.cameras()[k];
                 let n = cam.cam_from_master.rotation.inverse() * ports[k].normal().into_inner();
                 let d = ports[k].air_distance() + n.dot(&cam.centre_in_master().coords);
                 let shared = ports[k].with_pose(n, d).unwrap();
-                let oracle = Rig::new(rig.cameras().to_vec(), shared).unwrap().refractive_camera(k);
+                let oracle = Rig::new(rig.cameras().to_vec(), shared)
+                    .unwrap()
+                    .refractive_camera(k);
                 for (i, corner) in image.corners.iter().enumerate() {
                     let point = scene.master_from_target[v] * target.point(i);
                     let expected = oracle.project(&point).unwrap();
-                    assert!((corner.unwrap() - expected).norm() < 1e-9, "view {v} camera {k} corner {i}");
+                    assert!(
+                        (corner.unwrap() - expected).norm() < 1e-9,
+                        "view {v} camera {k} corner {i}"
+                    );
                 }
             }
         }
@@ -349,12 +367,23 @@ mod tests {
         let rms = (offsets.iter().map(|x| x * x).sum::<f64>() / offsets.len() as f64).sqrt();
         // ≥ 840 samples: the RMS of a unit Gaussian sample has a standard error ≈ 1/√(2n) < 2.5 %.
         assert!((rms / 0.5 - 1.0).abs() < 0.1, "{rms}");
-        assert_ne!(simulate_rig(&rig, &RigSceneSpec { seed: 4, ..spec.clone() }).unwrap(), noisy);
+        assert_ne!(
+            simulate_rig(
+                &rig,
+                &RigSceneSpec {
+                    seed: 4,
+                    ..spec.clone()
+                }
+            )
+            .unwrap(),
+            noisy
+        );
     }
 
     #[test]
     fn a_3d_target_one_camera_and_requirements() {
-        let master = RigCamera::new("solo", intrinsics(), Matrix3::identity(), Vector3::zeros()).unwrap();
+        let master =
+            RigCamera::new("solo", intrinsics(), Matrix3::identity(), Vector3::zeros()).unwrap();
         let rig = Rig::new(vec![master], port(Vector3::z(), 0.03)).unwrap();
         // A cube corner opening toward the camera.
         let mut points = Vec::new();
@@ -372,16 +401,24 @@ mod tests {
         for (v, view) in scene.observations.views.iter().enumerate() {
             assert_eq!(view.images.len(), 1);
             for (i, c) in view.images[0].corners.iter().enumerate() {
-                let p = camera.project(&(scene.master_from_target[v] * target.point(i))).unwrap();
+                let p = camera
+                    .project(&(scene.master_from_target[v] * target.point(i)))
+                    .unwrap();
                 assert_eq!(c.unwrap(), p);
             }
         }
         let mut spec = RigSceneSpec::new(target.clone(), 5, 0.0, 9);
         spec.min_cameras = 2;
-        assert!(matches!(simulate_rig(&rig, &spec), Err(CalibError::Options(_))));
+        assert!(matches!(
+            simulate_rig(&rig, &spec),
+            Err(CalibError::Options(_))
+        ));
         spec.min_cameras = 1;
         spec.required = vec![1];
-        assert!(matches!(simulate_rig(&rig, &spec), Err(CalibError::Options(_))));
+        assert!(matches!(
+            simulate_rig(&rig, &spec),
+            Err(CalibError::Options(_))
+        ));
         let same = Target::Points(vec![Point3::new(0.1, 0.0, 0.0); 5]);
         assert!(matches!(
             simulate_rig(&rig, &RigSceneSpec::new(same, 5, 0.0, 9)),
