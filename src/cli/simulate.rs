@@ -179,7 +179,7 @@ fn simulate_general(rig: &Rig, args: &SimulateArgs) -> anyhow::Result<()> {
         }
         .into(),
         (Some(path), CalibError::Options(_)) => {
-            anyhow::Error::new(e).context(format!("target {}", path.display()))
+            anyhow::Error::new(e).context(format!("simulating views of {}", path.display()))
         }
         _ => anyhow::Error::new(e),
     })?;
