@@ -129,7 +129,7 @@ pub fn run(command: RigCommand) -> anyhow::Result<()> {
 fn from_opencv(args: FromOpencvArgs) -> anyhow::Result<()> {
     let mut stereo = read_opencv_stereo(&args.yaml)?;
     match args.unit {
-        LengthUnit::Mm => stereo = stereo.from_millimetres(),
+        LengthUnit::Mm => stereo = stereo.scaled_from_millimetres(),
         LengthUnit::M => {
             let t = stereo.translation;
             if t.norm() > MAX_BASELINE_M {

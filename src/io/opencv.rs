@@ -483,7 +483,7 @@ pub const MAX_BASELINE_M: f64 = 2.0;
 impl OpenCvStereo {
     /// The same calibration with every length it holds (T; the camera matrices and distortion
     /// are in pixels and unitless) read as millimetres and given in metres.
-    pub fn from_millimetres(mut self) -> Self {
+    pub fn scaled_from_millimetres(mut self) -> Self {
         self.translation /= 1000.0;
         self
     }
