@@ -648,8 +648,8 @@ fn assert_close(what: &str, a: &[Vec<f64>], b: &[Vec<f64>], absolute: f64, relat
     assert!(answered * 2 > a.len(), "{what}: most rows have an answer");
 }
 
-/// A port per camera goes through project, backproject, vop, triangulate and export colmap as
-/// the shared port it describes: the same numbers to 1e-9 px and 1e-12 relative.
+/// A port per camera goes through project, backproject, vop, triangulate, export raymap and
+/// export colmap as the shared port it describes: the same numbers to 1e-9 px and 1e-12 relative.
 #[test]
 fn a_port_per_camera_matches_the_shared_port_in_every_command() {
     let dir = tempfile::tempdir().unwrap();
@@ -660,6 +660,43 @@ fn a_port_per_camera_matches_the_shared_port_in_every_command() {
         let b = run_table(&with_rig(&command, &shared, &["--device", "cpu"]));
         let absolute = if command[0] == "project" { 1e-9 } else { 1e-13 };
         assert_close(&what, &a, &b, absolute, 1e-12);
+    }
+    // export raymap: every pixel's ray in the water, the same from both files.
+    for camera in ["left", "right"] {
+        let (ra, rb) = (
+            dir.path().join(format!("own-{camera}.npy")),
+            dir.path().join(format!("shared-{camera}.npy")),
+        );
+        for (rig, out) in [(&own, &ra), (&shared, &rb)] {
+            run_ok(&[
+                "export",
+                "raymap",
+                "--rig",
+                p(rig),
+                "--camera",
+                camera,
+                "--device",
+                "cpu",
+                "--output",
+                p(out),
+            ]);
+        }
+        let (shape_a, a) = flatport::io::npy::read_npy(&ra).unwrap();
+        let (shape_b, b) = flatport::io::npy::read_npy(&rb).unwrap();
+        assert_eq!(shape_a, shape_b);
+        assert!(a.len() > 1_000_000 && a.len() == b.len());
+        let answered = a.iter().filter(|x| !x.is_nan()).count();
+        assert!(
+            answered * 2 > a.len(),
+            "raymap {camera}: most pixels have a ray"
+        );
+        for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+            assert!(
+                x.is_nan() == y.is_nan()
+                    && (x.is_nan() || (x - y).abs() <= 1e-13 + 1e-12 * y.abs()),
+                "raymap {camera}, value {i}: {x} vs {y}"
+            );
+        }
     }
     // export colmap writes each camera's own port: the same numbers from both files.
     let (ca, cb) = (
