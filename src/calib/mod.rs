@@ -36,3 +36,4 @@ pub use problem::observations::{Observations, StereoView, ViewGroups, compare_vi
 pub use problem::rig_observations::{CameraKey, Image, RigObservations, RigView, SeenView};
 pub use problem::target::Target;
 pub use simulate::{Scene, SceneSpec, simulate};
+pub use simulate::{RigScene, RigSceneSpec, simulate_rig};

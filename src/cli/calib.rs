@@ -1,4 +1,4 @@
-//! `flatport simulate` and `flatport calibrate`.
+//! `flatport calibrate` (and the pieces `flatport simulate` shares: the board option, the naive start).
 
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -9,55 +9,21 @@ use clap::{Args, ValueEnum};
 
 use flatport::calib::RigObservations;
 use flatport::calib::methods::rig_bundle::Estimate;
-use flatport::calib::methods::rig_calibrate::{
-    Estimated, RigCalibrationOptions, RigReport, calibrate_rig,
-};
-use flatport::calib::simulate::{MAX_BOARD_CORNERS, MAX_SIMULATED_CORNERS};
+use flatport::calib::methods::rig_calibrate::{Estimated, RigCalibrationOptions, RigReport, calibrate_rig};
+use flatport::calib::simulate::MAX_BOARD_CORNERS;
 use flatport::calib::solvers::search::{
     MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text,
 };
 use flatport::calib::{
     Board, CalibError, CalibrationOptions, CalibrationProgress, CalibrationReport, CostBackend,
-    CpuBackend, GpuBackend, Method, Observations, SceneSpec, StereoData, calibrate_with_progress,
-    simulate,
+    CpuBackend, GpuBackend, Method, Observations, StereoData, calibrate_with_progress,
 };
 use flatport::engine::Engine;
 use flatport::io::{
-    IoError, Truth, read_observations, read_rig, read_truth, write_observations, write_report,
-    write_rig, write_truth,
+    IoError, Truth, read_observations, read_rig, read_truth, write_report, write_rig,
 };
 use flatport::io::{read_rig_observations, rig_report_to_json_string, write_atomic};
 use flatport::model::{Interface, Ports, Rig};
-
-/// `flatport simulate`
-#[derive(Debug, Args)]
-pub struct SimulateArgs {
-    /// Rig file: cameras and the true interface
-    #[arg(long, value_name = "RIG.json")]
-    rig: PathBuf,
-    /// Board as COLSxROWS@SQUARE: inner corners per row × per column (OpenCV's patternSize) and
-    /// the square in metres; at most 10 000 corners
-    #[arg(long, value_name = "COLSxROWS@M", default_value = "9x6@0.04", value_parser = parse_board)]
-    board: Board,
-    /// Number of stereo views (at most 10⁷ corners in all: 185 185 views of a 9×6 board)
-    #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
-    views: usize,
-    /// Standard deviation of the Gaussian noise added to every corner coordinate (pixels)
-    #[arg(long, value_name = "PX", default_value_t = 0.1, value_parser = super::values::non_negative, allow_negative_numbers = true)]
-    noise: f64,
-    /// Seed of the random poses and noise (equal seeds give equal scenes)
-    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
-    seed: u64,
-    /// Rig cameras that take the left and right images (default: the first two)
-    #[arg(long, value_name = "A,B", value_parser = super::parse_pair, allow_hyphen_values = true)]
-    cameras: Option<(String, String)>,
-    /// Largest angle between the board's normal and the master camera's axis (degrees, in [0, 90))
-    #[arg(long, value_name = "DEG", default_value_t = 45.0, value_parser = super::values::tilt_below_90, allow_negative_numbers = true)]
-    max_board_tilt_deg: f64,
-    /// Output folder (created if missing): observations.json, truth.json, rig.json, start_rig.json
-    #[arg(long, short, value_name = "DIR")]
-    output: PathBuf,
-}
 
 /// How to estimate (`--method`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -194,55 +160,6 @@ pub fn naive_start(rig: &Rig) -> anyhow::Result<Rig> {
 
 /// The air layer of [`naive_start`], metres.
 pub const NAIVE_AIR_DISTANCE: f64 = 0.01;
-
-pub fn run_simulate(args: SimulateArgs) -> anyhow::Result<()> {
-    // Sizes first, before anything is read or allocated.
-    let most = MAX_SIMULATED_CORNERS / args.board.corners();
-    if args.views == 0 || args.views > most {
-        bail!(
-            "--views {}: must lie in 1..={most} for a {}x{} board ({MAX_SIMULATED_CORNERS} corners in all: each takes about 100 bytes in memory and 80 in observations.json)",
-            args.views,
-            args.board.cols,
-            args.board.rows
-        );
-    }
-    let rig = read_rig(&args.rig)?;
-    let pair = stereo_pair(
-        &rig,
-        args.cameras.as_ref().map(|(a, b)| (a.as_str(), b.as_str())),
-        "--cameras",
-    )?;
-    let mut spec = SceneSpec::new(args.board, args.views, args.noise, args.seed);
-    spec.max_board_tilt = args.max_board_tilt_deg.to_radians();
-    let scene = simulate(&rig, pair[0], pair[1], &spec)?;
-    std::fs::create_dir_all(&args.output)
-        .with_context(|| format!("cannot create {}", args.output.display()))?;
-    write_observations(&args.output.join("observations.json"), &scene.observations)?;
-    let truth = Truth {
-        interface: rig.port_in_master(pair[0]),
-        master_from_board: scene.master_from_board,
-        noise_px: args.noise,
-        seed: args.seed,
-    };
-    write_truth(&args.output.join("truth.json"), &truth)?;
-    write_rig(&args.output.join("rig.json"), &rig)?;
-    write_rig(&args.output.join("start_rig.json"), &naive_start(&rig)?)?;
-    let i = rig.port_in_master(pair[0]);
-    outln!(
-        "simulated {} views of a {}x{} board ({} m squares), {} px noise, seed {}\ntruth: tilt {:.4}°, azimuth {:.4}°, air layer {:.3} mm\nwrote {}/observations.json, truth.json, rig.json (the truth), start_rig.json (a naive start: axis on the camera's z, 10 mm air)",
-        args.views,
-        args.board.cols,
-        args.board.rows,
-        args.board.square,
-        args.noise,
-        args.seed,
-        i.tilt().to_degrees(),
-        i.azimuth().to_degrees(),
-        i.air_distance() * 1e3,
-        args.output.display()
-    );
-    Ok(())
-}
 
 /// A calibration error about the observations, located in the file.
 fn in_file(path: &Path, error: CalibError) -> anyhow::Error {

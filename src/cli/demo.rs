@@ -105,7 +105,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     super::render::render_scene(&scene, &options, 8, &engine, &images, false)?;
     outln!("   {} images in {:.2} s: {}/left/ and right/", 2 * VIEWS, started.elapsed().as_secs_f64(), images.display());
     write_rig(&dir.join("rig.json"), rig)?;
-    let truth = Truth { interface: rig.port_in_master(0), master_from_board: scene.poses.clone(), noise_px: 0.0, seed: 1 };
+    let truth = Truth { interface: rig.port_in_master(0), master_from_board: scene.poses.clone(), noise_px: 0.0, seed: 1, rig: Some(rig.clone()) };
 
     outln!("2. detect the corners (calib-targets, corner 0 by the board's colours), overlays in overlays/:");
     let started = Instant::now();

@@ -24,6 +24,7 @@ mod progress;
 mod render;
 mod rig;
 mod signals;
+mod simulate;
 mod sweep;
 mod values;
 
@@ -90,19 +91,29 @@ inside the glass, eq 4.8), vop_x..z the VOP in the master frame, incidence the a
 Example:
   flatport vop --rig rig.json --points points.csv --camera left")]
     Vop(geometry::PointsArgs),
-    /// Simulate stereo views of a chessboard through the rig's interface (with known truth)
+    /// Simulate views of a chessboard or a 3-D target by any rig (with known truth)
     #[command(after_help = "\
-Random board poses in the water that both cameras see whole, corners projected exactly through the
-rig's interface (the truth), Gaussian pixel noise. Writes DIR/observations.json (the calibration
-input), DIR/truth.json (interface, tilt, azimuth, board poses), DIR/rig.json (the rig with the true
-interface) and DIR/start_rig.json (the same rig with a naive start: the axis on the master
-camera's z axis, 10 mm of air, as the demo uses).
+Random target poses in the water in front of the master camera, corners projected exactly through
+each camera's port (the truth: shared, or each camera's own), Gaussian pixel noise. Writes
+DIR/observations.json (the calibration input), DIR/truth.json (the master's port, its tilt and
+azimuth, the target poses, the whole true rig), DIR/rig.json (the rig with the true ports) and
+DIR/start_rig.json (the same rig with a naive start: each port's axis on its camera's z axis,
+10 mm of air, as the demo uses).
+
+A stereo rig behind one shared port looking at a board (or a pair named by --cameras) gets the
+stereo observations ({\"left\", \"right\"} per view). Any other rig (one camera, three or more, a port
+per camera) or a 3-D target (--target) gets the general form (DESIGN.md §3b): each view holds the
+images of the cameras that saw the whole target, keyed by camera name; a camera that did not is
+left out of the view. Every view is seen by the master camera and by --min-cameras in all.
 
 Examples:
   flatport simulate --rig rig.json --board 9x6@0.04 --views 20 --noise 0.1 --seed 1 --output scene
   flatport calibrate --rig scene/start_rig.json --observations scene/observations.json \\
-      -o calibrated.json --truth scene/truth.json")]
-    Simulate(calib::SimulateArgs),
+      -o calibrated.json --truth scene/truth.json
+  flatport simulate --rig data/rigs/array_2x2.json --views 30 --min-cameras 2 --output array
+  flatport simulate --rig data/rigs/housings.json --target data/rigs/target_v.json --output v
+  flatport simulate --rig data/rigs/tank.json --board 7x5@0.03 --output tank")]
+    Simulate(simulate::SimulateArgs),
     /// Find chessboard corners in every camera's images and write the observations file
     #[command(after_help = "\
 Each --images CAMERA=GLOB gives one camera's images (PNG, JPEG or TIFF; 8 or 16 bit; grey or
@@ -359,7 +370,7 @@ pub fn main() -> ExitCode {
         Command::Vop(args) => geometry::vop(args),
         Command::Rig(command) => rig::run(command),
         Command::Export(command) => export::run(command),
-        Command::Simulate(args) => calib::run_simulate(args),
+        Command::Simulate(args) => simulate::run_simulate(args),
         Command::Calibrate(args) => calib::run_calibrate(args),
         Command::Sweep(args) => sweep::run(args),
         Command::Demo(args) => demo::run(args),

@@ -87,7 +87,7 @@ pub fn render_scene(scene: &Scene, options: &RenderOptions, bits: u8, engine: &E
         std::fs::create_dir_all(dir.join(name)).with_context(|| format!("cannot create {}", dir.join(name).display()))?;
     }
     write_rig(&dir.join("rig.json"), &scene.rig)?;
-    let truth = Truth { interface: scene.rig.port_in_master(0), master_from_board: scene.poses.clone(), noise_px: 0.0, seed: options.seed };
+    let truth = Truth { interface: scene.rig.port_in_master(0), master_from_board: scene.poses.clone(), noise_px: 0.0, seed: options.seed, rig: Some(scene.rig.clone()) };
     write_truth(&dir.join("truth.json"), &truth)?;
     // The exact corners: every board corner projected through the port by the model.
     let cameras: Vec<_> = (0..names.len()).map(|k| scene.rig.refractive_camera(k)).collect();

@@ -6,7 +6,9 @@ use anyhow::{Context, bail};
 use clap::{Args, Subcommand};
 use nalgebra::Vector3;
 
-use flatport::io::{read_opencv_stereo, read_rig, rig_to_json_string, write_atomic};
+use flatport::io::{
+    MAX_BASELINE_M, read_opencv_stereo, read_rig, rig_to_json_string, write_atomic,
+};
 use flatport::model::{Interface, Layer, Ports, Rig, interface};
 
 /// `flatport rig …`
@@ -15,10 +17,13 @@ pub enum RigCommand {
     /// Build a rig from OpenCV stereoCalibrate output (FileStorage YAML) and an interface
     #[command(after_help = "\
 The YAML must hold M1 D1 M2 D2 R T (or K1 … K2 …) as written by cv::FileStorage, with %YAML:1.0.
-The first camera becomes the master; R, T map master coordinates into the second camera.
+The first camera becomes the master; R, T map master coordinates into the second camera. T is in
+the unit the board's square was given to OpenCV in: flatport works in metres, and a T longer than
+2 m is refused as probably millimetres; --unit mm converts it (--distance and --layer stay metres).
 
 Examples:
   flatport rig from-opencv stereo.yml --distance 0.02 --layer 0.014:1.473 --output rig.json
+  flatport rig from-opencv stereo_mm.yml --unit mm --distance 0.02 --layer 0.014:1.473 -o rig.json
   flatport rig from-opencv stereo.yml --normal 0.1,0.1,1 --distance 0.02 --layer 0.014:1.473 \\
       --index-air 1.003 --index-water 1.333 --names left,right --size 1280x1024")]
     FromOpencv(FromOpencvArgs),
@@ -56,9 +61,21 @@ pub struct FromOpencvArgs {
     /// Image size WIDTHxHEIGHT when the YAML has no image_width/image_height
     #[arg(long, value_name = "WxH", value_parser = parse_size)]
     size: Option<(u32, u32)>,
+    /// Unit of the lengths in the YAML (T): metres, or millimetres converted to metres
+    #[arg(long, value_enum, default_value_t = LengthUnit::M)]
+    unit: LengthUnit,
     /// Output rig file (default: standard output)
     #[arg(long, short, value_name = "RIG.json")]
     output: Option<PathBuf>,
+}
+
+/// Unit of the lengths in an OpenCV YAML.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LengthUnit {
+    /// Metres (as flatport)
+    M,
+    /// Millimetres
+    Mm,
 }
 
 fn parse_layer(text: &str) -> Result<Layer, String> {
@@ -110,7 +127,23 @@ pub fn run(command: RigCommand) -> anyhow::Result<()> {
 }
 
 fn from_opencv(args: FromOpencvArgs) -> anyhow::Result<()> {
-    let stereo = read_opencv_stereo(&args.yaml)?;
+    let mut stereo = read_opencv_stereo(&args.yaml)?;
+    match args.unit {
+        LengthUnit::Mm => stereo = stereo.scaled_from_millimetres(),
+        LengthUnit::M => {
+            let t = stereo.translation;
+            if t.norm() > MAX_BASELINE_M {
+                bail!(
+                    "{}: T = [{}, {}, {}] puts the cameras {} apart; read as metres that is over {MAX_BASELINE_M} m, so it is probably millimetres (OpenCV keeps the unit of the board's square size): give --unit mm to convert it to metres",
+                    args.yaml.display(),
+                    t.x,
+                    t.y,
+                    t.z,
+                    t.norm()
+                );
+            }
+        }
+    }
     let interface = Interface::new(
         args.normal,
         args.distance,

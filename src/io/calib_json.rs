@@ -12,7 +12,7 @@ use crate::calib::methods::rig_calibrate::{Estimated, RigReport};
 use crate::calib::problem::rig_observations::{CameraKey, Image, RigObservations, RigView};
 use crate::calib::problem::target::Target;
 use crate::calib::{Board, CalibrationReport, Observations, StereoView};
-use crate::model::Interface;
+use crate::model::{Interface, Rig};
 
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -233,30 +233,7 @@ pub fn rig_observations_from_json_str(text: &str, path: &Path) -> Result<RigObse
                 square: b.square,
             })
         }
-        (None, Some(t)) => {
-            if let Some(i) = t
-                .points
-                .iter()
-                .position(|p| !p.iter().all(|x| x.is_finite()))
-            {
-                return Err(invalid(
-                    &format!("target.points[{i}]"),
-                    format!("{:?} is not finite", t.points[i]),
-                ));
-            }
-            if t.points.len() < 4 {
-                return Err(invalid(
-                    "target.points",
-                    format!("{} points: a target needs at least 4", t.points.len()),
-                ));
-            }
-            Target::Points(
-                t.points
-                    .iter()
-                    .map(|&p| nalgebra::Point3::from(p))
-                    .collect(),
-            )
-        }
+        (None, Some(t)) => target_from_file(t, "target.", path)?,
     };
     let stereo = file.cameras.as_ref();
     let mut views = Vec::with_capacity(file.views.len());
@@ -284,6 +261,49 @@ pub fn rig_observations_from_json_str(text: &str, path: &Path) -> Result<RigObse
         views.push(RigView { images });
     }
     Ok(RigObservations { target, views })
+}
+
+/// A 3-D target's points, checked: finite, at least 4. `prefix` leads the JSON path in errors.
+fn target_from_file(t: &TargetFile, prefix: &str, path: &Path) -> Result<Target, IoError> {
+    let invalid = |field: String, reason: String| IoError::Invalid {
+        path: path.to_path_buf(),
+        field,
+        reason,
+    };
+    if let Some(i) = t
+        .points
+        .iter()
+        .position(|p| !p.iter().all(|x| x.is_finite()))
+    {
+        return Err(invalid(
+            format!("{prefix}points[{i}]"),
+            format!("{:?} is not finite", t.points[i]),
+        ));
+    }
+    if t.points.len() < 4 {
+        return Err(invalid(
+            format!("{prefix}points"),
+            format!("{} points: a target needs at least 4", t.points.len()),
+        ));
+    }
+    Ok(Target::Points(
+        t.points
+            .iter()
+            .map(|&p| nalgebra::Point3::from(p))
+            .collect(),
+    ))
+}
+
+/// Parses a 3-D target file, `{"points": [[x, y, z], …]}` (metres, the target's own frame);
+/// `path` only labels errors. At least 4 finite points; unknown keys are an error.
+pub fn target_from_json_str(text: &str, path: &Path) -> Result<Target, IoError> {
+    let file: TargetFile = super::rig_json::parse_json(text, path)?;
+    target_from_file(&file, "", path)
+}
+
+/// Reads a 3-D target file (`-` = standard input), see [`target_from_json_str`].
+pub fn read_target(path: &Path) -> Result<Target, IoError> {
+    target_from_json_str(&read_text(path)?, path)
 }
 
 /// Reads an observations file in either form (`-` = standard input).
@@ -481,14 +501,17 @@ fn pose_from_file(pose: &PoseFile) -> Isometry3<f64> {
 /// The truth of a simulated scene.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Truth {
-    /// The interface the corners were projected through.
+    /// The port of the master camera, in the master frame (behind a shared port: the port).
     pub interface: Interface,
-    /// X_master = R·X_board + t per view.
+    /// X_master = R·X_target + t per view (the board's or the 3-D target's pose).
     pub master_from_board: Vec<Isometry3<f64>>,
     /// Pixel noise added, pixels.
     pub noise_px: f64,
     /// Seed of the simulation.
     pub seed: u64,
+    /// The whole true rig (every camera's extrinsics and port, the layers), which a calibration of
+    /// any rig is checked against; `None` in truth files written before it was added.
+    pub rig: Option<Rig>,
 }
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -500,10 +523,18 @@ struct TruthFile {
     noise_px: f64,
     seed: u64,
     board_poses: Vec<PoseFile>,
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "super::rig_json::present"
+    )]
+    rig: Option<super::rig_json::RigFile>,
 }
 
-/// Truth as JSON: `interface` (as in a rig file), `tilt_deg`, `azimuth_deg`, `noise_px`, `seed`,
-/// `board_poses` [{rotation (rows), translation}] with X_master = R·X_board + t.
+/// Truth as JSON: `interface` (the master camera's port in the master frame, as in a rig file),
+/// `tilt_deg`, `azimuth_deg` (of that port), `noise_px`, `seed`, `board_poses` [{rotation (rows),
+/// translation}] with X_master = R·X_target + t (a board's or a 3-D target's poses), and `rig`:
+/// the whole true rig in the rig-file schema (optional: files without it are read).
 pub fn truth_to_json_string(truth: &Truth) -> String {
     let file = TruthFile {
         interface: interface_to_file(&truth.interface),
@@ -512,6 +543,7 @@ pub fn truth_to_json_string(truth: &Truth) -> String {
         noise_px: truth.noise_px,
         seed: truth.seed,
         board_poses: truth.master_from_board.iter().map(pose_to_file).collect(),
+        rig: truth.rig.as_ref().map(super::rig_json::rig_to_file),
     };
     let mut text = serde_json::to_string_pretty(&file).expect("plain data always serialises");
     text.push('\n');
@@ -527,11 +559,33 @@ pub fn write_truth(path: &Path, truth: &Truth) -> Result<(), IoError> {
 pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
     let file: TruthFile = super::rig_json::parse_json(&read_text(path)?, path)?;
     let interface = super::rig_json::interface_from_file(&file.interface, "interface", path)?;
+    let rig = match &file.rig {
+        None => None,
+        Some(rig) => Some(
+            super::rig_json::rig_from_file(rig, path).map_err(|e| match e {
+                IoError::Invalid {
+                    path,
+                    field,
+                    reason,
+                } => IoError::Invalid {
+                    path,
+                    field: if field.is_empty() {
+                        "rig".into()
+                    } else {
+                        format!("rig.{field}")
+                    },
+                    reason,
+                },
+                other => other,
+            })?,
+        ),
+    };
     Ok(Truth {
         interface,
         master_from_board: file.board_poses.iter().map(pose_from_file).collect(),
         noise_px: file.noise_px,
         seed: file.seed,
+        rig,
     })
 }
 
@@ -766,6 +820,91 @@ mod tests {
         for (text, expected) in cases {
             let message = parse_general(text).unwrap_err().to_string();
             assert!(message.contains(expected), "{text}: {message}");
+        }
+    }
+
+    #[test]
+    fn truth_holds_the_rig_and_old_truth_files_still_read() {
+        use crate::model::Ports;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("truth.json");
+        let rig = crate::io::rig_from_json_str(
+            r#"{"cameras": [
+                {"name": "a", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240,
+                 "interface": {"normal": [0.1, 0, 1], "distance": 0.02}},
+                {"name": "b", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240,
+                 "translation": [-0.1, 0, 0], "interface": {"normal": [0, 0.05, 1], "distance": 0.015}}]}"#,
+            Path::new("rig.json"),
+        )
+        .unwrap();
+        let pose = Isometry3::new(Vector3::new(0.1, -0.2, 1.5), Vector3::new(0.1, 0.2, -0.3));
+        let truth = Truth {
+            interface: rig.port_in_master(0),
+            master_from_board: vec![pose],
+            noise_px: 0.25,
+            seed: 7,
+            rig: Some(rig.clone()),
+        };
+        write_truth(&path, &truth).unwrap();
+        let back = read_truth(&path).unwrap();
+        // Normals are normalised again on reading: equal to an ulp.
+        let same_port = |a: &Interface, b: &Interface| {
+            (a.normal().into_inner() - b.normal().into_inner()).norm() < 1e-15
+                && a.air_distance() == b.air_distance()
+                && a.layers() == b.layers()
+        };
+        let back_rig = back.rig.as_ref().unwrap();
+        assert_eq!(back_rig.cameras(), rig.cameras());
+        match (back_rig.ports(), rig.ports()) {
+            (Ports::PerCamera(a), Ports::PerCamera(b)) => {
+                assert!(a.iter().zip(b).all(|(a, b)| same_port(a, b)))
+            }
+            _ => panic!("the ports changed kind"),
+        }
+        assert!(same_port(&back.interface, &truth.interface));
+        assert!(
+            (back.master_from_board[0].to_homogeneous() - pose.to_homogeneous()).norm() < 1e-15
+        );
+        // A file written before the rig was added (no "rig" key) reads, without a rig.
+        let mut value: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        value.as_object_mut().unwrap().remove("rig");
+        std::fs::write(&path, value.to_string()).unwrap();
+        assert_eq!(read_truth(&path).unwrap().rig, None);
+        // A bad rig inside names its place.
+        let text = truth_to_json_string(&truth).replace("\"fx\": 500.0", "\"fx\": -500.0");
+        std::fs::write(&path, text).unwrap();
+        let error = read_truth(&path).unwrap_err().to_string();
+        assert!(error.contains("rig.cameras[0].fx"), "{error}");
+    }
+
+    #[test]
+    fn target_files_read_and_name_what_is_wrong() {
+        let target = target_from_json_str(
+            r#"{"points": [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]]}"#,
+            Path::new("t.json"),
+        )
+        .unwrap();
+        assert_eq!(target.len(), 4);
+        assert!(!target.is_planar());
+        for (text, place) in [
+            (
+                r#"{"points": [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0]]}"#,
+                "points",
+            ),
+            (
+                r#"{"points": [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0]]}"#,
+                "points[3]",
+            ),
+            (r#"{"points": [], "board": 1}"#, "board"),
+        ] {
+            let error = target_from_json_str(text, Path::new("t.json"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                error.contains("t.json") && error.contains(place),
+                "{text}: {error}"
+            );
         }
     }
 }

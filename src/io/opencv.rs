@@ -475,7 +475,19 @@ fn image_size(
     }
 }
 
+/// Longest baseline |T| read as metres without a word: a stereo rig more than 2 m wide is rare,
+/// and a T of that length is far more often millimetres (OpenCV keeps the unit of the board's
+/// square size, and many give it in mm).
+pub const MAX_BASELINE_M: f64 = 2.0;
+
 impl OpenCvStereo {
+    /// The same calibration with every length it holds (T; the camera matrices and distortion
+    /// are in pixels and unitless) read as millimetres and given in metres.
+    pub fn scaled_from_millimetres(mut self) -> Self {
+        self.translation /= 1000.0;
+        self
+    }
+
     /// A rig with cameras `names[0]` (the master, identity extrinsics) and `names[1]` (R, T) behind
     /// `interface`. `image_size` (width, height) overrides the file's; one of them must be given.
     /// `path` labels errors.

@@ -13,7 +13,7 @@ use crate::model::{Interface, Layer, ModelError, PinholeCamera, Ports, Rig, RigC
 
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct RigFile {
+pub(crate) struct RigFile {
     cameras: Vec<CameraFile>,
     /// The port shared by every camera (master frame); absent when every camera has its own.
     #[serde(
@@ -122,7 +122,11 @@ pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(
 
 /// Parses and validates a rig from JSON text; `path` only labels errors.
 pub fn rig_from_json_str(text: &str, path: &Path) -> Result<Rig, IoError> {
-    let file: RigFile = parse_json(text, path)?;
+    rig_from_file(&parse_json(text, path)?, path)
+}
+
+/// Validates a parsed rig file; `path` only labels errors.
+pub(crate) fn rig_from_file(file: &RigFile, path: &Path) -> Result<Rig, IoError> {
     let invalid = |field: String, error: ModelError| IoError::Invalid {
         path: path.to_path_buf(),
         field,
@@ -166,7 +170,7 @@ pub fn rig_from_json_str(text: &str, path: &Path) -> Result<Rig, IoError> {
             })?;
         cameras.push(camera);
     }
-    let ports = ports_from_file(&file, path)?;
+    let ports = ports_from_file(file, path)?;
     let names: Vec<&str> = file.cameras.iter().map(|c| c.name.as_str()).collect();
     Rig::with_ports(cameras, ports).map_err(|e| invalid(rig_field(&e, &names), e))
 }
@@ -309,6 +313,14 @@ pub fn read_rig(path: &Path) -> Result<Rig, IoError> {
 
 /// The rig as pretty JSON in the rig-file schema, every field written at full f64 precision.
 pub fn rig_to_json_string(rig: &Rig) -> String {
+    let mut text =
+        serde_json::to_string_pretty(&rig_to_file(rig)).expect("plain data always serialises");
+    text.push('\n');
+    text
+}
+
+/// The rig in the rig-file schema.
+pub(crate) fn rig_to_file(rig: &Rig) -> RigFile {
     let cameras = rig
         .cameras()
         .iter()
@@ -347,13 +359,10 @@ pub fn rig_to_json_string(rig: &Rig) -> String {
             }
         })
         .collect();
-    let file = RigFile {
+    RigFile {
         cameras,
         interface: rig.shared_interface().map(interface_to_file),
-    };
-    let mut text = serde_json::to_string_pretty(&file).expect("plain data always serialises");
-    text.push('\n');
-    text
+    }
 }
 
 /// Writes a rig file atomically.

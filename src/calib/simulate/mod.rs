@@ -1,7 +1,13 @@
 //! Simulated calibration scenes: random board poses in the water seen fully by both cameras,
-//! corners projected exactly through the interface, Gaussian pixel noise.
+//! corners projected exactly through the interface, Gaussian pixel noise. [`simulate_rig`] does
+//! the same for any rig (1..N cameras, a shared port or a port per camera) and any [`Target`].
+//!
+//! [`Target`]: crate::calib::Target
 
+pub mod rig;
 pub mod rng;
+
+pub use rig::{RigScene, RigSceneSpec, check_rig_scene_size, simulate_rig};
 
 use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector3};
 
@@ -138,7 +144,14 @@ pub fn simulate(
     for v in 0..spec.views {
         let (pose, pixels) = (0..MAX_TRIES_PER_VIEW)
             .find_map(|_| {
-                let pose = random_pose(&mut rng, board, near, far, tan_half_fov_water, spec.max_board_tilt);
+                let pose = random_pose(
+                    &mut rng,
+                    &board.centre_in_board().coords,
+                    near,
+                    far,
+                    tan_half_fov_water,
+                    spec.max_board_tilt,
+                );
                 visible_corners(&cameras, rig, [left, right], board, &pose, margin).map(|p| (pose, p))
             })
             .ok_or_else(|| {
@@ -176,11 +189,12 @@ pub fn simulate(
     })
 }
 
-/// A board pose: centre at a random depth in [near, far] inside the central part of the view,
-/// facing the camera within `max_tilt`, turned in its plane by up to ±30°.
-fn random_pose(
+/// A target pose: the point `centre` of the target (its frame) at a random depth in [near, far]
+/// inside the central part of the master camera's view, the target's z axis within `max_tilt`
+/// of the camera's, turned about it by up to ±30°.
+pub(crate) fn random_pose(
     rng: &mut Rng,
-    board: &Board,
+    centre_in_target: &Vector3<f64>,
     near: f64,
     far: f64,
     tan_half_fov: f64,
@@ -196,7 +210,7 @@ fn random_pose(
     let tilt = UnitQuaternion::from_scaled_axis(axis * cos_tilt.acos());
     let spin = UnitQuaternion::from_scaled_axis(Vector3::z() * rng.range(-0.5, 0.5));
     let rotation = tilt * spin;
-    let to_centre = Translation3::from(-board.centre_in_board().coords);
+    let to_centre = Translation3::from(-centre_in_target);
     Isometry3::from_parts(Translation3::from(centre), rotation) * to_centre
 }
 
