@@ -318,7 +318,15 @@ fn bad_rigs_and_arguments_give_clear_errors() {
 
 #[test]
 fn every_command_has_help_with_an_example() {
-    for command in ["project", "backproject", "triangulate", "vop", "demo", "detect", "render"] {
+    for command in [
+        "project",
+        "backproject",
+        "triangulate",
+        "vop",
+        "demo",
+        "detect",
+        "render",
+    ] {
         let help = run_ok(&[command, "--help"]);
         assert!(
             help.contains("Example"),
@@ -425,7 +433,14 @@ fn demo_runs_end_to_end() {
     let text = run_ok(&["demo", "--output", out.to_str().unwrap(), "--device", "cpu"]);
     // The calibration story: rendered images, detected corners, calibration from the naive start,
     // two sweeps.
-    for file in ["rig.json", "truth.json", "observations.json", "start_rig.json", "calibrated_rig.json", "report.json"] {
+    for file in [
+        "rig.json",
+        "truth.json",
+        "observations.json",
+        "start_rig.json",
+        "calibrated_rig.json",
+        "report.json",
+    ] {
         assert!(out.join(file).exists(), "demo wrote no {file}");
     }
     for sweep in ["sweep_wide", "sweep_close"] {

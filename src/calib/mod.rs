@@ -35,5 +35,5 @@ pub use problem::data::{Candidate, StereoData};
 pub use problem::observations::{Observations, StereoView, ViewGroups, compare_views};
 pub use problem::rig_observations::{CameraKey, Image, RigObservations, RigView, SeenView};
 pub use problem::target::Target;
-pub use simulate::{Scene, SceneSpec, simulate};
 pub use simulate::{RigScene, RigSceneSpec, simulate_rig};
+pub use simulate::{Scene, SceneSpec, simulate};

@@ -9,7 +9,9 @@ use clap::{Args, ValueEnum};
 
 use flatport::calib::RigObservations;
 use flatport::calib::methods::rig_bundle::Estimate;
-use flatport::calib::methods::rig_calibrate::{Estimated, RigCalibrationOptions, RigReport, calibrate_rig};
+use flatport::calib::methods::rig_calibrate::{
+    Estimated, RigCalibrationOptions, RigReport, calibrate_rig,
+};
 use flatport::calib::simulate::MAX_BOARD_CORNERS;
 use flatport::calib::solvers::search::{
     MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text,

@@ -89,7 +89,11 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     use flatport::io::{Truth, read_observations, write_report};
     use flatport::render::RenderOptions;
 
-    let board = Board { rows: 6, cols: 9, square: 0.04 };
+    let board = Board {
+        rows: 6,
+        cols: 9,
+        square: 0.04,
+    };
     outln!(
         "\n1. render: {VIEWS} views of a 9x6 chessboard (40 mm squares) in the water, as both cameras see it through the port\n   \
          (every pixel back-projected, edges supersampled 8×8, lens distortion, blur {BLUR_PX} px, noise {NOISE_GREY} grey levels)"
@@ -97,19 +101,46 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     let mut spec = SceneSpec::new(board, VIEWS, 0.0, 1);
     spec.margin_px = 40.0;
     let poses = simulate(rig, 0, 1, &spec)?.master_from_board;
-    let scene = super::render::Scene { rig: rig.clone(), board, poses };
-    let options = RenderOptions { blur_px: BLUR_PX, noise: NOISE_GREY, seed: 1, ..RenderOptions::default() };
+    let scene = super::render::Scene {
+        rig: rig.clone(),
+        board,
+        poses,
+    };
+    let options = RenderOptions {
+        blur_px: BLUR_PX,
+        noise: NOISE_GREY,
+        seed: 1,
+        ..RenderOptions::default()
+    };
     let engine: Engine = super::calib::calibration_engine(engine_args)?;
     let images = dir.join("images");
     let started = Instant::now();
     super::render::render_scene(&scene, &options, 8, &engine, &images, false)?;
-    outln!("   {} images in {:.2} s: {}/left/ and right/", 2 * VIEWS, started.elapsed().as_secs_f64(), images.display());
+    outln!(
+        "   {} images in {:.2} s: {}/left/ and right/",
+        2 * VIEWS,
+        started.elapsed().as_secs_f64(),
+        images.display()
+    );
     write_rig(&dir.join("rig.json"), rig)?;
-    let truth = Truth { interface: rig.port_in_master(0), master_from_board: scene.poses.clone(), noise_px: 0.0, seed: 1, rig: Some(rig.clone()) };
+    let truth = Truth {
+        interface: rig.port_in_master(0),
+        master_from_board: scene.poses.clone(),
+        noise_px: 0.0,
+        seed: 1,
+        rig: Some(rig.clone()),
+    };
 
-    outln!("2. detect the corners (calib-targets, corner 0 by the board's colours), overlays in overlays/:");
+    outln!(
+        "2. detect the corners (calib-targets, corner 0 by the board's colours), overlays in overlays/:"
+    );
     let started = Instant::now();
-    let glob = |camera: &str| (camera.to_string(), format!("{}/{camera}/*.png", glob_escape(&images)));
+    let glob = |camera: &str| {
+        (
+            camera.to_string(),
+            format!("{}/{camera}/*.png", glob_escape(&images)),
+        )
+    };
     super::detect::run(super::detect::DetectArgs {
         board,
         images: vec![glob("left"), glob("right")],
@@ -124,9 +155,13 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     let seconds = started.elapsed().as_secs_f64();
     match corner_errors(&observations, &exact) {
         Some((rms, max)) => {
-            outln!("   in {seconds:.2} s; against the exact corners (projected through the port): RMS {rms:.4} px, largest {max:.4} px")
+            outln!(
+                "   in {seconds:.2} s; against the exact corners (projected through the port): RMS {rms:.4} px, largest {max:.4} px"
+            )
         }
-        None => outln!("   in {seconds:.2} s; some views were left out (see above), so the corners are not compared with the exact ones"),
+        None => outln!(
+            "   in {seconds:.2} s; some views were left out (see above), so the corners are not compared with the exact ones"
+        ),
     }
     write_truth(&dir.join("truth.json"), &truth)?;
 
@@ -149,7 +184,9 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
         super::calib::truth_errors(&calibration.report, &truth)
     );
 
-    outln!("4. sweep the affine-grid cost over the axis (a wide view, and a close one around the result):");
+    outln!(
+        "4. sweep the affine-grid cost over the axis (a wide view, and a close one around the result):"
+    );
     let found = calibration.report.candidate;
     let (tilt, azimuth) = (found.tilt().to_degrees(), found.azimuth().to_degrees());
     // Close view: ±1° of tilt, and azimuths spanning about ±1° of arc at this tilt.
@@ -227,13 +264,21 @@ fn glob_escape(path: &Path) -> String {
 /// RMS and largest distance (pixels) between the corners of `found` and `exact`, view by view,
 /// over the corners both hold; `None` when they hold different numbers of views (some view was
 /// left out, so they no longer pair by position).
-fn corner_errors(found: &flatport::calib::Observations, exact: &flatport::calib::Observations) -> Option<(f64, f64)> {
+fn corner_errors(
+    found: &flatport::calib::Observations,
+    exact: &flatport::calib::Observations,
+) -> Option<(f64, f64)> {
     if found.views.len() != exact.views.len() {
         return None;
     }
     let (mut sum, mut count, mut max) = (0.0, 0usize, 0.0f64);
     for (a, b) in found.views.iter().zip(&exact.views) {
-        for (p, q) in a.left.iter().zip(&b.left).chain(a.right.iter().zip(&b.right)) {
+        for (p, q) in a
+            .left
+            .iter()
+            .zip(&b.left)
+            .chain(a.right.iter().zip(&b.right))
+        {
             if let (Some(p), Some(q)) = (p, q) {
                 let e = (p - q).norm();
                 sum += e * e;
@@ -250,7 +295,9 @@ fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let rig = rig.clone();
     write_rig(&dir.join("rig.json"), &rig)?;
-    outln!("\n5. the geometry on its own: project, back-project, triangulate a grid of points, VOPs");
+    outln!(
+        "\n5. the geometry on its own: project, back-project, triangulate a grid of points, VOPs"
+    );
 
     let points = example_points();
     let (left, right) = (rig.refractive_camera(0), rig.refractive_camera(1));

@@ -48,8 +48,12 @@ pub struct DetectArgs {
 
 fn parse_images(text: &str) -> Result<(String, String), String> {
     match text.split_once('=') {
-        Some((camera, glob)) if !camera.trim().is_empty() && !glob.is_empty() => Ok((camera.trim().to_string(), glob.to_string())),
-        _ => Err(format!("expected CAMERA=GLOB such as left='images/left/*.png', got '{text}'")),
+        Some((camera, glob)) if !camera.trim().is_empty() && !glob.is_empty() => {
+            Ok((camera.trim().to_string(), glob.to_string()))
+        }
+        _ => Err(format!(
+            "expected CAMERA=GLOB such as left='images/left/*.png', got '{text}'"
+        )),
     }
 }
 
@@ -60,7 +64,8 @@ fn list_images(images: &[(String, String)]) -> anyhow::Result<Vec<Vec<PathBuf>>>
         if images[..i].iter().any(|(c, _)| c == camera) {
             bail!("--images names camera '{camera}' twice");
         }
-        let paths = glob::glob(pattern).with_context(|| format!("--images {camera}={pattern}: not a valid glob"))?;
+        let paths = glob::glob(pattern)
+            .with_context(|| format!("--images {camera}={pattern}: not a valid glob"))?;
         let mut files = Vec::new();
         for path in paths {
             let path = path.with_context(|| format!("--images {camera}={pattern}"))?;
@@ -96,7 +101,9 @@ struct ImageResult {
 
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     if let Some(dictionary) = &args.charuco {
-        bail!("--charuco {dictionary}: ChArUco boards are not supported yet; print a plain chessboard (see the README, \"Detecting corners\")");
+        bail!(
+            "--charuco {dictionary}: ChArUco boards are not supported yet; print a plain chessboard (see the README, \"Detecting corners\")"
+        );
     }
     let board = args.board;
     let names: Vec<String> = args.images.iter().map(|(c, _)| c.clone()).collect();
@@ -117,7 +124,9 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     };
     let files = list_images(&args.images)?;
     let views = files[0].len();
-    let jobs: Vec<(usize, usize)> = (0..views).flat_map(|v| (0..names.len()).map(move |k| (v, k))).collect();
+    let jobs: Vec<(usize, usize)> = (0..views)
+        .flat_map(|v| (0..names.len()).map(move |k| (v, k)))
+        .collect();
 
     // Sizes first, from the headers: a wrong image fails before any detection runs.
     for (k, list) in files.iter().enumerate() {
@@ -134,7 +143,13 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
             if let Some((w, h)) = expected
                 && size != (w, h)
             {
-                bail!("{}: {}×{} pixels, but the rig's camera '{}' takes {w}×{h}", path.display(), size.0, size.1, names[k]);
+                bail!(
+                    "{}: {}×{} pixels, but the rig's camera '{}' takes {w}×{h}",
+                    path.display(),
+                    size.0,
+                    size.1,
+                    names[k]
+                );
             }
             match first {
                 Some((w, h, other)) if size != (w, h) => bail!(
@@ -175,16 +190,27 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     let mut misses: Vec<String> = Vec::new();
     let mut chosen_per_image: Vec<Option<(usize, Rule)>> = vec![None; jobs.len()];
     let mut view_notes: Vec<Option<String>> = vec![None; views];
-    let file_list = |v: usize| files.iter().map(|f| f[v].display().to_string()).collect::<Vec<_>>().join(", ");
+    let file_list = |v: usize| {
+        files
+            .iter()
+            .map(|f| f[v].display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
     for v in 0..views {
-        let found: Vec<Option<Found>> = (0..names.len()).map(|k| results[v * names.len() + k].found.clone().ok()).collect();
+        let found: Vec<Option<Found>> = (0..names.len())
+            .map(|k| results[v * names.len() + k].found.clone().ok())
+            .collect();
         for k in 0..names.len() {
             if let Err(miss) = &results[v * names.len() + k].found {
                 misses.push(format!("{}: {miss}", files[k][v].display()));
             }
         }
         if found.iter().all(Option::is_none) {
-            dropped.push(format!("view {v} ({}): no camera found the board", file_list(v)));
+            dropped.push(format!(
+                "view {v} ({}): no camera found the board",
+                file_list(v)
+            ));
             continue;
         }
         let pair = rig.as_ref().zip(rig_cameras.as_deref());
@@ -193,7 +219,9 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
                 let view: DetectedView = chosen
                     .iter()
                     .zip(&found)
-                    .map(|(c, f)| c.and_then(|(o, _)| f.as_ref().map(|f| f.detection.orderings[o].clone())))
+                    .map(|(c, f)| {
+                        c.and_then(|(o, _)| f.as_ref().map(|f| f.detection.orderings[o].clone()))
+                    })
                     .collect();
                 for (k, c) in chosen.iter().enumerate() {
                     chosen_per_image[v * names.len() + k] = *c;
@@ -222,7 +250,15 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         .collect();
 
     if let Some(dir) = &args.overlay {
-        write_overlays(dir, &board, &names, &files, &results, &chosen_per_image, &view_notes)?;
+        write_overlays(
+            dir,
+            &board,
+            &names,
+            &files,
+            &results,
+            &chosen_per_image,
+            &view_notes,
+        )?;
     }
 
     for line in &misses {
@@ -241,7 +277,9 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         .iter()
         .enumerate()
         .map(|(k, name)| {
-            let count = (0..views).filter(|&v| results[v * names.len() + k].found.is_ok()).count();
+            let count = (0..views)
+                .filter(|&v| results[v * names.len() + k].found.is_ok())
+                .count();
             format!("{name} {count}/{views}")
         })
         .collect();
@@ -251,10 +289,17 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
         per_camera.join(", "),
         written,
         args.output.display(),
-        if let Some(dir) = &args.overlay { format!(", overlays in {}", dir.display()) } else { String::new() }
+        if let Some(dir) = &args.overlay {
+            format!(", overlays in {}", dir.display())
+        } else {
+            String::new()
+        }
     );
     if written == 0 {
-        bail!("no view of the board in any camera could be used: {} holds no views", args.output.display());
+        bail!(
+            "no view of the board in any camera could be used: {} holds no views",
+            args.output.display()
+        );
     }
     Ok(())
 }
@@ -270,24 +315,45 @@ fn write_overlays(
     notes: &[Option<String>],
 ) -> anyhow::Result<()> {
     for name in names {
-        std::fs::create_dir_all(dir.join(name)).with_context(|| format!("cannot create {}", dir.join(name).display()))?;
+        std::fs::create_dir_all(dir.join(name))
+            .with_context(|| format!("cannot create {}", dir.join(name).display()))?;
     }
     let count = names.len();
-    (0..results.len()).into_par_iter().try_for_each(|i| -> anyhow::Result<()> {
-        let (v, k) = (i / count, i % count);
-        let path = &files[k][v];
-        let image = read_grey_image(path)?;
-        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| format!("view_{v:03}"));
-        let (corners, caption, warning) = match (&results[i].found, chosen[i], &notes[v]) {
-            (Ok(found), Some((o, rule)), _) => {
-                (found.detection.orderings[o].clone(), format!("view {v}, {}: {} corners, corner 0 by {}", names[k], board.corners(), rule.name()), false)
-            }
-            (Ok(found), None, Some(why)) => (found.detection.orderings[0].clone(), format!("view {v}, {}: UNRESOLVED, left out: {why}", names[k]), true),
-            (Ok(found), None, None) => (found.detection.orderings[0].clone(), format!("view {v}, {}", names[k]), true),
-            (Err(miss), ..) => (Vec::new(), format!("view {v}, {}: {miss}", names[k]), true),
-        };
-        let drawn = overlay(&image, &corners, board.cols, &caption, warning);
-        write_rgb_jpeg(&dir.join(&names[k]).join(format!("{stem}.jpg")), &drawn)?;
-        Ok(())
-    })
+    (0..results.len())
+        .into_par_iter()
+        .try_for_each(|i| -> anyhow::Result<()> {
+            let (v, k) = (i / count, i % count);
+            let path = &files[k][v];
+            let image = read_grey_image(path)?;
+            let stem = path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| format!("view_{v:03}"));
+            let (corners, caption, warning) = match (&results[i].found, chosen[i], &notes[v]) {
+                (Ok(found), Some((o, rule)), _) => (
+                    found.detection.orderings[o].clone(),
+                    format!(
+                        "view {v}, {}: {} corners, corner 0 by {}",
+                        names[k],
+                        board.corners(),
+                        rule.name()
+                    ),
+                    false,
+                ),
+                (Ok(found), None, Some(why)) => (
+                    found.detection.orderings[0].clone(),
+                    format!("view {v}, {}: UNRESOLVED, left out: {why}", names[k]),
+                    true,
+                ),
+                (Ok(found), None, None) => (
+                    found.detection.orderings[0].clone(),
+                    format!("view {v}, {}", names[k]),
+                    true,
+                ),
+                (Err(miss), ..) => (Vec::new(), format!("view {v}, {}: {miss}", names[k]), true),
+            };
+            let drawn = overlay(&image, &corners, board.cols, &caption, warning);
+            write_rgb_jpeg(&dir.join(&names[k]).join(format!("{stem}.jpg")), &drawn)?;
+            Ok(())
+        })
 }

@@ -1,8 +1,8 @@
 //! `flatport render`: images of a chessboard seen through the port by every camera of a rig.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::Context;
 use clap::Args;
@@ -10,7 +10,10 @@ use nalgebra::{Isometry3, Point2};
 
 use flatport::calib::{Board, SceneSpec, simulate};
 use flatport::engine::Engine;
-use flatport::io::{DetectedView, Truth, read_rig, read_truth, write_detections, write_grey16_png, write_grey_png, write_rig, write_truth};
+use flatport::io::{
+    DetectedView, Truth, read_rig, read_truth, write_detections, write_grey_png, write_grey16_png,
+    write_rig, write_truth,
+};
 use flatport::model::Rig;
 use flatport::render::{RenderOptions, render_board};
 
@@ -81,16 +84,32 @@ pub struct Scene {
 
 /// Renders every camera's image of every pose into `dir`/CAMERA/view_NNN.png, writes rig.json,
 /// truth.json and corners.json (the exact corners). Returns the image paths per camera.
-pub fn render_scene(scene: &Scene, options: &RenderOptions, bits: u8, engine: &Engine, dir: &Path, quiet: bool) -> anyhow::Result<Vec<Vec<PathBuf>>> {
+pub fn render_scene(
+    scene: &Scene,
+    options: &RenderOptions,
+    bits: u8,
+    engine: &Engine,
+    dir: &Path,
+    quiet: bool,
+) -> anyhow::Result<Vec<Vec<PathBuf>>> {
     let names: Vec<String> = scene.rig.cameras().iter().map(|c| c.name.clone()).collect();
     for name in &names {
-        std::fs::create_dir_all(dir.join(name)).with_context(|| format!("cannot create {}", dir.join(name).display()))?;
+        std::fs::create_dir_all(dir.join(name))
+            .with_context(|| format!("cannot create {}", dir.join(name).display()))?;
     }
     write_rig(&dir.join("rig.json"), &scene.rig)?;
-    let truth = Truth { interface: scene.rig.port_in_master(0), master_from_board: scene.poses.clone(), noise_px: 0.0, seed: options.seed, rig: Some(scene.rig.clone()) };
+    let truth = Truth {
+        interface: scene.rig.port_in_master(0),
+        master_from_board: scene.poses.clone(),
+        noise_px: 0.0,
+        seed: options.seed,
+        rig: Some(scene.rig.clone()),
+    };
     write_truth(&dir.join("truth.json"), &truth)?;
     // The exact corners: every board corner projected through the port by the model.
-    let cameras: Vec<_> = (0..names.len()).map(|k| scene.rig.refractive_camera(k)).collect();
+    let cameras: Vec<_> = (0..names.len())
+        .map(|k| scene.rig.refractive_camera(k))
+        .collect();
     let exact: Vec<DetectedView> = scene
         .poses
         .iter()
@@ -101,9 +120,15 @@ pub fn render_scene(scene: &Scene, options: &RenderOptions, bits: u8, engine: &E
                     let i = camera.intrinsics();
                     (0..scene.board.corners())
                         .map(|c| {
-                            camera.project(&(pose * scene.board.point_in_board(c))).ok().filter(|p: &Point2<f64>| {
-                                p.x >= -0.5 && p.y >= -0.5 && p.x < i.width as f64 - 0.5 && p.y < i.height as f64 - 0.5
-                            })
+                            camera
+                                .project(&(pose * scene.board.point_in_board(c)))
+                                .ok()
+                                .filter(|p: &Point2<f64>| {
+                                    p.x >= -0.5
+                                        && p.y >= -0.5
+                                        && p.x < i.width as f64 - 0.5
+                                        && p.y < i.height as f64 - 0.5
+                                })
                         })
                         .collect::<Option<Vec<_>>>()
                 })
@@ -117,7 +142,8 @@ pub fn render_scene(scene: &Scene, options: &RenderOptions, bits: u8, engine: &E
     let done = AtomicUsize::new(0);
     let mut paths = vec![Vec::new(); names.len()];
     // Images one after the other (each one is parallel inside), PNG encoding beside the next one.
-    let (sender, receiver) = std::sync::mpsc::sync_channel::<(PathBuf, flatport::render::GreyImage)>(2);
+    let (sender, receiver) =
+        std::sync::mpsc::sync_channel::<(PathBuf, flatport::render::GreyImage)>(2);
     std::thread::scope(|s| -> anyhow::Result<()> {
         let writer = s.spawn(move || -> anyhow::Result<()> {
             for (path, image) in receiver {
@@ -136,8 +162,20 @@ pub fn render_scene(scene: &Scene, options: &RenderOptions, bits: u8, engine: &E
         let mut result = Ok(());
         'views: for (v, pose) in scene.poses.iter().enumerate() {
             for (k, camera) in cameras.iter().enumerate() {
-                let seed = options.seed.wrapping_mul(1_000_003).wrapping_add((v * names.len() + k) as u64);
-                let image = match render_board(engine, camera, &scene.board, pose, &RenderOptions { seed, ..options.clone() }) {
+                let seed = options
+                    .seed
+                    .wrapping_mul(1_000_003)
+                    .wrapping_add((v * names.len() + k) as u64);
+                let image = match render_board(
+                    engine,
+                    camera,
+                    &scene.board,
+                    pose,
+                    &RenderOptions {
+                        seed,
+                        ..options.clone()
+                    },
+                ) {
                     Ok(image) => image,
                     Err(e) => {
                         result = Err(anyhow::Error::from(e));
@@ -164,17 +202,29 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let scene = match &args.truth {
         Some(path) => {
             let truth = read_truth(path)?;
-            let rig = rig.with_interface(truth.interface.clone()).with_context(|| format!("{}: its port does not fit the rig", path.display()))?;
-            Scene { rig, board, poses: truth.master_from_board }
+            let rig = rig
+                .with_interface(truth.interface.clone())
+                .with_context(|| format!("{}: its port does not fit the rig", path.display()))?;
+            Scene {
+                rig,
+                board,
+                poses: truth.master_from_board,
+            }
         }
         None => {
             if rig.cameras().len() < 2 {
-                anyhow::bail!("poses are drawn as `flatport simulate` draws them, for a stereo pair: the rig has one camera (give --truth)");
+                anyhow::bail!(
+                    "poses are drawn as `flatport simulate` draws them, for a stereo pair: the rig has one camera (give --truth)"
+                );
             }
             let mut spec = SceneSpec::new(board, args.views, 0.0, args.seed);
             spec.margin_px = args.margin_px;
             let simulated = simulate(&rig, 0, 1, &spec)?;
-            Scene { rig, board, poses: simulated.master_from_board }
+            Scene {
+                rig,
+                board,
+                poses: simulated.master_from_board,
+            }
         }
     };
     let options = RenderOptions {
@@ -187,7 +237,14 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     };
     let engine = args.engine.engine()?;
     let started = std::time::Instant::now();
-    let paths = render_scene(&scene, &options, args.bits, &engine, &args.output, args.quiet)?;
+    let paths = render_scene(
+        &scene,
+        &options,
+        args.bits,
+        &engine,
+        &args.output,
+        args.quiet,
+    )?;
     outln!(
         "rendered {} images ({} views × {} cameras) in {:.2} s into {}/: {}/view_NNN.png, rig.json, truth.json, corners.json",
         paths.iter().map(Vec::len).sum::<usize>(),
@@ -195,7 +252,13 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         paths.len(),
         started.elapsed().as_secs_f64(),
         args.output.display(),
-        scene.rig.cameras().iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join("/, ")
+        scene
+            .rig
+            .cameras()
+            .iter()
+            .map(|c| c.name.as_str())
+            .collect::<Vec<_>>()
+            .join("/, ")
     );
     Ok(())
 }

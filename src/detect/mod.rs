@@ -47,8 +47,14 @@ impl std::fmt::Display for Miss {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Miss::NoBoard => write!(f, "no chessboard found"),
-            Miss::Partial { found, extent: (w, h) } => {
-                write!(f, "found a grid of {found} corners ({w} × {h}), not the whole board")
+            Miss::Partial {
+                found,
+                extent: (w, h),
+            } => {
+                write!(
+                    f,
+                    "found a grid of {found} corners ({w} × {h}), not the whole board"
+                )
             }
         }
     }
@@ -83,7 +89,8 @@ pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss>
     let params = ChessboardParams::sweep_default();
     let smoothed = calib_targets::detect::preprocess(image, PRE_BLUR_PX);
     let image = &smoothed;
-    let detection = calib_targets::detect::detect_chessboard_best(image, &chess_config(), &params).map_err(|_| Miss::NoBoard)?;
+    let detection = calib_targets::detect::detect_chessboard_best(image, &chess_config(), &params)
+        .map_err(|_| Miss::NoBoard)?;
     let corners = &detection.corners;
     if corners.is_empty() {
         return Err(Miss::NoBoard);
@@ -92,20 +99,32 @@ pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss>
     let min_v = corners.iter().map(|c| c.grid.v).min().unwrap_or(0);
     let w = (corners.iter().map(|c| c.grid.u).max().unwrap_or(0) - min_u + 1) as usize;
     let h = (corners.iter().map(|c| c.grid.v).max().unwrap_or(0) - min_v + 1) as usize;
-    let whole = corners.len() == board.corners() && w * h == board.corners() && (w == board.cols || w == board.rows);
+    let whole = corners.len() == board.corners()
+        && w * h == board.corners()
+        && (w == board.cols || w == board.rows);
     if !whole {
-        return Err(Miss::Partial { found: corners.len(), extent: (w, h) });
+        return Err(Miss::Partial {
+            found: corners.len(),
+            extent: (w, h),
+        });
     }
     // grid[j][i], i across the image (right), j down.
     let mut grid = vec![None; w * h];
     for c in corners {
         let (i, j) = ((c.grid.u - min_u) as usize, (c.grid.v - min_v) as usize);
-        grid[j * w + i] = Some(Point2::new(f64::from(c.position.x), f64::from(c.position.y)));
+        grid[j * w + i] = Some(Point2::new(
+            f64::from(c.position.x),
+            f64::from(c.position.y),
+        ));
     }
     // The labels should run right and down in the image (i × j = +z, image y down); mirror them
     // if they do not, so that the orderings below keep the board's chirality.
-    let (Some(origin), Some(along_i), Some(along_j)) = (grid[0], grid[w - 1], grid[(h - 1) * w]) else {
-        return Err(Miss::Partial { found: corners.len(), extent: (w, h) });
+    let (Some(origin), Some(along_i), Some(along_j)) = (grid[0], grid[w - 1], grid[(h - 1) * w])
+    else {
+        return Err(Miss::Partial {
+            found: corners.len(),
+            extent: (w, h),
+        });
     };
     let (di, dj) = (along_i - origin, along_j - origin);
     if di.x * dj.y - di.y * dj.x < 0.0 {
@@ -124,7 +143,11 @@ pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss>
     ];
     let mut orderings = Vec::new();
     for (k, turn) in turns.iter().enumerate() {
-        let fits = if k < 2 { w == board.cols && h == board.rows } else { w == board.rows && h == board.cols };
+        let fits = if k < 2 {
+            w == board.cols && h == board.rows
+        } else {
+            w == board.rows && h == board.cols
+        };
         if !fits {
             continue;
         }
@@ -138,7 +161,10 @@ pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss>
         orderings.extend(ordering);
     }
     if orderings.is_empty() {
-        return Err(Miss::Partial { found: corners.len(), extent: (w, h) });
+        return Err(Miss::Partial {
+            found: corners.len(),
+            extent: (w, h),
+        });
     }
     Ok(Detection { orderings })
 }
@@ -151,13 +177,25 @@ pub fn colour_decides(board: &Board) -> bool {
 
 /// Mean grey level (0 … 255) inside the quadrilateral of corners a, b, c, d (a–b one side, c–d
 /// the opposite side), sampled on a 4 × 4 grid over its middle half, bilinear.
-fn quad_mean(image: &GrayImage, a: Point2<f64>, b: Point2<f64>, c: Point2<f64>, d: Point2<f64>) -> f64 {
+fn quad_mean(
+    image: &GrayImage,
+    a: Point2<f64>,
+    b: Point2<f64>,
+    c: Point2<f64>,
+    d: Point2<f64>,
+) -> f64 {
     let mut sum = 0.0;
     let mut count = 0.0;
     for i in 0..4 {
         for j in 0..4 {
-            let (s, t) = (0.25 + 0.5 * (i as f64 + 0.5) / 4.0, 0.25 + 0.5 * (j as f64 + 0.5) / 4.0);
-            let p = a.coords * ((1.0 - s) * (1.0 - t)) + b.coords * (s * (1.0 - t)) + c.coords * ((1.0 - s) * t) + d.coords * (s * t);
+            let (s, t) = (
+                0.25 + 0.5 * (i as f64 + 0.5) / 4.0,
+                0.25 + 0.5 * (j as f64 + 0.5) / 4.0,
+            );
+            let p = a.coords * ((1.0 - s) * (1.0 - t))
+                + b.coords * (s * (1.0 - t))
+                + c.coords * ((1.0 - s) * t)
+                + d.coords * (s * t);
             if let Some(v) = bilinear(image, p.x, p.y) {
                 sum += v;
                 count += 1.0;
@@ -173,10 +211,16 @@ fn bilinear(image: &GrayImage, x: f64, y: f64) -> Option<f64> {
         return None;
     }
     let (x0, y0) = (x.floor() as u32, y.floor() as u32);
-    let (x1, y1) = ((x0 + 1).min(image.width() - 1), (y0 + 1).min(image.height() - 1));
+    let (x1, y1) = (
+        (x0 + 1).min(image.width() - 1),
+        (y0 + 1).min(image.height() - 1),
+    );
     let (fx, fy) = (x - x0 as f64, y - y0 as f64);
     let g = |x, y| f64::from(image.get_pixel(x, y).0[0]);
-    Some((g(x0, y0) * (1.0 - fx) + g(x1, y0) * fx) * (1.0 - fy) + (g(x0, y1) * (1.0 - fx) + g(x1, y1) * fx) * fy)
+    Some(
+        (g(x0, y0) * (1.0 - fx) + g(x1, y0) * fx) * (1.0 - fy)
+            + (g(x0, y1) * (1.0 - fx) + g(x1, y1) * fx) * fy,
+    )
 }
 
 /// Smallest difference in grey levels (of 255) between the first square and its neighbour that
@@ -186,7 +230,11 @@ pub const MIN_CONTRAST: f64 = 12.0;
 /// The orderings whose first square (corners 0, 1, cols, cols + 1) is black, judged against the
 /// next square along the row; `None` when the contrast is below [`MIN_CONTRAST`] for some
 /// ordering (the image does not show the colours clearly).
-pub fn colour_rule(image: &GrayImage, board: &Board, orderings: &[Vec<Point2<f64>>]) -> Option<Vec<usize>> {
+pub fn colour_rule(
+    image: &GrayImage,
+    board: &Board,
+    orderings: &[Vec<Point2<f64>>],
+) -> Option<Vec<usize>> {
     let cols = board.cols;
     let mut dark = Vec::new();
     for (k, p) in orderings.iter().enumerate() {
@@ -214,8 +262,15 @@ pub const MIN_IMAGE_RULE_LEAD: f64 = 0.5;
 
 /// Among `candidates` (indices into `orderings`), the one whose rows run most nearly to the right
 /// in the image; `None` when the runner-up is within [`MIN_IMAGE_RULE_LEAD`].
-pub fn image_rule(board: &Board, orderings: &[Vec<Point2<f64>>], candidates: &[usize]) -> Option<usize> {
-    let mut scored: Vec<(f64, usize)> = candidates.iter().map(|&k| (row_direction(board, &orderings[k]).x, k)).collect();
+pub fn image_rule(
+    board: &Board,
+    orderings: &[Vec<Point2<f64>>],
+    candidates: &[usize],
+) -> Option<usize> {
+    let mut scored: Vec<(f64, usize)> = candidates
+        .iter()
+        .map(|&k| (row_direction(board, &orderings[k]).x, k))
+        .collect();
     scored.sort_by(|a, b| b.0.total_cmp(&a.0));
     match scored[..] {
         [(_, k)] => Some(k),
@@ -240,14 +295,19 @@ pub fn pair_by_rays(
     orderings: &[Vec<Point2<f64>>],
     candidates: &[usize],
 ) -> (Option<usize>, Vec<(usize, f64)>) {
-    let (a, b) = (rig.refractive_camera(reference_camera), rig.refractive_camera(camera));
+    let (a, b) = (
+        rig.refractive_camera(reference_camera),
+        rig.refractive_camera(camera),
+    );
     let mut gaps: Vec<(usize, f64)> = candidates
         .iter()
         .map(|&k| {
             let mut sum = 0.0;
             let mut count = 0usize;
             for (p, q) in reference.iter().zip(&orderings[k]) {
-                let gap = a.backproject(p).and_then(|ra| b.backproject(q).and_then(|rb| triangulate_rays(&ra, &rb)));
+                let gap = a
+                    .backproject(p)
+                    .and_then(|ra| b.backproject(q).and_then(|rb| triangulate_rays(&ra, &rb)));
                 if let Ok(t) = gap {
                     sum += t.residual * t.residual;
                     count += 1;
@@ -255,13 +315,22 @@ pub fn pair_by_rays(
             }
             // Pairs without an answer count as far apart: a flipped pairing often has none.
             let missing = reference.len() - count;
-            (k, if count == 0 { f64::INFINITY } else { ((sum + missing as f64) / reference.len() as f64).sqrt() })
+            (
+                k,
+                if count == 0 {
+                    f64::INFINITY
+                } else {
+                    ((sum + missing as f64) / reference.len() as f64).sqrt()
+                },
+            )
         })
         .collect();
     gaps.sort_by(|x, y| x.1.total_cmp(&y.1));
     let choice = match gaps[..] {
         [(k, best)] if best.is_finite() => Some(k),
-        [(k, best), (_, next), ..] if best.is_finite() && next >= MIN_RAY_GAP_RATIO * best => Some(k),
+        [(k, best), (_, next), ..] if best.is_finite() && next >= MIN_RAY_GAP_RATIO * best => {
+            Some(k)
+        }
         _ => None,
     };
     (choice, gaps)
@@ -281,7 +350,11 @@ pub struct Found {
 impl Found {
     /// Runs [`colour_rule`] where the board's colours can decide.
     pub fn new(image: &GrayImage, board: &Board, detection: Detection) -> Self {
-        let colour = if colour_decides(board) { colour_rule(image, board, &detection.orderings).filter(|c| !c.is_empty()) } else { None };
+        let colour = if colour_decides(board) {
+            colour_rule(image, board, &detection.orderings).filter(|c| !c.is_empty())
+        } else {
+            None
+        };
         Self { detection, colour }
     }
 
@@ -331,25 +404,52 @@ impl Rule {
 /// them (the rules in the module's documentation). `found[k]` is camera `names[k]`'s result (`None` when
 /// it did not see the board); with a rig, `rig_cameras[k]` is camera k's index in it. Returns
 /// each camera's ordering and the rule that chose it, or why the view cannot be resolved.
-pub fn resolve_view(board: &Board, names: &[String], rig: Option<(&Rig, &[usize])>, found: &[Option<Found>]) -> Result<Vec<Option<(usize, Rule)>>, String> {
+pub fn resolve_view(
+    board: &Board,
+    names: &[String],
+    rig: Option<(&Rig, &[usize])>,
+    found: &[Option<Found>],
+) -> Result<Vec<Option<(usize, Rule)>>, String> {
     let mut chosen: Vec<Option<(usize, Rule)>> = vec![None; found.len()];
     // The cameras that saw the board, with what they found.
-    let seen: Vec<(usize, &Found)> = found.iter().enumerate().filter_map(|(k, f)| f.as_ref().map(|f| (k, f))).collect();
+    let seen: Vec<(usize, &Found)> = found
+        .iter()
+        .enumerate()
+        .filter_map(|(k, f)| f.as_ref().map(|f| (k, f)))
+        .collect();
     let image_choice = |f: &Found| image_rule(board, &f.detection.orderings, &f.candidates());
     match rig {
         Some((rig, indices)) if seen.len() > 1 => {
-            let (reference, first) = seen.iter().copied().find(|(_, f)| f.by_colour().is_some()).unwrap_or(seen[0]);
+            let (reference, first) = seen
+                .iter()
+                .copied()
+                .find(|(_, f)| f.by_colour().is_some())
+                .unwrap_or(seen[0]);
             let by_colour = first.by_colour();
             let (ordering, rule) = match by_colour {
                 Some(o) => (o, Rule::Colour),
-                None => (image_choice(first).unwrap_or(first.candidates()[0]), Rule::Reference),
+                None => (
+                    image_choice(first).unwrap_or(first.candidates()[0]),
+                    Rule::Reference,
+                ),
             };
             chosen[reference] = Some((ordering, rule));
             let corners = &first.detection.orderings[ordering];
             for &(k, f) in seen.iter().filter(|(k, _)| *k != reference) {
                 let all: Vec<usize> = (0..f.detection.orderings.len()).collect();
-                let (rays, gaps) = pair_by_rays(rig, indices[reference], corners, indices[k], &f.detection.orderings, &all);
-                let colour = if by_colour.is_some() { f.by_colour() } else { None };
+                let (rays, gaps) = pair_by_rays(
+                    rig,
+                    indices[reference],
+                    corners,
+                    indices[k],
+                    &f.detection.orderings,
+                    &all,
+                );
+                let colour = if by_colour.is_some() {
+                    f.by_colour()
+                } else {
+                    None
+                };
                 chosen[k] = Some(match (colour, rays) {
                     (Some(c), Some(r)) if c == r => (r, Rule::Rays),
                     (Some(c), Some(r)) => {
@@ -361,7 +461,10 @@ pub fn resolve_view(board: &Board, names: &[String], rig: Option<(&Rig, &[usize]
                     (None, Some(r)) => (r, Rule::Rays),
                     (Some(c), None) => (c, Rule::Colour),
                     (None, None) => {
-                        let text: Vec<String> = gaps.iter().map(|(o, g)| format!("ordering {o}: {:.1} mm", g * 1e3)).collect();
+                        let text: Vec<String> = gaps
+                            .iter()
+                            .map(|(o, g)| format!("ordering {o}: {:.1} mm", g * 1e3))
+                            .collect();
                         return Err(format!(
                             "camera {}: no colour to go by and its rays meet those of camera {} about equally well either way round ({})",
                             names[k],
@@ -401,18 +504,37 @@ mod tests {
 
     #[test]
     fn the_colour_decides_on_boards_with_an_odd_number_of_squares() {
-        assert!(colour_decides(&Board { rows: 6, cols: 9, square: 0.04 }));
-        assert!(!colour_decides(&Board { rows: 6, cols: 8, square: 0.04 }));
-        assert!(!colour_decides(&Board { rows: 7, cols: 9, square: 0.04 }));
+        assert!(colour_decides(&Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04
+        }));
+        assert!(!colour_decides(&Board {
+            rows: 6,
+            cols: 8,
+            square: 0.04
+        }));
+        assert!(!colour_decides(&Board {
+            rows: 7,
+            cols: 9,
+            square: 0.04
+        }));
     }
 
     #[test]
     fn the_image_rule_picks_rows_running_right_and_refuses_near_vertical_rows() {
-        let board = Board { rows: 2, cols: 2, square: 1.0 };
+        let board = Board {
+            rows: 2,
+            cols: 2,
+            square: 1.0,
+        };
         let p = |x: f64, y: f64| Point2::new(x, y);
         let right = vec![p(0.0, 0.0), p(10.0, 1.0), p(0.0, 10.0), p(10.0, 11.0)];
         let left: Vec<_> = right.iter().rev().copied().collect();
-        assert_eq!(image_rule(&board, &[right.clone(), left.clone()], &[0, 1]), Some(0));
+        assert_eq!(
+            image_rule(&board, &[right.clone(), left.clone()], &[0, 1]),
+            Some(0)
+        );
         assert_eq!(image_rule(&board, &[left, right], &[0, 1]), Some(1));
         let down = vec![p(0.0, 0.0), p(1.0, 10.0), p(-10.0, 0.0), p(-9.0, 10.0)];
         let up: Vec<_> = down.iter().rev().copied().collect();

@@ -24,27 +24,44 @@ use crate::calib::{Board, Observations, StereoView};
 pub type DetectedView = Vec<Option<Vec<Point2<f64>>>>;
 
 /// The file's text and the views left out of it (indices into `views`).
-pub fn detections_to_json_string(board: &Board, cameras: &[String], views: &[DetectedView]) -> (String, Vec<usize>) {
+pub fn detections_to_json_string(
+    board: &Board,
+    cameras: &[String],
+    views: &[DetectedView],
+) -> (String, Vec<usize>) {
     if let [a, b] = cameras {
         let mut left_out = Vec::new();
         let mut stereo = Vec::new();
         for (v, view) in views.iter().enumerate() {
             let point = |c: &Vec<Point2<f64>>| c.iter().map(|p| Some(*p)).collect();
             match (&view[0], &view[1]) {
-                (Some(l), Some(r)) => stereo.push(StereoView { left: point(l), right: point(r) }),
+                (Some(l), Some(r)) => stereo.push(StereoView {
+                    left: point(l),
+                    right: point(r),
+                }),
                 _ => left_out.push(v),
             }
         }
         let named = a == "left" && b == "right";
-        let observations = Observations { board: *board, views: stereo, cameras: (!named).then(|| [a.clone(), b.clone()]) };
+        let observations = Observations {
+            board: *board,
+            views: stereo,
+            cameras: (!named).then(|| [a.clone(), b.clone()]),
+        };
         return (observations_to_json_string(&observations), left_out);
     }
-    let mut text = format!("{{\"board\": {},\n \"views\": [", json!({"rows": board.rows, "cols": board.cols, "square": board.square}));
+    let mut text = format!(
+        "{{\"board\": {},\n \"views\": [",
+        json!({"rows": board.rows, "cols": board.cols, "square": board.square})
+    );
     for (v, view) in views.iter().enumerate() {
         let mut map = Map::new();
         for (name, corners) in cameras.iter().zip(view) {
             if let Some(corners) = corners {
-                map.insert(name.clone(), Value::Array(corners.iter().map(|p| json!([p.x, p.y])).collect()));
+                map.insert(
+                    name.clone(),
+                    Value::Array(corners.iter().map(|p| json!([p.x, p.y])).collect()),
+                );
             }
         }
         text += if v == 0 { "\n  " } else { ",\n  " };
@@ -55,7 +72,12 @@ pub fn detections_to_json_string(board: &Board, cameras: &[String], views: &[Det
 }
 
 /// Writes the file atomically; returns the views left out ([`detections_to_json_string`]).
-pub fn write_detections(path: &Path, board: &Board, cameras: &[String], views: &[DetectedView]) -> Result<Vec<usize>, IoError> {
+pub fn write_detections(
+    path: &Path,
+    board: &Board,
+    cameras: &[String],
+    views: &[DetectedView],
+) -> Result<Vec<usize>, IoError> {
     let (text, left_out) = detections_to_json_string(board, cameras, views);
     write_atomic(path, text.as_bytes())?;
     Ok(left_out)
@@ -68,9 +90,23 @@ mod tests {
 
     #[test]
     fn two_cameras_write_what_todays_reader_reads_and_leave_out_one_sided_views() {
-        let board = Board { rows: 2, cols: 2, square: 0.05 };
-        let corners = |x: f64| Some((0..4).map(|i| Point2::new(x + i as f64, 2.0 * i as f64)).collect::<Vec<_>>());
-        let views = vec![vec![corners(1.0), corners(5.0)], vec![corners(1.0), None], vec![corners(2.0), corners(7.5)]];
+        let board = Board {
+            rows: 2,
+            cols: 2,
+            square: 0.05,
+        };
+        let corners = |x: f64| {
+            Some(
+                (0..4)
+                    .map(|i| Point2::new(x + i as f64, 2.0 * i as f64))
+                    .collect::<Vec<_>>(),
+            )
+        };
+        let views = vec![
+            vec![corners(1.0), corners(5.0)],
+            vec![corners(1.0), None],
+            vec![corners(2.0), corners(7.5)],
+        ];
         let names = ["left".to_string(), "right".to_string()];
         let (text, left_out) = detections_to_json_string(&board, &names, &views);
         assert_eq!(left_out, vec![1]);
@@ -87,7 +123,11 @@ mod tests {
 
     #[test]
     fn other_camera_counts_write_the_general_form() {
-        let board = Board { rows: 2, cols: 2, square: 0.05 };
+        let board = Board {
+            rows: 2,
+            cols: 2,
+            square: 0.05,
+        };
         let corners = Some(vec![Point2::new(1.0, 2.0); 4]);
         let views = vec![vec![corners.clone(), None, corners]];
         let names = ["a".to_string(), "b".to_string(), "c".to_string()];

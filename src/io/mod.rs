@@ -16,16 +16,21 @@ pub mod tabular;
 
 use std::path::Path;
 
+pub use self::image::{
+    image_size, read_grey_image, write_grey_png, write_grey16_png, write_rgb_jpeg,
+};
 pub use calib_json::{
     Truth, observations_from_json_str, observations_to_json_string, read_observations,
     read_rig_observations, read_target, read_truth, report_to_json_string,
-    rig_observations_from_json_str, rig_observations_to_json_string, rig_report_to_json_string, target_from_json_str,
-    write_observations, write_report, write_rig_observations, write_truth,
+    rig_observations_from_json_str, rig_observations_to_json_string, rig_report_to_json_string,
+    target_from_json_str, write_observations, write_report, write_rig_observations, write_truth,
 };
 pub use detections::{DetectedView, detections_to_json_string, write_detections};
 pub use error::IoError;
-pub use self::image::{image_size, read_grey_image, write_grey16_png, write_grey_png, write_rgb_jpeg};
-pub use export::{ColmapDialect, ExportError, colmap_cameras_txt, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, opencv_yaml};
+pub use export::{
+    ColmapDialect, ExportError, colmap_cameras_txt, colmap_cameras_txt_as, colmap_rig_config,
+    colmap_rigs_txt, opencv_yaml,
+};
 pub use opencv::{MAX_BASELINE_M, OpenCvStereo, parse_opencv_stereo, read_opencv_stereo};
 pub use output::{OutputFile, remove_temporaries, write_atomic};
 pub use rig_json::{read_rig, rig_from_json_str, rig_to_json_string, write_rig};

@@ -9,12 +9,24 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 /// Colours of successive rows.
-const ROW_COLOURS: [RGBColor; 6] =
-    [RGBColor(255, 40, 40), RGBColor(255, 160, 0), RGBColor(220, 220, 0), RGBColor(40, 200, 40), RGBColor(0, 160, 255), RGBColor(190, 80, 255)];
+const ROW_COLOURS: [RGBColor; 6] = [
+    RGBColor(255, 40, 40),
+    RGBColor(255, 160, 0),
+    RGBColor(220, 220, 0),
+    RGBColor(40, 200, 40),
+    RGBColor(0, 160, 255),
+    RGBColor(190, 80, 255),
+];
 
 /// The image in colour with `corners` (row-major, `cols` per row; empty when none) drawn on it
 /// and `caption` at the top; `warning` draws the caption in red.
-pub fn overlay(image: &GrayImage, corners: &[Point2<f64>], cols: usize, caption: &str, warning: bool) -> RgbImage {
+pub fn overlay(
+    image: &GrayImage,
+    corners: &[Point2<f64>],
+    cols: usize,
+    caption: &str,
+    warning: bool,
+) -> RgbImage {
     super::plot::register_font();
     let (width, height) = image.dimensions();
     let mut buffer: Vec<u8> = image.as_raw().iter().flat_map(|&g| [g, g, g]).collect();
@@ -22,35 +34,64 @@ pub fn overlay(image: &GrayImage, corners: &[Point2<f64>], cols: usize, caption:
         let root = BitMapBackend::with_buffer(&mut buffer, (width, height)).into_drawing_area();
         let at = |p: &Point2<f64>| (p.x.round() as i32, p.y.round() as i32);
         // Size of the marks from the spacing of the corners.
-        let spacing = if corners.len() > 1 { (corners[1] - corners[0]).norm() } else { 20.0 };
+        let spacing = if corners.len() > 1 {
+            (corners[1] - corners[0]).norm()
+        } else {
+            20.0
+        };
         let radius = (spacing / 6.0).clamp(2.0, 8.0) as i32;
         for (r, row) in corners.chunks(cols.max(1)).enumerate() {
             let colour = ROW_COLOURS[r % ROW_COLOURS.len()];
-            let _ = root.draw(&PathElement::new(row.iter().map(at).collect::<Vec<_>>(), colour.stroke_width(1)));
+            let _ = root.draw(&PathElement::new(
+                row.iter().map(at).collect::<Vec<_>>(),
+                colour.stroke_width(1),
+            ));
             for p in row {
                 let _ = root.draw(&Circle::new(at(p), radius, colour.stroke_width(1)));
             }
             // Join to the next row's first corner, as OpenCV does.
             if let (Some(last), Some(next)) = (row.last(), corners.get((r + 1) * cols)) {
-                let _ = root.draw(&PathElement::new(vec![at(last), at(next)], colour.mix(0.5).stroke_width(1)));
+                let _ = root.draw(&PathElement::new(
+                    vec![at(last), at(next)],
+                    colour.mix(0.5).stroke_width(1),
+                ));
             }
         }
         if corners.len() >= cols && cols >= 2 {
             let (p0, p1) = (corners[0], corners[cols - 1]);
             let _ = root.draw(&Circle::new(at(&p0), 3 * radius, RED.stroke_width(3)));
             // The row direction: an arrow along the first row, from corner 0 to its last corner.
-            let _ = root.draw(&PathElement::new(vec![at(&p0), at(&p1)], GREEN.stroke_width(3)));
+            let _ = root.draw(&PathElement::new(
+                vec![at(&p0), at(&p1)],
+                GREEN.stroke_width(3),
+            ));
             let d = (p1 - p0).normalize();
             let n = nalgebra::Vector2::new(-d.y, d.x);
             let head = 4.0 * radius as f64;
             let wing = |s: f64| at(&(p1 - d * head + n * (s * head * 0.5)));
-            let _ = root.draw(&PathElement::new(vec![wing(1.0), at(&p1), wing(-1.0)], GREEN.stroke_width(3)));
-            let label = ("sans-serif", 18).into_font().color(&RED).pos(Pos::new(HPos::Left, VPos::Bottom));
-            let _ = root.draw(&Text::new("0", (at(&p0).0 + 3 * radius, at(&p0).1 - 3 * radius), label));
+            let _ = root.draw(&PathElement::new(
+                vec![wing(1.0), at(&p1), wing(-1.0)],
+                GREEN.stroke_width(3),
+            ));
+            let label = ("sans-serif", 18)
+                .into_font()
+                .color(&RED)
+                .pos(Pos::new(HPos::Left, VPos::Bottom));
+            let _ = root.draw(&Text::new(
+                "0",
+                (at(&p0).0 + 3 * radius, at(&p0).1 - 3 * radius),
+                label,
+            ));
         }
         let colour = if warning { RED } else { RGBColor(0, 220, 255) };
-        let _ = root.draw(&Rectangle::new([(0, 0), (width as i32, 30)], BLACK.mix(0.6).filled()));
-        let style = ("sans-serif", 20).into_font().color(&colour).pos(Pos::new(HPos::Left, VPos::Center));
+        let _ = root.draw(&Rectangle::new(
+            [(0, 0), (width as i32, 30)],
+            BLACK.mix(0.6).filled(),
+        ));
+        let style = ("sans-serif", 20)
+            .into_font()
+            .color(&colour)
+            .pos(Pos::new(HPos::Left, VPos::Center));
         let _ = root.draw(&Text::new(caption.to_string(), (8, 15), style));
         let _ = root.present();
     }

@@ -36,7 +36,11 @@ pub struct Shades {
 impl Default for Shades {
     /// Black 0.12, white 0.85, water 0.40: a printed board under water, not a perfect one.
     fn default() -> Self {
-        Self { black: 0.12, white: 0.85, background: 0.40 }
+        Self {
+            black: 0.12,
+            white: 0.85,
+            background: 0.40,
+        }
     }
 }
 
@@ -60,7 +64,14 @@ pub struct RenderOptions {
 impl Default for RenderOptions {
     /// 8 × 8 sub-samples on edges, no blur, no noise, a white border of one square.
     fn default() -> Self {
-        Self { supersample: 8, blur_px: 0.0, noise: 0.0, seed: 1, border_squares: 1.0, shades: Shades::default() }
+        Self {
+            supersample: 8,
+            blur_px: 0.0,
+            noise: 0.0,
+            seed: 1,
+            border_squares: 1.0,
+            shades: Shades::default(),
+        }
     }
 }
 
@@ -94,12 +105,18 @@ pub struct GreyImage {
 impl GreyImage {
     /// The image as 8-bit grey levels (rounded, clamped).
     pub fn to_u8(&self) -> Vec<u8> {
-        self.pixels.iter().map(|&p| (p * 255.0).round().clamp(0.0, 255.0) as u8).collect()
+        self.pixels
+            .iter()
+            .map(|&p| (p * 255.0).round().clamp(0.0, 255.0) as u8)
+            .collect()
     }
 
     /// The image as 16-bit grey levels (rounded, clamped).
     pub fn to_u16(&self) -> Vec<u16> {
-        self.pixels.iter().map(|&p| (p * 65535.0).round().clamp(0.0, 65535.0) as u16).collect()
+        self.pixels
+            .iter()
+            .map(|&p| (p * 65535.0).round().clamp(0.0, 65535.0) as u16)
+            .collect()
     }
 }
 
@@ -178,30 +195,49 @@ pub fn render_board(
             }
             // Central differences (one-sided at the border or next to a pixel without a ray).
             let diff = |a: Option<[f64; 2]>, b: Option<[f64; 2]>, scale: f64| match (a, b) {
-                (Some(a), Some(b)) if a[0].is_finite() && b[0].is_finite() => Some([(b[0] - a[0]) * scale, (b[1] - a[1]) * scale]),
+                (Some(a), Some(b)) if a[0].is_finite() && b[0].is_finite() => {
+                    Some([(b[0] - a[0]) * scale, (b[1] - a[1]) * scale])
+                }
                 _ => None,
             };
             let left = (u > 0).then(|| at(u - 1, v));
             let right = (u + 1 < w).then(|| at(u + 1, v));
             let up = (v > 0).then(|| at(u, v - 1));
             let down = (v + 1 < h).then(|| at(u, v + 1));
-            let du = diff(left, right, 0.5).or_else(|| diff(Some(p), right, 1.0)).or_else(|| diff(left, Some(p), 1.0));
-            let dv = diff(up, down, 0.5).or_else(|| diff(Some(p), down, 1.0)).or_else(|| diff(up, Some(p), 1.0));
+            let du = diff(left, right, 0.5)
+                .or_else(|| diff(Some(p), right, 1.0))
+                .or_else(|| diff(left, Some(p), 1.0));
+            let dv = diff(up, down, 0.5)
+                .or_else(|| diff(Some(p), down, 1.0))
+                .or_else(|| diff(up, Some(p), 1.0));
             let (Some(du), Some(dv)) = (du, dv) else {
                 *out = shade(region(board, border, p[0], p[1])) as f32;
                 continue;
             };
-            let sample = |a: f64, b: f64| [p[0] + a * du[0] + b * dv[0], p[1] + a * du[1] + b * dv[1]];
-            let corners = [sample(-0.5, -0.5), sample(0.5, -0.5), sample(-0.5, 0.5), sample(0.5, 0.5)];
+            let sample =
+                |a: f64, b: f64| [p[0] + a * du[0] + b * dv[0], p[1] + a * du[1] + b * dv[1]];
+            let corners = [
+                sample(-0.5, -0.5),
+                sample(0.5, -0.5),
+                sample(-0.5, 0.5),
+                sample(0.5, 0.5),
+            ];
             let first = cell(board, border, corners[0][0], corners[0][1]);
-            if n == 1 || corners[1..].iter().all(|c| cell(board, border, c[0], c[1]) == first) {
+            if n == 1
+                || corners[1..]
+                    .iter()
+                    .all(|c| cell(board, border, c[0], c[1]) == first)
+            {
                 *out = shade(region(board, border, p[0], p[1])) as f32;
                 continue;
             }
             let mut sum = 0.0;
             for i in 0..n {
                 for j in 0..n {
-                    let (a, b) = ((i as f64 + 0.5) / n as f64 - 0.5, (j as f64 + 0.5) / n as f64 - 0.5);
+                    let (a, b) = (
+                        (i as f64 + 0.5) / n as f64 - 0.5,
+                        (j as f64 + 0.5) / n as f64 - 0.5,
+                    );
                     let q = sample(a, b);
                     sum += shade(region(board, border, q[0], q[1]));
                 }
@@ -209,7 +245,11 @@ pub fn render_board(
             *out = (sum / (n * n) as f64) as f32;
         }
     });
-    let mut image = GreyImage { width, height, pixels };
+    let mut image = GreyImage {
+        width,
+        height,
+        pixels,
+    };
     if options.blur_px > 0.0 {
         image = blur(&image, options.blur_px);
     }
@@ -218,24 +258,31 @@ pub fn render_board(
         // the number of threads.
         let sigma = (options.noise / 255.0) as f32;
         let seed = options.seed;
-        image.pixels.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
-            let mut rng = Rng::new(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(v as u64));
-            // Marsaglia's polar method: two normal deviates per accepted point, no trigonometry.
-            for pair in row.chunks_mut(2) {
-                let (x, y, s) = loop {
-                    let (x, y) = (2.0 * rng.uniform() - 1.0, 2.0 * rng.uniform() - 1.0);
-                    let s = x * x + y * y;
-                    if s > 0.0 && s < 1.0 {
-                        break (x, y, s);
+        image
+            .pixels
+            .par_chunks_mut(w)
+            .enumerate()
+            .for_each(|(v, row)| {
+                let mut rng = Rng::new(
+                    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                        .wrapping_add(v as u64),
+                );
+                // Marsaglia's polar method: two normal deviates per accepted point, no trigonometry.
+                for pair in row.chunks_mut(2) {
+                    let (x, y, s) = loop {
+                        let (x, y) = (2.0 * rng.uniform() - 1.0, 2.0 * rng.uniform() - 1.0);
+                        let s = x * x + y * y;
+                        if s > 0.0 && s < 1.0 {
+                            break (x, y, s);
+                        }
+                    };
+                    let scale = sigma * (-2.0 * s.ln() / s).sqrt() as f32;
+                    pair[0] += scale * x as f32;
+                    if let Some(p) = pair.get_mut(1) {
+                        *p += scale * y as f32;
                     }
-                };
-                let scale = sigma * (-2.0 * s.ln() / s).sqrt() as f32;
-                pair[0] += scale * x as f32;
-                if let Some(p) = pair.get_mut(1) {
-                    *p += scale * y as f32;
                 }
-            }
-        });
+            });
     }
     Ok(image)
 }
@@ -243,23 +290,37 @@ pub fn render_board(
 fn check_options(options: &RenderOptions) -> Result<(), RenderError> {
     let bad = |option, reason: String| Err(RenderError::Option { option, reason });
     if !(1..=32).contains(&options.supersample) {
-        return bad("supersample", format!("1 to 32 sub-samples per axis, got {}", options.supersample));
+        return bad(
+            "supersample",
+            format!("1 to 32 sub-samples per axis, got {}", options.supersample),
+        );
     }
     if !(options.blur_px >= 0.0 && options.blur_px <= 20.0) {
         return bad("blur", format!("0 to 20 px, got {}", options.blur_px));
     }
     if !(options.noise >= 0.0 && options.noise <= 100.0) {
-        return bad("noise", format!("0 to 100 grey levels, got {}", options.noise));
+        return bad(
+            "noise",
+            format!("0 to 100 grey levels, got {}", options.noise),
+        );
     }
     if !(options.border_squares >= 0.0 && options.border_squares <= 100.0) {
-        return bad("border", format!("0 to 100 squares, got {}", options.border_squares));
+        return bad(
+            "border",
+            format!("0 to 100 squares, got {}", options.border_squares),
+        );
     }
     Ok(())
 }
 
 /// The board point (in squares) each pixel centre sees, NaN where its ray has no answer or does
 /// not meet the board's plane in front of the port.
-fn board_points(engine: &Engine, camera: &RefractiveCamera, board: &Board, master_from_board: &Isometry3<f64>) -> Result<Vec<[f64; 2]>, RenderError> {
+fn board_points(
+    engine: &Engine,
+    camera: &RefractiveCamera,
+    board: &Board,
+    master_from_board: &Isometry3<f64>,
+) -> Result<Vec<[f64; 2]>, RenderError> {
     let (width, height) = (camera.intrinsics().width, camera.intrinsics().height);
     let normal: Vector3<f64> = master_from_board.rotation * Vector3::z();
     let origin: Point3<f64> = master_from_board * Point3::origin();
@@ -279,7 +340,10 @@ fn board_points(engine: &Engine, camera: &RefractiveCamera, board: &Board, maste
             if s != 0 {
                 return [f64::NAN; 2];
             }
-            let (o, d) = (Point3::new(r[0], r[1], r[2]), Vector3::new(r[3], r[4], r[5]));
+            let (o, d) = (
+                Point3::new(r[0], r[1], r[2]),
+                Vector3::new(r[3], r[4], r[5]),
+            );
             // o + s·d on the plane n·(X − origin) = 0, in front of the port.
             let s = normal.dot(&(origin - o)) / normal.dot(&d);
             if !(s > 0.0 && s.is_finite()) {
@@ -295,10 +359,18 @@ fn board_points(engine: &Engine, camera: &RefractiveCamera, board: &Board, maste
 
 /// Gaussian blur of standard deviation `sigma` pixels (the `image` crate's).
 fn blur(image: &GreyImage, sigma: f64) -> GreyImage {
-    let buffer = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(image.width, image.height, image.pixels.clone())
-        .expect("width · height pixels");
+    let buffer = image::ImageBuffer::<image::Luma<f32>, Vec<f32>>::from_raw(
+        image.width,
+        image.height,
+        image.pixels.clone(),
+    )
+    .expect("width · height pixels");
     let blurred = image::imageops::blur(&buffer, sigma as f32);
-    GreyImage { width: image.width, height: image.height, pixels: blurred.into_raw() }
+    GreyImage {
+        width: image.width,
+        height: image.height,
+        pixels: blurred.into_raw(),
+    }
 }
 
 #[cfg(test)]
@@ -307,8 +379,16 @@ mod tests {
 
     #[test]
     fn the_pattern_has_a_black_square_at_corner_zero_and_alternates() {
-        let board = Board { rows: 6, cols: 9, square: 0.04 };
-        assert_eq!(region(&board, 1.0, -0.5, -0.5), 0, "the outer square at corner 0 is black");
+        let board = Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        };
+        assert_eq!(
+            region(&board, 1.0, -0.5, -0.5),
+            0,
+            "the outer square at corner 0 is black"
+        );
         assert_eq!(region(&board, 1.0, 0.5, -0.5), 1);
         assert_eq!(region(&board, 1.0, 0.5, 0.5), 0);
         // 10 × 7 squares: the opposite corner square has the other colour.

@@ -214,21 +214,85 @@ impl<'a> Bundle<'a> {
             .collect();
         Some(per_view?.concat())
     }
+}
 
-    /// (cost contribution, weight) of a residual of length² `r2`: r² and 1 inside the Huber
-    /// threshold k, 2k|r| − k² and k/|r| outside.
-    fn robust(&self, r2: f64) -> (f64, f64) {
-        match self.huber {
-            Some(k) if r2 > k * k => {
-                let r = r2.sqrt();
-                (2.0 * k * r - k * k, k / r)
+/// (cost contribution, weight) of a residual of length² `r2` under an optional Huber threshold
+/// `huber`: r² and 1 inside the threshold k, 2k|r| − k² and k/|r| outside.
+pub fn robust(huber: Option<f64>, r2: f64) -> (f64, f64) {
+    match huber {
+        Some(k) if r2 > k * k => {
+            let r = r2.sqrt();
+            (2.0 * k * r - k * k, k / r)
+        }
+        _ => (r2, 1.0),
+    }
+}
+
+/// One view's share of the normal equations (JᵀWJ, JᵀWr, Σρ) from its residuals `base` and its
+/// Jacobian, `jacobian[p * base.len() + i] = ∂r_i/∂(parameter p)` over `columns` parameters
+/// (globals first, then the view's pose). Columns that are zero in a row add nothing and are
+/// skipped (a global that moves another camera).
+pub fn view_share(
+    base: &[Vector2<f64>],
+    jacobian: &[Vector2<f64>],
+    columns: usize,
+    huber: Option<f64>,
+) -> (DMatrix<f64>, DVector<f64>, f64) {
+    let count = base.len();
+    let mut jtj = DMatrix::zeros(columns, columns);
+    let mut jtr = DVector::zeros(columns);
+    let mut cost = 0.0;
+    for (i, r) in base.iter().enumerate() {
+        let (contribution, weight) = robust(huber, r.norm_squared());
+        cost += contribution;
+        for a in 0..columns {
+            let ja = jacobian[a * count + i];
+            if ja == Vector2::zeros() {
+                continue;
             }
-            _ => (r2, 1.0),
+            jtr[a] += weight * ja.dot(r);
+            for b in a..columns {
+                jtj[(a, b)] += weight * ja.dot(&jacobian[b * count + i]);
+            }
+        }
+    }
+    jtj.fill_lower_triangle_with_upper_triangle();
+    (jtj, jtr, cost)
+}
+
+impl BlockNormalEquations {
+    /// The normal equations of `globals` global parameters from every view's share
+    /// ([`view_share`]): the globals' blocks summed, each view's pose block kept.
+    pub fn from_shares(globals: usize, shares: Vec<(DMatrix<f64>, DVector<f64>, f64)>) -> Self {
+        let mut global = DMatrix::zeros(globals, globals);
+        let mut global_gradient = DVector::zeros(globals);
+        let mut cost = 0.0;
+        let mut views = Vec::with_capacity(shares.len());
+        for (jtj, jtr, share_cost) in shares {
+            global += jtj.view((0, 0), (globals, globals));
+            global_gradient += jtr.rows(0, globals);
+            cost += share_cost;
+            views.push(PoseBlock {
+                pose: jtj
+                    .fixed_view::<POSE_PARAMETERS, POSE_PARAMETERS>(globals, globals)
+                    .into_owned(),
+                coupling: jtj
+                    .generic_view((0, globals), (Dyn(globals), U6))
+                    .into_owned(),
+                gradient: jtr.fixed_rows::<POSE_PARAMETERS>(globals).into_owned(),
+            });
+        }
+        Self {
+            global,
+            global_gradient,
+            views,
+            cost,
         }
     }
 }
 
-fn move_pose(pose: &Isometry3<f64>, delta: &[f64]) -> Isometry3<f64> {
+/// A target pose moved by a step (ω rotation vector, τ translation): (τ, exp ω) · pose.
+pub fn move_pose(pose: &Isometry3<f64>, delta: &[f64]) -> Isometry3<f64> {
     let rotation = UnitQuaternion::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2]));
     let translation = Translation3::new(delta[3], delta[4], delta[5]);
     Isometry3::from_parts(translation, rotation) * pose
@@ -253,7 +317,7 @@ impl LeastSquares for Bundle<'_> {
         Some(
             self.residuals(state)?
                 .iter()
-                .map(|r| self.robust(r.norm_squared()).0)
+                .map(|r| robust(self.huber, r.norm_squared()).0)
                 .sum(),
         )
     }
@@ -304,48 +368,10 @@ impl LeastSquares for Bundle<'_> {
                         jacobian[p * count + i] = (plus - minus) / (2.0 * DIFFERENCE_STEP);
                     }
                 }
-                let mut jtj = DMatrix::zeros(columns, columns);
-                let mut jtr = DVector::zeros(columns);
-                let mut cost = 0.0;
-                for (i, r) in base.iter().enumerate() {
-                    let (contribution, weight) = self.robust(r.norm_squared());
-                    cost += contribution;
-                    for a in 0..columns {
-                        let ja = jacobian[a * count + i];
-                        jtr[a] += weight * ja.dot(r);
-                        for b in a..columns {
-                            jtj[(a, b)] += weight * ja.dot(&jacobian[b * count + i]);
-                        }
-                    }
-                }
-                jtj.fill_lower_triangle_with_upper_triangle();
-                Some((jtj, jtr, cost))
+                Some(view_share(&base, &jacobian, columns, self.huber))
             })
             .collect::<Option<_>>()?;
-        let mut global = DMatrix::zeros(globals, globals);
-        let mut global_gradient = DVector::zeros(globals);
-        let mut cost = 0.0;
-        let mut views = Vec::with_capacity(shares.len());
-        for (jtj, jtr, share_cost) in shares {
-            global += jtj.view((0, 0), (globals, globals));
-            global_gradient += jtr.rows(0, globals);
-            cost += share_cost;
-            views.push(PoseBlock {
-                pose: jtj
-                    .fixed_view::<POSE_PARAMETERS, POSE_PARAMETERS>(globals, globals)
-                    .into_owned(),
-                coupling: jtj
-                    .generic_view((0, globals), (Dyn(globals), U6))
-                    .into_owned(),
-                gradient: jtr.fixed_rows::<POSE_PARAMETERS>(globals).into_owned(),
-            });
-        }
-        Some(BlockNormalEquations {
-            global,
-            global_gradient,
-            views,
-            cost,
-        })
+        Some(BlockNormalEquations::from_shares(globals, shares))
     }
 
     fn retract(&self, state: &BundleState, delta: &DVector<f64>) -> BundleState {

@@ -8,12 +8,10 @@
 //! poses), with as many global parameters as are estimated. Derivatives are central differences;
 //! a global parameter only moves the residuals of the cameras it belongs to.
 
-use nalgebra::{
-    DMatrix, DVector, Dyn, Isometry3, Translation3, U6, Unit, UnitQuaternion, Vector2, Vector3,
-};
+use nalgebra::{DMatrix, DVector, Isometry3, Translation3, Unit, UnitQuaternion, Vector2, Vector3};
 use rayon::prelude::*;
 
-use super::bundle::{BlockNormalEquations, POSE_PARAMETERS, PoseBlock};
+use super::bundle::{BlockNormalEquations, POSE_PARAMETERS, move_pose, robust, view_share};
 use crate::calib::problem::rig_observations::SeenView;
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::lm::LeastSquares;
@@ -356,17 +354,6 @@ impl<'a> RigBundle<'a> {
         )
     }
 
-    /// (cost contribution, weight) of a residual of length² `r2` (Huber as in the stereo bundle).
-    fn robust(&self, r2: f64) -> (f64, f64) {
-        match self.huber {
-            Some(k) if r2 > k * k => {
-                let r = r2.sqrt();
-                (2.0 * k * r - k * k, k / r)
-            }
-            _ => (r2, 1.0),
-        }
-    }
-
     fn moved(&self, state: &RigState, parameter: Parameter, delta: f64) -> RigState {
         let mut state = state.clone();
         match parameter {
@@ -391,11 +378,6 @@ impl<'a> RigBundle<'a> {
     }
 }
 
-fn move_pose(pose: &Isometry3<f64>, delta: &[f64]) -> Isometry3<f64> {
-    let rotation = UnitQuaternion::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2]));
-    Isometry3::from_parts(Translation3::new(delta[3], delta[4], delta[5]), rotation) * pose
-}
-
 impl LeastSquares for RigBundle<'_> {
     type State = RigState;
     type Normal = BlockNormalEquations;
@@ -410,7 +392,7 @@ impl LeastSquares for RigBundle<'_> {
             residuals
                 .iter()
                 .flatten()
-                .map(|r| self.robust(r.norm_squared()).0)
+                .map(|r| robust(self.huber, r.norm_squared()).0)
                 .sum(),
         )
     }
@@ -486,51 +468,10 @@ impl LeastSquares for RigBundle<'_> {
                         jacobian[p * count + start + i] = (a - b) / (2.0 * DIFFERENCE_STEP);
                     }
                 }
-                let mut jtj = DMatrix::zeros(columns, columns);
-                let mut jtr = DVector::zeros(columns);
-                let mut cost = 0.0;
-                for (i, r) in base.iter().enumerate() {
-                    let (contribution, weight) = self.robust(r.norm_squared());
-                    cost += contribution;
-                    for a in 0..columns {
-                        let ja = jacobian[a * count + i];
-                        if ja == Vector2::zeros() {
-                            continue;
-                        }
-                        jtr[a] += weight * ja.dot(r);
-                        for b in a..columns {
-                            jtj[(a, b)] += weight * ja.dot(&jacobian[b * count + i]);
-                        }
-                    }
-                }
-                jtj.fill_lower_triangle_with_upper_triangle();
-                Some((jtj, jtr, cost))
+                Some(view_share(&base, &jacobian, columns, self.huber))
             })
             .collect::<Option<_>>()?;
-        let mut global = DMatrix::zeros(globals, globals);
-        let mut global_gradient = DVector::zeros(globals);
-        let mut cost = 0.0;
-        let mut views = Vec::with_capacity(shares.len());
-        for (jtj, jtr, share_cost) in shares {
-            global += jtj.view((0, 0), (globals, globals));
-            global_gradient += jtr.rows(0, globals);
-            cost += share_cost;
-            views.push(PoseBlock {
-                pose: jtj
-                    .fixed_view::<POSE_PARAMETERS, POSE_PARAMETERS>(globals, globals)
-                    .into_owned(),
-                coupling: jtj
-                    .generic_view((0, globals), (Dyn(globals), U6))
-                    .into_owned(),
-                gradient: jtr.fixed_rows::<POSE_PARAMETERS>(globals).into_owned(),
-            });
-        }
-        Some(BlockNormalEquations {
-            global,
-            global_gradient,
-            views,
-            cost,
-        })
+        Some(BlockNormalEquations::from_shares(globals, shares))
     }
 
     fn retract(&self, state: &RigState, delta: &DVector<f64>) -> RigState {
