@@ -181,7 +181,6 @@ const DIFFERENCE_STEP: f64 = 1e-6;
 /// The reprojection problem of any rig.
 pub struct RigBundle<'a> {
     base: &'a Rig,
-    target: &'a Target,
     views: &'a [SeenView],
     globals: Vec<Parameter>,
     huber: Option<f64>,
@@ -194,7 +193,7 @@ impl<'a> RigBundle<'a> {
     /// `estimate`, with an optional Huber threshold (pixels).
     pub fn new(
         base: &'a Rig,
-        target: &'a Target,
+        target: &Target,
         views: &'a [SeenView],
         estimate: Estimate,
         huber: Option<f64>,
@@ -226,7 +225,6 @@ impl<'a> RigBundle<'a> {
             .collect();
         Self {
             base,
-            target,
             views,
             globals,
             huber,
@@ -249,11 +247,6 @@ impl<'a> RigBundle<'a> {
     /// The residual count: two per corner per camera that saw it.
     pub fn residuals(&self) -> usize {
         2 * self.views.iter().map(SeenView::observations).sum::<usize>()
-    }
-
-    /// The target.
-    pub fn target(&self) -> &Target {
-        self.target
     }
 
     /// The camera parameter `parameter` moves (`None`: every camera, a shared port).

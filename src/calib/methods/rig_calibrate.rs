@@ -24,6 +24,7 @@ use crate::calib::backends::CpuBackend;
 use crate::calib::costs::invariants::plane_basis;
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::StereoData;
+use crate::calib::problem::observations::Observations;
 use crate::calib::problem::rig_observations::{RigObservations, SeenView};
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::lm::{LeastSquares, LmOptions, levenberg_marquardt};
@@ -190,7 +191,7 @@ pub fn calibrate_rig(
         clock.elapsed().as_secs_f64(),
     ));
     // 2. The ports' start.
-    let shared_pairs = shared_board_pairs(rig, target, observations)?;
+    let shared_pairs = shared_board_pairs(rig, observations, &views);
     let consecutive = match options.method {
         Method::Consecutive => true,
         Method::Simultaneous => false,
@@ -200,15 +201,8 @@ pub fn calibrate_rig(
     if options.estimate.axis || options.estimate.distance {
         let clock = Instant::now();
         if consecutive {
-            let (candidate_state, pair) = consecutive_start(
-                rig,
-                target,
-                &views,
-                observations,
-                &state,
-                &shared_pairs,
-                options,
-            )?;
+            let (candidate_state, pair) =
+                consecutive_start(rig, target, &views, &state, &shared_pairs, options)?;
             state = candidate_state;
             method += &format!(
                 "consecutive (thesis) over {} camera pair(s), best pair {}",
@@ -246,24 +240,24 @@ pub fn calibrate_rig(
     };
     let (state, lm_report, normal) = levenberg_marquardt(&full, state, &lm);
     method += ", maximum likelihood";
+    let residual_count = full.residuals();
+    let cost = full.cost(&state).unwrap_or(f64::INFINITY);
+    let total_rms = (cost / residual_count as f64).sqrt();
     stages.push((
         "maximum likelihood".into(),
-        rms(&full, &state),
+        total_rms,
         clock.elapsed().as_secs_f64(),
     ));
     let calibrated = state.rig(rig).ok_or_else(|| {
         CalibError::Options("the refinement left the rig invalid (a camera outside the air)".into())
     })?;
-    let residual_count = full.residuals();
     let dof = residual_count.saturating_sub(full.dimension(&state));
-    let cost = full.cost(&state).unwrap_or(f64::INFINITY);
     let sigma2 = if dof > 0 { cost / dof as f64 } else { f64::NAN };
     let covariance = normal
         .as_ref()
         .and_then(BlockNormalEquations::global_covariance)
         .map(|c| c * sigma2);
     let rms_per_camera = full.rms_per_camera(&state).unwrap_or_default();
-    let total_rms = (cost / residual_count as f64).sqrt();
     let fits = rms_per_camera
         .iter()
         .all(|r| r.is_nan() || *r <= options.max_rms_px);
@@ -503,28 +497,29 @@ fn orthonormal(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
     r.iter().all(|x| x.is_finite()).then_some(r)
 }
 
-/// Pairs of cameras behind the shared port that both saw a board in some view (for the
-/// consecutive method): none for a 3-D target or per-camera ports.
+/// Pairs of cameras behind the shared port that both saw the board in three or more views, with
+/// their stereo observations (for the consecutive method): none for a 3-D target or per-camera
+/// ports.
 fn shared_board_pairs(
     rig: &Rig,
-    target: &Target,
     observations: &RigObservations,
-) -> Result<Vec<(usize, usize)>, CalibError> {
-    if !matches!(rig.ports(), Ports::Shared(_)) || target.board().is_none() {
-        return Ok(Vec::new());
+    views: &[SeenView],
+) -> Vec<((usize, usize), Observations)> {
+    if !matches!(rig.ports(), Ports::Shared(_)) {
+        return Vec::new();
     }
     let n = rig.cameras().len();
     let mut pairs = Vec::new();
     for a in 0..n {
         for b in a + 1..n {
-            if let Some((pair, _)) = observations.pair(rig, a, b)?
+            if let Some(pair) = observations.pair(views, rig, a, b)
                 && pair.views.len() >= 3
             {
-                pairs.push((a, b));
+                pairs.push(((a, b), pair));
             }
         }
     }
-    Ok(pairs)
+    pairs
 }
 
 /// The thesis' consecutive method on every pair of cameras that share the port; each pair's axis
@@ -534,9 +529,8 @@ fn consecutive_start(
     rig: &Rig,
     target: &Target,
     views: &[SeenView],
-    observations: &RigObservations,
     state: &RigState,
-    pairs: &[(usize, usize)],
+    pairs: &[((usize, usize), Observations)],
     options: &RigCalibrationOptions,
 ) -> Result<(RigState, String), CalibError> {
     let pose_only = Estimate {
@@ -547,11 +541,9 @@ fn consecutive_start(
     };
     let mut best: Option<(f64, RigState, String)> = None;
     let mut last_error = None;
-    for &(a, b) in pairs {
-        let (pair, _) = observations
-            .pair(rig, a, b)?
-            .expect("pairs exist only for boards");
-        let stereo = match StereoData::new(rig, [a, b], &pair) {
+    for ((a, b), pair) in pairs {
+        let (a, b) = (*a, *b);
+        let stereo = match StereoData::new(rig, [a, b], pair) {
             Ok(data) => data,
             Err(e) => {
                 last_error = Some(e);

@@ -61,33 +61,6 @@ impl SeenView {
 }
 
 impl RigObservations {
-    /// The stereo form as general observations: `left`/`right` are the cameras named in
-    /// `observations.cameras`, else rig cameras 0 and 1.
-    pub fn from_stereo(observations: &Observations) -> Self {
-        let camera = |side: usize| match &observations.cameras {
-            Some(names) => CameraKey::Name(names[side].clone()),
-            None => CameraKey::Position(side),
-        };
-        let views = observations
-            .views
-            .iter()
-            .map(|v| RigView {
-                images: [(0, "left", &v.left), (1, "right", &v.right)]
-                    .into_iter()
-                    .map(|(side, key, corners)| Image {
-                        camera: camera(side),
-                        key: key.into(),
-                        corners: corners.clone(),
-                    })
-                    .collect(),
-            })
-            .collect();
-        Self {
-            target: Target::Board(observations.board),
-            views,
-        }
-    }
-
     /// Resolves every image's camera in `rig` and checks the values: a known camera, at most one
     /// image per camera in a view, one entry per target corner, finite corners inside the image.
     /// Views keep their numbers; a camera with fewer than [`MIN_VIEW_CORNERS`] corners in a view
@@ -191,22 +164,16 @@ impl RigObservations {
         Ok(seen)
     }
 
-    /// The stereo observations of cameras `a` and `b` (rig indices): the views both saw, with the
+    /// The stereo observations of cameras `a` and `b` (rig indices) among `seen` (these
+    /// observations resolved against `rig`, [`Self::resolve`]): the views both saw, with the
     /// corners both saw (a corner one of them missed is null in both). `None` for a 3-D target
-    /// (the binocular costs need a board). Also returns the original number of each view kept.
-    pub fn pair(
-        &self,
-        rig: &Rig,
-        a: usize,
-        b: usize,
-    ) -> Result<Option<(Observations, Vec<usize>)>, CalibError> {
+    /// (the binocular costs need a board).
+    pub fn pair(&self, seen: &[SeenView], rig: &Rig, a: usize, b: usize) -> Option<Observations> {
         let Target::Board(board) = self.target else {
-            return Ok(None);
+            return None;
         };
-        let seen = self.resolve(rig)?;
         let mut views = Vec::new();
-        let mut numbers = Vec::new();
-        for (v, view) in seen.iter().enumerate() {
+        for view in seen {
             let find = |k: usize| {
                 view.cameras
                     .iter()
@@ -234,17 +201,13 @@ impl RigObservations {
             }
             if stereo.matched().count() >= MIN_VIEW_CORNERS {
                 views.push(stereo);
-                numbers.push(v);
             }
         }
         let names = [a, b].map(|k| rig.cameras()[k].name.clone());
-        Ok(Some((
-            Observations {
-                board,
-                views,
-                cameras: Some(names),
-            },
-            numbers,
-        )))
+        Some(Observations {
+            board,
+            views,
+            cameras: Some(names),
+        })
     }
 }
