@@ -44,14 +44,16 @@ impl Default for Estimate {
 }
 
 impl Estimate {
+    /// Nothing but the target poses (the fits of the initialisation).
+    pub const NOTHING: Self = Self {
+        axis: false,
+        distance: false,
+        layers: false,
+        extrinsics: false,
+    };
     /// Parses a comma-separated list of `axis`, `distance`, `layers`, `extrinsics`.
     pub fn parse(list: &str) -> Result<Self, String> {
-        let mut estimate = Self {
-            axis: false,
-            distance: false,
-            layers: false,
-            extrinsics: false,
-        };
+        let mut estimate = Self::NOTHING;
         for word in list.split(',').map(str::trim) {
             match word {
                 "axis" => estimate.axis = true,

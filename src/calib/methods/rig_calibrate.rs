@@ -177,12 +177,7 @@ pub fn calibrate_rig(
     let clock = Instant::now();
     let poses = initial_poses(rig, target, &views)?;
     let mut state = RigState::of(rig, poses);
-    let pose_only = Estimate {
-        axis: false,
-        distance: false,
-        layers: false,
-        extrinsics: false,
-    };
+    let pose_only = Estimate::NOTHING;
     let bundle = RigBundle::new(rig, target, &views, pose_only, options.huber);
     state = short_fit(&bundle, state, POSE_ITERATIONS);
     stages.push((
@@ -533,12 +528,7 @@ fn consecutive_start(
     pairs: &[((usize, usize), Observations)],
     options: &RigCalibrationOptions,
 ) -> Result<(RigState, String), CalibError> {
-    let pose_only = Estimate {
-        axis: false,
-        distance: false,
-        layers: false,
-        extrinsics: false,
-    };
+    let pose_only = Estimate::NOTHING;
     let mut best: Option<(f64, RigState, String)> = None;
     let mut last_error = None;
     for ((a, b), pair) in pairs {
@@ -599,10 +589,8 @@ pub fn search_axis(
     options: &RigCalibrationOptions,
 ) -> Result<RigState, CalibError> {
     let distance_only = Estimate {
-        axis: false,
         distance: options.estimate.distance,
-        layers: false,
-        extrinsics: false,
+        ..Estimate::NOTHING
     };
     let (own_views, own_poses): (Vec<SeenView>, Vec<Isometry3<f64>>) = match rig.ports() {
         Ports::Shared(_) => (views.to_vec(), state.poses.clone()),
@@ -626,12 +614,7 @@ pub fn search_axis(
     let whole = state;
     let views = &own_views[..];
     // The poses refitted to these images alone under the start port, for every cell to start from.
-    let pose_only = Estimate {
-        axis: false,
-        distance: false,
-        layers: false,
-        extrinsics: false,
-    };
+    let pose_only = Estimate::NOTHING;
     let state = short_fit(
         &RigBundle::new(rig, target, views, pose_only, options.huber),
         RigState {
