@@ -5,7 +5,7 @@
 
 mod common;
 
-use flatport::calib::costs::air_layer::air_distance_for_axis;
+use flatport::calib::costs::scene::air_distance_for_axis;
 use flatport::calib::{
     Board, Calibration, CalibrationOptions, Candidate, CostBackend, CostKind, CpuBackend, Method,
     SceneSpec, StereoData, calibrate, simulate,

@@ -10,7 +10,7 @@ use nalgebra::{Unit, Vector3};
 use rayon::prelude::*;
 
 use crate::calib::costs::affine_grid::{ROW, affine_rows};
-use crate::calib::costs::air_layer::air_distance_for_axis;
+use crate::calib::costs::scene::air_distance_for_axis;
 use crate::calib::costs::scene::{SceneRows, profile_cost};
 use crate::calib::costs::{CostKind, cost_prepared};
 use crate::calib::error::CalibError;

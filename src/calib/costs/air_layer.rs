@@ -4,22 +4,14 @@
 //! its direction w_k does not depend on d and its origin on the outer interface moves linearly
 //! with d (thesis 5.2.2). So with m = (w_l × w_r)/|w_l × w_r|, the signed distance between the two
 //! lines, g(d) = m·(o_l(d) − o_r(d)) = a·d + b, is exactly linear in d, and
-//! d = −Σ aⱼbⱼ / Σ aⱼ² minimises the summed squared ray gaps.
+//! d = −Σ aⱼbⱼ / Σ aⱼ² minimises the summed squared ray gaps. These are the pieces;
+//! [`air_distance_for_axis`](super::scene::air_distance_for_axis) solves it for the corners of a
+//! data set, from their water rays prepared once ([`AxisRays`](super::scene::AxisRays)).
 
 use nalgebra::{Unit, Vector3};
 
-use crate::calib::costs::scene::AxisRays;
 use crate::calib::problem::data::{Candidate, StereoData};
 use crate::model::RefractiveCamera;
-
-/// The least-squares air layer for the axis `normal`, with the RMS ray gap there (metres).
-///
-/// `None` when a ray has no answer under this axis (it misses the interface or is totally
-/// reflected), when the two rays of a corner are parallel, or when the gaps do not depend on d
-/// (Σ a² ≈ 0: both cameras see every corner at the same incidence).
-pub fn air_distance_for_axis(data: &StereoData, normal: &Unit<Vector3<f64>>) -> Option<(f64, f64)> {
-    AxisRays::new(data, normal)?.air_distance()
-}
 
 /// The cameras behind `normal` at two air layers d0 and d0 + 1 m that keep them in the air (any
 /// two do: the rays are exactly linear in d), as (d0, near, far). `None` when `normal` is not an

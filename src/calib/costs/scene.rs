@@ -20,6 +20,15 @@ use crate::calib::problem::board::fit_rigid;
 use crate::calib::problem::data::{Candidate, StereoData};
 use crate::engine::simd;
 
+/// The least-squares air layer for the axis `normal`, with the RMS ray gap there (metres).
+///
+/// `None` when a ray has no answer under this axis (it misses the interface or is totally
+/// reflected), when the two rays of a corner are parallel, or when the gaps do not depend on d
+/// (Σ a² ≈ 0: both cameras see every corner at the same incidence).
+pub fn air_distance_for_axis(data: &StereoData, normal: &Unit<Vector3<f64>>) -> Option<(f64, f64)> {
+    AxisRays::new(data, normal)?.air_distance()
+}
+
 /// What [`AxisRays`] reads of the data, prepared once per data set: the unit air directions of
 /// every corner (left, right) and its board point (board frame).
 #[derive(Debug, Clone)]

@@ -376,7 +376,7 @@ fn calibrate_screened(
     let consecutive = axis_search(clean, CostKind::AffineGrid, options, &mut stages, progress)?;
     let linear_started = Instant::now();
     let (air_distance, gap) =
-        crate::calib::costs::air_layer::air_distance_for_axis(clean_data, &consecutive.normal)
+        crate::calib::costs::scene::air_distance_for_axis(clean_data, &consecutive.normal)
             .ok_or_else(|| CalibError::NoSolution {
                 bound_deg: options.max_tilt.to_degrees(),
                 reason: "the air layer has no least-squares solution under the invariant's axis"

@@ -5,7 +5,7 @@
 //!    first (a homography for a planar target, the DLT for a 3-D one), then through the start
 //!    port (the pose alone by Levenberg–Marquardt).
 //! 2. The start of the ports: with two or more cameras behind a shared port and a board, the
-//!    thesis' consecutive method ([`consecutive_start`]) over every pair of cameras, the pair
+//!    thesis' consecutive method (`consecutive_start`) over every pair of cameras, the pair
 //!    whose result explains the corners best winning; otherwise a global search over each port's
 //!    axis ([`search_axis`]), each cell's air distance and poses fitted by a few LM steps.
 //! 3. Maximum likelihood over everything estimated and every pose ([`RigBundle`]), with a
