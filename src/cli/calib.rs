@@ -41,13 +41,13 @@ pub enum MethodArg {
 /// `flatport calibrate`
 #[derive(Debug, Args)]
 pub struct CalibrateArgs {
-    /// Rig file: calibrated cameras; its interface is the start guess, its layers and indices are known values
+    /// Rig file: calibrated cameras; its ports are the start guess, what --estimate does not name is known
     #[arg(long, value_name = "RIG.json")]
     rig: PathBuf,
-    /// Observations: board corners in both images per view (JSON, see the README)
+    /// Observations: the target's corners in every camera that saw each view (JSON, see below)
     #[arg(long, value_name = "OBS.json")]
     observations: PathBuf,
-    /// The calibrated rig: the input rig with the calibrated interface
+    /// The calibrated rig: the input rig with everything estimated replaced by its estimate
     #[arg(long, short, value_name = "RIG.json")]
     output: PathBuf,
     /// Also write the full report as JSON

@@ -148,25 +148,37 @@ Examples:
   flatport render --rig rig.json --truth scene/truth.json --board 9x6@0.04 --blur 0.8 --output shots
   flatport detect --board 9x6@0.04 --images left='shots/left/*.png' --images right='shots/right/*.png' -o obs.json")]
     Render(render::RenderArgs),
-    /// Calibrate the interface (axis and air layer) of a stereo rig from views of a chessboard
+    /// Calibrate the ports of a rig (axis, air layer; layers and extrinsics when asked) from views of a target
     #[command(after_help = "\
-The rig's cameras are calibrated in air (intrinsics, distortion, extrinsics); its interface is the
-start guess, its layers and indices are known values. The observations hold the board's inner
-corners in both images per view, row-major as cv::findChessboardCorners returns them, raw
-(distorted) pixels, null where a corner was not found:
-  {\"board\": {\"rows\": 6, \"cols\": 9, \"square\": 0.04}, \"cameras\": [\"left\", \"right\"],
+The rig's cameras are calibrated in air (intrinsics, distortion, extrinsics); its ports (the shared
+interface, or each camera's own) are the start guess, and what --estimate does not name is known.
+The observations hold, per view, the target's corners in every camera that saw it, keyed by rig
+camera name, in target order (for a board row-major as cv::findChessboardCorners returns them),
+raw (distorted) pixels, null where a corner was not found; a camera absent from a view did not see
+it. The target is a board or any 3-D layout of points (metres):
+  {\"board\": {\"rows\": 6, \"cols\": 9, \"square\": 0.04},
    \"views\": [{\"left\": [[u, v], ...], \"right\": [[u, v], ...]}, ...]}
+  {\"target\": {\"points\": [[x, y, z], ...]}, \"views\": [{\"cam0\": [[u, v], ...]}, ...]}
+The stereo form (left/right with \"cameras\": [A, B]) is read too.
 
-Methods: consecutive (the thesis: the axis from the pattern invariants by a global search over tilts
-up to --max-tilt-deg and local refinement, then the air layer by linear least squares);
-simultaneous (maximum likelihood: Levenberg-Marquardt over axis, air layer and board poses on the
-reprojection error, started from the consecutive result, with standard deviations); auto (default:
-consecutive, then maximum likelihood from several starts, keeping the lowest cost).
+Two cameras behind one shared port with a board, estimating axis,distance, run the thesis' methods:
+consecutive (the axis from the pattern invariants by a global search over tilts up to
+--max-tilt-deg and local refinement, then the air layer by linear least squares); simultaneous
+(maximum likelihood: Levenberg-Marquardt over axis, air layer and board poses on the reprojection
+error, started from the consecutive result, with standard deviations); auto (default: consecutive,
+then maximum likelihood from several starts, keeping the lowest cost). Every other rig (one camera,
+N cameras, a port per camera, a 3-D target, layers or extrinsics estimated): a pose per view, the
+consecutive method over every camera pair behind a shared port (auto, consecutive) or a global
+search over each port's axis (auto without such pairs, simultaneous), then maximum likelihood over
+everything estimated, with a standard deviation for each.
 
 Examples:
   flatport calibrate --rig rig.json --observations obs.json --output calibrated.json
   flatport calibrate --rig rig.json --observations obs.json -o calibrated.json --report report.json \\
-      --method simultaneous --huber 1.0")]
+      --method simultaneous --huber 1.0
+  flatport calibrate --rig one/start_rig.json --observations one/observations.json -o one.json
+  flatport calibrate --rig rig.json --observations obs.json --estimate axis,distance,extrinsics -o out.json
+  flatport calibrate --rig tank.json --observations obs.json --estimate axis,layers -o out.json")]
     Calibrate(calib::CalibrateArgs),
     /// Sweep a calibration cost over a grid of axes (and air layers): .npy, CSV, heat maps, summary
     #[command(after_help = "\
