@@ -338,7 +338,7 @@ fn simulate(
     let mut spec = SceneSpec::new(Board { rows, cols, square }, views, noise_px, seed);
     spec.max_board_tilt = max_board_tilt_deg.to_radians();
     let scene = run_simulate(&rig.rig, a, b, &spec).map_err(value_error)?;
-    let truth = Truth { interface: rig.rig.port_in_master(0), master_from_board: scene.master_from_board, noise_px, seed, rig: Some(rig.rig.clone()) };
+    let truth = Truth { interface: rig.rig.port_in_master(0), master_from_board: scene.master_from_board, noise_px, seed, rig: Some(rig.rig.as_ref().clone()) };
     Ok((observations_to_json_string(&scene.observations), truth_to_json_string(&truth)))
 }
 
