@@ -7,6 +7,7 @@ use std::path::Path;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::opencv::MAX_BASELINE_M;
 use super::{IoError, read_text, write_atomic};
 use crate::model::interface::{DEFAULT_INDEX_AIR, DEFAULT_INDEX_WATER};
 use crate::model::{Interface, Layer, ModelError, PinholeCamera, Ports, Rig, RigCamera};
@@ -172,7 +173,22 @@ pub(crate) fn rig_from_file(file: &RigFile, path: &Path) -> Result<Rig, IoError>
     }
     let ports = ports_from_file(file, path)?;
     let names: Vec<&str> = file.cameras.iter().map(|c| c.name.as_str()).collect();
-    Rig::with_ports(cameras, ports).map_err(|e| invalid(rig_field(&e, &names), e))
+    Rig::with_ports(cameras, ports).map_err(|e| {
+        let mut error = invalid(rig_field(&e, &names), e.clone());
+        // A camera in the water is most often a translation in millimetres.
+        if let (ModelError::CameraNotInAir { camera, .. }, IoError::Invalid { reason, .. }) =
+            (&e, &mut error)
+            && let Some(c) = file.cameras.iter().find(|c| &c.name == camera)
+            && let Some(t) = c.translation
+            && Vector3::from(t).norm() > MAX_BASELINE_M
+        {
+            reason.push_str(&format!(
+                "; its translation puts it {:.3} m from the master, which looks like millimetres: translations are metres (`flatport rig from-opencv --unit mm` converts)",
+                Vector3::from(t).norm()
+            ));
+        }
+        error
+    })
 }
 
 /// The rig's ports: the top-level `interface`, or an `interface` in every camera; both at once, or
@@ -732,6 +748,16 @@ mod tests {
         let (field, m) = invalid(&edited("[-0.06, 0, 0]", "[0, 0, -0.5]"));
         assert_eq!(field, "cameras[1]");
         assert!(m.contains("'right' is not in the air"), "{m}");
+        assert!(!m.contains("millimetres"), "{m}");
+        // A baseline in millimetres puts the camera in the water: the error says so.
+        let (field, m) = invalid(&edited("[-0.06, 0, 0]", "[-60, 0, 0]"));
+        assert_eq!(field, "cameras[1]");
+        assert!(
+            m.contains("not in the air")
+                && m.contains("60.000 m from the master")
+                && m.contains("millimetres"),
+            "{m}"
+        );
         let (field, m) = invalid(&edited("\"fx\": 864.91", "\"fx\": -1"));
         assert_eq!(field, "cameras[0].fx");
         assert!(m.contains("must be > 0"), "{m}");
