@@ -475,3 +475,80 @@ fn weakly_constrained_results_say_so() {
         strong.report.warnings
     );
 }
+
+/// `observations` with every corner pixel of image `side` (0 left, 1 right) mapped by `f`.
+fn map_corners(
+    observations: &Observations,
+    f: impl Fn(usize, Point2<f64>) -> Point2<f64>,
+) -> Observations {
+    let mut mapped = observations.clone();
+    for view in &mut mapped.views {
+        for (side, corners) in [&mut view.left, &mut view.right].into_iter().enumerate() {
+            for corner in corners.iter_mut().flatten() {
+                *corner = f(side, *corner);
+            }
+        }
+    }
+    mapped
+}
+
+#[test]
+fn the_usual_input_mistakes_are_named_and_not_written() {
+    // Each mistake a new user makes, on the stereo rig: corners detected in half-resolution
+    // images, corners given undistorted (so undistorted twice), a square of the wrong size. Each
+    // fails above --max-rms-px with a diagnosis that names it, and no rig is written.
+    let truth = rig(8.0, 45.0);
+    let good = observations(&truth, 12, 0.125, 41);
+    let intrinsics: Vec<_> = truth.cameras().iter().map(|c| c.intrinsics).collect();
+    let half = map_corners(&good, |_, p| Point2::new(p.x / 2.0, p.y / 2.0));
+    let undistorted = map_corners(&good, |side, p| {
+        let k = &intrinsics[side];
+        let n = k.normalized_from_img(&p).unwrap();
+        Point2::new(k.fx * n.x + k.cx, k.fy * n.y + k.cy)
+    });
+    let mut square = good.clone();
+    square.board.square = 0.02;
+    for (observations, named) in [
+        (&half, "half-resolution pixels"),
+        (&undistorted, "undistorted twice"),
+        (&square, "the square size is half the true one"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let (start, path) = files(dir.path(), observations);
+        let (out, report) = (dir.path().join("out.json"), dir.path().join("report.json"));
+        let result = cli_calibrate(&start, &path, &out, &["--report", p(&report)]);
+        let stderr = text(&result.stderr);
+        assert!(
+            !result.status.success(),
+            "{named}: {}",
+            text(&result.stdout)
+        );
+        assert!(
+            stderr.contains("above --max-rms-px 3") && stderr.contains(named),
+            "{named}: {stderr}"
+        );
+        assert!(!out.exists(), "{named}");
+        let written: Value =
+            serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+        let diagnosis = written["diagnosis"].to_string();
+        assert!(diagnosis.contains(named), "{named}: {diagnosis} {stderr}");
+        // Only the mistake made is named.
+        for other in [
+            "half-resolution",
+            "undistorted twice",
+            "square size",
+            "millimetres",
+        ] {
+            assert!(
+                named.contains(other) || !diagnosis.contains(other),
+                "{named}: {other} named too: {diagnosis}"
+            );
+        }
+    }
+    // The correct data fit and name nothing.
+    let dir = tempfile::tempdir().unwrap();
+    let (start, path) = files(dir.path(), &good);
+    let out = dir.path().join("out.json");
+    let result = cli_calibrate(&start, &path, &out, &[]);
+    assert!(result.status.success(), "{}", text(&result.stderr));
+}

@@ -422,3 +422,67 @@ fn methods_that_do_not_apply_say_so() {
         .to_string();
     assert!(message.contains("two or more cameras"), "{message}");
 }
+
+#[test]
+fn a_misfit_names_the_input_mistake_on_any_rig() {
+    // Two housings whose rig file gives the baseline in millimetres (each camera stays in its own
+    // housing's air, so the rig is valid), and one camera whose corners are in half-resolution
+    // pixels: neither is accepted as a fit, and the diagnosis names the mistake and nothing else.
+    let cameras = vec![
+        camera("left", 0.0, 0.0, [0.0; 3]),
+        camera("right", -2.0, 0.0, [0.15, 0.0, 0.0]),
+    ];
+    let ports = Ports::PerCamera(vec![port(8.0, 45.0, 0.02), port(5.0, 200.0, 0.025)]);
+    let housings = Rig::with_ports(cameras, ports).unwrap();
+    let (observations, _) = simulate(&housings, &board(), 12, 0.125, 11);
+    let mut in_mm = housings.cameras()[1].cam_from_master;
+    in_mm.translation.vector *= 1000.0;
+    let start = naive(&housings).with_extrinsics(1, in_mm).unwrap();
+    let one = Rig::new(
+        vec![camera("cam", 0.0, 0.0, [0.0; 3])],
+        port(8.0, 45.0, 0.02),
+    )
+    .unwrap();
+    let (mut half, _) = simulate(&one, &board(), 10, 0.125, 12);
+    for view in &mut half.views {
+        for image in &mut view.images {
+            for corner in image.corners.iter_mut().flatten() {
+                *corner = Point2::new(corner.x / 2.0, corner.y / 2.0);
+            }
+        }
+    }
+    let options = RigCalibrationOptions::default();
+    for (name, start, observations, named) in [
+        (
+            "two housings",
+            &start,
+            &observations,
+            "baseline looks like millimetres",
+        ),
+        ("one camera", &naive(&one), &half, "half-resolution pixels"),
+    ] {
+        let report = calibrate_rig(start, observations, &options).unwrap().report;
+        println!(
+            "{name}: rms {:.2} px: {:?}",
+            report.rms_px, report.diagnosis
+        );
+        // Above --max-rms-px it does not fit; below it (one camera absorbs much of the halving)
+        // the RMS is still far above the corner noise seen in the images, which says so.
+        assert!(
+            !report.fits
+                || report
+                    .warnings
+                    .iter()
+                    .any(|w| w.contains("does not explain the data")),
+            "{name}: rms {}, {:?}",
+            report.rms_px,
+            report.warnings
+        );
+        assert_eq!(report.diagnosis.len(), 1, "{name}: {:?}", report.diagnosis);
+        assert!(
+            report.diagnosis[0].contains(named),
+            "{name}: {:?}",
+            report.diagnosis
+        );
+    }
+}

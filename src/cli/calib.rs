@@ -637,11 +637,14 @@ pub fn rig_summary(report: &RigReport) -> String {
         text += "\n";
     }
     text += &format!(
-        "RMS {:.4} px over {} corner observations in {} views, σ̂ {:.4} px; {} iterations ({}), {:.2} s\n",
+        "RMS {:.4} px over {} corner observations in {} views, σ̂ {:.4} px{}; {} iterations ({}), {:.2} s\n",
         report.rms_px,
         report.observations,
         report.views,
         report.sigma_px,
+        report.corner_noise_px.map_or(String::new(), |s| format!(
+            " (corner noise seen in the images σ ≈ {s:.4} px)"
+        )),
         report.iterations,
         report.termination,
         report.seconds

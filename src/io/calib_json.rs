@@ -404,6 +404,7 @@ struct RigReportFile<'a> {
     ports: Vec<PortReportFile<'a>>,
     cameras: Vec<CameraReportFile<'a>>,
     sigma_px: f64,
+    corner_noise_px: Option<f64>,
     rms_px: f64,
     fits: bool,
     diagnosis: &'a [String],
@@ -455,6 +456,7 @@ pub fn rig_report_to_json_string(report: &RigReport) -> String {
             })
             .collect(),
         sigma_px: report.sigma_px,
+        corner_noise_px: report.corner_noise_px,
         rms_px: report.rms_px,
         fits: report.fits,
         diagnosis: &report.diagnosis,

@@ -8,7 +8,7 @@ use crate::calib::backends::CostBackend;
 use crate::calib::costs::{CostKind, SceneFit, reprojection_residuals};
 use crate::calib::error::{CalibError, Side, degrees};
 use crate::calib::methods::bundle::{Bundle, BundleState, interface_std};
-use crate::calib::methods::diagnose;
+use crate::calib::methods::{diagnose, misfit};
 use crate::calib::problem::data::{Candidate, StereoData};
 use crate::calib::problem::observations::{ViewCorners, compare_views, describe_pose_groups};
 use crate::calib::problem::screen::{Screening, screen, without_corners};
@@ -648,6 +648,8 @@ fn calibrate_screened(
     let mut diagnosis = Vec::new();
     if !fits || noise_bound.is_some_and(|b| worst_rms > b) {
         diagnosis = diagnose::explain(data, Some(&final_candidate), screening.noise_px);
+        // The usual input mistakes, each undone and calibrated again.
+        diagnosis.extend(misfit::explain_stereo_misfit(data, options.max_rms_px));
         warnings.push(format!(
             "the reprojection RMS ({worst_rms:.2} px without the outliers) is {}: the model does not explain the data. What the data look like: {}",
             match (screening.noise_px, fits) {

@@ -6,6 +6,7 @@
 pub mod bundle;
 pub mod calibrate;
 pub mod diagnose;
+pub mod misfit;
 pub mod rig_bundle;
 pub mod rig_calibrate;
 pub mod sweep;

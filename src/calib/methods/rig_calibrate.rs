@@ -18,14 +18,18 @@ use nalgebra::{
 };
 
 use super::bundle::BlockNormalEquations;
-use super::calibrate::{CalibrationOptions, DEFAULT_MAX_RMS_PX, Method, calibrate};
+use super::calibrate::{
+    CalibrationOptions, DEFAULT_MAX_RMS_PX, Method, NOISE_FACTOR, NOISE_MARGIN_PX, calibrate,
+};
+use super::misfit::explain_misfit;
 use super::rig_bundle::{Estimate, Parameter, RigBundle, RigState};
 use crate::calib::backends::CpuBackend;
 use crate::calib::costs::invariants::plane_basis;
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::StereoData;
 use crate::calib::problem::observations::Observations;
-use crate::calib::problem::rig_observations::{RigObservations, SeenView};
+use crate::calib::problem::rig_observations::{RigObservations, SeenView, stereo_pair};
+use crate::calib::problem::screen::board_noise_px;
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::lm::{LeastSquares, LmOptions, levenberg_marquardt};
 use crate::calib::solvers::search::cap_grid;
@@ -118,6 +122,10 @@ pub struct RigReport {
     pub cameras: Vec<CameraReport>,
     /// Estimated pixel noise σ̂ from the residuals.
     pub sigma_px: f64,
+    /// The corner noise σ per coordinate seen in the images themselves (the scatter of each
+    /// board corner about the board's smooth shape), pixels; `None` for a 3-D target or a board
+    /// under 3 × 3. A fit that the model explains comes down to it.
+    pub corner_noise_px: Option<f64>,
     /// RMS reprojection error over every corner and camera, pixels.
     pub rms_px: f64,
     /// Target poses X_master = R·X_target + t per view.
@@ -158,6 +166,8 @@ const CELL_ITERATIONS: usize = 30;
 const SEARCH_SPACING_DEG: f64 = 4.0;
 
 /// Calibrates `rig` (its ports and extrinsics the start, the rest known) from `observations`.
+/// When the result does not fit, the report's diagnosis says which common input mistake the data
+/// look like ([`explain_misfit`]).
 pub fn calibrate_rig(
     rig: &Rig,
     observations: &RigObservations,
@@ -166,6 +176,38 @@ pub fn calibrate_rig(
     let started = Instant::now();
     let views = observations.resolve(rig)?;
     let target = &observations.target;
+    let mut calibration = calibrate_views(rig, target, &views, options)?;
+    let report = &mut calibration.report;
+    let worst = report
+        .cameras
+        .iter()
+        .map(|c| c.rms_px)
+        .filter(|r| !r.is_nan())
+        .fold(0.0, f64::max);
+    let noise_bound = report
+        .corner_noise_px
+        .map(|s| NOISE_FACTOR * s + NOISE_MARGIN_PX);
+    if !report.fits || noise_bound.is_some_and(|b| worst > b) {
+        report.diagnosis = explain_misfit(rig, target, &views, options);
+        if let (true, Some(s)) = (report.fits, report.corner_noise_px) {
+            report.warnings.push(format!(
+                "the reprojection RMS ({worst:.2} px in the worst camera) is far above the corner noise seen in the images (σ ≈ {s:.3} px): the model does not explain the data. What the data look like: {}",
+                report.diagnosis.join("; ")
+            ));
+        }
+    }
+    report.seconds = started.elapsed().as_secs_f64();
+    Ok(calibration)
+}
+
+/// [`calibrate_rig`] of views already resolved against `rig`, without the diagnosis of a misfit.
+pub fn calibrate_views(
+    rig: &Rig,
+    target: &Target,
+    views: &[SeenView],
+    options: &RigCalibrationOptions,
+) -> Result<RigCalibration, CalibError> {
+    let started = Instant::now();
     check_method(rig, target, options)?;
     let mut stages = Vec::new();
     let mut warnings = Vec::new();
@@ -186,7 +228,7 @@ pub fn calibrate_rig(
         clock.elapsed().as_secs_f64(),
     ));
     // 2. The ports' start.
-    let shared_pairs = shared_board_pairs(rig, observations, &views);
+    let shared_pairs = shared_board_pairs(rig, target, &views);
     let consecutive = match options.method {
         Method::Consecutive => true,
         Method::Simultaneous => false,
@@ -268,6 +310,7 @@ pub fn calibrate_rig(
             covariance.as_ref(),
         ),
         sigma_px: sigma2.sqrt(),
+        corner_noise_px: corner_noise_px(rig, target, views),
         rms_px: total_rms,
         poses: state.poses.clone(),
         stages,
@@ -280,9 +323,6 @@ pub fn calibrate_rig(
         views: views.len(),
         observations: residual_count / 2,
     };
-    if !fits {
-        report.diagnosis = explain_misfit(rig, target, &views, &state, options);
-    }
     report.seconds = started.elapsed().as_secs_f64();
     Ok(RigCalibration {
         rig: calibrated,
@@ -497,7 +537,7 @@ fn orthonormal(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 /// ports.
 fn shared_board_pairs(
     rig: &Rig,
-    observations: &RigObservations,
+    target: &Target,
     views: &[SeenView],
 ) -> Vec<((usize, usize), Observations)> {
     if !matches!(rig.ports(), Ports::Shared(_)) {
@@ -507,7 +547,7 @@ fn shared_board_pairs(
     let mut pairs = Vec::new();
     for a in 0..n {
         for b in a + 1..n {
-            if let Some(pair) = observations.pair(views, rig, a, b)
+            if let Some(pair) = stereo_pair(target, views, rig, a, b)
                 && pair.views.len() >= 3
             {
                 pairs.push(((a, b), pair));
@@ -541,9 +581,12 @@ fn consecutive_start(
             }
         };
         let backend = CpuBackend::new(&stereo);
+        // No bound on the RMS: the consecutive result is a start, not a fit of the images, and a
+        // misfit here must not diagnose (the diagnosis refits through this very function).
         let stereo_options = CalibrationOptions {
             method: Method::Consecutive,
             max_tilt: options.max_tilt,
+            max_rms_px: f64::INFINITY,
             ..CalibrationOptions::default()
         };
         let calibration = match calibrate(&backend, &stereo_options, Vec::new()) {
@@ -778,60 +821,23 @@ fn camera_reports(
         .collect()
 }
 
-/// What the data look like when the fit is far off: the usual mistakes, each tried by refitting
-/// under the mistake undone (the target's size, the pixels' scale).
-fn explain_misfit(
-    rig: &Rig,
-    target: &Target,
-    views: &[SeenView],
-    state: &RigState,
-    options: &RigCalibrationOptions,
-) -> Vec<String> {
-    let bundle = RigBundle::new(rig, target, views, options.estimate, options.huber);
-    let now = rms(&bundle, state);
-    let mut findings = Vec::new();
-    // A wrong square size (or target in other units): the target scaled.
-    for (scale, what) in [
-        (
-            0.1,
-            "the target's size is ten times too large (a square in millimetres read as centimetres?)",
-        ),
-        (10.0, "the target's size is ten times too small"),
-        (0.5, "the square size is twice the true one"),
-        (2.0, "the square size is half the true one"),
-        (0.001, "the target is in millimetres, not metres"),
-    ] {
-        let scaled = scaled_target(target, scale);
-        let mut trial = state.clone();
-        for pose in &mut trial.poses {
-            pose.translation.vector *= scale.sqrt();
-        }
-        let b = RigBundle::new(rig, &scaled, views, options.estimate, options.huber);
-        let fitted = short_fit(&b, trial, 40);
-        let r = rms(&b, &fitted);
-        if r < 0.3 * now {
-            findings.push(format!("{what}: with the target scaled by {scale} the RMS falls from {now:.2} px to {r:.2} px"));
-        }
-    }
-    if findings.is_empty() {
-        findings.push(format!(
-            "the RMS of {now:.2} px is not explained by a scaled target; check that the corners are raw (distorted) pixels at the rig's resolution, in target order in every camera, and that the rig's intrinsics and extrinsics (in metres) are right"
-        ));
-    }
-    findings
-}
-
-fn scaled_target(target: &Target, scale: f64) -> Target {
-    match target {
-        Target::Board(board) => Target::Board(crate::calib::problem::board::Board {
-            square: board.square * scale,
-            ..*board
-        }),
-        Target::Points(points) => Target::Points(
-            points
+/// The corner noise seen in the images of a board ([`board_noise_px`]): each camera's corners of
+/// each view, undistorted, as offsets from the principal point in pixels.
+fn corner_noise_px(rig: &Rig, target: &Target, views: &[SeenView]) -> Option<f64> {
+    let board = target.board()?;
+    let images: Vec<Vec<(usize, Vector2<f64>)>> = views
+        .iter()
+        .flat_map(|view| &view.cameras)
+        .map(|(k, corners)| {
+            let intrinsics = &rig.cameras()[*k].intrinsics;
+            corners
                 .iter()
-                .map(|p| Point3::from(p.coords * scale))
-                .collect(),
-        ),
-    }
+                .filter_map(|(i, p)| {
+                    let x = intrinsics.normalized_from_img(p)?;
+                    Some((*i, Vector2::new(intrinsics.fx * x.x, intrinsics.fy * x.y)))
+                })
+                .collect()
+        })
+        .collect();
+    board_noise_px(board, &images)
 }

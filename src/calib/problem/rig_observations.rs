@@ -169,45 +169,56 @@ impl RigObservations {
     /// corners both saw (a corner one of them missed is null in both). `None` for a 3-D target
     /// (the binocular costs need a board).
     pub fn pair(&self, seen: &[SeenView], rig: &Rig, a: usize, b: usize) -> Option<Observations> {
-        let Target::Board(board) = self.target else {
-            return None;
+        stereo_pair(&self.target, seen, rig, a, b)
+    }
+}
+
+/// [`RigObservations::pair`] of views `seen` of `target`.
+pub fn stereo_pair(
+    target: &Target,
+    seen: &[SeenView],
+    rig: &Rig,
+    a: usize,
+    b: usize,
+) -> Option<Observations> {
+    let Target::Board(board) = *target else {
+        return None;
+    };
+    let mut views = Vec::new();
+    for view in seen {
+        let find = |k: usize| {
+            view.cameras
+                .iter()
+                .find(|(c, _)| *c == k)
+                .map(|(_, corners)| corners)
         };
-        let mut views = Vec::new();
-        for view in seen {
-            let find = |k: usize| {
-                view.cameras
-                    .iter()
-                    .find(|(c, _)| *c == k)
-                    .map(|(_, corners)| corners)
-            };
-            let (Some(left), Some(right)) = (find(a), find(b)) else {
-                continue;
-            };
-            let mut stereo = StereoView {
-                left: vec![None; board.corners()],
-                right: vec![None; board.corners()],
-            };
-            for &(i, p) in left {
-                stereo.left[i] = Some(p);
-            }
-            for &(i, p) in right {
-                stereo.right[i] = Some(p);
-            }
-            for i in 0..board.corners() {
-                if stereo.left[i].is_none() || stereo.right[i].is_none() {
-                    stereo.left[i] = None;
-                    stereo.right[i] = None;
-                }
-            }
-            if stereo.matched().count() >= MIN_VIEW_CORNERS {
-                views.push(stereo);
+        let (Some(left), Some(right)) = (find(a), find(b)) else {
+            continue;
+        };
+        let mut stereo = StereoView {
+            left: vec![None; board.corners()],
+            right: vec![None; board.corners()],
+        };
+        for &(i, p) in left {
+            stereo.left[i] = Some(p);
+        }
+        for &(i, p) in right {
+            stereo.right[i] = Some(p);
+        }
+        for i in 0..board.corners() {
+            if stereo.left[i].is_none() || stereo.right[i].is_none() {
+                stereo.left[i] = None;
+                stereo.right[i] = None;
             }
         }
-        let names = [a, b].map(|k| rig.cameras()[k].name.clone());
-        Some(Observations {
-            board,
-            views,
-            cameras: Some(names),
-        })
+        if stereo.matched().count() >= MIN_VIEW_CORNERS {
+            views.push(stereo);
+        }
     }
+    let names = [a, b].map(|k| rig.cameras()[k].name.clone());
+    Some(Observations {
+        board,
+        views,
+        cameras: Some(names),
+    })
 }

@@ -30,6 +30,7 @@ use nalgebra::{Matrix3, Point2, SMatrix, SVector, Vector2, Vector3};
 use rayon::prelude::*;
 
 use crate::calib::error::Side;
+use crate::calib::problem::board::Board;
 use crate::calib::problem::data::StereoData;
 
 /// Width of the block of grid positions a corner is predicted from.
@@ -109,16 +110,58 @@ fn images(data: &StereoData) -> Vec<(usize, Side, Image)> {
                     )
                 })
                 .collect();
-            let homography = fit_homography(&points);
-            let mut image = vec![None; data.board.corners()];
-            for (j, (c, (g, p))) in corners.iter().zip(&points).enumerate() {
-                let e = homography.as_ref().map_or(*p, |h| p - apply(h, g));
-                image[c.index] = Some((range.start + j, Point2::from(e)));
-            }
-            out.push((v, side, image));
+            let indices = corners.iter().map(|c| c.index);
+            let positions = range.clone();
+            out.push((
+                v,
+                side,
+                smooth_field(&data.board, indices.zip(positions), &points),
+            ));
         }
     }
     out
+}
+
+/// One image's field e = p − H(g) on the board grid: `Some((position, e))` at each corner index
+/// of `corners` (index, position), from `points` (grid position, undistorted pixel offset) in the
+/// same order.
+fn smooth_field(
+    board: &Board,
+    corners: impl Iterator<Item = (usize, usize)>,
+    points: &[(Vector2<f64>, Vector2<f64>)],
+) -> Image {
+    let homography = fit_homography(points);
+    let mut image = vec![None; board.corners()];
+    for ((index, position), (g, p)) in corners.zip(points) {
+        let e = homography.as_ref().map_or(*p, |h| p - apply(h, g));
+        image[index] = Some((position, Point2::from(e)));
+    }
+    image
+}
+
+/// The corner noise σ̂ per coordinate, pixels, seen in images of `board`: each image is the
+/// corners it saw as (corner index, undistorted pixel offset from the principal point, fx·x/z and
+/// fy·y/z), and σ̂ is the median standardised deviation of every corner from the local
+/// polynomial through its neighbours (as [`screen`] finds it, without removing suspects: the
+/// median ignores a few). `None` when no corner can be predicted (boards under 3 × 3).
+pub fn board_noise_px(board: &Board, images: &[Vec<(usize, Vector2<f64>)>]) -> Option<f64> {
+    let none = vec![false; board.corners()];
+    let mut all: Vec<f64> = images
+        .par_iter()
+        .flat_map_iter(|corners| {
+            let points: Vec<(Vector2<f64>, Vector2<f64>)> = corners
+                .iter()
+                .map(|&(i, p)| {
+                    let (r, c) = board.grid_position(i);
+                    (Vector2::new(c as f64, r as f64), p)
+                })
+                .collect();
+            let indices = corners.iter().enumerate().map(|(k, &(i, _))| (i, k));
+            let image = smooth_field(board, indices, &points);
+            deviations(board, &image, &none).into_iter().map(|(_, d)| d)
+        })
+        .collect();
+    median(&mut all).map(|m| m / MEDIAN_NORM)
 }
 
 /// Hartley normalisation of 2-D points: T with T·(x, 1) centred, mean distance √2.
@@ -199,12 +242,12 @@ fn window_start(at: usize, size: usize) -> usize {
 
 /// The standardised deviation of corner `index` from the polynomial through the other corners
 /// of its block that are present and not `excluded`; `None` when they cannot fix a quadratic.
-fn deviation(data: &StereoData, image: &Image, excluded: &[bool], index: usize) -> Option<f64> {
-    let (rows, cols) = (data.board.rows, data.board.cols);
+fn deviation(board: &Board, image: &Image, excluded: &[bool], index: usize) -> Option<f64> {
+    let (rows, cols) = (board.rows, board.cols);
     if rows < 3 || cols < 3 {
         return None;
     }
-    let (r0, c0) = data.board.grid_position(index);
+    let (r0, c0) = board.grid_position(index);
     let (rs, cs) = (window_start(r0, rows), window_start(c0, cols));
     let mut points = Vec::with_capacity(WINDOW * WINDOW);
     let (mut used_rows, mut used_cols) = (0u32, 0u32);
@@ -267,10 +310,10 @@ fn predict<const N: usize>(points: &[(f64, f64, Point2<f64>)]) -> Option<(Vector
     Some((Vector2::new(w.dot(&rhs_u), w.dot(&rhs_v)), w[0]))
 }
 
-fn deviations(data: &StereoData, image: &Image, excluded: &[bool]) -> Vec<(usize, f64)> {
+fn deviations(board: &Board, image: &Image, excluded: &[bool]) -> Vec<(usize, f64)> {
     (0..image.len())
         .filter(|&i| image[i].is_some() && !excluded[i])
-        .filter_map(|i| deviation(data, image, excluded, i).map(|d| (i, d)))
+        .filter_map(|i| deviation(board, image, excluded, i).map(|d| (i, d)))
         .collect()
 }
 
@@ -289,7 +332,7 @@ pub fn screen(data: &StereoData) -> Screening {
     // Every image alone, in parallel: first without exclusions (for σ̂), then removing suspects.
     let first: Vec<Vec<(usize, f64)>> = images
         .par_iter()
-        .map(|(_, _, image)| deviations(data, image, &none))
+        .map(|(_, _, image)| deviations(&data.board, image, &none))
         .collect();
     let mut all: Vec<f64> = first.iter().flatten().map(|&(_, d)| d).collect();
     let Some(median_first) = median(&mut all) else {
@@ -320,7 +363,7 @@ pub fn screen(data: &StereoData) -> Screening {
                             position,
                             deviation_px: d,
                         });
-                        found = deviations(data, image, &excluded);
+                        found = deviations(&data.board, image, &excluded);
                     }
                     _ => return (suspects, found.into_iter().map(|(_, d)| d).collect()),
                 }
