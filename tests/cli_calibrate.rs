@@ -234,3 +234,54 @@ fn a_start_guess_behind_the_board_is_reported_not_used() {
     );
     assert!(stdout.contains("axis off by 0.0"), "{stdout}");
 }
+
+#[test]
+fn a_rig_with_a_port_per_camera_is_checked_against_its_truth() {
+    // `--truth` on any rig: every port's and every estimated camera's error, one line each, from
+    // the whole true rig `simulate` keeps in truth.json.
+    let dir = tempfile::tempdir().unwrap();
+    let simulated = flatport(&[
+        "simulate",
+        "--rig",
+        "data/rigs/housings.json",
+        "--views",
+        "12",
+        "--seed",
+        "3",
+        "--output",
+        p(dir.path()),
+    ]);
+    assert!(simulated.status.success(), "{}", text(&simulated.stderr));
+    let out = dir.path().join("out.json");
+    let result = flatport(&[
+        "calibrate",
+        "--rig",
+        p(&dir.path().join("start_rig.json")),
+        "--observations",
+        p(&dir.path().join("observations.json")),
+        "--output",
+        p(&out),
+        "--truth",
+        p(&dir.path().join("truth.json")),
+        "--device",
+        "cpu",
+    ]);
+    let stdout = text(&result.stdout);
+    assert!(result.status.success(), "{}", text(&result.stderr));
+    // Each port's errors, parsed, within the bounds for two housings (0.07°, 1 mm); the
+    // extrinsics were not estimated, so no camera line.
+    let numbers = |line: &str| -> Vec<f64> {
+        line.split(' ')
+            .filter_map(|w| w.trim_end_matches(['°', ',']).parse().ok())
+            .collect()
+    };
+    let lines: Vec<&str> = stdout.lines().filter(|l| l.contains(" off by ")).collect();
+    assert_eq!(lines.len(), 2, "{stdout}");
+    for (line, port) in lines.iter().zip(["port left", "port right"]) {
+        let e = numbers(line);
+        assert!(
+            line.contains(port) && e[0] <= 0.07 && e[1].abs() <= 1.0,
+            "{line}"
+        );
+    }
+}

@@ -425,6 +425,50 @@ pub fn truth_errors(report: &CalibrationReport, truth: &Truth) -> String {
     format!("against the truth: axis off by {axis:.5}°, air layer off by {air:+.4} mm")
 }
 
+/// Errors of a calibrated rig against the whole true rig of a simulated scene, one line per port
+/// and per camera whose extrinsics differ: each port's axis (in its own frame) and air distance,
+/// its layer thicknesses where they differ, each camera's rotation and translation. Ports are
+/// compared in their own frames (a camera's port in that camera's frame).
+pub fn rig_truth_errors(result: &Rig, truth: &Rig) -> String {
+    let ports = |rig: &Rig| match rig.ports() {
+        Ports::Shared(i) => vec![("shared".to_string(), i.clone())],
+        Ports::PerCamera(ports) => rig
+            .cameras()
+            .iter()
+            .map(|c| c.name.clone())
+            .zip(ports.iter().cloned())
+            .collect(),
+    };
+    let mut text = String::from("against the truth:");
+    for ((name, got), (_, want)) in ports(result).iter().zip(ports(truth)) {
+        text += &format!(
+            "\n  port {name}: axis off by {:.5}°, air layer off by {:+.4} mm",
+            got.normal().angle(want.normal()).to_degrees(),
+            (got.air_distance() - want.air_distance()) * 1e3
+        );
+        for (k, (a, b)) in got.layers().iter().zip(want.layers()).enumerate() {
+            if a.thickness != b.thickness {
+                text += &format!(
+                    ", layer {k} thickness off by {:+.4} mm",
+                    (a.thickness - b.thickness) * 1e3
+                );
+            }
+        }
+    }
+    for (got, want) in result.cameras().iter().zip(truth.cameras()).skip(1) {
+        let (g, w) = (got.cam_from_master, want.cam_from_master);
+        if g != w {
+            text += &format!(
+                "\n  camera {}: rotation off by {:.5}°, translation off by {:.4} mm",
+                got.name,
+                g.rotation.angle_to(&w.rotation).to_degrees(),
+                (g.translation.vector - w.translation.vector).norm() * 1e3
+            );
+        }
+    }
+    text
+}
+
 /// Outlier images listed in the summary (the report lists all).
 const MAX_LISTED_OUTLIERS: usize = 12;
 
@@ -563,6 +607,24 @@ fn run_rig_calibrate(
         write_atomic(path, rig_report_to_json_string(report).as_bytes())?;
     }
     out!("{}", rig_summary(report));
+    if let Some(path) = &args.truth {
+        let truth = read_truth(path)?;
+        match &truth.rig {
+            Some(true_rig) if true_rig.cameras().len() == calibration.rig.cameras().len() => {
+                outln!("{}", rig_truth_errors(&calibration.rig, true_rig))
+            }
+            Some(_) => bail!(
+                "{}: the truth's rig has {} camera(s), the calibrated one {}",
+                path.display(),
+                truth.rig.as_ref().map_or(0, |r| r.cameras().len()),
+                calibration.rig.cameras().len()
+            ),
+            None => bail!(
+                "{}: this truth file holds no rig (written before rigs were kept); simulate again",
+                path.display()
+            ),
+        }
+    }
     if !report.fits {
         let worst = report
             .cameras
