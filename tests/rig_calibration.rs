@@ -225,6 +225,9 @@ fn check(
         "{name}: rms {}",
         report.rms_px
     );
+    // The corner noise seen in the images, independently of any model: the 0.125 px added.
+    let seen = report.corner_noise_px.expect("a board's noise");
+    assert!((0.1..=0.15).contains(&seen), "{name}: corner noise {seen}");
 }
 
 #[test]
@@ -370,12 +373,25 @@ fn a_cube_corner_target_in_one_view_and_a_tank_of_unknown_water() {
         .unwrap();
     let (observations, _) = simulate(&truth, &target, 6, 0.125, 3);
     // Behind a parallel slab with air on both sides, where the slab sits does not matter: the
-    // distance to the tank is not observable and stays at its start; the axis and the water are.
+    // distance to the tank is not observable, stays at its start, and the report says so; the
+    // axis and the water are estimated (`layer:1`: the glass walls' thickness is known).
     let options = RigCalibrationOptions {
-        estimate: Estimate::parse("axis,layers").unwrap(),
+        estimate: Estimate::parse("axis,distance,layer:1").unwrap(),
         ..RigCalibrationOptions::default()
     };
     let calibration = calibrate_rig(&start, &observations, &options).unwrap();
+    let port = calibration.rig.shared_interface().unwrap();
+    assert_eq!(port.air_distance(), 0.01);
+    assert_eq!(port.layers()[0].thickness, 0.006);
+    assert!(
+        calibration
+            .report
+            .warnings
+            .iter()
+            .any(|w| w.contains("air distance is not observable")),
+        "{:?}",
+        calibration.report.warnings
+    );
     let water = calibration.rig.shared_interface().unwrap().layers()[1].thickness;
     let report = &calibration.report;
     println!(

@@ -57,8 +57,10 @@ pub struct CalibrateArgs {
     #[arg(long, value_enum, default_value_t = MethodArg::Auto)]
     method: MethodArg,
     /// What to estimate, comma-separated: axis, distance, layers (every layer thickness; indices
-    /// stay known), extrinsics (R, t of every camera but the master). With a port per camera every
-    /// port is estimated
+    /// stay known), layer:K (layer K's thickness only, 0-based as in the rig file: `layer:1` for
+    /// the water of a glass–water–glass tank), extrinsics (R, t of every camera but the master).
+    /// With a port per camera every port is estimated. A port with the same medium on both sides
+    /// (a tank with air behind) keeps its distance: it changes no ray
     #[arg(long, value_name = "LIST", default_value = "axis,distance", value_parser = parse_estimate)]
     estimate: Estimate,
     /// Largest axis tilt from the master camera's z axis that the global search covers (degrees)

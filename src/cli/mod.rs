@@ -170,7 +170,9 @@ then maximum likelihood from several starts, keeping the lowest cost). Every oth
 N cameras, a port per camera, a 3-D target, layers or extrinsics estimated): a pose per view, the
 consecutive method over every camera pair behind a shared port (auto, consecutive) or a global
 search over each port's axis (auto without such pairs, simultaneous), then maximum likelihood over
-everything estimated, with a standard deviation for each.
+everything estimated, with a standard deviation for each. A fit above --max-rms-px (or far above
+the corner noise seen in the images) says which usual input mistake it looks like: a wrong square,
+half-resolution pixels, corners undistorted twice, a baseline in millimetres.
 
 Examples:
   flatport calibrate --rig rig.json --observations obs.json --output calibrated.json
@@ -178,7 +180,7 @@ Examples:
       --method simultaneous --huber 1.0
   flatport calibrate --rig one/start_rig.json --observations one/observations.json -o one.json
   flatport calibrate --rig rig.json --observations obs.json --estimate axis,distance,extrinsics -o out.json
-  flatport calibrate --rig tank.json --observations obs.json --estimate axis,layers -o out.json")]
+  flatport calibrate --rig tank.json --observations obs.json --estimate axis,layer:1 -o out.json")]
     Calibrate(calib::CalibrateArgs),
     /// Sweep a calibration cost over a grid of axes (and air layers): .npy, CSV, heat maps, summary
     #[command(after_help = "\

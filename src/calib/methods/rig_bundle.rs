@@ -26,8 +26,10 @@ pub struct Estimate {
     pub axis: bool,
     /// The air distance of every port.
     pub distance: bool,
-    /// Every layer thickness of every port (indices stay known).
-    pub layers: bool,
+    /// The layer thicknesses estimated in every port, as a set of layer indices (bit i: layer i,
+    /// as in the rig file's `layers[i]`); [`Estimate::ALL_LAYERS`] for every layer, 0 for none.
+    /// Indices stay known.
+    pub layers: u32,
     /// R, t of every camera but the master.
     pub extrinsics: bool,
 }
@@ -37,7 +39,7 @@ impl Default for Estimate {
         Self {
             axis: true,
             distance: true,
-            layers: false,
+            layers: 0,
             extrinsics: false,
         }
     }
@@ -48,23 +50,44 @@ impl Estimate {
     pub const NOTHING: Self = Self {
         axis: false,
         distance: false,
-        layers: false,
+        layers: 0,
         extrinsics: false,
     };
-    /// Parses a comma-separated list of `axis`, `distance`, `layers`, `extrinsics`.
+    /// Every layer thickness ([`Estimate::layers`]).
+    pub const ALL_LAYERS: u32 = u32::MAX;
+    /// Layers `layer:K` can name (0-based).
+    const MAX_LAYER: usize = 31;
+
+    /// Whether layer `i`'s thickness is estimated.
+    pub fn layer(&self, i: usize) -> bool {
+        i <= Self::MAX_LAYER && self.layers & (1 << i) != 0
+    }
+
+    /// Parses a comma-separated list of `axis`, `distance`, `layers` (every layer's thickness),
+    /// `layer:K` (layer K's thickness only, 0-based as in the rig file; repeatable) and
+    /// `extrinsics`.
     pub fn parse(list: &str) -> Result<Self, String> {
         let mut estimate = Self::NOTHING;
         for word in list.split(',').map(str::trim) {
             match word {
                 "axis" => estimate.axis = true,
                 "distance" => estimate.distance = true,
-                "layers" => estimate.layers = true,
+                "layers" => estimate.layers = Self::ALL_LAYERS,
                 "extrinsics" => estimate.extrinsics = true,
-                other => {
-                    return Err(format!(
-                        "'{other}' is not something to estimate: choose from axis, distance, layers, extrinsics (comma-separated)"
-                    ));
-                }
+                other => match other.strip_prefix("layer:").map(str::parse::<usize>) {
+                    Some(Ok(k)) if k <= Self::MAX_LAYER => estimate.layers |= 1 << k,
+                    Some(_) => {
+                        return Err(format!(
+                            "'{other}': layer:K takes a layer index from 0 to {} (as in the rig file's layers[K])",
+                            Self::MAX_LAYER
+                        ));
+                    }
+                    None => {
+                        return Err(format!(
+                            "'{other}' is not something to estimate: choose from axis, distance, layers, layer:K, extrinsics (comma-separated)"
+                        ));
+                    }
+                },
             }
         }
         Ok(estimate)
@@ -72,18 +95,26 @@ impl Estimate {
 
     /// The list as `--estimate` takes it.
     pub fn name(&self) -> String {
-        let words = [
-            (self.axis, "axis"),
-            (self.distance, "distance"),
-            (self.layers, "layers"),
-            (self.extrinsics, "extrinsics"),
-        ];
-        words
-            .iter()
-            .filter(|(on, _)| *on)
-            .map(|(_, w)| *w)
-            .collect::<Vec<_>>()
-            .join(",")
+        let mut words = Vec::new();
+        if self.axis {
+            words.push("axis".to_string());
+        }
+        if self.distance {
+            words.push("distance".into());
+        }
+        if self.layers == Self::ALL_LAYERS {
+            words.push("layers".into());
+        } else {
+            words.extend(
+                (0..=Self::MAX_LAYER)
+                    .filter(|&i| self.layer(i))
+                    .map(|i| format!("layer:{i}")),
+            );
+        }
+        if self.extrinsics {
+            words.push("extrinsics".into());
+        }
+        words.join(",")
     }
 }
 
@@ -162,6 +193,13 @@ impl RigState {
     }
 }
 
+/// Whether a port's air distance changes no ray: with the same medium on both sides of its
+/// parallel interfaces (a tank with air behind the water), a ray leaves in its own direction,
+/// moved sideways by an amount that its angle and the thicknesses fix wherever the port sits.
+pub fn distance_unobservable(port: &Interface) -> bool {
+    port.index_air() == port.index_water()
+}
+
 /// One global parameter of the step.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Parameter {
@@ -202,19 +240,22 @@ impl<'a> RigBundle<'a> {
     ) -> Self {
         let mut globals = Vec::new();
         let ports = match base.ports() {
-            Ports::Shared(interface) => vec![interface.layers().len()],
-            Ports::PerCamera(ports) => ports.iter().map(|p| p.layers().len()).collect(),
+            Ports::Shared(interface) => vec![interface],
+            Ports::PerCamera(ports) => ports.iter().collect(),
         };
-        for (p, &layers) in ports.iter().enumerate() {
+        for (p, port) in ports.into_iter().enumerate() {
             if estimate.axis {
                 globals.extend([Parameter::Axis(p, 0), Parameter::Axis(p, 1)]);
             }
-            if estimate.distance {
+            if estimate.distance && !distance_unobservable(port) {
                 globals.push(Parameter::Distance(p));
             }
-            if estimate.layers {
-                globals.extend((0..layers).map(|i| Parameter::Thickness(p, i)));
-            }
+            let layers = port.layers().len();
+            globals.extend(
+                (0..layers)
+                    .filter(|&i| estimate.layer(i))
+                    .map(|i| Parameter::Thickness(p, i)),
+            );
         }
         if estimate.extrinsics {
             for k in 1..base.cameras().len() {

@@ -22,7 +22,7 @@ use super::calibrate::{
     CalibrationOptions, DEFAULT_MAX_RMS_PX, Method, NOISE_FACTOR, NOISE_MARGIN_PX, calibrate,
 };
 use super::misfit::explain_misfit;
-use super::rig_bundle::{Estimate, Parameter, RigBundle, RigState};
+use super::rig_bundle::{Estimate, Parameter, RigBundle, RigState, distance_unobservable};
 use crate::calib::backends::CpuBackend;
 use crate::calib::costs::invariants::plane_basis;
 use crate::calib::error::CalibError;
@@ -33,7 +33,7 @@ use crate::calib::problem::screen::board_noise_px;
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::lm::{LeastSquares, LmOptions, levenberg_marquardt};
 use crate::calib::solvers::search::cap_grid;
-use crate::model::{Ports, Rig};
+use crate::model::{Interface, Ports, Rig};
 
 /// How to calibrate a rig.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -212,6 +212,17 @@ pub fn calibrate_views(
     let mut stages = Vec::new();
     let mut warnings = Vec::new();
     let planar = target.is_planar();
+    if options.estimate.distance {
+        for (name, port) in port_names(rig) {
+            if distance_unobservable(&port) {
+                warnings.push(format!(
+                    "port {name}: the same medium (index {}) on both sides of the port, so where it sits changes no ray: its air distance is not observable and stays at its start ({:.1} mm)",
+                    port.index_air(),
+                    port.air_distance() * 1e3
+                ));
+            }
+        }
+    }
     if planar && views.len() < 3 {
         warnings.push(format!("{} view(s) of a planar target: the port is weakly determined below 3 (a 3-D target fixes it from one)", views.len()));
     }
@@ -343,7 +354,7 @@ fn check_method(
                 "the consecutive method (the thesis' invariants) needs two or more cameras behind one shared port and a board; use --method simultaneous or auto".into(),
             ));
         }
-        if options.estimate.layers || options.estimate.extrinsics {
+        if options.estimate.layers != 0 || options.estimate.extrinsics {
             return Err(CalibError::Options(
                 "the consecutive method estimates the axis and the air distance only; --estimate layers or extrinsics needs --method simultaneous or auto".into(),
             ));
@@ -351,12 +362,24 @@ fn check_method(
     }
     if !(options.estimate.axis
         || options.estimate.distance
-        || options.estimate.layers
+        || options.estimate.layers != 0
         || options.estimate.extrinsics)
     {
         return Err(CalibError::Options(
             "--estimate names nothing to estimate".into(),
         ));
+    }
+    let layers = match rig.ports() {
+        Ports::Shared(port) => port.layers().len(),
+        Ports::PerCamera(ports) => ports.iter().map(|p| p.layers().len()).min().unwrap_or(0),
+    };
+    if options.estimate.layers != Estimate::ALL_LAYERS
+        && let Some(k) = (layers..32).find(|&k| options.estimate.layer(k))
+    {
+        return Err(CalibError::Options(format!(
+            "--estimate layer:{k}: the rig's port(s) have {layers} layer(s), layer:0 to layer:{}",
+            layers.saturating_sub(1)
+        )));
     }
     if options.estimate.extrinsics && rig.cameras().len() < 2 {
         return Err(CalibError::Options("--estimate extrinsics needs two or more cameras (the master's extrinsics define the frame)".into()));
@@ -719,10 +742,7 @@ fn port_reports(
         .iter()
         .enumerate()
         .map(|(p, port)| {
-            let name = match rig.ports() {
-                Ports::Shared(_) => "shared".to_string(),
-                Ports::PerCamera(_) => rig.cameras()[p].name.clone(),
-            };
+            let name = port_names(rig).swap_remove(p).0;
             let n = port.normal;
             // (tilt, azimuth) from the tangent-plane parameters by their derivatives at n.
             let (tilt_std, azimuth_std) = match (
@@ -840,4 +860,17 @@ fn corner_noise_px(rig: &Rig, target: &Target, views: &[SeenView]) -> Option<f64
         })
         .collect();
     board_noise_px(board, &images)
+}
+
+/// Each port with its name in reports: `shared`, or its camera's name.
+fn port_names(rig: &Rig) -> Vec<(String, Interface)> {
+    match rig.ports() {
+        Ports::Shared(port) => vec![("shared".into(), port.clone())],
+        Ports::PerCamera(ports) => rig
+            .cameras()
+            .iter()
+            .map(|c| c.name.clone())
+            .zip(ports.iter().cloned())
+            .collect(),
+    }
 }

@@ -464,13 +464,14 @@ mod tests {
             (0.5, 3, 60.0),
             (1.0, 4, 30.0),
         ] {
-            let screening = screen(&data(noise, seed, tilt));
+            let data = data(noise, seed, tilt);
+            let screening = screen(&data);
             let largest = screening.suspects.first().map_or(0.0, |s| s.deviation_px);
-            let images = images(&data(noise, seed, tilt));
+            let images = images(&data);
             let none = vec![false; 54];
             let d = images
                 .iter()
-                .flat_map(|(_, _, image)| deviations(&data(noise, seed, tilt), image, &none))
+                .flat_map(|(_, _, image)| deviations(&data.board, image, &none))
                 .map(|(_, d)| d)
                 .fold(0.0, f64::max);
             println!(
