@@ -2,17 +2,18 @@
 
 use std::time::Instant;
 
-use nalgebra::{Isometry3, Unit, Vector3};
+use nalgebra::{Isometry3, Unit, Vector2, Vector3};
 
 use crate::calib::backends::CostBackend;
 use crate::calib::costs::{CostKind, SceneFit, reprojection_residuals};
 use crate::calib::error::{CalibError, Side, degrees};
+use crate::calib::methods::bundle::BlockNormalEquations;
 use crate::calib::methods::bundle::{Bundle, BundleState, interface_std};
 use crate::calib::methods::{diagnose, misfit};
 use crate::calib::problem::data::{Candidate, StereoData};
 use crate::calib::problem::observations::{ViewCorners, compare_views, describe_pose_groups};
 use crate::calib::problem::screen::{Screening, screen, without_corners};
-use crate::calib::solvers::lm::{LmOptions, Termination, levenberg_marquardt_observed};
+use crate::calib::solvers::lm::{LmOptions, LmReport, Termination, levenberg_marquardt_observed};
 use crate::calib::solvers::search::{cap_grid, fit_air_distance, refine_axis_observed};
 use crate::model::Interface;
 
@@ -267,6 +268,13 @@ pub const NOISE_FACTOR: f64 = 3.0;
 /// See [`NOISE_FACTOR`], pixels.
 pub const NOISE_MARGIN_PX: f64 = 0.2;
 
+/// The maximum-likelihood fit a method ended with: the LM report and the normal equations at the
+/// result (for the covariance).
+type MlFit = (LmReport, Option<BlockNormalEquations>);
+
+/// The thesis' pipeline as named steps: check the options and the views, screen the corners,
+/// the consecutive estimate, the maximum-likelihood fit (simultaneous, auto), then the report of
+/// how the result fits. `screening_out` receives the screening (the error path needs its noise).
 fn calibrate_screened(
     backend: &dyn CostBackend,
     options: &CalibrationOptions,
@@ -277,269 +285,23 @@ fn calibrate_screened(
     let started = Instant::now();
     let data = backend.data();
     let mut warnings = warnings;
-    if data.views.len() < MIN_VIEWS {
-        return Err(CalibError::TooFewViews {
-            usable: data.views.len(),
-            needed: MIN_VIEWS,
-        });
-    }
-    if !(options.max_tilt > 0.0 && options.max_tilt < 80f64.to_radians()) {
-        return Err(CalibError::Options(format!(
-            "the tilt bound must lie in (0°, 80°), got {}°",
-            degrees(options.max_tilt.to_degrees())
-        )));
-    }
-    if !(options.grid_spacing > 0.0 && options.grid_spacing <= options.max_tilt) {
-        return Err(CalibError::Options(format!(
-            "the grid spacing must lie in (0°, tilt bound], got {}°",
-            degrees(options.grid_spacing.to_degrees())
-        )));
-    }
-    if crate::calib::solvers::search::cap_grid_size(options.max_tilt, options.grid_spacing)
-        > crate::calib::solvers::search::MAX_CAP_GRID_AXES as f64
-    {
-        return Err(CalibError::Options(format!(
-            "a grid spacing of {}° over a {}° tilt bound gives {:.3e} axes; the global search takes at most {} (each costs an evaluation over every corner): use a spacing ≥ {}°",
-            degrees(options.grid_spacing.to_degrees()),
-            degrees(options.max_tilt.to_degrees()),
-            crate::calib::solvers::search::cap_grid_size(options.max_tilt, options.grid_spacing),
-            crate::calib::solvers::search::MAX_CAP_GRID_AXES,
-            crate::calib::solvers::search::min_cap_grid_spacing_deg_text(options.max_tilt)
-        )));
-    }
-    if !(options.max_rms_px > 0.0) {
-        return Err(CalibError::Options(format!(
-            "the largest accepted RMS must be a positive number of pixels, got {}",
-            options.max_rms_px
-        )));
-    }
-    // Views that repeat another, or too few distinct poses: the answer would look confident and
-    // be wrong (the copies shrink the standard deviations by √copies).
-    let groups = compare_views(&view_corners(data));
-    if let Some(&(view, earlier, max_px)) = groups.repeats.first() {
-        return Err(CalibError::RepeatedView {
-            view,
-            earlier,
-            max_px,
-            more: groups.repeats.len() - 1,
-        });
-    }
-    if groups.distinct < MIN_VIEWS {
-        return Err(CalibError::TooFewPoses {
-            views: data.views.len(),
-            distinct: groups.distinct,
-            groups: describe_pose_groups(&groups),
-            needed: MIN_VIEWS,
-        });
-    }
-    if groups.distinct < FEW_VIEWS {
-        let poses = if groups.distinct == data.views.len() {
-            format!("only {} views", data.views.len())
-        } else {
-            format!(
-                "only {} distinct board poses among {} views",
-                groups.distinct,
-                data.views.len()
-            )
-        };
-        warnings.push(format!("{poses}: the axis and air layer are weakly determined (15-20 views at varied depths and angles are recommended)"));
-    }
-    warnings.extend(diagnose::pairing_findings(data));
-
-    // Gross corner errors, found from each image alone, are left out of every estimate (the
-    // report lists them with their residuals under the result).
-    let screening = screen(data);
-    let reduced = if screening.suspects.is_empty() {
-        None
-    } else {
-        without_corners(data, &screening.mask(data.corners.len()))
-    };
-    if let Some(worst) = screening.suspects.first() {
-        warnings.push(format!(
-            "{} corner(s) lie off the board's shape in their image by more than {:.2} px (largest {:.1} px: view {} corner {}, {} image){}",
-            screening.suspects.len(),
-            screening.threshold_px,
-            worst.deviation_px,
-            worst.view,
-            worst.corner,
-            worst.side.name(),
-            if reduced.is_some() { ": left out of the estimate (listed below when the result confirms them)" } else { "" }
-        ));
-    }
+    check_options(options)?;
+    check_views(data, &mut warnings)?;
+    let (screening, reduced) = screen_gross_errors(data, &mut warnings);
     *screening_out = Some(screening.clone());
     let reduced_backend = reduced.as_ref().map(|r| backend.over(r));
     let clean: &dyn CostBackend = reduced_backend.as_deref().unwrap_or(backend);
     let clean_data = clean.data();
     let mut stages = Vec::new();
 
-    // 1. Consecutive: axis from the weighted affine-grid invariant, global then local.
-    let consecutive = axis_search(clean, CostKind::AffineGrid, options, &mut stages, progress)?;
-    let linear_started = Instant::now();
-    let (air_distance, gap) =
-        crate::calib::costs::scene::air_distance_for_axis(clean_data, &consecutive.normal)
-            .ok_or_else(|| CalibError::NoSolution {
-                bound_deg: options.max_tilt.to_degrees(),
-                reason: "the air layer has no least-squares solution under the invariant's axis"
-                    .into(),
-            })?;
-    let mut consecutive = Candidate {
-        normal: consecutive.normal,
-        air_distance,
-    };
-    stages.push(stage(
-        "air layer (linear least squares on the ray gaps)",
-        consecutive,
-        gap,
-        "m",
-        1,
-        linear_started,
-    ));
-    if !triangulates(clean_data, &consecutive) {
-        // The ray gaps hardly depend on d when both cameras see a corner at similar incidence,
-        // so noise can throw the linear solve far off: take the air layer that best explains
-        // the images along the same axis instead.
-        let t = Instant::now();
-        let (d, cost) = fit_air_distance(clean, CostKind::Reprojection, &consecutive.normal)?
-            .ok_or_else(|| no_solution(options, "no air layer lets both cameras triangulate every corner under the invariant's axis"))?;
-        warnings.push(format!(
-            "the linear air layer ({:.2} mm) leaves corners without a triangulation: took the air layer with the least reprojection error along the same axis ({:.2} mm)",
-            air_distance * 1e3,
-            d * 1e3
-        ));
-        consecutive.air_distance = d;
-        stages.push(stage(
-            "air layer (1-D search on the reprojection error)",
-            consecutive,
-            cost,
-            "px",
-            1,
-            t,
-        ));
-    }
-
-    // Board poses of a start, fitted to the corners the screening kept (views are the same).
-    let start_poses = |start: &Candidate| {
-        clean_data
-            .cameras_behind(start)
-            .and_then(|c| SceneFit::new(clean_data, &c))
-            .map(|f| f.poses())
-    };
-    let (final_candidate, poses, ml) = match options.method {
-        Method::Consecutive => {
-            clean_data.cameras_behind(&consecutive).ok_or_else(|| {
-                no_solution(
-                    options,
-                    "the consecutive result puts a camera outside the air",
-                )
-            })?;
-            let poses = start_poses(&consecutive).ok_or_else(|| {
-                no_solution(
-                    options,
-                    "the consecutive result cannot triangulate every corner",
-                )
-            })?;
-            (consecutive, poses, None)
-        }
-        Method::Simultaneous | Method::Auto => {
-            let mut starts = vec![("the consecutive result".to_string(), consecutive)];
-            if options.method == Method::Auto {
-                let profile = axis_search(
-                    clean,
-                    CostKind::Reprojection,
-                    options,
-                    &mut stages,
-                    progress,
-                )?;
-                starts.push(("the reprojection profile's minimum".into(), profile));
-                starts.push(("the rig's start guess".into(), Candidate::of(data.port())));
-            }
-            let mut best: Option<(
-                BundleState,
-                crate::calib::solvers::lm::LmReport,
-                Option<crate::calib::methods::bundle::BlockNormalEquations>,
-            )> = None;
-            let mut finals = Vec::new();
-            for (name, start) in &starts {
-                let t = Instant::now();
-                let Some(poses) = start_poses(start) else {
-                    warnings.push(format!(
-                        "{name} (tilt {:.2}°, air layer {:.1} mm) cannot triangulate every corner (a board behind the interface, or a camera outside the air): not used as a start",
-                        start.tilt().to_degrees(),
-                        start.air_distance * 1e3
-                    ));
-                    continue;
-                };
-                let bundle = Bundle::new(clean_data, options.huber);
-                let lm_options = LmOptions {
-                    max_iterations: options.max_iterations,
-                    ..LmOptions::default()
-                };
-                let stage_name = format!("maximum likelihood from {name}");
-                // The cost in the report's unit: RMS over the 4 coordinates of each corner.
-                let rms = |cost: f64| (cost / (4 * clean_data.corners.len()) as f64).sqrt();
-                let (state, report, jtj) = levenberg_marquardt_observed(
-                    &bundle,
-                    BundleState {
-                        candidate: *start,
-                        poses,
-                    },
-                    &lm_options,
-                    &mut |i| {
-                        progress(&CalibrationProgress {
-                            stage: &stage_name,
-                            done: i.iteration,
-                            total: None,
-                            cost: rms(i.cost),
-                            unit: "px",
-                        })
-                    },
-                );
-                stages.push(Stage {
-                    name: format!(
-                        "maximum likelihood from {name} ({})",
-                        report.termination.describe()
-                    ),
-                    candidate: state.candidate,
-                    cost: (report.final_cost / (4 * clean_data.corners.len()) as f64).sqrt(),
-                    unit: "px",
-                    iterations: report.iterations,
-                    seconds: t.elapsed().as_secs_f64(),
-                });
-                finals.push((name.clone(), state.candidate, report.final_cost));
-                if best
-                    .as_ref()
-                    .is_none_or(|(_, r, _)| report.final_cost < r.final_cost)
-                {
-                    best = Some((state, report, jtj));
-                }
-            }
-            let (state, report, jtj) = best.ok_or_else(|| {
-                no_solution(
-                    options,
-                    "no start lets both cameras triangulate every corner",
-                )
-            })?;
-            let best_cost = report.final_cost;
-            for (name, candidate, cost) in &finals {
-                let apart = candidate.normal.angle(&state.candidate.normal).to_degrees();
-                // A start that ends in a clearly worse minimum only shows the cost has several; one
-                // that ends nearly as low elsewhere makes the answer ambiguous.
-                if *cost < best_cost * 1.5 && apart > 0.5 {
-                    warnings.push(format!(
-                        "the refinement from {name} ended {apart:.2}° away at a cost only ×{:.2} higher: the data hardly tell the two axes apart",
-                        cost / best_cost.max(f64::MIN_POSITIVE)
-                    ));
-                }
-            }
-            if !report.termination.converged() {
-                warnings.push(format!(
-                    "the maximum-likelihood refinement stopped early: {}",
-                    report.termination.describe()
-                ));
-            }
-            (state.candidate, state.poses, Some((report, jtj)))
-        }
-    };
+    let (final_candidate, poses, ml) = estimate(
+        clean,
+        Candidate::of(data.port()),
+        options,
+        &mut stages,
+        &mut warnings,
+        progress,
+    )?;
 
     // The report: residuals under the final interface and poses, over every corner.
     let cameras = data
@@ -557,24 +319,9 @@ fn calibrate_screened(
             clean_data,
         ),
     };
-    let mut per_view = Vec::with_capacity(data.views.len());
-    let mut total = [0.0; 2];
-    for range in &data.views {
-        let mut sums = [0.0; 2];
-        for r in &residuals[range.clone()] {
-            for k in 0..2 {
-                sums[k] += r[k].norm_squared();
-            }
-        }
-        for k in 0..2 {
-            total[k] += sums[k];
-        }
-        per_view.push(sums.map(|s| (s / range.len() as f64).sqrt()));
-    }
-    let rms_px = total.map(|s| (s / data.corners.len() as f64).sqrt());
+    let (rms_px, per_view) = rms_per_view(data, &residuals);
     let (outliers, outlier_images) = find_outliers(data, &residuals, &screening);
-    if !outliers.is_empty() {
-        let worst = &outlier_images[0];
+    if let Some(worst) = outlier_images.first() {
         warnings.push(format!(
             "{} corner(s) have residuals far above the rest (largest {:.2} px at view {} corner {}, {} image): check the detections{}",
             outliers.len(),
@@ -587,79 +334,18 @@ fn calibrate_screened(
         ));
     }
     let inlier_rms_px = inlier_rms(data, &residuals, &outlier_images);
-    let (std, sigma_px, iterations, termination) = match &ml {
-        Some((report, jtj)) => {
-            let std = jtj.as_ref().and_then(|j| {
-                interface_std(
-                    &final_candidate,
-                    j,
-                    report.final_cost,
-                    4 * clean_data.corners.len(),
-                )
-            });
-            (
-                std.map(|s| s.0),
-                std.map(|s| s.1),
-                report.iterations,
-                report.termination.describe().to_string(),
-            )
-        }
-        None => (
-            None,
-            None,
-            stages
-                .iter()
-                .rev()
-                .find(|s| s.name.starts_with("refine"))
-                .map_or(0, |s| s.iterations),
-            "converged".into(),
-        ),
-    };
-    if let Some([tilt_std, _, _]) = std {
-        if final_candidate.tilt() < 3.0 * tilt_std {
-            warnings.push(format!(
-                "the tilt ({:.3}°) is within 3 standard deviations of zero: the azimuth is undetermined",
-                final_candidate.tilt().to_degrees()
-            ));
-        }
-    }
-    match (&ml, std) {
-        (Some(_), None) => warnings.push("JᵀJ is singular at the result: the views do not determine the axis and air layer (vary the board's angle and distance)".into()),
-        (_, Some([tilt_std, _, air_std])) if tilt_std > WEAK_TILT_STD_DEG.to_radians() || air_std > WEAK_AIR_STD_M => warnings.push(format!(
-            "the views hardly constrain the result (σ tilt {:.2}°, σ air layer {:.1} mm): vary the board's angle and distance between views",
-            tilt_std.to_degrees(),
-            air_std * 1e3
-        )),
-        _ => {}
-    }
-    if let Some(Termination::MaxIterations) = ml.as_ref().map(|(r, _)| r.termination) {
-        warnings.push("raise --max-iterations".into());
-    }
-    // Does the result fit? The worse camera's RMS over the images that are not outliers,
-    // against the bound and the noise seen in the images.
-    let worst_rms = inlier_rms_px[0].max(inlier_rms_px[1]);
-    let fits = worst_rms <= options.max_rms_px;
-    // Only a maximum-likelihood fit is expected to come down to the noise; the consecutive
-    // result (no fit of the images) is held to the bound alone.
-    let noise_bound = screening
-        .noise_px
-        .filter(|_| ml.is_some())
-        .map(|s| NOISE_FACTOR * s + NOISE_MARGIN_PX);
-    let mut diagnosis = Vec::new();
-    if !fits || noise_bound.is_some_and(|b| worst_rms > b) {
-        diagnosis = diagnose::explain(data, Some(&final_candidate), screening.noise_px);
-        // The usual input mistakes, each undone and calibrated again.
-        diagnosis.extend(misfit::explain_stereo_misfit(data, options.max_rms_px));
-        warnings.push(format!(
-            "the reprojection RMS ({worst_rms:.2} px without the outliers) is {}: the model does not explain the data. What the data look like: {}",
-            match (screening.noise_px, fits) {
-                (Some(s), true) => format!("far above the corner noise seen in the images (σ ≈ {s:.3} px)"),
-                (Some(s), false) => format!("above the accepted {} px (the corner noise seen in the images is σ ≈ {s:.3} px)", options.max_rms_px),
-                (None, _) => format!("above the accepted {} px", options.max_rms_px),
-            },
-            diagnosis.join("; ")
-        ));
-    }
+    let (std, sigma_px, iterations, termination) =
+        uncertainty(&final_candidate, ml.as_ref(), clean_data, &stages);
+    warnings.extend(uncertainty_warnings(&final_candidate, ml.as_ref(), std));
+    let (fits, diagnosis) = check_fit(
+        data,
+        &final_candidate,
+        inlier_rms_px,
+        screening.noise_px.filter(|_| ml.is_some()),
+        screening.noise_px,
+        options,
+        &mut warnings,
+    );
     let interface = data
         .port()
         .with_pose(
@@ -700,6 +386,436 @@ fn calibrate_screened(
         corners: data.corners.len(),
     };
     Ok(Calibration { interface, report })
+}
+
+/// The estimate of the chosen method over `clean` (the screened data): the consecutive result
+/// alone, or maximum likelihood from it (and, for auto, from the reprojection profile's minimum
+/// and `rig_start`). Returns the interface, the board poses and the fit, if any.
+fn estimate(
+    clean: &dyn CostBackend,
+    rig_start: Candidate,
+    options: &CalibrationOptions,
+    stages: &mut Vec<Stage>,
+    warnings: &mut Vec<String>,
+    progress: &mut dyn FnMut(&CalibrationProgress),
+) -> Result<(Candidate, Vec<Isometry3<f64>>, Option<MlFit>), CalibError> {
+    let clean_data = clean.data();
+    let consecutive = consecutive_estimate(clean, options, stages, warnings, progress)?;
+    Ok(match options.method {
+        Method::Consecutive => {
+            clean_data.cameras_behind(&consecutive).ok_or_else(|| {
+                no_solution(
+                    options,
+                    "the consecutive result puts a camera outside the air",
+                )
+            })?;
+            let poses = start_poses(clean_data, &consecutive).ok_or_else(|| {
+                no_solution(
+                    options,
+                    "the consecutive result cannot triangulate every corner",
+                )
+            })?;
+            (consecutive, poses, None)
+        }
+        Method::Simultaneous | Method::Auto => {
+            let mut starts = vec![("the consecutive result".to_string(), consecutive)];
+            if options.method == Method::Auto {
+                let profile =
+                    axis_search(clean, CostKind::Reprojection, options, stages, progress)?;
+                starts.push(("the reprojection profile's minimum".into(), profile));
+                starts.push(("the rig's start guess".into(), rig_start));
+            }
+            let (state, report, jtj) =
+                maximum_likelihood(clean_data, &starts, options, stages, warnings, progress)?;
+            (state.candidate, state.poses, Some((report, jtj)))
+        }
+    })
+}
+
+/// The options' bounds: the tilt cap, the grid spacing and size, the accepted RMS.
+fn check_options(options: &CalibrationOptions) -> Result<(), CalibError> {
+    use crate::calib::solvers::search::{
+        MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text,
+    };
+    if !(options.max_tilt > 0.0 && options.max_tilt < 80f64.to_radians()) {
+        return Err(CalibError::Options(format!(
+            "the tilt bound must lie in (0°, 80°), got {}°",
+            degrees(options.max_tilt.to_degrees())
+        )));
+    }
+    if !(options.grid_spacing > 0.0 && options.grid_spacing <= options.max_tilt) {
+        return Err(CalibError::Options(format!(
+            "the grid spacing must lie in (0°, tilt bound], got {}°",
+            degrees(options.grid_spacing.to_degrees())
+        )));
+    }
+    let axes = cap_grid_size(options.max_tilt, options.grid_spacing);
+    if axes > MAX_CAP_GRID_AXES as f64 {
+        return Err(CalibError::Options(format!(
+            "a grid spacing of {}° over a {}° tilt bound gives {axes:.3e} axes; the global search takes at most {MAX_CAP_GRID_AXES} (each costs an evaluation over every corner): use a spacing ≥ {}°",
+            degrees(options.grid_spacing.to_degrees()),
+            degrees(options.max_tilt.to_degrees()),
+            min_cap_grid_spacing_deg_text(options.max_tilt)
+        )));
+    }
+    if !(options.max_rms_px > 0.0) {
+        return Err(CalibError::Options(format!(
+            "the largest accepted RMS must be a positive number of pixels, got {}",
+            options.max_rms_px
+        )));
+    }
+    Ok(())
+}
+
+/// Enough views, none repeating another, enough distinct poses (an error otherwise: the answer
+/// would look confident and be wrong, the copies shrinking the standard deviations by √copies);
+/// few poses and views whose images look swapped or reversed are warnings.
+fn check_views(data: &StereoData, warnings: &mut Vec<String>) -> Result<(), CalibError> {
+    if data.views.len() < MIN_VIEWS {
+        return Err(CalibError::TooFewViews {
+            usable: data.views.len(),
+            needed: MIN_VIEWS,
+        });
+    }
+    let groups = compare_views(&view_corners(data));
+    if let Some(&(view, earlier, max_px)) = groups.repeats.first() {
+        return Err(CalibError::RepeatedView {
+            view,
+            earlier,
+            max_px,
+            more: groups.repeats.len() - 1,
+        });
+    }
+    if groups.distinct < MIN_VIEWS {
+        return Err(CalibError::TooFewPoses {
+            views: data.views.len(),
+            distinct: groups.distinct,
+            groups: describe_pose_groups(&groups),
+            needed: MIN_VIEWS,
+        });
+    }
+    if groups.distinct < FEW_VIEWS {
+        let poses = if groups.distinct == data.views.len() {
+            format!("only {} views", data.views.len())
+        } else {
+            format!(
+                "only {} distinct board poses among {} views",
+                groups.distinct,
+                data.views.len()
+            )
+        };
+        warnings.push(format!("{poses}: the axis and air layer are weakly determined (15-20 views at varied depths and angles are recommended)"));
+    }
+    warnings.extend(diagnose::pairing_findings(data));
+    Ok(())
+}
+
+/// Gross corner errors, found from each image alone: the screening, and the data without them
+/// (`None` when there are none, or when leaving them out would empty a view), which every
+/// estimate uses (the report lists them with their residuals under the result).
+fn screen_gross_errors(
+    data: &StereoData,
+    warnings: &mut Vec<String>,
+) -> (Screening, Option<StereoData>) {
+    let screening = screen(data);
+    let reduced = if screening.suspects.is_empty() {
+        None
+    } else {
+        without_corners(data, &screening.mask(data.corners.len()))
+    };
+    if let Some(worst) = screening.suspects.first() {
+        warnings.push(format!(
+            "{} corner(s) lie off the board's shape in their image by more than {:.2} px (largest {:.1} px: view {} corner {}, {} image){}",
+            screening.suspects.len(),
+            screening.threshold_px,
+            worst.deviation_px,
+            worst.view,
+            worst.corner,
+            worst.side.name(),
+            if reduced.is_some() { ": left out of the estimate (listed below when the result confirms them)" } else { "" }
+        ));
+    }
+    (screening, reduced)
+}
+
+/// The consecutive method: the axis from the weighted affine-grid invariant (global search, then
+/// local refinement), then the air layer by linear least squares on the ray gaps, or, when that
+/// leaves corners without a triangulation, the air layer that best explains the images.
+fn consecutive_estimate(
+    backend: &dyn CostBackend,
+    options: &CalibrationOptions,
+    stages: &mut Vec<Stage>,
+    warnings: &mut Vec<String>,
+    progress: &mut dyn FnMut(&CalibrationProgress),
+) -> Result<Candidate, CalibError> {
+    let data = backend.data();
+    let axis = axis_search(backend, CostKind::AffineGrid, options, stages, progress)?;
+    let linear_started = Instant::now();
+    let (air_distance, gap) = crate::calib::costs::scene::air_distance_for_axis(data, &axis.normal)
+        .ok_or_else(|| CalibError::NoSolution {
+            bound_deg: options.max_tilt.to_degrees(),
+            reason: "the air layer has no least-squares solution under the invariant's axis".into(),
+        })?;
+    let mut consecutive = Candidate {
+        normal: axis.normal,
+        air_distance,
+    };
+    stages.push(stage(
+        "air layer (linear least squares on the ray gaps)",
+        consecutive,
+        gap,
+        "m",
+        1,
+        linear_started,
+    ));
+    if !triangulates(data, &consecutive) {
+        // The ray gaps hardly depend on d when both cameras see a corner at similar incidence,
+        // so noise can throw the linear solve far off: take the air layer that best explains
+        // the images along the same axis instead.
+        let t = Instant::now();
+        let (d, cost) = fit_air_distance(backend, CostKind::Reprojection, &consecutive.normal)?
+            .ok_or_else(|| no_solution(options, "no air layer lets both cameras triangulate every corner under the invariant's axis"))?;
+        warnings.push(format!(
+            "the linear air layer ({:.2} mm) leaves corners without a triangulation: took the air layer with the least reprojection error along the same axis ({:.2} mm)",
+            air_distance * 1e3,
+            d * 1e3
+        ));
+        consecutive.air_distance = d;
+        stages.push(stage(
+            "air layer (1-D search on the reprojection error)",
+            consecutive,
+            cost,
+            "px",
+            1,
+            t,
+        ));
+    }
+    Ok(consecutive)
+}
+
+/// Board poses of a start, fitted to the corners of `data`; `None` when a corner does not
+/// triangulate under it.
+fn start_poses(data: &StereoData, start: &Candidate) -> Option<Vec<Isometry3<f64>>> {
+    data.cameras_behind(start)
+        .and_then(|c| SceneFit::new(data, &c))
+        .map(|f| f.poses())
+}
+
+/// Maximum likelihood (Levenberg–Marquardt over the axis, the air layer and every board pose on
+/// the reprojection error) from each named start; the lowest cost wins. A start that ends nearly
+/// as low far away, and a fit that stops early, are warnings.
+fn maximum_likelihood(
+    data: &StereoData,
+    starts: &[(String, Candidate)],
+    options: &CalibrationOptions,
+    stages: &mut Vec<Stage>,
+    warnings: &mut Vec<String>,
+    progress: &mut dyn FnMut(&CalibrationProgress),
+) -> Result<(BundleState, LmReport, Option<BlockNormalEquations>), CalibError> {
+    let mut best: Option<(BundleState, LmReport, Option<BlockNormalEquations>)> = None;
+    let mut finals = Vec::new();
+    // The cost in the report's unit: RMS over the 4 coordinates of each corner.
+    let rms = |cost: f64| (cost / (4 * data.corners.len()) as f64).sqrt();
+    for (name, start) in starts {
+        let t = Instant::now();
+        let Some(poses) = start_poses(data, start) else {
+            warnings.push(format!(
+                "{name} (tilt {:.2}°, air layer {:.1} mm) cannot triangulate every corner (a board behind the interface, or a camera outside the air): not used as a start",
+                start.tilt().to_degrees(),
+                start.air_distance * 1e3
+            ));
+            continue;
+        };
+        let bundle = Bundle::new(data, options.huber);
+        let lm_options = LmOptions {
+            max_iterations: options.max_iterations,
+            ..LmOptions::default()
+        };
+        let stage_name = format!("maximum likelihood from {name}");
+        let (state, report, jtj) = levenberg_marquardt_observed(
+            &bundle,
+            BundleState {
+                candidate: *start,
+                poses,
+            },
+            &lm_options,
+            &mut |i| {
+                progress(&CalibrationProgress {
+                    stage: &stage_name,
+                    done: i.iteration,
+                    total: None,
+                    cost: rms(i.cost),
+                    unit: "px",
+                })
+            },
+        );
+        stages.push(Stage {
+            name: format!(
+                "maximum likelihood from {name} ({})",
+                report.termination.describe()
+            ),
+            candidate: state.candidate,
+            cost: rms(report.final_cost),
+            unit: "px",
+            iterations: report.iterations,
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        finals.push((name.clone(), state.candidate, report.final_cost));
+        if best
+            .as_ref()
+            .is_none_or(|(_, r, _)| report.final_cost < r.final_cost)
+        {
+            best = Some((state, report, jtj));
+        }
+    }
+    let (state, report, jtj) = best.ok_or_else(|| {
+        no_solution(
+            options,
+            "no start lets both cameras triangulate every corner",
+        )
+    })?;
+    let best_cost = report.final_cost;
+    for (name, candidate, cost) in &finals {
+        let apart = candidate.normal.angle(&state.candidate.normal).to_degrees();
+        // A start that ends in a clearly worse minimum only shows the cost has several; one
+        // that ends nearly as low elsewhere makes the answer ambiguous.
+        if *cost < best_cost * 1.5 && apart > 0.5 {
+            warnings.push(format!(
+                "the refinement from {name} ended {apart:.2}° away at a cost only ×{:.2} higher: the data hardly tell the two axes apart",
+                cost / best_cost.max(f64::MIN_POSITIVE)
+            ));
+        }
+    }
+    if !report.termination.converged() {
+        warnings.push(format!(
+            "the maximum-likelihood refinement stopped early: {}",
+            report.termination.describe()
+        ));
+    }
+    Ok((state, report, jtj))
+}
+
+/// The RMS reprojection error of each camera over every corner, and per view, pixels.
+fn rms_per_view(data: &StereoData, residuals: &[[Vector2<f64>; 2]]) -> ([f64; 2], Vec<[f64; 2]>) {
+    let mut per_view = Vec::with_capacity(data.views.len());
+    let mut total = [0.0; 2];
+    for range in &data.views {
+        let mut sums = [0.0; 2];
+        for r in &residuals[range.clone()] {
+            for k in 0..2 {
+                sums[k] += r[k].norm_squared();
+            }
+        }
+        for k in 0..2 {
+            total[k] += sums[k];
+        }
+        per_view.push(sums.map(|s| (s / range.len() as f64).sqrt()));
+    }
+    (
+        total.map(|s| (s / data.corners.len() as f64).sqrt()),
+        per_view,
+    )
+}
+
+/// The standard deviations of (tilt, azimuth, air layer) and σ̂ of a maximum-likelihood fit,
+/// with its iterations and how it ended; the consecutive result has no standard deviations and
+/// reports its last refinement's iterations.
+fn uncertainty(
+    result: &Candidate,
+    ml: Option<&MlFit>,
+    data: &StereoData,
+    stages: &[Stage],
+) -> (Option<[f64; 3]>, Option<f64>, usize, String) {
+    match ml {
+        Some((report, jtj)) => {
+            let std = jtj
+                .as_ref()
+                .and_then(|j| interface_std(result, j, report.final_cost, 4 * data.corners.len()));
+            (
+                std.map(|s| s.0),
+                std.map(|s| s.1),
+                report.iterations,
+                report.termination.describe().to_string(),
+            )
+        }
+        None => (
+            None,
+            None,
+            stages
+                .iter()
+                .rev()
+                .find(|s| s.name.starts_with("refine"))
+                .map_or(0, |s| s.iterations),
+            "converged".into(),
+        ),
+    }
+}
+
+/// Warnings about what the standard deviations say: an undetermined azimuth, a singular or weak
+/// fit, and a fit that ran out of iterations.
+fn uncertainty_warnings(
+    result: &Candidate,
+    ml: Option<&MlFit>,
+    std: Option<[f64; 3]>,
+) -> Vec<String> {
+    let mut warnings = Vec::new();
+    if let Some([tilt_std, _, _]) = std
+        && result.tilt() < 3.0 * tilt_std
+    {
+        warnings.push(format!(
+            "the tilt ({:.3}°) is within 3 standard deviations of zero: the azimuth is undetermined",
+            result.tilt().to_degrees()
+        ));
+    }
+    match (ml, std) {
+        (Some(_), None) => warnings.push("JᵀJ is singular at the result: the views do not determine the axis and air layer (vary the board's angle and distance)".into()),
+        (_, Some([tilt_std, _, air_std])) if tilt_std > WEAK_TILT_STD_DEG.to_radians() || air_std > WEAK_AIR_STD_M => warnings.push(format!(
+            "the views hardly constrain the result (σ tilt {:.2}°, σ air layer {:.1} mm): vary the board's angle and distance between views",
+            tilt_std.to_degrees(),
+            air_std * 1e3
+        )),
+        _ => {}
+    }
+    if let Some(Termination::MaxIterations) = ml.map(|(r, _)| r.termination) {
+        warnings.push("raise --max-iterations".into());
+    }
+    warnings
+}
+
+/// Does the result fit? The worse camera's RMS over the images that are not outliers, against
+/// the accepted bound and (for a maximum-likelihood fit, `fit_noise_px`) the noise seen in the
+/// images. Returns whether it is within the bound and, when either is exceeded, what the data
+/// look like (also in a warning).
+fn check_fit(
+    data: &StereoData,
+    result: &Candidate,
+    inlier_rms_px: [f64; 2],
+    fit_noise_px: Option<f64>,
+    noise_px: Option<f64>,
+    options: &CalibrationOptions,
+    warnings: &mut Vec<String>,
+) -> (bool, Vec<String>) {
+    let worst_rms = inlier_rms_px[0].max(inlier_rms_px[1]);
+    let fits = worst_rms <= options.max_rms_px;
+    // Only a maximum-likelihood fit is expected to come down to the noise; the consecutive
+    // result (no fit of the images) is held to the bound alone.
+    let noise_bound = fit_noise_px.map(|s| NOISE_FACTOR * s + NOISE_MARGIN_PX);
+    if fits && !noise_bound.is_some_and(|b| worst_rms > b) {
+        return (fits, Vec::new());
+    }
+    let mut diagnosis = diagnose::explain(data, Some(result), noise_px);
+    // The usual input mistakes, each undone and calibrated again.
+    diagnosis.extend(misfit::explain_stereo_misfit(data, options.max_rms_px));
+    warnings.push(format!(
+        "the reprojection RMS ({worst_rms:.2} px without the outliers) is {}: the model does not explain the data. What the data look like: {}",
+        match (noise_px, fits) {
+            (Some(s), true) => format!("far above the corner noise seen in the images (σ ≈ {s:.3} px)"),
+            (Some(s), false) => format!("above the accepted {} px (the corner noise seen in the images is σ ≈ {s:.3} px)", options.max_rms_px),
+            (None, _) => format!("above the accepted {} px", options.max_rms_px),
+        },
+        diagnosis.join("; ")
+    ));
+    (fits, diagnosis)
 }
 
 /// σ of the tilt, degrees, above which the views are said to hardly constrain the axis.
