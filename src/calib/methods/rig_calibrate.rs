@@ -195,9 +195,20 @@ pub fn calibrate_rig(
     let mut method = format!("{}: ", options.method.name());
     if options.estimate.axis || options.estimate.distance {
         let clock = Instant::now();
-        if consecutive {
-            let (candidate_state, pair) =
-                consecutive_start(rig, target, &views, &state, &shared_pairs, options)?;
+        // `auto` falls back to the axis search when the consecutive start fails (in-air
+        // extrinsics a few mm off can leave its linear air layer without a solution).
+        let start = match consecutive
+            .then(|| consecutive_start(rig, target, &views, &state, &shared_pairs, options))
+        {
+            Some(Err(e)) if options.method == Method::Auto && options.estimate.axis => {
+                warnings.push(format!(
+                    "the consecutive start failed ({e}); the global axis search replaced it"
+                ));
+                None
+            }
+            other => other.transpose()?,
+        };
+        if let Some((candidate_state, pair)) = start {
             state = candidate_state;
             method += &format!(
                 "consecutive (thesis) over {} camera pair(s), best pair {}",
