@@ -158,17 +158,30 @@ fn rig_cases() -> Vec<RigCase> {
     };
     let stereo = rigs::stereo();
     let off = rigs::naive(&stereo)
-        .with_extrinsics(1, rigs::opencv_error() * stereo.cameras()[1].cam_from_master)
+        .with_extrinsics(
+            1,
+            rigs::opencv_error() * stereo.cameras()[1].cam_from_master,
+        )
         .unwrap();
     vec![
-        case("one camera, 10 views", rigs::one_camera(), 10, Some((0.2, 3.2))),
+        case(
+            "one camera, 10 views",
+            rigs::one_camera(),
+            10,
+            Some((0.2, 3.2)),
+        ),
         case(
             "four cameras behind one port, 12 views",
             rigs::four_cameras(),
             12,
             Some((0.04, 1.0)),
         ),
-        case("two housings, 12 views", rigs::two_housings(), 12, Some((0.07, 1.0))),
+        case(
+            "two housings, 12 views",
+            rigs::two_housings(),
+            12,
+            Some((0.07, 1.0)),
+        ),
         RigCase {
             name: "stereo, extrinsics 0.15°/3 mm off, 15 views",
             truth: stereo.clone(),

@@ -39,7 +39,9 @@ mod rigs;
 
 use flatport::calib::methods::calibrate::Method;
 use flatport::calib::methods::rig_bundle::Estimate;
-use flatport::calib::methods::rig_calibrate::{RigCalibration, RigCalibrationOptions, calibrate_rig};
+use flatport::calib::methods::rig_calibrate::{
+    RigCalibration, RigCalibrationOptions, calibrate_rig,
+};
 use flatport::calib::simulate::rng::Rng;
 use flatport::calib::{RigObservations, RigSceneSpec, simulate_rig};
 use flatport::model::Rig;
@@ -195,7 +197,13 @@ fn spread_matches_sigma(name: &str, truth: &Rig, spec: RigSceneSpec, estimate: E
         let mean = q.estimates.iter().sum::<f64>() / n;
         let spread =
             (q.estimates.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
-        let rms = (q.estimates.iter().map(|e| (e - q.truth).powi(2)).sum::<f64>() / n).sqrt();
+        let rms = (q
+            .estimates
+            .iter()
+            .map(|e| (e - q.truth).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt();
         let sigma = q.stds.iter().sum::<f64>() / n;
         let (about_mean, about_truth) = (spread / sigma, rms / sigma);
         println!(

@@ -60,7 +60,11 @@ pub fn board() -> Target {
 
 /// One camera in a housing: axis 8° at 45°, 20 mm of air.
 pub fn one_camera() -> Rig {
-    Rig::new(vec![camera("cam", 0.0, 0.0, [0.0; 3])], port(8.0, 45.0, 0.02)).unwrap()
+    Rig::new(
+        vec![camera("cam", 0.0, 0.0, [0.0; 3])],
+        port(8.0, 45.0, 0.02),
+    )
+    .unwrap()
 }
 
 /// Four cameras (a 12 × 10 cm grid, turned 3° inward) behind one window: axis 8° at 30°, 30 mm.

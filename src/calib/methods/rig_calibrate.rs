@@ -803,7 +803,8 @@ fn extrinsics_std(
     let mut a = nalgebra::Matrix3x6::zeros();
     a.fixed_view_mut::<3, 3>(0, 0)
         .copy_from(&(-cam_from_master.translation.vector.cross_matrix()));
-    a.fixed_view_mut::<3, 3>(0, 3).copy_from(&Matrix3::identity());
+    a.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&Matrix3::identity());
     let translation = a * block * a.transpose();
     let std = |m: f64| m.max(0.0).sqrt();
     Some((
