@@ -502,3 +502,48 @@ fn a_misfit_names_the_input_mistake_on_any_rig() {
         );
     }
 }
+
+#[test]
+fn auto_falls_back_to_the_axis_search_when_the_consecutive_start_fails() {
+    // A scene (the library's simulator, seed 7006) where the in-air extrinsics 0.15°/3 mm off
+    // leave the consecutive method's linear air layer without a solution under every candidate
+    // axis: `auto` must go on from the global axis search and estimate the extrinsics, not fail.
+    let truth = Rig::new(
+        vec![
+            camera("left", 0.0, 0.0, [0.0; 3]),
+            camera("right", -1.0, 0.0, [0.06, 0.0, 0.0]),
+        ],
+        port(8.0, 45.0, 0.02),
+    )
+    .unwrap();
+    let off = Isometry3::from_parts(
+        Translation3::new(0.002, -0.002, 0.001),
+        UnitQuaternion::from_euler_angles(0.0015, -0.002, 0.001),
+    );
+    let start = naive(&truth)
+        .with_extrinsics(1, off * truth.cameras()[1].cam_from_master)
+        .unwrap();
+    let scene = flatport::calib::simulate_rig(
+        &truth,
+        &flatport::calib::RigSceneSpec::new(board(), 15, 0.125, 7006),
+    )
+    .unwrap();
+    let options = RigCalibrationOptions {
+        estimate: Estimate::parse("axis,distance,extrinsics").unwrap(),
+        ..RigCalibrationOptions::default()
+    };
+    let calibration = calibrate_rig(&start, &scene.observations, &options)
+        .unwrap_or_else(|e| panic!("auto gave up: {e}"));
+    let report = &calibration.report;
+    assert!(
+        report
+            .warnings
+            .iter()
+            .any(|w| w.contains("the consecutive start failed")),
+        "{:?}",
+        report.warnings
+    );
+    let (axis, air) = port_errors(&truth, &calibration.rig)[0];
+    assert!(axis <= 0.15 && air <= 3e-3, "axis {axis}° air {air} m");
+    assert!(report.fits && report.rms_px < 0.2, "rms {}", report.rms_px);
+}

@@ -248,9 +248,20 @@ pub fn calibrate_views(
     let mut method = format!("{}: ", options.method.name());
     if options.estimate.axis || options.estimate.distance {
         let clock = Instant::now();
-        if consecutive {
-            let (candidate_state, pair) =
-                consecutive_start(rig, target, &views, &state, &shared_pairs, options)?;
+        // `auto` falls back to the axis search when the consecutive start fails (in-air
+        // extrinsics a few mm off can leave its linear air layer without a solution).
+        let start = match consecutive
+            .then(|| consecutive_start(rig, target, &views, &state, &shared_pairs, options))
+        {
+            Some(Err(e)) if options.method == Method::Auto && options.estimate.axis => {
+                warnings.push(format!(
+                    "the consecutive start failed ({e}); the global axis search replaced it"
+                ));
+                None
+            }
+            other => other.transpose()?,
+        };
+        if let Some((candidate_state, pair)) = start {
             state = candidate_state;
             method += &format!(
                 "consecutive (thesis) over {} camera pair(s), best pair {}",
@@ -319,6 +330,7 @@ pub fn calibrate_views(
             &rms_per_camera,
             full.globals(),
             covariance.as_ref(),
+            &state.extrinsics,
         ),
         sigma_px: sigma2.sqrt(),
         corner_noise_px: corner_noise_px(rig, target, views),
@@ -808,6 +820,7 @@ fn camera_reports(
     rms_px: &[f64],
     globals: &[Parameter],
     covariance: Option<&DMatrix<f64>>,
+    extrinsics: &[Isometry3<f64>],
 ) -> Vec<CameraReport> {
     rig.cameras()
         .iter()
@@ -822,23 +835,49 @@ fn camera_reports(
                         .map(|(_, c)| c.len())
                 })
                 .collect();
-            let rotation: Option<Vec<f64>> = (0..3)
-                .map(|a| std_of(globals, covariance, Parameter::Rotation(k, a)))
-                .collect();
-            let translation: Option<Vec<f64>> = (0..3)
-                .map(|a| std_of(globals, covariance, Parameter::Translation(k, a)))
-                .collect();
             CameraReport {
                 name: camera.name.clone(),
                 observations: seen.iter().sum(),
                 views: seen.len(),
                 rms_px: rms_px.get(k).copied().unwrap_or(f64::NAN),
-                extrinsics_std: rotation
-                    .zip(translation)
-                    .map(|(r, t)| ([r[0], r[1], r[2]], [t[0], t[1], t[2]])),
+                extrinsics_std: extrinsics_std(globals, covariance, k, &extrinsics[k]),
             }
         })
         .collect()
+}
+
+/// σ of camera `k`'s rotation (about the master's axes) and of the translation t of its
+/// cam_from_master, from the covariance of its step parameters (ω, τ): a step turns the whole
+/// transform, t ← exp(ω)·t + τ, so δt = ω × t + τ = −[t]× ω + τ and Σ_t = A Σ Aᵀ with
+/// A = [−[t]×  I]. (The τ block alone is not t's covariance: ω moves t as well.)
+fn extrinsics_std(
+    globals: &[Parameter],
+    covariance: Option<&DMatrix<f64>>,
+    k: usize,
+    cam_from_master: &Isometry3<f64>,
+) -> Option<([f64; 3], [f64; 3])> {
+    let c = covariance?;
+    let index: Vec<usize> = (0..3)
+        .map(|a| Parameter::Rotation(k, a))
+        .chain((0..3).map(|a| Parameter::Translation(k, a)))
+        .map(|p| globals.iter().position(|&g| g == p))
+        .collect::<Option<_>>()?;
+    let block = nalgebra::Matrix6::from_fn(|i, j| c[(index[i], index[j])]);
+    let mut a = nalgebra::Matrix3x6::zeros();
+    a.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(-cam_from_master.translation.vector.cross_matrix()));
+    a.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&Matrix3::identity());
+    let translation = a * block * a.transpose();
+    let std = |m: f64| m.max(0.0).sqrt();
+    Some((
+        [std(block[(0, 0)]), std(block[(1, 1)]), std(block[(2, 2)])],
+        [
+            std(translation[(0, 0)]),
+            std(translation[(1, 1)]),
+            std(translation[(2, 2)]),
+        ],
+    ))
 }
 
 /// The corner noise seen in the images of a board ([`board_noise_px`]): each camera's corners of

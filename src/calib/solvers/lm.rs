@@ -96,7 +96,8 @@ pub struct LmOptions {
     pub cost_tolerance: f64,
     /// Stop when the gradient's largest component falls below this (cost units per parameter unit).
     pub gradient_tolerance: f64,
-    /// Initial damping relative to the largest diagonal of JᵀJ.
+    /// Initial damping λ (dimensionless: it scales each parameter's own diagonal entry of JᵀWJ,
+    /// Marquardt's form, so the steps do not depend on the parameters' units).
     pub initial_damping: f64,
 }
 
@@ -190,7 +191,11 @@ pub fn levenberg_marquardt_observed<P: LeastSquares>(
     let mut cost = normal.cost();
     let initial_cost = cost;
     let max_diagonal = normal.max_diagonal();
-    let mut damping = options.initial_damping * max_diagonal.max(1e-300);
+    // λ multiplies diag(JᵀWJ), which carries the units: λ itself is a pure number. (Scaling it by
+    // the largest diagonal entry too made it depend on the units of the parameters — ~1e4 for a
+    // target pose in metres seen at 0.6 m — so a start near the optimum took a few steps shrunk
+    // ten-thousandfold, whose tiny gains stopped the solver by the cost tolerance there.)
+    let mut damping = options.initial_damping;
     let mut termination = Termination::MaxIterations;
     let mut iterations = 0;
     while iterations < options.max_iterations {
@@ -215,7 +220,7 @@ pub fn levenberg_marquardt_observed<P: LeastSquares>(
             Some(new_cost) if new_cost < cost => {
                 let improvement = (cost - new_cost) / cost.max(f64::MIN_POSITIVE);
                 state = candidate;
-                damping = (damping / 3.0).max(1e-15 * max_diagonal);
+                damping = (damping / 3.0).max(1e-15);
                 match problem.normal_equations(&state) {
                     Some(n) => {
                         cost = n.cost();
@@ -243,7 +248,7 @@ pub fn levenberg_marquardt_observed<P: LeastSquares>(
                     accepted: false,
                 });
                 damping *= 4.0;
-                if damping > 1e16 * max_diagonal.max(1e-300) {
+                if damping > 1e16 {
                     termination = Termination::NoDescent;
                     break;
                 }
@@ -287,6 +292,61 @@ mod tests {
         fn retract(&self, s: &Self::State, delta: &DVector<f64>) -> Self::State {
             s + delta
         }
+    }
+
+    /// Linear least squares r = A x − b whose two parameters have units 10⁴ apart (as a pose in
+    /// metres beside an axis in radians), with noise: the optimum keeps a cost of order 1.
+    struct Scaled {
+        a: DMatrix<f64>,
+        b: DVector<f64>,
+    }
+
+    impl LeastSquares for Scaled {
+        type State = DVector<f64>;
+        type Normal = DenseNormalEquations;
+        fn dimension(&self, _: &Self::State) -> usize {
+            2
+        }
+        fn cost(&self, s: &Self::State) -> Option<f64> {
+            Some((&self.a * s - &self.b).norm_squared())
+        }
+        fn normal_equations(&self, s: &Self::State) -> Option<DenseNormalEquations> {
+            let r = &self.a * s - &self.b;
+            Some(DenseNormalEquations {
+                jtj: self.a.transpose() * &self.a,
+                jtr: self.a.transpose() * &r,
+                cost: r.norm_squared(),
+            })
+        }
+        fn retract(&self, s: &Self::State, delta: &DVector<f64>) -> Self::State {
+            s + delta
+        }
+    }
+
+    #[test]
+    fn a_start_near_the_optimum_reaches_it_whatever_the_units() {
+        let a = DMatrix::from_row_slice(4, 2, &[1e4, 1.0, 2e4, -1.0, 0.0, 2.0, -1e4, 0.5]);
+        let b = DVector::from_vec(vec![1.0, -0.7, 0.4, 0.9]);
+        let optimum = (a.transpose() * &a)
+            .cholesky()
+            .unwrap()
+            .solve(&(a.transpose() * &b));
+        let problem = Scaled { a, b };
+        let best = problem.cost(&optimum).unwrap();
+        // A start whose cost exceeds the optimum's by 1e-7 of it, off along the small-scale
+        // parameter: the excess is the ML estimate's whole move from a start at the truth.
+        let column = problem.a.column(1).norm();
+        let offset = (1e-7 * best).sqrt() / column;
+        let start = &optimum + DVector::from_vec(vec![0.0, offset]);
+        let (end, report, _) = levenberg_marquardt(&problem, start, &LmOptions::default());
+        assert!(report.termination.converged(), "{report:?}");
+        // With λ scaled by the largest diagonal (≈ 6e8) as well, the first steps were shrunk
+        // ~1e5-fold, gained less than the cost tolerance, and the solver stopped at the start.
+        assert!(
+            (end[1] - optimum[1]).abs() < 1e-3 * offset,
+            "ended {:e} from the optimum, started {offset:e} from it",
+            (end[1] - optimum[1]).abs()
+        );
     }
 
     #[test]
