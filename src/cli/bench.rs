@@ -308,9 +308,10 @@ fn human(rate: f64) -> String {
 }
 
 /// Bytes each bench item takes on the host: the inputs (pixels 16, points 24, matches 32), the
-/// outputs (48 + 32 + 16) and a status word (4); the GPU paths hold as much again in buffers.
-const BYTES_PER_ITEM: usize = 172;
-/// Most `--items`: 2²⁴ items take about 2.9 GB on the host (and as much in GPU buffers).
+/// outputs (48 + 32 + 16), a status word (4), and the f32 copies for the f32-host figures
+/// (pixels 8, points 12, outputs 24 + 8); the GPU paths hold as much again in buffers.
+const BYTES_PER_ITEM: usize = 224;
+/// Most `--items`: 2²⁴ items take about 3.8 GB on the host (and as much in GPU buffers).
 pub const MAX_ITEMS: usize = 1 << 24;
 /// Most `--sweep-cells`: each costs one evaluation over the ~10 000 correspondences per repetition.
 pub const MAX_SWEEP_CELLS: usize = 1 << 20;
@@ -366,6 +367,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     );
     // The clock of the next figure: `host` unless a GPU kernel time sets `gpu_timestamp`.
     let next_timer = std::cell::Cell::new("host");
+    // Items of the next figure where fewer than the batch were timed (a GPU kernel time: one chunk).
+    let next_items = std::cell::Cell::new(None);
     // The CPU path of the next figure (`scalar`, `vector`; none for the GPU and the sweep).
     let cpu_path = std::cell::Cell::new(None);
     let clock_hz = cpu_clock_hz();
@@ -376,7 +379,11 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                       stage: &'static str,
                       seconds: f64| {
         let timer = next_timer.replace("host");
-        let items = if kernel == "sweep" { sweep_items } else { n };
+        let items = match next_items.take() {
+            Some(items) => items,
+            None if kernel == "sweep" => sweep_items,
+            None => n,
+        };
         let items_per_s = items as f64 / seconds;
         // Cycles per item at the OS's clock, for one thread on the CPU.
         let cycles_per_item = clock_hz
@@ -471,6 +478,14 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         ));
         eprintln!("GPU adapter: {}", adapter.as_deref().unwrap_or_default());
         let has_f64 = context.adapter().f64;
+        // The workload as a pipeline with f32 data holds it (converted before timing).
+        let to_f32 = |rows: &[[f64; 3]]| -> Vec<[f32; 3]> {
+            rows.iter().map(|r| r.map(|v| v as f32)).collect()
+        };
+        let points_f32 = to_f32(&work.points);
+        let pixels_f32: Vec<[f32; 2]> = work.pixels.iter().map(|r| r.map(|v| v as f32)).collect();
+        let mut out2_f32 = vec![[0.0f32; 2]; n];
+        let mut out6_f32 = vec![[0.0f32; 6]; n];
         let mut gpu = GpuEngine::new(context, Precision::F32)?;
         for precision in [Precision::F32, Precision::F64] {
             if precision == Precision::F64 {
@@ -487,16 +502,26 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                                a: &RefractiveCamera,
                                b: &RefractiveCamera|
              -> anyhow::Result<f64> {
-                let (seconds, timer) = match kernel {
+                // One chunk at most: the kernel over the batch's first rows.
+                let (seconds, timer, items) = match kernel {
                     Kernel::Backproject => {
-                        gpu.kernel_seconds::<2, 6>(kernel, a, b, &work.pixels, args.repeats)?
+                        let rows = &work.pixels[..n.min(gpu.chunk_rows::<2, 6>())];
+                        let (s, t) = gpu.kernel_seconds::<2, 6>(kernel, a, b, rows, args.repeats)?;
+                        (s, t, rows.len())
                     }
                     Kernel::Project => {
-                        gpu.kernel_seconds::<3, 2>(kernel, a, b, &work.points, args.repeats)?
+                        let rows = &work.points[..n.min(gpu.chunk_rows::<3, 2>())];
+                        let (s, t) = gpu.kernel_seconds::<3, 2>(kernel, a, b, rows, args.repeats)?;
+                        (s, t, rows.len())
                     }
-                    _ => gpu.kernel_seconds::<4, 4>(kernel, a, b, &work.matches, args.repeats)?,
+                    _ => {
+                        let rows = &work.matches[..n.min(gpu.chunk_rows::<4, 4>())];
+                        let (s, t) = gpu.kernel_seconds::<4, 4>(kernel, a, b, rows, args.repeats)?;
+                        (s, t, rows.len())
+                    }
                 };
                 next_timer.set(timer.name());
+                next_items.set(Some(items));
                 Ok(seconds)
             };
             record(
@@ -511,6 +536,10 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 Ok(gpu.backproject(&a, &work.pixels, &mut out6, &mut status)?)
             })?;
             record("backproject", "gpu", p, 0, "end_to_end", t);
+            let t = fastest(args.repeats, || {
+                Ok(gpu.backproject(&a, &pixels_f32, &mut out6_f32, &mut status)?)
+            })?;
+            record("backproject", "gpu", p, 0, "end_to_end_f32_host", t);
             record(
                 "project",
                 "gpu",
@@ -523,6 +552,11 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 Ok(gpu.project(&a, &work.points, &mut out2, &mut status)?)
             })?;
             record("project", "gpu", p, 0, "end_to_end", t);
+            // The same with the host's data in f32 (no conversion where the kernel is f32).
+            let t = fastest(args.repeats, || {
+                Ok(gpu.project(&a, &points_f32, &mut out2_f32, &mut status)?)
+            })?;
+            record("project", "gpu", p, 0, "end_to_end_f32_host", t);
             record(
                 "triangulate",
                 "gpu",
@@ -644,6 +678,27 @@ fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
         ratio(
             rate("project", "gpu", "f32", None, "end_to_end"),
             cpu_all("project"),
+        ),
+    );
+    show(
+        "project GPU f32 end to end, f32 host data / CPU f64 all threads",
+        ratio(
+            rate("project", "gpu", "f32", None, "end_to_end_f32_host"),
+            cpu_all("project"),
+        ),
+    );
+    show(
+        "project GPU f32 kernel alone / CPU f64 all threads (the end-to-end ceiling)",
+        ratio(
+            rate("project", "gpu", "f32", None, "kernel"),
+            cpu_all("project"),
+        ),
+    );
+    show(
+        "project GPU f32 end to end / GPU f32 kernel alone",
+        ratio(
+            rate("project", "gpu", "f32", None, "end_to_end"),
+            rate("project", "gpu", "f32", None, "kernel"),
         ),
     );
     // The README's sweep figure: 256 × 256 axes over 10 000 correspondences.
