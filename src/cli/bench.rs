@@ -313,6 +313,9 @@ fn human(rate: f64) -> String {
 const BYTES_PER_ITEM: usize = 224;
 /// Most `--items`: 2²⁴ items take about 3.8 GB on the host (and as much in GPU buffers).
 pub const MAX_ITEMS: usize = 1 << 24;
+/// Candidates per call of the stencil figures (a finite-difference stencil's size) and calls timed.
+const STENCIL: usize = 7;
+const STENCIL_CALLS: usize = 50;
 /// Most `--sweep-cells`: each costs one evaluation over the ~10 000 correspondences per repetition.
 pub const MAX_SWEEP_CELLS: usize = 1 << 20;
 /// Most `--repeats`.
@@ -578,6 +581,38 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                         .map(drop)?)
                 })?;
                 record("sweep", "gpu", p, 0, "end_to_end", t);
+                // A stencil refinement's small calls (7 candidates each) with the corner rows
+                // kept on the device, and uploaded again before every call (as before they
+                // stayed there).
+                let true_distance = rig
+                    .shared_interface()
+                    .map_or(0.02, |i| i.air_distance());
+                let stencil: Vec<Candidate> = sweep_candidates
+                    .iter()
+                    .take(STENCIL)
+                    .map(|c| Candidate {
+                        normal: c.normal,
+                        air_distance: true_distance,
+                    })
+                    .collect();
+                for (kernel, kind) in [
+                    ("stencil_reprojection", CostKind::Reprojection),
+                    ("stencil_affine_grid", CostKind::AffineGrid),
+                ] {
+                    for (stage, evict) in [("resident", false), ("uploaded_each_call", true)] {
+                        let t = fastest(args.repeats, || {
+                            for _ in 0..STENCIL_CALLS {
+                                if evict {
+                                    gpu_backend.evict();
+                                }
+                                gpu_backend.costs(kind, &stencil)?;
+                            }
+                            Ok(())
+                        })?;
+                        next_items.set(Some(stencil.len() * STENCIL_CALLS));
+                        record(kernel, "gpu", p, 0, stage, t);
+                    }
+                }
             }
         }
     }
@@ -701,6 +736,23 @@ fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
             rate("project", "gpu", "f32", None, "kernel"),
         ),
     );
+    for kernel in ["stencil_reprojection", "stencil_affine_grid"] {
+        let resident = rate(kernel, "gpu", "f64", None, "resident");
+        let uploaded = rate(kernel, "gpu", "f64", None, "uploaded_each_call");
+        let per_call = |r: Option<f64>| r.map(|r| 1e3 * STENCIL as f64 / r);
+        show(
+            &format!("{kernel} (GPU f64, {STENCIL} candidates): ms per call, rows resident"),
+            per_call(resident),
+        );
+        show(
+            &format!("{kernel} (GPU f64, {STENCIL} candidates): ms per call, uploaded each call"),
+            per_call(uploaded),
+        );
+        show(
+            &format!("{kernel}: speed-up from keeping the rows on the device"),
+            ratio(resident, uploaded),
+        );
+    }
     // The README's sweep figure: 256 × 256 axes over 10 000 correspondences.
     let seconds = |r: Option<f64>| r.map(|r| 256.0 * 256.0 * 1e4 / r);
     show(

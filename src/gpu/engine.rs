@@ -21,12 +21,15 @@ use crate::model::{RefractiveCamera, Rig};
 
 mod affine_grid;
 mod candidates;
+mod resident;
 mod scene_fit;
 mod stream;
+mod views;
 
 pub use affine_grid::AffineGridInput;
 pub use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
-pub use stream::{HostReal, RING};
+pub use resident::ResidentRows;
+pub use stream::{HostReal, RING, STREAM_CHUNK_ROWS};
 
 /// Largest number of items per dispatch whatever the binding cap: bounds the device and staging
 /// memory (4 Mi items: 96 MiB of f32 rays, 192 MiB in f64 split over two chunks by the cap).
@@ -416,8 +419,8 @@ impl GpuEngine {
                 input.len()
             )));
         }
-        // Uploads the data and leaves it resident in the reused buffers.
-        self.run_map(kernel, a, b, input, &mut output, &mut status)?;
+        // Uploads the data and leaves it resident in the first lane's buffers.
+        self.run_map_in(kernel, a, b, input, &mut output, &mut status, usize::MAX)?;
         let pipeline = self.pipeline(kernel)?;
         let buffers = self.buffers();
         // One chunk runs on the ring's first lane.

@@ -19,6 +19,10 @@ use crate::model::{NoSolution, RefractiveCamera};
 /// Buffer sets in flight: chunk k runs while k − 1 is read back and k + 1 written.
 pub const RING: usize = 2;
 
+/// Most rows per streamed chunk: a batch of more rows streams through the ring in several
+/// chunks, so that its upload and read-back overlap the kernel (a 4 M-row batch in 8 chunks).
+pub const STREAM_CHUNK_ROWS: usize = 1 << 19;
+
 mod sealed {
     pub trait Sealed {}
     impl Sealed for f32 {}
@@ -217,8 +221,8 @@ impl GpuEngine {
     }
 
     /// Runs a kernel mapping N reals to M reals per item with cameras `a` and `b`, streaming the
-    /// chunks through the ring. On an error the ring's buffers are dropped (a later call makes
-    /// new ones), so no mapping is left behind.
+    /// chunks (at most [`STREAM_CHUNK_ROWS`] rows each) through the ring. On an error the ring's
+    /// buffers are dropped (a later call makes new ones), so no mapping is left behind.
     pub(super) fn run_map<H: HostReal, const N: usize, const M: usize>(
         &self,
         kernel: Kernel,
@@ -227,6 +231,22 @@ impl GpuEngine {
         input: &[[H; N]],
         output: &mut [[H; M]],
         status: &mut [u32],
+    ) -> Result<(), GpuError> {
+        self.run_map_in(kernel, a, b, input, output, status, STREAM_CHUNK_ROWS)
+    }
+
+    /// [`run_map`](Self::run_map) in chunks of at most `max_rows` rows (and what the bindings
+    /// allow): [`kernel_seconds`](Self::kernel_seconds) puts a whole chunk on the first lane.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn run_map_in<H: HostReal, const N: usize, const M: usize>(
+        &self,
+        kernel: Kernel,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        input: &[[H; N]],
+        output: &mut [[H; M]],
+        status: &mut [u32],
+        max_rows: usize,
     ) -> Result<(), GpuError> {
         assert!(
             input.len() == output.len() && input.len() == status.len(),
@@ -238,7 +258,10 @@ impl GpuEngine {
             return Ok(());
         }
         let s = self.precision.size();
-        let chunk = self.chunk_items(N.max(M) * s).min(input.len());
+        let chunk = self
+            .chunk_items(N.max(M) * s)
+            .min(max_rows.max(1))
+            .min(input.len());
         let pipeline = self.pipeline(kernel)?;
         let params = Params::new(self.precision, a, b, [0; 4]);
         let mut guard = self.buffers();
