@@ -29,8 +29,10 @@ pub(super) struct ViewKernel<'a> {
 impl GpuEngine {
     /// Runs `job` over every (candidate, view): `output[c · views + v]` and `status[c · views +
     /// v]` get the kernel's item for candidate c and view v, the row NaN where the status is not
-    /// 0. Each workgroup's items share one view: a chunk holds `per_view` candidates (a multiple
-    /// of the workgroup size, the last candidate repeated as padding) for each of its views.
+    /// 0. A chunk holds `per_view` candidates for each of its views, view-major: every candidate
+    /// where they fit one chunk (a stencil's few candidates cost a few items per view, not a
+    /// workgroup), else a multiple of the workgroup size, so that each workgroup's items share
+    /// one view, the last chunk padded with its last candidate.
     ///
     /// Panics if `output` and `status` are not `candidates.len() · views` long.
     #[allow(clippy::too_many_arguments)]
@@ -61,11 +63,12 @@ impl GpuEngine {
         let real = precision.size();
         let capacity = self.chunk_items(M * real);
         let views_per_chunk = view_count.min((capacity / GROUP).max(1));
-        // Candidates per view a multiple of the workgroup size: a workgroup's invocations share
-        // their view.
-        let per_view = ((capacity / views_per_chunk) / GROUP * GROUP)
-            .max(GROUP)
-            .min(candidates.len().next_multiple_of(GROUP));
+        let fit = ((capacity / views_per_chunk) / GROUP * GROUP).max(GROUP);
+        let per_view = if candidates.len() <= fit {
+            candidates.len()
+        } else {
+            fit
+        };
         let cap = self.context.max_storage_binding() as usize;
         if job.input.reals() * real > cap {
             return Err(GpuError::Unsupported(format!(
@@ -125,7 +128,8 @@ impl GpuEngine {
         let mut codes = vec![0u32; items];
         for first in (0..candidates.len()).step_by(per_view) {
             let last = (first + per_view).min(candidates.len());
-            // Pad the chunk with its last candidate: every workgroup then shares one view.
+            // Pad the last of several chunks with its last candidate: every workgroup then
+            // shares one view.
             for (k, slot) in chunk.iter_mut().enumerate() {
                 *slot = candidates[(first + k).min(last - 1)];
             }
