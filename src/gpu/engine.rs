@@ -548,7 +548,11 @@ impl GpuEngine {
         Ok(())
     }
 
-    /// Triangulates matches (ul, vl, ur, vr: raw pixels in `a` and `b`) into x, y, z, residual.
+    /// Triangulates matches (ul, vl, ur, vr: raw pixels in `a` and `b`) into x, y, z, residual
+    /// (master frame, metres), as [`CpuEngine::triangulate`](crate::engine::CpuEngine::triangulate):
+    /// the chain back-project → triangulate runs in one kernel (both pixels back-projected to
+    /// water rays, then the midpoint of closest approach), with no host round trip between.
+    /// Status as in [`backproject`](Self::backproject).
     pub fn triangulate<H: HostReal>(
         &self,
         a: &RefractiveCamera,

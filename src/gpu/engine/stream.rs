@@ -265,8 +265,10 @@ impl GpuEngine {
         let pipeline = self.pipeline(kernel)?;
         let params = Params::new(self.precision, a, b, [0; 4]);
         let mut guard = self.buffers();
+        // As many lanes as chunks, at most the ring (one chunk needs no second set).
+        let chunks = input.len().div_ceil(chunk);
         let mut lanes = Vec::with_capacity(RING);
-        for lane in guard.ring.iter_mut() {
+        for lane in guard.ring.iter_mut().take(chunks.min(RING)) {
             let uniform = lane
                 .uniform
                 .get(
