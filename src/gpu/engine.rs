@@ -110,6 +110,8 @@ pub struct GpuEngine {
     buffers: Mutex<Buffers>,
     /// Most items per dispatch ([`MAX_CHUNK_ITEMS`] unless a test lowers it).
     max_chunk_items: usize,
+    /// Most rows per streamed chunk of the row kernels ([`STREAM_CHUNK_ROWS`] unless changed).
+    stream_chunk_rows: usize,
 }
 
 /// Rows per parallel task of the host-side conversions.
@@ -204,6 +206,7 @@ impl GpuEngine {
             pipelines: Mutex::default(),
             buffers: Mutex::default(),
             max_chunk_items: MAX_CHUNK_ITEMS,
+            stream_chunk_rows: STREAM_CHUNK_ROWS,
         })
     }
 
@@ -244,6 +247,14 @@ impl GpuEngine {
     /// chunks. For tests of the chunking.
     pub fn set_max_chunk_items(&mut self, items: usize) {
         self.max_chunk_items = items.clamp(GROUP, MAX_CHUNK_ITEMS);
+    }
+
+    /// Sets the most rows per streamed chunk of the row kernels (default
+    /// [`STREAM_CHUNK_ROWS`]; at least 1). `usize::MAX` runs a batch in as few chunks as the
+    /// bindings allow, so one that fits one chunk runs without any overlap: for measuring what
+    /// the streaming gains.
+    pub fn set_stream_chunk_rows(&mut self, rows: usize) {
+        self.stream_chunk_rows = rows.max(1);
     }
 
     /// The compiled pipeline of `kernel`, compiled on first use.

@@ -221,7 +221,8 @@ impl GpuEngine {
     }
 
     /// Runs a kernel mapping N reals to M reals per item with cameras `a` and `b`, streaming the
-    /// chunks (at most [`STREAM_CHUNK_ROWS`] rows each) through the ring. On an error the ring's
+    /// chunks (at most [`STREAM_CHUNK_ROWS`] rows each, unless
+    /// [`set_stream_chunk_rows`](Self::set_stream_chunk_rows) changed it) through the ring. On an error the ring's
     /// buffers are dropped (a later call makes new ones), so no mapping is left behind.
     pub(super) fn run_map<H: HostReal, const N: usize, const M: usize>(
         &self,
@@ -232,7 +233,7 @@ impl GpuEngine {
         output: &mut [[H; M]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_map_in(kernel, a, b, input, output, status, STREAM_CHUNK_ROWS)
+        self.run_map_in(kernel, a, b, input, output, status, self.stream_chunk_rows)
     }
 
     /// [`run_map`](Self::run_map) in chunks of at most `max_rows` rows (and what the bindings
