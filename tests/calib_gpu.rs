@@ -372,7 +372,12 @@ fn corner_data_stay_on_the_device_across_small_calls() {
                 gpu.costs(kind, stencil).unwrap(),
             );
             let d = deviation(kind.name(), &c, &g);
-            assert!(d.relative <= F64_RELATIVE, "{}: {:e}", kind.name(), d.relative);
+            assert!(
+                d.relative <= F64_RELATIVE,
+                "{}: {:e}",
+                kind.name(),
+                d.relative
+            );
         }
         let normals: Vec<_> = stencil.iter().map(|c| c.normal).collect();
         let (c, g) = (
@@ -386,7 +391,11 @@ fn corner_data_stay_on_the_device_across_small_calls() {
         assert!(d.relative <= F64_RELATIVE, "air-distance: {:e}", d.relative);
     }
     // Air rays (ray gap), VOP rows (plane errors), affine-grid input, scene-fit input: once each.
-    assert_eq!(gpu.uploads(), 4, "each input uploaded once over 10 × 8 calls");
+    assert_eq!(
+        gpu.uploads(),
+        4,
+        "each input uploaded once over 10 × 8 calls"
+    );
     let other = stereo_data(6, 99);
     let on_other = gpu.over(&other);
     let cpu_other = CpuBackend::new(&other);

@@ -915,7 +915,8 @@ fn streamed_chunks_equal_one_chunk_and_the_cpu() {
             let (mut c, mut cs) = (vec![[0.0; 2]; ROWS], vec![0; ROWS]);
             cpu.project(&a, &points, &mut c, &mut cs);
             let (_, rel) = compare(&what, (&c, &cs), (&ps, &ss), 0..2, allowed(precision, ROWS));
-            let in_image = |p: &[f64; 2]| p[0] > 0.0 && p[0] < 1280.0 && p[1] > 0.0 && p[1] < 1024.0;
+            let in_image =
+                |p: &[f64; 2]| p[0] > 0.0 && p[0] < 1280.0 && p[1] > 0.0 && p[1] < 1024.0;
             let abs = (0..ROWS)
                 .filter(|&i| cs[i] == 0 && ss[i] == 0 && in_image(&c[i]))
                 .map(|i| (c[i][0] - ps[i][0]).abs().max((c[i][1] - ps[i][1]).abs()))
@@ -995,7 +996,13 @@ fn f32_host_slices_match_the_f64_host_path_and_the_cpu() {
         cpu.project(&camera, &points64, &mut c, &mut cs);
         let widened: Vec<[f64; 2]> = g32.iter().map(|p| p.map(f64::from)).collect();
         let what = format!("project, f32 host, {precision} kernels");
-        compare(&what, (&c, &cs), (&widened, &s32), 0..2, allowed(precision, N));
+        compare(
+            &what,
+            (&c, &cs),
+            (&widened, &s32),
+            0..2,
+            allowed(precision, N),
+        );
         let in_image = |p: &[f64; 2]| p[0] > 0.0 && p[0] < 1280.0 && p[1] > 0.0 && p[1] < 1024.0;
         let in_view: Vec<usize> = (0..N)
             .filter(|&i| cs[i] == 0 && s32[i] == 0 && in_image(&c[i]))
@@ -1003,7 +1010,11 @@ fn f32_host_slices_match_the_f64_host_path_and_the_cpu() {
         assert!(in_view.len() > N / 2, "{what}: most points in view");
         let abs = in_view
             .iter()
-            .map(|&i| (c[i][0] - widened[i][0]).abs().max((c[i][1] - widened[i][1]).abs()))
+            .map(|&i| {
+                (c[i][0] - widened[i][0])
+                    .abs()
+                    .max((c[i][1] - widened[i][1]).abs())
+            })
             .fold(0.0, f64::max);
         println!("{what}: |Δpixel| {abs:.1e} px in the image");
         assert!(abs < 1e-3, "{what}: |Δpixel| {abs:.1e}");

@@ -512,17 +512,20 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 let (seconds, timer, items) = match kernel {
                     Kernel::Backproject => {
                         let rows = &work.pixels[..n.min(gpu.chunk_rows::<2, 6>())];
-                        let (s, t) = gpu.kernel_seconds::<2, 6>(kernel, a, b, rows, args.repeats)?;
+                        let (s, t) =
+                            gpu.kernel_seconds::<2, 6>(kernel, a, b, rows, args.repeats)?;
                         (s, t, rows.len())
                     }
                     Kernel::Project => {
                         let rows = &work.points[..n.min(gpu.chunk_rows::<3, 2>())];
-                        let (s, t) = gpu.kernel_seconds::<3, 2>(kernel, a, b, rows, args.repeats)?;
+                        let (s, t) =
+                            gpu.kernel_seconds::<3, 2>(kernel, a, b, rows, args.repeats)?;
                         (s, t, rows.len())
                     }
                     _ => {
                         let rows = &work.matches[..n.min(gpu.chunk_rows::<4, 4>())];
-                        let (s, t) = gpu.kernel_seconds::<4, 4>(kernel, a, b, rows, args.repeats)?;
+                        let (s, t) =
+                            gpu.kernel_seconds::<4, 4>(kernel, a, b, rows, args.repeats)?;
                         (s, t, rows.len())
                     }
                 };
@@ -599,9 +602,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 // A stencil refinement's small calls (7 candidates each) with the corner rows
                 // kept on the device, and uploaded again before every call (as before they
                 // stayed there).
-                let true_distance = rig
-                    .shared_interface()
-                    .map_or(0.02, |i| i.air_distance());
+                let true_distance = rig.shared_interface().map_or(0.02, |i| i.air_distance());
                 let stencil: Vec<Candidate> = sweep_candidates
                     .iter()
                     .take(STENCIL)

@@ -27,8 +27,8 @@ mod stream;
 mod views;
 
 pub use affine_grid::AffineGridInput;
-pub use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
 pub use resident::ResidentRows;
+pub use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
 pub use stream::{HostReal, RING, STREAM_CHUNK_ROWS};
 
 /// Largest number of items per dispatch whatever the binding cap: bounds the device and staging

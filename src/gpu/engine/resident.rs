@@ -96,10 +96,11 @@ impl ResidentRows {
         // The old copy goes first, so that both never hold device memory at once.
         *copy = None;
         let bytes = (self.reals.len().max(4) * precision.size()) as u64;
-        let buffer =
-            engine
-                .context()
-                .buffer("resident rows", bytes.next_multiple_of(16), engine.input_usage())?;
+        let buffer = engine.context().buffer(
+            "resident rows",
+            bytes.next_multiple_of(16),
+            engine.input_usage(),
+        )?;
         engine.upload_reals_as(precision, &buffer, &self.reals)?;
         self.uploads.fetch_add(1, Ordering::Relaxed);
         *copy = Some(DeviceCopy {

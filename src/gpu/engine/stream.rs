@@ -279,8 +279,12 @@ impl GpuEngine {
                     wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
                 )?
                 .clone();
-            let (input, input_host) =
-                self.writable(&mut lane.input, &mut lane.input_host, "input", chunk * N * s)?;
+            let (input, input_host) = self.writable(
+                &mut lane.input,
+                &mut lane.input_host,
+                "input",
+                chunk * N * s,
+            )?;
             let (output, output_host) = self.readable(
                 &mut lane.output,
                 &mut lane.output_host,
@@ -305,7 +309,9 @@ impl GpuEngine {
                 bind_group,
             });
         }
-        let streamed = self.stream(kernel, &pipeline, params, &lanes, chunk, input, output, status);
+        let streamed = self.stream(
+            kernel, &pipeline, params, &lanes, chunk, input, output, status,
+        );
         if streamed.is_err() {
             guard.ring = Default::default();
         }
@@ -355,7 +361,13 @@ impl GpuEngine {
                     if let Some(done) = previous.take() {
                         let rows = done.rows.clone();
                         last_use[done.lane] = Some(done.submission.clone());
-                        self.finish(&lanes[done.lane], done, &input[rows.clone()], &mut output[rows.clone()], &mut status[rows])?;
+                        self.finish(
+                            &lanes[done.lane],
+                            done,
+                            &input[rows.clone()],
+                            &mut output[rows.clone()],
+                            &mut status[rows],
+                        )?;
                     }
                     if k + 1 < chunks {
                         let next = (k + 1) % RING;
@@ -363,9 +375,9 @@ impl GpuEngine {
                     }
                     Ok::<_, GpuError>(())
                 })();
-                let submitted = submitting
-                    .join()
-                    .unwrap_or_else(|_| Err(GpuError::Readback("the submitting thread panicked".into())));
+                let submitted = submitting.join().unwrap_or_else(|_| {
+                    Err(GpuError::Readback("the submitting thread panicked".into()))
+                });
                 (submitted, host)
             });
             let (submission, mapped) = submitted?;
@@ -379,7 +391,13 @@ impl GpuEngine {
         }
         if let Some(done) = previous.take() {
             let rows = done.rows.clone();
-            self.finish(&lanes[done.lane], done, &input[rows.clone()], &mut output[rows.clone()], &mut status[rows])?;
+            self.finish(
+                &lanes[done.lane],
+                done,
+                &input[rows.clone()],
+                &mut output[rows.clone()],
+                &mut status[rows],
+            )?;
         }
         Ok(())
     }
@@ -396,16 +414,15 @@ impl GpuEngine {
         if bytes == 0 {
             return Ok(());
         }
-        let mapped = self.context.map(&lane.input_host, wgpu::MapMode::Write, bytes);
+        let mapped = self
+            .context
+            .map(&lane.input_host, wgpu::MapMode::Write, bytes);
         self.context.await_map(&mapped, 1, after)?;
         {
-            let mut view = lane
-                .input_host
-                .get_mapped_range_mut(..bytes)
-                .map_err(|e| {
-                    lane.input_host.unmap();
-                    GpuError::Readback(e.to_string())
-                })?;
+            let mut view = lane.input_host.get_mapped_range_mut(..bytes).map_err(|e| {
+                lane.input_host.unmap();
+                GpuError::Readback(e.to_string())
+            })?;
             write_rows(view.slice(..), self.precision, rows);
         }
         lane.input_host.unmap();
@@ -435,13 +452,15 @@ impl GpuEngine {
             (items * M * s) as u64,
             (items * 4) as u64,
         );
-        self.context.queue.write_buffer(&lane.uniform, 0, params.bytes());
-        let mut encoder = self
-            .context
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some(kernel.name()),
-            });
+        self.context
+            .queue
+            .write_buffer(&lane.uniform, 0, params.bytes());
+        let mut encoder =
+            self.context
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some(kernel.name()),
+                });
         if lane.input != lane.input_host {
             encoder.copy_buffer_to_buffer(&lane.input_host, 0, &lane.input, 0, in_bytes);
         }
@@ -465,7 +484,10 @@ impl GpuEngine {
         }
         let submission = self.context.submit(encoder.finish());
         let (sender, receiver) = std::sync::mpsc::channel();
-        for (host, bytes) in [(&lane.output_host, out_bytes), (&lane.status_host, status_bytes)] {
+        for (host, bytes) in [
+            (&lane.output_host, out_bytes),
+            (&lane.status_host, status_bytes),
+        ] {
             let sender = sender.clone();
             host.map_async(wgpu::MapMode::Read, ..bytes, move |r| {
                 let _ = sender.send(r);
@@ -492,17 +514,22 @@ impl GpuEngine {
                 .status_host
                 .get_mapped_range(..(items * 4) as u64)
                 .map_err(|e| GpuError::Readback(e.to_string()))?;
-            status.copy_from_slice(bytemuck::try_cast_slice(&codes[..]).map_err(|e| {
-                GpuError::Readback(format!("mapped status not aligned: {e}"))
-            })?);
+            status.copy_from_slice(
+                bytemuck::try_cast_slice(&codes[..])
+                    .map_err(|e| GpuError::Readback(format!("mapped status not aligned: {e}")))?,
+            );
             let values = lane
                 .output_host
                 .get_mapped_range(..(items * M * s) as u64)
                 .map_err(|e| GpuError::Readback(e.to_string()))?;
             let limit = self.precision.huge();
             match self.precision {
-                Precision::F32 => read_rows(reals::<f32>(&values[..])?, limit, input, status, output),
-                Precision::F64 => read_rows(reals::<f64>(&values[..])?, limit, input, status, output),
+                Precision::F32 => {
+                    read_rows(reals::<f32>(&values[..])?, limit, input, status, output)
+                }
+                Precision::F64 => {
+                    read_rows(reals::<f64>(&values[..])?, limit, input, status, output)
+                }
             }
             Ok(())
         })();

@@ -137,12 +137,7 @@ impl GpuEngine {
             for view_first in (0..view_count).step_by(views_per_chunk) {
                 let view_last = (view_first + views_per_chunk).min(view_count);
                 let count = per_view * (view_last - view_first);
-                params.set_info([
-                    count as u32,
-                    per_view as u32,
-                    job.info_z,
-                    view_first as u32,
-                ]);
+                params.set_info([count as u32, per_view as u32, job.info_z, view_first as u32]);
                 self.context.queue.write_buffer(&uniform, 0, params.bytes());
                 let encoder = self.encode_dispatch(
                     &pipeline,
