@@ -37,7 +37,7 @@ impl ResidentRows {
     /// `reals` as rows of `width` (a multiple of `width` long).
     pub(super) fn from_reals(reals: Vec<f64>, width: usize) -> Self {
         assert!(
-            width > 0 && reals.len() % width == 0,
+            width > 0 && reals.len().is_multiple_of(width),
             "whole rows of {width} reals"
         );
         Self {
