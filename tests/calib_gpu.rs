@@ -352,3 +352,71 @@ fn time_a_1230_candidate_batch() {
         }
     }
 }
+
+/// Issue 13: the per-corner data go to the device once per backend and stay there across the
+/// many small calls of a stencil refinement (7 candidates a call), every call still matching the
+/// CPU; a backend over other data (the same engine) uploads its own and matches the CPU on them.
+#[test]
+fn corner_data_stay_on_the_device_across_small_calls() {
+    let Some(engine) = engine(Precision::F64) else {
+        return;
+    };
+    let data = stereo_data(4, 11);
+    let batch = candidates(&data, 70, 31);
+    let (cpu, gpu) = (CpuBackend::new(&data), GpuBackend::new(&data, &engine));
+    assert_eq!(gpu.uploads(), 0, "nothing uploaded before a call");
+    for stencil in batch.chunks(7) {
+        for kind in CostKind::ALL {
+            let (c, g) = (
+                cpu.costs(kind, stencil).unwrap(),
+                gpu.costs(kind, stencil).unwrap(),
+            );
+            let d = deviation(kind.name(), &c, &g);
+            assert!(
+                d.relative <= F64_RELATIVE,
+                "{}: {:e}",
+                kind.name(),
+                d.relative
+            );
+        }
+        let normals: Vec<_> = stencil.iter().map(|c| c.normal).collect();
+        let (c, g) = (
+            cpu.air_distances(&normals).unwrap(),
+            gpu.air_distances(&normals).unwrap(),
+        );
+        let as_values = |d: Vec<Option<f64>>| -> Vec<f64> {
+            d.into_iter().map(|d| d.unwrap_or(f64::INFINITY)).collect()
+        };
+        let d = deviation("air-distance", &as_values(c), &as_values(g));
+        assert!(d.relative <= F64_RELATIVE, "air-distance: {:e}", d.relative);
+    }
+    // Air rays (ray gap), VOP rows (plane errors), affine-grid input, scene-fit input: once each.
+    assert_eq!(
+        gpu.uploads(),
+        4,
+        "each input uploaded once over 10 × 8 calls"
+    );
+    let other = stereo_data(6, 99);
+    let on_other = gpu.over(&other);
+    let cpu_other = CpuBackend::new(&other);
+    for kind in CostKind::ALL {
+        let (c, g) = (
+            cpu_other.costs(kind, &batch[..7]).unwrap(),
+            on_other.costs(kind, &batch[..7]).unwrap(),
+        );
+        let d = deviation(kind.name(), &c, &g);
+        assert!(
+            d.relative <= F64_RELATIVE,
+            "other data {}: {:e}",
+            kind.name(),
+            d.relative
+        );
+    }
+    // And the first backend still answers for its own data.
+    let (c, g) = (
+        cpu.costs(CostKind::Reprojection, &batch[..7]).unwrap(),
+        gpu.costs(CostKind::Reprojection, &batch[..7]).unwrap(),
+    );
+    assert!(deviation("reprojection again", &c, &g).relative <= F64_RELATIVE);
+    assert_eq!(gpu.uploads(), 4, "still resident after another backend ran");
+}

@@ -426,6 +426,34 @@ fn random_matches(
     matches
 }
 
+/// The largest f32 triangulation error over its bound, over rows both answered: direction
+/// errors δ ≤ 2e-6 and origin errors ≤ 2e-6 m move each ray by δ·range + δo at the point, and the
+/// midpoint by that over sin θ, θ the angle between the rays (factor 2: both rays).
+fn f32_triangulation_error(
+    a: &RefractiveCamera,
+    b: &RefractiveCamera,
+    matches: &[[f64; 4]],
+    cpu: (&[[f64; 4]], &[u32]),
+    gpu: (&[[f64; 4]], &[u32]),
+) -> f64 {
+    let ((c, cs), (g, gs)) = (cpu, gpu);
+    let mut worst: f64 = 0.0;
+    for i in (0..matches.len()).filter(|&i| cs[i] == 0 && gs[i] == 0) {
+        let m = matches[i];
+        let ra = a.backproject(&Point2::new(m[0], m[1])).unwrap();
+        let rb = b.backproject(&Point2::new(m[2], m[3])).unwrap();
+        let p = nalgebra::Point3::new(c[i][0], c[i][1], c[i][2]);
+        let sin = ra.dir.cross(&rb.dir).norm();
+        let bound =
+            2.0 * (2e-6 * ((p - ra.origin).norm() + (p - rb.origin).norm()) + 2.0 * 2e-6) / sin;
+        let error = (0..4)
+            .map(|k| (g[i][k] - c[i][k]).abs())
+            .fold(0.0, f64::max);
+        worst = worst.max(error / bound);
+    }
+    worst
+}
+
 #[test]
 fn triangulate_and_binocular_vop_match_cpu() {
     let cpu = CpuEngine::new(None);
@@ -444,25 +472,7 @@ fn triangulate_and_binocular_vop_match_cpu() {
             println!("{what:60} max |Δ| {abs:.1e} m (relative {rel:.1e})");
             match precision {
                 Precision::F32 => {
-                    // Direction errors δ ≤ 2e-6 and origin errors ≤ 2e-6 m move each ray by
-                    // δ·range + δo at the point, and the midpoint by that over sin θ, θ the angle
-                    // between the rays (factor 2: both rays).
-                    let mut worst: f64 = 0.0;
-                    for i in (0..N).filter(|&i| cs[i] == 0 && gs[i] == 0) {
-                        let m = matches[i];
-                        let ra = a.backproject(&Point2::new(m[0], m[1])).unwrap();
-                        let rb = b.backproject(&Point2::new(m[2], m[3])).unwrap();
-                        let p = nalgebra::Point3::new(c[i][0], c[i][1], c[i][2]);
-                        let sin = ra.dir.cross(&rb.dir).norm();
-                        let bound = 2.0
-                            * (2e-6 * ((p - ra.origin).norm() + (p - rb.origin).norm())
-                                + 2.0 * 2e-6)
-                            / sin;
-                        let error = (0..4)
-                            .map(|k| (g[i][k] - c[i][k]).abs())
-                            .fold(0.0, f64::max);
-                        worst = worst.max(error / bound);
-                    }
+                    let worst = f32_triangulation_error(&a, &b, &matches, (&c, &cs), (&g, &gs));
                     println!("{what:60} max |Δ| / bound {worst:.2}");
                     assert!(worst < 1.0, "{what}");
                 }
@@ -861,5 +871,156 @@ fn extreme_points_are_every_number_or_none_and_agree() {
                 }
             }
         });
+    }
+}
+
+/// Bitwise equality of two batches, NaN rows equal.
+fn same_bits<const M: usize>(x: &[[f64; M]], y: &[[f64; M]]) -> bool {
+    x.as_flattened()
+        .iter()
+        .zip(y.as_flattened())
+        .all(|(p, q)| p.to_bits() == q.to_bits() || (p.is_nan() && q.is_nan()))
+}
+
+/// Issue 13: a batch streamed over many chunks (20 chunks of 256 rows through the ring of buffer
+/// sets, so several are in flight) gives bit for bit what one chunk gives, on the mapped and the
+/// staged path, and matches the CPU within the tolerances of the tests above.
+#[test]
+fn streamed_chunks_equal_one_chunk_and_the_cpu() {
+    let cpu = CpuEngine::new(None);
+    const ROWS: usize = 20 * 256 - 17;
+    for precision in [Precision::F32, Precision::F64] {
+        for map_storage in [true, false] {
+            let (Some(one), Some(mut streamed)) = (
+                engine_with(precision, map_storage),
+                engine_with(precision, map_storage),
+            ) else {
+                return;
+            };
+            streamed.set_max_chunk_items(256);
+            let (_, rig) = configurations().remove(3);
+            let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
+            let mut random = Random(0xBB67_AE85_84CA_A73B);
+            let what = format!("{precision}, mapped storage {map_storage}");
+            // Forward projection.
+            let points = random_points(&mut random, &a, ROWS);
+            let run = |gpu: &GpuEngine| {
+                let (mut pixels, mut status) = (vec![[0.0; 2]; ROWS], vec![0; ROWS]);
+                gpu.project(&a, &points, &mut pixels, &mut status).unwrap();
+                (pixels, status)
+            };
+            let ((p1, s1), (ps, ss)) = (run(&one), run(&streamed));
+            assert_eq!(s1, ss, "{what}: project statuses");
+            assert!(same_bits(&p1, &ps), "{what}: project rows");
+            let (mut c, mut cs) = (vec![[0.0; 2]; ROWS], vec![0; ROWS]);
+            cpu.project(&a, &points, &mut c, &mut cs);
+            let (_, rel) = compare(&what, (&c, &cs), (&ps, &ss), 0..2, allowed(precision, ROWS));
+            let in_image =
+                |p: &[f64; 2]| p[0] > 0.0 && p[0] < 1280.0 && p[1] > 0.0 && p[1] < 1024.0;
+            let abs = (0..ROWS)
+                .filter(|&i| cs[i] == 0 && ss[i] == 0 && in_image(&c[i]))
+                .map(|i| (c[i][0] - ps[i][0]).abs().max((c[i][1] - ps[i][1]).abs()))
+                .fold(0.0, f64::max);
+            match precision {
+                Precision::F32 => assert!(abs < 1e-3, "{what}: |Δpixel| {abs:.1e}"),
+                Precision::F64 => assert!(rel < 1e-9, "{what}: relative {rel:.1e}"),
+            }
+            assert!(
+                ss.iter().any(|&s| s == NoSolution::NotInWater.code()),
+                "{what}: rows without an answer in the stream"
+            );
+            // Triangulation (two cameras, four reals in and out).
+            let matches = random_matches(&mut random, &a, &b, ROWS, 0.3);
+            let run = |gpu: &GpuEngine| {
+                let (mut points, mut status) = (vec![[0.0; 4]; ROWS], vec![0; ROWS]);
+                gpu.triangulate(&a, &b, &matches, &mut points, &mut status)
+                    .unwrap();
+                (points, status)
+            };
+            let ((t1, s1), (ts, ss)) = (run(&one), run(&streamed));
+            assert_eq!(s1, ss, "{what}: triangulate statuses");
+            assert!(same_bits(&t1, &ts), "{what}: triangulate rows");
+            let (mut c, mut cs) = (vec![[0.0; 4]; ROWS], vec![0; ROWS]);
+            cpu.triangulate(&a, &b, &matches, &mut c, &mut cs);
+            let (_, rel) = compare(&what, (&c, &cs), (&ts, &ss), 0..4, allowed(precision, ROWS));
+            // As triangulate_and_binocular_vop_match_cpu.
+            match precision {
+                Precision::F32 => {
+                    let worst = f32_triangulation_error(&a, &b, &matches, (&c, &cs), (&ts, &ss));
+                    assert!(worst < 1.0, "{what}: triangulate |Δ| / bound {worst:.2}");
+                }
+                Precision::F64 => assert!(rel < 1e-9, "{what}: triangulate relative {rel:.1e}"),
+            }
+        }
+    }
+}
+
+/// Issue 13: f32 host slices. With f32 kernels they go to and from the device unconverted and
+/// give exactly the f32 rounding of what the f64 host path gives on the same (f32-representable)
+/// points; with f64 kernels the f32 rounding of the f64 results. Both match the CPU on those
+/// points within 1e-3 px, and rows without an answer are NaN with their status.
+#[test]
+fn f32_host_slices_match_the_f64_host_path_and_the_cpu() {
+    let cpu = CpuEngine::new(None);
+    for precision in [Precision::F32, Precision::F64] {
+        let Some(mut gpu) = engine(precision) else {
+            return;
+        };
+        gpu.set_max_chunk_items(1024); // several chunks in flight
+        let (_, rig) = configurations().remove(3);
+        let camera = rig.refractive_camera(0);
+        let mut random = Random(0x3C6E_F372_FE94_F82B);
+        let points32: Vec<[f32; 3]> = random_points(&mut random, &camera, N)
+            .iter()
+            .map(|p| p.map(|v| v as f32))
+            .collect();
+        let points64: Vec<[f64; 3]> = points32.iter().map(|p| p.map(f64::from)).collect();
+        let (mut g32, mut s32) = (vec![[0.0f32; 2]; N], vec![0; N]);
+        gpu.project(&camera, &points32, &mut g32, &mut s32).unwrap();
+        let (mut g64, mut s64) = (vec![[0.0f64; 2]; N], vec![0; N]);
+        gpu.project(&camera, &points64, &mut g64, &mut s64).unwrap();
+        assert_eq!(s32, s64, "{precision}: statuses of both host types");
+        for i in 0..N {
+            for k in 0..2 {
+                let rounded = g64[i][k] as f32;
+                assert!(
+                    g32[i][k].to_bits() == rounded.to_bits()
+                        || (g32[i][k].is_nan() && rounded.is_nan()),
+                    "{precision} row {i}: f32 host {} against f64 host {}",
+                    g32[i][k],
+                    g64[i][k]
+                );
+            }
+        }
+        let (mut c, mut cs) = (vec![[0.0; 2]; N], vec![0; N]);
+        cpu.project(&camera, &points64, &mut c, &mut cs);
+        let widened: Vec<[f64; 2]> = g32.iter().map(|p| p.map(f64::from)).collect();
+        let what = format!("project, f32 host, {precision} kernels");
+        compare(
+            &what,
+            (&c, &cs),
+            (&widened, &s32),
+            0..2,
+            allowed(precision, N),
+        );
+        let in_image = |p: &[f64; 2]| p[0] > 0.0 && p[0] < 1280.0 && p[1] > 0.0 && p[1] < 1024.0;
+        let in_view: Vec<usize> = (0..N)
+            .filter(|&i| cs[i] == 0 && s32[i] == 0 && in_image(&c[i]))
+            .collect();
+        assert!(in_view.len() > N / 2, "{what}: most points in view");
+        let abs = in_view
+            .iter()
+            .map(|&i| {
+                (c[i][0] - widened[i][0])
+                    .abs()
+                    .max((c[i][1] - widened[i][1]).abs())
+            })
+            .fold(0.0, f64::max);
+        println!("{what}: |Δpixel| {abs:.1e} px in the image");
+        assert!(abs < 1e-3, "{what}: |Δpixel| {abs:.1e}");
+        assert!(
+            s32.iter().any(|&s| s == NoSolution::NotInWater.code()),
+            "{what}: rows without an answer"
+        );
     }
 }

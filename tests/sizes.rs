@@ -369,8 +369,8 @@ fn npy_bytes(shape: &[usize], values: &[f64]) -> Vec<u8> {
 
 #[test]
 fn a_sweep_in_small_batches_writes_every_cell_as_an_independent_evaluation() {
-    use flatport::calib::costs::scene::air_distance_for_axis;
     use flatport::calib::costs::cost;
+    use flatport::calib::costs::scene::air_distance_for_axis;
     use flatport::model::normal_from_tilt_azimuth;
 
     let dir = tempfile::tempdir().unwrap();

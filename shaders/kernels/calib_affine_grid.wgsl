@@ -4,8 +4,9 @@
 // and the taper are documented there). Composed in f64 on every adapter: the one-pass χ² cancels
 // up to ~1e7-fold.
 //
-// Items are view-major within a chunk: item i = view · info.y + candidate, info.y a multiple of
-// the workgroup size, so the invocations of a workgroup read the same corner rows.
+// Items are view-major within a chunk: item i = view · info.y + candidate, info.y the candidates
+// per view: all of them when they fit one chunk, else a multiple of the workgroup size, so the
+// invocations of a workgroup read the same corner rows.
 // input: the corner rows (ROW reals each, info.z rows, read as vec4), then (start, count, 0, 0)
 // per view.
 

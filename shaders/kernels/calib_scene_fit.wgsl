@@ -13,8 +13,9 @@
 // - MODE_REPROJECTION: candidate (n, d): Σ |observed − projected|² of R·P + t in both images.
 // output: 4 reals per item: (Σa², Σab, Σb², 0) for MODE_GAP, (sum, corners, 0, 0) otherwise.
 //
-// Items are view-major within a chunk: item i = view · info.y + candidate, info.y a multiple of
-// the workgroup size, so the invocations of a workgroup read the same corner rows.
+// Items are view-major within a chunk: item i = view · info.y + candidate, info.y the candidates
+// per view: all of them when they fit one chunk, else a multiple of the workgroup size, so the
+// invocations of a workgroup read the same corner rows.
 // input: (first vec4 of the view's rows, row count, 0, 0) per view, then 3 vec4 per corner:
 // (v_l xyz, v_r x), (v_r yz, P x, P y), (u_l, v_l, u_r, v_r).
 

@@ -17,6 +17,7 @@ use flatport::calib::{
 };
 use flatport::engine::workload::{Workload, without_distortion};
 use flatport::engine::{CpuEngine, CpuPath};
+use flatport::gpu::engine::STREAM_CHUNK_ROWS;
 use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision};
 use flatport::io::{rig_from_json_str, write_atomic};
 use flatport::model::{RefractiveCamera, Rig, normal_from_tilt_azimuth};
@@ -302,16 +303,22 @@ fn memory_stream_bandwidth() -> f64 {
 fn human(rate: f64) -> String {
     if rate >= 1e9 {
         format!("{:7.2} G/s", rate / 1e9)
-    } else {
+    } else if rate >= 1e5 {
         format!("{:7.2} M/s", rate / 1e6)
+    } else {
+        format!("{:7.2} k/s", rate / 1e3)
     }
 }
 
 /// Bytes each bench item takes on the host: the inputs (pixels 16, points 24, matches 32), the
-/// outputs (48 + 32 + 16) and a status word (4); the GPU paths hold as much again in buffers.
-const BYTES_PER_ITEM: usize = 172;
-/// Most `--items`: 2²⁴ items take about 2.9 GB on the host (and as much in GPU buffers).
+/// outputs (48 + 32 + 16), a status word (4), and the f32 copies for the f32-host figures
+/// (pixels 8, points 12, outputs 24 + 8); the GPU paths hold as much again in buffers.
+const BYTES_PER_ITEM: usize = 224;
+/// Most `--items`: 2²⁴ items take about 3.8 GB on the host (and as much in GPU buffers).
 pub const MAX_ITEMS: usize = 1 << 24;
+/// Candidates per call of the stencil figures (a finite-difference stencil's size) and calls timed.
+const STENCIL: usize = 7;
+const STENCIL_CALLS: usize = 20;
 /// Most `--sweep-cells`: each costs one evaluation over the ~10 000 correspondences per repetition.
 pub const MAX_SWEEP_CELLS: usize = 1 << 20;
 /// Most `--repeats`.
@@ -366,6 +373,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     );
     // The clock of the next figure: `host` unless a GPU kernel time sets `gpu_timestamp`.
     let next_timer = std::cell::Cell::new("host");
+    // Items of the next figure where fewer than the batch were timed (a GPU kernel time: one chunk).
+    let next_items = std::cell::Cell::new(None);
     // The CPU path of the next figure (`scalar`, `vector`; none for the GPU and the sweep).
     let cpu_path = std::cell::Cell::new(None);
     let clock_hz = cpu_clock_hz();
@@ -376,7 +385,11 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                       stage: &'static str,
                       seconds: f64| {
         let timer = next_timer.replace("host");
-        let items = if kernel == "sweep" { sweep_items } else { n };
+        let items = match next_items.take() {
+            Some(items) => items,
+            None if kernel == "sweep" => sweep_items,
+            None => n,
+        };
         let items_per_s = items as f64 / seconds;
         // Cycles per item at the OS's clock, for one thread on the CPU.
         let cycles_per_item = clock_hz
@@ -471,6 +484,14 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         ));
         eprintln!("GPU adapter: {}", adapter.as_deref().unwrap_or_default());
         let has_f64 = context.adapter().f64;
+        // The workload as a pipeline with f32 data holds it (converted before timing).
+        let to_f32 = |rows: &[[f64; 3]]| -> Vec<[f32; 3]> {
+            rows.iter().map(|r| r.map(|v| v as f32)).collect()
+        };
+        let points_f32 = to_f32(&work.points);
+        let pixels_f32: Vec<[f32; 2]> = work.pixels.iter().map(|r| r.map(|v| v as f32)).collect();
+        let mut out2_f32 = vec![[0.0f32; 2]; n];
+        let mut out6_f32 = vec![[0.0f32; 6]; n];
         let mut gpu = GpuEngine::new(context, Precision::F32)?;
         for precision in [Precision::F32, Precision::F64] {
             if precision == Precision::F64 {
@@ -487,16 +508,29 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                                a: &RefractiveCamera,
                                b: &RefractiveCamera|
              -> anyhow::Result<f64> {
-                let (seconds, timer) = match kernel {
+                // One chunk at most: the kernel over the batch's first rows.
+                let (seconds, timer, items) = match kernel {
                     Kernel::Backproject => {
-                        gpu.kernel_seconds::<2, 6>(kernel, a, b, &work.pixels, args.repeats)?
+                        let rows = &work.pixels[..n.min(gpu.chunk_rows::<2, 6>())];
+                        let (s, t) =
+                            gpu.kernel_seconds::<2, 6>(kernel, a, b, rows, args.repeats)?;
+                        (s, t, rows.len())
                     }
                     Kernel::Project => {
-                        gpu.kernel_seconds::<3, 2>(kernel, a, b, &work.points, args.repeats)?
+                        let rows = &work.points[..n.min(gpu.chunk_rows::<3, 2>())];
+                        let (s, t) =
+                            gpu.kernel_seconds::<3, 2>(kernel, a, b, rows, args.repeats)?;
+                        (s, t, rows.len())
                     }
-                    _ => gpu.kernel_seconds::<4, 4>(kernel, a, b, &work.matches, args.repeats)?,
+                    _ => {
+                        let rows = &work.matches[..n.min(gpu.chunk_rows::<4, 4>())];
+                        let (s, t) =
+                            gpu.kernel_seconds::<4, 4>(kernel, a, b, rows, args.repeats)?;
+                        (s, t, rows.len())
+                    }
                 };
                 next_timer.set(timer.name());
+                next_items.set(Some(items));
                 Ok(seconds)
             };
             record(
@@ -511,6 +545,10 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 Ok(gpu.backproject(&a, &work.pixels, &mut out6, &mut status)?)
             })?;
             record("backproject", "gpu", p, 0, "end_to_end", t);
+            let t = fastest(args.repeats, || {
+                Ok(gpu.backproject(&a, &pixels_f32, &mut out6_f32, &mut status)?)
+            })?;
+            record("backproject", "gpu", p, 0, "end_to_end_f32_host", t);
             record(
                 "project",
                 "gpu",
@@ -519,10 +557,27 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 "kernel",
                 kernel_only(Kernel::Project, &gpu, &a, &a)?,
             );
+            // Streamed through the ring (the default), and in as few chunks as the bindings
+            // allow (one here, so nothing overlaps), round by round in turn.
+            let mut best = [f64::INFINITY; 2];
+            for round in 0..=args.repeats {
+                for (k, rows) in [STREAM_CHUNK_ROWS, usize::MAX].into_iter().enumerate() {
+                    gpu.set_stream_chunk_rows(rows);
+                    let start = Instant::now();
+                    gpu.project(&a, &work.points, &mut out2, &mut status)?;
+                    if round > 0 {
+                        best[k] = best[k].min(start.elapsed().as_secs_f64());
+                    }
+                }
+            }
+            gpu.set_stream_chunk_rows(STREAM_CHUNK_ROWS);
+            record("project", "gpu", p, 0, "end_to_end", best[0]);
+            record("project", "gpu", p, 0, "end_to_end_one_chunk", best[1]);
+            // The same with the host's data in f32 (no conversion where the kernel is f32).
             let t = fastest(args.repeats, || {
-                Ok(gpu.project(&a, &work.points, &mut out2, &mut status)?)
+                Ok(gpu.project(&a, &points_f32, &mut out2_f32, &mut status)?)
             })?;
-            record("project", "gpu", p, 0, "end_to_end", t);
+            record("project", "gpu", p, 0, "end_to_end_f32_host", t);
             record(
                 "triangulate",
                 "gpu",
@@ -544,6 +599,44 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                         .map(drop)?)
                 })?;
                 record("sweep", "gpu", p, 0, "end_to_end", t);
+                // A stencil refinement's small calls (7 candidates each) with the corner rows
+                // kept on the device, and uploaded again before every call (as before they
+                // stayed there).
+                let true_distance = rig.shared_interface().map_or(0.02, |i| i.air_distance());
+                let stencil: Vec<Candidate> = sweep_candidates
+                    .iter()
+                    .take(STENCIL)
+                    .map(|c| Candidate {
+                        normal: c.normal,
+                        air_distance: true_distance,
+                    })
+                    .collect();
+                for (kernel, kind) in [
+                    ("stencil_reprojection", CostKind::Reprojection),
+                    ("stencil_affine_grid", CostKind::AffineGrid),
+                ] {
+                    // The two ways in turn, round by round (a shared machine's load drifts);
+                    // the first round warms up.
+                    let mut best = [f64::INFINITY; 2];
+                    for round in 0..=args.repeats {
+                        for (k, evict) in [false, true].into_iter().enumerate() {
+                            let start = Instant::now();
+                            for _ in 0..STENCIL_CALLS {
+                                if evict {
+                                    gpu_backend.evict();
+                                }
+                                gpu_backend.costs(kind, &stencil)?;
+                            }
+                            if round > 0 {
+                                best[k] = best[k].min(start.elapsed().as_secs_f64());
+                            }
+                        }
+                    }
+                    for (stage, t) in ["resident", "uploaded_each_call"].into_iter().zip(best) {
+                        next_items.set(Some(stencil.len() * STENCIL_CALLS));
+                        record(kernel, "gpu", p, 0, stage, t);
+                    }
+                }
             }
         }
     }
@@ -646,6 +739,51 @@ fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
             cpu_all("project"),
         ),
     );
+    show(
+        "project GPU f32 end to end, f32 host data / CPU f64 all threads",
+        ratio(
+            rate("project", "gpu", "f32", None, "end_to_end_f32_host"),
+            cpu_all("project"),
+        ),
+    );
+    show(
+        "project GPU f32 kernel alone / CPU f64 all threads (the end-to-end ceiling)",
+        ratio(
+            rate("project", "gpu", "f32", None, "kernel"),
+            cpu_all("project"),
+        ),
+    );
+    show(
+        "project GPU f32 end to end: streamed / one chunk without overlap",
+        ratio(
+            rate("project", "gpu", "f32", None, "end_to_end"),
+            rate("project", "gpu", "f32", None, "end_to_end_one_chunk"),
+        ),
+    );
+    show(
+        "project GPU f32 end to end / GPU f32 kernel alone",
+        ratio(
+            rate("project", "gpu", "f32", None, "end_to_end"),
+            rate("project", "gpu", "f32", None, "kernel"),
+        ),
+    );
+    for kernel in ["stencil_reprojection", "stencil_affine_grid"] {
+        let resident = rate(kernel, "gpu", "f64", None, "resident");
+        let uploaded = rate(kernel, "gpu", "f64", None, "uploaded_each_call");
+        let per_call = |r: Option<f64>| r.map(|r| 1e3 * STENCIL as f64 / r);
+        show(
+            &format!("{kernel} (GPU f64, {STENCIL} candidates): ms per call, rows resident"),
+            per_call(resident),
+        );
+        show(
+            &format!("{kernel} (GPU f64, {STENCIL} candidates): ms per call, uploaded each call"),
+            per_call(uploaded),
+        );
+        show(
+            &format!("{kernel}: speed-up from keeping the rows on the device"),
+            ratio(resident, uploaded),
+        );
+    }
     // The README's sweep figure: 256 × 256 axes over 10 000 correspondences.
     let seconds = |r: Option<f64>| r.map(|r| 256.0 * 256.0 * 1e4 / r);
     show(

@@ -560,11 +560,85 @@ impl GpuContext {
         Ok(result)
     }
 
+    /// Starts mapping the first `bytes` of `buffer` for `mode`: the receiver gets the outcome
+    /// once the device is done with every submission that uses the buffer, during a poll
+    /// ([`await_map`](Self::await_map)).
+    pub(crate) fn map(
+        &self,
+        buffer: &wgpu::Buffer,
+        mode: wgpu::MapMode,
+        bytes: u64,
+    ) -> std::sync::mpsc::Receiver<Result<(), wgpu::BufferAsyncError>> {
+        let (sender, receiver) = std::sync::mpsc::channel();
+        buffer.map_async(mode, ..bytes.max(1), move |r| {
+            let _ = sender.send(r);
+        });
+        receiver
+    }
+
+    /// Waits for `count` mappings started by [`map`](Self::map) on `receiver`: polls the device
+    /// without blocking first, then blocks until submission `after` has finished (the last one
+    /// that used the buffers; `None`: every submission), at most the context's timeout.
+    ///
+    /// Errors: a failed mapping ([`GpuError::Readback`]), a timeout, or a fault the device
+    /// reported ([`check`](Self::check)).
+    pub(crate) fn await_map(
+        &self,
+        receiver: &std::sync::mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+        count: usize,
+        after: Option<&wgpu::SubmissionIndex>,
+    ) -> Result<(), GpuError> {
+        use std::sync::mpsc::TryRecvError;
+        let mut left = count;
+        let mut blocked = false;
+        while left > 0 {
+            match receiver.try_recv() {
+                Ok(mapped) => {
+                    mapped.map_err(|e| GpuError::Readback(e.to_string()))?;
+                    left -= 1;
+                }
+                Err(TryRecvError::Disconnected) => {
+                    return Err(GpuError::Readback(
+                        "a mapping was dropped before it completed".into(),
+                    ));
+                }
+                Err(TryRecvError::Empty) if blocked => {
+                    return Err(GpuError::Readback(
+                        "a mapping did not complete after its submission finished".into(),
+                    ));
+                }
+                Err(TryRecvError::Empty) => {
+                    // A buffer no submission uses maps at the next poll; one in use once its
+                    // submission has finished.
+                    let _ = self.device.poll(wgpu::PollType::Poll);
+                    if let Ok(mapped) = receiver.try_recv() {
+                        mapped.map_err(|e| GpuError::Readback(e.to_string()))?;
+                        left -= 1;
+                        continue;
+                    }
+                    self.wait_for(after.cloned())?;
+                    blocked = true;
+                }
+            }
+        }
+        self.check("mapping a buffer")
+    }
+
+    /// Submits `command` and returns its index, for [`await_map`](Self::await_map).
+    pub(crate) fn submit(&self, command: wgpu::CommandBuffer) -> wgpu::SubmissionIndex {
+        self.queue.submit([command])
+    }
+
     /// Blocks until every submitted command has finished, at most the context's timeout
     /// ([`TIMEOUT_ENV`]), then [`check`](Self::check)s for errors and the loss of the device.
     pub(crate) fn wait(&self) -> Result<(), GpuError> {
+        self.wait_for(None)
+    }
+
+    /// [`wait`](Self::wait) for submission `index` only (`None`: every submission).
+    pub(crate) fn wait_for(&self, index: Option<wgpu::SubmissionIndex>) -> Result<(), GpuError> {
         let polled = self.device.poll(wgpu::PollType::Wait {
-            submission_index: None,
+            submission_index: index,
             timeout: Some(self.timeout),
         });
         match polled {

@@ -3,8 +3,10 @@
 //! Batches are cut into chunks that fit the adapter's storage-binding cap (128 MiB on lavapipe)
 //! and dispatch limits; buffers are kept and reused across chunks and calls, replaced only when a
 //! larger chunk or another usage needs it. On adapters that share the host's memory the host maps
-//! the kernels' buffers directly; elsewhere it goes through staging buffers. Inputs and outputs
-//! are f64 slices whatever the kernel precision: f32 kernels convert on upload and read-back.
+//! the kernels' buffers directly; elsewhere it goes through staging buffers. The row kernels
+//! (back-projection, projection, VOPs, triangulation) stream their chunks through a ring of
+//! buffer sets so that upload, kernel and read-back overlap, and take f64 or f32 host slices
+//! ([`HostReal`]); the other calls take f64 slices and convert for f32 kernels.
 //! Rows with no answer get their status code and NaN.
 
 use std::collections::HashMap;
@@ -15,14 +17,19 @@ use rayon::prelude::*;
 use super::context::{GpuContext, GpuError};
 use super::layout::{MAX_LAYERS, Params};
 use super::shaders::{Kernel, Precision, Reduction, WORKGROUP_SIZE, source};
-use crate::model::{NoSolution, RefractiveCamera, Rig, out_of_range};
+use crate::model::{RefractiveCamera, Rig};
 
 mod affine_grid;
 mod candidates;
+mod resident;
 mod scene_fit;
+mod stream;
+mod views;
 
 pub use affine_grid::AffineGridInput;
+pub use resident::ResidentRows;
 pub use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
+pub use stream::{HostReal, RING, STREAM_CHUNK_ROWS};
 
 /// Largest number of items per dispatch whatever the binding cap: bounds the device and staging
 /// memory (4 Mi items: 96 MiB of f32 rays, 192 MiB in f64 split over two chunks by the cap).
@@ -90,6 +97,8 @@ struct Buffers {
     status_staging: Slot,
     /// Host bytes of an f32 chunk before upload.
     scratch: Vec<u8>,
+    /// The buffer sets the row kernels stream their chunks through.
+    ring: [stream::Lane; stream::RING],
 }
 
 /// The GPU backend on one adapter at one precision.
@@ -101,6 +110,8 @@ pub struct GpuEngine {
     buffers: Mutex<Buffers>,
     /// Most items per dispatch ([`MAX_CHUNK_ITEMS`] unless a test lowers it).
     max_chunk_items: usize,
+    /// Most rows per streamed chunk of the row kernels ([`STREAM_CHUNK_ROWS`] unless changed).
+    stream_chunk_rows: usize,
 }
 
 /// Rows per parallel task of the host-side conversions.
@@ -195,6 +206,7 @@ impl GpuEngine {
             pipelines: Mutex::default(),
             buffers: Mutex::default(),
             max_chunk_items: MAX_CHUNK_ITEMS,
+            stream_chunk_rows: STREAM_CHUNK_ROWS,
         })
     }
 
@@ -235,6 +247,14 @@ impl GpuEngine {
     /// chunks. For tests of the chunking.
     pub fn set_max_chunk_items(&mut self, items: usize) {
         self.max_chunk_items = items.clamp(GROUP, MAX_CHUNK_ITEMS);
+    }
+
+    /// Sets the most rows per streamed chunk of the row kernels (default
+    /// [`STREAM_CHUNK_ROWS`]; at least 1). `usize::MAX` runs a batch in as few chunks as the
+    /// bindings allow, so one that fits one chunk runs without any overlap: for measuring what
+    /// the streaming gains.
+    pub fn set_stream_chunk_rows(&mut self, rows: usize) {
+        self.stream_chunk_rows = rows.max(1);
     }
 
     /// The compiled pipeline of `kernel`, compiled on first use.
@@ -382,110 +402,10 @@ impl GpuEngine {
         Ok(())
     }
 
-    /// Runs a kernel mapping N reals to M reals per item with cameras `a` and `b`.
-    fn run_map<const N: usize, const M: usize>(
-        &self,
-        kernel: Kernel,
-        a: &RefractiveCamera,
-        b: &RefractiveCamera,
-        input: &[[f64; N]],
-        output: &mut [[f64; M]],
-        status: &mut [u32],
-    ) -> Result<(), GpuError> {
-        assert!(
-            input.len() == output.len() && input.len() == status.len(),
-            "input, output and status of equal length"
-        );
-        Self::check_layers(a)?;
-        Self::check_layers(b)?;
-        let s = self.precision.size();
-        let chunk = self.chunk_items(N.max(M) * s).min(input.len().max(1));
-        let pipeline = self.pipeline(kernel)?;
-        let mut params = Params::new(self.precision, a, b, [0; 4]);
-        let mut guard = self.buffers();
-        let buffers = &mut *guard;
-        let uniform = buffers
-            .uniform
-            .get(
-                &self.context,
-                "params",
-                params.bytes().len(),
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            )?
-            .clone();
-        let in_buf = buffers
-            .input
-            .get(&self.context, "input", chunk * N * s, self.input_usage())?
-            .clone();
-        let (out_buf, out_staging) = self.readable(
-            &mut buffers.output,
-            &mut buffers.output_staging,
-            "output",
-            chunk * M * s,
-        )?;
-        let (status_buf, status_staging) = self.readable(
-            &mut buffers.status,
-            &mut buffers.status_staging,
-            "status",
-            chunk * 4,
-        )?;
-        let bind_group = self.bind_group(
-            &pipeline,
-            kernel.name(),
-            &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)],
-        );
-        for start in (0..input.len()).step_by(chunk) {
-            let end = (start + chunk).min(input.len());
-            let items = end - start;
-            params.set_info([items as u32, 0, 0, 0]);
-            self.context.queue.write_buffer(&uniform, 0, params.bytes());
-            let values: &[f64] = bytemuck::cast_slice(&input[start..end]);
-            let bytes: &[u8] = match self.precision {
-                Precision::F64 => bytemuck::cast_slice(values),
-                Precision::F32 => {
-                    buffers.scratch.clear();
-                    extend_reals(&mut buffers.scratch, self.precision, values);
-                    &buffers.scratch
-                }
-            };
-            self.upload(&in_buf, bytes)?;
-            let encoder = self.encode_dispatch(
-                &pipeline,
-                &bind_group,
-                kernel.name(),
-                self.context.dispatch_size(items as u32),
-            );
-            let copies = [
-                (&out_buf, &out_staging, (items * M * s) as u64),
-                (&status_buf, &status_staging, (items * 4) as u64),
-            ];
-            let (out_rows, out_status) = (&mut output[start..end], &mut status[start..end]);
-            let in_rows = &input[start..end];
-            self.context.read_back(encoder, &copies, |data| {
-                out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
-                rows_from(data[0], self.precision, out_status, out_rows);
-                // The CPU engine's guard (`CpuEngine::map`): every row all numbers or all NaN, and
-                // inputs beyond the precision's range (f32 would read them as infinity) rejected.
-                let limit = self.precision.huge();
-                let (rows, statuses) = (
-                    out_rows.par_chunks_mut(CONVERT_ROWS),
-                    out_status.par_chunks_mut(CONVERT_ROWS),
-                );
-                in_rows
-                    .par_chunks(CONVERT_ROWS)
-                    .zip(rows.zip(statuses))
-                    .for_each(|(input, (output, status))| {
-                        for ((x, y), s) in
-                            input.iter().zip(output.iter_mut()).zip(status.iter_mut())
-                        {
-                            if out_of_range(x, limit, if *s == 0 { y } else { &[] }) {
-                                (*y, *s) = ([f64::NAN; M], NoSolution::OutOfRange.code());
-                            }
-                        }
-                    });
-            })?;
-        }
-        Ok(())
+    /// Most rows of a row kernel with N input and M output reals per dispatch (one chunk): the
+    /// most [`kernel_seconds`](Self::kernel_seconds) takes.
+    pub fn chunk_rows<const N: usize, const M: usize>(&self) -> usize {
+        self.chunk_items(N.max(M) * self.precision.size())
     }
 
     /// Seconds per dispatch of `kernel` over `input` (one chunk at most), the data already on the
@@ -501,7 +421,7 @@ impl GpuEngine {
         input: &[[f64; N]],
         repeats: usize,
     ) -> Result<(f64, KernelTimer), GpuError> {
-        let mut output = vec![[0.0; M]; input.len()];
+        let mut output = vec![[0.0f64; M]; input.len()];
         let mut status = vec![0; input.len()];
         let chunk = self.chunk_items(N.max(M) * self.precision.size());
         if input.len() > chunk {
@@ -510,17 +430,20 @@ impl GpuEngine {
                 input.len()
             )));
         }
-        // Uploads the data and leaves it resident in the reused buffers.
-        self.run_map(kernel, a, b, input, &mut output, &mut status)?;
+        // Uploads the data and leaves it resident in the first lane's buffers.
+        self.run_map_in(kernel, a, b, input, &mut output, &mut status, usize::MAX)?;
         let pipeline = self.pipeline(kernel)?;
         let buffers = self.buffers();
+        // One chunk runs on the ring's first lane.
+        let lane = &buffers.ring[0];
         let resident = |slot: &Slot| slot.0.clone().expect("allocated by run_map");
         let (uniform, in_buf, out_buf, status_buf) = (
-            resident(&buffers.uniform),
-            resident(&buffers.input),
-            resident(&buffers.output),
-            resident(&buffers.status),
+            resident(&lane.uniform),
+            resident(&lane.input),
+            resident(&lane.output),
+            resident(&lane.status),
         );
+        drop(buffers);
         let bind_group = self.bind_group(
             &pipeline,
             kernel.name(),
@@ -591,16 +514,17 @@ impl GpuEngine {
     }
 
     /// Back-projects raw pixels of `camera` into `rays` (origin xyz on the outer interface, unit
-    /// direction xyz, master frame). `status[i]` is 0 or the [`NoSolution`]
+    /// direction xyz, master frame), in f64 or f32 on the host ([`HostReal`]; a host type equal
+    /// to the kernel precision goes to and from the device unconverted). `status[i]` is 0 or the [`NoSolution`]
     /// code, and the row NaN, exactly where the CPU path has no answer (up to rounding at the
     /// boundaries in f32).
     ///
     /// Panics if the slices differ in length.
-    pub fn backproject(
+    pub fn backproject<H: HostReal>(
         &self,
         camera: &RefractiveCamera,
-        pixels: &[[f64; 2]],
-        rays: &mut [[f64; 6]],
+        pixels: &[[H; 2]],
+        rays: &mut [[H; 6]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         self.run_map(Kernel::Backproject, camera, camera, pixels, rays, status)
@@ -608,11 +532,11 @@ impl GpuEngine {
 
     /// Forward projection of points (master frame) to raw pixels; status as in
     /// [`backproject`](Self::backproject).
-    pub fn project(
+    pub fn project<H: HostReal>(
         &self,
         camera: &RefractiveCamera,
-        points: &[[f64; 3]],
-        pixels: &mut [[f64; 2]],
+        points: &[[H; 3]],
+        pixels: &mut [[H; 2]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         self.run_map(Kernel::Project, camera, camera, points, pixels, status)
@@ -620,28 +544,32 @@ impl GpuEngine {
 
     /// VOPs of points: depth, vop_distance, vop xyz, incidence (radians), as
     /// [`RefractiveCamera::vop`].
-    pub fn vop(
+    pub fn vop<H: HostReal>(
         &self,
         camera: &RefractiveCamera,
-        points: &[[f64; 3]],
-        vops: &mut [[f64; 6]],
+        points: &[[H; 3]],
+        vops: &mut [[H; 6]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         self.run_map(Kernel::Vop, camera, camera, points, vops, status)?;
         // The kernel returns tan a: WGSL has no f64 arctangent.
         for row in vops.iter_mut() {
-            row[5] = row[5].atan();
+            row[5] = H::from_f64(row[5].to_f64().atan());
         }
         Ok(())
     }
 
-    /// Triangulates matches (ul, vl, ur, vr: raw pixels in `a` and `b`) into x, y, z, residual.
-    pub fn triangulate(
+    /// Triangulates matches (ul, vl, ur, vr: raw pixels in `a` and `b`) into x, y, z, residual
+    /// (master frame, metres), as [`CpuEngine::triangulate`](crate::engine::CpuEngine::triangulate):
+    /// the chain back-project → triangulate runs in one kernel (both pixels back-projected to
+    /// water rays, then the midpoint of closest approach), with no host round trip between.
+    /// Status as in [`backproject`](Self::backproject).
+    pub fn triangulate<H: HostReal>(
         &self,
         a: &RefractiveCamera,
         b: &RefractiveCamera,
-        matches: &[[f64; 4]],
-        points: &mut [[f64; 4]],
+        matches: &[[H; 4]],
+        points: &mut [[H; 4]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         self.run_map(Kernel::Triangulate, a, b, matches, points, status)
@@ -649,12 +577,12 @@ impl GpuEngine {
 
     /// Binocular VOPs of matches (ul, vl, ur, vr): left VOP xyz, right VOP xyz, axis offset m,
     /// conditioning, as [`binocular_vop`](crate::model::binocular_vop) with `a`'s axis.
-    pub fn binocular_vop(
+    pub fn binocular_vop<H: HostReal>(
         &self,
         a: &RefractiveCamera,
         b: &RefractiveCamera,
-        matches: &[[f64; 4]],
-        vops: &mut [[f64; 8]],
+        matches: &[[H; 4]],
+        vops: &mut [[H; 8]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         self.run_map(Kernel::BinocularVop, a, b, matches, vops, status)

@@ -14,5 +14,8 @@ pub mod layout;
 pub mod shaders;
 
 pub use context::{AdapterSummary, GpuContext, GpuError, adapters};
-pub use engine::{AffineGridInput, GpuEngine, KernelTimer, SCENE_ROW, SceneFitInput, SceneSum};
+pub use engine::{
+    AffineGridInput, GpuEngine, HostReal, KernelTimer, ResidentRows, SCENE_ROW, SceneFitInput,
+    SceneSum,
+};
 pub use shaders::{Kernel, Precision, Reduction};

@@ -25,7 +25,7 @@ use crate::calib::costs::invariants::ProjectedVop;
 use crate::calib::costs::{CostKind, plane_cost, ray_gap_rms};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
-use crate::gpu::{AffineGridInput, GpuEngine, SCENE_ROW, SceneFitInput, SceneSum};
+use crate::gpu::{AffineGridInput, GpuEngine, ResidentRows, SCENE_ROW, SceneFitInput, SceneSum};
 
 /// The costs of candidate batches evaluated by a [`GpuEngine`] (any adapter, f32 or f64).
 ///
@@ -36,9 +36,9 @@ pub struct GpuBackend<D = Arc<StereoData>, E = Arc<GpuEngine>> {
     data: D,
     engine: E,
     /// v_l, v_r of every corner (master frame).
-    air_rays: Vec<[f64; 6]>,
+    air_rays: ResidentRows,
     /// v_l, v_r, ∂v_l/∂u, ∂v_l/∂v, ∂v_r/∂u, ∂v_r/∂v of every corner.
-    vop_rows: Vec<[f64; 18]>,
+    vop_rows: ResidentRows,
     /// The affine-grid rows and view table, packed for the fused kernel.
     affine_input: AffineGridInput,
     /// Air rays, board points and pixels of every corner with the view table, packed for the
@@ -47,14 +47,17 @@ pub struct GpuBackend<D = Arc<StereoData>, E = Arc<GpuEngine>> {
 }
 
 impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, E> {
-    /// A backend over `data` running on `engine` (whose pipelines and buffers it reuses).
+    /// A backend over `data` running on `engine` (whose pipelines and buffers it reuses). The
+    /// per-corner rows are packed here once and go to the device at the first call that needs
+    /// them; they stay there for every later call of this backend (the data never change under
+    /// it: other data make another backend, [`CostBackend::over`]).
     pub fn new(data: D, engine: E) -> Self {
-        let air_rays = data
+        let air_rays: Vec<[f64; 6]> = data
             .corners
             .iter()
             .map(|c| std::array::from_fn(|i| c.dirs[i / 3][i % 3]))
             .collect();
-        let vop_rows = data
+        let vop_rows: Vec<[f64; 18]> = data
             .corners
             .iter()
             .map(|c| {
@@ -87,8 +90,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
         Self {
             data,
             engine,
-            air_rays,
-            vop_rows,
+            air_rays: ResidentRows::new(&air_rays),
+            vop_rows: ResidentRows::new(&vop_rows),
             affine_input,
             scene_input,
         }
@@ -97,6 +100,24 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
     /// The engine the kernels run on.
     pub fn engine(&self) -> &GpuEngine {
         &self.engine
+    }
+
+    /// Drops the device copies of the per-corner data (freeing their memory): the next call
+    /// that needs them uploads them again. For measuring what keeping them saves.
+    pub fn evict(&self) {
+        self.air_rays.evict();
+        self.vop_rows.evict();
+        self.affine_input.resident().evict();
+        self.scene_input.resident().evict();
+    }
+
+    /// Uploads of the per-corner data to the device so far, over every input kept there (one
+    /// per input a cost has used, however many calls used it).
+    pub fn uploads(&self) -> usize {
+        self.air_rays.uploads()
+            + self.vop_rows.uploads()
+            + self.affine_input.resident().uploads()
+            + self.scene_input.resident().uploads()
     }
 
     /// Reprojection and scene costs reduced per (candidate, view) on the device; the ray gap

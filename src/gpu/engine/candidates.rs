@@ -5,23 +5,24 @@
 
 use super::{GpuEngine, extend_reals, rows_from};
 use crate::gpu::context::GpuError;
+use crate::gpu::engine::ResidentRows;
 use crate::gpu::layout::Params;
 use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::Rig;
 
-/// Where a candidate kernel's input rows belong.
-#[derive(Clone, Copy, PartialEq, Eq)]
-enum Rows {
-    /// One row per corner, shared by every candidate (uploaded once per call).
-    PerCorner,
+/// A candidate kernel's input rows.
+#[derive(Clone, Copy)]
+enum Rows<'a, const N: usize> {
+    /// One row per corner, shared by every candidate: kept on the device across calls.
+    PerCorner(&'a ResidentRows),
     /// One row per item (uploaded with each chunk).
-    PerItem,
+    PerItem(&'a [[f64; N]]),
 }
 
 impl GpuEngine {
     /// Triangulates every corner under every candidate interface (n unit, d; master frame):
     /// `air_rays` holds the two unit air directions v_l, v_r of each corner (cameras `cameras`
-    /// of `rig`), `points[c · corners + j]` gets x, y, z, gap of corner j under candidate c,
+    /// of `rig`; rows of 6, kept on the device across calls), `points[c · corners + j]` gets x, y, z, gap of corner j under candidate c,
     /// as [`calib::costs::triangulate_corner`](crate::calib::costs::triangulate_corner).
     /// `status` is 0 or the [`NoSolution`](crate::model::NoSolution) code, the row NaN where not 0.
     ///
@@ -30,17 +31,16 @@ impl GpuEngine {
         &self,
         rig: &Rig,
         cameras: [usize; 2],
-        air_rays: &[[f64; 6]],
+        air_rays: &ResidentRows,
         candidates: &[[f64; 4]],
         points: &mut [[f64; 4]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_candidates(
+        self.run_candidates::<6, 4>(
             Kernel::CalibTriangulate,
             rig,
             cameras,
-            air_rays,
-            Rows::PerCorner,
+            Rows::PerCorner(air_rays),
             air_rays.len(),
             candidates,
             points,
@@ -68,8 +68,7 @@ impl GpuEngine {
             Kernel::CalibProject,
             rig,
             cameras,
-            points,
-            Rows::PerItem,
+            Rows::PerItem(points),
             corners,
             candidates,
             pixels,
@@ -80,7 +79,8 @@ impl GpuEngine {
     /// The binocular VOP of every corner under every candidate axis (unit, master frame; the
     /// fourth value is ignored), projected along n into the plane ⟂ n, and its Jacobian for
     /// pixel noise, as [`calib::invariants::projected_vop`](crate::calib::costs::invariants::projected_vop):
-    /// `corners` holds v_l, v_r, ∂v_l/∂u, ∂v_l/∂v, ∂v_r/∂u, ∂v_r/∂v (xyz each); `vops` gets
+    /// `corners` holds v_l, v_r, ∂v_l/∂u, ∂v_l/∂v, ∂v_r/∂u, ∂v_r/∂v (xyz each; rows of 18, kept
+    /// on the device across calls); `vops` gets
     /// q₁, q₂ and J = ∂q/∂(u_l, v_l, u_r, v_r) column by column. Status 6 (degenerate) where the
     /// VOP is undetermined.
     ///
@@ -89,17 +89,16 @@ impl GpuEngine {
         &self,
         rig: &Rig,
         cameras: [usize; 2],
-        corners: &[[f64; 18]],
+        corners: &ResidentRows,
         axes: &[[f64; 4]],
         vops: &mut [[f64; 10]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_candidates(
+        self.run_candidates::<18, 10>(
             Kernel::CalibProjectedVop,
             rig,
             cameras,
-            corners,
-            Rows::PerCorner,
+            Rows::PerCorner(corners),
             corners.len(),
             axes,
             vops,
@@ -117,17 +116,16 @@ impl GpuEngine {
         &self,
         rig: &Rig,
         cameras: [usize; 2],
-        air_rays: &[[f64; 6]],
+        air_rays: &ResidentRows,
         axes: &[[f64; 4]],
         lines: &mut [[f64; 3]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_candidates(
+        self.run_candidates::<6, 3>(
             Kernel::CalibGapLine,
             rig,
             cameras,
-            air_rays,
-            Rows::PerCorner,
+            Rows::PerCorner(air_rays),
             air_rays.len(),
             axes,
             lines,
@@ -144,8 +142,7 @@ impl GpuEngine {
         kernel: Kernel,
         rig: &Rig,
         cameras: [usize; 2],
-        input: &[[f64; N]],
-        rows: Rows,
+        rows: Rows<'_, N>,
         corners: usize,
         candidates: &[[f64; 4]],
         output: &mut [[f64; M]],
@@ -157,8 +154,11 @@ impl GpuEngine {
             "output and status of candidates · corners"
         );
         match rows {
-            Rows::PerCorner => assert_eq!(input.len(), corners, "one input row per corner"),
-            Rows::PerItem => assert_eq!(input.len(), items, "one input row per item"),
+            Rows::PerCorner(input) => assert!(
+                input.len() == corners && input.width() == N,
+                "one input row of {N} per corner"
+            ),
+            Rows::PerItem(input) => assert_eq!(input.len(), items, "one input row per item"),
         }
         let (a, b) = (
             rig.refractive_camera(cameras[0]),
@@ -171,12 +171,12 @@ impl GpuEngine {
         }
         let s = self.precision.size();
         let item_bytes = match rows {
-            Rows::PerCorner => M * s,
-            Rows::PerItem => N.max(M) * s,
+            Rows::PerCorner(_) => M * s,
+            Rows::PerItem(_) => N.max(M) * s,
         };
         let per_chunk = self.chunk_items(item_bytes.max(4)) / corners;
         let cap = self.context.max_storage_binding() as usize;
-        if per_chunk == 0 || (rows == Rows::PerCorner && corners * N * s > cap) {
+        if per_chunk == 0 || (matches!(rows, Rows::PerCorner(_)) && corners * N * s > cap) {
             return Err(GpuError::Unsupported(format!(
                 "{corners} corners per candidate do not fit one dispatch ({} items, {cap} bytes per binding)",
                 self.chunk_items(item_bytes.max(4))
@@ -187,10 +187,7 @@ impl GpuEngine {
         let mut params = Params::new(self.precision, &a, &b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let input_rows = match rows {
-            Rows::PerCorner => corners,
-            Rows::PerItem => per_chunk * corners,
-        };
+
         let uniform = buffers
             .uniform
             .get(
@@ -200,15 +197,18 @@ impl GpuEngine {
                 wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             )?
             .clone();
-        let in_buf = buffers
-            .input
-            .get(
-                &self.context,
-                "input",
-                input_rows * N * s,
-                self.input_usage(),
-            )?
-            .clone();
+        let in_buf = match rows {
+            Rows::PerCorner(input) => input.on_device(self, self.precision)?,
+            Rows::PerItem(_) => buffers
+                .input
+                .get(
+                    &self.context,
+                    "input",
+                    per_chunk * corners * N * s,
+                    self.input_usage(),
+                )?
+                .clone(),
+        };
         let cand_buf = buffers
             .candidates
             .get(
@@ -241,9 +241,6 @@ impl GpuEngine {
                 (4, &cand_buf),
             ],
         );
-        if rows == Rows::PerCorner {
-            self.upload_reals(&mut buffers.scratch, &in_buf, bytemuck::cast_slice(input))?;
-        }
         for first in (0..candidates.len()).step_by(per_chunk) {
             let last = (first + per_chunk).min(candidates.len());
             let range = first * corners..last * corners;
@@ -255,7 +252,7 @@ impl GpuEngine {
                 &cand_buf,
                 bytemuck::cast_slice(&candidates[first..last]),
             )?;
-            if rows == Rows::PerItem {
+            if let Rows::PerItem(input) = rows {
                 self.upload_reals(
                     &mut buffers.scratch,
                     &in_buf,
@@ -279,6 +276,23 @@ impl GpuEngine {
             })?;
         }
         Ok(())
+    }
+
+    /// Uploads f64 `values` in `precision` (converted through a temporary for f32).
+    pub(super) fn upload_reals_as(
+        &self,
+        precision: Precision,
+        buffer: &wgpu::Buffer,
+        values: &[f64],
+    ) -> Result<(), GpuError> {
+        match precision {
+            Precision::F64 => self.upload(buffer, bytemuck::cast_slice(values)),
+            Precision::F32 => {
+                let mut bytes = Vec::with_capacity(4 * values.len());
+                extend_reals(&mut bytes, precision, values);
+                self.upload(buffer, &bytes)
+            }
+        }
     }
 
     /// Uploads f64 `values` in the kernel precision (through `scratch` for f32).

@@ -1,0 +1,123 @@
+//! Data that stays on the device: rows uploaded at the first call that needs them and kept for
+//! every later call on the same device and precision (the per-corner rows of a calibration, read
+//! by the hundreds of small calls of a stencil refinement). Buffers only.
+
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use super::GpuEngine;
+use crate::gpu::context::GpuError;
+use crate::gpu::shaders::Precision;
+
+/// Rows of `width` reals, kept on the host and, once a kernel has read them, on the device.
+///
+/// The rows never change: data that change make a new `ResidentRows` (the calibration backend
+/// builds its own from its data set), so a device copy is never stale. The copy is made again
+/// only for another device or precision.
+pub struct ResidentRows {
+    reals: Vec<f64>,
+    width: usize,
+    device: Mutex<Option<DeviceCopy>>,
+    uploads: AtomicUsize,
+}
+
+/// The device copy of [`ResidentRows`].
+struct DeviceCopy {
+    device: wgpu::Device,
+    precision: Precision,
+    buffer: wgpu::Buffer,
+}
+
+impl ResidentRows {
+    /// Rows of N reals (nothing is uploaded until a kernel reads them).
+    pub fn new<const N: usize>(rows: &[[f64; N]]) -> Self {
+        Self::from_reals(rows.as_flattened().to_vec(), N)
+    }
+
+    /// `reals` as rows of `width` (a multiple of `width` long).
+    pub(super) fn from_reals(reals: Vec<f64>, width: usize) -> Self {
+        assert!(
+            width > 0 && reals.len().is_multiple_of(width),
+            "whole rows of {width} reals"
+        );
+        Self {
+            reals,
+            width,
+            device: Mutex::new(None),
+            uploads: AtomicUsize::new(0),
+        }
+    }
+
+    /// Number of rows.
+    pub fn len(&self) -> usize {
+        self.reals.len() / self.width
+    }
+
+    /// True without rows.
+    pub fn is_empty(&self) -> bool {
+        self.reals.is_empty()
+    }
+
+    /// Reals per row.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Number of reals.
+    pub(super) fn reals(&self) -> usize {
+        self.reals.len()
+    }
+
+    /// How many times the rows went to a device (1 after any number of calls on one engine).
+    pub fn uploads(&self) -> usize {
+        self.uploads.load(Ordering::Relaxed)
+    }
+
+    /// Drops the device copy (freeing its memory): the next kernel that reads the rows uploads
+    /// them again.
+    pub fn evict(&self) {
+        *self.device.lock().unwrap_or_else(|p| p.into_inner()) = None;
+    }
+
+    /// The rows on `engine`'s device in `precision`: the kept copy, or a new one uploaded now.
+    pub(super) fn on_device(
+        &self,
+        engine: &GpuEngine,
+        precision: Precision,
+    ) -> Result<wgpu::Buffer, GpuError> {
+        let mut copy = self.device.lock().unwrap_or_else(|p| p.into_inner());
+        let device = engine.context().device();
+        if let Some(kept) = copy.as_ref()
+            && kept.device == *device
+            && kept.precision == precision
+        {
+            return Ok(kept.buffer.clone());
+        }
+        // The old copy goes first, so that both never hold device memory at once.
+        *copy = None;
+        let bytes = (self.reals.len().max(4) * precision.size()) as u64;
+        let buffer = engine.context().buffer(
+            "resident rows",
+            bytes.next_multiple_of(16),
+            engine.input_usage(),
+        )?;
+        engine.upload_reals_as(precision, &buffer, &self.reals)?;
+        self.uploads.fetch_add(1, Ordering::Relaxed);
+        *copy = Some(DeviceCopy {
+            device: device.clone(),
+            precision,
+            buffer: buffer.clone(),
+        });
+        Ok(buffer)
+    }
+}
+
+impl std::fmt::Debug for ResidentRows {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ResidentRows")
+            .field("rows", &self.len())
+            .field("width", &self.width)
+            .field("uploads", &self.uploads())
+            .finish()
+    }
+}
