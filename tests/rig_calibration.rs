@@ -318,6 +318,29 @@ fn extrinsics_refined_with_the_port() {
         &options,
         (0.15, 3e-3),
     );
+    // Held fixed, the wrong extrinsics leave an RMS far above the corner noise: the report says
+    // so and names the cure.
+    let (observations, _) = simulate(&truth, &board(), 15, 0.125, 7);
+    let fixed = calibrate_rig(&start, &observations, &RigCalibrationOptions::default())
+        .unwrap()
+        .report;
+    println!(
+        "extrinsics held: rms {:.2} px, {:?}",
+        fixed.rms_px, fixed.diagnosis
+    );
+    assert!(
+        fixed
+            .warnings
+            .iter()
+            .any(|w| w.contains("does not explain the data")),
+        "{:?}",
+        fixed.warnings
+    );
+    assert!(
+        fixed.diagnosis[0].contains("in-air extrinsics look off"),
+        "{:?}",
+        fixed.diagnosis
+    );
 }
 
 #[test]

@@ -5,7 +5,8 @@
 //! The mistakes are the ones new users make (each gave 2–21 px RMS in a test made as one would):
 //! a wrong square size or a target in other units, corners detected in half-resolution (or
 //! double-resolution) images, corners that were undistorted before they were given (so that the
-//! calibration undistorts them twice), and a baseline written in millimetres. Each hypothesis
+//! calibration undistorts them twice), a baseline written in millimetres, and in-air extrinsics
+//! off by as much as an in-air stereo calibration leaves them (fixed by estimating them). Each hypothesis
 //! calibrates from scratch the same way, and so does the data as given, so the RMS values
 //! compared are alike.
 
@@ -36,10 +37,12 @@ enum Undo {
     Redistort,
     /// Every camera's translation from the master multiplied by the factor.
     ScaleBaseline(f64),
+    /// The extrinsics estimated with the port (an in-air calibration's error in R, t).
+    EstimateExtrinsics,
 }
 
 /// The hypotheses tried, in the order findings are listed.
-const HYPOTHESES: [(Undo, &str); 9] = [
+const HYPOTHESES: [(Undo, &str); 10] = [
     (
         Undo::ScaleTarget(0.1),
         "the target's size is ten times too large (a square in millimetres read as centimetres?)",
@@ -75,6 +78,10 @@ const HYPOTHESES: [(Undo, &str); 9] = [
     (
         Undo::ScaleBaseline(0.001),
         "the rig's baseline looks like millimetres: extrinsic translations are metres (`flatport rig from-opencv --unit mm` converts)",
+    ),
+    (
+        Undo::EstimateExtrinsics,
+        "the in-air extrinsics look off (an in-air stereo calibration's error in R and T is enough): estimate them with the port, adding `extrinsics` to --estimate",
     ),
 ];
 
@@ -130,7 +137,22 @@ pub fn explain_misfit(
             Undo::ScaleBaseline(s) if rig.cameras().len() >= 2 => {
                 scaled_baseline(rig, *s).and_then(|moved| refit(&moved, target, views))
             }
-            Undo::Redistort | Undo::ScaleBaseline(_) => None,
+            Undo::EstimateExtrinsics
+                if rig.cameras().len() >= 2 && !options.estimate.extrinsics =>
+            {
+                let freed = RigCalibrationOptions {
+                    estimate: Estimate {
+                        extrinsics: true,
+                        ..options.estimate
+                    },
+                    ..options
+                };
+                calibrate_views(rig, target, views, &freed)
+                    .ok()
+                    .map(|c| c.report.rms_px)
+                    .filter(|r| r.is_finite())
+            }
+            Undo::Redistort | Undo::ScaleBaseline(_) | Undo::EstimateExtrinsics => None,
         })
         .collect();
     // A mistake explains the misfit when its undoing fits (within the accepted RMS) and far
@@ -144,11 +166,13 @@ pub fn explain_misfit(
     explained.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut findings: Vec<String> = explained
         .into_iter()
-        .map(|(r, what)| format!("{what}: undone, the RMS falls from {now:.2} px to {r:.2} px"))
+        .map(|(r, what)| {
+            format!("{what} (with that fixed, the RMS falls from {now:.2} px to {r:.2} px)")
+        })
         .collect();
     if findings.is_empty() {
         findings.push(format!(
-            "the RMS of {now:.2} px is not explained by a scaled target, half- or double-resolution pixels, corners undistorted twice or a baseline in millimetres; check that the corners are raw (distorted) pixels in target order in every camera, and the rig's intrinsics and extrinsics"
+            "the RMS of {now:.2} px is not explained by a scaled target, half- or double-resolution pixels, corners undistorted twice, a baseline in millimetres or in-air extrinsics off; check that the corners are raw (distorted) pixels in target order in every camera, and the rig's intrinsics and extrinsics"
         ));
     }
     findings
