@@ -11,47 +11,12 @@ use flatport::calib::methods::calibrate::Method;
 use flatport::calib::methods::rig_bundle::Estimate;
 use flatport::calib::methods::rig_calibrate::{RigCalibrationOptions, calibrate_rig};
 use flatport::calib::simulate::rng::Rng;
-use flatport::calib::{Board, CameraKey, Image, RigObservations, RigView, Target};
-use flatport::model::{
-    Interface, Layer, PinholeCamera, Ports, Rig, RigCamera, normal_from_tilt_azimuth,
-};
+use flatport::calib::{CameraKey, Image, RigObservations, RigView, Target};
+use flatport::model::{Interface, Layer, Ports, Rig, normal_from_tilt_azimuth};
 
-fn intrinsics() -> PinholeCamera {
-    PinholeCamera::new(
-        "c",
-        1280,
-        1024,
-        864.91,
-        864.91,
-        640.0,
-        512.0,
-        [-0.08, 0.012, 0.0, 0.0, 0.0],
-    )
-    .unwrap()
-}
-
-fn port(tilt_deg: f64, azimuth_deg: f64, distance: f64) -> Interface {
-    let n = normal_from_tilt_azimuth(tilt_deg.to_radians(), azimuth_deg.to_radians());
-    Interface::new(
-        n.into_inner(),
-        distance,
-        vec![Layer {
-            thickness: 0.014,
-            index: 1.473,
-        }],
-        1.003,
-        1.333,
-    )
-    .unwrap()
-}
-
-fn camera(name: &str, yaw_deg: f64, pitch_deg: f64, centre: [f64; 3]) -> RigCamera {
-    let r =
-        nalgebra::Rotation3::from_euler_angles(pitch_deg.to_radians(), yaw_deg.to_radians(), 0.0)
-            .into_inner();
-    let t = -r * Vector3::from(centre);
-    RigCamera::new(name, intrinsics(), r, t).unwrap()
-}
+#[path = "common/rigs.rs"]
+mod rigs;
+use rigs::{board, camera, port};
 
 /// Views of `target` at random poses in front of the master; each camera that sees every corner
 /// (10 px from the border) gets the view, with Gaussian noise.
@@ -155,14 +120,6 @@ fn port_errors(truth: &Rig, result: &Rig) -> Vec<(f64, f64)> {
             )
         })
         .collect()
-}
-
-fn board() -> Target {
-    Target::Board(Board {
-        rows: 6,
-        cols: 9,
-        square: 0.04,
-    })
 }
 
 fn check(

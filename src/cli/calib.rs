@@ -432,17 +432,9 @@ pub fn truth_errors(report: &CalibrationReport, truth: &Truth) -> String {
 /// its layer thicknesses where they differ, each camera's rotation and translation. Ports are
 /// compared in their own frames (a camera's port in that camera's frame).
 pub fn rig_truth_errors(result: &Rig, truth: &Rig) -> String {
-    let ports = |rig: &Rig| match rig.ports() {
-        Ports::Shared(i) => vec![("shared".to_string(), i.clone())],
-        Ports::PerCamera(ports) => rig
-            .cameras()
-            .iter()
-            .map(|c| c.name.clone())
-            .zip(ports.iter().cloned())
-            .collect(),
-    };
+    use flatport::calib::methods::rig_calibrate::port_names;
     let mut text = String::from("against the truth:");
-    for ((name, got), (_, want)) in ports(result).iter().zip(ports(truth)) {
+    for ((name, got), (_, want)) in port_names(result).iter().zip(port_names(truth)) {
         text += &format!(
             "\n  port {name}: axis off by {:.5}°, air layer off by {:+.4} mm",
             got.normal().angle(want.normal()).to_degrees(),

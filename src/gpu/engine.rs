@@ -297,6 +297,18 @@ impl GpuEngine {
         }
     }
 
+    /// The uniform buffer of `slot`, large enough for `params` (written per chunk by the caller).
+    fn uniform(&self, slot: &mut Slot, params: &Params) -> Result<wgpu::Buffer, GpuError> {
+        Ok(slot
+            .get(
+                &self.context,
+                "params",
+                params.bytes().len(),
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            )?
+            .clone())
+    }
+
     /// A buffer of `bytes` the kernels write, and the buffer the host maps to read it: the same
     /// one where the adapter shares the host's memory, a staging copy otherwise.
     fn readable(
@@ -628,15 +640,7 @@ impl GpuEngine {
         let mut params = Params::new(self.precision, camera, camera, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = buffers
-            .uniform
-            .get(
-                &self.context,
-                "params",
-                params.bytes().len(),
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            )?
-            .clone();
+        let uniform = self.uniform(&mut buffers.uniform, &params)?;
         let (out_buf, out_staging) = self.readable(
             &mut buffers.output,
             &mut buffers.output_staging,
@@ -736,15 +740,7 @@ impl GpuEngine {
         let mut guard = self.buffers();
         let buffers = &mut *guard;
         let partial_bytes = candidates_per_chunk * groups_x * 2 * s;
-        let uniform = buffers
-            .uniform
-            .get(
-                &self.context,
-                "params",
-                params.bytes().len(),
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            )?
-            .clone();
+        let uniform = self.uniform(&mut buffers.uniform, &params)?;
         let in_buf = buffers
             .input
             .get(

@@ -902,7 +902,7 @@ fn corner_noise_px(rig: &Rig, target: &Target, views: &[SeenView]) -> Option<f64
 }
 
 /// Each port with its name in reports: `shared`, or its camera's name.
-fn port_names(rig: &Rig) -> Vec<(String, Interface)> {
+pub fn port_names(rig: &Rig) -> Vec<(String, Interface)> {
     match rig.ports() {
         Ports::Shared(port) => vec![("shared".into(), port.clone())],
         Ports::PerCamera(ports) => rig

@@ -188,15 +188,7 @@ impl GpuEngine {
         let mut guard = self.buffers();
         let buffers = &mut *guard;
 
-        let uniform = buffers
-            .uniform
-            .get(
-                &self.context,
-                "params",
-                params.bytes().len(),
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            )?
-            .clone();
+        let uniform = self.uniform(&mut buffers.uniform, &params)?;
         let in_buf = match rows {
             Rows::PerCorner(input) => input.on_device(self, self.precision)?,
             Rows::PerItem(_) => buffers

@@ -270,15 +270,7 @@ impl GpuEngine {
         let chunks = input.len().div_ceil(chunk);
         let mut lanes = Vec::with_capacity(RING);
         for lane in guard.ring.iter_mut().take(chunks.min(RING)) {
-            let uniform = lane
-                .uniform
-                .get(
-                    &self.context,
-                    "params",
-                    params.bytes().len(),
-                    wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                )?
-                .clone();
+            let uniform = self.uniform(&mut lane.uniform, &params)?;
             let (input, input_host) = self.writable(
                 &mut lane.input,
                 &mut lane.input_host,

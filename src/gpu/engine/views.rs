@@ -81,15 +81,7 @@ impl GpuEngine {
         let mut params = Params::new(precision, &a, &b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = buffers
-            .uniform
-            .get(
-                &self.context,
-                "params",
-                params.bytes().len(),
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            )?
-            .clone();
+        let uniform = self.uniform(&mut buffers.uniform, &params)?;
         let cand_buf = buffers
             .candidates
             .get(
