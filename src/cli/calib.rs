@@ -182,7 +182,31 @@ pub fn load_stereo_data(
     observations_path: &Path,
 ) -> anyhow::Result<(Rig, StereoData, Vec<String>)> {
     let rig = read_rig(rig_path)?;
-    let observations: Observations = read_observations(observations_path)?;
+    let observations: Observations = match read_observations(observations_path) {
+        Ok(stereo) => stereo,
+        // The general form (views keyed by camera name): the views and corners the rig's first
+        // two cameras both saw.
+        Err(stereo_error) => {
+            let Ok(general) = read_rig_observations(observations_path) else {
+                return Err(stereo_error.into());
+            };
+            if rig.cameras().len() < 2 {
+                bail!(
+                    "{}: this needs two cameras (its costs are over a camera pair); the rig has one",
+                    observations_path.display()
+                );
+            }
+            let seen = general
+                .resolve(&rig)
+                .map_err(|e| in_file(observations_path, e))?;
+            general.pair(&seen, &rig, 0, 1).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "{}: this needs a board (its costs are over the board's grid), not a 3-D target",
+                    observations_path.display()
+                )
+            })?
+        }
+    };
     let names = observations
         .cameras
         .as_ref()

@@ -213,7 +213,23 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
     };
     check_sizes(args, &spec)?;
     spec.validate()?;
-    let (_, data, _) = super::calib::load_stereo_data(rig, observations)?;
+    let (rig_file, data, _) = super::calib::load_stereo_data(rig, observations)?;
+    if rig_file.shared_interface().is_none() {
+        // The invariants and the ray gap are relations of one interface that both cameras look
+        // through; behind a port each, only the image and 3-D costs mean anything.
+        if !matches!(spec.kind, CostKind::Reprojection | CostKind::Scene) {
+            bail!(
+                "the {} cost assumes both cameras behind one shared port, and this rig has a port per camera: sweep --cost reprojection or scene, which move camera '{}''s own port",
+                spec.kind.name(),
+                rig_file.cameras()[data.cameras[0]].name
+            );
+        }
+        eprintln!(
+            "a port per camera: the grid moves camera '{}''s own port (tilt from its z axis, in its frame); camera '{}''s port stays as in the rig",
+            rig_file.cameras()[data.cameras[0]].name,
+            rig_file.cameras()[data.cameras[1]].name
+        );
+    }
     let truth = args.truth.as_deref().map(read_truth).transpose()?;
     let engine: Engine = args.engine.engine_quiet()?;
     let backend = super::calib::cost_backend(&engine, &data);
