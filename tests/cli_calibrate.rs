@@ -49,6 +49,24 @@ fn scene(dir: &Path, views: usize, noise: f64) -> (PathBuf, PathBuf) {
     (start, dir.join("observations.json"))
 }
 
+/// `flatport simulate` of data/rigs/housings.json (a port per camera), 12 views, seed 3.
+fn housings_scene() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    let simulated = flatport(&[
+        "simulate",
+        "--rig",
+        "data/rigs/housings.json",
+        "--views",
+        "12",
+        "--seed",
+        "3",
+        "--output",
+        p(dir.path()),
+    ]);
+    assert!(simulated.status.success(), "{}", text(&simulated.stderr));
+    dir
+}
+
 fn calibrate(start: &Path, observations: &Path, out: &Path, extra: &[&str]) -> Output {
     let mut args = vec![
         "calibrate",
@@ -239,19 +257,7 @@ fn a_start_guess_behind_the_board_is_reported_not_used() {
 fn a_rig_with_a_port_per_camera_is_checked_against_its_truth() {
     // `--truth` on any rig: every port's and every estimated camera's error, one line each, from
     // the whole true rig `simulate` keeps in truth.json.
-    let dir = tempfile::tempdir().unwrap();
-    let simulated = flatport(&[
-        "simulate",
-        "--rig",
-        "data/rigs/housings.json",
-        "--views",
-        "12",
-        "--seed",
-        "3",
-        "--output",
-        p(dir.path()),
-    ]);
-    assert!(simulated.status.success(), "{}", text(&simulated.stderr));
+    let dir = housings_scene();
     let out = dir.path().join("out.json");
     let result = flatport(&[
         "calibrate",
@@ -288,19 +294,7 @@ fn a_rig_with_a_port_per_camera_is_checked_against_its_truth() {
 
 #[test]
 fn a_port_per_camera_sweeps_the_image_costs_and_refuses_the_invariants() {
-    let dir = tempfile::tempdir().unwrap();
-    let simulated = flatport(&[
-        "simulate",
-        "--rig",
-        "data/rigs/housings.json",
-        "--views",
-        "12",
-        "--seed",
-        "3",
-        "--output",
-        p(dir.path()),
-    ]);
-    assert!(simulated.status.success(), "{}", text(&simulated.stderr));
+    let dir = housings_scene();
     let sweep = |cost: &str, out: &str| {
         flatport(&[
             "sweep",

@@ -644,12 +644,7 @@ fn run_rig_calibrate(
         }
     }
     if !report.fits {
-        let worst = report
-            .cameras
-            .iter()
-            .map(|c| c.rms_px)
-            .filter(|r| !r.is_nan())
-            .fold(0.0, f64::max);
+        let worst = report.worst_rms_px();
         bail!(
             "{}: the calibration does not fit: the reprojection RMS is {worst:.2} px in the worst camera, above --max-rms-px {}. What the data look like: {}. {} not written{}",
             args.observations.display(),

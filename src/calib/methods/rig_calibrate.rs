@@ -150,6 +150,17 @@ pub struct RigReport {
     pub observations: usize,
 }
 
+impl RigReport {
+    /// The RMS reprojection error of the worst camera (that saw anything), pixels.
+    pub fn worst_rms_px(&self) -> f64 {
+        self.cameras
+            .iter()
+            .map(|c| c.rms_px)
+            .filter(|r| !r.is_nan())
+            .fold(0.0, f64::max)
+    }
+}
+
 /// A calibrated rig and its report.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RigCalibration {
@@ -178,12 +189,7 @@ pub fn calibrate_rig(
     let target = &observations.target;
     let mut calibration = calibrate_views(rig, target, &views, options)?;
     let report = &mut calibration.report;
-    let worst = report
-        .cameras
-        .iter()
-        .map(|c| c.rms_px)
-        .filter(|r| !r.is_nan())
-        .fold(0.0, f64::max);
+    let worst = report.worst_rms_px();
     let noise_bound = report
         .corner_noise_px
         .map(|s| NOISE_FACTOR * s + NOISE_MARGIN_PX);
