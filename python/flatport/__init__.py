@@ -297,17 +297,15 @@ def load_rig(path: Union[str, os.PathLike]) -> Rig:
 class CalibrationResult(NamedTuple):
     """What :func:`calibrate` found."""
 
-    #: The input rig with the calibrated interface, or None when the fit was refused
+    #: The input rig with everything estimated replaced, or None when the fit was refused
     #: (``report["fits"]`` is False: the reprojection RMS is above ``max_rms_px``).
     rig: Optional[Rig]
     #: The full report (the CLI's ``--report`` JSON) as a dict.
     report: dict
     #: Standard deviations: ``tilt_deg``, ``azimuth_deg``, ``air_distance`` (metres; None for the
-    #: consecutive method, which has no covariance) and ``sigma_px`` (the corner noise estimate).
+    #: consecutive method, which has no covariance; the first port's in the general calibration,
+    #: every port's and camera's in ``report``) and ``sigma_px`` (the corner noise estimate).
     sigma: dict
-
-
-_ESTIMABLE = {"axis", "distance"}
 
 
 def calibrate(
@@ -322,13 +320,20 @@ def calibrate(
     max_iterations: int = 200,
     max_rms_px: float = 3.0,
 ) -> CalibrationResult:
-    """Calibrates the port's axis and air layer of a stereo rig from chessboard views, as
-    ``flatport calibrate`` does.
+    """Calibrates a rig's port(s) (and, when asked, layer thicknesses and extrinsics) from views of
+    a target, as ``flatport calibrate`` does.
 
-    ``observations`` is the observations JSON (a dict, a path or JSON text): board size and the
-    corners of both images per view. ``estimate`` names what is estimated; today that is the axis
-    and the air distance together (``"axis,distance"``). ``method`` is ``consecutive``,
-    ``simultaneous`` or ``auto``; ``device`` ``cpu``, ``gpu`` or ``auto`` (GPU kernels in f64).
+    ``observations`` is the observations JSON (a dict, a path or JSON text): a ``board`` (rows,
+    cols, square) or a 3-D ``target`` (points), and per view the corners of every camera that saw
+    it, keyed by rig camera name (the stereo form with ``left``/``right`` is read too).
+    ``estimate`` names what is estimated, from ``axis``, ``distance``, ``layers`` (every layer
+    thickness), ``layer:K`` (layer K only) and ``extrinsics`` (a comma-separated string or a
+    list). Two cameras behind one shared port with a board, estimating ``axis,distance``, run the
+    thesis' stereo methods; every other rig (one camera, N cameras, a port per camera, a 3-D
+    target) the general calibration, whose report lists every port and camera
+    (``report["ports"]``, ``report["cameras"]``). ``method`` is ``consecutive``,
+    ``simultaneous`` or ``auto``; ``device`` ``cpu``, ``gpu`` or ``auto`` (GPU kernels in f64,
+    for the stereo methods' cost batches).
 
     >>> scene = flatport.simulate(rig, views=15, noise=0.125, seed=3)             # doctest: +SKIP
     >>> result = flatport.calibrate(start_rig, scene.observations)                # doctest: +SKIP
@@ -336,20 +341,24 @@ def calibrate(
     """
     if not isinstance(rig, Rig):
         raise TypeError(f"rig must be a flatport.Rig, got {type(rig).__name__}")
-    wanted = set(part.strip() for part in (estimate.split(",") if isinstance(estimate, str) else estimate))
-    if wanted != _ESTIMABLE:
-        extra = sorted(wanted - _ESTIMABLE)
-        raise ValueError(
-            f"estimate={sorted(wanted)}: flatport calibrates the axis and the air distance together (estimate='axis,distance');"
-            + (f" {', '.join(extra)} (layer thicknesses, extrinsics: DESIGN.md §3b) not supported yet" if extra else " estimating one without the other is not supported yet")
-        )
+    words = [part.strip() for part in (estimate.split(",") if isinstance(estimate, str) else estimate)]
     if device not in _DEVICES:
         raise ValueError(f"device must be one of {_DEVICES}, got {device!r}")
     calibrated, report = _flatport.calibrate(
-        rig._rig, _json_argument("observations", observations), method, device, float(max_tilt_deg), float(grid_step_deg),
-        None if huber is None else float(huber), int(max_iterations), float(max_rms_px),
+        rig._rig, _json_argument("observations", observations), ",".join(words), method, device, float(max_tilt_deg),
+        float(grid_step_deg), None if huber is None else float(huber), int(max_iterations), float(max_rms_px),
     )
     report = json.loads(report)
+    if "ports" in report:
+        # The general calibration: the first port's (every port's is in report["ports"]).
+        port = report["ports"][0]
+        sigma = {
+            "tilt_deg": port["tilt_deg"]["std"],
+            "azimuth_deg": port["azimuth_deg"]["std"],
+            "air_distance": port["distance"]["std"],
+            "sigma_px": report.get("sigma_px"),
+        }
+        return CalibrationResult(Rig(calibrated) if calibrated is not None else None, report, sigma)
     std = report.get("std") or {}
     sigma = {
         "tilt_deg": std.get("tilt_deg"),

@@ -18,7 +18,10 @@ use flatport::engine::raymap::backproject_rows;
 use flatport::engine::{Device, Engine, EngineOptions};
 use flatport::gpu::Precision;
 use flatport::io::{ColmapDialect, Truth, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, observations_to_json_string, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string};
+use flatport::calib::methods::rig_bundle::Estimate;
+use flatport::calib::methods::rig_calibrate::{RigCalibrationOptions, calibrate_rig, is_thesis_stereo_case};
 use flatport::io::calib_json::truth_to_json_string;
+use flatport::io::{rig_observations_from_json_str, rig_report_to_json_string};
 use flatport::model::Rig;
 
 fn value_error(error: impl std::fmt::Display) -> PyErr {
@@ -270,14 +273,18 @@ fn stereo_data(rig: &Rig, observations_json: &str) -> PyResult<(StereoData, Vec<
     Ok((data, warnings))
 }
 
-/// Calibrates the axis and air layer: (calibrated rig or None when the fit is refused, report JSON).
+/// Calibrates what `estimate` names: (calibrated rig or None when the fit is refused, report
+/// JSON). Two cameras behind one shared port with a board, estimating the axis and the air
+/// distance, run the thesis' stereo pipeline (its report); every other rig and estimate runs the
+/// general calibration (its report, with `ports` and `cameras`), as `flatport calibrate` does.
 #[pyfunction]
-#[pyo3(signature = (rig, observations_json, method, device, max_tilt_deg, grid_step_deg, huber, max_iterations, max_rms_px))]
+#[pyo3(signature = (rig, observations_json, estimate, method, device, max_tilt_deg, grid_step_deg, huber, max_iterations, max_rms_px))]
 #[allow(clippy::too_many_arguments)] // the Python signature
 fn calibrate(
     py: Python<'_>,
     rig: &PyRig,
     observations_json: &str,
+    estimate: &str,
     method: &str,
     device: &str,
     max_tilt_deg: f64,
@@ -292,6 +299,15 @@ fn calibrate(
         "auto" => Method::Auto,
         other => return Err(value_error(format!("method must be 'consecutive', 'simultaneous' or 'auto', got {other:?}"))),
     };
+    let estimate = Estimate::parse(estimate).map_err(value_error)?;
+    let general = rig_observations_from_json_str(observations_json, Path::new("observations")).map_err(value_error)?;
+    if !is_thesis_stereo_case(&rig.rig, &general, &estimate) {
+        let options = RigCalibrationOptions { estimate, method, max_tilt: max_tilt_deg.to_radians(), huber, max_iterations, max_rms_px };
+        let calibration = py.detach(|| calibrate_rig(&rig.rig, &general, &options)).map_err(value_error)?;
+        let report = rig_report_to_json_string(&calibration.report);
+        let calibrated = calibration.report.fits.then(|| PyRig::wrap(calibration.rig));
+        return Ok((calibrated, report));
+    }
     let options = CalibrationOptions {
         method,
         max_tilt: max_tilt_deg.to_radians(),

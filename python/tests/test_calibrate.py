@@ -54,14 +54,35 @@ def test_calibrate_takes_a_path_and_json_text(scene, tmp_path):
     assert by_path.sigma["tilt_deg"] is None  # the consecutive method has no covariance
 
 
-def test_calibrate_refuses_what_it_cannot_estimate_yet(scene):
+def test_calibrate_any_rig_one_camera_and_extrinsics(scene):
+    truth_rig, start, simulation = scene
+    # One camera in its housing: the left camera alone, its images keyed by its name.
+    d = start.to_dict()
+    d["cameras"] = d["cameras"][:1]
+    one = flatport.Rig.from_dict(d)
+    name = one.camera_names[0]
+    views = [{name: v["left"]} for v in simulation.observations["views"]]
+    result = flatport.calibrate(one, {"board": simulation.observations["board"], "views": views})
+    assert result.report["fits"] and result.rig is not None
+    assert [p["name"] for p in result.report["ports"]] == ["shared"]
+    n, n_true = np.array(result.rig.interface["normal"]), np.array(truth_rig.interface["normal"])
+    axis_error_deg = np.degrees(np.arccos(min(1.0, n @ n_true)))
+    assert result.sigma["tilt_deg"] > 0 and result.sigma["air_distance"] > 0
+    assert axis_error_deg < 0.2  # issue 10's bound for one camera, 10 views at 0.125 px
+    assert abs(result.rig.interface["distance"] - truth_rig.interface["distance"]) < 3.2e-3
+    # The stereo pair with its extrinsics estimated too: a σ for the second camera's R and t.
+    both = flatport.calibrate(start, simulation.observations, estimate=["axis", "distance", "extrinsics"])
+    assert both.report["fits"] and both.report["estimate"] == "axis,distance,extrinsics"
+    assert both.report["cameras"][1]["rotation_std_deg"] is not None
+    assert both.report["cameras"][0]["rotation_std_deg"] is None  # the master defines the frame
+
+
+def test_calibrate_names_bad_arguments(scene):
     _, start, simulation = scene
-    with pytest.raises(ValueError, match="layers.*not supported yet"):
-        flatport.calibrate(start, simulation.observations, estimate="axis,distance,layers")
-    with pytest.raises(ValueError, match="extrinsics.*not supported yet"):
-        flatport.calibrate(start, simulation.observations, estimate=["axis", "distance", "extrinsics"])
-    with pytest.raises(ValueError, match="not supported yet"):
-        flatport.calibrate(start, simulation.observations, estimate="axis")
+    with pytest.raises(ValueError, match="'magic' is not something to estimate"):
+        flatport.calibrate(start, simulation.observations, estimate="axis,magic")
+    with pytest.raises(ValueError, match="layer:9"):
+        flatport.calibrate(start, simulation.observations, estimate="axis,layer:9")
     with pytest.raises(ValueError, match="method"):
         flatport.calibrate(start, simulation.observations, method="magic")
     with pytest.raises(ValueError, match="sqare"):

@@ -10,7 +10,7 @@ use clap::{Args, ValueEnum};
 use flatport::calib::RigObservations;
 use flatport::calib::methods::rig_bundle::Estimate;
 use flatport::calib::methods::rig_calibrate::{
-    Estimated, RigCalibrationOptions, RigReport, calibrate_rig,
+    Estimated, RigCalibrationOptions, RigReport, calibrate_rig, is_thesis_stereo_case,
 };
 use flatport::calib::simulate::MAX_BOARD_CORNERS;
 use flatport::calib::solvers::search::{
@@ -254,23 +254,12 @@ fn parse_estimate(text: &str) -> Result<Estimate, String> {
     Estimate::parse(text)
 }
 
-/// Whether the stereo method of the thesis' issue serves: two cameras behind one shared port, a
-/// board, the axis and the air distance estimated, and every view seen by both cameras. Then
-/// `calibrate` runs it exactly as before; every other rig goes to [`run_rig_calibrate`].
-fn stereo_case(rig: &Rig, observations: &RigObservations, estimate: &Estimate) -> bool {
-    rig.shared_interface().is_some()
-        && rig.cameras().len() == 2
-        && observations.target.board().is_some()
-        && *estimate == Estimate::default()
-        && observations.views.iter().all(|v| v.images.len() == 2)
-}
-
 pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     check_grid_step(&args)?;
     {
         let rig = read_rig(&args.rig)?;
         let observations = read_rig_observations(&args.observations)?;
-        if !stereo_case(&rig, &observations, &args.estimate) {
+        if !is_thesis_stereo_case(&rig, &observations, &args.estimate) {
             return run_rig_calibrate(&args, &rig, &observations);
         }
     }

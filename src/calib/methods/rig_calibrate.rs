@@ -176,6 +176,22 @@ const CELL_ITERATIONS: usize = 30;
 /// Spacing of the global axis search, radians.
 const SEARCH_SPACING_DEG: f64 = 4.0;
 
+/// Whether the thesis' stereo pipeline ([`calibrate`]) serves: two cameras behind one shared
+/// port, a board, the axis and the air distance estimated, every view seen by both cameras.
+/// `flatport calibrate` and the Python package run it then, exactly as before the general
+/// calibration existed; every other problem goes to [`calibrate_rig`].
+pub fn is_thesis_stereo_case(
+    rig: &Rig,
+    observations: &RigObservations,
+    estimate: &Estimate,
+) -> bool {
+    rig.shared_interface().is_some()
+        && rig.cameras().len() == 2
+        && observations.target.board().is_some()
+        && *estimate == Estimate::default()
+        && observations.views.iter().all(|v| v.images.len() == 2)
+}
+
 /// Calibrates `rig` (its ports and extrinsics the start, the rest known) from `observations`.
 /// When the result does not fit, the report's diagnosis says which common input mistake the data
 /// look like ([`explain_misfit`]).
