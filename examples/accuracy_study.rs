@@ -24,8 +24,9 @@
 #[path = "../tests/common/rigs.rs"]
 mod rigs;
 
+use flatport::calib::methods::calibrate::calibrate_rig;
 use flatport::calib::methods::rig_bundle::Estimate;
-use flatport::calib::methods::rig_calibrate::{RigCalibrationOptions, calibrate_rig};
+use flatport::calib::methods::rig_calibrate::RigCalibrationOptions;
 use flatport::calib::simulate::rng::Rng;
 use flatport::calib::{
     Board, CalibrationOptions, CpuBackend, Method, RigSceneSpec, SceneSpec, StereoData, calibrate,

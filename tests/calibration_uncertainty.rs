@@ -37,11 +37,9 @@
 #[path = "common/rigs.rs"]
 mod rigs;
 
-use flatport::calib::methods::calibrate::Method;
+use flatport::calib::methods::calibrate::{Method, calibrate_rig};
 use flatport::calib::methods::rig_bundle::Estimate;
-use flatport::calib::methods::rig_calibrate::{
-    RigCalibration, RigCalibrationOptions, calibrate_rig,
-};
+use flatport::calib::methods::rig_calibrate::{RigCalibration, RigCalibrationOptions};
 use flatport::calib::simulate::rng::Rng;
 use flatport::calib::{RigObservations, RigSceneSpec, simulate_rig};
 use flatport::model::Rig;

@@ -8,8 +8,9 @@
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 
 use flatport::calib::methods::calibrate::Method;
+use flatport::calib::methods::calibrate::calibrate_rig;
 use flatport::calib::methods::rig_bundle::Estimate;
-use flatport::calib::methods::rig_calibrate::{RigCalibrationOptions, calibrate_rig};
+use flatport::calib::methods::rig_calibrate::RigCalibrationOptions;
 use flatport::calib::simulate::rng::Rng;
 use flatport::calib::{CameraKey, Image, RigObservations, RigView, Target};
 use flatport::model::{Interface, Layer, Ports, Rig, normal_from_tilt_azimuth};

@@ -8,9 +8,10 @@ use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 
 use flatport::calib::RigObservations;
+use flatport::calib::methods::calibrate::calibrate_rig;
 use flatport::calib::methods::rig_bundle::Estimate;
 use flatport::calib::methods::rig_calibrate::{
-    Estimated, RigCalibrationOptions, RigReport, calibrate_rig, is_thesis_stereo_case,
+    Estimated, RigCalibrationOptions, RigReport, is_thesis_stereo_case,
 };
 use flatport::calib::simulate::MAX_BOARD_CORNERS;
 use flatport::calib::solvers::search::{

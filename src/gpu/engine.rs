@@ -527,7 +527,7 @@ impl GpuEngine {
 
     /// Back-projects raw pixels of `camera` into `rays` (origin xyz on the outer interface, unit
     /// direction xyz, master frame), in f64 or f32 on the host ([`HostReal`]; a host type equal
-    /// to the kernel precision goes to and from the device unconverted). `status[i]` is 0 or the [`NoSolution`]
+    /// to the kernel precision goes to and from the device unconverted). `status[i]` is 0 or the [`NoSolution`](crate::model::NoSolution)
     /// code, and the row NaN, exactly where the CPU path has no answer (up to rounding at the
     /// boundaries in f32).
     ///

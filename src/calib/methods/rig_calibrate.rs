@@ -1,5 +1,6 @@
 //! Calibration of any rig: one camera or many, a shared port or a port per camera, a board or a
-//! 3-D target. Small named stages, composed by [`calibrate_rig`]:
+//! 3-D target. Small named stages, composed by [`calibrate_views`] (and
+//! [`calibrate_rig`](super::calibrate::calibrate_rig), which adds the diagnosis of a misfit):
 //!
 //! 1. [`initial_poses`]: each view's target pose from the camera that saw most of it, pinhole
 //!    first (a homography for a planar target, the DLT for a 3-D one), then through the start
@@ -18,11 +19,9 @@ use nalgebra::{
 };
 
 use super::bundle::BlockNormalEquations;
-use super::calibrate::{
-    CalibrationOptions, DEFAULT_MAX_RMS_PX, Method, NOISE_FACTOR, NOISE_MARGIN_PX, calibrate,
-};
-use super::misfit::explain_misfit;
 use super::rig_bundle::{Estimate, Parameter, RigBundle, RigState, distance_unobservable};
+use super::thesis;
+use super::thesis::{CalibrationOptions, DEFAULT_MAX_RMS_PX, Method};
 use crate::calib::backends::CpuBackend;
 use crate::calib::costs::invariants::plane_basis;
 use crate::calib::error::CalibError;
@@ -176,10 +175,11 @@ const CELL_ITERATIONS: usize = 30;
 /// Spacing of the global axis search, radians.
 const SEARCH_SPACING_DEG: f64 = 4.0;
 
-/// Whether the thesis' stereo pipeline ([`calibrate`]) serves: two cameras behind one shared
+/// Whether the thesis' stereo pipeline ([`calibrate`](super::calibrate::calibrate)) serves: two cameras behind one shared
 /// port, a board, the axis and the air distance estimated, every view seen by both cameras.
 /// `flatport calibrate` and the Python package run it then, exactly as before the general
-/// calibration existed; every other problem goes to [`calibrate_rig`].
+/// calibration existed; every other problem goes to
+/// [`calibrate_rig`](super::calibrate::calibrate_rig).
 pub fn is_thesis_stereo_case(
     rig: &Rig,
     observations: &RigObservations,
@@ -192,37 +192,8 @@ pub fn is_thesis_stereo_case(
         && observations.views.iter().all(|v| v.images.len() == 2)
 }
 
-/// Calibrates `rig` (its ports and extrinsics the start, the rest known) from `observations`.
-/// When the result does not fit, the report's diagnosis says which common input mistake the data
-/// look like ([`explain_misfit`]).
-pub fn calibrate_rig(
-    rig: &Rig,
-    observations: &RigObservations,
-    options: &RigCalibrationOptions,
-) -> Result<RigCalibration, CalibError> {
-    let started = Instant::now();
-    let views = observations.resolve(rig)?;
-    let target = &observations.target;
-    let mut calibration = calibrate_views(rig, target, &views, options)?;
-    let report = &mut calibration.report;
-    let worst = report.worst_rms_px();
-    let noise_bound = report
-        .corner_noise_px
-        .map(|s| NOISE_FACTOR * s + NOISE_MARGIN_PX);
-    if !report.fits || noise_bound.is_some_and(|b| worst > b) {
-        report.diagnosis = explain_misfit(rig, target, &views, options);
-        if let (true, Some(s)) = (report.fits, report.corner_noise_px) {
-            report.warnings.push(format!(
-                "the reprojection RMS ({worst:.2} px in the worst camera) is far above the corner noise seen in the images (σ ≈ {s:.3} px): the model does not explain the data. What the data look like: {}",
-                report.diagnosis.join("; ")
-            ));
-        }
-    }
-    report.seconds = started.elapsed().as_secs_f64();
-    Ok(calibration)
-}
-
-/// [`calibrate_rig`] of views already resolved against `rig`, without the diagnosis of a misfit.
+/// The calibration of views already resolved against `rig`, without the diagnosis of a misfit
+/// ([`calibrate_rig`](super::calibrate::calibrate_rig) adds it).
 pub fn calibrate_views(
     rig: &Rig,
     target: &Target,
@@ -646,7 +617,13 @@ fn consecutive_start(
             max_rms_px: f64::INFINITY,
             ..CalibrationOptions::default()
         };
-        let calibration = match calibrate(&backend, &stereo_options, Vec::new()) {
+        let calibration = match thesis::run(
+            &backend,
+            &stereo_options,
+            Vec::new(),
+            &mut |_| {},
+            &|_, _| Vec::new(),
+        ) {
             Ok(c) => c,
             Err(e) => {
                 last_error = Some(e);
