@@ -590,7 +590,8 @@ impl GpuContext {
     ) -> Result<(), GpuError> {
         use std::sync::mpsc::TryRecvError;
         let mut left = count;
-        let mut blocked = false;
+        // Set once the submission has finished: the callbacks are due by then.
+        let mut deadline: Option<std::time::Instant> = None;
         while left > 0 {
             match receiver.try_recv() {
                 Ok(mapped) => {
@@ -602,10 +603,20 @@ impl GpuContext {
                         "a mapping was dropped before it completed".into(),
                     ));
                 }
-                Err(TryRecvError::Empty) if blocked => {
-                    return Err(GpuError::Readback(
-                        "a mapping did not complete after its submission finished".into(),
-                    ));
+                Err(TryRecvError::Empty) if let Some(deadline) = deadline => {
+                    // The submission has finished, but another thread's submit or poll may have
+                    // taken the callback and not yet run it (the streaming engine submits from
+                    // a second thread): poll and wait for it, up to the timeout.
+                    if std::time::Instant::now() > deadline {
+                        return Err(GpuError::Readback(
+                            "a mapping did not complete after its submission finished".into(),
+                        ));
+                    }
+                    let _ = self.device.poll(wgpu::PollType::Poll);
+                    if let Ok(mapped) = receiver.recv_timeout(std::time::Duration::from_millis(1)) {
+                        mapped.map_err(|e| GpuError::Readback(e.to_string()))?;
+                        left -= 1;
+                    }
                 }
                 Err(TryRecvError::Empty) => {
                     // A buffer no submission uses maps at the next poll; one in use once its
@@ -617,7 +628,7 @@ impl GpuContext {
                         continue;
                     }
                     self.wait_for(after.cloned())?;
-                    blocked = true;
+                    deadline = Some(std::time::Instant::now() + self.timeout);
                 }
             }
         }
