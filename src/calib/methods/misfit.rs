@@ -102,10 +102,7 @@ pub fn explain_misfit(
         ..*options
     };
     let refit = |rig: &Rig, target: &Target, views: &[SeenView]| {
-        calibrate_views(rig, target, views, &options)
-            .ok()
-            .map(|c| c.report.rms_px)
-            .filter(|r| r.is_finite())
+        rms_after_calibration(rig, target, views, &options)
     };
     let Some(now) = refit(rig, target, views) else {
         return vec![
@@ -147,10 +144,7 @@ pub fn explain_misfit(
                     },
                     ..options
                 };
-                calibrate_views(rig, target, views, &freed)
-                    .ok()
-                    .map(|c| c.report.rms_px)
-                    .filter(|r| r.is_finite())
+                rms_after_calibration(rig, target, views, &freed)
             }
             Undo::Redistort | Undo::ScaleBaseline(_) | Undo::EstimateExtrinsics => None,
         })
@@ -200,6 +194,20 @@ pub fn explain_stereo_misfit(data: &StereoData, max_rms_px: f64) -> Vec<String> 
         ..RigCalibrationOptions::default()
     };
     explain_misfit(&data.rig, &Target::Board(data.board), &views, &options)
+}
+
+/// The RMS reprojection error of a whole calibration of `views` from `rig`'s start; `None` when
+/// it fails or leaves no finite cost.
+fn rms_after_calibration(
+    rig: &Rig,
+    target: &Target,
+    views: &[SeenView],
+    options: &RigCalibrationOptions,
+) -> Option<f64> {
+    calibrate_views(rig, target, views, options)
+        .ok()
+        .map(|c| c.report.rms_px)
+        .filter(|r| r.is_finite())
 }
 
 /// The views with every observed pixel of camera k mapped by `f(k, pixel)`.
