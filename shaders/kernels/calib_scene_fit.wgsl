@@ -5,7 +5,9 @@
 // device. Twin of `calib::costs::scene::AxisRays` (gap lines, `cost`) and of
 // `calib::problem::board::fit_rigid`.
 //
-// Modes (params.info.z):
+// Modes (MODE, a constant composed in front of this file per kernel: calib_scene_gap,
+// calib_scene_fit, calib_scene_reprojection; a constant, not a uniform, so that the compiler drops
+// the other modes' code, which SIMD drivers such as lavapipe would otherwise run masked):
 // - MODE_GAP: candidate (n, unused): Σa², Σab, Σb² of the view's gap lines g(d) = a·d + b
 //   (DESIGN.md §2: the signed distance between the two water rays, linear in d; the origin moves
 //   by v/(n·v) per metre of air layer), for the host's least-squares air layer.
@@ -66,6 +68,11 @@ fn triangulate_corner(a: View, b: View, c: CornerRow) -> Point {
     return Point(t.point, t.status);
 }
 
+// The earlier failure code where there is one, else `next`.
+fn first_failure(earlier: u32, next: u32) -> u32 {
+    return select(next, earlier, earlier != STATUS_OK);
+}
+
 fn write(i: u32, values: vec4r, code: u32) {
     output[4u * i] = values.x;
     output[4u * i + 1u] = values.y;
@@ -120,7 +127,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
     let per_view = params.info.y;
-    let mode = params.info.z;
     let view = i / per_view + params.info.w;
     let candidate = candidates[i % per_view];
     let table = input[view];
@@ -129,33 +135,31 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let end = first + 3u * count;
     let n = candidate.xyz;
 
-    if (mode == MODE_GAP) {
+    if (MODE == MODE_GAP) {
         // The rays at d = 0 (d_k may be negative: only the line is wanted).
         let a = with_interface(0u, vec4r(n, 0.0));
         let b = with_interface(1u, vec4r(n, 0.0));
         var sums = vec3r(0.0);
+        var code = STATUS_OK;
         for (var row = first; row < end; row += 3u) {
             let c = corner_row(row);
             let l = ray_in_water(a, c.v_l);
-            if (l.status != STATUS_OK) {
-                write(i, vec4r(0.0), l.status);
-                return;
-            }
             let r = ray_in_water(b, c.v_r);
-            if (r.status != STATUS_OK) {
-                write(i, vec4r(0.0), r.status);
-                return;
-            }
             let w = cross3(l.dir, r.dir);
             let sin_angle = length(w);
+            var corner_code = STATUS_OK;
             if (!(sin_angle > MIN_GAP_LINE_SIN)) {
-                write(i, vec4r(0.0), STATUS_DEGENERATE);
-                return;
+                corner_code = STATUS_DEGENERATE;
             }
+            code = first_failure(code, first_failure(l.status, first_failure(r.status, corner_code)));
             let m = w / sin_angle;
             let line_b = dot(m, l.origin - r.origin);
             let line_a = dot(m, c.v_l / dot(n, c.v_l) - c.v_r / dot(n, c.v_r));
             sums += vec3r(line_a * line_a, line_a * line_b, line_b * line_b);
+        }
+        if (code != STATUS_OK) {
+            write(i, vec4r(0.0), code);
+            return;
         }
         write(i, vec4r(sums, 0.0), STATUS_OK);
         return;
@@ -175,10 +179,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     // corner (X₀, P₀) so that the sums do not cancel.
     let c0 = corner_row(first);
     let x0 = triangulate_corner(a, b, c0);
-    if (x0.status != STATUS_OK) {
-        write(i, vec4r(0.0), x0.status);
-        return;
-    }
+    var code = x0.status;
     var sum_x = vec3r(0.0);
     var sum_p = vec2r(0.0);
     var h1 = vec3r(0.0); // Σ (X − X₀)(P − P₀)_x
@@ -187,13 +188,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     for (var row = first; row < end; row += 3u) {
         let c = corner_row(row);
         let x = triangulate_corner(a, b, c);
-        if (x.status != STATUS_OK) {
-            write(i, vec4r(0.0), x.status);
-            return;
-        }
+        code = first_failure(code, x.status);
         let dx = x.x - x0.x;
         let j = (row - first) / 3u;
-        if (j < CACHED_CORNERS) {
+        if (MODE == MODE_SCENE && j < CACHED_CORNERS) {
             cached[j] = dx;
         }
         let dp = c.board.xy - c0.board.xy;
@@ -201,6 +199,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         sum_p += dp;
         h1 += dx * dp.x;
         h2 += dx * dp.y;
+    }
+    if (code != STATUS_OK) {
+        write(i, vec4r(0.0), code);
+        return;
     }
     let inv = 1.0 / real(count);
     let mean_x = sum_x * inv;
@@ -221,35 +223,37 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     // X = R·(P − P₀) + t′ with t′ = X̄ − R·(P̄ − P₀), about X₀.
     let shift = mean_x - times(rotation, vec3r(mean_p, 0.0));
     var sum: real = 0.0;
-    for (var row = first; row < end; row += 3u) {
-        let c = corner_row(row);
-        let fitted = times(rotation, vec3r(c.board.xy - c0.board.xy, 0.0)) + shift;
-        if (mode == MODE_SCENE) {
-            let j = (row - first) / 3u;
-            var dx: vec3r;
-            if (count <= CACHED_CORNERS) {
-                dx = cached[j];
-            } else {
-                dx = triangulate_corner(a, b, c).x - x0.x;
-            }
-            let e = fitted - dx;
+    if (MODE == MODE_SCENE) {
+        // The cached corners, then (a view of more than CACHED_CORNERS) the others triangulated
+        // again: two loops, not a branch per corner, which SIMD drivers run both sides of.
+        let cached_end = first + 3u * min(count, CACHED_CORNERS);
+        for (var row = first; row < cached_end; row += 3u) {
+            let c = corner_row(row);
+            let fitted = times(rotation, vec3r(c.board.xy - c0.board.xy, 0.0)) + shift;
+            let e = fitted - cached[(row - first) / 3u];
             sum += dot(e, e);
-        } else {
-            let point = fitted + x0.x;
+        }
+        for (var row = cached_end; row < end; row += 3u) {
+            let c = corner_row(row);
+            let fitted = times(rotation, vec3r(c.board.xy - c0.board.xy, 0.0)) + shift;
+            let e = fitted - (triangulate_corner(a, b, c).x - x0.x);
+            sum += dot(e, e);
+        }
+    } else {
+        for (var row = first; row < end; row += 3u) {
+            let c = corner_row(row);
+            let point = times(rotation, vec3r(c.board.xy - c0.board.xy, 0.0)) + shift + x0.x;
             let left = project(a, point);
-            if (left.status != STATUS_OK) {
-                write(i, vec4r(0.0), left.status);
-                return;
-            }
             let right = project(b, point);
-            if (right.status != STATUS_OK) {
-                write(i, vec4r(0.0), right.status);
-                return;
-            }
+            code = first_failure(code, first_failure(left.status, right.status));
             let e_l = c.pixels.xy - left.pixel;
             let e_r = c.pixels.zw - right.pixel;
             sum += dot(e_l, e_l) + dot(e_r, e_r);
         }
+    }
+    if (code != STATUS_OK) {
+        write(i, vec4r(0.0), code);
+        return;
     }
     write(i, vec4r(sum, real(count), 0.0, 0.0), STATUS_OK);
 }

@@ -28,11 +28,12 @@ pub enum SceneSum {
 }
 
 impl SceneSum {
-    fn mode(self) -> u32 {
+    /// The kernel that sums it (one WGSL file, its mode a constant).
+    fn kernel(self) -> Kernel {
         match self {
-            Self::GapLines => 0,
-            Self::Scene => 1,
-            Self::Reprojection => 2,
+            Self::GapLines => Kernel::CalibSceneGap,
+            Self::Scene => Kernel::CalibSceneFit,
+            Self::Reprojection => Kernel::CalibSceneReprojection,
         }
     }
 }
@@ -98,12 +99,12 @@ impl GpuEngine {
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         let job = ViewKernel {
-            kernel: Kernel::CalibSceneFit,
+            kernel: what.kernel(),
             precision: self.precision,
             input: &input.packed,
             corners: input.corners,
             views: input.views,
-            info_z: what.mode(),
+            info_z: 0,
         };
         self.run_views(job, rig, cameras, candidates, sums, status)
     }

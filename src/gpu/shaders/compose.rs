@@ -83,14 +83,19 @@ pub enum Kernel {
     /// Candidate axes × views (fused corner rows) → weighted affine-grid χ² and degrees of freedom;
     /// always f64.
     CalibAffineGrid,
-    /// Candidate interfaces × views (air rays, board points, pixels) → the view's gap-line sums,
-    /// or its rigid board fit's 3-D or reprojection sum of squares.
+    /// Candidate axes × views (air rays) → the view's gap-line sums Σa², Σab, Σb².
+    CalibSceneGap,
+    /// Candidate interfaces × views (air rays, board points) → the rigid board fit's 3-D sum of
+    /// squares.
     CalibSceneFit,
+    /// Candidate interfaces × views (air rays, board points, pixels) → the rigid board fit's
+    /// reprojection sum of squares.
+    CalibSceneReprojection,
 }
 
 impl Kernel {
     /// Every kernel.
-    pub const ALL: [Kernel; 13] = [
+    pub const ALL: [Kernel; 15] = [
         Self::Backproject,
         Self::BackprojectGrid,
         Self::Project,
@@ -103,10 +108,12 @@ impl Kernel {
         Self::CalibProjectedVop,
         Self::CalibGapLine,
         Self::CalibAffineGrid,
+        Self::CalibSceneGap,
         Self::CalibSceneFit,
+        Self::CalibSceneReprojection,
     ];
 
-    /// Name (file name in `shaders/kernels/`).
+    /// Name (the file name in `shaders/kernels/`, but for the modes of `calib_scene_fit.wgsl`).
     pub fn name(self) -> &'static str {
         match self {
             Self::Backproject => "backproject",
@@ -121,7 +128,9 @@ impl Kernel {
             Self::CalibProjectedVop => "calib_projected_vop",
             Self::CalibGapLine => "calib_gap_line",
             Self::CalibAffineGrid => "calib_affine_grid",
+            Self::CalibSceneGap => "calib_scene_gap",
             Self::CalibSceneFit => "calib_scene_fit",
+            Self::CalibSceneReprojection => "calib_scene_reprojection",
         }
     }
 
@@ -145,7 +154,20 @@ impl Kernel {
             Self::CalibAffineGrid => {
                 include_str!("../../../shaders/kernels/calib_affine_grid.wgsl")
             }
-            Self::CalibSceneFit => include_str!("../../../shaders/kernels/calib_scene_fit.wgsl"),
+            Self::CalibSceneGap | Self::CalibSceneFit | Self::CalibSceneReprojection => {
+                include_str!("../../../shaders/kernels/calib_scene_fit.wgsl")
+            }
+        }
+    }
+
+    /// Constants composed in front of the kernel's file: the mode of the three kernels of
+    /// `calib_scene_fit.wgsl` (a constant, so that the compiler drops the other modes).
+    fn constants(self) -> &'static str {
+        match self {
+            Self::CalibSceneGap => "const MODE: u32 = 0u;",
+            Self::CalibSceneFit => "const MODE: u32 = 1u;",
+            Self::CalibSceneReprojection => "const MODE: u32 = 2u;",
+            _ => "",
         }
     }
 
@@ -157,7 +179,9 @@ impl Kernel {
             Self::BackprojectGrid
             | Self::RayGapCost
             | Self::CalibAffineGrid
-            | Self::CalibSceneFit => "",
+            | Self::CalibSceneGap
+            | Self::CalibSceneFit
+            | Self::CalibSceneReprojection => "",
             Self::CalibTriangulate
             | Self::CalibProject
             | Self::CalibProjectedVop
@@ -255,11 +279,11 @@ pub fn source(
         Reduction::Workgroup
     };
     let mut text = prelude(precision, bounds);
-    for part in [COMMON]
-        .into_iter()
-        .chain(LIBRARY)
-        .chain([kernel.bindings(), kernel.file()])
-    {
+    for part in [COMMON].into_iter().chain(LIBRARY).chain([
+        kernel.bindings(),
+        kernel.constants(),
+        kernel.file(),
+    ]) {
         text.push_str(part);
         text.push('\n');
     }
