@@ -305,6 +305,49 @@ fn chunked_batches_match_one_dispatch() {
     assert_eq!(chunked_values, whole_values, "chunking changed a value");
 }
 
+/// The reprojection kernel projects each corner from its observed air ray without the
+/// safeguards of the full forward projection where every medium is at least as dense as the air
+/// around the cameras, and leaves the corners to the full projection elsewhere. A port layer of
+/// index 1.0 behind air of 1.003 (ρ < 1) sends every corner there: the costs still match the CPU
+/// in both precisions.
+#[test]
+fn a_layer_less_dense_than_air_takes_the_safeguarded_projection() {
+    let path = std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/data/example_rig.json"
+    ));
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    assert_eq!(json["interface"]["index_air"], 1.003);
+    json["interface"]["layers"][0]["index"] = 1.0.into();
+    let rig = flatport::io::rig_from_json_str(&json.to_string(), path).expect("rig");
+    let spec = SceneSpec::new(BOARD_9X6, 5, 0.1, 17);
+    let scene = simulate(&rig, 0, 1, &spec).expect("simulated scene");
+    let data = StereoData::new(&rig, [0, 1], &scene.observations).expect("stereo data");
+    let batch = candidates(&data, 30, 4);
+    let cpu = CpuBackend::new(&data)
+        .costs(CostKind::Reprojection, &batch)
+        .unwrap();
+    for (precision, bound) in [
+        (Precision::F64, F64_RELATIVE),
+        (Precision::F32, F32_RELATIVE),
+    ] {
+        let Some(engine) = engine(precision) else {
+            return;
+        };
+        let gpu = GpuBackend::new(&data, &engine)
+            .costs(CostKind::Reprojection, &batch)
+            .unwrap();
+        let d = deviation("reprojection", &cpu, &gpu);
+        assert!(gpu[0].is_finite(), "{precision}: the true interface");
+        assert!(
+            d.relative <= bound,
+            "{precision} reprojection: {:e}",
+            d.relative
+        );
+    }
+}
+
 /// A profile (air layer solved per axis, then the cost) agrees across the backends.
 #[test]
 fn profiles_match_the_cpu_reference() {

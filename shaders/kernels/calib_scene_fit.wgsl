@@ -13,7 +13,8 @@
 //   by v/(n·v) per metre of air layer), for the host's least-squares air layer.
 // - MODE_SCENE: candidate (n, d): Σ|R·P + t − X|² over the view (the 3-D scene error's sum).
 // - MODE_REPROJECTION: candidate (n, d): Σ |observed − projected|² of R·P + t in both images.
-// output: 4 reals per item: (Σa², Σab, Σb², 0) for MODE_GAP, (sum, corners, 0, 0) otherwise.
+// output: 4 reals per item: (Σa², Σab, Σb², 0) for MODE_GAP, (sum, corners, 0, 0) for MODE_SCENE,
+// (sum, corners, corners left to `project`, 0) for MODE_REPROJECTION.
 //
 // Items are view-major within a chunk: item i = view · info.y + candidate, info.y the candidates
 // per view: all of them when they fit one chunk, else a multiple of the workgroup size, so the
@@ -71,6 +72,12 @@ fn triangulate_corner(a: View, b: View, c: CornerRow) -> Point {
 // The earlier failure code where there is one, else `next`.
 fn first_failure(earlier: u32, next: u32) -> u32 {
     return select(next, earlier, earlier != STATUS_OK);
+}
+
+// tan a of the unit air ray v under the view's axis (0 where it misses the interface).
+fn tan_in_air(cam: View, v: vec3r) -> real {
+    let c = dot(cam.n, v);
+    return select(0.0, sqrt(max(1.0 - c * c, 0.0)) / c, c > 0.0);
 }
 
 fn write(i: u32, values: vec4r, code: u32) {
@@ -223,6 +230,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     // X = R·(P − P₀) + t′ with t′ = X̄ − R·(P̄ − P₀), about X₀.
     let shift = mean_x - times(rotation, vec3r(mean_p, 0.0));
     var sum: real = 0.0;
+    var retried = 0u;
     if (MODE == MODE_SCENE) {
         // The cached corners, then (a view of more than CACHED_CORNERS) the others triangulated
         // again: two loops, not a branch per corner, which SIMD drivers run both sides of.
@@ -240,20 +248,45 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             sum += dot(e, e);
         }
     } else {
+        // Each corner projected from its observed air rays (`project_near`); the corners it
+        // leaves to `project` lie in [retry_first, retry_last], projected again in a second
+        // loop, which runs once (masked) where there are none.
+        var retry_first = end;
+        var retry_last = first;
         for (var row = first; row < end; row += 3u) {
             let c = corner_row(row);
             let point = times(rotation, vec3r(c.board.xy - c0.board.xy, 0.0)) + shift + x0.x;
-            let left = project(a, point);
-            let right = project(b, point);
-            code = first_failure(code, first_failure(left.status, right.status));
-            let e_l = c.pixels.xy - left.pixel;
-            let e_r = c.pixels.zw - right.pixel;
-            sum += dot(e_l, e_l) + dot(e_r, e_r);
+            let left = project_near(a, point, tan_in_air(a, c.v_l));
+            let right = project_near(b, point, tan_in_air(b, c.v_r));
+            if (left.converged && right.converged) {
+                code = first_failure(code, first_failure(left.pixel.status, right.pixel.status));
+                let e_l = c.pixels.xy - left.pixel.pixel;
+                let e_r = c.pixels.zw - right.pixel.pixel;
+                sum += dot(e_l, e_l) + dot(e_r, e_r);
+            } else {
+                retry_first = min(retry_first, row);
+                retry_last = max(retry_last, row);
+            }
+        }
+        for (var row = retry_first; row <= retry_last; row += 3u) {
+            let c = corner_row(row);
+            let point = times(rotation, vec3r(c.board.xy - c0.board.xy, 0.0)) + shift + x0.x;
+            let left_near = project_near(a, point, tan_in_air(a, c.v_l));
+            let right_near = project_near(b, point, tan_in_air(b, c.v_r));
+            if (!(left_near.converged && right_near.converged)) {
+                let left = project(a, point);
+                let right = project(b, point);
+                retried += 1u;
+                code = first_failure(code, first_failure(left.status, right.status));
+                let e_l = c.pixels.xy - left.pixel;
+                let e_r = c.pixels.zw - right.pixel;
+                sum += dot(e_l, e_l) + dot(e_r, e_r);
+            }
         }
     }
     if (code != STATUS_OK) {
         write(i, vec4r(0.0), code);
         return;
     }
-    write(i, vec4r(sum, real(count), 0.0, 0.0), STATUS_OK);
+    write(i, vec4r(sum, real(count), real(retried), 0.0), STATUS_OK);
 }

@@ -247,7 +247,13 @@ fn project(cam: View, point: vec3r) -> Pixel {
     if (path.status != STATUS_OK) {
         return Pixel(vec2r(0.0), path.status);
     }
-    let d = cam_from_master(cam, path.dir);
+    return pixel_along(cam, path.dir);
+}
+
+// The raw pixel of the air ray along `dir` (master frame; any positive multiple of the direction
+// gives the same pixel), with `project`'s checks.
+fn pixel_along(cam: View, dir: vec3r) -> Pixel {
+    let d = cam_from_master(cam, dir);
     if (!(d.z > 0.0)) {
         return Pixel(vec2r(0.0), STATUS_BEHIND_CAMERA);
     }
@@ -256,6 +262,72 @@ fn project(cam: View, point: vec3r) -> Pixel {
         return Pixel(vec2r(0.0), STATUS_OUTSIDE_LENS);
     }
     return Pixel(img_from_normalized(cam, normalized), STATUS_OK);
+}
+
+// Most Newton steps of `project_near` before it leaves the point to `project`.
+const NEAR_MAX_ITERATIONS: u32 = 8u;
+
+struct NearPixel {
+    pixel: Pixel,
+    converged: bool,
+}
+
+// Forward projection of a point seen near a known air ray, without `project`'s safeguards: Newton's
+// iteration on f(x) = d_k x + Σₘ Lₘ T(x; 1/ρₘ) − r in x = tan a (water and layers m), from
+// `tan_start` (the tan a of a ray the point is seen near). Where no medium is less dense than air
+// (ρ ≥ 1), every term is increasing and concave in x, so the iterates, clamped at 0, approach the
+// root from below after their first step, with no bracket to keep. It stops at `project`'s
+// tolerance on the step. `converged` false (a medium less dense than air, a point not in the
+// water, a step that does not shrink to the tolerance within NEAR_MAX_ITERATIONS, a non-finite
+// value): the caller takes `project`, which decides. Converged, the pixel and status are
+// `project`'s. On a SIMD driver (lavapipe) every branch of a loop body runs for every lane, masked:
+// this loop body is a fraction of `project`'s.
+fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
+    let n = cam.n;
+    let offset = point - params.cams[cam.k].centre.xyz;
+    let z = dot(n, offset);
+    let depth = z - cam.d_k - params.cams[cam.k].centre.w;
+    let lateral = offset - n * z;
+    let r = length(lateral);
+    let layers = min(params.cams[cam.k].counts.x, MAX_LAYERS);
+    var dense = params.cams[cam.k].extra.z >= 1.0;
+    for (var l = 0u; l < layers; l++) {
+        dense = dense && params.cams[cam.k].layers[l].y >= 1.0;
+    }
+    let k_water = 1.0 / params.cams[cam.k].extra.z;
+    var x = max(tan_start, 0.0);
+    var tau: real = 0.0;
+    var converged = false;
+    for (var iteration = 0u; iteration < NEAR_MAX_ITERATIONS; iteration++) {
+        // T(x; k) = k x / √q, T′ = k / √q³, T″ = −3 (1 − k²) x T′ / q, q = 1 + (1 − k²) x².
+        let q = 1.0 + (1.0 - k_water * k_water) * x * x;
+        let slope = k_water * inverseSqrt(q) / q;
+        var f = cam.d_k * x + depth * slope * q * x - r;
+        var df = cam.d_k + depth * slope;
+        var d2f = depth * (k_water * k_water - 1.0) * 3.0 * x * slope / q;
+        for (var l = 0u; l < layers; l++) {
+            let layer = params.cams[cam.k].layers[l].xy;
+            let k = 1.0 / layer.y;
+            let q_l = 1.0 + (1.0 - k * k) * x * x;
+            let slope_l = k * inverseSqrt(q_l) / q_l;
+            f += layer.x * slope_l * q_l * x;
+            df += layer.x * slope_l;
+            d2f += layer.x * (k * k - 1.0) * 3.0 * x * slope_l / q_l;
+        }
+        let step = f / df;
+        // Done when the step is within the tolerance, or when the step's own error, by the
+        // quadratic model |f″| step² / 2f′, is within half of it.
+        if (abs(step) <= PROJECT_TOLERANCE * x || abs(d2f) * step * step <= PROJECT_TOLERANCE * x * df) {
+            tau = x - step;
+            converged = true;
+            break;
+        }
+        x = max(x - step, 0.0);
+    }
+    converged = converged && dense && depth > 0.0;
+    // n·r + lateral·tan a: the air direction times r√(1 + tan² a); n itself on the axis.
+    let pixel = pixel_along(cam, select(n * r + lateral * tau, n, r == 0.0));
+    return NearPixel(pixel, converged);
 }
 
 struct VirtualPoint {

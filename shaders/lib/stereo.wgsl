@@ -19,8 +19,9 @@ fn triangulate_rays(a: Ray, b: Ray) -> Triangulation {
     }
     let d = dot(a.dir, w0);
     let e = dot(b.dir, w0);
-    let s = (c * e - d) / sin2;
-    let t = (e - c * d) / sin2;
+    let inv_sin2 = 1.0 / sin2;
+    let s = (c * e - d) * inv_sin2;
+    let t = (e - c * d) * inv_sin2;
     if (s < 0.0 || t < 0.0) {
         return Triangulation(vec3r(0.0), 0.0, STATUS_NOT_IN_WATER);
     }
