@@ -36,8 +36,8 @@ struct Camera {
     master_from_cam2: vec4r,
     centre: vec4r,           // C_k, w = Σ tᵢ
     normal: vec4r,           // n, w unused
-    layers: array<vec4r, 8>, // (tᵢ, ρᵢ = μᵢ/μ_air, 0, 0)
-    counts: vec4<u32>,       // layer count, has distortion, 0, 0
+    layers: array<vec4r, 8>, // (tᵢ, ρᵢ = μᵢ/μ_air, 1/ρᵢ, 0)
+    counts: vec4<u32>,       // layer count, has distortion, no medium less dense than air (ρ ≥ 1), 0
 }
 
 // Uniform of every kernel: one or two cameras and the dispatch description.

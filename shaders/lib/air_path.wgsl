@@ -290,10 +290,7 @@ fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
     let lateral = offset - n * z;
     let r = length(lateral);
     let layers = min(params.cams[cam.k].counts.x, MAX_LAYERS);
-    var dense = params.cams[cam.k].extra.z >= 1.0;
-    for (var l = 0u; l < layers; l++) {
-        dense = dense && params.cams[cam.k].layers[l].y >= 1.0;
-    }
+    let dense = params.cams[cam.k].counts.z != 0u;
     let k_water = 1.0 / params.cams[cam.k].extra.z;
     var x = max(tan_start, 0.0);
     var tau: real = 0.0;
@@ -306,8 +303,8 @@ fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
         var df = cam.d_k + depth * slope;
         var d2f = depth * (k_water * k_water - 1.0) * 3.0 * x * slope / q;
         for (var l = 0u; l < layers; l++) {
-            let layer = params.cams[cam.k].layers[l].xy;
-            let k = 1.0 / layer.y;
+            let layer = params.cams[cam.k].layers[l].xz; // (t, 1/ρ)
+            let k = layer.y;
             let q_l = 1.0 + (1.0 - k * k) * x * x;
             let slope_l = k * inverseSqrt(q_l) / q_l;
             f += layer.x * slope_l * q_l * x;

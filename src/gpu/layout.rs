@@ -76,9 +76,13 @@ macro_rules! mirrors {
                 let fold = if fold.is_finite() { fold } else { $precision.huge() };
                 let thickness: f64 = camera.layers().iter().map(|l| l.thickness).sum();
                 let row = |r: usize| <$real4>::from_f64s([m[(r, 0)], m[(r, 1)], m[(r, 2)], 0.0]);
+                // No medium less dense than the air around the camera (`project_near`'s condition).
+                let dense = camera.relative_index_water() >= 1.0
+                    && camera.layers().iter().all(|l| l.index >= camera.index_air());
                 let mut layers = [<$real4>::ZERO; MAX_LAYERS];
                 for (slot, layer) in layers.iter_mut().zip(camera.layers()) {
-                    *slot = <$real4>::from_f64s([layer.thickness, layer.index / camera.index_air(), 0.0, 0.0]);
+                    let rho = layer.index / camera.index_air();
+                    *slot = <$real4>::from_f64s([layer.thickness, rho, 1.0 / rho, 0.0]);
                 }
                 Self {
                     intrinsics: <$real4>::from_f64s([i.fx, i.fy, i.cx, i.cy]),
@@ -90,7 +94,12 @@ macro_rules! mirrors {
                     centre: <$real4>::from_f64s([c.x, c.y, c.z, thickness]),
                     normal: <$real4>::from_f64s([n.x, n.y, n.z, 0.0]),
                     layers,
-                    counts: UVec4::new(camera.layers().len() as u32, i.has_distortion() as u32, 0, 0),
+                    counts: UVec4::new(
+                        camera.layers().len() as u32,
+                        i.has_distortion() as u32,
+                        dense as u32,
+                        0,
+                    ),
                     end_padding: Zeroable::zeroed(),
                 }
             }
