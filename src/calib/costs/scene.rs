@@ -265,3 +265,57 @@ pub fn profile_cost(
         )
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::costs::cost;
+    use crate::calib::problem::board::Board;
+    use crate::calib::simulate::{SceneSpec, simulate};
+    use crate::model::normal_from_tilt_azimuth;
+
+    /// The profile's costs (rays once per axis on the vector path, origins moved to the air
+    /// layer, the vector path's projections) equal the reference [`cost`] (the scalar model per
+    /// candidate) at the profile's air layer.
+    #[test]
+    fn profile_costs_equal_the_reference_at_their_air_layer() {
+        let rig = crate::io::read_rig(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/data/example_rig.json"
+        )))
+        .unwrap();
+        let board = Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        };
+        let scene = simulate(&rig, 0, 1, &SceneSpec::new(board, 6, 0.1, 5)).unwrap();
+        let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
+        let prepared = SceneRows::new(&data);
+        let truth = *rig.shared_interface().unwrap().normal();
+        let mut compared = 0;
+        let axes = [(0.0, 0.0), (6.0, 40.0), (10.0, 50.0), (9.0, 30.0)]
+            .map(|(t, a): (f64, f64)| normal_from_tilt_azimuth(t.to_radians(), a.to_radians()));
+        for normal in std::iter::once(truth).chain(axes) {
+            for kind in [CostKind::Reprojection, CostKind::Scene, CostKind::RayGap] {
+                let (d, profiled) = profile_cost(&data, &prepared, kind, &normal);
+                if !profiled.is_finite() {
+                    continue;
+                }
+                let candidate = Candidate {
+                    normal,
+                    air_distance: d,
+                };
+                let reference = cost(&data, kind, &candidate);
+                let relative = (profiled - reference).abs() / reference;
+                assert!(
+                    relative <= 1e-12,
+                    "{}: {profiled} against {reference} ({relative:e})",
+                    kind.name()
+                );
+                compared += 1;
+            }
+        }
+        assert!(compared >= 9, "only {compared} finite profiles");
+    }
+}
