@@ -23,7 +23,11 @@ pub enum SceneSum {
     GapLines,
     /// (Σ|R·P + t − X|², corners, 0, 0): the rigid board fit's 3-D sum of squares.
     Scene,
-    /// (Σ|observed − projected|² over both images, corners, 0, 0) of the fitted board.
+    /// (Σ|observed − projected|² over both images, corners, corners left to the safeguarded
+    /// projection, 0) of the fitted board: each fitted corner is projected from its observed air
+    /// ray by an unbracketed Newton iteration where no medium is less dense than air, and by the
+    /// full forward projection where that does not settle (`project_near` and `project` in
+    /// `shaders/lib/air_path.wgsl`).
     Reprojection,
 }
 
