@@ -18,6 +18,9 @@ const STATUS_BEHIND_CAMERA: u32 = 5u;
 const STATUS_DEGENERATE: u32 = 6u;
 const STATUS_NO_CONVERGENCE: u32 = 7u;
 const STATUS_OUT_OF_RANGE: u32 = 8u; // also set by the host for inputs beyond ±REAL_HUGE and non-finite results
+// Not a `NoSolution`: a fast kernel left the row to its safeguarded twin, which the host runs on it
+// (`STATUS_RETRY` in src/gpu/engine.rs).
+const STATUS_RETRY: u32 = 255u;
 
 const MAX_LAYERS: u32 = 8u;
 // Invocations per workgroup of every kernel, a power of two (the workgroup tree reduction halves

@@ -265,7 +265,7 @@ fn pixel_along(cam: View, dir: vec3r) -> Pixel {
 }
 
 // Most Newton steps of `project_near` before it leaves the point to `project`.
-const NEAR_MAX_ITERATIONS: u32 = 8u;
+const NEAR_MAX_ITERATIONS: u32 = 16u;
 
 struct NearPixel {
     pixel: Pixel,
@@ -313,15 +313,18 @@ fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
         }
         let step = f / df;
         // Done when the step is within the tolerance, or when the step's own error, by the
-        // quadratic model |f″| step² / 2f′, is within half of it.
-        if (abs(step) <= PROJECT_TOLERANCE * x || abs(d2f) * step * step <= PROJECT_TOLERANCE * x * df) {
+        // quadratic model |f″| step² / 2f′, is within half of it. The model holds where f″ barely
+        // changes over the step (|f″| grows with x from 0): only for steps under 1 % of x.
+        let modelled = abs(step) <= 0.01 * x && abs(d2f) * step * step <= PROJECT_TOLERANCE * x * df;
+        if (abs(step) <= PROJECT_TOLERANCE * x || modelled) {
             tau = x - step;
             converged = true;
             break;
         }
         x = max(x - step, 0.0);
     }
-    converged = converged && dense && depth > 0.0;
+    // Beyond √REAL_HUGE the squares of tan a overflow: `project` scales them.
+    converged = converged && dense && depth > 0.0 && !above_root_huge(r / cam.d_k);
     // n·r + lateral·tan a: the air direction times r√(1 + tan² a); n itself on the axis.
     let pixel = pixel_along(cam, select(n * r + lateral * tau, n, r == 0.0));
     return NearPixel(pixel, converged);

@@ -16,7 +16,7 @@ use rayon::prelude::*;
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{MAX_LAYERS, Params};
-use super::shaders::{Kernel, Precision, Reduction, WORKGROUP_SIZE, source};
+use super::shaders::{Kernel, Precision, Reduction, STATUS_RETRY, WORKGROUP_SIZE, source};
 use crate::model::{RefractiveCamera, Rig};
 
 mod affine_grid;
@@ -543,7 +543,10 @@ impl GpuEngine {
     }
 
     /// Forward projection of points (master frame) to raw pixels; status as in
-    /// [`backproject`](Self::backproject).
+    /// [`backproject`](Self::backproject). One kernel runs the unbracketed Newton iteration on
+    /// every row (`project_near` in `shaders/lib/air_path.wgsl`); the rows it does not settle (a
+    /// medium less dense than air, a point not in the water, grazing rays) run again through the
+    /// safeguarded kernel, which decides them as the CPU does.
     pub fn project<H: HostReal>(
         &self,
         camera: &RefractiveCamera,
@@ -551,7 +554,28 @@ impl GpuEngine {
         pixels: &mut [[H; 2]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_map(Kernel::Project, camera, camera, points, pixels, status)
+        self.run_map(Kernel::Project, camera, camera, points, pixels, status)?;
+        // The rows the unbracketed iteration left: through every safeguard.
+        let retry: Vec<usize> = (0..status.len())
+            .filter(|&i| status[i] == STATUS_RETRY)
+            .collect();
+        if !retry.is_empty() {
+            let again: Vec<[H; 3]> = retry.iter().map(|&i| points[i]).collect();
+            let mut out = vec![[H::from_f64(0.0); 2]; again.len()];
+            let mut codes = vec![0; again.len()];
+            self.run_map(
+                Kernel::ProjectSafeguarded,
+                camera,
+                camera,
+                &again,
+                &mut out,
+                &mut codes,
+            )?;
+            for (k, &i) in retry.iter().enumerate() {
+                (pixels[i], status[i]) = (out[k], codes[k]);
+            }
+        }
+        Ok(())
     }
 
     /// VOPs of points: depth, vop_distance, vop xyz, incidence (radians), as

@@ -10,7 +10,7 @@ use crate::model::stereo::{MIN_BINOCULAR_CONDITIONING, MIN_RAY_ANGLE_SIN2};
 
 pub mod compose;
 
-pub use compose::{CpuBounds, Kernel, Precision, Reduction};
+pub use compose::{CpuBounds, Kernel, Precision, Reduction, STATUS_RETRY};
 
 /// Invocations per workgroup of every kernel: the value of WGSL's `override WORKGROUP_SIZE`
 /// (`shaders/common.wgsl`, no default there), set at pipeline creation by

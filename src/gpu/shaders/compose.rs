@@ -54,6 +54,10 @@ pub enum Reduction {
     Subgroup,
 }
 
+/// The status of a row a fast kernel left to its safeguarded twin (`STATUS_RETRY` in
+/// `shaders/common.wgsl`): not a `NoSolution` code, and never returned to a caller.
+pub const STATUS_RETRY: u32 = 255;
+
 /// One compute kernel (entry point `main`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Kernel {
@@ -61,8 +65,11 @@ pub enum Kernel {
     Backproject,
     /// Every pixel of an image → ray in the water, pixels generated in the shader.
     BackprojectGrid,
-    /// x,y,z → u,v.
+    /// x,y,z → u,v by the unbracketed Newton iteration; the rows it does not settle come back
+    /// with status [`STATUS_RETRY`] for [`Kernel::ProjectSafeguarded`].
     Project,
+    /// x,y,z → u,v with every safeguard of the forward projection.
+    ProjectSafeguarded,
     /// x,y,z → depth, VOP distance, VOP, tan a.
     Vop,
     /// ul,vl,ur,vr → x,y,z, residual.
@@ -95,10 +102,11 @@ pub enum Kernel {
 
 impl Kernel {
     /// Every kernel.
-    pub const ALL: [Kernel; 15] = [
+    pub const ALL: [Kernel; 16] = [
         Self::Backproject,
         Self::BackprojectGrid,
         Self::Project,
+        Self::ProjectSafeguarded,
         Self::Vop,
         Self::Triangulate,
         Self::BinocularVop,
@@ -119,6 +127,7 @@ impl Kernel {
             Self::Backproject => "backproject",
             Self::BackprojectGrid => "backproject_grid",
             Self::Project => "project",
+            Self::ProjectSafeguarded => "project_safeguarded",
             Self::Vop => "vop",
             Self::Triangulate => "triangulate",
             Self::BinocularVop => "binocular_vop",
@@ -139,6 +148,9 @@ impl Kernel {
             Self::Backproject => include_str!("../../../shaders/kernels/backproject.wgsl"),
             Self::BackprojectGrid => include_str!("../../../shaders/kernels/backproject_grid.wgsl"),
             Self::Project => include_str!("../../../shaders/kernels/project.wgsl"),
+            Self::ProjectSafeguarded => {
+                include_str!("../../../shaders/kernels/project_safeguarded.wgsl")
+            }
             Self::Vop => include_str!("../../../shaders/kernels/vop.wgsl"),
             Self::Triangulate => include_str!("../../../shaders/kernels/triangulate.wgsl"),
             Self::BinocularVop => include_str!("../../../shaders/kernels/binocular_vop.wgsl"),
@@ -190,6 +202,7 @@ impl Kernel {
             }
             Self::Backproject
             | Self::Project
+            | Self::ProjectSafeguarded
             | Self::Vop
             | Self::Triangulate
             | Self::BinocularVop => {
