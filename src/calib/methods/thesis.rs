@@ -473,14 +473,7 @@ fn check_views(data: &StereoData, warnings: &mut Vec<String>) -> Result<(), Cali
         });
     }
     let groups = compare_views(&view_corners(data));
-    if let Some(&(view, earlier, max_px)) = groups.repeats.first() {
-        return Err(CalibError::RepeatedView {
-            view,
-            earlier,
-            max_px,
-            more: groups.repeats.len() - 1,
-        });
-    }
+    groups.check_repeats()?;
     if groups.distinct < MIN_VIEWS {
         return Err(CalibError::TooFewPoses {
             views: data.views.len(),

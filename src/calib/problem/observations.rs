@@ -77,6 +77,21 @@ pub struct ViewGroups {
     pub distinct: usize,
 }
 
+impl ViewGroups {
+    /// [`CalibError::RepeatedView`] for the first view that repeats an earlier one, if any.
+    pub fn check_repeats(&self) -> Result<(), CalibError> {
+        match self.repeats.first() {
+            Some(&(view, earlier, max_px)) => Err(CalibError::RepeatedView {
+                view,
+                earlier,
+                max_px,
+                more: self.repeats.len() - 1,
+            }),
+            None => Ok(()),
+        }
+    }
+}
+
 /// The RMS and largest corner difference of two views over the corners both hold, pixels;
 /// `None` when they share fewer than [`MIN_VIEW_CORNERS`] corners (or less than half of either)
 /// or differ by more than `tolerance` RMS (the sum stops early then).
@@ -348,14 +363,7 @@ impl Observations {
             }
         }
         let groups = compare_views(&self.view_corners());
-        if let Some(&(view, earlier, max_px)) = groups.repeats.first() {
-            return Err(CalibError::RepeatedView {
-                view,
-                earlier,
-                max_px,
-                more: groups.repeats.len() - 1,
-            });
-        }
+        groups.check_repeats()?;
         for (views, rms) in &groups.same_pose {
             warnings.push(format!(
                 "views {} show the same board pose (their corners lie within {rms:.2} px RMS of each other): they count as one pose; move or turn the board between views",
