@@ -74,6 +74,18 @@ fn first_failure(earlier: u32, next: u32) -> u32 {
     return select(next, earlier, earlier != STATUS_OK);
 }
 
+// The fitted board point R·(P − P₀) + t′ of a board offset P − P₀ (about the first corner's X₀).
+fn fitted_about_first(rotation: Mat3, shift: vec3r, board_offset: vec2r) -> vec3r {
+    return times(rotation, vec3r(board_offset, 0.0)) + shift;
+}
+
+// |observed − projected|² of a corner in both images.
+fn pixel_squares(c: CornerRow, left: Pixel, right: Pixel) -> real {
+    let e_l = c.pixels.xy - left.pixel;
+    let e_r = c.pixels.zw - right.pixel;
+    return dot(e_l, e_l) + dot(e_r, e_r);
+}
+
 // tan a of the unit air ray v under the view's axis (0 where it misses the interface).
 fn tan_in_air(cam: View, v: vec3r) -> real {
     let c = dot(cam.n, v);
@@ -237,13 +249,13 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         let cached_end = first + 3u * min(count, CACHED_CORNERS);
         for (var row = first; row < cached_end; row += 3u) {
             let c = corner_row(row);
-            let fitted = times(rotation, vec3r(c.board.xy - c0.board.xy, 0.0)) + shift;
+            let fitted = fitted_about_first(rotation, shift, c.board.xy - c0.board.xy);
             let e = fitted - cached[(row - first) / 3u];
             sum += dot(e, e);
         }
         for (var row = cached_end; row < end; row += 3u) {
             let c = corner_row(row);
-            let fitted = times(rotation, vec3r(c.board.xy - c0.board.xy, 0.0)) + shift;
+            let fitted = fitted_about_first(rotation, shift, c.board.xy - c0.board.xy);
             let e = fitted - (triangulate_corner(a, b, c).x - x0.x);
             sum += dot(e, e);
         }
@@ -255,14 +267,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         var retry_last = first;
         for (var row = first; row < end; row += 3u) {
             let c = corner_row(row);
-            let point = times(rotation, vec3r(c.board.xy - c0.board.xy, 0.0)) + shift + x0.x;
+            let point = fitted_about_first(rotation, shift, c.board.xy - c0.board.xy) + x0.x;
             let left = project_near(a, point, tan_in_air(a, c.v_l));
             let right = project_near(b, point, tan_in_air(b, c.v_r));
             if (left.converged && right.converged) {
                 code = first_failure(code, first_failure(left.pixel.status, right.pixel.status));
-                let e_l = c.pixels.xy - left.pixel.pixel;
-                let e_r = c.pixels.zw - right.pixel.pixel;
-                sum += dot(e_l, e_l) + dot(e_r, e_r);
+                sum += pixel_squares(c, left.pixel, right.pixel);
             } else {
                 retry_first = min(retry_first, row);
                 retry_last = max(retry_last, row);
@@ -270,7 +280,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         }
         for (var row = retry_first; row <= retry_last; row += 3u) {
             let c = corner_row(row);
-            let point = times(rotation, vec3r(c.board.xy - c0.board.xy, 0.0)) + shift + x0.x;
+            let point = fitted_about_first(rotation, shift, c.board.xy - c0.board.xy) + x0.x;
             let left_near = project_near(a, point, tan_in_air(a, c.v_l));
             let right_near = project_near(b, point, tan_in_air(b, c.v_r));
             if (!(left_near.converged && right_near.converged)) {
@@ -278,9 +288,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
                 let right = project(b, point);
                 retried += 1u;
                 code = first_failure(code, first_failure(left.status, right.status));
-                let e_l = c.pixels.xy - left.pixel;
-                let e_r = c.pixels.zw - right.pixel;
-                sum += dot(e_l, e_l) + dot(e_r, e_r);
+                sum += pixel_squares(c, left, right);
             }
         }
     }
