@@ -394,3 +394,102 @@ fn empty_and_short_batches() {
         }
     }
 }
+
+/// [`CameraLanes::project_near`](flatport::engine::simd::refractive_camera::CameraLanes::project_near)
+/// (the reprojection's unsafeguarded Newton iteration from the tan a of a nearby observed ray)
+/// against the scalar model's safeguarded projection: a lane it settles has the scalar pixel
+/// within 1e-12 relative (times the pixel's condition |x/z| beyond the image), and where no medium is less dense than the air it settles every
+/// ordinary point (along a pixel's ray, 0.1 mm to 50 m into the water, started from the ray of
+/// the pixel 3 px away, or from tan a = 0); where a medium is less dense than the air it settles
+/// none (its iteration needs concave terms).
+#[test]
+fn project_near_settles_on_the_scalar_pixel() {
+    use flatport::engine::simd::lanes::{F64s, LANES, Vec3s};
+    use flatport::engine::simd::refractive_camera::CameraLanes;
+    let (mut settled, mut ordinary, mut wrong) = (0, 0, Vec::new());
+    for (f, fixture) in all_fixtures().iter().enumerate() {
+        let air = fixture.stack.index_air();
+        let dense = fixture.stack.indices.iter().all(|&i| i >= air);
+        for k in 0..fixture.cams.len() {
+            let camera = fixture.camera(k);
+            let lanes = CameraLanes::new(&camera);
+            let mut rng = Rng::new(40 + f as u64);
+            let pixels = pixels_for(&camera, &mut rng, 200);
+            // (point, tan a to start from, ordinary)
+            let mut cases: Vec<([f64; 3], f64, bool)> = Vec::new();
+            for p in &pixels {
+                let Ok(ray) = camera.backproject(&Point2::new(p[0], p[1])) else {
+                    continue;
+                };
+                let depth = 10f64.powf(rng.uniform(-4.0, 1.7));
+                let point: [f64; 3] = ray.point_at(depth).coords.into();
+                let nearby = Point2::new(p[0] + 3.0, p[1] - 1.0);
+                let start = camera.dir_in_air_from_img(&nearby).map_or(0.0, |d| {
+                    let cos = camera.normal().dot(&d);
+                    (1.0 - cos * cos).max(0.0).sqrt() / cos
+                });
+                cases.push((point, start, start.is_finite() && start > 0.0));
+                cases.push((point, 0.0, true));
+            }
+            for p in points_for(&camera, &pixels, &mut rng) {
+                cases.push((p, rng.uniform(0.0, 2.0), false));
+            }
+            for block in cases.chunks(LANES) {
+                let at = |l: usize| block[l.min(block.len() - 1)];
+                let coordinate = |c: usize| F64s(std::array::from_fn(|l| at(l).0[c]));
+                let point = Vec3s {
+                    x: coordinate(0),
+                    y: coordinate(1),
+                    z: coordinate(2),
+                };
+                let (pixels, done) =
+                    lanes.project_near(point, F64s(std::array::from_fn(|l| at(l).1)));
+                for (l, &(p, start, is_ordinary)) in block.iter().enumerate() {
+                    let scalar = camera.project(&Point3::from(p));
+                    if is_ordinary && scalar.is_ok() {
+                        ordinary += 1;
+                    }
+                    if !done.0[l] {
+                        if dense && is_ordinary && scalar.is_ok() {
+                            wrong.push(format!(
+                                "{}: ordinary {p:?} from {start} not settled",
+                                fixture.name
+                            ));
+                        }
+                        continue;
+                    }
+                    settled += 1;
+                    let near = [pixels.u.0[l], pixels.v.0[l]];
+                    // Far beyond the image a pixel is ill-conditioned in its ray (u = f·x/z,
+                    // z → 0): the ray's rounding grows in the pixel by |x/z|, and there the two
+                    // ways of writing the same ray (rounding apart) are held to the bound times it.
+                    let intrinsics = camera.intrinsics();
+                    let close = scalar.is_ok_and(|s| {
+                        let condition = ((s.x - intrinsics.cx) / intrinsics.fx)
+                            .abs()
+                            .max(((s.y - intrinsics.cy) / intrinsics.fy).abs())
+                            .max(1.0);
+                        [s.x, s.y]
+                            .iter()
+                            .zip(near)
+                            .all(|(x, y)| (x - y).abs() <= RELATIVE * condition * x.abs().max(1.0))
+                    });
+                    if !dense || !close {
+                        wrong.push(format!(
+                            "{}: {p:?} from {start}: {near:?} settled, the scalar model {scalar:?}",
+                            fixture.name
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    eprintln!("{settled} lanes settled, {ordinary} ordinary points");
+    assert!(ordinary > 10_000, "only {ordinary} ordinary points");
+    assert!(
+        wrong.is_empty(),
+        "{} wrong, e.g.:\n{}",
+        wrong.len(),
+        wrong[..wrong.len().min(20)].join("\n")
+    );
+}

@@ -61,10 +61,15 @@ pub fn least_squares_air_distance(lines: &[Option<GapLine>]) -> Option<(f64, f64
         ab += a * b;
         bb += b * b;
     }
-    if !(aa > 1e-18 * lines.len() as f64) {
+    air_distance_from_sums(aa, ab, bb, lines.len())
+}
+
+/// [`least_squares_air_distance`] from the sums Σa², Σab, Σb² over `lines` usable gap lines.
+pub fn air_distance_from_sums(aa: f64, ab: f64, bb: f64, lines: usize) -> Option<(f64, f64)> {
+    if !(aa > 1e-18 * lines as f64) {
         return None;
     }
     let d = -ab / aa;
     let sum_squares = (bb - ab * ab / aa).max(0.0);
-    Some((d, (sum_squares / lines.len() as f64).sqrt()))
+    Some((d, (sum_squares / lines as f64).sqrt()))
 }

@@ -12,13 +12,13 @@
 
 use std::cell::RefCell;
 
-use nalgebra::{Point2, Point3, Unit, Vector3};
+use nalgebra::{Point3, Unit, Vector3};
 
-use super::air_layer::{GapLine, least_squares_air_distance, sample_cameras};
-use super::{CostKind, pixel_residuals};
+use super::CostKind;
+use super::air_layer::{air_distance_from_sums, sample_cameras};
 use crate::calib::problem::board::fit_rigid;
 use crate::calib::problem::data::{Candidate, StereoData};
-use crate::engine::simd;
+use crate::engine::simd::axis::{self, Columns, GapSums, RayColumns};
 
 /// The least-squares air layer for the axis `normal`, with the RMS ray gap there (metres).
 ///
@@ -29,11 +29,13 @@ pub fn air_distance_for_axis(data: &StereoData, normal: &Unit<Vector3<f64>>) -> 
     AxisRays::new(data, normal)?.air_distance()
 }
 
-/// What [`AxisRays`] reads of the data, prepared once per data set: the unit air directions of
-/// every corner (left, right) and its board point (board frame).
+/// What [`AxisRays`] reads of the data, prepared once per data set, as columns of every corner
+/// (in `data.corners` order): its unit air directions and observed pixels in the left and the
+/// right camera, and its board point (board frame).
 #[derive(Debug, Clone)]
 pub struct SceneRows {
-    dirs: [Vec<[f64; 3]>; 2],
+    dirs: [Columns<3>; 2],
+    pixels: [Columns<2>; 2],
     model: Vec<Point3<f64>>,
 }
 
@@ -42,10 +44,10 @@ impl SceneRows {
     pub fn new(data: &StereoData) -> Self {
         Self {
             dirs: [0, 1].map(|k| {
-                data.corners
-                    .iter()
-                    .map(|c| <[f64; 3]>::from(c.dirs[k].into_inner()))
-                    .collect()
+                Columns::from_rows(data.corners.iter().map(|c| c.dirs[k].into_inner().into()))
+            }),
+            pixels: [0, 1].map(|k| {
+                Columns::from_rows(data.corners.iter().map(|c| c.pixels[k].coords.into()))
             }),
             model: data
                 .corners
@@ -56,23 +58,22 @@ impl SceneRows {
     }
 }
 
-/// The water rays of every corner of `data` under one axis, for every air layer at once: per
-/// camera and corner the origin at the air layer d₀, the unit water direction and ∂origin/∂d
-/// ([`simd::rays_in_water`]'s rows). Holds its buffers for reuse ([`fill`](Self::fill)): a sweep
-/// evaluates thousands of axes, and fresh buffers of this size cost page faults each time.
+/// The water rays of every corner of `data` under one axis, for every air layer at once
+/// ([`axis::axis_rays`]' columns per camera: the origin at the air layer d₀, the unit water
+/// direction, ∂origin/∂d, and tan a of the observed air ray), with the sums of their gap lines.
+/// Holds its buffers for reuse ([`fill`](Self::fill)): a sweep evaluates thousands of axes, and
+/// fresh buffers of this size cost page faults each time.
 #[derive(Debug, Clone, Default)]
 pub struct AxisRays {
     normal: Option<Unit<Vector3<f64>>>,
     /// The air layer at which the origins were computed.
     d0: f64,
-    /// Rows of the left, then the right camera, in `data.corners` order.
-    rays: [Vec<[f64; 9]>; 2],
-    /// Scratch: statuses, triangulated rows, points, pixels.
-    status: Vec<u32>,
-    rows: Vec<[f64; 4]>,
-    points: Vec<Point3<f64>>,
-    fitted: Vec<[f64; 3]>,
-    pixels: [Vec<[f64; 2]>; 2],
+    rays: [RayColumns; 2],
+    gaps: Option<GapSums>,
+    /// Scratch: triangulated points (x, y, z, residual), one view's points, fitted points.
+    points: Columns<4>,
+    view: Vec<Point3<f64>>,
+    fitted: Columns<3>,
 }
 
 impl AxisRays {
@@ -97,19 +98,9 @@ impl AxisRays {
         let Some((d0, near, _)) = sample_cameras(data, normal) else {
             return false;
         };
-        let corners = data.corners.len();
-        self.status.resize(corners, 0);
-        for k in 0..2 {
-            self.rays[k].resize(corners, [0.0; 9]);
-            simd::rays_in_water(
-                &near[k],
-                &prepared.dirs[k],
-                &mut self.rays[k],
-                &mut self.status,
-            );
-            if self.status.iter().any(|&s| s != 0) {
-                return false;
-            }
+        self.gaps = axis::axis_rays(&near, &prepared.dirs, d0, &mut self.rays);
+        if self.gaps.is_none() {
+            return false;
         }
         // The axis as the rig normalises it.
         self.normal = Some(*near[0].normal());
@@ -122,38 +113,23 @@ impl AxisRays {
         self.normal.as_ref()
     }
 
-    /// The gap line of every corner ([`GapLine`]: g(d) = m·(o_l(d) − o_r(d)) = a·d + b with
-    /// m = unit(w_l × w_r), a = m·(∂o_l/∂d − ∂o_r/∂d)).
-    pub fn gap_lines(&self) -> impl Iterator<Item = GapLine> + '_ {
-        let vector = |row: &[f64; 9], k: usize| Vector3::new(row[k], row[k + 1], row[k + 2]);
-        let d0 = self.d0;
-        self.rays[0].iter().zip(&self.rays[1]).map(move |(l, r)| {
-            let cross = vector(l, 3).cross(&vector(r, 3));
-            let norm = cross.norm();
-            let m = cross / norm;
-            let g0 = m.dot(&(vector(l, 0) - vector(r, 0)));
-            let a = m.dot(&(vector(l, 6) - vector(r, 6)));
-            GapLine {
-                a,
-                b: g0 - a * d0,
-                sin_angle: norm,
-            }
-        })
-    }
-
     /// The least-squares air layer of this axis and the RMS ray gap there
-    /// ([`least_squares_air_distance`] over [`gap_lines`](Self::gap_lines)).
+    /// ([`least_squares_air_distance`](super::air_layer::least_squares_air_distance) over the
+    /// corners' gap lines g(d) = m·(o_l(d) − o_r(d)), m = unit(w_l × w_r)).
     pub fn air_distance(&self) -> Option<(f64, f64)> {
         self.normal?;
-        let lines: Vec<Option<GapLine>> = self.gap_lines().map(Some).collect();
-        least_squares_air_distance(&lines)
+        let gaps = self.gaps?;
+        if !gaps.usable {
+            return None;
+        }
+        air_distance_from_sums(gaps.aa, gaps.ab, gaps.bb, self.rays[0].len())
     }
 
     /// The cost `kind` (a triangulating cost: reprojection, scene or ray gap) at the air layer `d`
     /// under this axis, as [`cost`](super::cost) computes it for the candidate (n, d), with the
-    /// same fits ([`fit_rigid`] per view) and sums; `None` where that is +∞ (a camera outside the
-    /// air, a corner that does not triangulate in the water, a view that cannot be fitted, a
-    /// fitted corner that does not project).
+    /// same fits ([`fit_rigid`] per view); `None` where that is +∞ (a camera outside the air, a
+    /// corner that does not triangulate in the water, a view that cannot be fitted, a fitted
+    /// corner that does not project).
     pub fn cost(
         &mut self,
         data: &StereoData,
@@ -167,68 +143,48 @@ impl AxisRays {
             air_distance: d,
         })?;
         let corners = data.corners.len();
-        self.rows.resize(corners, [0.0; 4]);
-        self.status.resize(corners, 0);
-        simd::triangulate_shifted(
-            &self.rays[0],
-            &self.rays[1],
-            d - self.d0,
-            &mut self.rows,
-            &mut self.status,
-        );
-        if self.status.iter().any(|&s| s != 0) {
+        if !axis::triangulate_shifted(&self.rays, d - self.d0, &mut self.points) {
             return None;
         }
         if kind == CostKind::RayGap {
             // ray_gap_rms's sum, in order.
-            let sum: f64 = self.rows.iter().map(|r| r[3].powi(2)).sum();
+            let sum: f64 = self.points.column(3)[..corners]
+                .iter()
+                .map(|r| r.powi(2))
+                .sum();
             return Some((sum / corners as f64).sqrt());
         }
-        self.points.clear();
-        self.points
-            .extend(self.rows.iter().map(|r| Point3::new(r[0], r[1], r[2])));
-        self.fitted.clear();
+        self.fitted.resize(corners);
         // SceneFit::scene_rms's and reprojection_residuals's sums, in order.
         let mut sum_squares = 0.0;
         for range in &data.views {
-            let fit = fit_rigid(&prepared.model[range.clone()], &self.points[range.clone()])?;
+            self.view.clear();
+            self.view.extend(range.clone().map(|i| {
+                Point3::new(
+                    self.points.get(0, i),
+                    self.points.get(1, i),
+                    self.points.get(2, i),
+                )
+            }));
+            let fit = fit_rigid(&prepared.model[range.clone()], &self.view)?;
             sum_squares += fit.sum_squares;
             if kind == CostKind::Reprojection {
                 // fitted_corner's R·P + t, with R as a matrix once per view.
                 let rotation = fit.master_from_board.rotation.to_rotation_matrix();
                 let t = fit.master_from_board.translation.vector;
-                self.fitted.extend(
-                    prepared.model[range.clone()]
-                        .iter()
-                        .map(|p| <[f64; 3]>::from(rotation * p.coords + t)),
-                );
+                for i in range.clone() {
+                    let p = rotation * prepared.model[i].coords + t;
+                    for c in 0..3 {
+                        self.fitted.set(c, i, p[c]);
+                    }
+                }
             }
         }
         if kind == CostKind::Scene {
             return Some((sum_squares / corners as f64).sqrt());
         }
-        for k in 0..2 {
-            self.pixels[k].resize(corners, [0.0; 2]);
-            simd::project(
-                &cameras[k],
-                &self.fitted,
-                &mut self.pixels[k],
-                &mut self.status,
-            );
-            if self.status.iter().any(|&s| s != 0) {
-                return None;
-            }
-        }
-        let pixel = |p: &[f64; 2]| Point2::new(p[0], p[1]);
-        let sum: f64 = data
-            .corners
-            .iter()
-            .zip(self.pixels[0].iter().zip(&self.pixels[1]))
-            .map(|(c, (l, r))| {
-                let [l, r] = pixel_residuals(c, [pixel(l), pixel(r)]);
-                l.norm_squared() + r.norm_squared()
-            })
-            .sum();
+        self.fitted.pad();
+        let sum = axis::reprojection_squares(&cameras, &self.fitted, &self.rays, &prepared.pixels)?;
         Some((sum / (2 * corners) as f64).sqrt())
     }
 }
@@ -274,23 +230,39 @@ mod tests {
     use crate::calib::simulate::{SceneSpec, simulate};
     use crate::model::normal_from_tilt_azimuth;
 
-    /// The profile's costs (rays once per axis on the vector path, origins moved to the air
-    /// layer, the vector path's projections) equal the reference [`cost`] (the scalar model per
-    /// candidate) at the profile's air layer.
+    /// The profile's costs (rays once per axis, origins moved to the air layer, the fitted corners
+    /// projected from their observed rays) equal the reference [`cost`] (the scalar model per
+    /// candidate, the safeguarded projection) at the profile's air layer: on the example rig,
+    /// whose fitted corners the unsafeguarded iteration settles, and with its glass made less
+    /// dense than the air (index 1.0 behind air of 1.003), which sends every one of them to the
+    /// safeguarded lanes.
     #[test]
     fn profile_costs_equal_the_reference_at_their_air_layer() {
-        let rig = crate::io::read_rig(std::path::Path::new(concat!(
+        let path = std::path::Path::new(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/data/example_rig.json"
-        )))
-        .unwrap();
+        ));
+        let text = std::fs::read_to_string(path).unwrap();
+        let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(json["interface"]["index_air"], 1.003);
+        json["interface"]["layers"][0]["index"] = 1.0.into();
+        for text in [text, json.to_string()] {
+            let rig = crate::io::rig_from_json_str(&text, path).unwrap();
+            let compared = compare_profiles(&rig);
+            assert!(compared >= 9, "only {compared} finite profiles");
+        }
+    }
+
+    /// How many finite profiles of `rig`'s simulated scene equal the reference (panics where one
+    /// does not).
+    fn compare_profiles(rig: &crate::model::Rig) -> usize {
         let board = Board {
             rows: 6,
             cols: 9,
             square: 0.04,
         };
-        let scene = simulate(&rig, 0, 1, &SceneSpec::new(board, 6, 0.1, 5)).unwrap();
-        let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
+        let scene = simulate(rig, 0, 1, &SceneSpec::new(board, 6, 0.1, 5)).unwrap();
+        let data = StereoData::new(rig, [0, 1], &scene.observations).unwrap();
         let prepared = SceneRows::new(&data);
         let truth = *rig.shared_interface().unwrap().normal();
         let mut compared = 0;
@@ -316,6 +288,6 @@ mod tests {
                 compared += 1;
             }
         }
-        assert!(compared >= 9, "only {compared} finite profiles");
+        compared
     }
 }

@@ -7,6 +7,8 @@
 //! - [`refractive_camera`]: back-projection and forward projection (its safeguarded Newton
 //!   iteration, every lane until the slowest converges);
 //! - [`stereo`]: midpoint triangulation;
+//! - [`axis`]: the triangulating costs' passes under one axis (rays, triangulation, reprojection
+//!   of the fitted boards) over columns of every corner, for the sweeps;
 //! - this file: the batch functions over slices, compiled once per instruction set and chosen at
 //!   run time (`multiversion`: AVX-512, else AVX2 + FMA, else NEON, else the baseline), and the
 //!   scalar fallback for the rows the lanes leave to the model.
@@ -16,17 +18,6 @@
 //! branch that only rare rows reach, the lane is handed back and the scalar model answers it.
 //! `tests/cpu_vector.rs` holds the two together on the oracle configurations and proptest's random
 //! rigs: equal statuses, values within 1e-12 relative (in practice bit for bit).
-
-pub mod camera;
-pub mod lanes;
-pub mod refractive_camera;
-pub mod stereo;
-
-use lanes::{F64s, LANES, Mask, Vec3s};
-use refractive_camera::CameraLanes;
-
-use crate::model::{MAX_INPUT, NoSolution, RefractiveCamera, triangulate_rays};
-use nalgebra::{Point2, Point3};
 
 /// Applies the `multiversion` attribute with the one list of instruction sets every kernel is
 /// compiled for; [`instruction_set`] names the one the machine runs, in the same order.
@@ -40,6 +31,18 @@ macro_rules! dispatched {
         $item
     )*};
 }
+
+pub mod axis;
+pub mod camera;
+pub mod lanes;
+pub mod refractive_camera;
+pub mod stereo;
+
+use lanes::{F64s, LANES, Mask, Vec3s};
+use refractive_camera::CameraLanes;
+
+use crate::model::{MAX_INPUT, NoSolution, RefractiveCamera, triangulate_rays};
+use nalgebra::{Point2, Point3};
 
 /// The instruction set the vector path runs on this machine: `avx512`, `avx2`, `neon` or
 /// `baseline` (the build's own target features: SSE2 on x86-64), as the kernels' dispatch
@@ -165,30 +168,6 @@ fn store<const M: usize>(row: &mut [f64; M], status: &mut u32, code: u32, values
     };
 }
 
-/// A block of [`rays_in_water`] rows as lanes of rays, origins moved by `shift`·∂origin/∂d.
-#[inline(always)]
-fn shifted_rays(rows: &[[f64; 9]], shift: f64) -> refractive_camera::Rays {
-    let slope = Vec3s {
-        x: column(rows, 6),
-        y: column(rows, 7),
-        z: column(rows, 8),
-    };
-    refractive_camera::Rays {
-        origin: Vec3s {
-            x: column(rows, 0),
-            y: column(rows, 1),
-            z: column(rows, 2),
-        } + slope.scale(F64s::splat(shift)),
-        dir: Vec3s {
-            x: column(rows, 3),
-            y: column(rows, 4),
-            z: column(rows, 5),
-        },
-        status: refractive_camera::Status::ok(),
-        scalar: Mask::splat(false),
-    }
-}
-
 // The four batch loops below share their shape on purpose. Folded into one generic loop (the
 // lanes of a relation as a closure, or as a trait with `#[inline(always)]` methods, returning the
 // output columns), back-projection ran at 56–64 M rows/s instead of 87 on one thread (machine B,
@@ -280,48 +259,6 @@ dispatched! {
             }
         }
         by_scalar
-    }
-}
-
-dispatched! {
-    /// [`RefractiveCamera::ray_in_water`] of every unit air direction `dirs` (master frame) on the
-    /// vector path, one thread: `rays` gets the origin on the outer interface, the unit water
-    /// direction and the origin's derivative with respect to the air layer, v/(n·v) (raising the
-    /// interfaces by δ moves the whole water path by v·δ/(n·v): the water ray is linear in the air
-    /// layer, DESIGN.md §2), xyz each; `status` 0 or the [`NoSolution`] code, the row NaN where
-    /// not 0. The same expressions as the scalar model, bit for bit. Panics if the slices differ
-    /// in length.
-    pub fn rays_in_water(camera: &RefractiveCamera, dirs: &[[f64; 3]], rays: &mut [[f64; 9]], status: &mut [u32]) {
-        assert!(dirs.len() == rays.len() && dirs.len() == status.len(), "input, output and status of equal length");
-        let lanes = CameraLanes::new(camera);
-        let normal = Vec3s::splat(camera.normal().into_inner().into());
-        for ((dirs, rays), status) in dirs.chunks(LANES).zip(rays.chunks_mut(LANES)).zip(status.chunks_mut(LANES)) {
-            let v = Vec3s { x: column(dirs, 0), y: column(dirs, 1), z: column(dirs, 2) };
-            let mut out = refractive_camera::Status::ok();
-            let (o, d) = lanes.ray_in_water(v, &mut out);
-            let inv_cos_a = 1.0 / normal.dot(v);
-            let slope = v.scale(inv_cos_a);
-            for l in 0..dirs.len() {
-                let values = [o.x.0[l], o.y.0[l], o.z.0[l], d.x.0[l], d.y.0[l], d.z.0[l], slope.x.0[l], slope.y.0[l], slope.z.0[l]];
-                store(&mut rays[l], &mut status[l], out.0[l], values);
-            }
-        }
-    }
-
-    /// [`triangulate_rays`] of the ray pairs `a[j]`, `b[j]` (rows of [`rays_in_water`]: origin,
-    /// unit direction, ∂origin/∂d) with their origins moved to the air layer `shift` metres
-    /// from the one they were computed at (origin + shift·∂origin/∂d), on the vector path, one
-    /// thread: `points` gets x, y, z, residual; `status` 0 or the [`NoSolution`] code. Panics if
-    /// the slices differ in length.
-    pub fn triangulate_shifted(a: &[[f64; 9]], b: &[[f64; 9]], shift: f64, points: &mut [[f64; 4]], status: &mut [u32]) {
-        assert!(a.len() == b.len() && a.len() == points.len() && a.len() == status.len(), "inputs, output and status of equal length");
-        for (((a, b), points), status) in a.chunks(LANES).zip(b.chunks(LANES)).zip(points.chunks_mut(LANES)).zip(status.chunks_mut(LANES)) {
-            let out = stereo::triangulate(&shifted_rays(a, shift), &shifted_rays(b, shift), Mask::splat(true));
-            let p = out.point;
-            for l in 0..a.len() {
-                store(&mut points[l], &mut status[l], out.status.0[l], [p.x.0[l], p.y.0[l], p.z.0[l], out.residual.0[l]]);
-            }
-        }
     }
 }
 

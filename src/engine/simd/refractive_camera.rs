@@ -80,6 +80,23 @@ pub struct Vops {
     pub scalar: Mask,
 }
 
+/// A block of rays in the water with the incidence they left the air at.
+#[derive(Debug, Clone, Copy)]
+pub struct WaterRay {
+    /// Origins on the outer interface, master frame.
+    pub origin: Vec3s,
+    /// Unit directions in the water, master frame.
+    pub dir: Vec3s,
+    /// 1 / cos a, a the angle of incidence from the air.
+    pub inv_cos_a: F64s,
+    /// sin² a (≥ 0).
+    pub sin2_a: F64s,
+}
+
+/// Most Newton steps of [`CameraLanes::project_near`] before it leaves a lane to
+/// [`CameraLanes::project`]; `NEAR_MAX_ITERATIONS` in `shaders/lib/air_path.wgsl`.
+pub const NEAR_MAX_ITERATIONS: u32 = 16;
+
 /// The constants of one [`RefractiveCamera`] in the form the lanes use.
 #[derive(Debug, Clone)]
 pub struct CameraLanes<'a> {
@@ -105,6 +122,9 @@ pub struct CameraLanes<'a> {
     inv_rho_water: f64,
     media: &'a [Medium],
     slowest: usize,
+    /// No medium is less dense than the air (every ρ ≥ 1): [`project_near`](Self::project_near)'s
+    /// iteration holds.
+    dense: bool,
 }
 
 impl<'a> CameraLanes<'a> {
@@ -135,6 +155,7 @@ impl<'a> CameraLanes<'a> {
             inv_rho_water: 1.0 / camera.relative_index_water(),
             media,
             slowest,
+            dense: media.iter().all(|m| m.rho >= 1.0),
         }
     }
 
@@ -199,6 +220,13 @@ impl<'a> CameraLanes<'a> {
     /// `status` (with the CPU engine's check that the results are finite).
     #[inline(always)]
     pub fn ray_in_water(&self, dir_in_air: Vec3s, status: &mut Status) -> (Vec3s, Vec3s) {
+        let ray = self.ray_in_water_at_incidence(dir_in_air, status);
+        (ray.origin, ray.dir)
+    }
+
+    /// [`ray_in_water`](Self::ray_in_water) with the incidence it computed on the way.
+    #[inline(always)]
+    pub fn ray_in_water_at_incidence(&self, dir_in_air: Vec3s, status: &mut Status) -> WaterRay {
         let n = Vec3s::splat(self.normal);
         let cos_a = n.dot(dir_in_air);
         status.fail(!cos_a.gt(F64s::splat(0.0)), NoSolution::MissesInterface);
@@ -238,7 +266,12 @@ impl<'a> CameraLanes<'a> {
             !(origin.is_finite() & dir.is_finite()),
             NoSolution::OutOfRange,
         );
-        (origin, dir)
+        WaterRay {
+            origin,
+            dir,
+            inv_cos_a,
+            sin2_a,
+        }
     }
 
     /// `split` and `solve_incidence` of [`RefractiveCamera::air_path_to`] for a block of points in
@@ -324,7 +357,6 @@ impl<'a> CameraLanes<'a> {
     /// the master frame.
     #[inline(always)]
     pub fn project(&self, point: Vec3s) -> Pixels {
-        let zero = F64s::splat(0.0);
         let AirPathLanes {
             depth: _,
             lateral,
@@ -347,8 +379,21 @@ impl<'a> CameraLanes<'a> {
         // r·√q overflowing (a point ~1e300 m away) takes the scalar path.
         scalar = scalar | (solving & !solved.is_finite());
         let dir = Vec3s::select(on_axis, Vec3s::splat(self.normal_in_cam), solved);
+        let (u, v) = self.pixel_along(dir, &mut status);
+        Pixels {
+            u,
+            v,
+            status,
+            scalar,
+        }
+    }
+
+    /// The pixel of the air ray along `dir` (camera frame, any length), the reasons recorded in
+    /// `status`: the tail of [`RefractiveCamera::project`].
+    #[inline(always)]
+    fn pixel_along(&self, dir: Vec3s, status: &mut Status) -> (F64s, F64s) {
         status.fail(!dir.is_finite(), NoSolution::OutOfRange);
-        status.fail(!dir.z.gt(zero), NoSolution::BehindCamera);
+        status.fail(!dir.z.gt(F64s::splat(0.0)), NoSolution::BehindCamera);
         let inv_z = 1.0 / dir.z;
         let (x, y) = (dir.x * inv_z, dir.y * inv_z);
         status.fail(
@@ -363,12 +408,97 @@ impl<'a> CameraLanes<'a> {
         };
         let (u, v) = (self.fx * xd + self.cx, self.fy * yd + self.cy);
         status.fail(!(u.is_finite() & v.is_finite()), NoSolution::OutOfRange);
-        Pixels {
+        (u, v)
+    }
+
+    /// The forward projection of points seen near known air rays (a fitted board corner near its
+    /// observed ray), without [`project`](Self::project)'s safeguards: Newton's iteration on
+    /// f(x) = d_k x + Σₘ Lₘ T(x; 1/ρₘ) − r in x = tan a (the water as deep as the point, then the
+    /// layers), from `tan_start`, the tan a of the ray each point is seen near. Where no medium is
+    /// less dense than air every term is increasing and concave in x, so after the first step the
+    /// iterates approach the root from below, with no bracket to keep; from a start within a few
+    /// pixels two or three steps reach [`PROJECT_TOLERANCE`]. The twin of `project_near` in
+    /// `shaders/lib/air_path.wgsl`, with the same stopping rules.
+    ///
+    /// Returns the pixels and the lanes it `settled`; every other lane (a medium less dense than
+    /// air, a point out of range or not in the water, a grazing ray, an iteration that does not
+    /// settle within [`NEAR_MAX_ITERATIONS`], a pixel with a reason) must take
+    /// [`project`](Self::project), which decides. A settled lane's pixel is `project`'s up to
+    /// rounding (the same root, by another path).
+    #[inline(always)]
+    pub fn project_near(&self, point: Vec3s, tan_start: F64s) -> (Pixels, Mask) {
+        let zero = F64s::splat(0.0);
+        let n = Vec3s::splat(self.normal);
+        let offset = point - Vec3s::splat(self.centre);
+        let z = n.dot(offset);
+        let depth = z - self.air_distance - self.layers_thickness;
+        let lateral = offset - scaled(self.normal, z);
+        let r = lateral.norm_squared().sqrt();
+        let in_range =
+            point.x.within(MAX_INPUT) & point.y.within(MAX_INPUT) & point.z.within(MAX_INPUT);
+        // Beyond SCALE_ABOVE the squares of r and tan a overflow: `project` scales them.
+        let moderate = r.lt(F64s::splat(SCALE_ABOVE))
+            & (r / self.air_distance).lt(F64s::splat(SCALE_ABOVE * 0.5));
+        let mut active = Mask::splat(self.dense) & in_range & depth.gt(zero) & moderate;
+        let mut settled = Mask::splat(false);
+        let mut x = tan_start.max(zero);
+        let mut tau = zero;
+        for _ in 0..NEAR_MAX_ITERATIONS {
+            if !active.any() {
+                break;
+            }
+            // T(x; k) = k x / √q, T′ = k / √q³, T″ = −3 (1 − k²) x T′ / q, q = 1 + (1 − k²) x².
+            let mut f = self.air_distance * x - r;
+            let mut df = F64s::splat(self.air_distance);
+            let mut d2f = zero;
+            for (i, medium) in self.media.iter().enumerate().skip(WATER) {
+                let length = if i == WATER {
+                    depth
+                } else {
+                    F64s::splat(medium.length)
+                };
+                let k = medium.inv_rho;
+                let q = 1.0 + (1.0 - k * k) * x * x;
+                let root_q = q.sqrt();
+                let inv_q_root_q = 1.0 / (q * root_q);
+                let slope = length * k * inv_q_root_q;
+                f += slope * q * x;
+                df += slope;
+                d2f += slope * ((k * k - 1.0) * 3.0) * x * (inv_q_root_q * root_q);
+            }
+            let step = f / df;
+            // Done when the step is within the tolerance (as `project`), or when the error left
+            // after the step, by the quadratic model |f″| step² / 2f′, is within rounding (ε x:
+            // `project`'s last step, under the tolerance, leaves an error of that order; the
+            // shader's f32 rule allows half the tolerance). The model holds where f″ barely
+            // changes over the step (|f″| grows with x from 0): steps under 1 % of x.
+            let modelled =
+                step.abs().le(0.01 * x) & (d2f.abs() * step * step).le(2.0 * f64::EPSILON * x * df);
+            let done = active & (step.abs().le(PROJECT_TOLERANCE * x) | modelled);
+            tau = done.select(x - step, tau);
+            settled = settled | done;
+            active = active.and_not(done);
+            x = (x - step).max(zero);
+        }
+        // n·r + lateral·tan a: the air direction times r√(1 + tan² a); n itself on the axis.
+        let on_axis = r.eq(zero);
+        let along = Vec3s::select(on_axis, n, n.scale(r) + lateral.scale(tau));
+        let [r0, r1, r2] = self.cam_from_master;
+        let dir = Vec3s {
+            x: r0[0] * along.x + r0[1] * along.y + r0[2] * along.z,
+            y: r1[0] * along.x + r1[1] * along.y + r1[2] * along.z,
+            z: r2[0] * along.x + r2[1] * along.y + r2[2] * along.z,
+        };
+        let mut status = Status::ok();
+        let (u, v) = self.pixel_along(dir, &mut status);
+        let settled = settled & status.answered();
+        let pixels = Pixels {
             u,
             v,
             status,
-            scalar,
-        }
+            scalar: Mask::splat(false),
+        };
+        (pixels, settled)
     }
 }
 
