@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use flatport::calib::costs::scene::{SceneRows, profile_cost};
+use flatport::calib::costs::scene::{SceneRows, axis_costs, profile_cost};
 use flatport::calib::methods::bundle::{Bundle, BundleState, INTERFACE_PARAMETERS};
 use flatport::calib::solvers::lm::{DenseNormalEquations, LeastSquares, NormalEquations};
 use flatport::calib::{
@@ -446,14 +446,33 @@ fn a_sweep_in_small_batches_writes_every_cell_as_an_independent_evaluation() {
                         } else {
                             value(distances, di)
                         };
-                        expected.push(cost(
-                            &data,
-                            kind,
-                            &Candidate {
-                                normal: n,
-                                air_distance: air,
-                            },
-                        ));
+                        let candidate = Candidate {
+                            normal: n,
+                            air_distance: air,
+                        };
+                        let reference = cost(&data, kind, &candidate);
+                        if kind.axis_only() {
+                            expected.push(reference);
+                            continue;
+                        }
+                        // The CPU backend evaluates the air layers of one axis from its water
+                        // rays computed once (calib::costs::scene::axis_costs): the sweep must
+                        // equal that evaluation bit for bit, and it must equal the reference to
+                        // rounding.
+                        let axis =
+                            axis_costs(&data, &SceneRows::new(&data), kind, &[candidate])[0];
+                        assert_eq!(
+                            axis.is_finite(),
+                            reference.is_finite(),
+                            "{cost_name}: finiteness"
+                        );
+                        if reference.is_finite() {
+                            assert!(
+                                (axis - reference).abs() <= 1e-12 * reference.abs(),
+                                "{cost_name}: {axis} against the reference {reference}"
+                            );
+                        }
+                        expected.push(axis);
                     }
                 } else {
                     // The profile: the least-squares air layer, +∞ where there is none or it puts a camera outside the air.

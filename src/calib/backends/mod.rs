@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use crate::calib::costs::affine_grid::{ROW, affine_rows};
 use crate::calib::costs::scene::air_distance_for_axis;
-use crate::calib::costs::scene::{SceneRows, profile_cost};
+use crate::calib::costs::scene::{SceneRows, axis_costs, profile_cost};
 use crate::calib::costs::{CostKind, cost_prepared};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
@@ -83,6 +83,12 @@ pub trait CostBackend: Sync {
     }
 }
 
+/// Most candidates under one axis that [`CpuBackend::costs`] evaluates from one computation of the
+/// axis's water rays: the rays are about a third of a reprojection cost, so groups of 16 air
+/// layers leave them a few per cent, and a single axis with many air layers still spreads over
+/// the threads.
+pub const AXIS_GROUP: usize = 16;
+
 /// The f64 reference on the CPU, parallel over candidates (rayon).
 ///
 /// `D` is how it holds the data: a borrow (`CpuBackend::new(&data)`) or shared ownership
@@ -122,10 +128,24 @@ impl<D: Deref<Target = StereoData> + Sync> CostBackend for CpuBackend<D> {
         &self.data
     }
 
+    /// Each candidate's cost; the triangulating costs of consecutive candidates under one axis
+    /// (a sweep's air layers) from that axis's water rays computed once ([`axis_costs`]), in
+    /// groups of at most [`AXIS_GROUP`] so that one axis with many air layers still spreads over
+    /// the threads.
     fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
-        Ok(candidates
+        if kind.axis_only() {
+            return Ok(candidates
+                .par_iter()
+                .map(|c| cost_prepared(&self.data, &self.affine_rows, kind, c))
+                .collect());
+        }
+        let groups: Vec<&[Candidate]> = candidates
+            .chunk_by(|a, b| a.normal == b.normal)
+            .flat_map(|axis| axis.chunks(AXIS_GROUP))
+            .collect();
+        Ok(groups
             .par_iter()
-            .map(|c| cost_prepared(&self.data, &self.affine_rows, kind, c))
+            .flat_map_iter(|group| axis_costs(&self.data, &self.scene_rows, kind, group))
             .collect())
     }
 

@@ -189,6 +189,11 @@ impl AxisRays {
     }
 }
 
+thread_local! {
+    /// Each thread's buffers of [`profile_cost`] and [`axis_costs`].
+    static RAYS: RefCell<AxisRays> = RefCell::new(AxisRays::default());
+}
+
 /// The profile of a triangulating cost at one axis: the least-squares air layer (NaN where the
 /// axis has none) and the cost there (+∞ where the axis has no air layer, the air layer does not
 /// keep both cameras in the air, or the cost is +∞), as [`CostBackend::profile`]'s default
@@ -201,9 +206,6 @@ pub fn profile_cost(
     kind: CostKind,
     normal: &Unit<Vector3<f64>>,
 ) -> (f64, f64) {
-    thread_local! {
-        static RAYS: RefCell<AxisRays> = RefCell::new(AxisRays::default());
-    }
     RAYS.with_borrow_mut(|rays| {
         if !rays.fill(data, prepared, normal) {
             // Some corner has no ray: its gap line is missing and the air layer undetermined.
@@ -219,6 +221,41 @@ pub fn profile_cost(
             d,
             rays.cost(data, prepared, kind, d).unwrap_or(f64::INFINITY),
         )
+    })
+}
+
+/// The triangulating cost `kind` of `candidates` that share one axis (a sweep's air layers under
+/// one axis), from the water rays of that axis computed once ([`AxisRays`]): each is
+/// [`cost`](super::cost) of its candidate up to rounding, +∞ where that is +∞ (a ray with no
+/// answer under the axis, a camera outside the air, a corner that does not triangulate in the
+/// water, a view that cannot be fitted, a fitted corner that does not project).
+///
+/// Panics if the candidates do not share one axis.
+pub fn axis_costs(
+    data: &StereoData,
+    prepared: &SceneRows,
+    kind: CostKind,
+    candidates: &[Candidate],
+) -> Vec<f64> {
+    let Some(first) = candidates.first() else {
+        return Vec::new();
+    };
+    assert!(
+        candidates.iter().all(|c| c.normal == first.normal),
+        "axis_costs of candidates under different axes"
+    );
+    RAYS.with_borrow_mut(|rays| {
+        if !rays.fill(data, prepared, &first.normal) {
+            // A ray without an answer under this axis has none at any air layer.
+            return vec![f64::INFINITY; candidates.len()];
+        }
+        candidates
+            .iter()
+            .map(|c| {
+                rays.cost(data, prepared, kind, c.air_distance)
+                    .unwrap_or(f64::INFINITY)
+            })
+            .collect()
     })
 }
 
@@ -251,6 +288,65 @@ mod tests {
             let compared = compare_profiles(&rig);
             assert!(compared >= 9, "only {compared} finite profiles");
         }
+    }
+
+    /// The costs of candidates sharing an axis, from its rays computed once, equal the reference
+    /// at every air layer (including ones that put a camera outside the air: +∞ on both sides).
+    #[test]
+    fn axis_costs_equal_the_reference_at_every_air_layer() {
+        let rig = crate::io::read_rig(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/data/example_rig.json"
+        )))
+        .unwrap();
+        let board = Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        };
+        let scene = simulate(&rig, 0, 1, &SceneSpec::new(board, 6, 0.1, 5)).unwrap();
+        let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
+        let prepared = SceneRows::new(&data);
+        let truth = *rig.shared_interface().unwrap().normal();
+        let (mut finite, mut infinite) = (0, 0);
+        for normal in [truth, normal_from_tilt_azimuth(0.1, 0.7)] {
+            let candidates: Vec<Candidate> = [-0.5, 0.001, 0.012, 0.02, 0.031, 0.2]
+                .iter()
+                .map(|&air_distance| Candidate {
+                    normal,
+                    air_distance,
+                })
+                .collect();
+            for kind in [CostKind::Reprojection, CostKind::Scene, CostKind::RayGap] {
+                let costs = axis_costs(&data, &prepared, kind, &candidates);
+                for (candidate, axis) in candidates.iter().zip(costs) {
+                    let reference = cost(&data, kind, candidate);
+                    if reference.is_finite() {
+                        finite += 1;
+                        let relative = (axis - reference).abs() / reference;
+                        assert!(
+                            relative <= 1e-12,
+                            "{} at {}: {axis} against {reference}",
+                            kind.name(),
+                            candidate.air_distance
+                        );
+                    } else {
+                        infinite += 1;
+                        assert_eq!(
+                            axis,
+                            reference,
+                            "{} at {}",
+                            kind.name(),
+                            candidate.air_distance
+                        );
+                    }
+                }
+            }
+        }
+        assert!(
+            finite >= 20 && infinite >= 3,
+            "{finite} finite, {infinite} infinite"
+        );
     }
 
     /// How many finite profiles of `rig`'s simulated scene equal the reference (panics where one
