@@ -459,8 +459,7 @@ fn a_sweep_in_small_batches_writes_every_cell_as_an_independent_evaluation() {
                         // rays computed once (calib::costs::scene::axis_costs): the sweep must
                         // equal that evaluation bit for bit, and it must equal the reference to
                         // rounding.
-                        let axis =
-                            axis_costs(&data, &SceneRows::new(&data), kind, &[candidate])[0];
+                        let axis = axis_costs(&data, &SceneRows::new(&data), kind, &[candidate])[0];
                         assert_eq!(
                             axis.is_finite(),
                             reference.is_finite(),

@@ -15,7 +15,7 @@ use std::cell::RefCell;
 use nalgebra::{Point3, Unit, Vector3};
 
 use super::CostKind;
-use super::air_layer::{air_distance_from_sums, sample_cameras};
+use super::air_layer::{MIN_GAP_LINE_SIN, air_distance_from_sums, sample_cameras};
 use crate::calib::problem::board::fit_rigid;
 use crate::calib::problem::data::{Candidate, StereoData};
 use crate::engine::simd::axis::{self, Columns, GapSums, RayColumns};
@@ -98,7 +98,7 @@ impl AxisRays {
         let Some((d0, near, _)) = sample_cameras(data, normal) else {
             return false;
         };
-        self.gaps = axis::axis_rays(&near, &prepared.dirs, d0, &mut self.rays);
+        self.gaps = axis::axis_rays(&near, &prepared.dirs, d0, MIN_GAP_LINE_SIN, &mut self.rays);
         if self.gaps.is_none() {
             return false;
         }

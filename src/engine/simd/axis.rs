@@ -9,7 +9,6 @@
 use super::lanes::{F64s, LANES, Mask, Vec3s};
 use super::refractive_camera::{CameraLanes, Rays, Status};
 use super::{project_row, scalar_row, stereo};
-use crate::calib::costs::air_layer::MIN_GAP_LINE_SIN;
 use crate::model::RefractiveCamera;
 
 /// `N` columns of f64 over `len` rows, each padded to a whole number of blocks of [`LANES`]; the
@@ -141,7 +140,7 @@ pub type RayColumns = Columns<10>;
 
 /// Σa², Σab, Σb² over the gap lines g(d) = a·d + b of every corner
 /// ([`GapLine`](crate::calib::costs::air_layer::GapLine)), and whether every line was usable
-/// (|w_l × w_r| > [`MIN_GAP_LINE_SIN`]).
+/// (|w_l × w_r| above the caller's bound).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GapSums {
     /// Σa².
@@ -163,10 +162,11 @@ fn total(x: F64s) -> f64 {
 dispatched! {
     /// The water rays of every corner under the cameras `cameras` (left, right; behind one axis
     /// at the air layer `d0`) from their unit air directions `dirs` (master frame), into `rays`
-    /// ([`RayColumns`]), and the sums of their gap lines; `None` when some corner's ray has no
+    /// ([`RayColumns`]), and the sums of their gap lines, usable where the sine of the angle
+    /// between the water rays exceeds `min_sin_angle`; `None` when some corner's ray has no
     /// answer (it misses the interface or is totally reflected). The rays are
     /// [`RefractiveCamera::ray_in_water`]'s, bit for bit.
-    pub fn axis_rays(cameras: &[RefractiveCamera; 2], dirs: &[Columns<3>; 2], d0: f64, rays: &mut [RayColumns; 2]) -> Option<GapSums> {
+    pub fn axis_rays(cameras: &[RefractiveCamera; 2], dirs: &[Columns<3>; 2], d0: f64, min_sin_angle: f64, rays: &mut [RayColumns; 2]) -> Option<GapSums> {
         let lanes = cameras.each_ref().map(CameraLanes::new);
         let corners = dirs[0].len();
         assert_eq!(corners, dirs[1].len(), "both cameras' directions");
@@ -197,7 +197,7 @@ dispatched! {
             let g0 = m.dot(o_l - o_r);
             let a = m.dot(s_l - s_r);
             let b = g0 - a * d0;
-            unusable = unusable | !sin_angle.gt(F64s::splat(MIN_GAP_LINE_SIN));
+            unusable = unusable | !sin_angle.gt(F64s::splat(min_sin_angle));
             let real = dirs[0].real(start);
             aa += real.select(a * a, zero);
             ab += real.select(a * b, zero);
