@@ -367,6 +367,22 @@ fn npy_bytes(shape: &[usize], values: &[f64]) -> Vec<u8> {
     bytes
 }
 
+/// `value`, after checking that it is +∞ where `reference` is and within 1e-12 of it elsewhere.
+fn within_rounding(cost_name: &str, value: f64, reference: f64) -> f64 {
+    assert_eq!(
+        value.is_finite(),
+        reference.is_finite(),
+        "{cost_name}: finiteness"
+    );
+    if reference.is_finite() {
+        assert!(
+            (value - reference).abs() <= 1e-12 * reference.abs(),
+            "{cost_name}: {value} against the reference {reference}"
+        );
+    }
+    value
+}
+
 #[test]
 fn a_sweep_in_small_batches_writes_every_cell_as_an_independent_evaluation() {
     use flatport::calib::costs::cost;
@@ -460,18 +476,7 @@ fn a_sweep_in_small_batches_writes_every_cell_as_an_independent_evaluation() {
                         // equal that evaluation bit for bit, and it must equal the reference to
                         // rounding.
                         let axis = axis_costs(&data, &SceneRows::new(&data), kind, &[candidate])[0];
-                        assert_eq!(
-                            axis.is_finite(),
-                            reference.is_finite(),
-                            "{cost_name}: finiteness"
-                        );
-                        if reference.is_finite() {
-                            assert!(
-                                (axis - reference).abs() <= 1e-12 * reference.abs(),
-                                "{cost_name}: {axis} against the reference {reference}"
-                            );
-                        }
-                        expected.push(axis);
+                        expected.push(within_rounding(cost_name, axis, reference));
                     }
                 } else {
                     // The profile: the least-squares air layer, +∞ where there is none or it puts a camera outside the air.
@@ -494,18 +499,7 @@ fn a_sweep_in_small_batches_writes_every_cell_as_an_independent_evaluation() {
                         // same air layer: the sweep must equal that evaluation bit for bit, and
                         // it must equal the reference to rounding (measured ≤ 2.5e-14 relative).
                         let (_, profiled) = profile_cost(&data, &SceneRows::new(&data), kind, &n);
-                        assert_eq!(
-                            profiled.is_finite(),
-                            reference.is_finite(),
-                            "{cost_name}: finiteness"
-                        );
-                        if reference.is_finite() {
-                            assert!(
-                                (profiled - reference).abs() <= 1e-12 * reference.abs(),
-                                "{cost_name}: profile {profiled} against the reference {reference}"
-                            );
-                        }
-                        expected.push(profiled);
+                        expected.push(within_rounding(cost_name, profiled, reference));
                     }
                 }
             }
