@@ -1,7 +1,7 @@
 // Bindings of the candidate-batch kernels (calib_*): one item per candidate × corner, items
 // candidate-major (item i = candidate c · corners + corner j, corners = params.info.y). `input`
-// holds rows per corner (shared by every candidate) or, for calib_project, per item; `output`
-// M reals per item; one status per item. Composed in front of each of those kernels by
+// holds rows per corner (shared by every candidate); `output` M reals per item; one status per
+// item. Composed in front of each of those kernels by
 // src/gpu/shaders.rs.
 
 @group(0) @binding(0) var<uniform> params: Params;

@@ -10,15 +10,6 @@ use crate::gpu::layout::Params;
 use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::Rig;
 
-/// A candidate kernel's input rows.
-#[derive(Clone, Copy)]
-enum Rows<'a, const N: usize> {
-    /// One row per corner, shared by every candidate: kept on the device across calls.
-    PerCorner(&'a ResidentRows),
-    /// One row per item (uploaded with each chunk).
-    PerItem(&'a [[f64; N]]),
-}
-
 impl GpuEngine {
     /// Triangulates every corner under every candidate interface (n unit, d; master frame):
     /// `air_rays` holds the two unit air directions v_l, v_r of each corner (cameras `cameras`
@@ -40,38 +31,9 @@ impl GpuEngine {
             Kernel::CalibTriangulate,
             rig,
             cameras,
-            Rows::PerCorner(air_rays),
-            air_rays.len(),
+            air_rays,
             candidates,
             points,
-            status,
-        )
-    }
-
-    /// Projects points into both cameras under every candidate interface: `points[c · corners + j]`
-    /// (master frame) is seen behind candidate c; `pixels` gets ul, vl, ur, vr (raw pixels),
-    /// status as in [`calib_triangulate`](Self::calib_triangulate).
-    ///
-    /// Panics if `points`, `pixels` and `status` are not `candidates.len() · corners` long.
-    #[allow(clippy::too_many_arguments)]
-    pub fn calib_project(
-        &self,
-        rig: &Rig,
-        cameras: [usize; 2],
-        corners: usize,
-        points: &[[f64; 3]],
-        candidates: &[[f64; 4]],
-        pixels: &mut [[f64; 4]],
-        status: &mut [u32],
-    ) -> Result<(), GpuError> {
-        self.run_candidates(
-            Kernel::CalibProject,
-            rig,
-            cameras,
-            Rows::PerItem(points),
-            corners,
-            candidates,
-            pixels,
             status,
         )
     }
@@ -98,37 +60,9 @@ impl GpuEngine {
             Kernel::CalibProjectedVop,
             rig,
             cameras,
-            Rows::PerCorner(corners),
-            corners.len(),
+            corners,
             axes,
             vops,
-            status,
-        )
-    }
-
-    /// The gap line of every corner under every candidate axis (fourth value ignored): the
-    /// signed distance between the two water rays as a function of the air layer, g(d) = a·d + b,
-    /// with |w_l × w_r|, as [`calib::air_layer::GapLine`](crate::calib::costs::air_layer::GapLine);
-    /// `air_rays` as in [`calib_triangulate`](Self::calib_triangulate).
-    ///
-    /// Panics if `lines` and `status` are not `axes.len() · air_rays.len()` long.
-    pub fn calib_gap_line(
-        &self,
-        rig: &Rig,
-        cameras: [usize; 2],
-        air_rays: &ResidentRows,
-        axes: &[[f64; 4]],
-        lines: &mut [[f64; 3]],
-        status: &mut [u32],
-    ) -> Result<(), GpuError> {
-        self.run_candidates::<6, 3>(
-            Kernel::CalibGapLine,
-            rig,
-            cameras,
-            Rows::PerCorner(air_rays),
-            air_rays.len(),
-            axes,
-            lines,
             status,
         )
     }
@@ -142,24 +76,18 @@ impl GpuEngine {
         kernel: Kernel,
         rig: &Rig,
         cameras: [usize; 2],
-        rows: Rows<'_, N>,
-        corners: usize,
+        input: &ResidentRows,
         candidates: &[[f64; 4]],
         output: &mut [[f64; M]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
+        let corners = input.len();
         let items = candidates.len() * corners;
         assert!(
             output.len() == items && status.len() == items,
             "output and status of candidates · corners"
         );
-        match rows {
-            Rows::PerCorner(input) => assert!(
-                input.len() == corners && input.width() == N,
-                "one input row of {N} per corner"
-            ),
-            Rows::PerItem(input) => assert_eq!(input.len(), items, "one input row per item"),
-        }
+        assert_eq!(input.width(), N, "one input row of {N} per corner");
         let (a, b) = (
             rig.refractive_camera(cameras[0]),
             rig.refractive_camera(cameras[1]),
@@ -170,13 +98,10 @@ impl GpuEngine {
             return Ok(());
         }
         let s = self.precision.size();
-        let item_bytes = match rows {
-            Rows::PerCorner(_) => M * s,
-            Rows::PerItem(_) => N.max(M) * s,
-        };
+        let item_bytes = M * s;
         let per_chunk = self.chunk_items(item_bytes.max(4)) / corners;
         let cap = self.context.max_storage_binding() as usize;
-        if per_chunk == 0 || (matches!(rows, Rows::PerCorner(_)) && corners * N * s > cap) {
+        if per_chunk == 0 || corners * N * s > cap {
             return Err(GpuError::Unsupported(format!(
                 "{corners} corners per candidate do not fit one dispatch ({} items, {cap} bytes per binding)",
                 self.chunk_items(item_bytes.max(4))
@@ -189,18 +114,7 @@ impl GpuEngine {
         let buffers = &mut *guard;
 
         let uniform = self.uniform(&mut buffers.uniform, &params)?;
-        let in_buf = match rows {
-            Rows::PerCorner(input) => input.on_device(self, self.precision)?,
-            Rows::PerItem(_) => buffers
-                .input
-                .get(
-                    &self.context,
-                    "input",
-                    per_chunk * corners * N * s,
-                    self.input_usage(),
-                )?
-                .clone(),
-        };
+        let in_buf = input.on_device(self, self.precision)?;
         let cand_buf = buffers
             .candidates
             .get(
@@ -244,13 +158,6 @@ impl GpuEngine {
                 &cand_buf,
                 bytemuck::cast_slice(&candidates[first..last]),
             )?;
-            if let Rows::PerItem(input) = rows {
-                self.upload_reals(
-                    &mut buffers.scratch,
-                    &in_buf,
-                    bytemuck::cast_slice(&input[range.clone()]),
-                )?;
-            }
             let encoder = self.encode_dispatch(
                 &pipeline,
                 &bind_group,

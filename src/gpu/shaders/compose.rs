@@ -80,13 +80,9 @@ pub enum Kernel {
     RayGapCost,
     /// Candidate interfaces × corners (two air rays) → x, y, z, gap.
     CalibTriangulate,
-    /// Candidate interfaces × points (one per item) → ul, vl, ur, vr.
-    CalibProject,
     /// Candidate axes × corners (air rays and their pixel Jacobians) → projected binocular VOP
     /// q₁, q₂ in the plane ⟂ n and its Jacobian ∂q/∂(u_l, v_l, u_r, v_r).
     CalibProjectedVop,
-    /// Candidate axes × corners (two air rays) → gap line a, b and |w_l × w_r|.
-    CalibGapLine,
     /// Candidate axes × views (fused corner rows) → weighted affine-grid χ² and degrees of freedom;
     /// always f64.
     CalibAffineGrid,
@@ -102,7 +98,7 @@ pub enum Kernel {
 
 impl Kernel {
     /// Every kernel.
-    pub const ALL: [Kernel; 16] = [
+    pub const ALL: [Kernel; 14] = [
         Self::Backproject,
         Self::BackprojectGrid,
         Self::Project,
@@ -112,9 +108,7 @@ impl Kernel {
         Self::BinocularVop,
         Self::RayGapCost,
         Self::CalibTriangulate,
-        Self::CalibProject,
         Self::CalibProjectedVop,
-        Self::CalibGapLine,
         Self::CalibAffineGrid,
         Self::CalibSceneGap,
         Self::CalibSceneFit,
@@ -133,9 +127,7 @@ impl Kernel {
             Self::BinocularVop => "binocular_vop",
             Self::RayGapCost => "ray_gap_cost",
             Self::CalibTriangulate => "calib_triangulate",
-            Self::CalibProject => "calib_project",
             Self::CalibProjectedVop => "calib_projected_vop",
-            Self::CalibGapLine => "calib_gap_line",
             Self::CalibAffineGrid => "calib_affine_grid",
             Self::CalibSceneGap => "calib_scene_gap",
             Self::CalibSceneFit => "calib_scene_fit",
@@ -158,11 +150,9 @@ impl Kernel {
             Self::CalibTriangulate => {
                 include_str!("../../../shaders/kernels/calib_triangulate.wgsl")
             }
-            Self::CalibProject => include_str!("../../../shaders/kernels/calib_project.wgsl"),
             Self::CalibProjectedVop => {
                 include_str!("../../../shaders/kernels/calib_projected_vop.wgsl")
             }
-            Self::CalibGapLine => include_str!("../../../shaders/kernels/calib_gap_line.wgsl"),
             Self::CalibAffineGrid => {
                 include_str!("../../../shaders/kernels/calib_affine_grid.wgsl")
             }
@@ -194,10 +184,7 @@ impl Kernel {
             | Self::CalibSceneGap
             | Self::CalibSceneFit
             | Self::CalibSceneReprojection => "",
-            Self::CalibTriangulate
-            | Self::CalibProject
-            | Self::CalibProjectedVop
-            | Self::CalibGapLine => {
+            Self::CalibTriangulate | Self::CalibProjectedVop => {
                 include_str!("../../../shaders/kernels/candidate_bindings.wgsl")
             }
             Self::Backproject
