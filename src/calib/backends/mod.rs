@@ -84,9 +84,9 @@ pub trait CostBackend: Sync {
 }
 
 /// Most candidates under one axis that [`CpuBackend::costs`] evaluates from one computation of the
-/// axis's water rays: the rays are about a third of a reprojection cost, so groups of 16 air
-/// layers leave them a few per cent, and a single axis with many air layers still spreads over
-/// the threads.
+/// axis's water rays: the rays are one of the cost's three passes over the corners and the other
+/// two run per air layer, so a group of 16 spends little of its time on them, while a single axis
+/// with many air layers still spreads over the threads.
 pub const AXIS_GROUP: usize = 16;
 
 /// The f64 reference on the CPU, parallel over candidates (rayon).

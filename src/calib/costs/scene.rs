@@ -299,14 +299,7 @@ mod tests {
             "/data/example_rig.json"
         )))
         .unwrap();
-        let board = Board {
-            rows: 6,
-            cols: 9,
-            square: 0.04,
-        };
-        let scene = simulate(&rig, 0, 1, &SceneSpec::new(board, 6, 0.1, 5)).unwrap();
-        let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
-        let prepared = SceneRows::new(&data);
+        let (data, prepared) = simulated(&rig);
         let truth = *rig.shared_interface().unwrap().normal();
         let (mut finite, mut infinite) = (0, 0);
         for normal in [truth, normal_from_tilt_azimuth(0.1, 0.7)] {
@@ -349,9 +342,8 @@ mod tests {
         );
     }
 
-    /// How many finite profiles of `rig`'s simulated scene equal the reference (panics where one
-    /// does not).
-    fn compare_profiles(rig: &crate::model::Rig) -> usize {
+    /// Six simulated views of a 9×6 board behind `rig` (cameras 0 and 1), with their rows.
+    fn simulated(rig: &crate::model::Rig) -> (StereoData, SceneRows) {
         let board = Board {
             rows: 6,
             cols: 9,
@@ -360,6 +352,13 @@ mod tests {
         let scene = simulate(rig, 0, 1, &SceneSpec::new(board, 6, 0.1, 5)).unwrap();
         let data = StereoData::new(rig, [0, 1], &scene.observations).unwrap();
         let prepared = SceneRows::new(&data);
+        (data, prepared)
+    }
+
+    /// How many finite profiles of `rig`'s simulated scene equal the reference (panics where one
+    /// does not).
+    fn compare_profiles(rig: &crate::model::Rig) -> usize {
+        let (data, prepared) = simulated(rig);
         let truth = *rig.shared_interface().unwrap().normal();
         let mut compared = 0;
         let axes = [(0.0, 0.0), (6.0, 40.0), (10.0, 50.0), (9.0, 30.0)]

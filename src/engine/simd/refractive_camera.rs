@@ -368,12 +368,7 @@ impl<'a> CameraLanes<'a> {
             mut status,
             mut scalar,
         } = self.air_path(point);
-        let [r0, r1, r2] = self.cam_from_master;
-        let lateral_in_cam = Vec3s {
-            x: r0[0] * lateral.x + r0[1] * lateral.y + r0[2] * lateral.z,
-            y: r1[0] * lateral.x + r1[1] * lateral.y + r1[2] * lateral.z,
-            z: r2[0] * lateral.x + r2[1] * lateral.y + r2[2] * lateral.z,
-        };
+        let lateral_in_cam = self.in_cam(lateral);
         let root_q = (1.0 + (1.0 - k * k) * v * v).sqrt();
         let solved = scaled(self.normal_in_cam, r * root_q) + lateral_in_cam.scale(k * v);
         // r·√q overflowing (a point ~1e300 m away) takes the scalar path.
@@ -385,6 +380,17 @@ impl<'a> CameraLanes<'a> {
             v,
             status,
             scalar,
+        }
+    }
+
+    /// R_k·v: a master-frame vector in the camera frame.
+    #[inline(always)]
+    fn in_cam(&self, v: Vec3s) -> Vec3s {
+        let [r0, r1, r2] = self.cam_from_master;
+        Vec3s {
+            x: r0[0] * v.x + r0[1] * v.y + r0[2] * v.z,
+            y: r1[0] * v.x + r1[1] * v.y + r1[2] * v.z,
+            z: r2[0] * v.x + r2[1] * v.y + r2[2] * v.z,
         }
     }
 
@@ -483,14 +489,8 @@ impl<'a> CameraLanes<'a> {
         // n·r + lateral·tan a: the air direction times r√(1 + tan² a); n itself on the axis.
         let on_axis = r.eq(zero);
         let along = Vec3s::select(on_axis, n, n.scale(r) + lateral.scale(tau));
-        let [r0, r1, r2] = self.cam_from_master;
-        let dir = Vec3s {
-            x: r0[0] * along.x + r0[1] * along.y + r0[2] * along.z,
-            y: r1[0] * along.x + r1[1] * along.y + r1[2] * along.z,
-            z: r2[0] * along.x + r2[1] * along.y + r2[2] * along.z,
-        };
         let mut status = Status::ok();
-        let (u, v) = self.pixel_along(dir, &mut status);
+        let (u, v) = self.pixel_along(self.in_cam(along), &mut status);
         let settled = settled & status.answered();
         let pixels = Pixels {
             u,
