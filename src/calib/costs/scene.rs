@@ -60,7 +60,7 @@ impl SceneRows {
 
 /// The water rays of every corner of `data` under one axis, for every air layer at once
 /// ([`axis::axis_rays`]' columns per camera: the origin at the air layer d₀, the unit water
-/// direction, ∂origin/∂d, and tan a of the observed air ray), with the sums of their gap lines.
+/// direction and ∂origin/∂d), with the sums of their gap lines.
 /// Holds its buffers for reuse ([`fill`](Self::fill)): a sweep evaluates thousands of axes, and
 /// fresh buffers of this size cost page faults each time.
 #[derive(Debug, Clone, Default)]

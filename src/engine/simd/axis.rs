@@ -135,8 +135,8 @@ impl<const N: usize> Columns<N> {
 
 /// Columns of [`axis_rays`]'s rows per camera: the origin on the outer interface at the air layer
 /// the rays were computed at (0–2), the unit water direction (3–5), ∂origin/∂d = v/(n·v) (6–8: the
-/// water ray is linear in the air layer, DESIGN.md §2) and tan a of the observed air ray (9).
-pub type RayColumns = Columns<10>;
+/// water ray is linear in the air layer, DESIGN.md §2).
+pub type RayColumns = Columns<9>;
 
 /// Σa², Σab, Σb² over the gap lines g(d) = a·d + b of every corner
 /// ([`GapLine`](crate::calib::costs::air_layer::GapLine)), and whether every line was usable
@@ -187,7 +187,6 @@ dispatched! {
                 rays[k].store_vector(0, start, water.origin);
                 rays[k].store_vector(3, start, water.dir);
                 rays[k].store_vector(6, start, slope);
-                rays[k].store(9, start, water.sin2_a.sqrt() * water.inv_cos_a);
                 (water.origin, water.dir, slope)
             });
             // The gap line: m = unit(w_l × w_r), g(d0) = m·(o_l − o_r), a = m·(∂o_l/∂d − ∂o_r/∂d).
@@ -237,8 +236,9 @@ dispatched! {
     /// Σ over corners of the squared pixel residuals (observed − projected) of the points
     /// `fitted` in both cameras (`cameras`, left and right), `observed` the corners' pixels per
     /// camera; `None` when a fitted corner does not project. Each point is projected from the
-    /// tan a of its observed ray (`rays`' column 9) by
-    /// [`CameraLanes::project_near`]; the lanes it leaves take [`CameraLanes::project`], and its
+    /// tan a of its observed ray by [`CameraLanes::project_near`], taken from `rays`' ∂origin/∂d
+    /// = v/(n·v), whose squared length is 1 + tan² a (here, not in [`axis_rays`], so that the other
+    /// costs do not pay for it); the lanes it leaves take [`CameraLanes::project`], and its
     /// rare rows the scalar model, as [`project`](super::project) does.
     pub fn reprojection_squares(cameras: &[RefractiveCamera; 2], fitted: &Columns<3>, rays: &[RayColumns; 2], observed: &[Columns<2>; 2]) -> Option<f64> {
         let lanes = cameras.each_ref().map(CameraLanes::new);
@@ -247,7 +247,9 @@ dispatched! {
         for start in fitted.blocks() {
             let point = fitted.vector(0, start);
             for k in 0..2 {
-                let (near, settled) = lanes[k].project_near(point, rays[k].lanes(9, start));
+                let slope = rays[k].vector(6, start);
+                let tan_start = (slope.norm_squared() - 1.0).max(zero).sqrt();
+                let (near, settled) = lanes[k].project_near(point, tan_start);
                 let (mut u, mut v) = (near.u, near.v);
                 if !settled.all() {
                     let full = lanes[k].project(point);

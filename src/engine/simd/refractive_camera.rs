@@ -89,8 +89,6 @@ pub struct WaterRay {
     pub dir: Vec3s,
     /// 1 / cos a, a the angle of incidence from the air.
     pub inv_cos_a: F64s,
-    /// sin² a (≥ 0).
-    pub sin2_a: F64s,
 }
 
 /// Most Newton steps of [`CameraLanes::project_near`] before it leaves a lane to
@@ -270,7 +268,6 @@ impl<'a> CameraLanes<'a> {
             origin,
             dir,
             inv_cos_a,
-            sin2_a,
         }
     }
 
