@@ -1,6 +1,6 @@
-//! Parses and validates every composed WGSL kernel with naga, in both precisions and both
-//! reductions, so that a WGSL mistake is a build error naming the kernel, never a panic or a
-//! `GpuError::Kernel` at pipeline creation. The composition is the crate's own
+//! Parses and validates every composed WGSL kernel with naga, in both precisions, both
+//! reductions and both corner-row bindings, so that a WGSL mistake is a build error naming the
+//! kernel, never a panic or a `GpuError::Kernel` at pipeline creation. The composition is the crate's own
 //! (`src/gpu/shaders/compose.rs`, with a copy of the CPU's stopping rules that `tests/gpu.rs` holds
 //! equal to the engine's); the validation is `build/wgsl.rs`, which `tests/gpu.rs` also runs.
 
@@ -11,7 +11,7 @@ mod compose;
 mod wgsl;
 
 // `CpuBounds` is named by build/wgsl.rs as `super::CpuBounds`.
-use compose::{CpuBounds, Kernel, Precision, Reduction};
+use compose::{CpuBounds, Kernel, Precision, Reduction, Rows};
 use wgsl::CPU_BOUNDS_COPY;
 
 fn main() {
@@ -34,20 +34,36 @@ fn main() {
             } else {
                 &[Reduction::Workgroup]
             };
+            let bindings: &[Rows] = if kernel.reads_view_rows() {
+                &Rows::ALL
+            } else {
+                &[Rows::Storage]
+            };
             for &reduction in reductions {
-                let source = compose::source(kernel, precision, reduction, &CPU_BOUNDS_COPY);
-                let reduction_name = if kernel.is_cost() {
-                    format!(" {reduction:?} reduction")
-                } else {
-                    String::new()
-                };
-                let label = format!("kernel {} {precision}{reduction_name}", kernel.name());
-                let capabilities = wgsl::capabilities(
-                    precision == Precision::F64,
-                    reduction == Reduction::Subgroup,
-                );
-                if let Err(error) = wgsl::check(&label, &source, capabilities) {
-                    errors.push(error);
+                for &rows in bindings {
+                    let source =
+                        compose::source(kernel, precision, reduction, rows, &CPU_BOUNDS_COPY);
+                    let reduction_name = if kernel.is_cost() {
+                        format!(" {reduction:?} reduction")
+                    } else {
+                        String::new()
+                    };
+                    let rows_name = if kernel.reads_view_rows() {
+                        format!(" {} rows", rows.name())
+                    } else {
+                        String::new()
+                    };
+                    let label = format!(
+                        "kernel {} {precision}{reduction_name}{rows_name}",
+                        kernel.name()
+                    );
+                    let capabilities = wgsl::capabilities(
+                        precision == Precision::F64,
+                        reduction == Reduction::Subgroup,
+                    );
+                    if let Err(error) = wgsl::check(&label, &source, capabilities) {
+                        errors.push(error);
+                    }
                 }
             }
         }

@@ -9,7 +9,7 @@ use flatport::calib::{
     Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData,
     simulate,
 };
-use flatport::gpu::{GpuEngine, Precision};
+use flatport::gpu::{GpuEngine, Precision, Rows};
 use flatport::model::Rig;
 use gpu_harness::{Random, engine};
 use nalgebra::{Unit, Vector3};
@@ -303,6 +303,57 @@ fn chunked_batches_match_one_dispatch() {
     }
     let (_, whole_values) = compare(&data, &GpuBackend::new(&data, &whole), &batch);
     assert_eq!(chunked_values, whole_values, "chunking changed a value");
+}
+
+/// A board of 300 corners: a view's affine-grid rows (2 700 f64 vec4) exceed a uniform window,
+/// so every view of that kernel is read from one storage block.
+const BOARD_20X15: Board = Board {
+    rows: 15,
+    cols: 20,
+    square: 0.02,
+};
+
+/// The per-view kernels read their corner rows from uniform windows where every view fits one
+/// (`Rows` in src/gpu/shaders/compose.rs): 30 views of 54 corners fill two f32 windows of the
+/// scene kernels, three f64 ones, and eight of the affine grid; the 300-corner views of a 20×15
+/// board send the affine grid to storage in both precisions. Either way the values are those of
+/// one storage block, bit for bit, and match the CPU.
+#[test]
+fn uniform_windows_match_one_storage_block() {
+    for precision in [Precision::F64, Precision::F32] {
+        let Some(mut windows) = engine(precision) else {
+            return;
+        };
+        let Some(mut storage) = engine(precision) else {
+            return;
+        };
+        windows.set_rows(Some(Rows::Uniform));
+        storage.set_rows(Some(Rows::Storage));
+        for (board, views, seed) in [(BOARD_9X6, 30, 5), (BOARD_20X15, 3, 8)] {
+            let data = board_data(board, views, seed);
+            let batch = candidates(&data, 40, seed + 1);
+            let (deviations, in_windows) =
+                compare(&data, &GpuBackend::new(&data, &windows), &batch);
+            for (name, d) in deviations {
+                let bound = match (precision, name) {
+                    (Precision::F64, _) => F64_RELATIVE,
+                    (_, "air-distance") => continue,
+                    (_, "affine-grid") => F32_RELATIVE_CHI2,
+                    _ => F32_RELATIVE,
+                };
+                assert!(
+                    d.relative <= bound,
+                    "{precision} {views} views {name}: {:e}",
+                    d.relative
+                );
+            }
+            let (_, in_storage) = compare(&data, &GpuBackend::new(&data, &storage), &batch);
+            assert_eq!(
+                in_windows, in_storage,
+                "{precision} {views} views: the binding changed a value"
+            );
+        }
+    }
 }
 
 /// The reprojection kernel projects each corner from its observed air ray without the

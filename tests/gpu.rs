@@ -11,7 +11,7 @@ mod gpu_harness;
 
 use common::*;
 use flatport::engine::CpuEngine;
-use flatport::gpu::shaders::{CPU_BOUNDS, CpuBounds, source};
+use flatport::gpu::shaders::{CPU_BOUNDS, CpuBounds, Rows, source};
 use flatport::gpu::{GpuEngine, Kernel, Precision, Reduction};
 use flatport::model::{NoSolution, RefractiveCamera, Rig};
 use gpu_harness::{Random, engine, engine_with};
@@ -50,14 +50,20 @@ fn every_shader_parses_and_validates() {
     for kernel in Kernel::ALL {
         for precision in [Precision::F32, Precision::F64] {
             for reduction in [Reduction::Workgroup, Reduction::Subgroup] {
-                let precision = kernel.fixed_precision().unwrap_or(precision);
-                let name = format!("{} {precision} {reduction:?}", kernel.name());
-                wgsl::check(
-                    &name,
-                    &source(kernel, precision, reduction),
-                    capabilities(kernel, precision, reduction),
-                )
-                .unwrap_or_else(|e| panic!("{e}"));
+                for rows in Rows::ALL {
+                    let precision = kernel.fixed_precision().unwrap_or(precision);
+                    let name = format!(
+                        "{} {precision} {reduction:?} {} rows",
+                        kernel.name(),
+                        rows.name()
+                    );
+                    wgsl::check(
+                        &name,
+                        &source(kernel, precision, reduction, rows),
+                        capabilities(kernel, precision, reduction),
+                    )
+                    .unwrap_or_else(|e| panic!("{e}"));
+                }
             }
         }
     }
@@ -68,7 +74,12 @@ fn every_shader_parses_and_validates() {
 /// arithmetic, subgroups) (validator).
 #[test]
 fn broken_wgsl_is_an_error_naming_the_kernel() {
-    let project = source(Kernel::Project, Precision::F32, Reduction::Workgroup);
+    let project = source(
+        Kernel::Project,
+        Precision::F32,
+        Reduction::Workgroup,
+        Rows::Storage,
+    );
     let cases = [
         (
             "project f32 (missing semicolon)",
@@ -90,12 +101,22 @@ fn broken_wgsl_is_an_error_naming_the_kernel() {
         ),
         (
             "project f64 (without FLOAT64)",
-            source(Kernel::Project, Precision::F64, Reduction::Workgroup),
+            source(
+                Kernel::Project,
+                Precision::F64,
+                Reduction::Workgroup,
+                Rows::Storage,
+            ),
             "validation error",
         ),
         (
             "ray_gap_cost f32 subgroup (without SUBGROUP)",
-            source(Kernel::RayGapCost, Precision::F32, Reduction::Subgroup),
+            source(
+                Kernel::RayGapCost,
+                Precision::F32,
+                Reduction::Subgroup,
+                Rows::Storage,
+            ),
             "validation error",
         ),
     ];
@@ -139,7 +160,12 @@ fn host_mirrors_have_the_wgsl_layout() {
         ($ty:ty: $($field:ident),*) => { [$((stringify!($field), offset_of!($ty, $field))),*] };
     }
     for precision in [Precision::F32, Precision::F64] {
-        let text = source(Kernel::Project, precision, Reduction::Workgroup);
+        let text = source(
+            Kernel::Project,
+            precision,
+            Reduction::Workgroup,
+            Rows::Storage,
+        );
         let module = wgsl::check(
             "project",
             &text,

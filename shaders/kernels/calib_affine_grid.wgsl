@@ -4,14 +4,15 @@
 // and the taper are documented there). Composed in f64 on every adapter: the one-pass χ² cancels
 // up to ~1e7-fold.
 //
-// Items are view-major within a chunk: item i = view · info.y + candidate, info.y the candidates
-// per view: all of them when they fit one chunk, else a multiple of the workgroup size, so the
-// invocations of a workgroup read the same corner rows.
-// input: the corner rows (ROW reals each, info.z rows, read as vec4), then (start, count, 0, 0)
-// per view.
+// Items are view-major within a dispatch: item i = view · info.y + candidate, info.y the
+// candidates per view: all of them when they fit one chunk, else a multiple of the workgroup
+// size, so the invocations of a workgroup read the same corner rows. The item's view is entry
+// i / info.y + info.w of the block's view table; its output goes to item info.z + i.
+// input (binding 1, composed in front of this file: a storage buffer or a uniform window, see
+// `Rows` in src/gpu/shaders/compose.rs): a block of (first vec4 of the view's rows, row count,
+// 0, 0) per view, then ROW / 4 vec4 per corner.
 
 @group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> input: array<vec4r>;  // ROW / 4 vec4 per corner, then (start, count, 0, 0) per view
 @group(0) @binding(2) var<storage, read_write> output: array<real>;  // χ², dof per item
 @group(0) @binding(3) var<storage, read_write> status: array<u32>;
 @group(0) @binding(4) var<storage, read> candidates: array<vec4r>;  // unit axis n (w unused)
@@ -43,9 +44,9 @@ struct CornerTerms {
     g: vec2r,
 }
 
-fn corner_terms(j: u32, t: vec3r) -> CornerTerms {
+// The corner whose row starts at vec4 k.
+fn corner_terms(k: u32, t: vec3r) -> CornerTerms {
     // The row as 9 vec4: v_l, p, m, ∂v_l/∂u, ∂v_l/∂v, a_u, a_v, c_u, c_v, e_u, e_v, g.
-    let k = j * (ROW / 4u);
     let q0 = input[k];
     let q1 = input[k + 1u];
     let q2 = input[k + 2u];
@@ -110,9 +111,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let candidate = i % per_view;
     let n = candidates[candidate].xyz;
     let t = vec3r(n.x / n.z, n.y / n.z, 1.0);
-    let table = input[params.info.z * (ROW / 4u) + view];
+    let table = input[view];
     let start = u32(table.x);
-    let end = start + u32(table.y);
+    let end = start + (ROW / 4u) * u32(table.y);
 
     // W₁₁, W₁₂, W₂₂ times (g_x², g_x g_y, g_x) in *_a and (g_y², g_y, 1) in *_b.
     var s11_a = vec3r(0.0);
@@ -126,8 +127,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     var qwq: real = 0.0;
     var weight: real = 0.0;
     var used = 0u;
-    for (var j = start; j < end; j++) {
-        let c = corner_terms(j, t);
+    for (var k = start; k < end; k += ROW / 4u) {
+        let c = corner_terms(k, t);
         if (!c.ok) {
             continue;
         }
@@ -157,7 +158,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         used += 1u;
     }
     if (used < MIN_CORNERS) {
-        status[i] = STATUS_DEGENERATE;
+        status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
     // Cholesky of the normal matrix over (a₁₁, a₁₂, b₁, a₂₁, a₂₂, b₂), written out (a local
@@ -165,7 +166,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     // χ² = Σ qᵀWq − |y|². Entry (r, c) is block (r/3, c/3) of the sums at (r%3, c%3).
     let d0 = s11_a.x;
     if (!(d0 > 0.0)) {
-        status[i] = STATUS_DEGENERATE;
+        status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
     let l00 = sqrt(d0);
@@ -177,7 +178,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let l50 = (s12_a.z) * inv0;
     let d1 = s11_b.x - l10 * l10;
     if (!(d1 > 0.0)) {
-        status[i] = STATUS_DEGENERATE;
+        status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
     let l11 = sqrt(d1);
@@ -188,7 +189,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let l51 = (s12_b.y - l50 * l10) * inv1;
     let d2 = s11_b.z - l20 * l20 - l21 * l21;
     if (!(d2 > 0.0)) {
-        status[i] = STATUS_DEGENERATE;
+        status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
     let l22 = sqrt(d2);
@@ -198,7 +199,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let l52 = (s12_b.z - l50 * l20 - l51 * l21) * inv2;
     let d3 = s22_a.x - l30 * l30 - l31 * l31 - l32 * l32;
     if (!(d3 > 0.0)) {
-        status[i] = STATUS_DEGENERATE;
+        status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
     let l33 = sqrt(d3);
@@ -207,7 +208,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let l53 = (s22_a.z - l50 * l30 - l51 * l31 - l52 * l32) * inv3;
     let d4 = s22_b.x - l40 * l40 - l41 * l41 - l42 * l42 - l43 * l43;
     if (!(d4 > 0.0)) {
-        status[i] = STATUS_DEGENERATE;
+        status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
     let l44 = sqrt(d4);
@@ -215,7 +216,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let l54 = (s22_b.y - l50 * l40 - l51 * l41 - l52 * l42 - l53 * l43) * inv4;
     let d5 = s22_b.z - l50 * l50 - l51 * l51 - l52 * l52 - l53 * l53 - l54 * l54;
     if (!(d5 > 0.0)) {
-        status[i] = STATUS_DEGENERATE;
+        status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
     let l55 = sqrt(d5);
@@ -237,8 +238,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         let th1 = (y1 - l21 * th2 - l31 * th3 - l41 * th4 - l51 * th5) * inv1;
         let th0 = (y0 - l10 * th1 - l20 * th2 - l30 * th3 - l40 * th4 - l50 * th5) * inv0;
         chi2 = 0.0;
-        for (var j = start; j < end; j++) {
-            let c = corner_terms(j, t);
+        for (var k = start; k < end; k += ROW / 4u) {
+            let c = corner_terms(k, t);
             if (!c.ok) {
                 continue;
             }
@@ -247,7 +248,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             chi2 += c.d * c.d * c.d4_inverse * (c.adj.x * r.x * r.x + 2.0 * c.adj.y * r.x * r.y + c.adj.z * r.y * r.y);
         }
     }
-    output[2u * i] = chi2;
-    output[2u * i + 1u] = 2.0 * weight - 6.0;
-    status[i] = STATUS_OK;
+    let o = params.info.z + i;
+    output[2u * o] = chi2;
+    output[2u * o + 1u] = 2.0 * weight - 6.0;
+    status[o] = STATUS_OK;
 }

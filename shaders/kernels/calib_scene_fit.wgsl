@@ -16,14 +16,16 @@
 // output: 4 reals per item: (Σa², Σab, Σb², 0) for MODE_GAP, (sum, corners, 0, 0) for MODE_SCENE,
 // (sum, corners, corners left to `project`, 0) for MODE_REPROJECTION.
 //
-// Items are view-major within a chunk: item i = view · info.y + candidate, info.y the candidates
-// per view: all of them when they fit one chunk, else a multiple of the workgroup size, so the
-// invocations of a workgroup read the same corner rows.
-// input: (first vec4 of the view's rows, row count, 0, 0) per view, then 3 vec4 per corner:
-// (v_l xyz, v_r x), (v_r yz, P x, P y), (u_l, v_l, u_r, v_r).
+// Items are view-major within a dispatch: item i = view · info.y + candidate, info.y the
+// candidates per view: all of them when they fit one chunk, else a multiple of the workgroup
+// size, so the invocations of a workgroup read the same corner rows. The item's view is entry
+// i / info.y + info.w of the block's view table; its output goes to item info.z + i.
+// input (binding 1, composed in front of this file: a storage buffer or a uniform window, see
+// `Rows` in src/gpu/shaders/compose.rs): a block of (first vec4 of the view's rows, row count,
+// 0, 0) per view, then 3 vec4 per corner: (v_l xyz, v_r x), (v_r yz, P x, P y),
+// (u_l, v_l, u_r, v_r).
 
 @group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> input: array<vec4r>;
 @group(0) @binding(2) var<storage, read_write> output: array<real>; // 4 reals per item
 @group(0) @binding(3) var<storage, read_write> status: array<u32>;
 @group(0) @binding(4) var<storage, read> candidates: array<vec4r>; // n xyz (unit), d
@@ -92,12 +94,14 @@ fn tan_in_air(cam: View, v: vec3r) -> real {
     return select(0.0, sqrt(max(1.0 - c * c, 0.0)) / c, c > 0.0);
 }
 
+// Item i's output (i within the dispatch).
 fn write(i: u32, values: vec4r, code: u32) {
-    output[4u * i] = values.x;
-    output[4u * i + 1u] = values.y;
-    output[4u * i + 2u] = values.z;
-    output[4u * i + 3u] = values.w;
-    status[i] = code;
+    let o = params.info.z + i;
+    output[4u * o] = values.x;
+    output[4u * o + 1u] = values.y;
+    output[4u * o + 2u] = values.z;
+    output[4u * o + 3u] = values.w;
+    status[o] = code;
 }
 
 // A 3×3 matrix by columns (WGSL has no f64 matrices).

@@ -46,8 +46,9 @@ pub fn run() -> anyhow::Result<()> {
             yes(a.timestamp)
         );
         outln!(
-            "       limits used: storage binding {} MiB, {} workgroups per dimension",
+            "       limits used: storage binding {} MiB, uniform binding {} KiB, {} workgroups per dimension",
             a.max_storage_binding >> 20,
+            a.max_uniform_binding >> 10,
             a.max_workgroups_per_dimension
         );
     }

@@ -159,6 +159,8 @@ pub struct AdapterSummary {
     pub timestamp: bool,
     /// Largest storage binding, bytes.
     pub max_storage_binding: u64,
+    /// Largest uniform binding, bytes.
+    pub max_uniform_binding: u64,
     /// Largest workgroup count per dispatch dimension.
     pub max_workgroups_per_dimension: u32,
 }
@@ -191,6 +193,7 @@ fn summary_of(
         subgroup: features.contains(wgpu::Features::SUBGROUP),
         timestamp: features.contains(wgpu::Features::TIMESTAMP_QUERY),
         max_storage_binding: limits.max_storage_buffer_binding_size,
+        max_uniform_binding: limits.max_uniform_buffer_binding_size,
         max_workgroups_per_dimension: limits.max_compute_workgroups_per_dimension,
     }
 }

@@ -16,7 +16,7 @@ use rayon::prelude::*;
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{MAX_LAYERS, Params};
-use super::shaders::{Kernel, Precision, Reduction, STATUS_RETRY, WORKGROUP_SIZE, source};
+use super::shaders::{Kernel, Precision, Reduction, Rows, STATUS_RETRY, WORKGROUP_SIZE, source};
 use crate::model::{RefractiveCamera, Rig};
 
 mod affine_grid;
@@ -30,6 +30,7 @@ pub use affine_grid::AffineGridInput;
 pub use resident::ResidentRows;
 pub use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
 pub use stream::{HostReal, RING, STREAM_CHUNK_ROWS};
+pub use views::ViewRows;
 
 /// Largest number of items per dispatch whatever the binding cap: bounds the device and staging
 /// memory (4 Mi items: 96 MiB of f32 rays, 192 MiB in f64 split over two chunks by the cap).
@@ -106,10 +107,12 @@ pub struct GpuEngine {
     context: GpuContext,
     precision: Precision,
     reduction: Reduction,
-    pipelines: Mutex<HashMap<Kernel, Arc<wgpu::ComputePipeline>>>,
+    pipelines: Mutex<HashMap<(Kernel, Rows), Arc<wgpu::ComputePipeline>>>,
     buffers: Mutex<Buffers>,
     /// Most items per dispatch ([`MAX_CHUNK_ITEMS`] unless a test lowers it).
     max_chunk_items: usize,
+    /// The corner-row binding of the per-view kernels, if a test fixes it (else chosen per call).
+    rows: Option<Rows>,
     /// Most rows per streamed chunk of the row kernels ([`STREAM_CHUNK_ROWS`] unless changed).
     stream_chunk_rows: usize,
 }
@@ -206,6 +209,7 @@ impl GpuEngine {
             pipelines: Mutex::default(),
             buffers: Mutex::default(),
             max_chunk_items: MAX_CHUNK_ITEMS,
+            rows: None,
             stream_chunk_rows: STREAM_CHUNK_ROWS,
         })
     }
@@ -238,8 +242,16 @@ impl GpuEngine {
         self.pipelines
             .lock()
             .expect("pipeline cache")
-            .remove(&Kernel::RayGapCost);
+            .remove(&(Kernel::RayGapCost, Rows::Storage));
         Ok(())
+    }
+
+    /// Fixes where the per-(candidate, view) kernels read their corner rows: `Some(Rows::Uniform)`
+    /// in uniform windows wherever every view fits one, `Some(Rows::Storage)` in one storage
+    /// block, `None` (the default) chosen per call (windows for calls large enough to pay for a
+    /// dispatch per window). For tests of the two bindings.
+    pub fn set_rows(&mut self, rows: Option<Rows>) {
+        self.rows = rows;
     }
 
     /// Lowers the most items per dispatch below [`MAX_CHUNK_ITEMS`] (at least one workgroup,
@@ -257,18 +269,39 @@ impl GpuEngine {
         self.stream_chunk_rows = rows.max(1);
     }
 
-    /// The compiled pipeline of `kernel`, compiled on first use.
+    /// The compiled pipeline of `kernel`, compiled on first use (per-view kernels with their
+    /// rows in a storage buffer).
     fn pipeline(&self, kernel: Kernel) -> Result<Arc<wgpu::ComputePipeline>, GpuError> {
+        self.pipeline_reading(kernel, Rows::Storage)
+    }
+
+    /// The compiled pipeline of `kernel` reading its corner rows as `rows` says (ignored by
+    /// kernels without per-view rows), compiled on first use.
+    fn pipeline_reading(
+        &self,
+        kernel: Kernel,
+        rows: Rows,
+    ) -> Result<Arc<wgpu::ComputePipeline>, GpuError> {
+        let rows = if kernel.reads_view_rows() {
+            rows
+        } else {
+            Rows::Storage
+        };
         let mut cache = self.pipelines.lock().expect("pipeline cache");
-        if let Some(pipeline) = cache.get(&kernel) {
+        if let Some(pipeline) = cache.get(&(kernel, rows)) {
             return Ok(pipeline.clone());
         }
         let precision = kernel.fixed_precision().unwrap_or(self.precision);
+        let label = if kernel.reads_view_rows() {
+            format!("{} ({} rows)", kernel.name(), rows.name())
+        } else {
+            kernel.name().to_string()
+        };
         let pipeline = Arc::new(
             self.context
-                .pipeline(kernel.name(), &source(kernel, precision, self.reduction))?,
+                .pipeline(&label, &source(kernel, precision, self.reduction, rows))?,
         );
-        cache.insert(kernel, pipeline.clone());
+        cache.insert((kernel, rows), pipeline.clone());
         Ok(pipeline)
     }
 

@@ -16,6 +16,6 @@ pub mod shaders;
 pub use context::{AdapterSummary, GpuContext, GpuError, adapters};
 pub use engine::{
     AffineGridInput, GpuEngine, HostReal, KernelTimer, ResidentRows, SCENE_ROW, SceneFitInput,
-    SceneSum,
+    SceneSum, ViewRows,
 };
-pub use shaders::{Kernel, Precision, Reduction};
+pub use shaders::{Kernel, Precision, Reduction, Rows};

@@ -10,7 +10,9 @@ use crate::model::stereo::{MIN_BINOCULAR_CONDITIONING, MIN_RAY_ANGLE_SIN2};
 
 pub mod compose;
 
-pub use compose::{CpuBounds, Kernel, Precision, Reduction, STATUS_RETRY};
+pub use compose::{
+    CpuBounds, Kernel, Precision, Reduction, Rows, STATUS_RETRY, UNIFORM_WINDOW_BYTES,
+};
 
 /// Invocations per workgroup of every kernel: the value of WGSL's `override WORKGROUP_SIZE`
 /// (`shaders/common.wgsl`, no default there), set at pipeline creation by
@@ -33,7 +35,8 @@ pub fn prelude(precision: Precision) -> String {
 }
 
 /// The composed WGSL module of `kernel` at `precision` with the CPU's stopping rules; `reduction`
-/// picks the entry point of cost kernels (ignored by the others).
-pub fn source(kernel: Kernel, precision: Precision, reduction: Reduction) -> String {
-    compose::source(kernel, precision, reduction, &CPU_BOUNDS)
+/// picks the entry point of cost kernels, `rows` the corner-row binding of per-view kernels (each
+/// ignored by the others).
+pub fn source(kernel: Kernel, precision: Precision, reduction: Reduction, rows: Rows) -> String {
+    compose::source(kernel, precision, reduction, rows, &CPU_BOUNDS)
 }

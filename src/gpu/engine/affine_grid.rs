@@ -3,48 +3,34 @@
 //! formulation is in [`crate::calib::costs::affine_grid`].
 
 use super::GpuEngine;
-use super::views::ViewKernel;
+use super::views::{ViewKernel, ViewRows};
 use crate::gpu::context::GpuError;
-use crate::gpu::engine::ResidentRows;
 use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::Rig;
 
-/// The fused affine-grid kernel's input, packed once per data set and kept on the device across
-/// calls ([`ResidentRows`]): every corner row (N reals, a multiple of 4: the kernel reads vec4),
-/// then (first row, row count, 0, 0) per view.
+/// The fused affine-grid kernel's input: N reals per corner (a multiple of 4: the kernel reads
+/// vec4), view by view, kept on the device across calls ([`ViewRows`]).
 #[derive(Debug)]
 pub struct AffineGridInput {
-    packed: ResidentRows,
-    rows: usize,
-    views: usize,
+    rows: ViewRows,
 }
 
 impl AffineGridInput {
-    /// Packs `rows` (view by view) and each view's (first row, row count).
+    /// The corner `rows` (view by view) and each view's (first row, row count).
     pub fn new<const N: usize>(rows: &[[f64; N]], views: &[(usize, usize)]) -> Self {
-        assert_eq!(N % 4, 0, "rows are read as vec4");
-        let mut reals = Vec::with_capacity(rows.len() * N + 4 * views.len());
-        for row in rows {
-            reals.extend_from_slice(row);
-        }
-        for &(first, count) in views {
-            reals.extend_from_slice(&[first as f64, count as f64, 0.0, 0.0]);
-        }
         Self {
-            packed: ResidentRows::from_reals(reals, 4),
-            rows: rows.len(),
-            views: views.len(),
+            rows: ViewRows::new(rows.as_flattened(), N, views),
         }
     }
 
     /// Number of views.
     pub fn views(&self) -> usize {
-        self.views
+        self.rows.views()
     }
 
-    /// The packed rows as kept on the device.
-    pub fn resident(&self) -> &ResidentRows {
-        &self.packed
+    /// The rows as kept on the device.
+    pub fn resident(&self) -> &ViewRows {
+        &self.rows
     }
 }
 
@@ -75,10 +61,7 @@ impl GpuEngine {
         let job = ViewKernel {
             kernel: Kernel::CalibAffineGrid,
             precision: Precision::F64,
-            input: &input.packed,
-            corners: input.rows,
-            views: input.views,
-            info_z: input.rows as u32,
+            input: &input.rows,
         };
         self.run_views(job, rig, cameras, axes, fits, status)
     }

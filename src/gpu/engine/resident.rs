@@ -17,6 +17,8 @@ use crate::gpu::shaders::Precision;
 pub struct ResidentRows {
     reals: Vec<f64>,
     width: usize,
+    /// Also bound as a uniform buffer (windows of [`ViewRows`](super::ViewRows)).
+    uniform: bool,
     device: Mutex<Option<DeviceCopy>>,
     uploads: AtomicUsize,
 }
@@ -43,9 +45,22 @@ impl ResidentRows {
         Self {
             reals,
             width,
+            uniform: false,
             device: Mutex::new(None),
             uploads: AtomicUsize::new(0),
         }
+    }
+
+    /// The same rows, to be bound as uniform windows as well as storage.
+    pub(super) fn bound_as_uniform(mut self) -> Self {
+        self.uniform = true;
+        self
+    }
+
+    /// The reals as the device gets them (before rounding to the precision).
+    #[cfg(test)]
+    pub(super) fn reals_for_tests(&self) -> &[f64] {
+        &self.reals
     }
 
     /// Number of rows.
@@ -61,11 +76,6 @@ impl ResidentRows {
     /// Reals per row.
     pub fn width(&self) -> usize {
         self.width
-    }
-
-    /// Number of reals.
-    pub(super) fn reals(&self) -> usize {
-        self.reals.len()
     }
 
     /// How many times the rows went to a device (1 after any number of calls on one engine).
@@ -96,11 +106,14 @@ impl ResidentRows {
         // The old copy goes first, so that both never hold device memory at once.
         *copy = None;
         let bytes = (self.reals.len().max(4) * precision.size()) as u64;
-        let buffer = engine.context().buffer(
-            "resident rows",
-            bytes.next_multiple_of(16),
-            engine.input_usage(),
-        )?;
+        let usage = if self.uniform {
+            engine.input_usage() | wgpu::BufferUsages::UNIFORM
+        } else {
+            engine.input_usage()
+        };
+        let buffer = engine
+            .context()
+            .buffer("resident rows", bytes.next_multiple_of(16), usage)?;
         engine.upload_reals_as(precision, &buffer, &self.reals)?;
         self.uploads.fetch_add(1, Ordering::Relaxed);
         *copy = Some(DeviceCopy {

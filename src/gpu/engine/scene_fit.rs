@@ -5,9 +5,8 @@
 //! [`crate::calib::costs::scene`].
 
 use super::GpuEngine;
-use super::views::ViewKernel;
+use super::views::{ViewKernel, ViewRows};
 use crate::gpu::context::GpuError;
-use crate::gpu::engine::ResidentRows;
 use crate::gpu::shaders::Kernel;
 use crate::model::Rig;
 
@@ -42,42 +41,29 @@ impl SceneSum {
     }
 }
 
-/// The scene-fit kernel's input, packed once per data set and kept on the device across calls
-/// ([`ResidentRows`]): (first vec4, count, 0, 0) per view, then [`SCENE_ROW`] reals per corner.
+/// The scene-fit kernel's input: [`SCENE_ROW`] reals per corner, view by view, kept on the
+/// device across calls ([`ViewRows`]).
 #[derive(Debug)]
 pub struct SceneFitInput {
-    packed: ResidentRows,
-    corners: usize,
-    views: usize,
+    rows: ViewRows,
 }
 
 impl SceneFitInput {
-    /// Packs the corner `rows` (view by view) and each view's (first row, row count).
+    /// The corner `rows` (view by view) and each view's (first row, row count).
     pub fn new(rows: &[[f64; SCENE_ROW]], views: &[(usize, usize)]) -> Self {
-        let mut reals = Vec::with_capacity(rows.len() * SCENE_ROW + 4 * views.len());
-        let per_row = SCENE_ROW / 4;
-        for &(first, count) in views {
-            let at = views.len() + per_row * first;
-            reals.extend_from_slice(&[at as f64, count as f64, 0.0, 0.0]);
-        }
-        for row in rows {
-            reals.extend_from_slice(row);
-        }
         Self {
-            packed: ResidentRows::from_reals(reals, 4),
-            corners: rows.len(),
-            views: views.len(),
+            rows: ViewRows::new(rows.as_flattened(), SCENE_ROW, views),
         }
     }
 
     /// Number of views.
     pub fn views(&self) -> usize {
-        self.views
+        self.rows.views()
     }
 
-    /// The packed rows as kept on the device.
-    pub fn resident(&self) -> &ResidentRows {
-        &self.packed
+    /// The rows as kept on the device.
+    pub fn resident(&self) -> &ViewRows {
+        &self.rows
     }
 }
 
@@ -105,10 +91,7 @@ impl GpuEngine {
         let job = ViewKernel {
             kernel: what.kernel(),
             precision: self.precision,
-            input: &input.packed,
-            corners: input.corners,
-            views: input.views,
-            info_z: 0,
+            input: &input.rows,
         };
         self.run_views(job, rig, cameras, candidates, sums, status)
     }

@@ -1,29 +1,229 @@
 //! The skeleton the per-(candidate, view) kernels share ([`calib_affine_grid`] and
 //! [`calib_scene_fit`]): one item per (candidate, view), M reals out each, the corner rows
-//! resident on the device, chunked over candidates and views. Indexing, chunking and buffers
-//! only.
+//! resident on the device ([`ViewRows`]), chunked over candidates and views. Indexing, chunking
+//! and buffers only.
 //!
 //! [`calib_affine_grid`]: GpuEngine::calib_affine_grid
 //! [`calib_scene_fit`]: GpuEngine::calib_scene_fit
+
+use std::num::NonZeroU64;
+use std::ops::Range;
+use std::sync::OnceLock;
 
 use super::{GROUP, GpuEngine, rows_from};
 use crate::gpu::context::GpuError;
 use crate::gpu::engine::ResidentRows;
 use crate::gpu::layout::Params;
-use crate::gpu::shaders::{Kernel, Precision};
+use crate::gpu::shaders::{Kernel, Precision, Rows, UNIFORM_WINDOW_BYTES};
 use crate::model::Rig;
+
+/// Byte alignment of every bound range of a uniform buffer: the largest value WebGPU allows for
+/// `min_uniform_buffer_offset_alignment`, so a multiple of every adapter's.
+const UNIFORM_ALIGNMENT: usize = 256;
+
+/// Corner rows grouped by view, as the per-(candidate, view) kernels read them (binding 1), packed
+/// once per precision and kept on the device across calls (the hundreds of small calls of a
+/// stencil refinement upload nothing).
+///
+/// Packed into blocks, each a table of (first vec4, corners, 0, 0) per view followed by those
+/// views' rows: where every view fits a [`UNIFORM_WINDOW_BYTES`] window, as consecutive views per
+/// window, bound as a uniform buffer one window per dispatch ([`Rows::Uniform`], which lavapipe
+/// loads several times faster than storage); otherwise all views in one storage block.
+#[derive(Debug)]
+pub struct ViewRows {
+    /// Every corner row, view by view.
+    rows: Vec<f64>,
+    /// Reals per corner row (a multiple of 4: the kernels read vec4).
+    row_reals: usize,
+    /// (first row, rows) per view.
+    views: Vec<(usize, usize)>,
+    /// The packing per precision, with and without uniform windows.
+    packed: [OnceLock<Packed>; 4],
+}
+
+/// [`ViewRows`] packed for one precision.
+#[derive(Debug)]
+pub(super) struct Packed {
+    /// How the kernels bind the blocks.
+    rows: Rows,
+    blocks: Vec<Block>,
+    /// Every block, at its offset.
+    resident: ResidentRows,
+}
+
+/// Consecutive views whose table and rows are one bound range of the packed buffer.
+#[derive(Debug, Clone)]
+struct Block {
+    /// The views, numbered as in [`ViewRows`].
+    views: Range<usize>,
+    /// Start and length in bytes of the bound range.
+    offset: u64,
+    bytes: u64,
+}
+
+impl ViewRows {
+    /// `rows` (`row_reals` reals per corner row, view by view) and each view's (first row, row
+    /// count). Nothing is packed or uploaded until a kernel reads them.
+    ///
+    /// Panics if `row_reals` is not a positive multiple of 4, `rows` not whole rows, or a view
+    /// outside the rows.
+    pub fn new(rows: &[f64], row_reals: usize, views: &[(usize, usize)]) -> Self {
+        assert!(
+            row_reals > 0 && row_reals.is_multiple_of(4),
+            "rows of whole vec4"
+        );
+        assert!(rows.len().is_multiple_of(row_reals), "whole rows");
+        let count = rows.len() / row_reals;
+        assert!(
+            views.iter().all(|&(first, n)| first + n <= count),
+            "views within the rows"
+        );
+        Self {
+            rows: rows.to_vec(),
+            row_reals,
+            views: views.to_vec(),
+            packed: Default::default(),
+        }
+    }
+
+    /// Number of views.
+    pub fn views(&self) -> usize {
+        self.views.len()
+    }
+
+    /// Number of corner rows.
+    pub fn corners(&self) -> usize {
+        self.rows.len() / self.row_reals
+    }
+
+    /// How many times the rows went to a device (1 after any number of calls on one engine and
+    /// precision).
+    pub fn uploads(&self) -> usize {
+        self.packed
+            .iter()
+            .filter_map(OnceLock::get)
+            .map(|p| p.resident.uploads())
+            .sum()
+    }
+
+    /// Drops the device copies (freeing their memory): the next kernel that reads the rows
+    /// uploads them again.
+    pub fn evict(&self) {
+        for packed in self.packed.iter().filter_map(OnceLock::get) {
+            packed.resident.evict();
+        }
+    }
+
+    /// The rows packed for `precision`, in uniform windows where `uniform` allows and every view
+    /// fits one.
+    fn packed(&self, precision: Precision, uniform: bool) -> &Packed {
+        let slot = 2 * usize::from(precision == Precision::F64) + usize::from(uniform);
+        self.packed[slot].get_or_init(|| {
+            let window = Rows::uniform_window_vec4(precision);
+            let row_vec4 = self.row_reals / 4;
+            // A view needs its table entry and its rows in one window.
+            let fits = |&(_, n): &(usize, usize)| 1 + n * row_vec4 <= window;
+            if uniform && self.views.iter().all(fits) {
+                self.pack_windows(precision)
+            } else {
+                self.pack_storage(precision)
+            }
+        })
+    }
+
+    /// One block of every view, bound as storage.
+    fn pack_storage(&self, precision: Precision) -> Packed {
+        let mut reals = Vec::with_capacity(4 * self.views.len() + self.rows.len());
+        self.push_block(&mut reals, 0..self.views.len());
+        let bytes = (reals.len() * precision.size()) as u64;
+        Packed {
+            rows: Rows::Storage,
+            blocks: vec![Block {
+                views: 0..self.views.len(),
+                offset: 0,
+                bytes,
+            }],
+            resident: ResidentRows::from_reals(reals, 4),
+        }
+    }
+
+    /// Consecutive views per uniform window, each window's block at an aligned offset; the buffer
+    /// extends a whole window past the last block's start, since each binding is a whole window.
+    fn pack_windows(&self, precision: Precision) -> Packed {
+        let window = Rows::uniform_window_vec4(precision);
+        let vec4_bytes = 4 * precision.size();
+        let row_vec4 = self.row_reals / 4;
+        let mut reals = Vec::new();
+        let mut blocks = Vec::new();
+        let mut start = 0;
+        while start < self.views.len() {
+            // As many views as fit (at least one: `packed` checked each fits alone).
+            let mut end = start;
+            let mut used = 0;
+            while end < self.views.len() && used + 1 + self.views[end].1 * row_vec4 <= window {
+                used += 1 + self.views[end].1 * row_vec4;
+                end += 1;
+            }
+            let offset = (reals.len() * precision.size()).next_multiple_of(UNIFORM_ALIGNMENT);
+            reals.resize(offset / precision.size(), 0.0);
+            self.push_block(&mut reals, start..end);
+            blocks.push(Block {
+                views: start..end,
+                offset: offset as u64,
+                bytes: UNIFORM_WINDOW_BYTES as u64,
+            });
+            start = end;
+        }
+        let last = blocks.last().map_or(0, |b| b.offset as usize);
+        reals.resize((last + UNIFORM_WINDOW_BYTES) / precision.size(), 0.0);
+        debug_assert!(reals.len().is_multiple_of(vec4_bytes / precision.size()));
+        Packed {
+            rows: Rows::Uniform,
+            blocks,
+            resident: ResidentRows::from_reals(reals, 4).bound_as_uniform(),
+        }
+    }
+
+    /// Appends the block of `views`: their table, then their rows; a table entry's first vec4
+    /// counts from the block's start.
+    fn push_block(&self, reals: &mut Vec<f64>, views: Range<usize>) {
+        let row_vec4 = self.row_reals / 4;
+        let mut first = views.len();
+        for &(_, n) in &self.views[views.clone()] {
+            reals.extend_from_slice(&[first as f64, n as f64, 0.0, 0.0]);
+            first += n * row_vec4;
+        }
+        for &(row, n) in &self.views[views] {
+            reals.extend_from_slice(&self.rows[row * self.row_reals..(row + n) * self.row_reals]);
+        }
+    }
+}
+
+/// Fewest items per dispatch, on average over the windows, for which a call reads its rows from
+/// uniform windows: a dispatch costs lavapipe about 50 µs besides its items, and a few workgroups
+/// leave some of its threads idle (7-candidate stencil calls over 185 views ran at 8.6 ms in
+/// windows, 5.4 ms in one storage block; machine A). 64 workgroups of 54-corner views gain far
+/// more than that from the faster loads.
+const MIN_WINDOW_ITEMS: usize = 64 * GROUP;
+
+/// Whether a call of `per_view` candidates for each of `views` views reads its rows from
+/// `windows` uniform windows (one dispatch each) rather than one storage block.
+fn large_enough_for_windows(per_view: usize, views: usize, windows: usize) -> bool {
+    per_view * views >= MIN_WINDOW_ITEMS * windows.max(1)
+}
 
 /// What a per-(candidate, view) dispatch needs besides its candidates.
 pub(super) struct ViewKernel<'a> {
     pub kernel: Kernel,
     pub precision: Precision,
-    /// The corner rows and view table, as the kernel reads them (binding 1).
-    pub input: &'a ResidentRows,
-    /// Rows of corners, for the message when they do not fit one binding.
-    pub corners: usize,
-    pub views: usize,
-    /// The kernel's third info word (`params.info.z`).
-    pub info_z: u32,
+    /// The corner rows, as the kernel reads them (binding 1).
+    pub input: &'a ViewRows,
+}
+
+/// Views of one block that one dispatch covers.
+struct Piece {
+    block: usize,
+    views: Range<usize>,
 }
 
 impl GpuEngine {
@@ -32,10 +232,11 @@ impl GpuEngine {
     /// 0. A chunk holds `per_view` candidates for each of its views, view-major: every candidate
     /// where they fit one chunk (a stencil's few candidates cost a few items per view, not a
     /// workgroup), else a multiple of the workgroup size, so that each workgroup's items share
-    /// one view, the last chunk padded with its last candidate.
+    /// one view, the last chunk padded with its last candidate. The views are dispatched block by
+    /// block of [`ViewRows`] (one dispatch per uniform window), as many dispatches per
+    /// submission and read-back as the output binding holds.
     ///
     /// Panics if `output` and `status` are not `candidates.len() · views` long.
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn run_views<const M: usize>(
         &self,
         job: ViewKernel<'_>,
@@ -45,7 +246,7 @@ impl GpuEngine {
         output: &mut [[f64; M]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        let view_count = job.views;
+        let view_count = job.input.views();
         assert!(
             output.len() == candidates.len() * view_count && status.len() == output.len(),
             "output and status of candidates · views"
@@ -69,19 +270,68 @@ impl GpuEngine {
         } else {
             fit
         };
-        let cap = self.context.max_storage_binding() as usize;
-        if job.input.reals() * real > cap {
+        let windows = self.context.adapter().max_uniform_binding >= UNIFORM_WINDOW_BYTES as u64
+            && match self.rows {
+                Some(rows) => rows == Rows::Uniform,
+                None => {
+                    let windowed = job.input.packed(precision, true);
+                    windowed.rows == Rows::Uniform
+                        && large_enough_for_windows(per_view, view_count, windowed.blocks.len())
+                }
+            };
+        let packed = job.input.packed(precision, windows);
+        let cap = self.context.max_storage_binding();
+        if packed.rows == Rows::Storage && packed.blocks[0].bytes > cap {
             return Err(GpuError::Unsupported(format!(
                 "{} corner rows do not fit one binding of {cap} bytes",
-                job.corners
+                job.input.corners()
             )));
         }
-        let pipeline = self.pipeline(job.kernel)?;
-        let in_buf = job.input.on_device(self, precision)?;
+        // Each block cut into dispatches of at most `views_per_chunk` views, and the dispatches
+        // into submissions of at most `views_per_chunk` views together.
+        let mut pieces = Vec::new();
+        for (k, block) in packed.blocks.iter().enumerate() {
+            for start in block.views.clone().step_by(views_per_chunk) {
+                let end = (start + views_per_chunk).min(block.views.end);
+                pieces.push(Piece {
+                    block: k,
+                    views: start..end,
+                });
+            }
+        }
+        let mut batches: Vec<Range<usize>> = Vec::new();
+        let mut batch_views = 0;
+        for (k, piece) in pieces.iter().enumerate() {
+            match batches.last_mut() {
+                Some(batch) if batch_views + piece.views.len() <= views_per_chunk => {
+                    batch.end = k + 1;
+                    batch_views += piece.views.len();
+                }
+                _ => {
+                    batches.push(k..k + 1);
+                    batch_views = piece.views.len();
+                }
+            }
+        }
+        let most_pieces = batches.iter().map(|b| b.len()).max().unwrap_or(1);
+
+        let pipeline = self.pipeline_reading(job.kernel, packed.rows)?;
+        let rows_buf = packed.resident.on_device(self, precision)?;
         let mut params = Params::new(precision, &a, &b, [0; 4]);
+        // One uniform slot per dispatch of a submission, each at an aligned offset.
+        let params_bytes = params.bytes().len();
+        let stride = params_bytes.next_multiple_of(UNIFORM_ALIGNMENT);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = self.uniform(&mut buffers.uniform, &params)?;
+        let uniform_buf = buffers
+            .uniform
+            .get(
+                &self.context,
+                "params",
+                most_pieces * stride,
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            )?
+            .clone();
         let cand_buf = buffers
             .candidates
             .get(
@@ -104,20 +354,55 @@ impl GpuEngine {
             "status",
             items * 4,
         )?;
-        let bind_group = self.bind_group(
-            &pipeline,
-            job.kernel.name(),
-            &[
-                (0, &uniform),
-                (1, &in_buf),
-                (2, &out_buf),
-                (3, &status_buf),
-                (4, &cand_buf),
-            ],
-        );
+        // Piece k of a submission reads uniform slot k - batch.start.
+        let slot_of = |k: usize| {
+            k - batches
+                .iter()
+                .find(|b| b.contains(&k))
+                .expect("every piece in a batch")
+                .start
+        };
+        let bind_groups: Vec<wgpu::BindGroup> = pieces
+            .iter()
+            .enumerate()
+            .map(|(k, piece)| {
+                let block = &packed.blocks[piece.block];
+                let range = |buffer, offset: u64, bytes: u64| {
+                    wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer,
+                        offset,
+                        size: NonZeroU64::new(bytes),
+                    })
+                };
+                let entries = [
+                    (
+                        0,
+                        range(
+                            &uniform_buf,
+                            (slot_of(k) * stride) as u64,
+                            params_bytes as u64,
+                        ),
+                    ),
+                    (1, range(&rows_buf, block.offset, block.bytes)),
+                    (2, out_buf.as_entire_binding()),
+                    (3, status_buf.as_entire_binding()),
+                    (4, cand_buf.as_entire_binding()),
+                ]
+                .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource });
+                self.context
+                    .device()
+                    .create_bind_group(&wgpu::BindGroupDescriptor {
+                        label: Some(job.kernel.name()),
+                        layout: &pipeline.get_bind_group_layout(0),
+                        entries: &entries,
+                    })
+            })
+            .collect();
+
         let mut chunk = vec![[0.0; 4]; per_view];
         let mut values = vec![[0.0; M]; items];
         let mut codes = vec![0u32; items];
+        let mut slots = vec![0u8; most_pieces * stride];
         for first in (0..candidates.len()).step_by(per_view) {
             let last = (first + per_view).min(candidates.len());
             // Pad the last of several chunks with its last candidate: every workgroup then
@@ -126,17 +411,46 @@ impl GpuEngine {
                 *slot = candidates[(first + k).min(last - 1)];
             }
             self.upload_reals_as(precision, &cand_buf, chunk.as_flattened())?;
-            for view_first in (0..view_count).step_by(views_per_chunk) {
-                let view_last = (view_first + views_per_chunk).min(view_count);
-                let count = per_view * (view_last - view_first);
-                params.set_info([count as u32, per_view as u32, job.info_z, view_first as u32]);
-                self.context.queue.write_buffer(&uniform, 0, params.bytes());
-                let encoder = self.encode_dispatch(
-                    &pipeline,
-                    &bind_group,
-                    job.kernel.name(),
-                    self.context.dispatch_size(count as u32),
-                );
+            for batch in &batches {
+                // Item base of each piece within the submission.
+                let mut bases = Vec::with_capacity(batch.len());
+                let mut count = 0;
+                for (slot, piece) in pieces[batch.clone()].iter().enumerate() {
+                    let block = &packed.blocks[piece.block];
+                    let n = per_view * piece.views.len();
+                    params.set_info([
+                        n as u32,
+                        per_view as u32,
+                        count as u32,
+                        (piece.views.start - block.views.start) as u32,
+                    ]);
+                    slots[slot * stride..slot * stride + params_bytes]
+                        .copy_from_slice(params.bytes());
+                    bases.push(count);
+                    count += n;
+                }
+                self.context
+                    .queue
+                    .write_buffer(&uniform_buf, 0, &slots[..batch.len() * stride]);
+                let mut encoder =
+                    self.context
+                        .device()
+                        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                            label: Some(job.kernel.name()),
+                        });
+                {
+                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                        label: Some(job.kernel.name()),
+                        timestamp_writes: None,
+                    });
+                    pass.set_pipeline(&pipeline);
+                    for k in batch.clone() {
+                        let n = per_view * pieces[k].views.len();
+                        let groups = self.context.dispatch_size(n as u32);
+                        pass.set_bind_group(0, &bind_groups[k], &[]);
+                        pass.dispatch_workgroups(groups.0, groups.1, 1);
+                    }
+                }
                 let copies = [
                     (&out_buf, &out_staging, (count * M * real) as u64),
                     (&status_buf, &status_staging, (count * 4) as u64),
@@ -146,16 +460,122 @@ impl GpuEngine {
                     codes.copy_from_slice(bytemuck::cast_slice(data[1]));
                     rows_from(data[0], precision, codes, values);
                 })?;
-                for v in view_first..view_last {
-                    for c in first..last {
-                        let item = (v - view_first) * per_view + (c - first);
-                        let out = c * view_count + v;
-                        status[out] = codes[item];
-                        output[out] = values[item];
+                for (piece, base) in pieces[batch.clone()].iter().zip(bases) {
+                    for v in piece.views.clone() {
+                        for c in first..last {
+                            let item = base + (v - piece.views.start) * per_view + (c - first);
+                            let out = c * view_count + v;
+                            status[out] = codes[item];
+                            output[out] = values[item];
+                        }
                     }
                 }
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rows numbered so that every real says where it came from: view v, row j, real k.
+    fn numbered(views: &[usize], row_reals: usize) -> (Vec<f64>, Vec<(usize, usize)>) {
+        let mut rows = Vec::new();
+        let mut table = Vec::new();
+        for (v, &n) in views.iter().enumerate() {
+            table.push((rows.len() / row_reals, n));
+            for j in 0..n {
+                for k in 0..row_reals {
+                    rows.push((v * 1_000_000 + j * 100 + k) as f64);
+                }
+            }
+        }
+        (rows, table)
+    }
+
+    /// Reads back view v's rows through its block's table, as the kernels do.
+    fn rows_of(packed: &Packed, precision: Precision, row_reals: usize, v: usize) -> Vec<f64> {
+        let block = packed
+            .blocks
+            .iter()
+            .find(|b| b.views.contains(&v))
+            .expect("every view in a block");
+        let reals = packed.resident.reals_for_tests();
+        let start = block.offset as usize / precision.size();
+        let entry = start + 4 * (v - block.views.start);
+        let (first, n) = (reals[entry] as usize, reals[entry + 1] as usize);
+        let from = start + 4 * first;
+        reals[from..from + n * row_reals].to_vec()
+    }
+
+    #[test]
+    fn windows_hold_whole_views_in_order_at_aligned_offsets() {
+        // 54-corner views of the scene (3 vec4 a row): 25 per f32 window, 12 per f64 window.
+        for (precision, per_window) in [(Precision::F32, 25), (Precision::F64, 12)] {
+            let counts = vec![54; 30];
+            let (rows, table) = numbered(&counts, 12);
+            let view_rows = ViewRows::new(&rows, 12, &table);
+            let packed = view_rows.packed(precision, true);
+            assert_eq!(packed.rows, Rows::Uniform);
+            let blocks: Vec<_> = packed.blocks.iter().map(|b| b.views.clone()).collect();
+            let expected: Vec<_> = (0..30)
+                .step_by(per_window)
+                .map(|v| v..(v + per_window).min(30))
+                .collect();
+            assert_eq!(blocks, expected);
+            for block in &packed.blocks {
+                assert_eq!(block.offset as usize % UNIFORM_ALIGNMENT, 0);
+                assert_eq!(block.bytes as usize, UNIFORM_WINDOW_BYTES);
+                let size = packed.resident.reals_for_tests().len() * precision.size();
+                assert!(
+                    block.offset as usize + UNIFORM_WINDOW_BYTES <= size,
+                    "window in the buffer"
+                );
+            }
+            for v in 0..30 {
+                let (first, n) = table[v];
+                assert_eq!(
+                    rows_of(packed, precision, 12, v),
+                    rows[first * 12..(first + n) * 12]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn calls_too_small_to_fill_the_windows_read_one_storage_block() {
+        // A 7-candidate stencil call over 185 views of 54 corners: 8 f32 windows of the scene
+        // kernels, 47 f64 windows of the affine grid; a 64 × 64 sweep.
+        assert!(!large_enough_for_windows(7, 185, 8));
+        assert!(!large_enough_for_windows(7, 185, 47));
+        assert!(large_enough_for_windows(4096, 185, 8));
+        assert!(large_enough_for_windows(4096, 185, 47));
+    }
+
+    #[test]
+    fn a_view_larger_than_a_window_puts_every_view_in_storage() {
+        // 300 corners of 36 reals (the affine grid's rows) are 2700 vec4: more than the 2048 of
+        // an f64 window, fewer than the 4096 of an f32 one.
+        let counts = [54, 300, 0, 54];
+        let (rows, table) = numbered(&counts, 36);
+        let view_rows = ViewRows::new(&rows, 36, &table);
+        let f64_packed = view_rows.packed(Precision::F64, true);
+        assert_eq!(f64_packed.rows, Rows::Storage);
+        assert_eq!(f64_packed.blocks.len(), 1);
+        assert_eq!(view_rows.packed(Precision::F32, true).rows, Rows::Uniform);
+        assert_eq!(view_rows.packed(Precision::F32, false).rows, Rows::Storage);
+        for (v, &(first, n)) in table.iter().enumerate() {
+            for (packed, precision) in [
+                (f64_packed, Precision::F64),
+                (view_rows.packed(Precision::F32, true), Precision::F32),
+            ] {
+                assert_eq!(
+                    rows_of(packed, precision, 36, v),
+                    rows[first * 36..(first + n) * 36]
+                );
+            }
+        }
     }
 }

@@ -54,6 +54,56 @@ pub enum Reduction {
     Subgroup,
 }
 
+/// Where a per-view kernel ([`Kernel::reads_view_rows`]) reads its corner rows: binding 1,
+/// `input: array<vec4r…>`, composed in front of the kernel. Both bindings hold the same blocks:
+/// a view table, (first vec4, corners, 0, 0) per view, followed by the views' rows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Rows {
+    /// A storage buffer holding every view: any size up to the storage-binding cap.
+    Storage,
+    /// A window of [`UNIFORM_WINDOW_BYTES`] of a uniform buffer holding some of the views; one
+    /// dispatch per window. Mesa's llvmpipe (lavapipe) loads a uniform array element with a
+    /// vector gather, where a storage load is a loop over the lanes with a branch and a bounds
+    /// check per value; on discrete GPUs the lanes of a workgroup read the same rows (one view),
+    /// which a constant cache serves as one broadcast.
+    Uniform,
+}
+
+/// Bytes of a [`Rows::Uniform`] window: the size of the WGSL array that binds it, and the
+/// uniform binding size every WebGPU adapter supports.
+pub const UNIFORM_WINDOW_BYTES: usize = 1 << 16;
+
+impl Rows {
+    /// Both bindings.
+    pub const ALL: [Rows; 2] = [Rows::Storage, Rows::Uniform];
+
+    /// vec4 of `precision` in one uniform window.
+    pub fn uniform_window_vec4(precision: Precision) -> usize {
+        UNIFORM_WINDOW_BYTES / (4 * precision.size())
+    }
+
+    /// The declaration of binding 1, `input`.
+    fn declaration(self, precision: Precision) -> String {
+        match self {
+            Self::Storage => {
+                "@group(0) @binding(1) var<storage, read> input: array<vec4r>;".to_string()
+            }
+            Self::Uniform => format!(
+                "@group(0) @binding(1) var<uniform> input: array<vec4r, {}>;",
+                Self::uniform_window_vec4(precision)
+            ),
+        }
+    }
+
+    /// `storage` or `uniform`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Storage => "storage",
+            Self::Uniform => "uniform",
+        }
+    }
+}
+
 /// The status of a row a fast kernel left to its safeguarded twin (`STATUS_RETRY` in
 /// `shaders/common.wgsl`): not a `NoSolution` code, and never returned to a caller.
 pub const STATUS_RETRY: u32 = 255;
@@ -204,6 +254,18 @@ impl Kernel {
         matches!(self, Self::CalibAffineGrid).then_some(Precision::F64)
     }
 
+    /// True for the per-(candidate, view) kernels, whose corner rows binding 1 holds as
+    /// [`Rows`] say (composed in front of the kernel, not declared in its file).
+    pub fn reads_view_rows(self) -> bool {
+        matches!(
+            self,
+            Self::CalibAffineGrid
+                | Self::CalibSceneGap
+                | Self::CalibSceneFit
+                | Self::CalibSceneReprojection
+        )
+    }
+
     /// True for kernels whose entry point is a reduction.
     pub fn is_cost(self) -> bool {
         matches!(self, Self::RayGapCost)
@@ -266,11 +328,13 @@ pub fn prelude(precision: Precision, bounds: &CpuBounds) -> String {
 }
 
 /// The composed WGSL module of `kernel` at `precision` with the stopping rules `bounds`;
-/// `reduction` picks the entry point of cost kernels (ignored by the others).
+/// `reduction` picks the entry point of cost kernels, `rows` the corner-row binding of per-view
+/// kernels (each ignored by the other kernels).
 pub fn source(
     kernel: Kernel,
     precision: Precision,
     reduction: Reduction,
+    rows: Rows,
     bounds: &CpuBounds,
 ) -> String {
     let reduction = if kernel.is_cost() {
@@ -279,8 +343,14 @@ pub fn source(
         Reduction::Workgroup
     };
     let mut text = prelude(precision, bounds);
+    let rows = if kernel.reads_view_rows() {
+        rows.declaration(precision)
+    } else {
+        String::new()
+    };
     for part in [COMMON].into_iter().chain(LIBRARY).chain([
         kernel.bindings(),
+        &rows,
         kernel.constants(),
         kernel.file(),
     ]) {
