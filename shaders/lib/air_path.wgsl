@@ -296,20 +296,21 @@ fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
     var tau: real = 0.0;
     var converged = false;
     for (var iteration = 0u; iteration < NEAR_MAX_ITERATIONS; iteration++) {
-        // T(x; k) = k x / √q, T′ = k / √q³, T″ = −3 (1 − k²) x T′ / q, q = 1 + (1 − k²) x².
-        let q = 1.0 + (1.0 - k_water * k_water) * x * x;
-        let slope = k_water * inverseSqrt(q) / q;
-        var f = cam.d_k * x + depth * slope * q * x - r;
+        // T(x; k) = k x / √q, T′ = k / √q³, T″ = −3 (1 − k²) x T′ / q, q = 1 + (1 − k²) x²:
+        // with s = 1/√q, T = k s x, T′ = k s³, T″ = 3 (k² − 1) x T′ s² (no division).
+        let s = inverseSqrt(1.0 + (1.0 - k_water * k_water) * x * x);
+        let slope = k_water * s * s * s;
+        var f = cam.d_k * x + depth * k_water * s * x - r;
         var df = cam.d_k + depth * slope;
-        var d2f = depth * (k_water * k_water - 1.0) * 3.0 * x * slope / q;
+        var d2f = depth * (k_water * k_water - 1.0) * 3.0 * x * slope * s * s;
         for (var l = 0u; l < layers; l++) {
             let layer = params.cams[cam.k].layers[l].xz; // (t, 1/ρ)
             let k = layer.y;
-            let q_l = 1.0 + (1.0 - k * k) * x * x;
-            let slope_l = k * inverseSqrt(q_l) / q_l;
-            f += layer.x * slope_l * q_l * x;
+            let s_l = inverseSqrt(1.0 + (1.0 - k * k) * x * x);
+            let slope_l = k * s_l * s_l * s_l;
+            f += layer.x * k * s_l * x;
             df += layer.x * slope_l;
-            d2f += layer.x * (k * k - 1.0) * 3.0 * x * slope_l / q_l;
+            d2f += layer.x * (k * k - 1.0) * 3.0 * x * slope_l * s_l * s_l;
         }
         let step = f / df;
         // Done when the step is within the tolerance, or when the step's own error, by the

@@ -122,7 +122,7 @@ impl ViewRows {
             let window = Rows::uniform_window_vec4(precision);
             let row_vec4 = self.row_reals / 4;
             // A view needs its table entry and its rows in one window.
-            let fits = |&(_, n): &(usize, usize)| 1 + n * row_vec4 <= window;
+            let fits = |&(_, n): &(usize, usize)| n * row_vec4 < window;
             if uniform && self.views.iter().all(fits) {
                 self.pack_windows(precision)
             } else {
