@@ -358,9 +358,9 @@ fn uniform_windows_match_one_storage_block() {
 
 /// The reprojection kernel projects each corner from its observed air ray without the
 /// safeguards of the full forward projection where every medium is at least as dense as the air
-/// around the cameras, and leaves the corners to the full projection elsewhere. A port layer of
-/// index 1.0 behind air of 1.003 (ρ < 1) sends every corner there: the costs still match the CPU
-/// in both precisions.
+/// around the cameras, and marks the views it does not settle for a second kernel with the full
+/// projection. A port layer of index 1.0 behind air of 1.003 (ρ < 1) sends every view there: the
+/// costs still match the CPU in both precisions.
 #[test]
 fn a_layer_less_dense_than_air_takes_the_safeguarded_projection() {
     let path = std::path::Path::new(concat!(

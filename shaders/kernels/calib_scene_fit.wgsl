@@ -6,15 +6,20 @@
 // `calib::problem::board::fit_rigid`.
 //
 // Modes (MODE, a constant composed in front of this file per kernel: calib_scene_gap,
-// calib_scene_fit, calib_scene_reprojection; a constant, not a uniform, so that the compiler drops
-// the other modes' code, which SIMD drivers such as lavapipe would otherwise run masked):
+// calib_scene_fit, calib_scene_reprojection, calib_scene_reprojection_safeguarded; a constant, not
+// a uniform, so that the compiler drops the other modes' code, which SIMD drivers such as
+// lavapipe would otherwise run masked):
 // - MODE_GAP: candidate (n, unused): Σa², Σab, Σb² of the view's gap lines g(d) = a·d + b
 //   (DESIGN.md §2: the signed distance between the two water rays, linear in d; the origin moves
 //   by v/(n·v) per metre of air layer), for the host's least-squares air layer.
 // - MODE_SCENE: candidate (n, d): Σ|R·P + t − X|² over the view (the 3-D scene error's sum).
-// - MODE_REPROJECTION: candidate (n, d): Σ |observed − projected|² of R·P + t in both images.
-// output: 4 reals per item: (Σa², Σab, Σb², 0) for MODE_GAP, (sum, corners, 0, 0) for MODE_SCENE,
-// (sum, corners, corners left to `project`, 0) for MODE_REPROJECTION.
+// - MODE_REPROJECTION: candidate (n, d): Σ |observed − projected|² of R·P + t in both images,
+//   each corner projected from its observed air ray (`project_near`); STATUS_RETRY where that
+//   leaves a corner unsettled.
+// - MODE_REPROJECTION_SAFEGUARDED: the same sum, every corner by the full forward projection
+//   (`project`), for the items MODE_REPROJECTION returned with STATUS_RETRY.
+// output: 4 reals per item: (Σa², Σab, Σb², 0) for MODE_GAP, (sum, corners, 0, 0) for the
+// others; (0, corners, corners unsettled, 0) with STATUS_RETRY.
 //
 // Items are view-major within a dispatch: item i = view · info.y + candidate, info.y the
 // candidates per view: all of them when they fit one chunk, else a multiple of the workgroup
@@ -33,6 +38,7 @@
 const MODE_GAP: u32 = 0u;
 const MODE_SCENE: u32 = 1u;
 const MODE_REPROJECTION: u32 = 2u;
+const MODE_REPROJECTION_SAFEGUARDED: u32 = 3u;
 // calib::costs::air_layer::MIN_GAP_LINE_SIN.
 const MIN_GAP_LINE_SIN: real = 1e-9;
 // Triangulated corners kept for the second pass of a view of at most this many corners (a 9×6
@@ -246,7 +252,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     // X = R·(P − P₀) + t′ with t′ = X̄ − R·(P̄ − P₀), about X₀.
     let shift = mean_x - times(rotation, vec3r(mean_p, 0.0));
     var sum: real = 0.0;
-    var retried = 0u;
     if (MODE == MODE_SCENE) {
         // The cached corners, then (a view of more than CACHED_CORNERS) the others triangulated
         // again: two loops, not a branch per corner, which SIMD drivers run both sides of.
@@ -263,12 +268,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             let e = fitted - (triangulate_corner(a, b, c).x - x0.x);
             sum += dot(e, e);
         }
-    } else {
-        // Each corner projected from its observed air rays (`project_near`); the corners it
-        // leaves to `project` lie in [retry_first, retry_last], projected again in a second
-        // loop, which runs once (masked) where there are none.
-        var retry_first = end;
-        var retry_last = first;
+    } else if (MODE == MODE_REPROJECTION) {
+        // Each corner projected from its observed air rays (`project_near`). A view with a
+        // corner it does not settle comes back as STATUS_RETRY, for the safeguarded kernel: the
+        // full projection's code is not here at all (present, even unrun, it cost lavapipe 7 %).
+        var unsettled = 0u;
         for (var row = first; row < end; row += 3u) {
             let c = corner_row(row);
             let point = fitted_about_first(rotation, shift, c.board.xy - c0.board.xy) + x0.x;
@@ -278,27 +282,27 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
                 code = first_failure(code, first_failure(left.pixel.status, right.pixel.status));
                 sum += pixel_squares(c, left.pixel, right.pixel);
             } else {
-                retry_first = min(retry_first, row);
-                retry_last = max(retry_last, row);
+                unsettled += 1u;
             }
         }
-        for (var row = retry_first; row <= retry_last; row += 3u) {
+        if (unsettled > 0u) {
+            write(i, vec4r(0.0, real(count), real(unsettled), 0.0), STATUS_RETRY);
+            return;
+        }
+    } else {
+        // MODE_REPROJECTION_SAFEGUARDED: every corner by the full forward projection.
+        for (var row = first; row < end; row += 3u) {
             let c = corner_row(row);
             let point = fitted_about_first(rotation, shift, c.board.xy - c0.board.xy) + x0.x;
-            let left_near = project_near(a, point, tan_in_air(a, c.v_l));
-            let right_near = project_near(b, point, tan_in_air(b, c.v_r));
-            if (!(left_near.converged && right_near.converged)) {
-                let left = project(a, point);
-                let right = project(b, point);
-                retried += 1u;
-                code = first_failure(code, first_failure(left.status, right.status));
-                sum += pixel_squares(c, left, right);
-            }
+            let left = project(a, point);
+            let right = project(b, point);
+            code = first_failure(code, first_failure(left.status, right.status));
+            sum += pixel_squares(c, left, right);
         }
     }
     if (code != STATUS_OK) {
         write(i, vec4r(0.0), code);
         return;
     }
-    write(i, vec4r(sum, real(count), real(retried), 0.0), STATUS_OK);
+    write(i, vec4r(sum, real(count), 0.0, 0.0), STATUS_OK);
 }

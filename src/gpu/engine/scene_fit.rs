@@ -7,7 +7,7 @@
 use super::GpuEngine;
 use super::views::{ViewKernel, ViewRows};
 use crate::gpu::context::GpuError;
-use crate::gpu::shaders::Kernel;
+use crate::gpu::shaders::{Kernel, STATUS_RETRY};
 use crate::model::Rig;
 
 /// Reals per corner row of [`SceneFitInput`]: v_l xyz, v_r xyz, board point x y, pixels
@@ -22,11 +22,12 @@ pub enum SceneSum {
     GapLines,
     /// (Σ|R·P + t − X|², corners, 0, 0): the rigid board fit's 3-D sum of squares.
     Scene,
-    /// (Σ|observed − projected|² over both images, corners, corners left to the safeguarded
-    /// projection, 0) of the fitted board: each fitted corner is projected from its observed air
-    /// ray by an unbracketed Newton iteration where no medium is less dense than air, and by the
-    /// full forward projection where that does not settle (`project_near` and `project` in
-    /// `shaders/lib/air_path.wgsl`).
+    /// (Σ|observed − projected|² over both images, corners, 0, 0) of the fitted board: each
+    /// fitted corner is projected from its observed air ray by an unbracketed Newton iteration
+    /// where no medium is less dense than air (`project_near` in `shaders/lib/air_path.wgsl`);
+    /// a view where that leaves a corner unsettled is summed again with every corner by the full
+    /// forward projection (`project`), by a second kernel that only those (candidate, view) pairs
+    /// run.
     Reprojection,
 }
 
@@ -93,6 +94,44 @@ impl GpuEngine {
             precision: self.precision,
             input: &input.rows,
         };
-        self.run_views(job, rig, cameras, candidates, sums, status)
+        self.run_views(job, rig, cameras, candidates, sums, status)?;
+        if what != SceneSum::Reprojection {
+            return Ok(());
+        }
+        // The candidates with a view the fast kernel left unsettled, summed again by the
+        // safeguarded one (every view of them: a whole candidate is one batch row).
+        let views = input.views();
+        let unsettled: Vec<usize> = (0..candidates.len())
+            .filter(|&c| {
+                status[c * views..(c + 1) * views]
+                    .iter()
+                    .any(|&s| s == STATUS_RETRY)
+            })
+            .collect();
+        if unsettled.is_empty() {
+            return Ok(());
+        }
+        let again: Vec<[f64; 4]> = unsettled.iter().map(|&c| candidates[c]).collect();
+        let mut again_sums = vec![[0.0; 4]; again.len() * views];
+        let mut again_status = vec![0; again_sums.len()];
+        let job = ViewKernel {
+            kernel: Kernel::CalibSceneReprojectionSafeguarded,
+            precision: self.precision,
+            input: &input.rows,
+        };
+        self.run_views(
+            job,
+            rig,
+            cameras,
+            &again,
+            &mut again_sums,
+            &mut again_status,
+        )?;
+        for (k, &c) in unsettled.iter().enumerate() {
+            let (to, from) = (c * views..(c + 1) * views, k * views..(k + 1) * views);
+            sums[to.clone()].copy_from_slice(&again_sums[from.clone()]);
+            status[to].copy_from_slice(&again_status[from]);
+        }
+        Ok(())
     }
 }

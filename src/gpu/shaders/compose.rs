@@ -142,13 +142,17 @@ pub enum Kernel {
     /// squares.
     CalibSceneFit,
     /// Candidate interfaces × views (air rays, board points, pixels) → the rigid board fit's
-    /// reprojection sum of squares.
+    /// reprojection sum of squares, each corner projected from its observed air ray; the views
+    /// with a corner that does not settle come back with status [`STATUS_RETRY`] for
+    /// [`Kernel::CalibSceneReprojectionSafeguarded`].
     CalibSceneReprojection,
+    /// The same sum with every corner by the safeguarded forward projection.
+    CalibSceneReprojectionSafeguarded,
 }
 
 impl Kernel {
     /// Every kernel.
-    pub const ALL: [Kernel; 14] = [
+    pub const ALL: [Kernel; 15] = [
         Self::Backproject,
         Self::BackprojectGrid,
         Self::Project,
@@ -163,6 +167,7 @@ impl Kernel {
         Self::CalibSceneGap,
         Self::CalibSceneFit,
         Self::CalibSceneReprojection,
+        Self::CalibSceneReprojectionSafeguarded,
     ];
 
     /// Name (the file name in `shaders/kernels/`, but for the modes of `calib_scene_fit.wgsl`).
@@ -182,6 +187,7 @@ impl Kernel {
             Self::CalibSceneGap => "calib_scene_gap",
             Self::CalibSceneFit => "calib_scene_fit",
             Self::CalibSceneReprojection => "calib_scene_reprojection",
+            Self::CalibSceneReprojectionSafeguarded => "calib_scene_reprojection_safeguarded",
         }
     }
 
@@ -206,19 +212,23 @@ impl Kernel {
             Self::CalibAffineGrid => {
                 include_str!("../../../shaders/kernels/calib_affine_grid.wgsl")
             }
-            Self::CalibSceneGap | Self::CalibSceneFit | Self::CalibSceneReprojection => {
+            Self::CalibSceneGap
+            | Self::CalibSceneFit
+            | Self::CalibSceneReprojection
+            | Self::CalibSceneReprojectionSafeguarded => {
                 include_str!("../../../shaders/kernels/calib_scene_fit.wgsl")
             }
         }
     }
 
-    /// Constants composed in front of the kernel's file: the mode of the three kernels of
+    /// Constants composed in front of the kernel's file: the mode of the four kernels of
     /// `calib_scene_fit.wgsl` (a constant, so that the compiler drops the other modes).
     fn constants(self) -> &'static str {
         match self {
             Self::CalibSceneGap => "const MODE: u32 = 0u;",
             Self::CalibSceneFit => "const MODE: u32 = 1u;",
             Self::CalibSceneReprojection => "const MODE: u32 = 2u;",
+            Self::CalibSceneReprojectionSafeguarded => "const MODE: u32 = 3u;",
             _ => "",
         }
     }
@@ -233,7 +243,8 @@ impl Kernel {
             | Self::CalibAffineGrid
             | Self::CalibSceneGap
             | Self::CalibSceneFit
-            | Self::CalibSceneReprojection => "",
+            | Self::CalibSceneReprojection
+            | Self::CalibSceneReprojectionSafeguarded => "",
             Self::CalibTriangulate | Self::CalibProjectedVop => {
                 include_str!("../../../shaders/kernels/candidate_bindings.wgsl")
             }
@@ -263,6 +274,7 @@ impl Kernel {
                 | Self::CalibSceneGap
                 | Self::CalibSceneFit
                 | Self::CalibSceneReprojection
+                | Self::CalibSceneReprojectionSafeguarded
         )
     }
 
