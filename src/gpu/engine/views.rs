@@ -28,7 +28,7 @@ const UNIFORM_ALIGNMENT: usize = 256;
 /// Packed into blocks, each a table of (first vec4, corners, 0, 0) per view followed by those
 /// views' rows: where every view fits a [`UNIFORM_WINDOW_BYTES`] window, as consecutive views per
 /// window, bound as a uniform buffer one window per dispatch ([`Rows::Uniform`], which lavapipe
-/// loads several times faster than storage); otherwise all views in one storage block.
+/// loads with a gather, not a loop over the lanes); otherwise all views in one storage block.
 #[derive(Debug)]
 pub struct ViewRows {
     /// Every corner row, view by view.
@@ -52,7 +52,7 @@ pub(super) struct Packed {
 }
 
 /// Consecutive views whose table and rows are one bound range of the packed buffer.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 struct Block {
     /// The views, numbered as in [`ViewRows`].
     views: Range<usize>,
