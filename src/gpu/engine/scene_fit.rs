@@ -102,11 +102,7 @@ impl GpuEngine {
         // safeguarded one (every view of them: a whole candidate is one batch row).
         let views = input.views();
         let unsettled: Vec<usize> = (0..candidates.len())
-            .filter(|&c| {
-                status[c * views..(c + 1) * views]
-                    .iter()
-                    .any(|&s| s == STATUS_RETRY)
-            })
+            .filter(|&c| status[c * views..(c + 1) * views].contains(&STATUS_RETRY))
             .collect();
         if unsettled.is_empty() {
             return Ok(());

@@ -534,8 +534,7 @@ mod tests {
                     "window in the buffer"
                 );
             }
-            for v in 0..30 {
-                let (first, n) = table[v];
+            for (v, &(first, n)) in table.iter().enumerate() {
                 assert_eq!(
                     rows_of(packed, precision, 12, v),
                     rows[first * 12..(first + n) * 12]
