@@ -19,7 +19,7 @@
 // - MODE_REPROJECTION_SAFEGUARDED: the same sum, every corner by the full forward projection
 //   (`project`), for the items MODE_REPROJECTION returned with STATUS_RETRY.
 // output: 4 reals per item: (Σa², Σab, Σb², 0) for MODE_GAP, (sum, corners, 0, 0) for the
-// others; (0, corners, corners unsettled, 0) with STATUS_RETRY.
+// others; zeros where the status is not STATUS_OK (STATUS_RETRY included).
 //
 // Items are view-major within a dispatch: item i = view · info.y + candidate, info.y the
 // candidates per view: all of them when they fit one chunk, else a multiple of the workgroup
@@ -272,7 +272,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         // Each corner projected from its observed air rays (`project_near`). A view with a
         // corner it does not settle comes back as STATUS_RETRY, for the safeguarded kernel: the
         // full projection's code is not here at all (present, even unrun, it cost lavapipe 7 %).
-        var unsettled = 0u;
+        var unsettled = false;
         for (var row = first; row < end; row += 3u) {
             let c = corner_row(row);
             let point = fitted_about_first(rotation, shift, c.board.xy - c0.board.xy) + x0.x;
@@ -282,11 +282,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
                 code = first_failure(code, first_failure(left.pixel.status, right.pixel.status));
                 sum += pixel_squares(c, left.pixel, right.pixel);
             } else {
-                unsettled += 1u;
+                unsettled = true;
             }
         }
-        if (unsettled > 0u) {
-            write(i, vec4r(0.0, real(count), real(unsettled), 0.0), STATUS_RETRY);
+        if (unsettled) {
+            write(i, vec4r(0.0), STATUS_RETRY);
             return;
         }
     } else {

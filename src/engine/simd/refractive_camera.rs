@@ -421,7 +421,10 @@ impl<'a> CameraLanes<'a> {
     /// less dense than air every term is increasing and concave in x, so after the first step the
     /// iterates approach the root from below, with no bracket to keep; from a start within a few
     /// pixels two or three steps reach [`PROJECT_TOLERANCE`]. The twin of `project_near` in
-    /// `shaders/lib/air_path.wgsl`, with the same stopping rules.
+    /// `shaders/lib/air_path.wgsl`: the same start, iteration and stop on the step; its
+    /// quadratic-model stop is tighter (within rounding, where the shader's f32 rule allows half
+    /// the tolerance), and it evaluates T with a square root and a division where the shader
+    /// uses 1/√q.
     ///
     /// Returns the pixels and the lanes it `settled`; every other lane (a medium less dense than
     /// air, a point out of range or not in the water, a grazing ray, an iteration that does not

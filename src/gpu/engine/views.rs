@@ -354,18 +354,12 @@ impl GpuEngine {
             "status",
             items * 4,
         )?;
-        // Piece k of a submission reads uniform slot k - batch.start.
-        let slot_of = |k: usize| {
-            k - batches
-                .iter()
-                .find(|b| b.contains(&k))
-                .expect("every piece in a batch")
-                .start
-        };
+        // The pieces in order, each reading the uniform slot of its place in its submission.
+        let slots_in_order = batches.iter().flat_map(|batch| 0..batch.len());
         let bind_groups: Vec<wgpu::BindGroup> = pieces
             .iter()
-            .enumerate()
-            .map(|(k, piece)| {
+            .zip(slots_in_order)
+            .map(|(piece, slot)| {
                 let block = &packed.blocks[piece.block];
                 let range = |buffer, offset: u64, bytes: u64| {
                     wgpu::BindingResource::Buffer(wgpu::BufferBinding {
@@ -377,11 +371,7 @@ impl GpuEngine {
                 let entries = [
                     (
                         0,
-                        range(
-                            &uniform_buf,
-                            (slot_of(k) * stride) as u64,
-                            params_bytes as u64,
-                        ),
+                        range(&uniform_buf, (slot * stride) as u64, params_bytes as u64),
                     ),
                     (1, range(&rows_buf, block.offset, block.bytes)),
                     (2, out_buf.as_entire_binding()),
