@@ -40,7 +40,7 @@ struct Camera {
     centre: vec4r,           // C_k, w = Σ tᵢ
     normal: vec4r,           // n, w unused
     layers: array<vec4r, 8>, // (tᵢ, ρᵢ = μᵢ/μ_air, 1/ρᵢ, 0)
-    counts: vec4<u32>,       // layer count, has distortion, no medium less dense than air (ρ ≥ 1), 0
+    counts: vec4<u32>,       // layer count, has distortion, no medium less dense than air (ρ ≥ 1), port held (1: a candidate interface does not move it)
 }
 
 // Uniform of every kernel: one or two cameras and the dispatch description.
@@ -63,8 +63,17 @@ fn view(k: u32) -> View {
 }
 
 // Camera k behind a candidate interface (n, d) (n unit, master frame): d_k = d − n·C_k.
+// A camera whose port is held (behind a port each, the second camera of a pair) keeps its own.
 fn with_interface(k: u32, candidate: vec4r) -> View {
+    if (params.cams[k].counts.w != 0u) {
+        return view(k);
+    }
     return View(k, candidate.xyz, candidate.w - dot(candidate.xyz, params.cams[k].centre.xyz));
+}
+
+// 1 where a candidate's air layer moves camera k's port, 0 where the port is held.
+fn port_moves(k: u32) -> real {
+    return select(real(1.0), real(0.0), params.cams[k].counts.w != 0u);
 }
 
 // A value that may not exist (total internal reflection, …).

@@ -183,7 +183,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             code = first_failure(code, first_failure(l.status, first_failure(r.status, corner_code)));
             let m = w / sin_angle;
             let line_b = dot(m, l.origin - r.origin);
-            let line_a = dot(m, c.v_l / dot(n, c.v_l) - c.v_r / dot(n, c.v_r));
+            let line_a = dot(m, c.v_l * (port_moves(0u) / dot(a.n, c.v_l)) - c.v_r * (port_moves(1u) / dot(b.n, c.v_r)));
             sums += vec3r(line_a * line_a, line_a * line_b, line_b * line_b);
         }
         if (code != STATUS_OK) {

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use super::context::{GpuContext, GpuError};
 use super::layout::{MAX_LAYERS, Params};
 use super::shaders::{Kernel, Precision, Reduction, Rows, STATUS_RETRY, WORKGROUP_SIZE, source};
-use crate::model::{RefractiveCamera, Rig};
+use crate::model::{Ports, RefractiveCamera, Rig};
 
 mod affine_grid;
 mod candidates;
@@ -435,6 +435,24 @@ impl GpuEngine {
         let cap = (self.context.max_storage_binding() as usize / bytes_per_item.max(1))
             .min(self.max_chunk_items);
         (cap / GROUP * GROUP).max(GROUP)
+    }
+
+    /// The uniform of a candidate kernel over the pair `cameras` of `rig`: behind a port per
+    /// camera, the candidates move the first camera's port and the second keeps its own
+    /// ([`Params::hold_port`]); behind a shared port they move both.
+    fn candidate_params(
+        precision: Precision,
+        rig: &Rig,
+        cameras: [usize; 2],
+    ) -> Result<Params, GpuError> {
+        let [a, b] = cameras.map(|k| rig.refractive_camera(k));
+        Self::check_layers(&a)?;
+        Self::check_layers(&b)?;
+        let mut params = Params::new(precision, &a, &b, [0; 4]);
+        if matches!(rig.ports(), Ports::PerCamera(_)) {
+            params.hold_port(1);
+        }
+        Ok(params)
     }
 
     fn check_layers(camera: &RefractiveCamera) -> Result<(), GpuError> {

@@ -59,7 +59,9 @@ macro_rules! mirrors {
             pub normal: $real4,
             /// (tᵢ, ρᵢ = μᵢ/μ_air, 0, 0) per layer, zeros past the layer count.
             pub layers: [$real4; MAX_LAYERS],
-            /// Layer count, has distortion (0 or 1), 0, 0.
+            /// Layer count, has distortion (0 or 1), no medium less dense than air (0 or 1), port
+            /// held (1: a candidate interface does not move this camera's port; see
+            /// [`Params::hold_port`]).
             pub counts: UVec4,
             /// WGSL's padding of the struct's end to the alignment of a vec4 of reals.
             pub end_padding: $padding,
@@ -162,6 +164,16 @@ impl Params {
         match precision {
             Precision::F32 => Self::F32(ParamsF32::new(a, b, info)),
             Precision::F64 => Self::F64(ParamsF64::new(a, b, info)),
+        }
+    }
+
+    /// Holds camera `k`'s port (0 or 1) where a candidate interface moves the other's: the
+    /// candidate kernels' `with_interface` then keeps this camera's own port (its normal and air
+    /// layer as packed), as behind a port per camera.
+    pub fn hold_port(&mut self, k: usize) {
+        match self {
+            Self::F32(params) => params.cams[k].counts.w = 1,
+            Self::F64(params) => params.cams[k].counts.w = 1,
         }
     }
 

@@ -130,14 +130,11 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
         let data: &StereoData = &self.data;
         let corners = data.corners.len();
         let mut costs = vec![f64::INFINITY; candidates.len()];
-        // Candidates that keep both cameras in the air, with the axis as the rig normalises it.
+        // Candidates that keep both cameras in the air, as planes of the master frame.
         let (valid, interfaces): (Vec<usize>, Vec<[f64; 4]>) = candidates
             .par_iter()
             .enumerate()
-            .filter_map(|(i, c)| {
-                let n = *data.cameras_behind(c)?[0].normal();
-                Some((i, [n.x, n.y, n.z, c.air_distance]))
-            })
+            .filter_map(|(i, c)| Some((i, data.master_plane(c)?)))
             .unzip();
         if valid.is_empty() || corners == 0 {
             return Ok(costs);
@@ -331,12 +328,22 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
         let data: &StereoData = &self.data;
         let corners = data.corners.len();
         let mut distances = vec![None; normals.len()];
-        // Axes that are interface normals at all (the CPU reference samples the rays there).
-        let (valid, axes): (Vec<usize>, Vec<[f64; 4]>) = normals
+        // Axes that are interface normals at all (the CPU reference samples the rays there), in
+        // the master frame, with the offset of the first camera's air layer from the master
+        // plane's (n·C behind a port per camera, 0 behind a shared one).
+        let (valid, (axes, offsets)): (Vec<usize>, (Vec<[f64; 4]>, Vec<f64>)) = normals
             .par_iter()
             .enumerate()
-            .filter(|(_, n)| sample_cameras(data, n).is_some())
-            .map(|(i, n)| (i, [n.x, n.y, n.z, 0.0]))
+            .filter_map(|(i, n)| {
+                let (_, [first, _], _) = sample_cameras(data, n)?;
+                let n = first.normal();
+                let offset = if data.shared_port() {
+                    0.0
+                } else {
+                    n.dot(&first.centre().coords)
+                };
+                Some((i, ([n.x, n.y, n.z, 0.0], offset)))
+            })
             .unzip();
         if valid.is_empty() {
             return Ok(distances);
@@ -363,8 +370,8 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
                 let (aa, ab) = sums[range]
                     .iter()
                     .fold((0.0, 0.0), |(aa, ab), s| (aa + s[0], ab + s[1]));
-                // least_squares_air_distance's test and solution.
-                (aa > 1e-18 * corners as f64).then(|| -ab / aa)
+                // least_squares_air_distance's test and solution, as the first camera's air layer.
+                (aa > 1e-18 * corners as f64).then(|| -ab / aa - offsets[c])
             })
             .collect();
         valid

@@ -98,7 +98,15 @@ impl AxisRays {
         let Some((d0, near, _)) = sample_cameras(data, normal) else {
             return false;
         };
-        self.gaps = axis::axis_rays(&near, &prepared.dirs, d0, MIN_GAP_LINE_SIN, &mut self.rays);
+        let moved = data.ports_moved();
+        self.gaps = axis::axis_rays(
+            &near,
+            &prepared.dirs,
+            d0,
+            moved,
+            MIN_GAP_LINE_SIN,
+            &mut self.rays,
+        );
         if self.gaps.is_none() {
             return false;
         }
@@ -143,7 +151,10 @@ impl AxisRays {
             air_distance: d,
         })?;
         let corners = data.corners.len();
-        if !axis::triangulate_shifted(&self.rays, d - self.d0, &mut self.points) {
+        let shifts = data
+            .ports_moved()
+            .map(|moved| if moved { d - self.d0 } else { 0.0 });
+        if !axis::triangulate_shifted(&self.rays, shifts, &mut self.points) {
             return None;
         }
         if kind == CostKind::RayGap {

@@ -178,6 +178,29 @@ impl StereoData {
         matches!(self.rig.ports(), Ports::Shared(_))
     }
 
+    /// The port a candidate puts the first camera behind, as a plane n·x = d of the master frame
+    /// (n unit, as the rig normalises it): how the GPU kernels take candidates, moving the first
+    /// camera's port and, behind a shared port, the second's ([`Self::ports_moved`]). `None` when
+    /// the candidate puts a camera outside the air.
+    pub fn master_plane(&self, candidate: &Candidate) -> Option<[f64; 4]> {
+        let [first, _] = self.cameras_behind(candidate)?;
+        let n = first.normal();
+        // A shared port's air layer is the master plane's already; a camera's own port's counts
+        // from that camera's centre.
+        let d = if self.shared_port() {
+            candidate.air_distance
+        } else {
+            first.air_distance() + n.dot(&first.centre().coords)
+        };
+        Some([n.x, n.y, n.z, d])
+    }
+
+    /// Whose port a candidate moves, left and right: both cameras' behind one shared port; behind
+    /// a port each, the first camera's ([`Self::port`]; the second's stays as the rig has it).
+    pub fn ports_moved(&self) -> [bool; 2] {
+        [true, self.shared_port()]
+    }
+
     /// Camera centres C_l, C_r in the master frame.
     pub fn centres(&self) -> [nalgebra::Point3<f64>; 2] {
         self.cameras

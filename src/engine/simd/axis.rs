@@ -165,8 +165,10 @@ dispatched! {
     /// ([`RayColumns`]), and the sums of their gap lines, usable where the sine of the angle
     /// between the water rays exceeds `min_sin_angle`; `None` when some corner's ray has no
     /// answer (it misses the interface or is totally reflected). The rays are
-    /// [`RefractiveCamera::ray_in_water`]'s, bit for bit.
-    pub fn axis_rays(cameras: &[RefractiveCamera; 2], dirs: &[Columns<3>; 2], d0: f64, min_sin_angle: f64, rays: &mut [RayColumns; 2]) -> Option<GapSums> {
+    /// [`RefractiveCamera::ray_in_water`]'s, bit for bit. `moved` says whose port the air layer
+    /// moves: both cameras' behind one shared port; behind a port each, only the first camera's
+    /// (the second's origins, and its part of the gap line's slope, stay put).
+    pub fn axis_rays(cameras: &[RefractiveCamera; 2], dirs: &[Columns<3>; 2], d0: f64, moved: [bool; 2], min_sin_angle: f64, rays: &mut [RayColumns; 2]) -> Option<GapSums> {
         let lanes = cameras.each_ref().map(CameraLanes::new);
         let corners = dirs[0].len();
         assert_eq!(corners, dirs[1].len(), "both cameras' directions");
@@ -177,6 +179,7 @@ dispatched! {
         let (mut aa, mut ab, mut bb) = (zero, zero, zero);
         let mut failed = Mask::splat(false);
         let mut unusable = Mask::splat(false);
+        let moves = moved.map(|m| F64s::splat(if m { 1.0 } else { 0.0 }));
         for start in dirs[0].blocks() {
             let [(o_l, w_l, s_l), (o_r, w_r, s_r)] = [0, 1].map(|k| {
                 let v = dirs[k].vector(0, start);
@@ -189,12 +192,13 @@ dispatched! {
                 rays[k].store_vector(6, start, slope);
                 (water.origin, water.dir, slope)
             });
-            // The gap line: m = unit(w_l × w_r), g(d0) = m·(o_l − o_r), a = m·(∂o_l/∂d − ∂o_r/∂d).
+            // The gap line: m = unit(w_l × w_r), g(d0) = m·(o_l − o_r), a = m·(∂o_l/∂d − ∂o_r/∂d),
+            // ∂o/∂d = 0 for a port the air layer does not move.
             let cross = w_l.cross(w_r);
             let sin_angle = cross.norm_squared().sqrt();
             let m = cross.scale(1.0 / sin_angle);
             let g0 = m.dot(o_l - o_r);
-            let a = m.dot(s_l - s_r);
+            let a = m.dot(s_l.scale(moves[0]) - s_r.scale(moves[1]));
             let b = g0 - a * d0;
             unusable = unusable | !sin_angle.gt(F64s::splat(min_sin_angle));
             let real = dirs[0].real(start);
@@ -211,16 +215,17 @@ dispatched! {
     }
 
     /// [`triangulate_rays`](crate::model::triangulate_rays) of every corner's two rays of
-    /// [`axis_rays`] with their origins moved to the air layer `shift` metres from the one they
-    /// were computed at: `points` gets x, y, z and the residual (the distance between the rays);
+    /// [`axis_rays`] with each camera's origins moved along its air rays by `shifts` metres of air
+    /// layer (the new air layer less the one they were computed at; 0 for a port the air layer
+    /// does not move): `points` gets x, y, z and the residual (the distance between the rays);
     /// false when some corner does not triangulate in the water.
-    pub fn triangulate_shifted(rays: &[RayColumns; 2], shift: f64, points: &mut Columns<4>) -> bool {
+    pub fn triangulate_shifted(rays: &[RayColumns; 2], shifts: [f64; 2], points: &mut Columns<4>) -> bool {
         points.resize(rays[0].len());
-        let shift = F64s::splat(shift);
+        let shifts = shifts.map(F64s::splat);
         let mut failed = Mask::splat(false);
         for start in rays[0].blocks() {
             let [a, b] = [0, 1].map(|k| Rays {
-                origin: rays[k].vector(0, start) + rays[k].vector(6, start).scale(shift),
+                origin: rays[k].vector(0, start) + rays[k].vector(6, start).scale(shifts[k]),
                 dir: rays[k].vector(3, start),
                 status: Status::ok(),
                 scalar: Mask::splat(false),

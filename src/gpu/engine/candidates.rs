@@ -6,7 +6,6 @@
 use super::{GpuEngine, extend_reals, rows_from};
 use crate::gpu::context::GpuError;
 use crate::gpu::engine::ResidentRows;
-use crate::gpu::layout::Params;
 use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::Rig;
 
@@ -88,12 +87,7 @@ impl GpuEngine {
             "output and status of candidates · corners"
         );
         assert_eq!(input.width(), N, "one input row of {N} per corner");
-        let (a, b) = (
-            rig.refractive_camera(cameras[0]),
-            rig.refractive_camera(cameras[1]),
-        );
-        Self::check_layers(&a)?;
-        Self::check_layers(&b)?;
+        let mut params = Self::candidate_params(self.precision, rig, cameras)?;
         if items == 0 {
             return Ok(());
         }
@@ -109,7 +103,6 @@ impl GpuEngine {
         }
         let per_chunk = per_chunk.min(candidates.len());
         let pipeline = self.pipeline(kernel)?;
-        let mut params = Params::new(self.precision, &a, &b, [0; 4]);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
 

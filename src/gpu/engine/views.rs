@@ -13,7 +13,6 @@ use std::sync::OnceLock;
 use super::{GROUP, GpuEngine, rows_from};
 use crate::gpu::context::GpuError;
 use crate::gpu::engine::ResidentRows;
-use crate::gpu::layout::Params;
 use crate::gpu::shaders::{Kernel, Precision, Rows, UNIFORM_WINDOW_BYTES};
 use crate::model::Rig;
 
@@ -254,13 +253,8 @@ impl GpuEngine {
         if output.is_empty() {
             return Ok(());
         }
-        let (a, b) = (
-            rig.refractive_camera(cameras[0]),
-            rig.refractive_camera(cameras[1]),
-        );
-        Self::check_layers(&a)?;
-        Self::check_layers(&b)?;
         let precision = job.precision;
+        let mut params = Self::candidate_params(precision, rig, cameras)?;
         let real = precision.size();
         let capacity = self.chunk_items(M * real);
         let views_per_chunk = view_count.min((capacity / GROUP).max(1));
@@ -317,7 +311,6 @@ impl GpuEngine {
 
         let pipeline = self.pipeline_reading(job.kernel, packed.rows)?;
         let rows_buf = packed.resident.on_device(self, precision)?;
-        let mut params = Params::new(precision, &a, &b, [0; 4]);
         // One uniform slot per dispatch of a submission, each at an aligned offset.
         let params_bytes = params.bytes().len();
         let stride = params_bytes.next_multiple_of(UNIFORM_ALIGNMENT);
