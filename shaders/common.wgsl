@@ -64,11 +64,12 @@ fn view(k: u32) -> View {
 
 // Camera k behind a candidate interface (n, d) (n unit, master frame): d_k = d − n·C_k.
 // A camera whose port is held (behind a port each, the second camera of a pair) keeps its own.
+// Selects, not a branch: SIMD drivers run a branch on a uniform value as divergent code (a
+// branch here cost lavapipe 8 % of a reprojection sweep).
 fn with_interface(k: u32, candidate: vec4r) -> View {
-    if (params.cams[k].counts.w != 0u) {
-        return view(k);
-    }
-    return View(k, candidate.xyz, candidate.w - dot(candidate.xyz, params.cams[k].centre.xyz));
+    let held = params.cams[k].counts.w != 0u;
+    let d_k = candidate.w - dot(candidate.xyz, params.cams[k].centre.xyz);
+    return View(k, select(candidate.xyz, params.cams[k].normal.xyz, held), select(d_k, params.cams[k].extra.w, held));
 }
 
 // 1 where a candidate's air layer moves camera k's port, 0 where the port is held.
