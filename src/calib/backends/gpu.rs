@@ -331,7 +331,7 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
         // Axes that are interface normals at all (the CPU reference samples the rays there), in
         // the master frame, with the offset of the first camera's air layer from the master
         // plane's (n·C behind a port per camera, 0 behind a shared one).
-        let (valid, (axes, offsets)): (Vec<usize>, (Vec<[f64; 4]>, Vec<f64>)) = normals
+        let (valid, (axes, offsets)): (Vec<usize>, (Vec<_>, Vec<f64>)) = normals
             .par_iter()
             .enumerate()
             .filter_map(|(i, n)| {

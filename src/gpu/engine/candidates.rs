@@ -10,7 +10,9 @@ use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::Rig;
 
 impl GpuEngine {
-    /// Triangulates every corner under every candidate interface (n unit, d; master frame):
+    /// Triangulates every corner under every candidate interface (n unit, d: the plane n·x = d of
+    /// the master frame; behind a port per camera it moves the port of `cameras[0]` and
+    /// `cameras[1]` keeps its own):
     /// `air_rays` holds the two unit air directions v_l, v_r of each corner (cameras `cameras`
     /// of `rig`; rows of 6, kept on the device across calls), `points[c · corners + j]` gets x, y, z, gap of corner j under candidate c,
     /// as [`calib::costs::triangulate_corner`](crate::calib::costs::triangulate_corner).

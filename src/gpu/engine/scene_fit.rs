@@ -69,8 +69,9 @@ impl SceneFitInput {
 }
 
 impl GpuEngine {
-    /// The sums `what` of every view of `input` under every candidate interface (n unit, d;
-    /// master frame), in the engine's precision: `sums[c · views + v]` gets view v under
+    /// The sums `what` of every view of `input` under every candidate interface (n unit, d: the
+    /// plane n·x = d of the master frame; behind a port per camera it moves the port of
+    /// `cameras[0]` and `cameras[1]` keeps its own), in the engine's precision: `sums[c · views + v]` gets view v under
     /// candidate c; `status` is 0 or the [`NoSolution`](crate::model::NoSolution) code of the
     /// first corner without an answer (2 where the candidate puts a camera outside the air, 6
     /// for a view whose corners are collinear or a corner whose water rays are parallel), the
