@@ -378,12 +378,23 @@ impl GpuEngine {
         label: &str,
         entries: &[(u32, &wgpu::Buffer)],
     ) -> wgpu::BindGroup {
-        let entries: Vec<wgpu::BindGroupEntry> = entries
+        let resources = entries
             .iter()
-            .map(|&(binding, buffer)| wgpu::BindGroupEntry {
-                binding,
-                resource: buffer.as_entire_binding(),
-            })
+            .map(|&(binding, buffer)| (binding, buffer.as_entire_binding()));
+        self.bind_resources(pipeline, label, resources)
+    }
+
+    /// [`bind_group`](Self::bind_group) with each binding's resource given (a range of a
+    /// buffer, say).
+    fn bind_resources<'a>(
+        &self,
+        pipeline: &wgpu::ComputePipeline,
+        label: &str,
+        entries: impl IntoIterator<Item = (u32, wgpu::BindingResource<'a>)>,
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = entries
+            .into_iter()
+            .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
             .collect();
         self.context
             .device

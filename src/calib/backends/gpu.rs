@@ -329,20 +329,14 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
         let corners = data.corners.len();
         let mut distances = vec![None; normals.len()];
         // Axes that are interface normals at all (the CPU reference samples the rays there), in
-        // the master frame, with the offset of the first camera's air layer from the master
-        // plane's (n·C behind a port per camera, 0 behind a shared one).
+        // the master frame, with the master plane's offset from the first camera's air layer.
         let (valid, (axes, offsets)): (Vec<usize>, (Vec<_>, Vec<f64>)) = normals
             .par_iter()
             .enumerate()
             .filter_map(|(i, n)| {
                 let (_, [first, _], _) = sample_cameras(data, n)?;
                 let n = first.normal();
-                let offset = if data.shared_port() {
-                    0.0
-                } else {
-                    n.dot(&first.centre().coords)
-                };
-                Some((i, ([n.x, n.y, n.z, 0.0], offset)))
+                Some((i, ([n.x, n.y, n.z, 0.0], data.master_plane_offset(&first))))
             })
             .unzip();
         if valid.is_empty() {

@@ -185,14 +185,19 @@ impl StereoData {
     pub fn master_plane(&self, candidate: &Candidate) -> Option<[f64; 4]> {
         let [first, _] = self.cameras_behind(candidate)?;
         let n = first.normal();
-        // A shared port's air layer is the master plane's already; a camera's own port's counts
-        // from that camera's centre.
-        let d = if self.shared_port() {
-            candidate.air_distance
-        } else {
-            first.air_distance() + n.dot(&first.centre().coords)
-        };
+        let d = candidate.air_distance + self.master_plane_offset(&first);
         Some([n.x, n.y, n.z, d])
+    }
+
+    /// The master plane's air layer less the candidate's, for the first camera `first` behind a
+    /// candidate: 0 behind a shared port (its air layer is the master plane's already), n·C of
+    /// that camera behind its own port (whose air layer counts from its centre).
+    pub fn master_plane_offset(&self, first: &RefractiveCamera) -> f64 {
+        if self.shared_port() {
+            0.0
+        } else {
+            first.normal().dot(&first.centre().coords)
+        }
     }
 
     /// Whose port a candidate moves, left and right: both cameras' behind one shared port; behind

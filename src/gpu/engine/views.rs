@@ -36,7 +36,7 @@ pub struct ViewRows {
     row_reals: usize,
     /// (first row, rows) per view.
     views: Vec<(usize, usize)>,
-    /// The packing per precision, with and without uniform windows.
+    /// The packing per precision, in one storage block and in uniform windows.
     packed: [OnceLock<Packed>; 4],
 }
 
@@ -114,20 +114,18 @@ impl ViewRows {
     }
 
     /// The rows packed for `precision`, in uniform windows where `uniform` allows and every view
-    /// fits one.
+    /// fits one, else in one storage block (one packing, and one device copy, for both cases).
     fn packed(&self, precision: Precision, uniform: bool) -> &Packed {
-        let slot = 2 * usize::from(precision == Precision::F64) + usize::from(uniform);
-        self.packed[slot].get_or_init(|| {
-            let window = Rows::uniform_window_vec4(precision);
-            let row_vec4 = self.row_reals / 4;
-            // A view needs its table entry and its rows in one window.
-            let fits = |&(_, n): &(usize, usize)| n * row_vec4 < window;
-            if uniform && self.views.iter().all(fits) {
-                self.pack_windows(precision)
-            } else {
-                self.pack_storage(precision)
-            }
-        })
+        let storage = 2 * usize::from(precision == Precision::F64);
+        let window = Rows::uniform_window_vec4(precision);
+        let row_vec4 = self.row_reals / 4;
+        // A view needs its table entry and its rows in one window.
+        let fits = |&(_, n): &(usize, usize)| n * row_vec4 < window;
+        if uniform && self.views.iter().all(fits) {
+            self.packed[storage + 1].get_or_init(|| self.pack_windows(precision))
+        } else {
+            self.packed[storage].get_or_init(|| self.pack_storage(precision))
+        }
     }
 
     /// One block of every view, bound as storage.
@@ -370,15 +368,8 @@ impl GpuEngine {
                     (2, out_buf.as_entire_binding()),
                     (3, status_buf.as_entire_binding()),
                     (4, cand_buf.as_entire_binding()),
-                ]
-                .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource });
-                self.context
-                    .device()
-                    .create_bind_group(&wgpu::BindGroupDescriptor {
-                        label: Some(job.kernel.name()),
-                        layout: &pipeline.get_bind_group_layout(0),
-                        entries: &entries,
-                    })
+                ];
+                self.bind_resources(&pipeline, job.kernel.name(), entries)
             })
             .collect();
 
@@ -546,6 +537,11 @@ mod tests {
         let f64_packed = view_rows.packed(Precision::F64, true);
         assert_eq!(f64_packed.rows, Rows::Storage);
         assert_eq!(f64_packed.blocks.len(), 1);
+        // The storage packing asked for either way: one copy on the device, not two.
+        assert!(std::ptr::eq(
+            f64_packed,
+            view_rows.packed(Precision::F64, false)
+        ));
         assert_eq!(view_rows.packed(Precision::F32, true).rows, Rows::Uniform);
         assert_eq!(view_rows.packed(Precision::F32, false).rows, Rows::Storage);
         for (v, &(first, n)) in table.iter().enumerate() {
