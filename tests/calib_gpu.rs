@@ -588,3 +588,86 @@ fn a_port_per_camera_moves_only_the_first_cameras_port() {
         }
     }
 }
+
+/// Two housings whose ports have different layer stacks: one camera behind a bare interface, the
+/// other behind three layers, in both orders (the candidates move the first camera's port). The
+/// kernels run their layer loops to the rig's most layers (`RIG_LAYERS`), each camera to its own
+/// count: a camera given the other's layers, or a later layer that is not masked off where a
+/// camera has fewer, moves its rays and fails the comparison.
+#[test]
+fn cameras_with_different_layer_stacks_match_the_cpu_reference() {
+    for bare_first in [true, false] {
+        let rig = gpu_harness::rig_with_layer_stacks(bare_first);
+        let flatport::model::Ports::PerCamera(ports) = rig.ports() else {
+            panic!("a port per camera");
+        };
+        let layers: Vec<usize> = [0, 1]
+            .map(|k| rig.refractive_camera(k).layers().len())
+            .into();
+        let scene = simulate(&rig, 0, 1, &SceneSpec::new(BOARD_9X6, 6, 0.1, 21)).expect("scene");
+        let data = StereoData::new(&rig, [0, 1], &scene.observations).expect("stereo data");
+        // The truth and axes tilted up to 4° from it with air layers of 8–25 mm, in the first
+        // camera's frame.
+        let (normal, distance) = (*ports[0].normal(), ports[0].air_distance());
+        let mut random = Random(17);
+        let mut batch = vec![Candidate {
+            normal,
+            air_distance: distance,
+        }];
+        while batch.len() < 24 {
+            let tilt = flatport::model::normal_from_tilt_azimuth(
+                random.range(0.0, 4f64.to_radians()),
+                random.range(0.0, std::f64::consts::TAU),
+            );
+            let rotation = nalgebra::Rotation3::rotation_between(&Vector3::z(), &normal)
+                .expect("axis not opposite z");
+            batch.push(Candidate {
+                normal: Unit::new_normalize(rotation * tilt.into_inner()),
+                air_distance: random.range(0.008, 0.025),
+            });
+        }
+        let normals: Vec<_> = batch.iter().map(|c| c.normal).collect();
+        let cpu = CpuBackend::new(&data);
+        for precision in [Precision::F64, Precision::F32] {
+            let Some(engine) = engine(precision) else {
+                return;
+            };
+            let gpu = GpuBackend::new(&data, &engine);
+            let (relative, air) = match precision {
+                Precision::F64 => (F64_RELATIVE, 1e-9),
+                Precision::F32 => (F32_RELATIVE, F32_AIR_DISTANCE),
+            };
+            for kind in [CostKind::Reprojection, CostKind::Scene] {
+                let (c, g) = (
+                    cpu.costs(kind, &batch).unwrap(),
+                    gpu.costs(kind, &batch).unwrap(),
+                );
+                let d = deviation(kind.name(), &c, &g);
+                eprintln!(
+                    "layers {layers:?}, {precision} {}: relative {:.1e}, {} without an answer",
+                    kind.name(),
+                    d.relative,
+                    d.infinite
+                );
+                assert!(c[0].is_finite(), "{}: the truth has a cost", kind.name());
+                assert!(
+                    d.relative <= relative,
+                    "layers {layers:?}, {precision} {}: relative {:e}",
+                    kind.name(),
+                    d.relative
+                );
+            }
+            let (c, g) = (
+                cpu.air_distances(&normals).unwrap(),
+                gpu.air_distances(&normals).unwrap(),
+            );
+            for (k, (c, g)) in c.iter().zip(&g).enumerate() {
+                let (c, g) = (c.expect("cpu air layer"), g.expect("gpu air layer"));
+                assert!(
+                    (c - g).abs() <= air,
+                    "layers {layers:?}, {precision} air layer {k}: cpu {c}, gpu {g}"
+                );
+            }
+        }
+    }
+}

@@ -14,15 +14,16 @@ fn a_kernel_the_adapter_refuses_is_an_error_naming_it() {
     let source = "@compute @workgroup_size(64) fn main() { let x: f32 = no_such_value; }";
     let error = engine
         .context()
-        .pipeline("broken_kernel", source)
+        .pipeline("broken_kernel", source, 1)
         .unwrap_err();
     assert!(matches!(error, GpuError::Kernel { .. }), "{error:?}");
     assert!(error.to_string().contains("broken_kernel"), "{error}");
-    // The engine still works afterwards (a kernel declares the workgroup size the context sets).
+    // The engine still works afterwards (a kernel declares the overrides the context sets).
     let sum = "override WORKGROUP_SIZE: u32;\n\
+               override RIG_LAYERS: u32;\n\
                @group(0) @binding(0) var<storage, read_write> out: array<u32>;\n\
                @compute @workgroup_size(WORKGROUP_SIZE) fn main() { out[0] = 1u; }";
-    engine.context().pipeline("fine_kernel", sum).unwrap();
+    engine.context().pipeline("fine_kernel", sum, 1).unwrap();
     engine.context().check("after the refused kernel").unwrap();
 }
 

@@ -4,11 +4,13 @@
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    // The cameras before the first branch (common.wgsl, `View`).
+    let cam = view(0u);
     let i = item_index(gid, groups);
     if (i >= params.info.x) {
         return;
     }
-    let ray = backproject(view(0u), vec2r(input[2u * i], input[2u * i + 1u]));
+    let ray = backproject(cam, vec2r(input[2u * i], input[2u * i + 1u]));
     status[i] = ray.status;
     if (ray.status == STATUS_OK) {
         let o = 6u * i;

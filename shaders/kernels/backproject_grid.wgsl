@@ -7,13 +7,15 @@
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    // The camera before the first branch (common.wgsl, `View`).
+    let cam = view(0u);
     let width = params.info.y;
     if (gid.x >= width) {
         return;
     }
     let i = gid.y * width + gid.x;
     let pixel = vec2r(real(gid.x), real(gid.y + params.info.z));
-    let ray = backproject(view(0u), pixel);
+    let ray = backproject(cam, pixel);
     status[i] = ray.status;
     if (ray.status == STATUS_OK) {
         let o = 6u * i;

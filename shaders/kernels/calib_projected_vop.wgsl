@@ -20,6 +20,9 @@ fn corner_dir(k: u32) -> vec3r {
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    // The cameras before the first branch (common.wgsl, `View`).
+    let left = view(0u);
+    let right = view(1u);
     let i = item_index(gid, groups);
     if (i >= params.info.x) {
         return;
@@ -29,7 +32,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let k = 18u * item.corner;
     let v_l = corner_dir(k);
     let v_r = corner_dir(k + 3u);
-    let bv = binocular_vop(params.cams[0].centre.xyz, v_l, params.cams[1].centre.xyz, v_r, n);
+    let bv = binocular_vop(left.centre, v_l, right.centre, v_r, n);
     status[i] = bv.status;
     if (bv.status != STATUS_OK) {
         return;

@@ -151,6 +151,10 @@ fn polar_rotation(m: Mat3) -> Mat3 {
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    // The cameras before the first branch (common.wgsl, `View`): the corner loops read them per
+    // corner.
+    let left = view(0u);
+    let right = view(1u);
     let i = item_index(gid, groups);
     if (i >= params.info.x) {
         return;
@@ -166,8 +170,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
 
     if (MODE == MODE_GAP) {
         // The rays at d = 0 (d_k may be negative: only the line is wanted).
-        let a = with_interface(0u, vec4r(n, 0.0));
-        let b = with_interface(1u, vec4r(n, 0.0));
+        let a = with_interface(left, vec4r(n, 0.0));
+        let b = with_interface(right, vec4r(n, 0.0));
         var sums = vec3r(0.0);
         var code = STATUS_OK;
         for (var row = first; row < end; row += 3u) {
@@ -183,7 +187,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             code = first_failure(code, first_failure(l.status, first_failure(r.status, corner_code)));
             let m = w / sin_angle;
             let line_b = dot(m, l.origin - r.origin);
-            let line_a = dot(m, c.v_l * (port_moves(0u) / dot(a.n, c.v_l)) - c.v_r * (port_moves(1u) / dot(b.n, c.v_r)));
+            let line_a = dot(m, c.v_l * (port_moves(a) / dot(a.n, c.v_l)) - c.v_r * (port_moves(b) / dot(b.n, c.v_r)));
             sums += vec3r(line_a * line_a, line_a * line_b, line_b * line_b);
         }
         if (code != STATUS_OK) {
@@ -194,8 +198,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
 
-    let a = with_interface(0u, candidate);
-    let b = with_interface(1u, candidate);
+    let a = with_interface(left, candidate);
+    let b = with_interface(right, candidate);
     if (!(a.d_k > 0.0 && b.d_k > 0.0)) {
         write(i, vec4r(0.0), STATUS_MISSES_INTERFACE); // a camera outside the air
         return;

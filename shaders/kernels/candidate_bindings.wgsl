@@ -32,7 +32,7 @@ struct CandidateCameras {
 fn candidate_cameras(i: u32) -> CandidateCameras {
     let item = candidate_item(i);
     let candidate = candidates[item.candidate];
-    let a = with_interface(0u, candidate);
-    let b = with_interface(1u, candidate);
+    let a = with_interface(view(0u), candidate);
+    let b = with_interface(view(1u), candidate);
     return CandidateCameras(item, a, b, a.d_k > 0.0 && b.d_k > 0.0);
 }

@@ -9,12 +9,14 @@
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    // The cameras before the first branch (common.wgsl, `View`).
+    let cam = view(0u);
     let i = item_index(gid, groups);
     if (i >= params.info.x) {
         return;
     }
     let point = vec3r(input[3u * i], input[3u * i + 1u], input[3u * i + 2u]);
-    let p = project_near(view(0u), point, 0.0);
+    let p = project_near(cam, point, 0.0);
     status[i] = select(STATUS_RETRY, p.pixel.status, p.converged);
     if (p.converged && p.pixel.status == STATUS_OK) {
         output[2u * i] = p.pixel.pixel.x;

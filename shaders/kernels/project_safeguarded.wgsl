@@ -6,11 +6,13 @@
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    // The cameras before the first branch (common.wgsl, `View`).
+    let cam = view(0u);
     let i = item_index(gid, groups);
     if (i >= params.info.x) {
         return;
     }
-    let p = project(view(0u), vec3r(input[3u * i], input[3u * i + 1u], input[3u * i + 2u]));
+    let p = project(cam, vec3r(input[3u * i], input[3u * i + 1u], input[3u * i + 2u]));
     status[i] = p.status;
     if (p.status == STATUS_OK) {
         output[2u * i] = p.pixel.x;

@@ -11,8 +11,8 @@
 // (residual², 1) for correspondence j under candidate c, (0, 0) when it has no answer.
 fn cost_term(j: u32, c: u32) -> vec2r {
     let candidate = candidates[c];
-    let a = with_interface(0u, candidate);
-    let b = with_interface(1u, candidate);
+    let a = with_interface(view(0u), candidate);
+    let b = with_interface(view(1u), candidate);
     if (!(a.d_k > 0.0 && b.d_k > 0.0)) {
         return vec2r(0.0); // a camera outside the air
     }

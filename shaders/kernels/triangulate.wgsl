@@ -4,17 +4,20 @@
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    // The cameras before the first branch (common.wgsl, `View`).
+    let left = view(0u);
+    let right = view(1u);
     let i = item_index(gid, groups);
     if (i >= params.info.x) {
         return;
     }
     let j = 4u * i;
-    let ray_a = backproject(view(0u), vec2r(input[j], input[j + 1u]));
+    let ray_a = backproject(left, vec2r(input[j], input[j + 1u]));
     if (ray_a.status != STATUS_OK) {
         status[i] = ray_a.status;
         return;
     }
-    let ray_b = backproject(view(1u), vec2r(input[j + 2u], input[j + 3u]));
+    let ray_b = backproject(right, vec2r(input[j + 2u], input[j + 3u]));
     if (ray_b.status != STATUS_OK) {
         status[i] = ray_b.status;
         return;

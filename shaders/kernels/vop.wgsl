@@ -5,11 +5,13 @@
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    // The cameras before the first branch (common.wgsl, `View`).
+    let cam = view(0u);
     let i = item_index(gid, groups);
     if (i >= params.info.x) {
         return;
     }
-    let v = vop(view(0u), vec3r(input[3u * i], input[3u * i + 1u], input[3u * i + 2u]));
+    let v = vop(cam, vec3r(input[3u * i], input[3u * i + 1u], input[3u * i + 2u]));
     status[i] = v.status;
     if (v.status == STATUS_OK) {
         let o = 6u * i;

@@ -7,20 +7,23 @@
 // medium, kₘ = ρ_ref / ρₘ, over the media m = air (d_k), water (depth), layers (tᵢ).
 
 // Medium i of a path as (length along the axis, ρ = μ/μ_air): 0 = air (d_k), 1 = water at
-// `depth`, 2.. = the layers, read from the uniform (a local array of media, dynamically indexed,
-// lives in memory on SIMD drivers).
+// `depth`, 2 = the first layer (from the View), 3.. = the later layers, read from the uniform (a
+// local array of media, dynamically indexed, lives in memory on SIMD drivers).
 fn medium(cam: View, depth: real, i: u32) -> vec2r {
     if (i == 0u) {
         return vec2r(cam.d_k, 1.0);
     }
     if (i == 1u) {
-        return vec2r(depth, params.cams[cam.k].extra.z);
+        return vec2r(depth, cam.rho_water);
     }
-    return params.cams[cam.k].layers[i - 2u].xy;
+    if (i == 2u) {
+        return cam.first_layer.xy;
+    }
+    return later_layer(cam, i - 2u).xy;
 }
 
 fn media_count(cam: View) -> u32 {
-    return min(params.cams[cam.k].counts.x, MAX_LAYERS) + 2u;
+    return cam.layers + 2u;
 }
 
 // f, f′ in the variable of the reference medium of index rho_ref, and the medium whose term
@@ -178,9 +181,9 @@ struct AirPath {
 
 fn air_path_to(cam: View, point: vec3r) -> AirPath {
     let n = cam.n;
-    let offset = point - params.cams[cam.k].centre.xyz;
+    let offset = point - cam.centre;
     let z = dot(n, offset);
-    let depth = z - cam.d_k - params.cams[cam.k].centre.w;
+    let depth = z - cam.d_k - cam.thickness;
     if (!(depth > 0.0)) {
         return AirPath(vec3r(0.0), 0.0, depth, 0.0, STATUS_NOT_IN_WATER);
     }
@@ -258,7 +261,7 @@ fn pixel_along(cam: View, dir: vec3r) -> Pixel {
         return Pixel(vec2r(0.0), STATUS_BEHIND_CAMERA);
     }
     let normalized = d.xy / d.z;
-    if (!(dot(normalized, normalized) < params.cams[cam.k].extra.y)) {
+    if (!(dot(normalized, normalized) < cam.fold2)) {
         return Pixel(vec2r(0.0), STATUS_OUTSIDE_LENS);
     }
     return Pixel(img_from_normalized(cam, normalized), STATUS_OK);
@@ -284,14 +287,14 @@ struct NearPixel {
 // this loop body is a fraction of `project`'s.
 fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
     let n = cam.n;
-    let offset = point - params.cams[cam.k].centre.xyz;
+    let offset = point - cam.centre;
     let z = dot(n, offset);
-    let depth = z - cam.d_k - params.cams[cam.k].centre.w;
+    let depth = z - cam.d_k - cam.thickness;
     let lateral = offset - n * z;
     let r = length(lateral);
-    let layers = min(params.cams[cam.k].counts.x, MAX_LAYERS);
-    let dense = params.cams[cam.k].counts.z != 0u;
-    let k_water = 1.0 / params.cams[cam.k].extra.z;
+    let k_water = 1.0 / cam.rho_water;
+    // The first layer (t, 1/ρ): a layer of air, which adds nothing, when there is none.
+    let first = cam.first_layer.xz;
     var x = max(tan_start, 0.0);
     var tau: real = 0.0;
     var converged = false;
@@ -303,8 +306,15 @@ fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
         var f = cam.d_k * x + depth * k_water * s * x - r;
         var df = cam.d_k + depth * slope;
         var d2f = depth * (k_water * k_water - 1.0) * 3.0 * x * slope * s * s;
-        for (var l = 0u; l < layers; l++) {
-            let layer = params.cams[cam.k].layers[l].xz; // (t, 1/ρ)
+        let s_1 = inverseSqrt(1.0 + (1.0 - first.y * first.y) * x * x);
+        let slope_1 = first.y * s_1 * s_1 * s_1;
+        f += first.x * first.y * s_1 * x;
+        df += first.x * slope_1;
+        d2f += first.x * (first.y * first.y - 1.0) * 3.0 * x * slope_1 * s_1 * s_1;
+        // The later layers to RIG_LAYERS (common.wgsl): one the camera lacks is packed as zeros
+        // (t = 0, 1/ρ = 0) and adds nothing.
+        for (var l = 1u; l < RIG_LAYERS; l++) {
+            let layer = later_layer(cam, l).xz; // (t, 1/ρ)
             let k = layer.y;
             let s_l = inverseSqrt(1.0 + (1.0 - k * k) * x * x);
             let slope_l = k * s_l * s_l * s_l;
@@ -325,7 +335,7 @@ fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
         x = max(x - step, 0.0);
     }
     // Beyond √REAL_HUGE the squares of tan a overflow: `project` scales them.
-    converged = converged && dense && depth > 0.0 && !above_root_huge(r / cam.d_k);
+    converged = converged && cam.dense && depth > 0.0 && !above_root_huge(r / cam.d_k);
     // n·r + lateral·tan a: the air direction times r√(1 + tan² a); n itself on the axis.
     let pixel = pixel_along(cam, select(n * r + lateral * tau, n, r == 0.0));
     return NearPixel(pixel, converged);
@@ -347,7 +357,7 @@ fn vop(cam: View, point: vec3r) -> VirtualPoint {
     }
     var vop_distance: real = 0.0;
     if (path.tan_a > 0.0) {
-        vop_distance = path.r / path.tan_a - cam.d_k - params.cams[cam.k].centre.w;
+        vop_distance = path.r / path.tan_a - cam.d_k - cam.thickness;
     } else {
         let axial = virtual_from_real(cam, path.depth, 0.0, 1.0);
         if (!axial.ok) {

@@ -9,11 +9,11 @@ struct Distortion {
 }
 
 fn distort(cam: View, p: vec2r) -> Distortion {
-    let k1 = params.cams[cam.k].distortion.x;
-    let k2 = params.cams[cam.k].distortion.y;
-    let p1 = params.cams[cam.k].distortion.z;
-    let p2 = params.cams[cam.k].distortion.w;
-    let k3 = params.cams[cam.k].extra.x;
+    let k1 = cam.distortion.x;
+    let k2 = cam.distortion.y;
+    let p1 = cam.distortion.z;
+    let p2 = cam.distortion.w;
+    let k3 = cam.k3;
     let x = p.x;
     let y = p.y;
     let r2 = x * x + y * y;
@@ -36,10 +36,10 @@ struct Undistorted {
 }
 
 fn normalized_from_img(cam: View, pixel: vec2r) -> Undistorted {
-    let distorted = (pixel - params.cams[cam.k].intrinsics.zw) / params.cams[cam.k].intrinsics.xy;
+    let distorted = (pixel - cam.intrinsics.zw) / cam.intrinsics.xy;
     var p = distorted;
     var ok = true;
-    if (params.cams[cam.k].counts.y != 0u) {
+    if (cam.distorted) {
         let tolerance = UNDISTORT_TOLERANCE * (1.0 + length(distorted));
         ok = false;
         for (var it = 0u; it < UNDISTORT_MAX_ITERATIONS; it++) {
@@ -57,14 +57,14 @@ fn normalized_from_img(cam: View, pixel: vec2r) -> Undistorted {
                        dj.dx.x * residual.y - dj.dx.y * residual.x) / det;
         }
     }
-    return Undistorted(p, ok && dot(p, p) < params.cams[cam.k].extra.y);
+    return Undistorted(p, ok && dot(p, p) < cam.fold2);
 }
 
 // Raw pixel of normalised undistorted coordinates.
 fn img_from_normalized(cam: View, p: vec2r) -> vec2r {
     var q = p;
-    if (params.cams[cam.k].counts.y != 0u) {
+    if (cam.distorted) {
         q = distort(cam, p).point;
     }
-    return q * params.cams[cam.k].intrinsics.xy + params.cams[cam.k].intrinsics.zw;
+    return q * cam.intrinsics.xy + cam.intrinsics.zw;
 }

@@ -411,14 +411,20 @@ impl GpuContext {
         self.summary.max_storage_binding
     }
 
-    /// Compiles a composed WGSL kernel with entry point `main` into a pipeline, its
-    /// `override WORKGROUP_SIZE: u32` (which every composed kernel declares, in
-    /// `shaders/common.wgsl`) set to [`WORKGROUP_SIZE`].
+    /// Compiles a composed WGSL kernel with entry point `main` into a pipeline, with the overrides
+    /// every composed kernel declares (in `shaders/common.wgsl`): `WORKGROUP_SIZE` set to
+    /// [`WORKGROUP_SIZE`] and `RIG_LAYERS` to `rig_layers`, the most layers of a camera the
+    /// pipeline will see (its layer loops run to that constant).
     ///
     /// Errors: [`GpuError::Kernel`] naming the kernel when the adapter refuses the shader or the
-    /// pipeline, a source without that override included (caught in an error scope: wgpu's
+    /// pipeline, a source without those overrides included (caught in an error scope: wgpu's
     /// default would panic).
-    pub fn pipeline(&self, label: &str, source: &str) -> Result<wgpu::ComputePipeline, GpuError> {
+    pub fn pipeline(
+        &self,
+        label: &str,
+        source: &str,
+        rig_layers: u32,
+    ) -> Result<wgpu::ComputePipeline, GpuError> {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = self
             .device
@@ -434,7 +440,10 @@ impl GpuContext {
                 module: &module,
                 entry_point: Some("main"),
                 compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &[("WORKGROUP_SIZE", f64::from(WORKGROUP_SIZE))],
+                    constants: &[
+                        ("WORKGROUP_SIZE", f64::from(WORKGROUP_SIZE)),
+                        ("RIG_LAYERS", f64::from(rig_layers)),
+                    ],
                     ..Default::default()
                 },
                 cache: None,

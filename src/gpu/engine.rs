@@ -107,7 +107,8 @@ pub struct GpuEngine {
     context: GpuContext,
     precision: Precision,
     reduction: Reduction,
-    pipelines: Mutex<HashMap<(Kernel, Rows), Arc<wgpu::ComputePipeline>>>,
+    /// Compiled pipelines by kernel, corner-row binding and `RIG_LAYERS`.
+    pipelines: Mutex<HashMap<(Kernel, Rows, u32), Arc<wgpu::ComputePipeline>>>,
     buffers: Mutex<Buffers>,
     /// Most items per dispatch ([`MAX_CHUNK_ITEMS`] unless a test lowers it).
     max_chunk_items: usize,
@@ -242,7 +243,7 @@ impl GpuEngine {
         self.pipelines
             .lock()
             .expect("pipeline cache")
-            .remove(&(Kernel::RayGapCost, Rows::Storage));
+            .retain(|&(kernel, _, _), _| kernel != Kernel::RayGapCost);
         Ok(())
     }
 
@@ -269,26 +270,34 @@ impl GpuEngine {
         self.stream_chunk_rows = rows.max(1);
     }
 
-    /// The compiled pipeline of `kernel`, compiled on first use (per-view kernels with their
-    /// rows in a storage buffer).
-    fn pipeline(&self, kernel: Kernel) -> Result<Arc<wgpu::ComputePipeline>, GpuError> {
-        self.pipeline_reading(kernel, Rows::Storage)
+    /// The compiled pipeline of `kernel` for the cameras of `params`, compiled on first use
+    /// (per-view kernels with their rows in a storage buffer).
+    fn pipeline(
+        &self,
+        kernel: Kernel,
+        params: &Params,
+    ) -> Result<Arc<wgpu::ComputePipeline>, GpuError> {
+        self.pipeline_reading(kernel, Rows::Storage, params)
     }
 
-    /// The compiled pipeline of `kernel` reading its corner rows as `rows` says (ignored by
-    /// kernels without per-view rows), compiled on first use.
+    /// The compiled pipeline of `kernel` for the cameras of `params` (its `RIG_LAYERS`, their most
+    /// layers: one pipeline per layer count, whose layer loops have a constant trip count), reading
+    /// its corner rows as `rows` says (ignored by kernels without per-view rows), compiled on
+    /// first use.
     fn pipeline_reading(
         &self,
         kernel: Kernel,
         rows: Rows,
+        params: &Params,
     ) -> Result<Arc<wgpu::ComputePipeline>, GpuError> {
+        let layers = params.layers();
         let rows = if kernel.reads_view_rows() {
             rows
         } else {
             Rows::Storage
         };
         let mut cache = self.pipelines.lock().expect("pipeline cache");
-        if let Some(pipeline) = cache.get(&(kernel, rows)) {
+        if let Some(pipeline) = cache.get(&(kernel, rows, layers)) {
             return Ok(pipeline.clone());
         }
         let precision = kernel.fixed_precision().unwrap_or(self.precision);
@@ -299,9 +308,9 @@ impl GpuEngine {
         };
         let pipeline = Arc::new(
             self.context
-                .pipeline(&label, &source(kernel, precision, self.reduction, rows))?,
+                .pipeline(&label, &source(kernel, precision, self.reduction, rows), layers)?,
         );
-        cache.insert((kernel, rows), pipeline.clone());
+        cache.insert((kernel, rows, layers), pipeline.clone());
         Ok(pipeline)
     }
 
@@ -506,7 +515,7 @@ impl GpuEngine {
         }
         // Uploads the data and leaves it resident in the first lane's buffers.
         self.run_map_in(kernel, a, b, input, &mut output, &mut status, usize::MAX)?;
-        let pipeline = self.pipeline(kernel)?;
+        let pipeline = self.pipeline(kernel, &Params::new(self.precision, a, b, [0; 4]))?;
         let buffers = self.buffers();
         // One chunk runs on the ring's first lane.
         let lane = &buffers.ring[0];
@@ -722,8 +731,8 @@ impl GpuEngine {
         Self::check_layers(camera)?;
         let s = self.precision.size();
         let rows = (self.chunk_items(6 * s) / w).clamp(1, MAX_GROUPS_PER_DIMENSION);
-        let pipeline = self.pipeline(Kernel::BackprojectGrid)?;
         let mut params = Params::new(self.precision, camera, camera, [0; 4]);
+        let pipeline = self.pipeline(Kernel::BackprojectGrid, &params)?;
         let mut guard = self.buffers();
         let buffers = &mut *guard;
         let uniform = self.uniform(&mut buffers.uniform, &params)?;
@@ -821,8 +830,8 @@ impl GpuEngine {
         let candidates_per_chunk = (self.max_chunk_items / groups_x)
             .clamp(1, MAX_GROUPS_PER_DIMENSION)
             .min(candidates.len());
-        let pipeline = self.pipeline(Kernel::RayGapCost)?;
         let mut params = Params::new(self.precision, a, b, [0; 4]);
+        let pipeline = self.pipeline(Kernel::RayGapCost, &params)?;
         let mut guard = self.buffers();
         let buffers = &mut *guard;
         let partial_bytes = candidates_per_chunk * groups_x * 2 * s;

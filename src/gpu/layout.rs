@@ -57,7 +57,7 @@ macro_rules! mirrors {
             pub centre: $real4,
             /// n, w = 0.
             pub normal: $real4,
-            /// (tᵢ, ρᵢ = μᵢ/μ_air, 0, 0) per layer, zeros past the layer count.
+            /// (tᵢ, ρᵢ = μᵢ/μ_air, 1/ρᵢ, 0) per layer, zeros past the layer count.
             pub layers: [$real4; MAX_LAYERS],
             /// Layer count, has distortion (0 or 1), no medium less dense than air (0 or 1), port
             /// held (1: a candidate interface does not move this camera's port; see
@@ -174,6 +174,15 @@ impl Params {
         match self {
             Self::F32(params) => params.cams[k].counts.w = 1,
             Self::F64(params) => params.cams[k].counts.w = 1,
+        }
+    }
+
+    /// The most layers of its two cameras: the value of the kernels' `override RIG_LAYERS`
+    /// (`shaders/common.wgsl`) in the pipelines this uniform is bound to.
+    pub fn layers(&self) -> u32 {
+        match self {
+            Self::F32(params) => params.cams[0].counts.x.max(params.cams[1].counts.x),
+            Self::F64(params) => params.cams[0].counts.x.max(params.cams[1].counts.x),
         }
     }
 

@@ -104,7 +104,7 @@ impl GpuEngine {
             )));
         }
         let per_chunk = per_chunk.min(candidates.len());
-        let pipeline = self.pipeline(kernel)?;
+        let pipeline = self.pipeline(kernel, &params)?;
         let mut guard = self.buffers();
         let buffers = &mut *guard;
 

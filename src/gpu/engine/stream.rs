@@ -263,8 +263,8 @@ impl GpuEngine {
             .chunk_items(N.max(M) * s)
             .min(max_rows.max(1))
             .min(input.len());
-        let pipeline = self.pipeline(kernel)?;
         let params = Params::new(self.precision, a, b, [0; 4]);
+        let pipeline = self.pipeline(kernel, &params)?;
         let mut guard = self.buffers();
         // As many lanes as chunks, at most the ring (one chunk needs no second set).
         let chunks = input.len().div_ceil(chunk);

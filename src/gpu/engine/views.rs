@@ -307,7 +307,7 @@ impl GpuEngine {
         }
         let most_pieces = batches.iter().map(|b| b.len()).max().unwrap_or(1);
 
-        let pipeline = self.pipeline_reading(job.kernel, packed.rows)?;
+        let pipeline = self.pipeline_reading(job.kernel, packed.rows, &params)?;
         let rows_buf = packed.resident.on_device(self, precision)?;
         // One uniform slot per dispatch of a submission, each at an aligned offset.
         let params_bytes = params.bytes().len();
