@@ -355,6 +355,70 @@ fn backproject_matches_cpu() {
     }
 }
 
+/// Pixels out to 10⁷ px from the image centre through a lens whose distortion grows without
+/// a fold (k1 < 0, k2 > 0): inverting it takes Newton up to the stopping rule's 30 steps,
+/// from the inverse radial series and, where that run fails (it overflows far out), again from
+/// the distorted point. In f64 the kernel must stop where the CPU does, pixel for pixel: a run
+/// that converges at its last step, a second run, a start other than the CPU's, each changes
+/// statuses on this ring of pixels. f32 stops at a looser tolerance, a step or two sooner, so it
+/// may answer where f64 runs out of steps (3.4–4.6·10⁶ px here), and nowhere else differs; the
+/// directions both answer agree.
+#[test]
+fn undistortion_far_outside_the_image_matches_the_cpu() {
+    let cpu = CpuEngine::new(None);
+    let rig = gpu_harness::rig_with_layer_stacks(true);
+    let camera = rig.refractive_camera(0);
+    let n = 6000;
+    // Radii geometric from 10 to 10⁷ px, at angles of the golden ratio's turns.
+    let radius = |i: usize| 10f64.powf(1.0 + 6.0 * i as f64 / (n - 1) as f64);
+    let pixels: Vec<[f64; 2]> = (0..n)
+        .map(|i| {
+            let angle = i as f64 * 2.399_963_229_728_653;
+            [
+                639.5 + radius(i) * angle.cos(),
+                511.5 + radius(i) * angle.sin(),
+            ]
+        })
+        .collect();
+    let (mut c, mut cs) = (vec![[0.0; 6]; n], vec![0; n]);
+    cpu.backproject(&camera, &pixels, &mut c, &mut cs);
+    let answered = cs.iter().filter(|&&s| s == 0).count();
+    let outside_lens = NoSolution::OutsideLens.code();
+    let outside = cs.iter().filter(|&&s| s == outside_lens).count();
+    assert!(
+        answered > n / 2 && outside > n / 20,
+        "{answered} answered, {outside} outside the lens"
+    );
+    for precision in [Precision::F32, Precision::F64] {
+        let Some(gpu) = engine(precision) else { return };
+        let (mut g, mut gs) = (vec![[0.0; 6]; n], vec![0; n]);
+        gpu.backproject(&camera, &pixels, &mut g, &mut gs).unwrap();
+        let what = format!("undistortion {precision}, out to 1e7 px");
+        let f32_sooner =
+            |i: usize| precision == Precision::F32 && cs[i] == outside_lens && radius(i) > 1e6;
+        let differ: Vec<usize> = (0..n).filter(|&i| cs[i] != gs[i]).collect();
+        let unexplained: Vec<String> = differ
+            .iter()
+            .filter(|&&i| !f32_sooner(i))
+            .map(|&i| format!("{:.3e} px: CPU {}, GPU {}", radius(i), cs[i], gs[i]))
+            .collect();
+        assert!(
+            unexplained.is_empty(),
+            "{what}: statuses differ at {unexplained:?}"
+        );
+        let (dir_abs, _) = compare(&what, (&c, &cs), (&g, &gs), 3..6, differ.len());
+        println!(
+            "{what:60} |Δdir| {dir_abs:.1e}, {answered} answered, {outside} outside the lens, \
+             {} statuses differ",
+            differ.len()
+        );
+        match precision {
+            Precision::F32 => assert!(dir_abs < 2e-6, "{what}"),
+            Precision::F64 => assert!(dir_abs < 1e-9, "{what}"),
+        }
+    }
+}
+
 #[test]
 fn project_matches_cpu() {
     let cpu = CpuEngine::new(None);
@@ -478,6 +542,57 @@ fn f32_triangulation_error(
         worst = worst.max(error / bound);
     }
     worst
+}
+
+/// Two cameras whose ports have different layer stacks (a bare interface and three layers, in
+/// both orders): the two-camera kernels run their layer loops to the pair's most layers, each
+/// camera to its own count. A camera that takes the other's later layers, or a missing layer that
+/// is not masked off, moves its rays (or totally reflects them) and fails the comparison.
+#[test]
+fn triangulate_with_different_layer_stacks_matches_cpu() {
+    let cpu = CpuEngine::new(None);
+    for precision in [Precision::F32, Precision::F64] {
+        let Some(gpu) = engine(precision) else { return };
+        let mut random = Random(0x2545_F491_4F6C_DD1D);
+        for bare_first in [true, false] {
+            let rig = gpu_harness::rig_with_layer_stacks(bare_first);
+            let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
+            // Pixels within an image size of the image: a point far off both axes projects
+            // millions of pixels out through this lens (k2 > 0), where inverting it takes about
+            // the stopping rule's 30 Newton steps, and f32's looser tolerance stops a step or two
+            // sooner than f64: a status that differs by the bound, not by the layers
+            // (`undistortion_far_outside_the_image_matches_the_cpu` tests those pixels).
+            let near = |m: &[f64; 4]| {
+                let inside = |x: f64, y: f64| {
+                    (-1280.0..2560.0).contains(&x) && (-1024.0..2048.0).contains(&y)
+                };
+                inside(m[0], m[1]) && inside(m[2], m[3])
+            };
+            let matches: Vec<[f64; 4]> = random_matches(&mut random, &a, &b, 2 * N, 0.3)
+                .into_iter()
+                .filter(near)
+                .take(N)
+                .collect();
+            assert_eq!(matches.len(), N, "matches near the images");
+            let (mut c, mut cs) = (vec![[0.0; 4]; N], vec![0; N]);
+            let (mut g, mut gs) = (vec![[0.0; 4]; N], vec![0; N]);
+            cpu.triangulate(&a, &b, &matches, &mut c, &mut cs);
+            gpu.triangulate(&a, &b, &matches, &mut g, &mut gs).unwrap();
+            let layers = [a.layers().len(), b.layers().len()];
+            let what = format!("triangulate {precision}, layers {layers:?}");
+            let answered = cs.iter().filter(|&&s| s == 0).count();
+            assert!(answered > N / 2, "{what}: {answered} of {N} answered");
+            let (abs, rel) = compare(&what, (&c, &cs), (&g, &gs), 0..4, allowed(precision, N));
+            println!("{what:60} max |Δ| {abs:.1e} m (relative {rel:.1e})");
+            match precision {
+                Precision::F32 => {
+                    let worst = f32_triangulation_error(&a, &b, &matches, (&c, &cs), (&g, &gs));
+                    assert!(worst < 1.0, "{what}: |Δ| / bound {worst:.2}");
+                }
+                Precision::F64 => assert!(rel < 1e-9, "{what}"),
+            }
+        }
+    }
 }
 
 #[test]

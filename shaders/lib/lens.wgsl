@@ -27,9 +27,16 @@ fn distort(cam: View, p: vec2r) -> Distortion {
     return Distortion(d, vec2r(dxx, dxy), vec2r(dxy, dyy));
 }
 
-// Normalised undistorted coordinates of a raw pixel, as `PinholeCamera::normalized_from_img`:
-// Newton with the analytic Jacobian; `ok` is false when it does not converge or when the result
-// lies beyond the fold of the radial distortion.
+// Normalised undistorted coordinates of a raw pixel, as `RefractiveCamera::dir_in_air_from_img`
+// undistorts (`PinholeCamera::undistort_normalized_in_fold`): Newton with the analytic Jacobian,
+// first from the inverse radial series x′(1 − r′²(k1 + r′²(k2 − 3k1²))); where that run meets a
+// fold (determinant ≤ 0), does not converge, or converges beyond the fold or at a non-positive
+// determinant, once more from the distorted point. Each run tests the residual after each of at
+// most UNDISTORT_MAX_ITERATIONS steps, as the CPU does. `ok` is false when neither run converges
+// or the result lies beyond the fold of the radial distortion.
+//
+// One loop with a restart rather than two loops: llvmpipe runs every loop body at least once,
+// masked or not, so a second loop would cost a pass of `distort` for every pixel.
 struct Undistorted {
     point: vec2r,
     ok: bool,
@@ -40,21 +47,40 @@ fn normalized_from_img(cam: View, pixel: vec2r) -> Undistorted {
     var p = distorted;
     var ok = true;
     if (cam.distorted) {
-        let tolerance = UNDISTORT_TOLERANCE * (1.0 + length(distorted));
+        let k1 = cam.distortion.x;
+        let k2 = cam.distortion.y;
+        let r2 = dot(distorted, distorted);
+        let tolerance = UNDISTORT_TOLERANCE * (1.0 + sqrt(r2));
+        p = distorted * (1.0 - r2 * (k1 + r2 * (k2 - 3.0 * k1 * k1)));
         ok = false;
-        for (var it = 0u; it < UNDISTORT_MAX_ITERATIONS; it++) {
+        var second = false;
+        var steps = 0u;
+        loop {
             let dj = distort(cam, p);
             let residual = dj.point - distorted;
-            if (length(residual) <= tolerance) {
-                ok = true;
-                break;
-            }
             let det = dj.dx.x * dj.dy.y - dj.dy.x * dj.dx.y;
-            if (!(det > 0.0)) {
-                break;
+            var failed = false;
+            if (length(residual) <= tolerance) {
+                if (second || (det > 0.0 && dot(p, p) < cam.fold2)) {
+                    ok = true;
+                    break;
+                }
+                failed = true;
+            } else if (steps == UNDISTORT_MAX_ITERATIONS || !(det > 0.0)) {
+                failed = true;
+            }
+            if (failed) {
+                if (second) {
+                    break;
+                }
+                second = true;
+                steps = 0u;
+                p = distorted;
+                continue;
             }
             p -= vec2r(dj.dy.y * residual.x - dj.dy.x * residual.y,
                        dj.dx.x * residual.y - dj.dx.y * residual.x) / det;
+            steps++;
         }
     }
     return Undistorted(p, ok && dot(p, p) < cam.fold2);

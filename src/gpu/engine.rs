@@ -306,10 +306,11 @@ impl GpuEngine {
         } else {
             kernel.name().to_string()
         };
-        let pipeline = Arc::new(
-            self.context
-                .pipeline(&label, &source(kernel, precision, self.reduction, rows), layers)?,
-        );
+        let pipeline = Arc::new(self.context.pipeline(
+            &label,
+            &source(kernel, precision, self.reduction, rows),
+            layers,
+        )?);
         cache.insert((kernel, rows, layers), pipeline.clone());
         Ok(pipeline)
     }
