@@ -275,6 +275,15 @@ struct NearPixel {
     converged: bool,
 }
 
+// A layer (t, k = 1/ρ)'s terms (f, f′, f″) of `project_near`'s equation at x = tan a:
+// t·T(x; k) and its derivatives, with T(x; k) = k x / √q, q = 1 + (1 − k²) x² (see there).
+fn near_layer_terms(layer: vec2r, x: real) -> vec3r {
+    let k = layer.y;
+    let s = inverseSqrt(1.0 + (1.0 - k * k) * x * x);
+    let slope = k * s * s * s;
+    return vec3r(layer.x * k * s * x, layer.x * slope, layer.x * (k * k - 1.0) * 3.0 * x * slope * s * s);
+}
+
 // Forward projection of a point seen near a known air ray, without `project`'s safeguards: Newton's
 // iteration on f(x) = d_k x + Σₘ Lₘ T(x; 1/ρₘ) − r in x = tan a (water and layers m), from
 // `tan_start` (the tan a of a ray the point is seen near). Where no medium is less dense than air
@@ -303,25 +312,20 @@ fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
         // with s = 1/√q, T = k s x, T′ = k s³, T″ = 3 (k² − 1) x T′ s² (no division).
         let s = inverseSqrt(1.0 + (1.0 - k_water * k_water) * x * x);
         let slope = k_water * s * s * s;
-        var f = cam.d_k * x + depth * k_water * s * x - r;
-        var df = cam.d_k + depth * slope;
-        var d2f = depth * (k_water * k_water - 1.0) * 3.0 * x * slope * s * s;
-        let s_1 = inverseSqrt(1.0 + (1.0 - first.y * first.y) * x * x);
-        let slope_1 = first.y * s_1 * s_1 * s_1;
-        f += first.x * first.y * s_1 * x;
-        df += first.x * slope_1;
-        d2f += first.x * (first.y * first.y - 1.0) * 3.0 * x * slope_1 * s_1 * s_1;
-        // The later layers to RIG_LAYERS (common.wgsl): one the camera lacks is packed as zeros
-        // (t = 0, 1/ρ = 0) and adds nothing.
+        // (f, f′, f″): the air and the water, the first layer, then the later layers to
+        // RIG_LAYERS (common.wgsl); one the camera lacks is packed as zeros (t = 0, 1/ρ = 0) and
+        // adds nothing.
+        var terms = vec3r(
+            cam.d_k * x + depth * k_water * s * x - r,
+            cam.d_k + depth * slope,
+            depth * (k_water * k_water - 1.0) * 3.0 * x * slope * s * s,
+        ) + near_layer_terms(first, x);
         for (var l = 1u; l < RIG_LAYERS; l++) {
-            let layer = later_layer(cam, l).xz; // (t, 1/ρ)
-            let k = layer.y;
-            let s_l = inverseSqrt(1.0 + (1.0 - k * k) * x * x);
-            let slope_l = k * s_l * s_l * s_l;
-            f += layer.x * k * s_l * x;
-            df += layer.x * slope_l;
-            d2f += layer.x * (k * k - 1.0) * 3.0 * x * slope_l * s_l * s_l;
+            terms += near_layer_terms(later_layer(cam, l).xz, x);
         }
+        let f = terms.x;
+        let df = terms.y;
+        let d2f = terms.z;
         let step = f / df;
         // Done when the step is within the tolerance, or when the step's own error, by the
         // quadratic model |f″| step² / 2f′, is within half of it. The model holds where f″ barely
