@@ -280,8 +280,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         for (var row = first; row < end; row += 3u) {
             let c = corner_row(row);
             let point = fitted_about_first(rotation, shift, c.board.xy - c0.board.xy) + x0.x;
-            let left = project_near(a, point, tan_in_air(a, c.v_l));
-            let right = project_near(b, point, tan_in_air(b, c.v_r));
+            let near = project_near_pair(a, b, point, vec2r(tan_in_air(a, c.v_l), tan_in_air(b, c.v_r)));
+            let left = near.a;
+            let right = near.b;
             if (left.converged && right.converged) {
                 code = first_failure(code, first_failure(left.pixel.status, right.pixel.status));
                 sum += pixel_squares(c, left.pixel, right.pixel);

@@ -284,65 +284,120 @@ fn near_layer_terms(layer: vec2r, x: real) -> vec3r {
     return vec3r(layer.x * k * s * x, layer.x * slope, layer.x * (k * k - 1.0) * 3.0 * x * slope * s * s);
 }
 
+// A point's place about a camera's axis line C_k + s·n, for `project_near`.
+struct NearPath {
+    lateral: vec3r, // the point − C_k − z·n
+    r: real,        // |lateral|
+    depth: real,    // beyond the outer interface
+}
+
+fn near_path(cam: View, point: vec3r) -> NearPath {
+    let offset = point - cam.centre;
+    let z = dot(cam.n, offset);
+    let lateral = offset - cam.n * z;
+    return NearPath(lateral, length(lateral), z - cam.d_k - cam.thickness);
+}
+
+// `project_near`'s equation (f, f′, f″) at x = tan a.
+fn near_equation(cam: View, path: NearPath, x: real) -> vec3r {
+    // T(x; k) = k x / √q, T′ = k / √q³, T″ = −3 (1 − k²) x T′ / q, q = 1 + (1 − k²) x²:
+    // with s = 1/√q, T = k s x, T′ = k s³, T″ = 3 (k² − 1) x T′ s² (no division).
+    let k_water = 1.0 / cam.rho_water;
+    let s = inverseSqrt(1.0 + (1.0 - k_water * k_water) * x * x);
+    let slope = k_water * s * s * s;
+    // The air and the water, the first layer (a layer of air, which adds nothing, when there is
+    // none), then the later layers to RIG_LAYERS (common.wgsl); one the camera lacks is packed as
+    // zeros (t = 0, 1/ρ = 0) and adds nothing.
+    var terms = vec3r(
+        cam.d_k * x + path.depth * k_water * s * x - path.r,
+        cam.d_k + path.depth * slope,
+        path.depth * (k_water * k_water - 1.0) * 3.0 * x * slope * s * s,
+    ) + near_layer_terms(cam.first_layer.xz, x);
+    for (var l = 1u; l < RIG_LAYERS; l++) {
+        terms += near_layer_terms(later_layer(cam, l).xz, x);
+    }
+    return terms;
+}
+
+// Whether the Newton step from x settles `project_near`'s iteration: the step is within the
+// tolerance, or the step's own error, by the quadratic model |f″| step² / 2f′, is within half of
+// it. The model holds where f″ barely changes over the step (|f″| grows with x from 0): only for
+// steps under 1 % of x.
+fn near_settles(terms: vec3r, step: real, x: real) -> bool {
+    let modelled = abs(step) <= 0.01 * x && abs(terms.z) * step * step <= PROJECT_TOLERANCE * x * terms.y;
+    return abs(step) <= PROJECT_TOLERANCE * x || modelled;
+}
+
+// The pixel of the root tau, and whether `project_near` answers for `project` there. A point not
+// in the water is `project`'s first check, whatever the iteration did: it is answered here.
+fn near_pixel(cam: View, path: NearPath, tau: real, settled: bool) -> NearPixel {
+    let in_water = path.depth > 0.0;
+    // Beyond √REAL_HUGE the squares of tan a overflow: `project` scales them.
+    let converged = !in_water || (settled && cam.dense && !above_root_huge(path.r / cam.d_k));
+    // n·r + lateral·tan a: the air direction times r√(1 + tan² a); n itself on the axis.
+    var pixel = pixel_along(cam, select(cam.n * path.r + path.lateral * tau, cam.n, path.r == 0.0));
+    if (!in_water) {
+        pixel = Pixel(vec2r(0.0), STATUS_NOT_IN_WATER);
+    }
+    return NearPixel(pixel, converged);
+}
+
 // Forward projection of a point seen near a known air ray, without `project`'s safeguards: Newton's
 // iteration on f(x) = d_k x + Σₘ Lₘ T(x; 1/ρₘ) − r in x = tan a (water and layers m), from
 // `tan_start` (the tan a of a ray the point is seen near). Where no medium is less dense than air
 // (ρ ≥ 1), every term is increasing and concave in x, so the iterates, clamped at 0, approach the
 // root from below after their first step, with no bracket to keep. It stops at `project`'s
-// tolerance on the step. `converged` false (a medium less dense than air, a point not in the
-// water, a step that does not shrink to the tolerance within NEAR_MAX_ITERATIONS, a non-finite
-// value): the caller takes `project`, which decides. Converged, the pixel and status are
-// `project`'s. On a SIMD driver (lavapipe) every branch of a loop body runs for every lane, masked:
-// this loop body is a fraction of `project`'s.
+// tolerance on the step (`near_settles`). `converged` false (a medium less dense than air, a
+// step that does not shrink to the tolerance within NEAR_MAX_ITERATIONS, a non-finite value, tan a
+// beyond √REAL_HUGE): the caller takes `project`, which decides. Converged, the pixel and status
+// are `project`'s (STATUS_NOT_IN_WATER for a point not in the water, `project`'s first test). On a SIMD driver (lavapipe) every branch of a loop body
+// runs for every lane, masked: this loop body is a fraction of `project`'s.
 fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
-    let n = cam.n;
-    let offset = point - cam.centre;
-    let z = dot(n, offset);
-    let depth = z - cam.d_k - cam.thickness;
-    let lateral = offset - n * z;
-    let r = length(lateral);
-    let k_water = 1.0 / cam.rho_water;
-    // The first layer (t, 1/ρ): a layer of air, which adds nothing, when there is none.
-    let first = cam.first_layer.xz;
+    let path = near_path(cam, point);
     var x = max(tan_start, 0.0);
     var tau: real = 0.0;
-    var converged = false;
+    var settled = false;
     for (var iteration = 0u; iteration < NEAR_MAX_ITERATIONS; iteration++) {
-        // T(x; k) = k x / √q, T′ = k / √q³, T″ = −3 (1 − k²) x T′ / q, q = 1 + (1 − k²) x²:
-        // with s = 1/√q, T = k s x, T′ = k s³, T″ = 3 (k² − 1) x T′ s² (no division).
-        let s = inverseSqrt(1.0 + (1.0 - k_water * k_water) * x * x);
-        let slope = k_water * s * s * s;
-        // (f, f′, f″): the air and the water, the first layer, then the later layers to
-        // RIG_LAYERS (common.wgsl); one the camera lacks is packed as zeros (t = 0, 1/ρ = 0) and
-        // adds nothing.
-        var terms = vec3r(
-            cam.d_k * x + depth * k_water * s * x - r,
-            cam.d_k + depth * slope,
-            depth * (k_water * k_water - 1.0) * 3.0 * x * slope * s * s,
-        ) + near_layer_terms(first, x);
-        for (var l = 1u; l < RIG_LAYERS; l++) {
-            terms += near_layer_terms(later_layer(cam, l).xz, x);
-        }
-        let f = terms.x;
-        let df = terms.y;
-        let d2f = terms.z;
-        let step = f / df;
-        // Done when the step is within the tolerance, or when the step's own error, by the
-        // quadratic model |f″| step² / 2f′, is within half of it. The model holds where f″ barely
-        // changes over the step (|f″| grows with x from 0): only for steps under 1 % of x.
-        let modelled = abs(step) <= 0.01 * x && abs(d2f) * step * step <= PROJECT_TOLERANCE * x * df;
-        if (abs(step) <= PROJECT_TOLERANCE * x || modelled) {
+        let terms = near_equation(cam, path, x);
+        let step = terms.x / terms.y;
+        if (near_settles(terms, step, x)) {
             tau = x - step;
-            converged = true;
+            settled = true;
             break;
         }
         x = max(x - step, 0.0);
     }
-    // Beyond √REAL_HUGE the squares of tan a overflow: `project` scales them.
-    converged = converged && cam.dense && depth > 0.0 && !above_root_huge(r / cam.d_k);
-    // n·r + lateral·tan a: the air direction times r√(1 + tan² a); n itself on the axis.
-    let pixel = pixel_along(cam, select(n * r + lateral * tau, n, r == 0.0));
-    return NearPixel(pixel, converged);
+    return near_pixel(cam, path, tau, settled);
+}
+
+// One point's `project_near` in two cameras, the two iterations in one loop: each is a chain of
+// dependent square roots and divisions, and a CPU driver (lavapipe) overlaps two independent
+// chains where it runs one loop after the other in sequence. Each camera's iterates, stop and
+// answer are `project_near`'s, operation for operation; the loop runs until both have settled.
+struct NearPair {
+    a: NearPixel,
+    b: NearPixel,
+}
+
+fn project_near_pair(a: View, b: View, point: vec3r, tan_start: vec2r) -> NearPair {
+    let path_a = near_path(a, point);
+    let path_b = near_path(b, point);
+    var x = max(tan_start, vec2r(0.0));
+    var tau = vec2r(0.0);
+    var settled = vec2<bool>(false);
+    for (var iteration = 0u; iteration < NEAR_MAX_ITERATIONS; iteration++) {
+        let terms_a = near_equation(a, path_a, x.x);
+        let terms_b = near_equation(b, path_b, x.y);
+        let step = vec2r(terms_a.x / terms_a.y, terms_b.x / terms_b.y);
+        let now = !settled & vec2<bool>(near_settles(terms_a, step.x, x.x), near_settles(terms_b, step.y, x.y));
+        tau = select(tau, x - step, now);
+        settled = settled | now;
+        if (all(settled)) {
+            break;
+        }
+        x = max(x - step, vec2r(0.0));
+    }
+    return NearPair(near_pixel(a, path_a, tau.x, settled.x), near_pixel(b, path_b, tau.y, settled.y));
 }
 
 struct VirtualPoint {

@@ -423,8 +423,9 @@ impl<'a> CameraLanes<'a> {
     /// pixels two or three steps reach [`PROJECT_TOLERANCE`]. The twin of `project_near` in
     /// `shaders/lib/air_path.wgsl`: the same start, iteration and stop on the step; its
     /// quadratic-model stop is tighter (within rounding, where the shader's f32 rule allows half
-    /// the tolerance), and it evaluates T with a square root and a division where the shader
-    /// uses 1/√q.
+    /// the tolerance), it evaluates T with a square root and a division where the shader
+    /// uses 1/√q, and it leaves a point not in the water to `project` where the shader answers it
+    /// (`project`'s first test; here a settled lane has a pixel, which its callers rely on).
     ///
     /// Returns the pixels and the lanes it `settled`; every other lane (a medium less dense than
     /// air, a point out of range or not in the water, a grazing ray, an iteration that does not
