@@ -89,8 +89,8 @@ fn broken_wgsl_is_an_error_naming_the_kernel() {
         (
             "project f32 (u32 + f32)",
             project.replace(
-                "let i = item_index(gid, groups);",
-                "let i = item_index(gid, groups) + 1.0;",
+                "let i = 2u * item_index(gid, groups);",
+                "let i = 2u * item_index(gid, groups) + 1.0;",
             ),
             "validation error",
         ),
@@ -457,6 +457,52 @@ fn project_matches_cpu() {
                 Precision::F64 => assert!(rel < 1e-9, "{what}"),
             }
         });
+    }
+}
+
+/// The forward-projection kernel takes two rows per invocation (`Kernel::rows_per_invocation`),
+/// paired by their place in the chunk: batches and chunks of odd length, down to one row, must
+/// give every row the pixel and status it gets in one whole batch (which must match the CPU), bit
+/// for bit, whichever row it is paired with. A row skipped, written twice or swapped with its
+/// partner fails here.
+#[test]
+fn project_answers_every_row_of_odd_batches_and_chunks() {
+    let cpu = CpuEngine::new(None);
+    let configurations = configurations();
+    let camera = configurations[0].1.refractive_camera(0);
+    for precision in [Precision::F32, Precision::F64] {
+        let Some(mut gpu) = engine(precision) else { return };
+        let mut random = Random(0x2545_F491_4F6C_DD1D);
+        let points = random_points(&mut random, &camera, 2001);
+        let (mut c, mut cs) = (vec![[0.0; 2]; points.len()], vec![0; points.len()]);
+        let (mut whole, mut whole_status) = (c.clone(), cs.clone());
+        cpu.project(&camera, &points, &mut c, &mut cs);
+        gpu.project(&camera, &points, &mut whole, &mut whole_status).unwrap();
+        let what = format!("project {precision}, one batch of {}", points.len());
+        compare(&what, (&c, &cs), (&whole, &whole_status), 0..2, allowed(precision, points.len()));
+        assert!(whole_status.iter().any(|&s| s != 0), "{what}: rows without an answer");
+        // The points in reverse first, so that a row the kernel leaves alone keeps another
+        // row's answer in the buffers (kept across calls), not its own from the last call. 129
+        // rows: 64 pairs fill a workgroup, the 129th needs a second one.
+        let reversed: Vec<[f64; 3]> = points.iter().rev().copied().collect();
+        for chunk in [usize::MAX, 129, 7, 2, 1] {
+            gpu.set_stream_chunk_rows(chunk);
+            for n in [1, 2, 3, 10, 129, 2001] {
+                let (mut g, mut gs) = (vec![[0.0; 2]; n], vec![u32::MAX; n]);
+                gpu.project(&camera, &reversed[..n], &mut g, &mut gs).unwrap();
+                gpu.project(&camera, &points[..n], &mut g, &mut gs).unwrap();
+                for i in 0..n {
+                    let (expected, got) = ((whole_status[i], whole[i]), (gs[i], g[i]));
+                    let same = expected.0 == got.0
+                        && (0..2).all(|k| expected.1[k].to_bits() == got.1[k].to_bits());
+                    assert!(
+                        same,
+                        "project {precision}, {n} rows in chunks of {chunk}: row {i} gets \
+                         {got:?}, {expected:?} in one batch"
+                    );
+                }
+            }
+        }
     }
 }
 

@@ -280,7 +280,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         for (var row = first; row < end; row += 3u) {
             let c = corner_row(row);
             let point = fitted_about_first(rotation, shift, c.board.xy - c0.board.xy) + x0.x;
-            let near = project_near_pair(a, b, point, vec2r(tan_in_air(a, c.v_l), tan_in_air(b, c.v_r)));
+            let near = project_near_pair(a, point, b, point, vec2r(tan_in_air(a, c.v_l), tan_in_air(b, c.v_r)));
             let left = near.a;
             let right = near.b;
             if (left.converged && right.converged) {

@@ -370,18 +370,19 @@ fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
     return near_pixel(cam, path, tau, settled);
 }
 
-// One point's `project_near` in two cameras, the two iterations in one loop: each is a chain of
+// `project_near` of two points, each in its camera (one corner in both cameras of a stereo pair,
+// or two rows of the forward projection), the two iterations in one loop: each is a chain of
 // dependent square roots and divisions, and a CPU driver (lavapipe) overlaps two independent
-// chains where it runs one loop after the other in sequence. Each camera's iterates, stop and
-// answer are `project_near`'s, operation for operation; the loop runs until both have settled.
+// chains where it runs one loop after the other in sequence. Each iterate, stop and answer is
+// `project_near`'s, operation for operation; the loop runs until both have settled.
 struct NearPair {
     a: NearPixel,
     b: NearPixel,
 }
 
-fn project_near_pair(a: View, b: View, point: vec3r, tan_start: vec2r) -> NearPair {
-    let path_a = near_path(a, point);
-    let path_b = near_path(b, point);
+fn project_near_pair(a: View, point_a: vec3r, b: View, point_b: vec3r, tan_start: vec2r) -> NearPair {
+    let path_a = near_path(a, point_a);
+    let path_b = near_path(b, point_b);
     var x = max(tan_start, vec2r(0.0));
     var tau = vec2r(0.0);
     var settled = vec2<bool>(false);

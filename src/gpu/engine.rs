@@ -533,7 +533,8 @@ impl GpuEngine {
             kernel.name(),
             &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)],
         );
-        let groups = self.context.dispatch_size(input.len() as u32);
+        let invocations = input.len().div_ceil(kernel.rows_per_invocation());
+        let groups = self.context.dispatch_size(invocations as u32);
         let device = self.context.device();
         let timestamps = if device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
             let queries = device.create_query_set(&wgpu::QuerySetDescriptor {

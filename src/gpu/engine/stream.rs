@@ -463,7 +463,8 @@ impl GpuEngine {
             });
             pass.set_pipeline(pipeline);
             pass.set_bind_group(0, &lane.bind_group, &[]);
-            let (x, y) = self.context.dispatch_size(items as u32);
+            let invocations = items.div_ceil(kernel.rows_per_invocation());
+            let (x, y) = self.context.dispatch_size(invocations as u32);
             pass.dispatch_workgroups(x, y, 1);
         }
         for (source, host, bytes) in [

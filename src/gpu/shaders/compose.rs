@@ -170,6 +170,16 @@ impl Kernel {
         Self::CalibSceneReprojectionSafeguarded,
     ];
 
+    /// Rows of its batch one invocation handles: the dispatch launches the rows' count divided by
+    /// this, rounded up. [`Kernel::Project`] takes two, whose Newton iterations overlap on a CPU
+    /// driver (`shaders/kernels/project.wgsl`).
+    pub fn rows_per_invocation(self) -> usize {
+        match self {
+            Self::Project => 2,
+            _ => 1,
+        }
+    }
+
     /// Name (the file name in `shaders/kernels/`, but for the modes of `calib_scene_fit.wgsl`).
     pub fn name(self) -> &'static str {
         match self {
