@@ -14,7 +14,7 @@
 //   by v/(n·v) per metre of air layer), for the host's least-squares air layer.
 // - MODE_SCENE: candidate (n, d): Σ|R·P + t − X|² over the view (the 3-D scene error's sum).
 // - MODE_REPROJECTION: candidate (n, d): Σ |observed − projected|² of R·P + t in both images,
-//   each corner projected from its observed air ray (`project_near`); STATUS_RETRY where that
+//   each corner projected from its observed air ray (`project_near_pair`); STATUS_RETRY where that
 //   leaves a corner unsettled.
 // - MODE_REPROJECTION_SAFEGUARDED: the same sum, every corner by the full forward projection
 //   (`project`), for the items MODE_REPROJECTION returned with STATUS_RETRY.
@@ -273,7 +273,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             sum += dot(e, e);
         }
     } else if (MODE == MODE_REPROJECTION) {
-        // Each corner projected from its observed air rays (`project_near`). A view with a
+        // Each corner projected from its observed air rays (`project_near_pair`). A view with a
         // corner it does not settle comes back as STATUS_RETRY, for the safeguarded kernel: the
         // full projection's code is not here at all (present, even unrun, it cost lavapipe 7 %).
         var unsettled = false;

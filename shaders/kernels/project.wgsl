@@ -1,4 +1,4 @@
-// Forward projection: x,y,z (master frame) → u,v (raw pixel), by `project_near` from tan a = 0
+// Forward projection: x,y,z (master frame) → u,v (raw pixel), by `project_near_pair` from tan a = 0
 // (its first step lands on the paraxial root): the unbracketed Newton iteration where no medium is
 // less dense than air. Rows it does not settle get STATUS_RETRY, and the host runs them through
 // `project_safeguarded.wgsl` (every safeguard of `project`). On lavapipe, which runs every branch

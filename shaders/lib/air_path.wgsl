@@ -267,7 +267,7 @@ fn pixel_along(cam: View, dir: vec3r) -> Pixel {
     return Pixel(img_from_normalized(cam, normalized), STATUS_OK);
 }
 
-// Most Newton steps of `project_near` before it leaves the point to `project`.
+// Most Newton steps of `project_near_pair` before it leaves the point to `project`.
 const NEAR_MAX_ITERATIONS: u32 = 16u;
 
 struct NearPixel {
@@ -275,7 +275,7 @@ struct NearPixel {
     converged: bool,
 }
 
-// A layer (t, k = 1/ρ)'s terms (f, f′, f″) of `project_near`'s equation at x = tan a:
+// A layer (t, k = 1/ρ)'s terms (f, f′, f″) of `project_near_pair`'s equation at x = tan a:
 // t·T(x; k) and its derivatives, with T(x; k) = k x / √q, q = 1 + (1 − k²) x² (see there).
 fn near_layer_terms(layer: vec2r, x: real) -> vec3r {
     let k = layer.y;
@@ -284,7 +284,7 @@ fn near_layer_terms(layer: vec2r, x: real) -> vec3r {
     return vec3r(layer.x * k * s * x, layer.x * slope, layer.x * (k * k - 1.0) * 3.0 * x * slope * s * s);
 }
 
-// A point's place about a camera's axis line C_k + s·n, for `project_near`.
+// A point's place about a camera's axis line C_k + s·n, for `project_near_pair`.
 struct NearPath {
     lateral: vec3r, // the point − C_k − z·n
     r: real,        // |lateral|
@@ -298,7 +298,7 @@ fn near_path(cam: View, point: vec3r) -> NearPath {
     return NearPath(lateral, length(lateral), z - cam.d_k - cam.thickness);
 }
 
-// `project_near`'s equation (f, f′, f″) at x = tan a.
+// `project_near_pair`'s equation (f, f′, f″) at x = tan a.
 fn near_equation(cam: View, path: NearPath, x: real) -> vec3r {
     // T(x; k) = k x / √q, T′ = k / √q³, T″ = −3 (1 − k²) x T′ / q, q = 1 + (1 − k²) x²:
     // with s = 1/√q, T = k s x, T′ = k s³, T″ = 3 (k² − 1) x T′ s² (no division).
@@ -319,17 +319,17 @@ fn near_equation(cam: View, path: NearPath, x: real) -> vec3r {
     return terms;
 }
 
-// Whether the Newton step from x settles `project_near`'s iteration: the step is within the
-// tolerance, or the step's own error, by the quadratic model |f″| step² / 2f′, is within half of
-// it. The model holds where f″ barely changes over the step (|f″| grows with x from 0): only for
+// Whether the Newton step from x settles `project_near_pair`'s iteration: the step is within
+// the tolerance, or the step's own error, by the quadratic model |f″| step² / 2f′, is within half
+// of it. The model holds where f″ barely changes over the step (|f″| grows with x from 0): only for
 // steps under 1 % of x.
 fn near_settles(terms: vec3r, step: real, x: real) -> bool {
     let modelled = abs(step) <= 0.01 * x && abs(terms.z) * step * step <= PROJECT_TOLERANCE * x * terms.y;
     return abs(step) <= PROJECT_TOLERANCE * x || modelled;
 }
 
-// The pixel of the root tau, and whether `project_near` answers for `project` there. A point not
-// in the water is `project`'s first check, whatever the iteration did: it is answered here.
+// The pixel of the root tau, and whether `project_near_pair` answers for `project` there. A point
+// not in the water is `project`'s first check, whatever the iteration did: it is answered here.
 fn near_pixel(cam: View, path: NearPath, tau: real, settled: bool) -> NearPixel {
     let in_water = path.depth > 0.0;
     // Beyond √REAL_HUGE the squares of tan a overflow: `project` scales them.
@@ -342,39 +342,22 @@ fn near_pixel(cam: View, path: NearPath, tau: real, settled: bool) -> NearPixel 
     return NearPixel(pixel, converged);
 }
 
-// Forward projection of a point seen near a known air ray, without `project`'s safeguards: Newton's
-// iteration on f(x) = d_k x + Σₘ Lₘ T(x; 1/ρₘ) − r in x = tan a (water and layers m), from
-// `tan_start` (the tan a of a ray the point is seen near). Where no medium is less dense than air
-// (ρ ≥ 1), every term is increasing and concave in x, so the iterates, clamped at 0, approach the
-// root from below after their first step, with no bracket to keep. It stops at `project`'s
-// tolerance on the step (`near_settles`). `converged` false (a medium less dense than air, a
-// step that does not shrink to the tolerance within NEAR_MAX_ITERATIONS, a non-finite value, tan a
-// beyond √REAL_HUGE): the caller takes `project`, which decides. Converged, the pixel and status
-// are `project`'s (STATUS_NOT_IN_WATER for a point not in the water, `project`'s first test). On a SIMD driver (lavapipe) every branch of a loop body
-// runs for every lane, masked: this loop body is a fraction of `project`'s.
-fn project_near(cam: View, point: vec3r, tan_start: real) -> NearPixel {
-    let path = near_path(cam, point);
-    var x = max(tan_start, 0.0);
-    var tau: real = 0.0;
-    var settled = false;
-    for (var iteration = 0u; iteration < NEAR_MAX_ITERATIONS; iteration++) {
-        let terms = near_equation(cam, path, x);
-        let step = terms.x / terms.y;
-        if (near_settles(terms, step, x)) {
-            tau = x - step;
-            settled = true;
-            break;
-        }
-        x = max(x - step, 0.0);
-    }
-    return near_pixel(cam, path, tau, settled);
-}
-
-// `project_near` of two points, each in its camera (one corner in both cameras of a stereo pair,
-// or two rows of the forward projection), the two iterations in one loop: each is a chain of
-// dependent square roots and divisions, and a CPU driver (lavapipe) overlaps two independent
-// chains where it runs one loop after the other in sequence. Each iterate, stop and answer is
-// `project_near`'s, operation for operation; the loop runs until both have settled.
+// Forward projection of two points seen near known air rays, each in its camera (one corner in
+// both cameras of a stereo pair, or two rows of the forward projection), without `project`'s
+// safeguards: Newton's iteration on f(x) = d_k x + Σₘ Lₘ T(x; 1/ρₘ) − r in x = tan a (water and
+// layers m), from `tan_start` (the tan a of a ray each point is seen near). Where no medium is
+// less dense than air (ρ ≥ 1), every term is increasing and concave in x, so the iterates, clamped
+// at 0, approach the root from below after their first step, with no bracket to keep. Each stops
+// at `project`'s tolerance on the step (`near_settles`). `converged` false (a medium less dense
+// than air, a step that does not shrink to the tolerance within NEAR_MAX_ITERATIONS, a non-finite
+// value, tan a beyond √REAL_HUGE): the caller takes `project`, which decides. Converged, the pixel
+// and status are `project`'s (STATUS_NOT_IN_WATER for a point not in the water, `project`'s first
+// test).
+//
+// The two iterations run in one loop, until both have settled: each is a chain of dependent square
+// roots and divisions, and a CPU driver (lavapipe) overlaps two independent chains where it would
+// run one loop after the other. On a SIMD driver every branch of a loop body runs for every lane,
+// masked: this loop body is a fraction of `project`'s.
 struct NearPair {
     a: NearPixel,
     b: NearPixel,

@@ -617,7 +617,7 @@ impl GpuEngine {
 
     /// Forward projection of points (master frame) to raw pixels; status as in
     /// [`backproject`](Self::backproject). One kernel runs the unbracketed Newton iteration on
-    /// every row (`project_near` in `shaders/lib/air_path.wgsl`); the rows it does not settle (a
+    /// every row (`project_near_pair` in `shaders/lib/air_path.wgsl`); the rows it does not settle (a
     /// medium less dense than air, a point not in the water, grazing rays) run again through the
     /// safeguarded kernel, which decides them as the CPU does.
     pub fn project<H: HostReal>(

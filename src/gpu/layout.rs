@@ -78,7 +78,7 @@ macro_rules! mirrors {
                 let fold = if fold.is_finite() { fold } else { $precision.huge() };
                 let thickness: f64 = camera.layers().iter().map(|l| l.thickness).sum();
                 let row = |r: usize| <$real4>::from_f64s([m[(r, 0)], m[(r, 1)], m[(r, 2)], 0.0]);
-                // No medium less dense than the air around the camera (`project_near`'s condition).
+                // No medium less dense than the air around the camera (`project_near_pair`'s condition).
                 let dense = camera.relative_index_water() >= 1.0
                     && camera.layers().iter().all(|l| l.index >= camera.index_air());
                 let mut layers = [<$real4>::ZERO; MAX_LAYERS];

@@ -420,7 +420,7 @@ impl<'a> CameraLanes<'a> {
     /// layers), from `tan_start`, the tan a of the ray each point is seen near. Where no medium is
     /// less dense than air every term is increasing and concave in x, so after the first step the
     /// iterates approach the root from below, with no bracket to keep; from a start within a few
-    /// pixels two or three steps reach [`PROJECT_TOLERANCE`]. The twin of `project_near` in
+    /// pixels two or three steps reach [`PROJECT_TOLERANCE`]. The twin of `project_near_pair` in
     /// `shaders/lib/air_path.wgsl`: the same start, iteration and stop on the step; its
     /// quadratic-model stop is tighter (within rounding, where the shader's f32 rule allows half
     /// the tolerance), it evaluates T with a square root and a division where the shader

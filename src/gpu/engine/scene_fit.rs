@@ -24,7 +24,7 @@ pub enum SceneSum {
     Scene,
     /// (Σ|observed − projected|² over both images, corners, 0, 0) of the fitted board: each
     /// fitted corner is projected from its observed air ray by an unbracketed Newton iteration
-    /// where no medium is less dense than air (`project_near` in `shaders/lib/air_path.wgsl`);
+    /// where no medium is less dense than air (`project_near_pair` in `shaders/lib/air_path.wgsl`);
     /// a view where that leaves a corner unsettled is summed again with every corner by the full
     /// forward projection (`project`), by a second kernel that only those (candidate, view) pairs
     /// run.
