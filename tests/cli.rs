@@ -737,6 +737,38 @@ fn bench_json_has_every_path() {
             }
         }
     }
+    // Forward projection's end-to-end variants; `end_to_end` is the figure of the chunking the
+    // engine chose for the adapter, one of the two measured.
+    if gpu {
+        for precision in ["f32", "f64"] {
+            for stage in [
+                "end_to_end_streamed",
+                "end_to_end_one_chunk",
+                "end_to_end_f32_host",
+            ] {
+                assert!(
+                    has("project", "gpu", precision, stage, None),
+                    "project gpu {precision} {stage}"
+                );
+            }
+            let rate = |stage: &str| {
+                results
+                    .iter()
+                    .find(|r| {
+                        r["kernel"] == "project"
+                            && r["path"] == "gpu"
+                            && r["precision"] == precision
+                            && r["stage"] == stage
+                    })
+                    .and_then(|r| r["items_per_s"].as_f64())
+            };
+            let chosen = rate("end_to_end");
+            assert!(
+                chosen == rate("end_to_end_streamed") || chosen == rate("end_to_end_one_chunk"),
+                "project gpu {precision}: end_to_end {chosen:?} is neither measured variant"
+            );
+        }
+    }
     // The CPU on both paths, one thread and all, with the pinhole back-projection beside the rig's.
     for kernel in [
         "backproject",

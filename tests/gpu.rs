@@ -471,16 +471,28 @@ fn project_answers_every_row_of_odd_batches_and_chunks() {
     let configurations = configurations();
     let camera = configurations[0].1.refractive_camera(0);
     for precision in [Precision::F32, Precision::F64] {
-        let Some(mut gpu) = engine(precision) else { return };
+        let Some(mut gpu) = engine(precision) else {
+            return;
+        };
         let mut random = Random(0x2545_F491_4F6C_DD1D);
         let points = random_points(&mut random, &camera, 2001);
         let (mut c, mut cs) = (vec![[0.0; 2]; points.len()], vec![0; points.len()]);
         let (mut whole, mut whole_status) = (c.clone(), cs.clone());
         cpu.project(&camera, &points, &mut c, &mut cs);
-        gpu.project(&camera, &points, &mut whole, &mut whole_status).unwrap();
+        gpu.project(&camera, &points, &mut whole, &mut whole_status)
+            .unwrap();
         let what = format!("project {precision}, one batch of {}", points.len());
-        compare(&what, (&c, &cs), (&whole, &whole_status), 0..2, allowed(precision, points.len()));
-        assert!(whole_status.iter().any(|&s| s != 0), "{what}: rows without an answer");
+        compare(
+            &what,
+            (&c, &cs),
+            (&whole, &whole_status),
+            0..2,
+            allowed(precision, points.len()),
+        );
+        assert!(
+            whole_status.iter().any(|&s| s != 0),
+            "{what}: rows without an answer"
+        );
         // The points in reverse first, so that a row the kernel leaves alone keeps another
         // row's answer in the buffers (kept across calls), not its own from the last call. 129
         // rows: 64 pairs fill a workgroup, the 129th needs a second one.
@@ -489,7 +501,8 @@ fn project_answers_every_row_of_odd_batches_and_chunks() {
             gpu.set_stream_chunk_rows(chunk);
             for n in [1, 2, 3, 10, 129, 2001] {
                 let (mut g, mut gs) = (vec![[0.0; 2]; n], vec![u32::MAX; n]);
-                gpu.project(&camera, &reversed[..n], &mut g, &mut gs).unwrap();
+                gpu.project(&camera, &reversed[..n], &mut g, &mut gs)
+                    .unwrap();
                 gpu.project(&camera, &points[..n], &mut g, &mut gs).unwrap();
                 for i in 0..n {
                     let (expected, got) = ((whole_status[i], whole[i]), (gs[i], g[i]));

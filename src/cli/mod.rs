@@ -228,7 +228,10 @@ the vector path, run by run in turn; one thread, with cycles per item at the OS'
 threads), where the vector path's time goes against the floor of its square roots and divisions
 (each costed at this machine's measured throughput), and the GPU (f32 and f64; `kernel` = dispatch only with the
 data on the device, timed by GPU timestamps where the adapter has TIMESTAMP_QUERY, `end_to_end` =
-upload, dispatch and results in host memory, host clocks), the memory
+upload, dispatch and results in host memory, host clocks, in the chunks the engine chooses for the
+adapter; forward projection also `end_to_end_streamed` (chunks of 2^19 rows through the ring of buffer sets,
+the choice on a hardware GPU), `end_to_end_one_chunk` (no overlap, the choice on lavapipe) and
+`end_to_end_f32_host` (f32 host data)), the memory
 streaming bandwidth measured by a STREAM triad as the physical limit, and ratios between the paths
 of this run (the speed goals and their reference are in the README, \"Speed goals\"). The sweep
 figure counts axis cells × correspondences per second of the weighted affine-grid invariant over

@@ -223,6 +223,8 @@ pub struct GpuContext {
     summary: AdapterSummary,
     /// Storage buffers can be mapped by the host (MAPPABLE_PRIMARY_BUFFERS on shared memory).
     mapped_storage: bool,
+    /// A software adapter (lavapipe): the kernels run on the host's own cores.
+    software: bool,
     /// Errors wgpu reported outside an error scope (instead of its default handler, which
     /// panics), and the reason the device was lost: both checked after every wait.
     faults: Arc<Faults>,
@@ -318,6 +320,7 @@ impl GpuContext {
             queue,
             summary,
             mapped_storage,
+            software: adapter.get_info().device_type == wgpu::DeviceType::Cpu,
             faults,
             timeout: wait_limit(),
         })
@@ -355,6 +358,7 @@ impl GpuContext {
             queue,
             summary,
             mapped_storage,
+            software: adapter.get_info().device_type == wgpu::DeviceType::Cpu,
             faults: Arc::new(Faults::default()),
             timeout: wait_limit(),
         }
@@ -381,6 +385,12 @@ impl GpuContext {
     /// copies (adapters that share the host's memory and have MAPPABLE_PRIMARY_BUFFERS).
     pub fn maps_storage(&self) -> bool {
         self.mapped_storage
+    }
+
+    /// True on a software adapter (lavapipe, device type CPU), whose kernels run on the host's
+    /// own cores.
+    pub fn is_software(&self) -> bool {
+        self.software
     }
 
     /// Writes `bytes` at the start of a MAP_WRITE buffer through a mapping.

@@ -114,7 +114,8 @@ pub struct GpuEngine {
     max_chunk_items: usize,
     /// The corner-row binding of the per-view kernels, if a test fixes it (else chosen per call).
     rows: Option<Rows>,
-    /// Most rows per streamed chunk of the row kernels ([`STREAM_CHUNK_ROWS`] unless changed).
+    /// Most rows per streamed chunk of the row kernels ([`default_stream_chunk_rows`] unless
+    /// changed).
     stream_chunk_rows: usize,
 }
 
@@ -188,6 +189,22 @@ fn rows_from<const M: usize>(
         });
 }
 
+/// The most rows per streamed chunk of the row kernels that [`GpuEngine::new`] chooses for
+/// `context`: [`STREAM_CHUNK_ROWS`], so that a large batch's upload and read-back overlap its
+/// kernel, except on a software adapter (lavapipe), where batches run in as few chunks as the
+/// bindings allow (`usize::MAX`). There the kernel already runs on every core of the host, so
+/// the overlap leaves no core idle for the conversions, and each further chunk costs a
+/// submission and a wait: 4 M points of f32 forward projection took 85–104 ms in one chunk
+/// against 100–127 ms in 8 chunks through the ring, four rounds in turns (machine A, README
+/// "Speed goals").
+pub fn default_stream_chunk_rows(context: &GpuContext) -> usize {
+    if context.is_software() {
+        usize::MAX
+    } else {
+        STREAM_CHUNK_ROWS
+    }
+}
+
 impl GpuEngine {
     /// The backend on `context` at `precision`, with the subgroup reduction where the adapter has
     /// SUBGROUP. Errors when f64 is asked of an adapter without SHADER_F64.
@@ -203,6 +220,7 @@ impl GpuEngine {
         } else {
             Reduction::Workgroup
         };
+        let stream_chunk_rows = default_stream_chunk_rows(&context);
         Ok(Self {
             context,
             precision,
@@ -211,7 +229,7 @@ impl GpuEngine {
             buffers: Mutex::default(),
             max_chunk_items: MAX_CHUNK_ITEMS,
             rows: None,
-            stream_chunk_rows: STREAM_CHUNK_ROWS,
+            stream_chunk_rows,
         })
     }
 
@@ -262,12 +280,17 @@ impl GpuEngine {
         self.max_chunk_items = items.clamp(GROUP, MAX_CHUNK_ITEMS);
     }
 
-    /// Sets the most rows per streamed chunk of the row kernels (default
-    /// [`STREAM_CHUNK_ROWS`]; at least 1). `usize::MAX` runs a batch in as few chunks as the
-    /// bindings allow, so one that fits one chunk runs without any overlap: for measuring what
-    /// the streaming gains.
+    /// Sets the most rows per streamed chunk of the row kernels (at least 1; the default is
+    /// [`default_stream_chunk_rows`]). `usize::MAX` runs a batch in as few chunks as the bindings
+    /// allow, so one that fits one chunk runs without any overlap: for measuring what the
+    /// streaming gains.
     pub fn set_stream_chunk_rows(&mut self, rows: usize) {
         self.stream_chunk_rows = rows.max(1);
+    }
+
+    /// The most rows per streamed chunk of the row kernels now.
+    pub fn stream_chunk_rows(&self) -> usize {
+        self.stream_chunk_rows
     }
 
     /// The compiled pipeline of `kernel` for the cameras of `params`, compiled on first use

@@ -19,8 +19,10 @@ use crate::model::{NoSolution, RefractiveCamera};
 /// Buffer sets in flight: chunk k runs while k − 1 is read back and k + 1 written.
 pub const RING: usize = 2;
 
-/// Most rows per streamed chunk: a batch of more rows streams through the ring in several
-/// chunks, so that its upload and read-back overlap the kernel (a 4 M-row batch in 8 chunks).
+/// Most rows per streamed chunk on a hardware adapter: a batch of more rows streams through the
+/// ring in several chunks, so that its upload and read-back overlap the kernel (a 4 M-row batch
+/// in 8 chunks). A software adapter runs a batch in as few chunks as the bindings allow
+/// ([`default_stream_chunk_rows`](super::default_stream_chunk_rows)).
 pub const STREAM_CHUNK_ROWS: usize = 1 << 19;
 
 mod sealed {
@@ -221,9 +223,9 @@ impl GpuEngine {
     }
 
     /// Runs a kernel mapping N reals to M reals per item with cameras `a` and `b`, streaming the
-    /// chunks (at most [`STREAM_CHUNK_ROWS`] rows each, unless
-    /// [`set_stream_chunk_rows`](Self::set_stream_chunk_rows) changed it) through the ring. On an error the ring's
-    /// buffers are dropped (a later call makes new ones), so no mapping is left behind.
+    /// chunks (at most [`stream_chunk_rows`](Self::stream_chunk_rows) rows each) through the
+    /// ring. On an error the ring's buffers are dropped (a later call makes new ones), so no
+    /// mapping is left behind.
     pub(super) fn run_map<H: HostReal, const N: usize, const M: usize>(
         &self,
         kernel: Kernel,
