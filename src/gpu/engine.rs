@@ -194,9 +194,9 @@ fn rows_from<const M: usize>(
 /// kernel, except on a software adapter (lavapipe), where batches run in as few chunks as the
 /// bindings allow (`usize::MAX`). There the kernel already runs on every core of the host, so
 /// the overlap leaves no core idle for the conversions, and each further chunk costs a
-/// submission and a wait: 4 M points of f32 forward projection took 85–104 ms in one chunk
-/// against 100–127 ms in 8 chunks through the ring, four rounds in turns (machine A, README
-/// "Speed goals").
+/// submission and a wait: `flatport bench --items 4000000` puts forward projection in 8 chunks
+/// through the ring at 0.68–0.81 of its rate in one chunk (three runs on lavapipe; README, "A
+/// batch in one chunk on lavapipe").
 pub fn default_stream_chunk_rows(context: &GpuContext) -> usize {
     if context.is_software() {
         usize::MAX
