@@ -196,7 +196,10 @@ fn rows_from<const M: usize>(
 /// the overlap leaves no core idle for the conversions, and each further chunk costs a
 /// submission and a wait: `flatport bench --items 4000000` puts forward projection in 8 chunks
 /// through the ring at 0.68–0.81 of its rate in one chunk (three runs on lavapipe; README, "A
-/// batch in one chunk on lavapipe").
+/// batch in one chunk on lavapipe"). The cost is memory: the buffers, kept across calls, then
+/// hold the largest batch up to the binding limit (128 MiB per binding on lavapipe; two sets
+/// where a batch needs more than one chunk) instead of 2¹⁹ rows per set. `flatport`'s CSV
+/// commands pass batches of at most 2²⁰ rows.
 pub fn default_stream_chunk_rows(context: &GpuContext) -> usize {
     if context.is_software() {
         usize::MAX
