@@ -1082,6 +1082,29 @@ fn same_bits<const M: usize>(x: &[[f64; M]], y: &[[f64; M]]) -> bool {
         .all(|(p, q)| p.to_bits() == q.to_bits() || (p.is_nan() && q.is_nan()))
 }
 
+/// The row kernels' chunking follows the adapter: on a software adapter (lavapipe, which CI
+/// runs) a batch in as few chunks as the bindings allow, on a hardware GPU through the ring of
+/// `STREAM_CHUNK_ROWS`-row chunks. The adapter's kind is read from its summary (wgpu's device
+/// type as `flatport info` prints it), apart from the flag the engine decides by.
+#[test]
+fn the_chunking_follows_the_adapter_kind() {
+    let Some(gpu) = engine(Precision::F32) else {
+        return;
+    };
+    let adapter = gpu.context().adapter();
+    let software = adapter.device_type == "Cpu";
+    assert_eq!(gpu.context().is_software(), software, "{}", adapter.name);
+    if adapter.name.contains("llvmpipe") {
+        assert!(software, "lavapipe is a software adapter: {}", adapter.device_type);
+    }
+    let expected = if software {
+        usize::MAX
+    } else {
+        flatport::gpu::engine::STREAM_CHUNK_ROWS
+    };
+    assert_eq!(gpu.stream_chunk_rows(), expected, "{}", adapter.name);
+}
+
 /// Issue 13: a batch streamed over many chunks (20 chunks of 256 rows through the ring of buffer
 /// sets, so several are in flight) gives bit for bit what one chunk gives, on the mapped and the
 /// staged path, and matches the CPU within the tolerances of the tests above.
