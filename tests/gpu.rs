@@ -1095,7 +1095,11 @@ fn the_chunking_follows_the_adapter_kind() {
     let software = adapter.device_type == "Cpu";
     assert_eq!(gpu.context().is_software(), software, "{}", adapter.name);
     if adapter.name.contains("llvmpipe") {
-        assert!(software, "lavapipe is a software adapter: {}", adapter.device_type);
+        assert!(
+            software,
+            "lavapipe is a software adapter: {}",
+            adapter.device_type
+        );
     }
     let expected = if software {
         usize::MAX
