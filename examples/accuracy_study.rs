@@ -24,14 +24,8 @@
 #[path = "../tests/common/rigs.rs"]
 mod rigs;
 
-use flatport::calib::methods::calibrate::calibrate_rig;
-use flatport::calib::methods::rig_bundle::Estimate;
-use flatport::calib::methods::rig_calibrate::RigCalibrationOptions;
 use flatport::calib::simulate::rng::Rng;
-use flatport::calib::{
-    Board, CalibrationOptions, CpuBackend, Method, RigSceneSpec, SceneSpec, StereoData, calibrate,
-    simulate, simulate_rig,
-};
+use flatport::calib::{Board, Estimate, Method, Options, SceneSpec, Target, calibrate, simulate};
 use flatport::io::rig_from_json_str;
 use flatport::model::{Rig, normal_from_tilt_azimuth};
 use nalgebra::Vector3;
@@ -62,39 +56,28 @@ fn trial(views: usize, noise: f64, seed: u64) -> Trial {
                 .unwrap(),
         )
         .unwrap();
-    let scene = simulate(
-        &truth,
-        0,
-        1,
-        &SceneSpec::new(
-            Board {
-                rows: 6,
-                cols: 9,
-                square: 0.04,
-            },
-            views,
-            noise,
-            seed,
-        ),
-    )
-    .unwrap();
-    let data = StereoData::new(&start, [0, 1], &scene.observations).unwrap();
+    let board = Target::Board(Board {
+        rows: 6,
+        cols: 9,
+        square: 0.04,
+    });
+    let scene = simulate(&truth, &SceneSpec::pair(board, views, noise, seed, 0, 1)).unwrap();
     METHODS
         .iter()
         .map(|&method| {
-            match calibrate(
-                &CpuBackend::new(&data),
-                &CalibrationOptions {
-                    method,
-                    ..Default::default()
-                },
-                vec![],
-            ) {
-                Ok(c) => (
-                    c.interface.normal().angle(&n).to_degrees(),
-                    (c.interface.air_distance() - 0.02).abs() * 1e3,
-                    c.report.seconds,
-                ),
+            let options = Options {
+                method,
+                ..Default::default()
+            };
+            match calibrate(&start, &scene.observations, &options) {
+                Ok(c) => {
+                    let port = c.rig.shared_interface().expect("a shared port");
+                    (
+                        port.normal().angle(&n).to_degrees(),
+                        (port.air_distance() - 0.02).abs() * 1e3,
+                        c.report.seconds,
+                    )
+                }
                 Err(_) => (f64::INFINITY, f64::INFINITY, f64::NAN),
             }
         })
@@ -211,16 +194,16 @@ fn rig_trial(case: &RigCase, noise: f64, seed: u64) -> (Vec<(f64, f64)>, f64, f6
         f64::NAN,
         f64::INFINITY,
     );
-    let scene = simulate_rig(
+    let scene = simulate(
         &case.truth,
-        &RigSceneSpec::new(rigs::board(), case.views, noise, seed),
+        &SceneSpec::new(rigs::board(), case.views, noise, seed),
     )
     .unwrap();
-    let options = RigCalibrationOptions {
+    let options = Options {
         estimate: case.estimate,
-        ..RigCalibrationOptions::default()
+        ..Options::default()
     };
-    match calibrate_rig(&case.start, &scene.observations, &options) {
+    match calibrate(&case.start, &scene.observations, &options) {
         Ok(c) if c.report.fits => (
             ports
                 .iter()

@@ -6,7 +6,7 @@
 mod gpu_harness;
 
 use flatport::calib::{
-    Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData,
+    Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, Target,
     simulate,
 };
 use flatport::gpu::{GpuEngine, Precision, Rows};
@@ -75,9 +75,9 @@ fn stereo_data(views: usize, seed: u64) -> StereoData {
 /// `views` simulated views of `board` behind the example rig, 0.1 px noise.
 fn board_data(board: Board, views: usize, seed: u64) -> StereoData {
     let rig = example_rig();
-    let spec = SceneSpec::new(board, views, 0.1, seed);
-    let scene = simulate(&rig, 0, 1, &spec).expect("simulated scene");
-    StereoData::new(&rig, [0, 1], &scene.observations).expect("stereo data")
+    let spec = SceneSpec::pair(Target::Board(board), views, 0.1, seed, 0, 1);
+    let scene = simulate(&rig, &spec).expect("simulated scene");
+    StereoData::from_observations(&rig, [0, 1], &scene.observations).expect("stereo data")
 }
 
 /// The true interface, then `n − 3` random axes tilted up to 20° with air layers of 5–40 mm, then
@@ -372,9 +372,10 @@ fn a_layer_less_dense_than_air_takes_the_safeguarded_projection() {
     assert_eq!(json["interface"]["index_air"], 1.003);
     json["interface"]["layers"][0]["index"] = 1.0.into();
     let rig = flatport::io::rig_from_json_str(&json.to_string(), path).expect("rig");
-    let spec = SceneSpec::new(BOARD_9X6, 5, 0.1, 17);
-    let scene = simulate(&rig, 0, 1, &spec).expect("simulated scene");
-    let data = StereoData::new(&rig, [0, 1], &scene.observations).expect("stereo data");
+    let spec = SceneSpec::pair(Target::Board(BOARD_9X6), 5, 0.1, 17, 0, 1);
+    let scene = simulate(&rig, &spec).expect("simulated scene");
+    let data =
+        StereoData::from_observations(&rig, [0, 1], &scene.observations).expect("stereo data");
     let batch = candidates(&data, 30, 4);
     let cpu = CpuBackend::new(&data)
         .costs(CostKind::Reprojection, &batch)
@@ -549,8 +550,13 @@ fn a_port_per_camera_moves_only_the_first_cameras_port() {
     };
     // The first camera's port, in its frame (the candidates' convention behind a port each).
     let (normal, distance) = (*ports[0].normal(), ports[0].air_distance());
-    let scene = simulate(&rig, 0, 1, &SceneSpec::new(BOARD_9X6, 12, 0.0, 3)).expect("scene");
-    let data = StereoData::new(&rig, [0, 1], &scene.observations).expect("stereo data");
+    let scene = simulate(
+        &rig,
+        &SceneSpec::pair(Target::Board(BOARD_9X6), 12, 0.0, 3, 0, 1),
+    )
+    .expect("scene");
+    let data =
+        StereoData::from_observations(&rig, [0, 1], &scene.observations).expect("stereo data");
     let truth = Candidate {
         normal,
         air_distance: distance,
@@ -604,8 +610,13 @@ fn cameras_with_different_layer_stacks_match_the_cpu_reference() {
         let layers: Vec<usize> = [0, 1]
             .map(|k| rig.refractive_camera(k).layers().len())
             .into();
-        let scene = simulate(&rig, 0, 1, &SceneSpec::new(BOARD_9X6, 6, 0.1, 21)).expect("scene");
-        let data = StereoData::new(&rig, [0, 1], &scene.observations).expect("stereo data");
+        let scene = simulate(
+            &rig,
+            &SceneSpec::pair(Target::Board(BOARD_9X6), 6, 0.1, 21, 0, 1),
+        )
+        .expect("scene");
+        let data =
+            StereoData::from_observations(&rig, [0, 1], &scene.observations).expect("stereo data");
         // The truth and axes tilted up to 4° from it with air layers of 8–25 mm, in the first
         // camera's frame.
         let (normal, distance) = (*ports[0].normal(), ports[0].air_distance());

@@ -7,8 +7,8 @@ mod common;
 
 use flatport::calib::costs::scene::air_distance_for_axis;
 use flatport::calib::{
-    Board, Calibration, CalibrationOptions, Candidate, CostBackend, CostKind, CpuBackend, Method,
-    SceneSpec, StereoData, calibrate, simulate,
+    Board, Calibration, Candidate, CostBackend, CostKind, CpuBackend, Method, Options, Scene,
+    SceneSpec, StereoData, Target, calibrate, simulate,
 };
 use flatport::io::rig_from_json_str;
 use flatport::model::{Rig, normal_from_tilt_azimuth};
@@ -49,6 +49,15 @@ fn board() -> Board {
     }
 }
 
+/// A stereo scene of the board seen whole by cameras 0 and 1, as `flatport simulate` draws it.
+fn scene(truth: &Rig, views: usize, noise: f64, seed: u64) -> Scene {
+    simulate(
+        truth,
+        &SceneSpec::pair(Target::Board(board()), views, noise, seed, 0, 1),
+    )
+    .unwrap()
+}
+
 /// Simulates with `truth`, calibrates from the naive start; returns (axis error °, air error m).
 fn run(
     truth: &Rig,
@@ -57,25 +66,23 @@ fn run(
     seed: u64,
     method: Method,
 ) -> (f64, f64, Calibration) {
-    let scene = simulate(truth, 0, 1, &SceneSpec::new(board(), views, noise, seed)).unwrap();
+    let scene = scene(truth, views, noise, seed);
     let start = naive(truth);
-    let data = StereoData::new(&start, [0, 1], &scene.observations).unwrap();
     let calibration = calibrate(
-        &CpuBackend::new(&data),
-        &CalibrationOptions {
+        &start,
+        &scene.observations,
+        &Options {
             method,
             ..Default::default()
         },
-        vec![],
     )
     .unwrap();
-    let axis = calibration
-        .interface
+    let port = calibration.rig.shared_interface().unwrap();
+    let axis = port
         .normal()
         .angle(truth.shared_interface().unwrap().normal())
         .to_degrees();
-    let air =
-        calibration.interface.air_distance() - truth.shared_interface().unwrap().air_distance();
+    let air = port.air_distance() - truth.shared_interface().unwrap().air_distance();
     (axis, air, calibration)
 }
 
@@ -94,7 +101,11 @@ fn noise_free_scenes_come_back_exactly() {
             let (axis, air, c) = run(&truth, 10, 0.0, seed, method);
             println!(
                 "tilt {tilt}° azimuth {azimuth}° {method:?}: axis {axis:.2e}°, air {air:.2e} m, RMS {:?} px",
-                c.report.rms_px
+                c.report
+                    .cameras
+                    .iter()
+                    .map(|c| c.rms_px)
+                    .collect::<Vec<_>>()
             );
             assert!(axis < 1e-5, "{method:?} tilt {tilt}: axis off by {axis}°");
             assert!(
@@ -102,9 +113,9 @@ fn noise_free_scenes_come_back_exactly() {
                 "{method:?} tilt {tilt}: air layer off by {air} m"
             );
             assert!(
-                c.report.rms_px.iter().all(|&r| r < 1e-6),
+                c.report.cameras.iter().all(|c| c.rms_px < 1e-6),
                 "{:?}",
-                c.report.rms_px
+                c.report.cameras
             );
         }
     }
@@ -163,11 +174,10 @@ fn reported_standard_deviations_match_the_spread_over_scenes() {
         // these 24 scenes ends in a local minimum (σ̂ 0.244–0.259 px; before the LM damping was
         // put in plain units, 2 stopped early at σ̂ 0.35–0.38 px).
         let (_, air, c) = run(&truth, 12, 0.25, 300 + seed, Method::Auto);
-        let s = c
-            .report
-            .std
-            .expect("maximum likelihood gives standard deviations");
-        let found = Candidate::of(&c.interface);
+        let port = c.report.port();
+        let s = [port.tilt.std, port.azimuth.std, port.distance.std]
+            .map(|s| s.expect("maximum likelihood gives standard deviations"));
+        let found = Candidate::of(c.rig.shared_interface().unwrap());
         let t = Candidate::of(truth.shared_interface().unwrap());
         let d_azimuth = (found.azimuth() - t.azimuth() + std::f64::consts::PI)
             .rem_euclid(std::f64::consts::TAU)
@@ -192,14 +202,14 @@ fn simulated_corners_agree_with_an_independent_tracer() {
     // Trace each simulated pixel through the planes (Snell in angle form, tests/common) and check
     // that the ray in the water passes through the true corner.
     let truth = rig(12.0, 80.0);
-    let scene = simulate(&truth, 0, 1, &SceneSpec::new(board(), 6, 0.0, 9)).unwrap();
+    let scene = scene(&truth, 6, 0.0, 9);
     let mut worst: f64 = 0.0;
     for (v, view) in scene.observations.views.iter().enumerate() {
-        for (k, corners) in [&view.left, &view.right].into_iter().enumerate() {
+        for (k, corners) in view.images.iter().map(|i| &i.corners).enumerate() {
             let stack = common::Stack::of(&truth, k);
             for (i, pixel) in corners.iter().enumerate() {
                 let pixel: Point2<f64> = pixel.unwrap();
-                let corner = scene.master_from_board[v] * board().point_in_board(i);
+                let corner = scene.master_from_target[v] * board().point_in_board(i);
                 let (origin, dir, _) =
                     common::trace(&stack, common::dir_of_pixel(&stack, pixel)).unwrap();
                 let miss = (corner.coords - origin).cross(&dir).norm();
@@ -218,8 +228,8 @@ fn simulated_corners_agree_with_an_independent_tracer() {
 #[test]
 fn costs_vanish_at_the_truth_and_the_linear_air_layer_is_exact() {
     let truth = rig(8.0, 45.0);
-    let scene = simulate(&truth, 0, 1, &SceneSpec::new(board(), 8, 0.0, 5)).unwrap();
-    let data = StereoData::new(&naive(&truth), [0, 1], &scene.observations).unwrap();
+    let scene = scene(&truth, 8, 0.0, 5);
+    let data = StereoData::from_observations(&naive(&truth), [0, 1], &scene.observations).unwrap();
     let backend = CpuBackend::new(&data);
     let at_truth = Candidate::of(truth.shared_interface().unwrap());
     let off = Candidate {
@@ -249,35 +259,41 @@ fn costs_vanish_at_the_truth_and_the_linear_air_layer_is_exact() {
 #[test]
 fn huber_loss_withstands_outlier_corners_and_they_are_reported() {
     let truth = rig(8.0, 45.0);
-    let mut scene = simulate(&truth, 0, 1, &SceneSpec::new(board(), 15, 0.125, 11)).unwrap();
+    let mut scene = scene(&truth, 15, 0.125, 11);
     // Five gross detection errors of 15–25 px.
     for (k, (v, i)) in [(0, 3), (2, 17), (5, 40), (9, 8), (12, 50)]
         .into_iter()
         .enumerate()
     {
-        let p = scene.observations.views[v].left[i].as_mut().unwrap();
+        let p = scene.observations.views[v].images[0].corners[i]
+            .as_mut()
+            .unwrap();
         p.x += 15.0 + 2.5 * k as f64;
         p.y -= 10.0;
     }
-    let data = StereoData::new(&naive(&truth), [0, 1], &scene.observations).unwrap();
-    let options = CalibrationOptions {
+    let options = Options {
         huber: Some(0.5),
         ..Default::default()
     };
-    let c = calibrate(&CpuBackend::new(&data), &options, vec![]).unwrap();
-    let axis = c
-        .interface
+    let c = calibrate(&naive(&truth), &scene.observations, &options).unwrap();
+    let port = c.rig.shared_interface().unwrap();
+    let axis = port
         .normal()
         .angle(truth.shared_interface().unwrap().normal())
         .to_degrees();
-    let air = c.interface.air_distance() - 0.02;
+    let air = port.air_distance() - 0.02;
     println!(
         "with Huber: axis {axis:.4}°, air {:.3} mm; outliers {:?}",
         air * 1e3,
         c.report.outliers
     );
     assert!(axis < 0.1 && air.abs() < 2e-3, "{axis} {air}");
-    let flagged: Vec<(usize, usize)> = c.report.outliers.iter().map(|&(v, i, _)| (v, i)).collect();
+    let flagged: Vec<(usize, usize)> = c
+        .report
+        .outliers
+        .iter()
+        .map(|o| (o.view, o.corner))
+        .collect();
     for expected in [(0, 3), (2, 17), (5, 40), (9, 8), (12, 50)] {
         assert!(
             flagged.contains(&expected),

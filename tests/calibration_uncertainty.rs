@@ -7,7 +7,7 @@
 //! estimating their extrinsics too) one geometry is fixed: the
 //! true rig and the target poses (the library's simulator, noise-free, one seed). Each scene adds
 //! independent Gaussian noise of 0.25 px to every corner coordinate (its own seed) and calibrates
-//! with `calibrate_rig`. The ground truth is the simulated rig, never the code's output.
+//! with `calibrate`. The ground truth is the simulated rig, never the code's output.
 //!
 //! This test is about the covariance, not the initialisation: every calibration starts from the
 //! true rig, with the global axis search kept to a 0.5° cap (it keeps the start when no cell
@@ -37,11 +37,11 @@
 #[path = "common/rigs.rs"]
 mod rigs;
 
-use flatport::calib::methods::calibrate::{Method, calibrate_rig};
-use flatport::calib::methods::rig_bundle::Estimate;
-use flatport::calib::methods::rig_calibrate::{RigCalibration, RigCalibrationOptions};
 use flatport::calib::simulate::rng::Rng;
-use flatport::calib::{RigObservations, RigSceneSpec, simulate_rig};
+use flatport::calib::{
+    Calibration, Cameras, Estimate, Estimated, Method, Observations, Options, SceneSpec, calibrate,
+    simulate,
+};
 use flatport::model::Rig;
 use nalgebra::Point2;
 use rayon::prelude::*;
@@ -63,7 +63,7 @@ struct Quantity {
 
 /// The noise-free views `exact` with independent Gaussian noise of [`NOISE_PX`] added to every
 /// corner coordinate, drawn from `seed`.
-fn noisy(exact: &RigObservations, seed: u64) -> RigObservations {
+fn noisy(exact: &Observations, seed: u64) -> Observations {
     let mut rng = Rng::new(seed);
     let mut observations = exact.clone();
     for view in &mut observations.views {
@@ -85,14 +85,14 @@ fn wrap(a: f64) -> f64 {
 }
 
 /// (name, truth, estimate, reported σ) of every estimated quantity of `calibration`.
-fn quantities(truth: &Rig, calibration: &RigCalibration) -> Vec<(String, f64, f64, f64)> {
+fn quantities(truth: &Rig, calibration: &Calibration) -> Vec<(String, f64, f64, f64)> {
     let report = &calibration.report;
     let mut out = Vec::new();
     for (p, (port, true_port)) in report.ports.iter().zip(rigs::ports(truth)).enumerate() {
         let n = true_port.normal();
         let tilt = n.z.acos();
         let azimuth = n.y.atan2(n.x);
-        let std = |e: &flatport::calib::methods::rig_calibrate::Estimated, what: &str| {
+        let std = |e: &Estimated, what: &str| {
             e.std
                 .unwrap_or_else(|| panic!("port {p}: no σ of its {what}"))
         };
@@ -148,22 +148,22 @@ fn quantities(truth: &Rig, calibration: &RigCalibration) -> Vec<(String, f64, f6
 
 /// Calibrates [`SCENES`] noisy copies of one simulated geometry of `truth` and checks every
 /// estimated quantity's spread against its mean reported σ.
-fn spread_matches_sigma(name: &str, truth: &Rig, spec: RigSceneSpec, estimate: Estimate) {
-    let exact = simulate_rig(truth, &spec)
+fn spread_matches_sigma(name: &str, truth: &Rig, spec: SceneSpec, estimate: Estimate) {
+    let exact = simulate(truth, &spec)
         .unwrap_or_else(|e| panic!("{name}: {e}"))
         .observations;
-    let options = RigCalibrationOptions {
+    let options = Options {
         estimate,
         method: Method::Simultaneous,
         max_tilt: 0.5f64.to_radians(),
         huber: None,
-        ..RigCalibrationOptions::default()
+        ..Options::default()
     };
     let results: Vec<Vec<(String, f64, f64, f64)>> = (0..SCENES)
         .into_par_iter()
         .map(|s| {
             let observations = noisy(&exact, 9000 + s);
-            let calibration = calibrate_rig(truth, &observations, &options)
+            let calibration = calibrate(truth, &observations, &options)
                 .unwrap_or_else(|e| panic!("{name}, scene {s}: {e}"));
             assert!(
                 calibration.report.fits,
@@ -225,31 +225,37 @@ fn spread_matches_sigma(name: &str, truth: &Rig, spec: RigSceneSpec, estimate: E
 #[test]
 fn one_camera_in_a_housing() {
     let truth = rigs::one_camera();
-    let spec = RigSceneSpec::new(rigs::board(), 10, 0.0, 11);
+    let spec = SceneSpec::new(rigs::board(), 10, 0.0, 11);
     spread_matches_sigma("one camera", &truth, spec, Estimate::default());
 }
 
 #[test]
 fn four_cameras_behind_one_port() {
     let truth = rigs::four_cameras();
-    let spec = RigSceneSpec::new(rigs::board(), 12, 0.0, 12);
+    let spec = SceneSpec::new(rigs::board(), 12, 0.0, 12);
     spread_matches_sigma("four cameras", &truth, spec, Estimate::default());
 }
 
 #[test]
 fn two_housings() {
     let truth = rigs::two_housings();
-    let mut spec = RigSceneSpec::new(rigs::board(), 12, 0.0, 13);
+    let mut spec = SceneSpec::new(rigs::board(), 12, 0.0, 13);
     // Every view seen by the left camera; the right one's port needs views too.
-    spec.min_cameras = 2;
+    spec.cameras = Cameras::Any {
+        required: vec![0],
+        min: 2,
+    };
     spread_matches_sigma("two housings", &truth, spec, Estimate::default());
 }
 
 #[test]
 fn stereo_with_extrinsics() {
     let truth = rigs::stereo();
-    let mut spec = RigSceneSpec::new(rigs::board(), 15, 0.0, 14);
-    spec.required = vec![0, 1];
+    let mut spec = SceneSpec::new(rigs::board(), 15, 0.0, 14);
+    spec.cameras = Cameras::Any {
+        required: vec![0, 1],
+        min: 1,
+    };
     spread_matches_sigma(
         "stereo, axis,distance,extrinsics",
         &truth,
@@ -263,7 +269,7 @@ fn four_cameras_with_extrinsics() {
     // Cameras up to 16 cm from the master: a rotation error moves their translation t by
     // ω × t, which the σ of t must include.
     let truth = rigs::four_cameras();
-    let spec = RigSceneSpec::new(rigs::board(), 12, 0.0, 15);
+    let spec = SceneSpec::new(rigs::board(), 12, 0.0, 15);
     spread_matches_sigma(
         "four cameras, axis,distance,extrinsics",
         &truth,

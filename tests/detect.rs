@@ -8,7 +8,7 @@ mod gpu_harness;
 use std::path::Path;
 use std::process::{Command, Output};
 
-use flatport::calib::{Board, SceneSpec, simulate};
+use flatport::calib::{Board, SceneSpec, Target, simulate};
 use flatport::detect::{Found, detect_board, resolve_view};
 use flatport::engine::{Device, Engine, EngineOptions};
 use flatport::model::Rig;
@@ -58,11 +58,9 @@ fn rms_and_max(found: &[Point2<f64>], exact: &[Point2<f64>]) -> (f64, f64) {
 
 /// Poses that both cameras of the example rig see whole, corners 40 px inside the images.
 fn poses(board: &Board, views: usize, seed: u64) -> Vec<Isometry3<f64>> {
-    let mut spec = SceneSpec::new(*board, views, 0.0, seed);
+    let mut spec = SceneSpec::pair(Target::Board(*board), views, 0.0, seed, 0, 1);
     spec.margin_px = 40.0;
-    simulate(&example_rig(), 0, 1, &spec)
-        .unwrap()
-        .master_from_board
+    simulate(&example_rig(), &spec).unwrap().master_from_target
 }
 
 /// The same pose with the board turned by 180° in its plane about the centre of its corners.
@@ -449,7 +447,12 @@ fn detect_writes_the_exact_corners_of_rendered_16_bit_images_and_draws_overlays(
     assert_eq!(found.views.len(), 3);
     for (a, b) in found.views.iter().zip(&truth.views) {
         let flat = |v: &[Option<Point2<f64>>]| v.iter().map(|p| p.unwrap()).collect::<Vec<_>>();
-        for (p, q) in [(&a.left, &b.left), (&a.right, &b.right)] {
+        for (p, q) in a
+            .images
+            .iter()
+            .zip(&b.images)
+            .map(|(a, b)| (&a.corners, &b.corners))
+        {
             let (rms, max) = rms_and_max(&flat(p), &flat(q));
             assert!(rms <= 0.05 && max <= 0.25, "RMS {rms} px, largest {max} px");
         }
@@ -560,7 +563,8 @@ fn a_view_no_camera_found_is_dropped_and_one_camera_alone_is_left_out_by_name() 
     );
     let (found, truth) = (read(&output), read(&shots.join("corners.json")));
     assert_eq!(found.views.len(), 1, "only view 0 holds both cameras");
-    assert!((found.views[0].left[0].unwrap() - truth.views[0].left[0].unwrap()).norm() < 0.25);
+    let first = |o: &flatport::calib::Observations| o.views[0].images[0].corners[0].unwrap();
+    assert!((first(&found) - first(&truth)).norm() < 0.25);
 
     // No view at all: an error, not an empty file passed on.
     blank.save(shots.join("left/view_000.png")).unwrap();

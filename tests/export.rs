@@ -237,23 +237,13 @@ fn a_gpu_context_on_the_callers_device() {
 #[test]
 fn calibration_backends_can_own_their_data() {
     let rig = example_rig();
-    let scene = simulate(
-        &rig,
-        0,
-        1,
-        &SceneSpec::new(
-            flatport::calib::Board {
-                rows: 6,
-                cols: 9,
-                square: 0.04,
-            },
-            6,
-            0.1,
-            9,
-        ),
-    )
-    .unwrap();
-    let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
+    let board = flatport::calib::Target::Board(flatport::calib::Board {
+        rows: 6,
+        cols: 9,
+        square: 0.04,
+    });
+    let scene = simulate(&rig, &SceneSpec::pair(board, 6, 0.1, 9, 0, 1)).unwrap();
+    let data = StereoData::from_observations(&rig, [0, 1], &scene.observations).unwrap();
     let borrowed = CpuBackend::new(&data);
     let candidate = flatport::calib::Candidate {
         normal: *rig.shared_interface().unwrap().normal(),

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use flatport::calib::Target;
-use flatport::io::{read_rig, read_rig_observations, read_target, read_truth};
+use flatport::io::{read_observations, read_rig, read_target, read_truth};
 use flatport::model::{Ports, Rig};
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
@@ -187,7 +187,7 @@ fn every_example_rig_simulates_in_the_general_form() {
             (truth.interface.normal().into_inner() - master.normal().into_inner()).norm();
         assert!(normal_gap < 1e-15, "{file}");
         assert_eq!(truth.interface.air_distance(), master.air_distance());
-        let observations = read_rig_observations(&out.join("observations.json")).unwrap();
+        let observations = read_observations(&out.join("observations.json")).unwrap();
         if extra.contains(&"--target") {
             assert_eq!(
                 observations.target,

@@ -6,10 +6,10 @@ use std::path::Path;
 use std::process::Command;
 
 use flatport::calib::costs::scene::{SceneRows, axis_costs, profile_cost};
-use flatport::calib::methods::bundle::{Bundle, BundleState, INTERFACE_PARAMETERS};
+use flatport::calib::pipeline::bundle::{Bundle, State};
 use flatport::calib::solvers::lm::{DenseNormalEquations, LeastSquares, NormalEquations};
 use flatport::calib::{
-    Board, Candidate, CostKind, SceneSpec, StereoData, costs::SceneFit, simulate,
+    Board, Candidate, CostKind, Estimate, SceneSpec, StereoData, Target, costs::SceneFit, simulate,
 };
 use flatport::io::rig_from_json_str;
 use flatport::model::Rig;
@@ -61,20 +61,23 @@ fn refused(args: &[&str], words: &[&str]) -> String {
 /// k/|r| per corner residual outside the threshold.
 fn dense_normal_equations(
     bundle: &Bundle,
-    state: &BundleState,
+    state: &State,
     huber: Option<f64>,
 ) -> DenseNormalEquations {
     let n = bundle.dimension(state);
-    let base = bundle.residuals(state).unwrap();
+    let residuals = |state: &State| -> Vec<nalgebra::Vector2<f64>> {
+        bundle.all_residuals(state).unwrap().concat()
+    };
+    let base = residuals(state);
     let rows = 2 * base.len();
     let h = 1e-6;
     let mut j = DMatrix::zeros(rows, n);
     for k in 0..n {
         let mut delta = DVector::zeros(n);
         delta[k] = h;
-        let plus = bundle.residuals(&bundle.retract(state, &delta)).unwrap();
+        let plus = residuals(&bundle.retract(state, &delta));
         delta[k] = -h;
-        let minus = bundle.residuals(&bundle.retract(state, &delta)).unwrap();
+        let minus = residuals(&bundle.retract(state, &delta));
         for i in 0..base.len() {
             let d = (plus[i] - minus[i]) / (2.0 * h);
             j[(2 * i, k)] = d.x;
@@ -107,23 +110,18 @@ fn dense_normal_equations(
 #[test]
 fn bundle_schur_step_and_covariance_equal_a_dense_solve() {
     let rig = example_rig();
+    let board = Board {
+        rows: 4,
+        cols: 5,
+        square: 0.05,
+    };
     let scene = simulate(
         &rig,
-        0,
-        1,
-        &SceneSpec::new(
-            Board {
-                rows: 4,
-                cols: 5,
-                square: 0.05,
-            },
-            5,
-            0.3,
-            7,
-        ),
+        &SceneSpec::pair(Target::Board(board), 5, 0.3, 7, 0, 1),
     )
     .unwrap();
-    let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
+    let data = StereoData::from_observations(&rig, [0, 1], &scene.observations).unwrap();
+    let seen = scene.observations.resolve(&rig).unwrap();
     // A state off the truth so the residuals and the gradient are far from zero.
     let truth = Candidate::of(rig.shared_interface().unwrap());
     let start = Candidate {
@@ -135,12 +133,20 @@ fn bundle_schur_step_and_covariance_equal_a_dense_solve() {
     };
     let cameras = data.cameras_behind(&start).unwrap();
     let poses = SceneFit::new(&data, &cameras).unwrap().poses();
-    let state = BundleState {
-        candidate: start,
-        poses,
-    };
+    let mut state = State::of(&rig, poses);
+    state.ports[0].normal = start.normal;
+    state.ports[0].distance = start.air_distance;
+    // The axis (two tangent steps) and the air distance: three global parameters.
+    let globals = 3;
     for huber in [None, Some(0.5)] {
-        let bundle = Bundle::new(&data, huber);
+        let bundle = Bundle::new(
+            &rig,
+            &Target::Board(board),
+            &seen,
+            Estimate::default(),
+            huber,
+        );
+        assert_eq!(bundle.globals().len(), globals);
         let block = bundle.normal_equations(&state).unwrap();
         let dense = dense_normal_equations(&bundle, &state, huber);
         assert_eq!(block.dimension(), dense.jtj.nrows());
@@ -162,9 +168,7 @@ fn bundle_schur_step_and_covariance_equal_a_dense_solve() {
             );
         }
         let inverse = dense.jtj.clone().cholesky().unwrap().inverse();
-        let reference = inverse
-            .view((0, 0), (INTERFACE_PARAMETERS, INTERFACE_PARAMETERS))
-            .into_owned();
+        let reference = inverse.view((0, 0), (globals, globals)).into_owned();
         let covariance = block.global_covariance().unwrap();
         let error = (&covariance - &reference).norm() / reference.norm();
         println!("huber {huber:?}: covariance relative error {error:.2e}");
@@ -393,7 +397,7 @@ fn a_sweep_in_small_batches_writes_every_cell_as_an_independent_evaluation() {
     let (rig_path, obs_path) = scene(dir.path());
     let rig = flatport::io::read_rig(&rig_path).unwrap();
     let observations = flatport::io::read_observations(&obs_path).unwrap();
-    let data = StereoData::new(&rig, [0, 1], &observations).unwrap();
+    let data = StereoData::from_observations(&rig, [0, 1], &observations).unwrap();
     let (tilts, azimuths, distances) = ((2.0, 14.0, 5), (-180.0, 150.0, 7), (0.012, 0.03, 3));
     let value = |(start, stop, count): (f64, f64, usize), i: usize| {
         start + (stop - start) * i as f64 / (count - 1) as f64
@@ -527,33 +531,24 @@ fn a_sweep_in_small_batches_writes_every_cell_as_an_independent_evaluation() {
 
 #[test]
 fn a_calibration_reports_its_stages_iterations_and_costs_as_it_goes() {
-    use flatport::calib::{CalibrationOptions, CpuBackend, calibrate_with_progress};
+    use flatport::calib::{Options, calibrate_with_progress};
     let rig = example_rig();
+    let board = Board {
+        rows: 6,
+        cols: 9,
+        square: 0.04,
+    };
     let scene = simulate(
         &rig,
-        0,
-        1,
-        &SceneSpec::new(
-            Board {
-                rows: 6,
-                cols: 9,
-                square: 0.04,
-            },
-            8,
-            0.1,
-            2,
-        ),
+        &SceneSpec::pair(Target::Board(board), 8, 0.1, 2, 0, 1),
     )
     .unwrap();
-    let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
     let mut events: Vec<(String, usize, Option<usize>, f64)> = Vec::new();
-    let calibration = calibrate_with_progress(
-        &CpuBackend::new(&data),
-        &CalibrationOptions::default(),
-        vec![],
-        &mut |p| events.push((p.stage.to_string(), p.done, p.total, p.cost)),
-    )
-    .unwrap();
+    let calibration =
+        calibrate_with_progress(&rig, &scene.observations, &Options::default(), &mut |p| {
+            events.push((p.stage.to_string(), p.done, p.total, p.cost))
+        })
+        .unwrap();
     // Every stage of the report that iterates was announced, in order, with its last cost: the
     // events fall into runs of one stage each.
     let mut runs: Vec<&(String, usize, Option<usize>, f64)> = Vec::new();
@@ -565,11 +560,12 @@ fn a_calibration_reports_its_stages_iterations_and_costs_as_it_goes() {
             runs.push(e);
         }
     }
+    // The stages that iterate (not the poses' fit, nor the linear air layer).
     let stages: Vec<_> = calibration
         .report
         .stages
         .iter()
-        .filter(|s| !s.name.starts_with("air layer"))
+        .filter(|s| !s.name.starts_with("air layer") && !s.name.starts_with("target poses"))
         .collect();
     assert_eq!(runs.len(), stages.len(), "{runs:?}");
     for (stage, last) in stages.iter().zip(&runs) {

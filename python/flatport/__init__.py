@@ -298,7 +298,8 @@ class CalibrationResult(NamedTuple):
     """What :func:`calibrate` found."""
 
     #: The input rig with everything estimated replaced, or None when the fit was refused
-    #: (``report["fits"]`` is False: the reprojection RMS is above ``max_rms_px``).
+    #: (``report["fits"]`` is False: the reprojection RMS is above ``max_rms_px``, by default 3 px
+    #: and a few times the corner noise seen in the images).
     rig: Optional[Rig]
     #: The full report (the CLI's ``--report`` JSON) as a dict.
     report: dict
@@ -318,7 +319,7 @@ def calibrate(
     grid_step_deg: float = 1.5,
     huber: Optional[float] = None,
     max_iterations: int = 200,
-    max_rms_px: float = 3.0,
+    max_rms_px: Optional[float] = None,
 ) -> CalibrationResult:
     """Calibrates a rig's port(s) (and, when asked, layer thicknesses and extrinsics) from views of
     a target, as ``flatport calibrate`` does.
@@ -328,12 +329,12 @@ def calibrate(
     it, keyed by rig camera name (the stereo form with ``left``/``right`` is read too).
     ``estimate`` names what is estimated, from ``axis``, ``distance``, ``layers`` (every layer
     thickness), ``layer:K`` (layer K only) and ``extrinsics`` (a comma-separated string or a
-    list). Two cameras behind one shared port with a board, estimating ``axis,distance``, run the
-    thesis' stereo methods; every other rig (one camera, N cameras, a port per camera, a 3-D
-    target) the general calibration, whose report lists every port and camera
-    (``report["ports"]``, ``report["cameras"]``). ``method`` is ``consecutive``,
+    list). Every rig (one camera, N cameras, a shared port or a port per camera, a board or a
+    3-D target) runs one pipeline: where cameras share a port over a board the thesis'
+    consecutive method starts it, then maximum likelihood; the report lists every port and
+    camera (``report["ports"]``, ``report["cameras"]``). ``method`` is ``consecutive``,
     ``simultaneous`` or ``auto``; ``device`` ``cpu``, ``gpu`` or ``auto`` (GPU kernels in f64,
-    for the stereo methods' cost batches).
+    for the consecutive method's cost batches).
 
     >>> scene = flatport.simulate(rig, views=15, noise=0.125, seed=3)             # doctest: +SKIP
     >>> result = flatport.calibrate(start_rig, scene.observations)                # doctest: +SKIP
@@ -346,24 +347,16 @@ def calibrate(
         raise ValueError(f"device must be one of {_DEVICES}, got {device!r}")
     calibrated, report = _flatport.calibrate(
         rig._rig, _json_argument("observations", observations), ",".join(words), method, device, float(max_tilt_deg),
-        float(grid_step_deg), None if huber is None else float(huber), int(max_iterations), float(max_rms_px),
+        float(grid_step_deg), None if huber is None else float(huber), int(max_iterations),
+        None if max_rms_px is None else float(max_rms_px),
     )
     report = json.loads(report)
-    if "ports" in report:
-        # The general calibration: the first port's (every port's is in report["ports"]).
-        port = report["ports"][0]
-        sigma = {
-            "tilt_deg": port["tilt_deg"]["std"],
-            "azimuth_deg": port["azimuth_deg"]["std"],
-            "air_distance": port["distance"]["std"],
-            "sigma_px": report.get("sigma_px"),
-        }
-        return CalibrationResult(Rig(calibrated) if calibrated is not None else None, report, sigma)
-    std = report.get("std") or {}
+    # The first port's (every port's is in report["ports"], every camera's in report["cameras"]).
+    port = report["ports"][0]
     sigma = {
-        "tilt_deg": std.get("tilt_deg"),
-        "azimuth_deg": std.get("azimuth_deg"),
-        "air_distance": std.get("air_distance"),
+        "tilt_deg": port["tilt_deg"]["std"],
+        "azimuth_deg": port["azimuth_deg"]["std"],
+        "air_distance": port["distance"]["std"],
         "sigma_px": report.get("sigma_px"),
     }
     return CalibrationResult(Rig(calibrated) if calibrated is not None else None, report, sigma)

@@ -12,17 +12,13 @@ use numpy::{PyArray1, PyArray2, PyArray3, PyReadonlyArray2};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 
-use flatport::calib::methods::sweep::{Linspace, SweepSpec, sweep as run_sweep};
-use flatport::calib::{Board, CalibrationOptions, CostBackend, CostKind, CpuBackend, GpuBackend, Method, SceneSpec, StereoData, calibrate_with_progress, simulate as run_simulate};
+use flatport::calib::sweep::{Linspace, SweepSpec, sweep as run_sweep};
+use flatport::calib::{Backend, Board, CostBackend, CostKind, CpuBackend, Estimate, GpuBackend, Method, Options, SceneSpec, StereoData, Target, calibrate as run_calibrate, simulate as run_simulate};
 use flatport::engine::raymap::backproject_rows;
 use flatport::engine::{Device, Engine, EngineOptions};
 use flatport::gpu::Precision;
-use flatport::io::{ColmapDialect, Truth, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, observations_to_json_string, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string};
-use flatport::calib::methods::rig_bundle::Estimate;
-use flatport::calib::methods::calibrate::calibrate_rig;
-use flatport::calib::methods::rig_calibrate::{RigCalibrationOptions, is_thesis_stereo_case};
+use flatport::io::{ColmapDialect, Truth, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string, stereo_observations_to_json_string};
 use flatport::io::calib_json::truth_to_json_string;
-use flatport::io::{rig_observations_from_json_str, rig_report_to_json_string};
 use flatport::model::Rig;
 
 fn value_error(error: impl std::fmt::Display) -> PyErr {
@@ -57,11 +53,13 @@ fn engine_options(device: &str, precision: &str) -> PyResult<EngineOptions> {
 struct PyRig {
     rig: Arc<Rig>,
     engines: Mutex<HashMap<(String, String), Arc<Engine>>>,
+    /// The f64 GPU engines the calibration's cost batches run on, by device.
+    gpu_engines: Mutex<HashMap<String, Arc<flatport::gpu::GpuEngine>>>,
 }
 
 impl PyRig {
     fn wrap(rig: Rig) -> Self {
-        Self { rig: Arc::new(rig), engines: Mutex::new(HashMap::new()) }
+        Self { rig: Arc::new(rig), engines: Mutex::new(HashMap::new()), gpu_engines: Mutex::new(HashMap::new()) }
     }
 
     fn engine(&self, py: Python<'_>, device: &str, precision: &str) -> PyResult<Arc<Engine>> {
@@ -74,6 +72,19 @@ impl PyRig {
         let engine = Arc::new(py.detach(|| Engine::new(&options)).map_err(runtime_error)?);
         // Another thread may have built one meanwhile: every caller gets the one kept.
         Ok(self.engines.lock().expect("engine cache").entry(key).or_insert(engine).clone())
+    }
+
+    /// The f64 GPU engine of `device` for the calibration's cost batches; `None` where `device`
+    /// (`auto`) finds no GPU.
+    fn gpu_engine(&self, py: Python<'_>, device: &str) -> PyResult<Option<Arc<flatport::gpu::GpuEngine>>> {
+        if let Some(engine) = self.gpu_engines.lock().expect("engine cache").get(device) {
+            return Ok(Some(engine.clone()));
+        }
+        let options = engine_options(device, "f64")?;
+        let engine = py.detach(|| Engine::new(&options)).map_err(runtime_error)?;
+        let Engine::Gpu(gpu) = engine else { return Ok(None) };
+        let gpu = Arc::new(gpu);
+        Ok(Some(self.gpu_engines.lock().expect("engine cache").entry(device.to_string()).or_insert(gpu).clone()))
     }
 
     fn camera(&self, index: usize) -> PyResult<flatport::model::RefractiveCamera> {
@@ -255,29 +266,34 @@ impl PyRig {
     }
 }
 
-/// Observations (JSON text) checked against the rig's pair of cameras, prepared for the costs.
+/// Observations (JSON text) of a board, checked against the rig, one camera pair's corners prepared
+/// for the pair costs: the two cameras of every view when each view holds the same two (the
+/// stereo form), else the rig's first two (as `flatport sweep` takes them).
 fn stereo_data(rig: &Rig, observations_json: &str) -> PyResult<(StereoData, Vec<String>)> {
     let observations = observations_from_json_str(observations_json, Path::new("observations")).map_err(value_error)?;
     if rig.cameras().len() < 2 {
-        return Err(value_error(format!("the rig has {} camera(s): calibration needs a stereo pair", rig.cameras().len())));
+        return Err(value_error(format!("the rig has {} camera(s): the pair costs need two", rig.cameras().len())));
     }
-    let pair = match &observations.cameras {
-        None => [0, 1],
-        Some([a, b]) => {
-            let index = |name: &str| rig.camera_index(name).ok_or_else(|| value_error(format!("the observations name camera '{name}', which the rig does not have")));
-            [index(a)?, index(b)?]
+    let board = *observations.target.board().ok_or_else(|| value_error("the pair costs need a board, not a 3-D target"))?;
+    let seen = observations.resolve(rig).map_err(value_error)?;
+    let warnings = observations.check(&seen).map_err(value_error)?;
+    let pair = match seen.first().map(|v| v.cameras.as_slice()) {
+        Some([(a, _), (b, _)]) if seen.iter().all(|v| v.cameras.iter().map(|c| c.0).eq([*a, *b])) => {
+            let first = &observations.views[0].images[0];
+            let first_is_a = match &first.camera {
+                flatport::calib::CameraKey::Position(k) => *k == *a,
+                flatport::calib::CameraKey::Name(n) => rig.camera_index(n) == Some(*a),
+            };
+            if first_is_a { [*a, *b] } else { [*b, *a] }
         }
+        _ => [0, 1],
     };
-    let intrinsics = pair.map(|k| rig.cameras()[k].intrinsics);
-    let warnings = observations.validate(&intrinsics[0], &intrinsics[1]).map_err(value_error)?;
-    let data = StereoData::new(rig, pair, &observations).map_err(value_error)?;
+    let data = StereoData::new(rig, pair, &board, &seen).map_err(value_error)?;
     Ok((data, warnings))
 }
 
-/// Calibrates what `estimate` names: (calibrated rig or None when the fit is refused, report
-/// JSON). Two cameras behind one shared port with a board, estimating the axis and the air
-/// distance, run the thesis' stereo pipeline (its report); every other rig and estimate runs the
-/// general calibration (its report, with `ports` and `cameras`), as `flatport calibrate` does.
+/// Calibrates what `estimate` names on any rig, as `flatport calibrate` does: (calibrated rig or
+/// None when the fit is refused, report JSON).
 #[pyfunction]
 #[pyo3(signature = (rig, observations_json, estimate, method, device, max_tilt_deg, grid_step_deg, huber, max_iterations, max_rms_px))]
 #[allow(clippy::too_many_arguments)] // the Python signature
@@ -292,49 +308,31 @@ fn calibrate(
     grid_step_deg: f64,
     huber: Option<f64>,
     max_iterations: usize,
-    max_rms_px: f64,
+    max_rms_px: Option<f64>,
 ) -> PyResult<(Option<PyRig>, String)> {
-    let method = match method {
-        "consecutive" => Method::Consecutive,
-        "simultaneous" => Method::Simultaneous,
-        "auto" => Method::Auto,
-        other => return Err(value_error(format!("method must be 'consecutive', 'simultaneous' or 'auto', got {other:?}"))),
-    };
+    let method = Method::from_name(method)
+        .ok_or_else(|| value_error(format!("method must be 'consecutive', 'simultaneous' or 'auto', got {method:?}")))?;
     let estimate = Estimate::parse(estimate).map_err(value_error)?;
-    let general = rig_observations_from_json_str(observations_json, Path::new("observations")).map_err(value_error)?;
-    if !is_thesis_stereo_case(&rig.rig, &general, &estimate) {
-        let options = RigCalibrationOptions { estimate, method, max_tilt: max_tilt_deg.to_radians(), huber, max_iterations, max_rms_px };
-        let calibration = py.detach(|| calibrate_rig(&rig.rig, &general, &options)).map_err(value_error)?;
-        let report = rig_report_to_json_string(&calibration.report);
-        let calibrated = calibration.report.fits.then(|| PyRig::wrap(calibration.rig));
-        return Ok((calibrated, report));
-    }
-    let options = CalibrationOptions {
+    let observations = observations_from_json_str(observations_json, Path::new("observations")).map_err(value_error)?;
+    // The finite differences of the refinement are below f32's resolution: f64 kernels.
+    let backend = match device {
+        "cpu" => Backend::Cpu,
+        _ => rig.gpu_engine(py, device)?.map_or(Backend::Cpu, Backend::Gpu),
+    };
+    let options = Options {
         method,
+        estimate,
         max_tilt: max_tilt_deg.to_radians(),
-        grid_spacing: grid_step_deg.to_radians(),
+        grid_spacing: Some(grid_step_deg.to_radians()),
         huber,
         max_iterations,
         max_rms_px,
+        backend,
     };
-    let (data, warnings) = stereo_data(&rig.rig, observations_json)?;
-    // The finite differences of the refinement are below f32's resolution: f64 kernels.
-    let engine = if device == "cpu" { None } else { Some(rig.engine(py, device, "f64")?) };
-    let calibration = py
-        .detach(|| {
-            let backend: Box<dyn CostBackend + '_> = match engine.as_deref() {
-                Some(Engine::Gpu(gpu)) => Box::new(GpuBackend::new(&data, gpu)),
-                _ => Box::new(CpuBackend::new(&data)),
-            };
-            calibrate_with_progress(backend.as_ref(), &options, warnings, &mut |_| {})
-        })
-        .map_err(value_error)?;
+    let calibration = py.detach(|| run_calibrate(&rig.rig, &observations, &options)).map_err(value_error)?;
     let report = report_to_json_string(&calibration.report);
-    if !calibration.report.fits {
-        return Ok((None, report));
-    }
-    let calibrated = rig.rig.with_interface(calibration.interface.clone()).map_err(value_error)?;
-    Ok((Some(PyRig::wrap(calibrated)), report))
+    let calibrated = calibration.report.fits.then(|| PyRig::wrap(calibration.rig));
+    Ok((calibrated, report))
 }
 
 /// Simulates stereo views of a chessboard: (observations JSON, truth JSON).
@@ -352,11 +350,12 @@ fn simulate(
     b: usize,
     max_board_tilt_deg: f64,
 ) -> PyResult<(String, String)> {
-    let mut spec = SceneSpec::new(Board { rows, cols, square }, views, noise_px, seed);
-    spec.max_board_tilt = max_board_tilt_deg.to_radians();
-    let scene = run_simulate(&rig.rig, a, b, &spec).map_err(value_error)?;
-    let truth = Truth { interface: rig.rig.port_in_master(0), master_from_board: scene.master_from_board, noise_px, seed, rig: Some(rig.rig.as_ref().clone()) };
-    Ok((observations_to_json_string(&scene.observations), truth_to_json_string(&truth)))
+    let mut spec = SceneSpec::pair(Target::Board(Board { rows, cols, square }), views, noise_px, seed, a, b);
+    spec.max_target_tilt = max_board_tilt_deg.to_radians();
+    let scene = run_simulate(&rig.rig, &spec).map_err(value_error)?;
+    let truth = Truth { interface: rig.rig.port_in_master(0), master_from_board: scene.master_from_target, noise_px, seed, rig: Some(rig.rig.as_ref().clone()) };
+    let observations = stereo_observations_to_json_string(&scene.observations, true).ok_or_else(|| runtime_error("a pair's scene is two images per view"))?;
+    Ok((observations, truth_to_json_string(&truth)))
 }
 
 /// Sweeps a cost over an axis grid (and air layers): (cost array, air layer array, summary JSON).

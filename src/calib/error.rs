@@ -1,24 +1,5 @@
 //! Errors of the calibration layer: observations or settings that cannot be calibrated from.
 
-/// Which image of a stereo view.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Side {
-    /// The first camera of the pair (the master in a stereo rig).
-    Left,
-    /// The second camera of the pair.
-    Right,
-}
-
-impl Side {
-    /// `left` or `right`, as in the observations file.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Left => "left",
-            Self::Right => "right",
-        }
-    }
-}
-
 /// Observations or options from which no calibration can be made. Each variant names the view,
 /// image and corner it is about; [`CalibError::field`] gives the observations-file path.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -30,39 +11,39 @@ pub enum CalibError {
         reason: String,
     },
     /// Not one view.
-    #[error(
-        "no views: calibration needs stereo views of the board (at least 3, 10-20 recommended)"
-    )]
+    #[error("no views: calibration needs views of the target (at least 3, 10-20 recommended)")]
     NoViews,
     /// A view holds a different number of corners than the board has.
-    #[error("view {view}: the {} image has {got} corners, the board has {expected} (rows × cols)", side.name())]
+    #[error("view {view}: the {image} image has {got} corners, the target has {expected}")]
     CornerCount {
         /// 0-based view index.
         view: usize,
-        /// Which image.
-        side: Side,
+        /// The image's key in the file (`left`, or a camera name).
+        image: String,
         /// Corners given.
         got: usize,
         /// rows × cols.
         expected: usize,
     },
     /// A corner detected in one image only (the contract: `null` in both).
-    #[error("view {view}: corner {corner} is null in the {} image but not in the other; a corner that was not detected must be null in both", missing.name())]
+    #[error(
+        "view {view}: corner {corner} is null in the {missing} image but not in the other; in the stereo form a corner that was not detected must be null in both"
+    )]
     CornerInOneImage {
         /// 0-based view index.
         view: usize,
         /// 0-based corner index (row-major).
         corner: usize,
-        /// The image where it is null.
-        missing: Side,
+        /// The key of the image where it is null.
+        missing: String,
     },
     /// A corner that is NaN or infinite.
-    #[error("view {view}: {} corner {corner} is not finite: [{u}, {v}]", side.name())]
+    #[error("view {view}: {image} corner {corner} is not finite: [{u}, {v}]")]
     CornerNotFinite {
         /// 0-based view index.
         view: usize,
-        /// Which image.
-        side: Side,
+        /// The image's key in the file.
+        image: String,
         /// 0-based corner index.
         corner: usize,
         /// u as given.
@@ -71,12 +52,12 @@ pub enum CalibError {
         v: f64,
     },
     /// A corner outside its image.
-    #[error("view {view}: {} corner {corner} at ({}, {}) px lies outside the {width}×{height} image", side.name(), number(*u), number(*v))]
+    #[error("view {view}: {image} corner {corner} at ({}, {}) px lies outside the {width}×{height} image", number(*u), number(*v))]
     CornerOutsideImage {
         /// 0-based view index.
         view: usize,
-        /// Which image.
-        side: Side,
+        /// The image's key in the file.
+        image: String,
         /// 0-based corner index.
         corner: usize,
         /// u as given.
@@ -104,12 +85,12 @@ pub enum CalibError {
         /// The minimum.
         needed: usize,
     },
-    /// The rig or the observations' camera names do not give a stereo pair.
+    /// The rig or the observations' camera names do not give the cameras asked for.
     #[error("{0}")]
     Cameras(String),
     /// No axis within the search bound explains the observations (every candidate failed). The
-    /// reason ends with what the data look like ([`diagnose`](crate::calib::methods::diagnose)).
-    #[error("no candidate axis within a tilt of {}° lets both cameras triangulate the board: {reason}", degrees(*bound_deg))]
+    /// reason ends with what the data look like ([`diagnose`](crate::calib::pipeline::diagnose)).
+    #[error("no port axis within a tilt of {}° explains the corners: {reason}", degrees(*bound_deg))]
     NoSolution {
         /// The search bound, degrees.
         bound_deg: f64,
@@ -130,7 +111,7 @@ pub enum CalibError {
         /// Further repeated views beyond this one.
         more: usize,
     },
-    /// The views show too few distinct board poses to constrain the axis and air layer.
+    /// The views show too few distinct target poses to constrain the port.
     #[error(
         "the {views} views show only {distinct} distinct board pose(s) ({groups}): calibration needs at least {needed} poses at varied angles and depths"
     )]
@@ -209,20 +190,24 @@ impl CalibError {
         match self {
             Self::BadBoard { .. } => "board".into(),
             Self::NoViews | Self::TooFewViews { .. } => "views".into(),
-            Self::CornerCount { view, side, .. } => format!("views[{view}].{}", side.name()),
+            Self::CornerCount { view, image, .. } => format!("views[{view}].{image}"),
             Self::CornerInOneImage {
                 view,
                 corner,
                 missing,
-            } => format!("views[{view}].{}[{corner}]", missing.name()),
+            } => format!("views[{view}].{missing}[{corner}]"),
             Self::CornerNotFinite {
-                view, side, corner, ..
+                view,
+                image,
+                corner,
+                ..
             }
             | Self::CornerOutsideImage {
-                view, side, corner, ..
-            } => {
-                format!("views[{view}].{}[{corner}]", side.name())
-            }
+                view,
+                image,
+                corner,
+                ..
+            } => format!("views[{view}].{image}[{corner}]"),
             Self::UnusableView { view, .. } | Self::RepeatedView { view, .. } => {
                 format!("views[{view}]")
             }

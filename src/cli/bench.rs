@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use flatport::calib::{
-    Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData,
+    Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, Target,
     simulate,
 };
 use flatport::engine::workload::{Workload, without_distortion};
@@ -58,22 +58,13 @@ pub struct BenchArgs {
 /// The sweep workload: 185 simulated views of a 9×6 board (9 990 correspondences) by the first
 /// two cameras, and a square tilt × azimuth grid of about `cells` axes (tilts 0–20°).
 fn sweep_workload(rig: &Rig, cells: usize) -> anyhow::Result<(StereoData, Vec<Candidate>)> {
-    let scene = simulate(
-        rig,
-        0,
-        1,
-        &SceneSpec::new(
-            Board {
-                rows: 6,
-                cols: 9,
-                square: 0.04,
-            },
-            185,
-            0.1,
-            1,
-        ),
-    )?;
-    let data = StereoData::new(rig, [0, 1], &scene.observations)?;
+    let board = Target::Board(Board {
+        rows: 6,
+        cols: 9,
+        square: 0.04,
+    });
+    let scene = simulate(rig, &SceneSpec::pair(board, 185, 0.1, 1, 0, 1))?;
+    let data = StereoData::from_observations(rig, [0, 1], &scene.observations)?;
     let side = (cells.max(1) as f64).sqrt().ceil() as usize;
     let candidates = (0..side * side)
         .map(|k| {

@@ -7,25 +7,18 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 
-use flatport::calib::RigObservations;
-use flatport::calib::methods::calibrate::calibrate_rig;
-use flatport::calib::methods::rig_bundle::Estimate;
-use flatport::calib::methods::rig_calibrate::{
-    Estimated, RigCalibrationOptions, RigReport, is_thesis_stereo_case,
-};
 use flatport::calib::simulate::MAX_BOARD_CORNERS;
 use flatport::calib::solvers::search::{
     MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text,
 };
 use flatport::calib::{
-    Board, CalibError, CalibrationOptions, CalibrationProgress, CalibrationReport, CostBackend,
-    CpuBackend, GpuBackend, Method, Observations, StereoData, calibrate_with_progress,
+    Backend, Board, CalibError, CostBackend, CpuBackend, Estimate, Estimated, GpuBackend, Method,
+    Options, Progress, Report, StereoData, calibrate_with_progress,
 };
 use flatport::engine::Engine;
 use flatport::io::{
     IoError, Truth, read_observations, read_rig, read_truth, write_report, write_rig,
 };
-use flatport::io::{read_rig_observations, rig_report_to_json_string, write_atomic};
 use flatport::model::{Interface, Ports, Rig};
 
 /// How to estimate (`--method`).
@@ -67,20 +60,23 @@ pub struct CalibrateArgs {
     /// Largest axis tilt from the master camera's z axis that the global search covers (degrees)
     #[arg(long, value_name = "DEG", default_value_t = 30.0, value_parser = super::values::tilt_bound, allow_negative_numbers = true)]
     max_tilt_deg: f64,
-    /// Spacing of the global search grid over the axis (degrees; the grid holds at most 100 000 axes)
-    #[arg(long, value_name = "DEG", default_value_t = 1.5, value_parser = super::values::positive, allow_negative_numbers = true)]
-    grid_step_deg: f64,
+    /// Spacing of the consecutive method's global search grid over the axis (degrees; the grid
+    /// holds at most 100 000 axes) [default: 1.5, or --max-tilt-deg where that is smaller]
+    #[arg(long, value_name = "DEG", value_parser = super::values::positive, allow_negative_numbers = true)]
+    grid_step_deg: Option<f64>,
     /// Huber loss with this threshold on each corner's residual (pixels); default plain least squares
     #[arg(long, value_name = "PX", value_parser = super::values::positive, allow_negative_numbers = true)]
     huber: Option<f64>,
     /// Iteration bound of the maximum-likelihood refinement
     #[arg(long, default_value_t = 200, allow_negative_numbers = true)]
     max_iterations: usize,
-    /// Largest RMS reprojection error (pixels, either camera, outlier corners left out) accepted
-    /// as a fit: above it the report (if asked for) is written with what the data look like, the
-    /// rig is not written, and the exit status is 1
-    #[arg(long, value_name = "PX", default_value_t = flatport::calib::methods::calibrate::DEFAULT_MAX_RMS_PX)]
-    max_rms_px: f64,
+    /// Largest RMS reprojection error (pixels, any camera, outlier corners left out) accepted as a
+    /// fit: above it the report (if asked for) is written with what the data look like, the rig
+    /// is not written, and the exit status is 1. Default: 3 px, and a maximum-likelihood fit
+    /// within 3 × the corner noise seen in the images + 0.2 px (a fit far above the noise is
+    /// plainly wrong); a value given here is the bound, whatever the noise
+    #[arg(long, value_name = "PX")]
+    max_rms_px: Option<f64>,
     /// Truth of a simulated scene (from `flatport simulate`): print the errors of the result
     #[arg(long, value_name = "TRUTH.json")]
     truth: Option<PathBuf>,
@@ -176,49 +172,60 @@ fn in_file(path: &Path, error: CalibError) -> anyhow::Error {
     .into()
 }
 
-/// Reads a rig and observations, checks the observations against the pair of cameras they name
-/// (errors located in the observations file), and prepares them: (rig, data, warnings).
+/// Reads a rig and observations of a board and prepares one camera pair's corners for the pair
+/// costs (errors located in the observations file): the two cameras of every view when each view
+/// holds the same two (the stereo form), else the rig's first two cameras. Returns (rig, data,
+/// warnings about the views).
 pub fn load_stereo_data(
     rig_path: &Path,
     observations_path: &Path,
 ) -> anyhow::Result<(Rig, StereoData, Vec<String>)> {
     let rig = read_rig(rig_path)?;
-    let observations: Observations = match read_observations(observations_path) {
-        Ok(stereo) => stereo,
-        // The general form (views keyed by camera name): the views and corners the rig's first
-        // two cameras both saw.
-        Err(stereo_error) => {
-            let Ok(general) = read_rig_observations(observations_path) else {
-                return Err(stereo_error.into());
-            };
-            if rig.cameras().len() < 2 {
-                bail!(
-                    "{}: this needs two cameras (its costs are over a camera pair); the rig has one",
-                    observations_path.display()
-                );
-            }
-            let seen = general
-                .resolve(&rig)
-                .map_err(|e| in_file(observations_path, e))?;
-            general.pair(&seen, &rig, 0, 1).ok_or_else(|| {
-                anyhow::anyhow!(
-                    "{}: this needs a board (its costs are over the board's grid), not a 3-D target",
-                    observations_path.display()
-                )
-            })?
-        }
+    let observations = read_observations(observations_path)?;
+    let Some(board) = observations.target.board().copied() else {
+        bail!(
+            "{}: this needs a board (its costs are over the board's grid), not a 3-D target",
+            observations_path.display()
+        );
     };
-    let names = observations
-        .cameras
-        .as_ref()
-        .map(|[a, b]| (a.as_str(), b.as_str()));
-    let pair = stereo_pair(&rig, names, &observations_path.display().to_string())?;
-    let intrinsics = pair.map(|k| rig.cameras()[k].intrinsics);
-    let warnings = observations
-        .validate(&intrinsics[0], &intrinsics[1])
+    if rig.cameras().len() < 2 {
+        bail!(
+            "{}: this needs two cameras (its costs are over a camera pair); the rig has one",
+            observations_path.display()
+        );
+    }
+    let seen = observations
+        .resolve(&rig)
         .map_err(|e| in_file(observations_path, e))?;
+    let warnings = observations
+        .check(&seen)
+        .map_err(|e| in_file(observations_path, e))?;
+    let pair = match seen.first().map(|v| v.cameras.as_slice()) {
+        Some([(a, _), (b, _)])
+            if seen
+                .iter()
+                .all(|v| v.cameras.iter().map(|c| c.0).eq([*a, *b])) =>
+        {
+            // The order of the file (left, right), whatever the rig's order.
+            let first = &observations.views[0].images[0];
+            let first_is_a = matches!(&first.camera, flatport::calib::CameraKey::Position(0))
+                || rig.camera_index(&first.key) == Some(*a)
+                || matches!(&first.camera, flatport::calib::CameraKey::Name(n) if rig.camera_index(n) == Some(*a));
+            if first_is_a { [*a, *b] } else { [*b, *a] }
+        }
+        _ => [0, 1],
+    };
     let data =
-        StereoData::new(&rig, pair, &observations).map_err(|e| in_file(observations_path, e))?;
+        StereoData::new(&rig, pair, &board, &seen).map_err(|e| in_file(observations_path, e))?;
+    if data.views.len() < 3 {
+        bail!(
+            "{}: cameras {} and {} see the board together in {} view(s); the pair costs need at least 3",
+            observations_path.display(),
+            rig.cameras()[pair[0]].name,
+            rig.cameras()[pair[1]].name,
+            data.views.len()
+        );
+    }
     Ok((rig, data, warnings))
 }
 
@@ -232,17 +239,17 @@ pub fn cost_backend<'a>(engine: &'a Engine, data: &'a StereoData) -> Box<dyn Cos
 
 /// Checks the size of the global search grid before anything is read.
 fn check_grid_step(args: &CalibrateArgs) -> anyhow::Result<()> {
-    let (bound, spacing) = (
-        args.max_tilt_deg.to_radians(),
-        args.grid_step_deg.to_radians(),
-    );
+    let Some(step) = args.grid_step_deg else {
+        return Ok(());
+    };
+    let (bound, spacing) = (args.max_tilt_deg.to_radians(), step.to_radians());
     // Other values of the two options are refused by the calibration with their own message.
     if bound > 0.0 && bound < 80f64.to_radians() && spacing > 0.0 && spacing <= bound {
         let axes = cap_grid_size(bound, spacing);
         if axes > MAX_CAP_GRID_AXES as f64 {
             bail!(
                 "--grid-step-deg {}: the global search over --max-tilt-deg {} would take {axes:.3e} axes; it takes at most {MAX_CAP_GRID_AXES} (each axis costs an evaluation over every corner): use --grid-step-deg {} or more",
-                args.grid_step_deg,
+                step,
                 args.max_tilt_deg,
                 min_cap_grid_spacing_deg_text(bound)
             );
@@ -257,50 +264,45 @@ fn parse_estimate(text: &str) -> Result<Estimate, String> {
 
 pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     check_grid_step(&args)?;
+    if let Some(bound) = args.max_rms_px
+        && !(bound > 0.0)
     {
-        let rig = read_rig(&args.rig)?;
-        let observations = read_rig_observations(&args.observations)?;
-        if !is_thesis_stereo_case(&rig, &observations, &args.estimate) {
-            return run_rig_calibrate(&args, &rig, &observations);
-        }
+        bail!("--max-rms-px must be a positive number of pixels, got {bound}");
     }
-    let (rig, data, warnings) = load_stereo_data(&args.rig, &args.observations)?;
-    let options = CalibrationOptions {
+    let rig = read_rig(&args.rig)?;
+    let observations = read_observations(&args.observations)?;
+    let engine = calibration_engine(&args.engine)?;
+    eprintln!("device: {}", engine.describe());
+    let options = Options {
         method: match args.method {
             MethodArg::Consecutive => Method::Consecutive,
             MethodArg::Simultaneous => Method::Simultaneous,
             MethodArg::Auto => Method::Auto,
         },
+        estimate: args.estimate,
         max_tilt: args.max_tilt_deg.to_radians(),
-        grid_spacing: args.grid_step_deg.to_radians(),
+        grid_spacing: args.grid_step_deg.map(f64::to_radians),
         huber: args.huber,
         max_iterations: args.max_iterations,
         max_rms_px: args.max_rms_px,
+        backend: backend(engine),
     };
-    if args.huber.is_some_and(|k| k.is_nan() || k <= 0.0) {
-        bail!("--huber must be a positive number of pixels");
-    }
-    if args.max_rms_px.is_nan() || args.max_rms_px <= 0.0 {
-        bail!(
-            "--max-rms-px must be a positive number of pixels, got {}",
-            args.max_rms_px
-        );
-    }
-    let engine = calibration_engine(&args.engine)?;
-    let backend = cost_backend(&engine, &data);
-    eprintln!("device: {}", engine.describe());
     eprintln!(
-        "calibrating from {} views ({} corners seen by both cameras), method {}...",
-        data.views.len(),
-        data.corners.len(),
+        "calibrating {} camera(s) ({}) from {} views, estimating {}, method {}...",
+        rig.cameras().len(),
+        match rig.ports() {
+            Ports::Shared(_) => "one shared port",
+            Ports::PerCamera(_) => "a port per camera",
+        },
+        observations.views.len(),
+        options.estimate.name(),
         options.method.name()
     );
-    // Errors about the data name the observations file.
     let mut status = CalibrationStatus::new();
-    let calibration = calibrate_with_progress(backend.as_ref(), &options, warnings, &mut |p| {
-        status.update(p)
-    });
+    let calibration =
+        calibrate_with_progress(&rig, &observations, &options, &mut |p| status.update(p));
     status.finish();
+    // Errors about the data name the observations file.
     let calibration = calibration.map_err(|e| in_file(&args.observations, e))?;
     let report = &calibration.report;
     if let Some(path) = &args.report {
@@ -309,14 +311,22 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     out!("{}", summary(report));
     if let Some(path) = &args.truth {
         let truth = read_truth(path)?;
-        outln!("{}", truth_errors(report, &truth));
+        outln!("{}", truth_errors(&calibration.rig, &truth, path)?);
     }
     if !report.fits {
-        let worst = report.inlier_rms_px[0].max(report.inlier_rms_px[1]);
+        let worst = report.worst_inlier_rms_px();
+        let bound = options.rms_bound();
+        let why = match report.noise_px {
+            Some(s) if worst <= bound => format!(
+                "far above the corner noise seen in the images (σ ≈ {s:.3} px; a fit comes within {} σ + {} px, and --max-rms-px accepts a bound of your own)",
+                flatport::calib::pipeline::NOISE_FACTOR,
+                flatport::calib::pipeline::NOISE_MARGIN_PX
+            ),
+            _ => format!("above --max-rms-px {bound}"),
+        };
         bail!(
-            "{}: the calibration does not fit: the reprojection RMS is {worst:.2} px (outlier corners left out), above --max-rms-px {}. What the data look like: {}. {} not written{}",
+            "{}: the calibration does not fit: the reprojection RMS is {worst:.2} px in the worst camera (outlier corners left out), {why}. What the data look like: {}. {} not written{}",
             args.observations.display(),
-            args.max_rms_px,
             report.diagnosis.join("; "),
             args.output.display(),
             args.report.as_ref().map_or(String::new(), |p| format!(
@@ -325,8 +335,7 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
             ))
         );
     }
-    let calibrated = rig.with_interface(calibration.interface.clone())?;
-    write_rig(&args.output, &calibrated)?;
+    write_rig(&args.output, &calibration.rig)?;
     outln!(
         "wrote {}{}",
         args.output.display(),
@@ -335,6 +344,14 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
             .map_or(String::new(), |p| format!(", {}", p.display()))
     );
     Ok(())
+}
+
+/// Where the calibration's cost batches run: the GPU engine, or the CPU.
+pub fn backend(engine: Engine) -> Backend {
+    match engine {
+        Engine::Gpu(gpu) => Backend::Gpu(std::sync::Arc::new(gpu)),
+        Engine::Cpu(_) => Backend::Cpu,
+    }
 }
 
 /// Progress of a long calibration on stderr (stage, steps, cost): nothing during the first
@@ -364,7 +381,7 @@ impl CalibrationStatus {
         }
     }
 
-    fn update(&mut self, p: &CalibrationProgress) {
+    fn update(&mut self, p: &Progress) {
         let now = Instant::now();
         let elapsed = now - self.started;
         if elapsed < Self::SILENT {
@@ -430,15 +447,29 @@ pub fn calibration_engine(args: &super::EngineArgs) -> anyhow::Result<Engine> {
     args.engine_quiet()
 }
 
-/// Errors of a result against the truth of a simulated scene, one line.
-pub fn truth_errors(report: &CalibrationReport, truth: &Truth) -> String {
-    let axis = report
-        .candidate
-        .normal
-        .angle(truth.interface.normal())
-        .to_degrees();
-    let air = (report.candidate.air_distance - truth.interface.air_distance()) * 1e3;
-    format!("against the truth: axis off by {axis:.5}°, air layer off by {air:+.4} mm")
+/// The errors of a calibrated rig against the truth of a simulated scene (`flatport simulate`'s
+/// truth.json at `path`): every port and camera against the whole true rig, or, in truth files
+/// written before the rig was kept, the first port against the true port.
+pub fn truth_errors(result: &Rig, truth: &Truth, path: &Path) -> anyhow::Result<String> {
+    match &truth.rig {
+        Some(true_rig) if true_rig.cameras().len() == result.cameras().len() => {
+            Ok(rig_truth_errors(result, true_rig))
+        }
+        Some(true_rig) => bail!(
+            "{}: the truth's rig has {} camera(s), the calibrated one {}",
+            path.display(),
+            true_rig.cameras().len(),
+            result.cameras().len()
+        ),
+        None => {
+            let port = result.port_in_master(0);
+            Ok(format!(
+                "against the truth: axis off by {:.5}°, air layer off by {:+.4} mm",
+                port.normal().angle(truth.interface.normal()).to_degrees(),
+                (port.air_distance() - truth.interface.air_distance()) * 1e3
+            ))
+        }
+    }
 }
 
 /// Errors of a calibrated rig against the whole true rig of a simulated scene, one line per port
@@ -446,108 +477,150 @@ pub fn truth_errors(report: &CalibrationReport, truth: &Truth) -> String {
 /// its layer thicknesses where they differ, each camera's rotation and translation. Ports are
 /// compared in their own frames (a camera's port in that camera's frame).
 pub fn rig_truth_errors(result: &Rig, truth: &Rig) -> String {
-    use flatport::calib::methods::rig_calibrate::port_names;
-    let mut text = String::from("against the truth:");
+    use flatport::calib::pipeline::report::port_names;
+    let mut lines = Vec::new();
     for ((name, got), (_, want)) in port_names(result).iter().zip(port_names(truth)) {
-        text += &format!(
-            "\n  port {name}: axis off by {:.5}°, air layer off by {:+.4} mm",
+        let mut line = format!(
+            "port {name}: axis off by {:.5}°, air layer off by {:+.4} mm",
             got.normal().angle(want.normal()).to_degrees(),
             (got.air_distance() - want.air_distance()) * 1e3
         );
         for (k, (a, b)) in got.layers().iter().zip(want.layers()).enumerate() {
             if a.thickness != b.thickness {
-                text += &format!(
+                line += &format!(
                     ", layer {k} thickness off by {:+.4} mm",
                     (a.thickness - b.thickness) * 1e3
                 );
             }
         }
+        lines.push(line);
     }
     for (got, want) in result.cameras().iter().zip(truth.cameras()).skip(1) {
         let (g, w) = (got.cam_from_master, want.cam_from_master);
         if g != w {
-            text += &format!(
-                "\n  camera {}: rotation off by {:.5}°, translation off by {:.4} mm",
+            lines.push(format!(
+                "camera {}: rotation off by {:.5}°, translation off by {:.4} mm",
                 got.name,
                 g.rotation.angle_to(&w.rotation).to_degrees(),
                 (g.translation.vector - w.translation.vector).norm() * 1e3
-            );
+            ));
         }
     }
-    text
+    // One shared port and nothing else estimated: one line.
+    match lines.as_slice() {
+        [only] if only.starts_with("port shared: ") => {
+            format!("against the truth: {}", &only["port shared: ".len()..])
+        }
+        _ => format!("against the truth:\n  {}", lines.join("\n  ")),
+    }
 }
 
 /// Outlier images listed in the summary (the report lists all).
 const MAX_LISTED_OUTLIERS: usize = 12;
 
-/// The human summary printed on stdout.
-pub fn summary(report: &CalibrationReport) -> String {
-    let c = &report.candidate;
-    let n = c.normal;
+/// A value with its standard deviation, in `unit` after multiplying by `scale`.
+fn with_std(value: &Estimated, scale: f64, unit: &str) -> String {
+    match value.std {
+        Some(s) => format!("{:.4} ± {:.4} {unit}", value.value * scale, s * scale),
+        None => format!("{:.4} {unit}", value.value * scale),
+    }
+}
+
+/// The human summary printed on stdout: what ran, every port and camera with standard
+/// deviations, the RMS values, the 3-D errors of a pair, the worst view, the outlier images, the
+/// warnings and the diagnosis.
+pub fn summary(report: &Report) -> String {
+    let degrees = 180.0 / std::f64::consts::PI;
     let mut text = format!(
         "calibrated ({}) in {:.3} s on {}\n",
-        report.method.name(),
-        report.seconds,
-        report.backend
+        report.strategy, report.seconds, report.backend
     );
-    let std = report.std;
-    let pm = |i: usize, scale: f64, unit: &str| {
-        std.map_or(String::new(), |s| format!(" ± {:.4}{unit}", s[i] * scale))
-    };
-    text += &format!("  normal      [{:.6}, {:.6}, {:.6}]\n", n.x, n.y, n.z);
+    for port in &report.ports {
+        let n = port.normal;
+        text += &format!(
+            "  port {}: tilt {}, azimuth {}, air layer {}",
+            port.name,
+            with_std(&port.tilt, degrees, "°"),
+            with_std(&port.azimuth, degrees, "°"),
+            with_std(&port.distance, 1e3, "mm")
+        );
+        for (i, t) in port.thicknesses.iter().enumerate() {
+            text += &format!(", layer {i} {}", with_std(t, 1e3, "mm"));
+        }
+        text += &format!("\n    normal [{:.6}, {:.6}, {:.6}]\n", n[0], n[1], n[2]);
+    }
+    for camera in &report.cameras {
+        text += &format!(
+            "  camera {}: {} views, {} corners, reprojection RMS {:.4} px",
+            camera.name, camera.views, camera.observations, camera.rms_px
+        );
+        if let Some((r, t)) = camera.extrinsics_std {
+            text += &format!(
+                ", extrinsics σ R [{:.4}, {:.4}, {:.4}]°, t [{:.3}, {:.3}, {:.3}] mm",
+                r[0] * degrees,
+                r[1] * degrees,
+                r[2] * degrees,
+                t[0] * 1e3,
+                t[1] * 1e3,
+                t[2] * 1e3
+            );
+        }
+        text += "\n";
+    }
     text += &format!(
-        "  tilt        {:.4}°{}\n",
-        c.tilt().to_degrees(),
-        pm(0, 180.0 / std::f64::consts::PI, "°")
-    );
-    text += &format!(
-        "  azimuth     {:.4}°{}\n",
-        c.azimuth().to_degrees(),
-        pm(1, 180.0 / std::f64::consts::PI, "°")
-    );
-    text += &format!(
-        "  air layer   {:.4} mm{}\n",
-        c.air_distance * 1e3,
-        pm(2, 1e3, " mm")
-    );
-    text += &format!(
-        "  reprojection RMS: left {:.4} px, right {:.4} px{}\n",
-        report.rms_px[0],
-        report.rms_px[1],
+        "  RMS {:.4} px over {} corner observations in {} views{}{}\n",
+        report.rms_px,
+        report.observations,
+        report.views,
         report
             .sigma_px
-            .map_or(String::new(), |s| format!(" (noise estimate σ {s:.4} px)"))
+            .map_or(String::new(), |s| format!(", noise estimate σ̂ {s:.4} px")),
+        report.noise_px.map_or(String::new(), |s| format!(
+            " (corner noise seen in the images σ ≈ {s:.4} px)"
+        ))
     );
-    text += &format!(
-        "  3-D: board fit RMS {:.4} mm, square deviation RMS {:.4} mm\n",
-        report.scene_rms_m * 1e3,
-        report.square_deviation_rms_m * 1e3
-    );
-    let worst = report
-        .rms_px_per_view
-        .iter()
-        .enumerate()
-        .max_by(|a, b| a.1[0].max(a.1[1]).total_cmp(&b.1[0].max(b.1[1])));
+    if let Some(scene) = &report.scene {
+        text += &format!(
+            "  3-D ({}–{}): board fit RMS {:.4} mm, square deviation RMS {:.4} mm\n",
+            scene.cameras[0],
+            scene.cameras[1],
+            scene.rms_m * 1e3,
+            scene.square_deviation_rms_m * 1e3
+        );
+    }
+    let worst = (0..report.views)
+        .map(|v| {
+            let rms = report
+                .cameras
+                .iter()
+                .map(|c| c.rms_px_per_view[v])
+                .filter(|r| !r.is_nan())
+                .fold(0.0, f64::max);
+            (v, rms)
+        })
+        .max_by(|a, b| a.1.total_cmp(&b.1));
     if let Some((v, rms)) = worst {
         text += &format!(
-            "  {} views, {} corners; worst view {v}: {:.4} / {:.4} px\n",
-            report.views, report.corners, rms[0], rms[1]
+            "  {} views, {} corners; worst view {v}: {rms:.4} px in its worst camera\n",
+            report.views, report.corners
         );
     }
     text += &format!(
         "  {} iterations ({})\n",
         report.iterations, report.termination
     );
-    if !report.outlier_images.is_empty() {
+    if !report.outliers.is_empty() {
+        let corners: std::collections::BTreeSet<(usize, usize)> =
+            report.outliers.iter().map(|o| (o.view, o.corner)).collect();
         text += &format!(
             "  {} outlier corner(s) (view, image, corner: residual under the result):\n",
-            report.outliers.len()
+            corners.len()
         );
-        for o in report.outlier_images.iter().take(MAX_LISTED_OUTLIERS) {
+        for o in report.outliers.iter().take(MAX_LISTED_OUTLIERS) {
             text += &format!(
                 "    view {}, {} image ({}), corner {}: {:.2} px{}\n",
                 o.view,
-                o.side.name(),
+                o.image,
                 o.camera,
                 o.corner,
                 o.residual_px,
@@ -558,162 +631,13 @@ pub fn summary(report: &CalibrationReport) -> String {
                 }
             );
         }
-        if report.outlier_images.len() > MAX_LISTED_OUTLIERS {
+        if report.outliers.len() > MAX_LISTED_OUTLIERS {
             text += &format!(
                 "    … and {} more (all in the report)\n",
-                report.outlier_images.len() - MAX_LISTED_OUTLIERS
+                report.outliers.len() - MAX_LISTED_OUTLIERS
             );
         }
     }
-    for warning in &report.warnings {
-        text += &format!("warning: {warning}\n");
-    }
-    text
-}
-
-/// `calibrate` for any rig (one camera, N cameras, a port per camera, a 3-D target, more
-/// estimated than the axis and air distance): [`calibrate_rig`], its summary, the report, and the
-/// rig only when the fit is within `--max-rms-px`.
-fn run_rig_calibrate(
-    args: &CalibrateArgs,
-    rig: &Rig,
-    observations: &RigObservations,
-) -> anyhow::Result<()> {
-    if args.max_rms_px.is_nan() || args.max_rms_px <= 0.0 {
-        bail!(
-            "--max-rms-px must be a positive number of pixels, got {}",
-            args.max_rms_px
-        );
-    }
-    let options = RigCalibrationOptions {
-        estimate: args.estimate,
-        method: match args.method {
-            MethodArg::Consecutive => Method::Consecutive,
-            MethodArg::Simultaneous => Method::Simultaneous,
-            MethodArg::Auto => Method::Auto,
-        },
-        max_tilt: args.max_tilt_deg.to_radians(),
-        huber: args.huber,
-        max_iterations: args.max_iterations,
-        max_rms_px: args.max_rms_px,
-    };
-    eprintln!(
-        "calibrating {} camera(s) ({}) from {} views, estimating {}...",
-        rig.cameras().len(),
-        if rig.shared_interface().is_some() {
-            "one shared port"
-        } else {
-            "a port per camera"
-        },
-        observations.views.len(),
-        options.estimate.name()
-    );
-    let calibration =
-        calibrate_rig(rig, observations, &options).map_err(|e| in_file(&args.observations, e))?;
-    let report = &calibration.report;
-    if let Some(path) = &args.report {
-        write_atomic(path, rig_report_to_json_string(report).as_bytes())?;
-    }
-    out!("{}", rig_summary(report));
-    if let Some(path) = &args.truth {
-        let truth = read_truth(path)?;
-        match &truth.rig {
-            Some(true_rig) if true_rig.cameras().len() == calibration.rig.cameras().len() => {
-                outln!("{}", rig_truth_errors(&calibration.rig, true_rig))
-            }
-            Some(_) => bail!(
-                "{}: the truth's rig has {} camera(s), the calibrated one {}",
-                path.display(),
-                truth.rig.as_ref().map_or(0, |r| r.cameras().len()),
-                calibration.rig.cameras().len()
-            ),
-            None => bail!(
-                "{}: this truth file holds no rig (written before rigs were kept); simulate again",
-                path.display()
-            ),
-        }
-    }
-    if !report.fits {
-        let worst = report.worst_rms_px();
-        bail!(
-            "{}: the calibration does not fit: the reprojection RMS is {worst:.2} px in the worst camera, above --max-rms-px {}. What the data look like: {}. {} not written{}",
-            args.observations.display(),
-            args.max_rms_px,
-            report.diagnosis.join("; "),
-            args.output.display(),
-            args.report.as_ref().map_or(String::new(), |p| format!(
-                "; the report is in {}",
-                p.display()
-            ))
-        );
-    }
-    write_rig(&args.output, &calibration.rig)?;
-    outln!(
-        "wrote {}{}",
-        args.output.display(),
-        args.report
-            .as_ref()
-            .map_or(String::new(), |p| format!(", {}", p.display()))
-    );
-    Ok(())
-}
-
-/// A value with its standard deviation, in `unit` after multiplying by `scale`.
-fn with_std(value: &Estimated, scale: f64, unit: &str) -> String {
-    match value.std {
-        Some(s) => format!("{:.4} ± {:.4} {unit}", value.value * scale, s * scale),
-        None => format!("{:.4} {unit}", value.value * scale),
-    }
-}
-
-/// The human summary of a rig calibration.
-pub fn rig_summary(report: &RigReport) -> String {
-    let mut text = format!("method: {}\n", report.method);
-    for port in &report.ports {
-        text += &format!(
-            "port {}: tilt {}, azimuth {}, air distance {}",
-            port.name,
-            with_std(&port.tilt, 180.0 / std::f64::consts::PI, "°"),
-            with_std(&port.azimuth, 180.0 / std::f64::consts::PI, "°"),
-            with_std(&port.distance, 1e3, "mm")
-        );
-        for (i, t) in port.thicknesses.iter().enumerate() {
-            text += &format!(", layer {i} {}", with_std(t, 1e3, "mm"));
-        }
-        text += "\n";
-    }
-    for camera in &report.cameras {
-        text += &format!(
-            "camera {}: {} views, {} corners, RMS {:.4} px",
-            camera.name, camera.views, camera.observations, camera.rms_px
-        );
-        if let Some((r, t)) = camera.extrinsics_std {
-            let d = 180.0 / std::f64::consts::PI;
-            text += &format!(
-                ", extrinsics σ R [{:.4}, {:.4}, {:.4}]°, t [{:.3}, {:.3}, {:.3}] mm",
-                r[0] * d,
-                r[1] * d,
-                r[2] * d,
-                t[0] * 1e3,
-                t[1] * 1e3,
-                t[2] * 1e3
-            );
-        }
-        text += "\n";
-    }
-    text += &format!(
-        "RMS {:.4} px over {} corner observations in {} views, σ̂ {:.4} px{}; {} iterations ({}), {:.2} s\n",
-        report.rms_px,
-        report.observations,
-        report.views,
-        report.sigma_px,
-        report.corner_noise_px.map_or(String::new(), |s| format!(
-            " (corner noise seen in the images σ ≈ {s:.4} px)"
-        )),
-        report.iterations,
-        report.termination,
-        report.seconds
-    );
     for warning in &report.warnings {
         text += &format!("warning: {warning}\n");
     }

@@ -83,8 +83,8 @@ const BLUR_PX: f64 = 0.6;
 
 /// Render, detect, calibrate from the naive start, sweep the invariant around the result.
 fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyhow::Result<()> {
-    use flatport::calib::methods::sweep::Linspace;
-    use flatport::calib::{Board, CalibrationOptions, SceneSpec, StereoData, calibrate, simulate};
+    use flatport::calib::sweep::Linspace;
+    use flatport::calib::{Board, Options, SceneSpec, Target, calibrate, simulate};
     use flatport::engine::Engine;
     use flatport::io::{Truth, read_observations, write_report};
     use flatport::render::RenderOptions;
@@ -98,9 +98,9 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
         "\n1. render: {VIEWS} views of a 9x6 chessboard (40 mm squares) in the water, as both cameras see it through the port\n   \
          (every pixel back-projected, edges supersampled 8×8, lens distortion, blur {BLUR_PX} px, noise {NOISE_GREY} grey levels)"
     );
-    let mut spec = SceneSpec::new(board, VIEWS, 0.0, 1);
+    let mut spec = SceneSpec::pair(Target::Board(board), VIEWS, 0.0, 1, 0, 1);
     spec.margin_px = 40.0;
-    let poses = simulate(rig, 0, 1, &spec)?.master_from_board;
+    let poses = simulate(rig, &spec)?.master_from_target;
     let scene = super::render::Scene {
         rig: rig.clone(),
         board,
@@ -168,27 +168,29 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     let start = super::calib::naive_start(rig)?;
     write_rig(&dir.join("start_rig.json"), &start)?;
     outln!("3. calibrate from a naive start (axis on the camera's z axis, 10 mm air layer):");
-    let data = StereoData::new(&start, [0, 1], &observations)?;
-    let backend = super::calib::cost_backend(&engine, &data);
-    let calibration = calibrate(backend.as_ref(), &CalibrationOptions::default(), vec![])?;
-    write_rig(
-        &dir.join("calibrated_rig.json"),
-        &start.with_interface(calibration.interface.clone())?,
-    )?;
+    let options = Options {
+        backend: super::calib::backend(engine),
+        ..Options::default()
+    };
+    let calibration = calibrate(&start, &observations, &options)?;
+    write_rig(&dir.join("calibrated_rig.json"), &calibration.rig)?;
     write_report(&dir.join("report.json"), &calibration.report)?;
     for line in super::calib::summary(&calibration.report).lines() {
         outln!("   {line}");
     }
-    outln!(
-        "   {}",
-        super::calib::truth_errors(&calibration.report, &truth)
-    );
+    let truth_path = dir.join("truth.json");
+    for line in super::calib::truth_errors(&calibration.rig, &truth, &truth_path)?.lines() {
+        outln!("   {line}");
+    }
 
     outln!(
         "4. sweep the affine-grid cost over the axis (a wide view, and a close one around the result):"
     );
-    let found = calibration.report.candidate;
-    let (tilt, azimuth) = (found.tilt().to_degrees(), found.azimuth().to_degrees());
+    let found = calibration.report.port();
+    let (tilt, azimuth) = (
+        found.tilt.value.to_degrees(),
+        found.azimuth.value.to_degrees(),
+    );
     // Close view: ±1° of tilt, and azimuths spanning about ±1° of arc at this tilt.
     let arc = (1.0 / tilt.to_radians().sin().max(0.05)).min(180.0);
     let sweeps = [
@@ -273,12 +275,13 @@ fn corner_errors(
     }
     let (mut sum, mut count, mut max) = (0.0, 0usize, 0.0f64);
     for (a, b) in found.views.iter().zip(&exact.views) {
-        for (p, q) in a
-            .left
-            .iter()
-            .zip(&b.left)
-            .chain(a.right.iter().zip(&b.right))
-        {
+        // The images of one camera, paired by key.
+        let pairs = a.images.iter().flat_map(|i| {
+            let j = b.images.iter().find(|j| j.key == i.key);
+            j.into_iter()
+                .flat_map(move |j| i.corners.iter().zip(&j.corners))
+        });
+        for (p, q) in pairs {
             if let (Some(p), Some(q)) = (p, q) {
                 let e = (p - q).norm();
                 sum += e * e;

@@ -8,7 +8,7 @@ use anyhow::Context;
 use clap::Args;
 use nalgebra::{Isometry3, Point2};
 
-use flatport::calib::{Board, SceneSpec, simulate};
+use flatport::calib::{Board, SceneSpec, Target, simulate};
 use flatport::engine::Engine;
 use flatport::io::{
     DetectedView, Truth, read_rig, read_truth, write_detections, write_grey_png, write_grey16_png,
@@ -217,13 +217,13 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
                     "poses are drawn as `flatport simulate` draws them, for a stereo pair: the rig has one camera (give --truth)"
                 );
             }
-            let mut spec = SceneSpec::new(board, args.views, 0.0, args.seed);
+            let mut spec = SceneSpec::pair(Target::Board(board), args.views, 0.0, args.seed, 0, 1);
             spec.margin_px = args.margin_px;
-            let simulated = simulate(&rig, 0, 1, &spec)?;
+            let simulated = simulate(&rig, &spec)?;
             Scene {
                 rig,
                 board,
-                poses: simulated.master_from_board,
+                poses: simulated.master_from_target,
             }
         }
     };

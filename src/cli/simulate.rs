@@ -5,13 +5,11 @@ use std::path::PathBuf;
 use anyhow::{Context, bail};
 use clap::Args;
 
-use flatport::calib::simulate::{
-    MAX_SIMULATED_CORNERS, RigSceneSpec, check_rig_scene_size, simulate_rig,
-};
+use flatport::calib::simulate::{Cameras, MAX_SIMULATED_CORNERS, check_scene_size};
 use flatport::calib::{Board, CalibError, SceneSpec, Target, simulate};
 use flatport::io::{
-    IoError, Truth, read_rig, read_target, write_observations, write_rig, write_rig_observations,
-    write_truth,
+    IoError, Truth, read_rig, read_target, write_observations, write_rig,
+    write_stereo_observations, write_truth,
 };
 use flatport::model::{Ports, Rig};
 
@@ -117,14 +115,21 @@ fn simulate_stereo(rig: &Rig, args: &SimulateArgs) -> anyhow::Result<()> {
         args.cameras.as_ref().map(|(a, b)| (a.as_str(), b.as_str())),
         "--cameras",
     )?;
-    let mut spec = SceneSpec::new(args.board, args.views, args.noise, args.seed);
-    spec.max_board_tilt = args.max_board_tilt_deg.to_radians();
-    let scene = simulate(rig, pair[0], pair[1], &spec)?;
+    let mut spec = SceneSpec::pair(
+        Target::Board(args.board),
+        args.views,
+        args.noise,
+        args.seed,
+        pair[0],
+        pair[1],
+    );
+    spec.max_target_tilt = args.max_board_tilt_deg.to_radians();
+    let scene = simulate(rig, &spec)?;
     create_output(args)?;
-    write_observations(&args.output.join("observations.json"), &scene.observations)?;
+    write_stereo_observations(&args.output.join("observations.json"), &scene.observations)?;
     let truth = Truth {
         interface: rig.port_in_master(pair[0]),
-        master_from_board: scene.master_from_board,
+        master_from_board: scene.master_from_target,
         noise_px: args.noise,
         seed: args.seed,
         rig: Some(rig.clone()),
@@ -154,11 +159,11 @@ fn simulate_general(rig: &Rig, args: &SimulateArgs) -> anyhow::Result<()> {
         None => Target::Board(args.board),
     };
     if let Err(CalibError::Options(reason)) =
-        check_rig_scene_size(&target, rig.cameras().len(), args.views)
+        check_scene_size(&target, rig.cameras().len(), args.views)
     {
         bail!("--views {}: {reason}", args.views);
     }
-    let mut spec = RigSceneSpec::new(target.clone(), args.views, args.noise, args.seed);
+    let mut spec = SceneSpec::new(target.clone(), args.views, args.noise, args.seed);
     spec.max_target_tilt = args.max_board_tilt_deg.to_radians();
     if let Some(n) = args.min_cameras {
         let count = rig.cameras().len();
@@ -168,9 +173,12 @@ fn simulate_general(rig: &Rig, args: &SimulateArgs) -> anyhow::Result<()> {
                 args.rig.display()
             );
         }
-        spec.min_cameras = n;
+        spec.cameras = Cameras::Any {
+            required: vec![0],
+            min: n,
+        };
     }
-    let scene = simulate_rig(rig, &spec).map_err(|e| match (&args.target, &e) {
+    let scene = simulate(rig, &spec).map_err(|e| match (&args.target, &e) {
         // What is wrong with the target, located in its file.
         (Some(path), CalibError::BadBoard { reason }) => IoError::Invalid {
             path: path.clone(),
@@ -184,7 +192,7 @@ fn simulate_general(rig: &Rig, args: &SimulateArgs) -> anyhow::Result<()> {
         _ => anyhow::Error::new(e),
     })?;
     create_output(args)?;
-    write_rig_observations(&args.output.join("observations.json"), &scene.observations)?;
+    write_observations(&args.output.join("observations.json"), &scene.observations)?;
     let truth = Truth {
         interface: rig.port_in_master(0),
         master_from_board: scene.master_from_target.clone(),

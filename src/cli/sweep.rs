@@ -7,7 +7,7 @@ use anyhow::{Context, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use serde_json::json;
 
-use flatport::calib::methods::sweep::{
+use flatport::calib::sweep::{
     Linspace, MAX_SWEEP_CELLS, MinPool, Shard, SweepChunk, SweepMinimum, SweepSpec, SweepSummary,
     sweep, sweep_cells, too_many_cells,
 };

@@ -8,10 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use super::rig_json::interface_to_file;
 use super::{IoError, read_text, write_atomic};
-use crate::calib::methods::rig_calibrate::{Estimated, RigReport};
-use crate::calib::problem::rig_observations::{CameraKey, Image, RigObservations, RigView};
-use crate::calib::problem::target::Target;
-use crate::calib::{Board, CalibrationReport, Observations, StereoView};
+use crate::calib::{Board, CameraKey, Estimated, Image, Observations, Report, Target, View};
 use crate::model::{Interface, Rig};
 
 #[derive(Debug, Serialize, Deserialize)]
@@ -42,65 +39,64 @@ struct ObservationsFile {
     views: Vec<ViewFile>,
 }
 
-/// Parses observations from JSON text; `path` only labels errors. The values are checked against
-/// the rig later ([`Observations::validate`]); here only the shape: the board must have at least
-/// 2 × 2 corners and a positive square.
-pub fn observations_from_json_str(text: &str, path: &Path) -> Result<Observations, IoError> {
-    let file: ObservationsFile = super::rig_json::parse_json(text, path)?;
-    let board = Board {
-        rows: file.board.rows,
-        cols: file.board.cols,
-        square: file.board.square,
+/// Observations of two cameras in the stereo form, `{"board", "cameras"?: [A, B], "views":
+/// [{"left": [...], "right": [...]}]}`, one view per line, every value at full f64 precision: the
+/// first image of each view is `left`, the second `right`; `"cameras"` names them when
+/// `name_cameras`, or when they are not the rig cameras `left` and `right` (for which the stereo
+/// form is the general form itself). `None` unless the target is a board and every view holds
+/// exactly two images of the same two cameras.
+pub fn stereo_observations_to_json_string(
+    observations: &Observations,
+    name_cameras: bool,
+) -> Option<String> {
+    let Target::Board(board) = &observations.target else {
+        return None;
     };
-    let point = |c: &Option<[f64; 2]>| c.map(|[u, v]| Point2::new(u, v));
-    let views = file
+    let first = observations.views.first()?;
+    let [left, right] = first.images.as_slice() else {
+        return None;
+    };
+    let names = [left.key.as_str(), right.key.as_str()];
+    let same = |v: &View| {
+        v.images.len() == 2 && v.images[0].key == names[0] && v.images[1].key == names[1]
+    };
+    if !observations.views.iter().all(same) {
+        return None;
+    }
+    let views: Vec<[&[Option<Point2<f64>>]; 2]> = observations
         .views
         .iter()
-        .map(|v| StereoView {
-            left: v.left.iter().map(point).collect(),
-            right: v.right.iter().map(point).collect(),
+        .map(|v| {
+            [
+                v.images[0].corners.as_slice(),
+                v.images[1].corners.as_slice(),
+            ]
         })
         .collect();
-    let observations = Observations {
-        board,
-        views,
-        cameras: file.cameras,
-    };
-    if board.rows < 2 || board.cols < 2 || !(board.square > 0.0 && board.square.is_finite()) {
-        return Err(IoError::Invalid {
-            path: path.to_path_buf(),
-            field: "board".into(),
-            reason: format!(
-                "needs rows ≥ 2, cols ≥ 2 and a square > 0 m, got rows {}, cols {}, square {}",
-                board.rows, board.cols, board.square
-            ),
-        });
-    }
-    Ok(observations)
+    Some(stereo_form_text(board, names, &views, name_cameras))
 }
 
-/// Reads an observations file (`-` = standard input).
-pub fn read_observations(path: &Path) -> Result<Observations, IoError> {
-    observations_from_json_str(&read_text(path)?, path)
-}
-
-/// Observations as JSON, one view per block, every value at full f64 precision.
-pub fn observations_to_json_string(observations: &Observations) -> String {
-    let b = &observations.board;
+/// The stereo form's text of `views` of `board` by the cameras `names` (left, right); see
+/// [`stereo_observations_to_json_string`].
+pub fn stereo_form_text(
+    board: &Board,
+    names: [&str; 2],
+    views: &[[&[Option<Point2<f64>>]; 2]],
+    name_cameras: bool,
+) -> String {
     let corners = |c: &[Option<Point2<f64>>]| c.iter().map(|p| p.map(|p| [p.x, p.y])).collect();
     let file = ObservationsFile {
         board: BoardFile {
-            rows: b.rows,
-            cols: b.cols,
-            square: b.square,
+            rows: board.rows,
+            cols: board.cols,
+            square: board.square,
         },
-        cameras: observations.cameras.clone(),
-        views: observations
-            .views
+        cameras: (name_cameras || names != ["left", "right"]).then(|| names.map(str::to_string)),
+        views: views
             .iter()
-            .map(|v| ViewFile {
-                left: corners(&v.left),
-                right: corners(&v.right),
+            .map(|[left, right]| ViewFile {
+                left: corners(left),
+                right: corners(right),
             })
             .collect(),
     };
@@ -111,7 +107,16 @@ pub fn observations_to_json_string(observations: &Observations) -> String {
     text
 }
 
-/// Writes an observations file atomically.
+/// Writes observations atomically in the stereo form with `"cameras"`
+/// ([`stereo_observations_to_json_string`]); observations that are not two cameras' views of a
+/// board are written in the general form.
+pub fn write_stereo_observations(path: &Path, observations: &Observations) -> Result<(), IoError> {
+    let text = stereo_observations_to_json_string(observations, true)
+        .unwrap_or_else(|| observations_to_json_string(observations));
+    write_atomic(path, text.as_bytes())
+}
+
+/// Writes observations atomically in the general form ([`observations_to_json_string`]).
 pub fn write_observations(path: &Path, observations: &Observations) -> Result<(), IoError> {
     write_atomic(path, observations_to_json_string(observations).as_bytes())
 }
@@ -195,9 +200,11 @@ struct GeneralFile {
 }
 
 /// Parses observations in the general form (views keyed by rig camera names, a board or a 3-D
-/// target) or the stereo form (`left`/`right`, optional `"cameras": [A, B]`); `path` only labels
-/// errors. Camera names are checked against the rig later ([`RigObservations::resolve`]).
-pub fn rig_observations_from_json_str(text: &str, path: &Path) -> Result<RigObservations, IoError> {
+/// target) or the stereo form (every view holding `left` and `right`, optional `"cameras": [A,
+/// B]` naming their rig cameras, else rig cameras 0 and 1); `path` only labels errors. Camera
+/// names and corners are checked against the rig later
+/// ([`Observations::resolve`](crate::calib::Observations::resolve)).
+pub fn observations_from_json_str(text: &str, path: &Path) -> Result<Observations, IoError> {
     let file: GeneralFile = super::rig_json::parse_json(text, path)?;
     let invalid = |field: &str, reason: String| IoError::Invalid {
         path: path.to_path_buf(),
@@ -235,17 +242,28 @@ pub fn rig_observations_from_json_str(text: &str, path: &Path) -> Result<RigObse
         }
         (None, Some(t)) => target_from_file(t, "target.", path)?,
     };
-    let stereo = file.cameras.as_ref();
+    // The stereo form: "cameras" given, or every view holding exactly "left" and "right" of a
+    // board (then rig cameras 0 and 1, as the stereo form has always read them).
+    let stereo_form = file.cameras.is_some()
+        || (matches!(target, Target::Board(_))
+            && !file.views.is_empty()
+            && file.views.iter().all(|v| {
+                let mut keys: Vec<&str> = v.0.iter().map(|(k, _)| k.as_str()).collect();
+                keys.sort_unstable();
+                keys == ["left", "right"]
+            }));
     let mut views = Vec::with_capacity(file.views.len());
     for (v, view) in file.views.iter().enumerate() {
         let mut images = Vec::with_capacity(view.0.len());
         for (key, corners) in &view.0 {
-            let camera = match (stereo, key.as_str()) {
+            let camera = match (&file.cameras, key.as_str()) {
                 (Some(names), "left") => CameraKey::Name(names[0].clone()),
                 (Some(names), "right") => CameraKey::Name(names[1].clone()),
                 (Some(_), _) => {
                     return Err(invalid(&format!("views[{v}].{key}"), "with \"cameras\": [A, B] (the stereo form) a view holds only \"left\" and \"right\"".into()));
                 }
+                (None, "left") if stereo_form => CameraKey::Position(0),
+                (None, "right") if stereo_form => CameraKey::Position(1),
                 (None, name) => CameraKey::Name(name.to_string()),
             };
             let corners = corners
@@ -258,9 +276,17 @@ pub fn rig_observations_from_json_str(text: &str, path: &Path) -> Result<RigObse
                 corners,
             });
         }
-        views.push(RigView { images });
+        if stereo_form {
+            // Left before right, whatever the file's key order.
+            images.sort_by_key(|i| i.key != "left");
+        }
+        views.push(View { images });
     }
-    Ok(RigObservations { target, views })
+    Ok(Observations {
+        target,
+        views,
+        stereo_form,
+    })
 }
 
 /// A 3-D target's points, checked: finite, at least 4. `prefix` leads the JSON path in errors.
@@ -307,13 +333,13 @@ pub fn read_target(path: &Path) -> Result<Target, IoError> {
 }
 
 /// Reads an observations file in either form (`-` = standard input).
-pub fn read_rig_observations(path: &Path) -> Result<RigObservations, IoError> {
-    rig_observations_from_json_str(&read_text(path)?, path)
+pub fn read_observations(path: &Path) -> Result<Observations, IoError> {
+    observations_from_json_str(&read_text(path)?, path)
 }
 
 /// Observations in the general form, one view per line, every value at full f64 precision; each
 /// image under its key as given (a camera name).
-pub fn rig_observations_to_json_string(observations: &RigObservations) -> String {
+pub fn observations_to_json_string(observations: &Observations) -> String {
     let (board, target) = match &observations.target {
         Target::Board(b) => (
             Some(BoardFile {
@@ -363,14 +389,6 @@ pub fn rig_observations_to_json_string(observations: &RigObservations) -> String
     text
 }
 
-/// Writes observations in the general form atomically.
-pub fn write_rig_observations(path: &Path, observations: &RigObservations) -> Result<(), IoError> {
-    write_atomic(
-        path,
-        rig_observations_to_json_string(observations).as_bytes(),
-    )
-}
-
 #[derive(Debug, Serialize)]
 struct EstimatedFile {
     value: f64,
@@ -392,85 +410,10 @@ struct CameraReportFile<'a> {
     name: &'a str,
     views: usize,
     observations: usize,
-    rms_px: f64,
+    rms_px: Option<f64>,
+    inlier_rms_px: Option<f64>,
     rotation_std_deg: Option<[f64; 3]>,
     translation_std_m: Option<[f64; 3]>,
-}
-
-#[derive(Debug, Serialize)]
-struct RigReportFile<'a> {
-    method: &'a str,
-    estimate: String,
-    ports: Vec<PortReportFile<'a>>,
-    cameras: Vec<CameraReportFile<'a>>,
-    sigma_px: f64,
-    corner_noise_px: Option<f64>,
-    rms_px: f64,
-    fits: bool,
-    diagnosis: &'a [String],
-    warnings: &'a [String],
-    iterations: usize,
-    termination: &'a str,
-    seconds: f64,
-    views: usize,
-    observations: usize,
-    target_poses: Vec<PoseFile>,
-}
-
-/// A rig calibration's report as JSON: every port (`tilt_deg`, `azimuth_deg`, `distance`,
-/// `thicknesses`, each `{value, std}`), every camera (RMS, extrinsics σ), σ̂, fit and diagnosis.
-pub fn rig_report_to_json_string(report: &RigReport) -> String {
-    let degrees = |e: &Estimated| EstimatedFile {
-        value: e.value.to_degrees(),
-        std: e.std.map(f64::to_degrees),
-    };
-    let plain = |e: &Estimated| EstimatedFile {
-        value: e.value,
-        std: e.std,
-    };
-    let file = RigReportFile {
-        method: &report.method,
-        estimate: report.estimate.name(),
-        ports: report
-            .ports
-            .iter()
-            .map(|p| PortReportFile {
-                name: &p.name,
-                normal: p.normal,
-                tilt_deg: degrees(&p.tilt),
-                azimuth_deg: degrees(&p.azimuth),
-                distance: plain(&p.distance),
-                thicknesses: p.thicknesses.iter().map(plain).collect(),
-            })
-            .collect(),
-        cameras: report
-            .cameras
-            .iter()
-            .map(|c| CameraReportFile {
-                name: &c.name,
-                views: c.views,
-                observations: c.observations,
-                rms_px: c.rms_px,
-                rotation_std_deg: c.extrinsics_std.map(|(r, _)| r.map(f64::to_degrees)),
-                translation_std_m: c.extrinsics_std.map(|(_, t)| t),
-            })
-            .collect(),
-        sigma_px: report.sigma_px,
-        corner_noise_px: report.corner_noise_px,
-        rms_px: report.rms_px,
-        fits: report.fits,
-        diagnosis: &report.diagnosis,
-        warnings: &report.warnings,
-        iterations: report.iterations,
-        termination: &report.termination,
-        seconds: report.seconds,
-        views: report.views,
-        observations: report.observations,
-        target_poses: report.poses.iter().map(pose_to_file).collect(),
-    };
-    let mut text = serde_json::to_string_pretty(&file).expect("plain data always serialises");
-    text.push('\n');
-    text
 }
 
 /// A board pose in a file: X_master = R·X_board + t, R as rows.
@@ -593,17 +536,17 @@ pub fn read_truth(path: &Path) -> Result<Truth, IoError> {
 
 #[derive(Debug, Serialize)]
 struct StdFile {
-    tilt_deg: f64,
-    azimuth_deg: f64,
-    air_distance: f64,
+    tilt_deg: Option<f64>,
+    azimuth_deg: Option<f64>,
+    air_distance: Option<f64>,
 }
 
 #[derive(Debug, Serialize)]
 struct StageFile<'a> {
     name: &'a str,
-    tilt_deg: f64,
-    azimuth_deg: f64,
-    air_distance: f64,
+    tilt_deg: Option<f64>,
+    azimuth_deg: Option<f64>,
+    air_distance: Option<f64>,
     cost: f64,
     unit: &'a str,
     iterations: usize,
@@ -623,75 +566,143 @@ struct OutlierFile<'a> {
 #[derive(Debug, Serialize)]
 struct ReportFile<'a> {
     method: &'a str,
+    strategy: &'a str,
+    estimate: String,
     normal: [f64; 3],
     tilt_deg: f64,
     azimuth_deg: f64,
     air_distance: f64,
     std: Option<StdFile>,
+    ports: Vec<PortReportFile<'a>>,
+    cameras: Vec<CameraReportFile<'a>>,
     sigma_px: Option<f64>,
-    rms_px: [f64; 2],
-    rms_px_per_view: &'a [[f64; 2]],
-    scene_rms_m: f64,
-    square_deviation_rms_m: f64,
+    noise_px: Option<f64>,
+    rms_px: Vec<f64>,
+    rms_px_all: f64,
+    inlier_rms_px: Vec<f64>,
+    rms_px_per_view: Vec<Vec<f64>>,
+    scene_cameras: Option<&'a [String; 2]>,
+    scene_rms_m: Option<f64>,
+    square_deviation_rms_m: Option<f64>,
     views: usize,
     corners: usize,
+    observations: usize,
     iterations: usize,
     termination: &'a str,
     seconds: f64,
     backend: &'a str,
-    warnings: &'a [String],
     fits: bool,
-    inlier_rms_px: [f64; 2],
-    noise_px: Option<f64>,
+    warnings: &'a [String],
     diagnosis: &'a [String],
     outliers: Vec<OutlierFile<'a>>,
     stages: Vec<StageFile<'a>>,
-    board_poses: Vec<PoseFile>,
+    target_poses: Vec<PoseFile>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    board_poses: Option<Vec<PoseFile>>,
 }
 
-/// The calibration report as JSON: `normal`, `tilt_deg`, `azimuth_deg`, `air_distance` (m), `std`
-/// {tilt_deg, azimuth_deg, air_distance} (null for the consecutive method), `sigma_px`, `rms_px`
-/// [left, right], `rms_px_per_view`, `scene_rms_m`, `square_deviation_rms_m`, `iterations`,
-/// `termination`, `seconds`, `warnings`, `fits` (the RMS without the outliers is within
-/// `--max-rms-px`), `inlier_rms_px` [left, right], `noise_px` (corner noise seen in the images),
-/// `diagnosis` (what the data look like, when they do not fit), `outliers` [{view, image (`left`
-/// or `right`), camera (rig name), corner, residual_px, screened}], `stages`, `board_poses`.
-pub fn report_to_json_string(report: &CalibrationReport) -> String {
-    let c = &report.candidate;
-    let n = c.normal;
+/// A calibration report as JSON, one schema for every rig:
+/// - `method` (`consecutive`, `simultaneous`, `auto`), `strategy` (what ran, in words),
+///   `estimate` (as `--estimate` takes it), `backend`;
+/// - the first port (the shared one, or the master's own, in its frame): `normal`, `tilt_deg`,
+///   `azimuth_deg`, `air_distance` (m), `std` {tilt_deg, azimuth_deg, air_distance} (null
+///   without a maximum-likelihood fit);
+/// - `ports` [{name, normal, tilt_deg, azimuth_deg, distance, thicknesses}, each value
+///   `{value, std}`], `cameras` [{name, views, observations, rms_px, inlier_rms_px,
+///   rotation_std_deg, translation_std_m}];
+/// - `sigma_px` (σ̂ of the fit), `noise_px` (corner noise seen in the images), `rms_px` and
+///   `inlier_rms_px` per camera (rig order), `rms_px_all` over every corner image,
+///   `rms_px_per_view` [view][camera] (null where a camera did not see a view);
+/// - `scene_cameras`, `scene_rms_m`, `square_deviation_rms_m`: the 3-D errors of one pair's
+///   triangulated corners (null without a pair and a board);
+/// - `views`, `corners`, `observations`, `iterations`, `termination`, `seconds`, `fits`,
+///   `warnings`, `diagnosis`, `outliers` [{view, image, camera, corner, residual_px, screened}],
+///   `stages` [{name, tilt_deg, azimuth_deg, air_distance, cost, unit, iterations, seconds}],
+///   `target_poses` [{rotation (rows), translation}] with X_master = R·X_target + t, and for a
+///   board the same list as `board_poses` (the name the stereo reports gave it).
+pub fn report_to_json_string(report: &Report) -> String {
+    let degrees = |e: &Estimated| EstimatedFile {
+        value: e.value.to_degrees(),
+        std: e.std.map(f64::to_degrees),
+    };
+    let plain = |e: &Estimated| EstimatedFile {
+        value: e.value,
+        std: e.std,
+    };
+    let port = report.port();
+    let finite = |v: f64| v.is_finite().then_some(v);
+    let fit = report.sigma_px.is_some();
     let file = ReportFile {
         method: report.method.name(),
-        normal: [n.x, n.y, n.z],
-        tilt_deg: c.tilt().to_degrees(),
-        azimuth_deg: c.azimuth().to_degrees(),
-        air_distance: c.air_distance,
-        std: report.std.map(|[t, a, d]| StdFile {
-            tilt_deg: t.to_degrees(),
-            azimuth_deg: a.to_degrees(),
-            air_distance: d,
+        strategy: &report.strategy,
+        estimate: report.estimate.name(),
+        normal: port.normal,
+        tilt_deg: port.tilt.value.to_degrees(),
+        azimuth_deg: port.azimuth.value.to_degrees(),
+        air_distance: port.distance.value,
+        std: fit.then(|| StdFile {
+            tilt_deg: port.tilt.std.map(f64::to_degrees),
+            azimuth_deg: port.azimuth.std.map(f64::to_degrees),
+            air_distance: port.distance.std,
         }),
+        ports: report
+            .ports
+            .iter()
+            .map(|p| PortReportFile {
+                name: &p.name,
+                normal: p.normal,
+                tilt_deg: degrees(&p.tilt),
+                azimuth_deg: degrees(&p.azimuth),
+                distance: plain(&p.distance),
+                thicknesses: p.thicknesses.iter().map(plain).collect(),
+            })
+            .collect(),
+        cameras: report
+            .cameras
+            .iter()
+            .map(|c| CameraReportFile {
+                name: &c.name,
+                views: c.views,
+                observations: c.observations,
+                rms_px: finite(c.rms_px),
+                inlier_rms_px: finite(c.inlier_rms_px),
+                rotation_std_deg: c.extrinsics_std.map(|(r, _)| r.map(f64::to_degrees)),
+                translation_std_m: c.extrinsics_std.map(|(_, t)| t),
+            })
+            .collect(),
         sigma_px: report.sigma_px,
-        rms_px: report.rms_px,
-        rms_px_per_view: &report.rms_px_per_view,
-        scene_rms_m: report.scene_rms_m,
-        square_deviation_rms_m: report.square_deviation_rms_m,
+        noise_px: report.noise_px,
+        rms_px: report.cameras.iter().map(|c| c.rms_px).collect(),
+        rms_px_all: report.rms_px,
+        inlier_rms_px: report.cameras.iter().map(|c| c.inlier_rms_px).collect(),
+        rms_px_per_view: (0..report.views)
+            .map(|v| {
+                report
+                    .cameras
+                    .iter()
+                    .map(|c| c.rms_px_per_view.get(v).copied().unwrap_or(f64::NAN))
+                    .collect()
+            })
+            .collect(),
+        scene_cameras: report.scene.as_ref().map(|s| &s.cameras),
+        scene_rms_m: report.scene.as_ref().map(|s| s.rms_m),
+        square_deviation_rms_m: report.scene.as_ref().map(|s| s.square_deviation_rms_m),
         views: report.views,
         corners: report.corners,
+        observations: report.observations,
         iterations: report.iterations,
         termination: &report.termination,
         seconds: report.seconds,
         backend: &report.backend,
-        warnings: &report.warnings,
         fits: report.fits,
-        inlier_rms_px: report.inlier_rms_px,
-        noise_px: report.noise_px,
+        warnings: &report.warnings,
         diagnosis: &report.diagnosis,
         outliers: report
-            .outlier_images
+            .outliers
             .iter()
             .map(|o| OutlierFile {
                 view: o.view,
-                image: o.side.name(),
+                image: &o.image,
                 camera: &o.camera,
                 corner: o.corner,
                 residual_px: o.residual_px,
@@ -703,25 +714,28 @@ pub fn report_to_json_string(report: &CalibrationReport) -> String {
             .iter()
             .map(|s| StageFile {
                 name: &s.name,
-                tilt_deg: s.candidate.tilt().to_degrees(),
-                azimuth_deg: s.candidate.azimuth().to_degrees(),
-                air_distance: s.candidate.air_distance,
+                tilt_deg: s.port.map(|c| c.tilt().to_degrees()),
+                azimuth_deg: s.port.map(|c| c.azimuth().to_degrees()),
+                air_distance: s.port.map(|c| c.air_distance),
                 cost: s.cost,
                 unit: s.unit,
                 iterations: s.iterations,
                 seconds: s.seconds,
             })
             .collect(),
-        board_poses: report.poses.iter().map(pose_to_file).collect(),
+        target_poses: report.poses.iter().map(pose_to_file).collect(),
+        board_poses: report
+            .board
+            .then(|| report.poses.iter().map(pose_to_file).collect()),
     };
-    // serde_json writes non-finite floats as null, which is what a reader should see.
+    // NaN (a camera that saw no view) is written as null.
     let mut text = serde_json::to_string_pretty(&file).expect("plain data always serialises");
     text.push('\n');
     text
 }
 
 /// Writes a calibration report atomically.
-pub fn write_report(path: &Path, report: &CalibrationReport) -> Result<(), IoError> {
+pub fn write_report(path: &Path, report: &Report) -> Result<(), IoError> {
     write_atomic(path, report_to_json_string(report).as_bytes())
 }
 
@@ -735,15 +749,22 @@ mod tests {
             "views": [{"left": [[1, 2], null, [3.5, 4], [5, 6], [7, 8], [9, 10]],
                        "right": [[1, 2], null, [3, 4], [5, 6], [7, 8], [9, 10.25]]}]}"#;
         let observations = observations_from_json_str(text, "obs.json".as_ref()).unwrap();
-        assert_eq!(observations.views[0].left[1], None);
+        assert!(observations.stereo_form);
+        assert_eq!(observations.views[0].images[0].corners[1], None);
         assert_eq!(
-            observations.views[0].right[5],
+            observations.views[0].images[1].corners[5],
             Some(Point2::new(9.0, 10.25))
         );
-        let again =
-            observations_from_json_str(&observations_to_json_string(&observations), "x".as_ref())
-                .unwrap();
+        let stereo = stereo_observations_to_json_string(&observations, true).unwrap();
+        let again = observations_from_json_str(&stereo, "x".as_ref()).unwrap();
         assert_eq!(again, observations);
+        // Without "cameras" the stereo form is rig cameras 0 and 1.
+        let positional = observations_from_json_str(
+            &stereo_observations_to_json_string(&observations, false).unwrap(),
+            "x".as_ref(),
+        )
+        .unwrap();
+        assert_eq!(positional.views[0].images[1].camera, CameraKey::Position(1));
 
         let typo = text.replace("\"square\"", "\"sqare\"");
         let error = observations_from_json_str(&typo, "obs.json".as_ref())
@@ -768,8 +789,8 @@ mod tests {
         );
     }
 
-    fn parse_general(text: &str) -> Result<RigObservations, IoError> {
-        rig_observations_from_json_str(text, Path::new("obs.json"))
+    fn parse_general(text: &str) -> Result<Observations, IoError> {
+        observations_from_json_str(text, Path::new("obs.json"))
     }
 
     #[test]
@@ -791,7 +812,7 @@ mod tests {
             Some(Point2::new(3.0, 4.0))
         );
         assert_eq!(
-            parse_general(&rig_observations_to_json_string(&observations)).unwrap(),
+            parse_general(&observations_to_json_string(&observations)).unwrap(),
             observations
         );
         // The stereo form with "cameras" maps left/right onto the names.

@@ -4,20 +4,20 @@
 //!
 //! The general form (docs/DESIGN.md §3b) is `{"board": {rows, cols, square}, "views": [{CAMERA:
 //! [[u, v] | null, …], …}, …]}`, keys the rig's camera names, a camera that did not see a view
-//! absent from it. Today's reader ([`observations_from_json_str`](super::observations_from_json_str))
-//! takes the stereo form: keys `left` and `right` in every view, `"cameras": [A, B]` naming the
-//! rig cameras when they are not called `left` and `right`. So for two cameras this writes the
-//! stereo form, which for cameras named `left` and `right` is the general form itself, and leaves
-//! out the views only one camera saw (returned, for the caller to report); for any other number
-//! of cameras it writes the general form.
+//! absent from it. For two cameras it writes the stereo form (keys `left` and `right` in every
+//! view, `"cameras": [A, B]` naming the rig cameras when they are not called `left` and `right`;
+//! the form tools written for the thesis' stereo pipeline read, and for cameras named `left` and
+//! `right` the general form itself) and leaves out the views only one camera saw (returned, for
+//! the caller to report); for any other number of cameras it writes the general form.
 
 use std::path::Path;
 
 use nalgebra::Point2;
 use serde_json::{Map, Value, json};
 
-use super::{IoError, observations_to_json_string, write_atomic};
-use crate::calib::{Board, Observations, StereoView};
+use super::calib_json::stereo_form_text;
+use super::{IoError, write_atomic};
+use crate::calib::Board;
 
 /// Corners of one view: per camera (in the order of the camera names), the camera's corners
 /// (row-major, `rows · cols`) or `None` when it did not see the board.
@@ -33,22 +33,18 @@ pub fn detections_to_json_string(
         let mut left_out = Vec::new();
         let mut stereo = Vec::new();
         for (v, view) in views.iter().enumerate() {
-            let point = |c: &Vec<Point2<f64>>| c.iter().map(|p| Some(*p)).collect();
+            let corners = |c: &Vec<Point2<f64>>| c.iter().map(|p| Some(*p)).collect::<Vec<_>>();
             match (&view[0], &view[1]) {
-                (Some(l), Some(r)) => stereo.push(StereoView {
-                    left: point(l),
-                    right: point(r),
-                }),
+                (Some(l), Some(r)) => stereo.push([corners(l), corners(r)]),
                 _ => left_out.push(v),
             }
         }
-        let named = a == "left" && b == "right";
-        let observations = Observations {
-            board: *board,
-            views: stereo,
-            cameras: (!named).then(|| [a.clone(), b.clone()]),
-        };
-        return (observations_to_json_string(&observations), left_out);
+        let borrowed: Vec<[&[Option<Point2<f64>>]; 2]> = stereo
+            .iter()
+            .map(|[l, r]| [l.as_slice(), r.as_slice()])
+            .collect();
+        let text = stereo_form_text(board, [a.as_str(), b.as_str()], &borrowed, false);
+        return (text, left_out);
     }
     let mut text = format!(
         "{{\"board\": {},\n \"views\": [",
@@ -89,7 +85,7 @@ mod tests {
     use crate::io::observations_from_json_str;
 
     #[test]
-    fn two_cameras_write_what_todays_reader_reads_and_leave_out_one_sided_views() {
+    fn two_cameras_write_the_stereo_form_and_leave_out_one_sided_views() {
         let board = Board {
             rows: 2,
             cols: 2,
@@ -113,12 +109,21 @@ mod tests {
         assert!(!text.contains("cameras"), "{text}");
         let read = observations_from_json_str(&text, "x".as_ref()).unwrap();
         assert_eq!(read.views.len(), 2);
-        assert_eq!(read.views[1].right[3], Some(Point2::new(10.5, 6.0)));
+        assert_eq!(read.views[1].images[1].key, "right");
+        assert_eq!(
+            read.views[1].images[1].corners[3],
+            Some(Point2::new(10.5, 6.0))
+        );
+        assert!(read.stereo_form);
 
         let names = ["port".to_string(), "starboard".to_string()];
         let (text, _) = detections_to_json_string(&board, &names, &views);
+        assert!(text.contains(r#""cameras":["port","starboard"]"#), "{text}");
         let read = observations_from_json_str(&text, "x".as_ref()).unwrap();
-        assert_eq!(read.cameras, Some(names.clone()));
+        assert_eq!(
+            read.views[0].images[0].camera,
+            crate::calib::CameraKey::Name("port".into())
+        );
     }
 
     #[test]

@@ -20,10 +20,9 @@ pub use self::image::{
     image_size, read_grey_image, write_grey_png, write_grey16_png, write_rgb_jpeg,
 };
 pub use calib_json::{
-    Truth, observations_from_json_str, observations_to_json_string, read_observations,
-    read_rig_observations, read_target, read_truth, report_to_json_string,
-    rig_observations_from_json_str, rig_observations_to_json_string, rig_report_to_json_string,
-    target_from_json_str, write_observations, write_report, write_rig_observations, write_truth,
+    Truth, observations_from_json_str, observations_to_json_string, read_observations, read_target,
+    read_truth, report_to_json_string, stereo_observations_to_json_string, target_from_json_str,
+    write_observations, write_report, write_stereo_observations, write_truth,
 };
 pub use detections::{DetectedView, detections_to_json_string, write_detections};
 pub use error::IoError;

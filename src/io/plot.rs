@@ -751,12 +751,12 @@ pub fn write_polar(path: &Path, map: &CostMap) -> Result<(), IoError> {
             let plain = area.strip_coord_spec();
             for py in ys.clone() {
                 for px in xs.clone() {
-                    if let Some((x, y)) = chart.as_coord_spec().reverse_translate((px, py)) {
-                        if on_line(x, y) {
-                            plain
-                                .draw_pixel((px - xs.start, py - ys.start), &line)
-                                .map_err(draw_error)?;
-                        }
+                    if let Some((x, y)) = chart.as_coord_spec().reverse_translate((px, py))
+                        && on_line(x, y)
+                    {
+                        plain
+                            .draw_pixel((px - xs.start, py - ys.start), &line)
+                            .map_err(draw_error)?;
                     }
                 }
             }

@@ -353,7 +353,7 @@ pub fn affine_grid_cost(data: &StereoData, rows: &[[f64; ROW]], normal: &[f64; 3
 mod tests {
     use super::*;
     use crate::calib::costs::invariants::{affine_grid, projected_vops};
-    use crate::calib::{Board, SceneSpec, simulate};
+    use crate::calib::{Board, SceneSpec, Target, simulate};
     use crate::model::normal_from_tilt_azimuth;
 
     /// Without the taper the fused χ² equals the explicit weighted fit of
@@ -367,23 +367,13 @@ mod tests {
             "example".as_ref(),
         )
         .unwrap();
-        let scene = simulate(
-            &rig,
-            0,
-            1,
-            &SceneSpec::new(
-                Board {
-                    rows: 6,
-                    cols: 9,
-                    square: 0.04,
-                },
-                6,
-                0.2,
-                3,
-            ),
-        )
-        .unwrap();
-        let data = StereoData::new(&rig, [0, 1], &scene.observations).unwrap();
+        let board = Target::Board(Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        });
+        let scene = simulate(&rig, &SceneSpec::pair(board, 6, 0.2, 3, 0, 1)).unwrap();
+        let data = StereoData::from_observations(&rig, [0, 1], &scene.observations).unwrap();
         let mut worst: f64 = 0.0;
         for (tilt, azimuth) in [
             (8.05, 45.0),

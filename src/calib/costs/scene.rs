@@ -355,13 +355,13 @@ mod tests {
 
     /// Six simulated views of a 9×6 board behind `rig` (cameras 0 and 1), with their rows.
     fn simulated(rig: &crate::model::Rig) -> (StereoData, SceneRows) {
-        let board = Board {
+        let board = crate::calib::Target::Board(Board {
             rows: 6,
             cols: 9,
             square: 0.04,
-        };
-        let scene = simulate(rig, 0, 1, &SceneSpec::new(board, 6, 0.1, 5)).unwrap();
-        let data = StereoData::new(rig, [0, 1], &scene.observations).unwrap();
+        });
+        let scene = simulate(rig, &SceneSpec::pair(board, 6, 0.1, 5, 0, 1)).unwrap();
+        let data = StereoData::from_observations(rig, [0, 1], &scene.observations).unwrap();
         let prepared = SceneRows::new(&data);
         (data, prepared)
     }

@@ -1,13 +1,14 @@
-//! Observations prepared for cost evaluation: the air rays of every corner seen in both images,
-//! which do not depend on the interface, computed once.
+//! Observations of a camera pair prepared for cost evaluation: the air rays of every corner seen
+//! in both images, which do not depend on the port, computed once; and the candidate port poses
+//! the costs are evaluated at.
 
 use std::ops::Range;
 
 use nalgebra::{Matrix3x2, Point2, Unit, Vector3};
 
-use crate::calib::error::{CalibError, Side};
+use crate::calib::error::CalibError;
 use crate::calib::problem::board::Board;
-use crate::calib::problem::observations::Observations;
+use crate::calib::problem::observations::{MIN_VIEW_CORNERS, SeenView, pair_views};
 use crate::model::{Interface, Ports, RefractiveCamera, Rig};
 
 /// A candidate interface pose: system axis and air layer (master frame); the layers and indices
@@ -40,14 +41,15 @@ impl Candidate {
     }
 }
 
-/// One board corner seen in both images.
+/// One board corner seen in both images of a pair.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Corner {
-    /// 0-based view.
+    /// 0-based view of the pair ([`StereoData::views`]; [`StereoData::view_numbers`] gives the
+    /// observations' number).
     pub view: usize,
     /// Corner index on the board (row-major).
     pub index: usize,
-    /// Observed raw pixel in the left and the right image.
+    /// Observed raw pixel in the first and the second camera's image.
     pub pixels: [Point2<f64>; 2],
     /// Unit air direction from each camera centre, master frame (undistorted).
     pub dirs: [Unit<Vector3<f64>>; 2],
@@ -55,53 +57,60 @@ pub struct Corner {
     pub dir_jacobians: [Matrix3x2<f64>; 2],
 }
 
-/// Stereo observations and the rig they were taken with, ready for batch cost evaluation.
+/// The observations of one pair of rig cameras and the rig they were taken with, ready for batch
+/// cost evaluation by the pair costs ([`costs`](crate::calib::costs)): every corner both cameras
+/// saw, with its air rays, which do not depend on the port.
 #[derive(Debug, Clone)]
 pub struct StereoData {
-    /// The rig (its interface is the start guess; layers and indices are known values).
+    /// The rig (its ports are the start guess; layers and indices are known values).
     pub rig: Rig,
-    /// Rig indices of the left and the right camera.
+    /// Rig indices of the first and the second camera of the pair.
     pub cameras: [usize; 2],
     /// The board.
     pub board: Board,
     /// Every corner seen in both images, view by view.
     pub corners: Vec<Corner>,
-    /// `corners[views[v].clone()]` are the corners of view v.
+    /// `corners[views[v].clone()]` are the corners of the pair's view v.
     pub views: Vec<Range<usize>>,
+    /// The observations' number of each of the pair's views (views that one of the two cameras
+    /// did not see, or that hold fewer than [`MIN_VIEW_CORNERS`] corners both saw, are not the
+    /// pair's).
+    pub view_numbers: Vec<usize>,
 }
 
 /// Pixel step of the central differences for ∂dir/∂pixel (error ~1e-12 relative).
 const PIXEL_STEP: f64 = 1e-3;
 
 impl StereoData {
-    /// Prepares `observations` (already validated) taken by cameras `cameras` of `rig`.
+    /// The corners both cameras `cameras` of `rig` saw in `seen` (observations of `board`
+    /// resolved against `rig`, [`Observations::resolve`](crate::calib::Observations::resolve)),
+    /// prepared.
     ///
     /// Errors: a corner that the lens model cannot undistort (beyond the fold of the radial
-    /// distortion), named by view, image and corner.
+    /// distortion), named by view, camera and corner.
     pub fn new(
         rig: &Rig,
         cameras: [usize; 2],
-        observations: &Observations,
+        board: &Board,
+        seen: &[SeenView],
     ) -> Result<Self, CalibError> {
         let refractive = cameras.map(|k| rig.refractive_camera(k));
-        let mut corners = Vec::with_capacity(observations.matched_corners());
-        let mut views = Vec::with_capacity(observations.views.len());
-        for (v, view) in observations.views.iter().enumerate() {
+        let pairs = pair_views(seen, cameras[0], cameras[1]);
+        let mut corners = Vec::with_capacity(pairs.iter().map(|(_, c)| c.len()).sum());
+        let mut views = Vec::with_capacity(pairs.len());
+        let mut view_numbers = Vec::with_capacity(pairs.len());
+        for (pair_view, (v, matched)) in pairs.into_iter().enumerate() {
             let start = corners.len();
-            for i in view.matched() {
-                let pixels = [
-                    view.left[i].expect("matched"),
-                    view.right[i].expect("matched"),
-                ];
+            for (i, pixels) in matched {
                 let mut dirs = [Unit::new_unchecked(Vector3::z()); 2];
                 let mut dir_jacobians = [Matrix3x2::zeros(); 2];
-                for (k, side) in [Side::Left, Side::Right].into_iter().enumerate() {
+                for k in 0..2 {
                     let camera = &refractive[k];
                     let unusable = || CalibError::UnusableView {
                         view: v,
                         reason: format!(
-                            "{} corner {i} at ({}, {}) px lies beyond the lens model's one-to-one region (check the distortion coefficients)",
-                            side.name(),
+                            "camera '{}' corner {i} at ({}, {}) px lies beyond the lens model's one-to-one region (check the distortion coefficients)",
+                            rig.cameras()[cameras[k]].name,
                             pixels[k].x,
                             pixels[k].y
                         ),
@@ -121,7 +130,7 @@ impl StereoData {
                     }
                 }
                 corners.push(Corner {
-                    view: v,
+                    view: pair_view,
                     index: i,
                     pixels,
                     dirs,
@@ -129,13 +138,68 @@ impl StereoData {
                 });
             }
             views.push(start..corners.len());
+            view_numbers.push(v);
         }
         Ok(Self {
             rig: rig.clone(),
             cameras,
-            board: observations.board,
+            board: *board,
             corners,
             views,
+            view_numbers,
+        })
+    }
+
+    /// [`StereoData::new`] from observations of a board not yet resolved against `rig`
+    /// ([`Observations::resolve`](crate::calib::Observations::resolve) runs here).
+    ///
+    /// Errors: observations that do not fit `rig` or a target that is not a board.
+    pub fn from_observations(
+        rig: &Rig,
+        cameras: [usize; 2],
+        observations: &crate::calib::Observations,
+    ) -> Result<Self, CalibError> {
+        let Some(board) = observations.target.board() else {
+            return Err(CalibError::BadBoard {
+                reason: "the pair costs need a board, not a 3-D target".into(),
+            });
+        };
+        let seen = observations.resolve(rig)?;
+        Self::new(rig, cameras, board, &seen)
+    }
+
+    /// The same pair with only the corners `keep` accepts (by position in
+    /// [`corners`](Self::corners)); a view left with fewer than [`MIN_VIEW_CORNERS`] corners is
+    /// dropped. `None` when no view is left.
+    pub fn keeping(&self, keep: impl Fn(usize) -> bool) -> Option<Self> {
+        let mut corners = Vec::with_capacity(self.corners.len());
+        let mut views = Vec::with_capacity(self.views.len());
+        let mut view_numbers = Vec::with_capacity(self.views.len());
+        for (range, &number) in self.views.iter().zip(&self.view_numbers) {
+            let kept: Vec<Corner> = range
+                .clone()
+                .filter(|&j| keep(j))
+                .map(|j| self.corners[j])
+                .collect();
+            if kept.len() < MIN_VIEW_CORNERS {
+                continue;
+            }
+            let start = corners.len();
+            let pair_view = views.len();
+            corners.extend(kept.into_iter().map(|c| Corner {
+                view: pair_view,
+                ..c
+            }));
+            views.push(start..corners.len());
+            view_numbers.push(number);
+        }
+        (!views.is_empty()).then(|| Self {
+            rig: self.rig.clone(),
+            cameras: self.cameras,
+            board: self.board,
+            corners,
+            views,
+            view_numbers,
         })
     }
 

@@ -1,49 +1,91 @@
-//! Stereo observations of a planar board: for each view, the corners found in both images.
+//! Observations (DESIGN.md §3b): views of a board or a 3-D target, each view holding the corners
+//! that each rig camera saw. One camera, two or N are the same data; the stereo form of the file
+//! (`left`/`right`, optional `"cameras": [A, B]`) is read as the two-camera case.
+//!
+//! [`Observations::resolve`] checks the values against a rig and gives each view as the
+//! corners each camera saw ([`SeenView`]); [`Observations::check`] looks at the views as a whole:
+//! boards seen edge-on or very obliquely, views that repeat another, views of one board pose.
 
 use nalgebra::{Matrix2, Point2, Vector2};
 
-use crate::calib::error::{CalibError, Side};
+use crate::calib::error::CalibError;
 use crate::calib::problem::board::Board;
-use crate::model::PinholeCamera;
+use crate::calib::problem::target::Target;
+use crate::model::Rig;
 
-/// One stereo view: corner `i` (row-major) in the left and the right image, raw (distorted)
-/// pixels; `None` where the corner was not detected (in both images).
+/// Which rig camera took an image.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CameraKey {
+    /// A rig camera's name (the general form's key, or the stereo form's `"cameras"`).
+    Name(String),
+    /// The stereo form without `"cameras"`: `left` is rig camera 0, `right` rig camera 1.
+    Position(usize),
+}
+
+/// The corners one camera saw in one view, in target order (`None`: not detected).
 #[derive(Debug, Clone, PartialEq)]
-pub struct StereoView {
-    /// Corners in the left (first) camera's image.
-    pub left: Vec<Option<Point2<f64>>>,
-    /// Corners in the right (second) camera's image.
-    pub right: Vec<Option<Point2<f64>>>,
+pub struct Image {
+    /// The camera.
+    pub camera: CameraKey,
+    /// The key as the file spells it (`left`, or a camera name), for messages and file paths.
+    pub key: String,
+    /// One entry per target corner.
+    pub corners: Vec<Option<Point2<f64>>>,
 }
 
-impl StereoView {
-    /// Indices of the corners seen in both images.
-    pub fn matched(&self) -> impl Iterator<Item = usize> + '_ {
-        (0..self.left.len())
-            .filter(|&i| self.left[i].is_some() && self.right.get(i).is_some_and(|c| c.is_some()))
-    }
-
-    /// The corners of one image.
-    pub fn side(&self, side: Side) -> &[Option<Point2<f64>>] {
-        match side {
-            Side::Left => &self.left,
-            Side::Right => &self.right,
-        }
-    }
+/// One view: the images of the cameras that saw it.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct View {
+    /// The images, in file order.
+    pub images: Vec<Image>,
 }
 
-/// Stereo views of one board, as in the observations file.
+/// Views of one target by the cameras of a rig.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Observations {
-    /// The board.
-    pub board: Board,
+    /// The target.
+    pub target: Target,
     /// The views, in file order.
-    pub views: Vec<StereoView>,
-    /// Names of the rig cameras that took the left and right images (default: the first two).
-    pub cameras: Option<[String; 2]>,
+    pub views: Vec<View>,
+    /// Read from the stereo form, whose contract is that a corner not detected is null in both
+    /// images ([`CalibError::CornerInOneImage`] otherwise).
+    pub stereo_form: bool,
 }
 
-/// Fewest corners seen in both images for a view to take part.
+/// The corners one camera saw in one view: (target index, raw pixel), in target order.
+pub type ImageCorners = Vec<(usize, Point2<f64>)>;
+
+/// The corners two cameras both saw in one view: (target index, [pixel in the first, in the
+/// second]), in target order.
+pub type PairCorners = Vec<(usize, [Point2<f64>; 2])>;
+
+/// One view resolved against a rig: per camera that saw it, its rig index and the corners it saw
+/// as (target index, raw pixel).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SeenView {
+    /// (rig camera, corners), cameras in rig order.
+    pub cameras: Vec<(usize, ImageCorners)>,
+    /// The file key of each image (`left`, or a camera name), as `cameras`.
+    pub keys: Vec<String>,
+}
+
+impl SeenView {
+    /// Corners seen in this view, all cameras together.
+    pub fn observations(&self) -> usize {
+        self.cameras.iter().map(|(_, c)| c.len()).sum()
+    }
+
+    /// The corners camera `k` saw in this view, if it saw it.
+    pub fn corners_of(&self, k: usize) -> Option<&[(usize, Point2<f64>)]> {
+        self.cameras
+            .iter()
+            .find(|(c, _)| *c == k)
+            .map(|(_, corners)| corners.as_slice())
+    }
+}
+
+/// Fewest corners an image must hold to take part (and, for a pair's costs, fewest corners seen
+/// in both images of a view).
 pub const MIN_VIEW_CORNERS: usize = 6;
 
 /// Smallest ratio of the singular values of the board-to-image affine map (normalised by the
@@ -62,18 +104,248 @@ pub const REPEAT_PX: f64 = 0.01;
 /// by less than about a millimetre at half a metre, which adds no pose to the calibration.
 pub const SAME_POSE_PX: f64 = 1.0;
 
-/// The corners of one view for comparison: (board index, [left, right] pixel), in index order.
-pub type ViewCorners = Vec<(usize, [Point2<f64>; 2])>;
+impl Observations {
+    /// Observations of `target` without views yet (the general form).
+    pub fn new(target: Target) -> Self {
+        Self {
+            target,
+            views: Vec::new(),
+            stereo_form: false,
+        }
+    }
+
+    /// Resolves every image's camera in `rig` and checks the values: a target of at least 2 × 2
+    /// corners (a board) and at least one view; a known camera, at most one image per camera in
+    /// a view, one entry per target corner, finite corners inside the image, at least
+    /// [`MIN_VIEW_CORNERS`] corners per image (a detector that found fewer should leave the
+    /// camera out of the view), and in the stereo form a corner null in both images or neither.
+    /// Views keep their numbers.
+    pub fn resolve(&self, rig: &Rig) -> Result<Vec<SeenView>, CalibError> {
+        if let Target::Board(board) = &self.target {
+            check_board(board)?;
+        }
+        if self.views.is_empty() {
+            return Err(CalibError::NoViews);
+        }
+        let expected = self.target.len();
+        let mut seen = Vec::with_capacity(self.views.len());
+        for (v, view) in self.views.iter().enumerate() {
+            let mut cameras: Vec<(usize, ImageCorners, String)> =
+                Vec::with_capacity(view.images.len());
+            for image in &view.images {
+                let k = resolve_camera(rig, v, image)?;
+                let camera = &rig.cameras()[k];
+                if cameras.iter().any(|(c, _, _)| *c == k) {
+                    return Err(CalibError::Observation {
+                        field: format!("views[{v}].{}", image.key),
+                        reason: format!("camera '{}' has two images in this view", camera.name),
+                    });
+                }
+                if image.corners.len() != expected {
+                    return Err(CalibError::CornerCount {
+                        view: v,
+                        image: image.key.clone(),
+                        got: image.corners.len(),
+                        expected,
+                    });
+                }
+                let intrinsics = &camera.intrinsics;
+                let mut corners = Vec::with_capacity(expected);
+                for (i, corner) in image.corners.iter().enumerate() {
+                    let Some(p) = corner else { continue };
+                    if !(p.x.is_finite() && p.y.is_finite()) {
+                        return Err(CalibError::CornerNotFinite {
+                            view: v,
+                            image: image.key.clone(),
+                            corner: i,
+                            u: p.x,
+                            v: p.y,
+                        });
+                    }
+                    // Pixel centres run from 0 to size − 1; a corner may lie up to half a pixel beyond.
+                    let inside = (-0.5..=intrinsics.width as f64 - 0.5).contains(&p.x)
+                        && (-0.5..=intrinsics.height as f64 - 0.5).contains(&p.y);
+                    if !inside {
+                        return Err(CalibError::CornerOutsideImage {
+                            view: v,
+                            image: image.key.clone(),
+                            corner: i,
+                            u: p.x,
+                            v: p.y,
+                            width: intrinsics.width,
+                            height: intrinsics.height,
+                        });
+                    }
+                    corners.push((i, *p));
+                }
+                if corners.len() < MIN_VIEW_CORNERS {
+                    return Err(CalibError::UnusableView {
+                        view: v,
+                        reason: format!(
+                            "the {} image holds {} corners; an image needs at least {MIN_VIEW_CORNERS} (leave a camera that did not see the target out of the view)",
+                            image.key,
+                            corners.len()
+                        ),
+                    });
+                }
+                cameras.push((k, corners, image.key.clone()));
+            }
+            if self.stereo_form {
+                check_null_in_both(v, view)?;
+            }
+            cameras.sort_by_key(|(k, _, _)| *k);
+            let (cameras, keys) = cameras.into_iter().map(|(k, c, key)| ((k, c), key)).unzip();
+            seen.push(SeenView { cameras, keys });
+        }
+        Ok(seen)
+    }
+
+    /// The views as a whole, resolved as [`Self::resolve`] gives them: an error for a board seen
+    /// edge-on in an image (its corners on a line) and for a view that repeats an earlier one;
+    /// warnings for boards seen very obliquely and for views that show one board pose.
+    pub fn check(&self, seen: &[SeenView]) -> Result<Vec<String>, CalibError> {
+        let mut warnings = Vec::new();
+        if let Target::Board(board) = &self.target {
+            for (v, view) in seen.iter().enumerate() {
+                let mut worst: Option<(f64, &String)> = None;
+                for (image, (_, corners)) in view.keys.iter().zip(&view.cameras) {
+                    let ratio = spread_ratio(board, corners).ok_or_else(|| {
+                        CalibError::UnusableView {
+                            view: v,
+                            reason: format!(
+                                "the {image} corners do not span the board (all on one row or column)"
+                            ),
+                        }
+                    })?;
+                    if worst.is_none_or(|(w, _)| ratio < w) {
+                        worst = Some((ratio, image));
+                    }
+                }
+                let Some((worst, image)) = worst else {
+                    continue;
+                };
+                if worst < EDGE_ON_RATIO {
+                    return Err(CalibError::UnusableView {
+                        view: v,
+                        reason: format!(
+                            "the board is seen edge-on in the {image} image: its corners lie on a line (spread ratio {worst:.3} < {EDGE_ON_RATIO})"
+                        ),
+                    });
+                }
+                if worst < OBLIQUE_RATIO {
+                    warnings.push(format!(
+                        "view {v}: the board is seen very obliquely in the {image} image (spread ratio {worst:.3}): its corners constrain the port poorly"
+                    ));
+                }
+            }
+        }
+        let groups = compare_views(&view_corners(seen));
+        groups.check_repeats()?;
+        for (views, rms) in &groups.same_pose {
+            warnings.push(format!(
+                "views {} show the same target pose (their corners lie within {rms:.2} px RMS of each other): they count as one pose; move or turn the target between views",
+                view_list(views)
+            ));
+        }
+        Ok(warnings)
+    }
+}
+
+/// A board of at least 2 × 2 corners and a positive square.
+fn check_board(board: &Board) -> Result<(), CalibError> {
+    if board.rows < 2 || board.cols < 2 {
+        return Err(CalibError::BadBoard {
+            reason: format!(
+                "needs at least 2 × 2 inner corners, got rows {} × cols {}",
+                board.rows, board.cols
+            ),
+        });
+    }
+    if !(board.square > 0.0 && board.square.is_finite()) {
+        return Err(CalibError::BadBoard {
+            reason: format!(
+                "square must be a positive length in metres, got {}",
+                board.square
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// The rig camera of `image` of view `v`.
+fn resolve_camera(rig: &Rig, v: usize, image: &Image) -> Result<usize, CalibError> {
+    let field = || format!("views[{v}].{}", image.key);
+    match &image.camera {
+        CameraKey::Name(name) => rig.camera_index(name).ok_or_else(|| {
+            let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
+            CalibError::Observation {
+                field: field(),
+                reason: format!(
+                    "'{name}' is not a camera of the rig (its cameras: {})",
+                    names.join(", ")
+                ),
+            }
+        }),
+        CameraKey::Position(k) if *k < rig.cameras().len() => Ok(*k),
+        CameraKey::Position(k) => Err(CalibError::Observation {
+            field: field(),
+            reason: format!(
+                "the stereo form's '{}' image is rig camera {k}, and the rig has {} camera(s)",
+                image.key,
+                rig.cameras().len()
+            ),
+        }),
+    }
+}
+
+/// The stereo form's contract: a corner not detected is null in both images of a view.
+fn check_null_in_both(v: usize, view: &View) -> Result<(), CalibError> {
+    let [a, b] = match view.images.as_slice() {
+        [a, b] => [a, b],
+        _ => return Ok(()),
+    };
+    for (i, (p, q)) in a.corners.iter().zip(&b.corners).enumerate() {
+        let missing = match (p, q) {
+            (Some(_), None) => &b.key,
+            (None, Some(_)) => &a.key,
+            _ => continue,
+        };
+        return Err(CalibError::CornerInOneImage {
+            view: v,
+            corner: i,
+            missing: missing.clone(),
+        });
+    }
+    Ok(())
+}
+
+/// The images of one view for comparison: ((camera, target index), pixel), sorted.
+pub type ViewCorners = Vec<((usize, usize), Point2<f64>)>;
+
+/// The corners of every resolved view, for [`compare_views`].
+pub fn view_corners(seen: &[SeenView]) -> Vec<ViewCorners> {
+    seen.iter()
+        .map(|view| {
+            let mut corners: ViewCorners = view
+                .cameras
+                .iter()
+                .flat_map(|(k, corners)| corners.iter().map(move |&(i, p)| ((*k, i), p)))
+                .collect();
+            corners.sort_by_key(|&(key, _)| key);
+            corners
+        })
+        .collect()
+}
 
 /// How the views relate to each other ([`compare_views`]).
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct ViewGroups {
     /// Views that repeat an earlier one: (view, the first view of its copies, largest difference px).
     pub repeats: Vec<(usize, usize, f64)>,
-    /// Groups of two or more views that show the same board pose (within [`SAME_POSE_PX`] RMS),
+    /// Groups of two or more views that show the same target pose (within [`SAME_POSE_PX`] RMS),
     /// each in file order, with the largest RMS difference to the group's first view.
     pub same_pose: Vec<(Vec<usize>, f64)>,
-    /// Distinct board poses among the views.
+    /// Distinct target poses among the views.
     pub distinct: usize,
 }
 
@@ -92,11 +364,11 @@ impl ViewGroups {
     }
 }
 
-/// The RMS and largest corner difference of two views over the corners both hold, pixels;
-/// `None` when they share fewer than [`MIN_VIEW_CORNERS`] corners (or less than half of either)
+/// The RMS and largest coordinate difference of two views over the corner images both hold,
+/// pixels; `None` when they share fewer than [`MIN_VIEW_CORNERS`] (or less than half of either)
 /// or differ by more than `tolerance` RMS (the sum stops early then).
 fn view_difference(a: &ViewCorners, b: &ViewCorners, tolerance: f64) -> Option<(f64, f64)> {
-    let bound = 2.0 * tolerance * tolerance * a.len().min(b.len()) as f64;
+    let bound = tolerance * tolerance * a.len().min(b.len()) as f64;
     let (mut i, mut j) = (0, 0);
     let (mut sum, mut largest, mut shared) = (0.0, 0.0f64, 0usize);
     while i < a.len() && j < b.len() {
@@ -104,11 +376,9 @@ fn view_difference(a: &ViewCorners, b: &ViewCorners, tolerance: f64) -> Option<(
             std::cmp::Ordering::Less => i += 1,
             std::cmp::Ordering::Greater => j += 1,
             std::cmp::Ordering::Equal => {
-                for k in 0..2 {
-                    let d = a[i].1[k] - b[j].1[k];
-                    sum += d.norm_squared();
-                    largest = largest.max(d.x.abs()).max(d.y.abs());
-                }
+                let d = a[i].1 - b[j].1;
+                sum += d.norm_squared();
+                largest = largest.max(d.x.abs()).max(d.y.abs());
                 if sum > bound {
                     return None;
                 }
@@ -121,7 +391,7 @@ fn view_difference(a: &ViewCorners, b: &ViewCorners, tolerance: f64) -> Option<(
     if shared < MIN_VIEW_CORNERS || 2 * shared < a.len().max(b.len()) {
         return None;
     }
-    let rms = (sum / (2 * shared) as f64).sqrt();
+    let rms = (sum / shared as f64).sqrt();
     (rms <= tolerance).then_some((rms, largest))
 }
 
@@ -136,14 +406,14 @@ fn root(parent: &mut [usize], mut v: usize) -> usize {
 /// Views of one pose compared with a later view of that pose when looking for a copy among them.
 const MAX_GROUP_COMPARISONS: usize = 64;
 
-/// Finds views that repeat another (every shared corner within [`REPEAT_PX`]) and groups of
-/// views of one board pose (within [`SAME_POSE_PX`] RMS).
+/// Finds views that repeat another (every shared corner image within [`REPEAT_PX`]) and groups
+/// of views of one target pose (within [`SAME_POSE_PX`] RMS).
 ///
 /// Each view is compared with every earlier one, latest first; the sum of squared differences
 /// stops as soon as it exceeds the tolerance, which for views of different poses is after the
 /// first corner or two. Once a view matches the pose of an earlier one only the other views of
 /// that pose (at most `MAX_GROUP_COMPARISONS`, 64) are searched for a copy. Views with fewer than
-/// [`MIN_VIEW_CORNERS`] corners in common, or less than half of either's, are not compared.
+/// [`MIN_VIEW_CORNERS`] corner images in common, or less than half of either's, are not compared.
 pub fn compare_views(views: &[ViewCorners]) -> ViewGroups {
     let n = views.len();
     let mut pose_parent: Vec<usize> = (0..n).collect();
@@ -234,179 +504,16 @@ pub fn describe_pose_groups(groups: &ViewGroups) -> String {
         .join("; ")
 }
 
-impl Observations {
-    /// Checks the observations against the board and the two cameras' images: the corner counts,
-    /// nulls in both images or neither, finite corners inside the images, at least
-    /// [`MIN_VIEW_CORNERS`] matched corners per view that span the board (not edge-on).
-    ///
-    /// Returns the warnings for views that can be used but are weak (oblique views).
-    pub fn validate(
-        &self,
-        left: &PinholeCamera,
-        right: &PinholeCamera,
-    ) -> Result<Vec<String>, CalibError> {
-        let board = &self.board;
-        if board.rows < 2 || board.cols < 2 {
-            return Err(CalibError::BadBoard {
-                reason: format!(
-                    "needs at least 2 × 2 inner corners, got rows {} × cols {}",
-                    board.rows, board.cols
-                ),
-            });
-        }
-        if !(board.square > 0.0 && board.square.is_finite()) {
-            return Err(CalibError::BadBoard {
-                reason: format!(
-                    "square must be a positive length in metres, got {}",
-                    board.square
-                ),
-            });
-        }
-        if self.views.is_empty() {
-            return Err(CalibError::NoViews);
-        }
-        let expected = board.corners();
-        let mut warnings = Vec::new();
-        for (v, view) in self.views.iter().enumerate() {
-            for (side, corners, camera) in [
-                (Side::Left, &view.left, left),
-                (Side::Right, &view.right, right),
-            ] {
-                if corners.len() != expected {
-                    return Err(CalibError::CornerCount {
-                        view: v,
-                        side,
-                        got: corners.len(),
-                        expected,
-                    });
-                }
-                for (i, corner) in corners.iter().enumerate() {
-                    let Some(p) = corner else { continue };
-                    if !(p.x.is_finite() && p.y.is_finite()) {
-                        return Err(CalibError::CornerNotFinite {
-                            view: v,
-                            side,
-                            corner: i,
-                            u: p.x,
-                            v: p.y,
-                        });
-                    }
-                    // Pixel centres run from 0 to size − 1; a corner may lie up to half a pixel beyond.
-                    let inside = (-0.5..=camera.width as f64 - 0.5).contains(&p.x)
-                        && (-0.5..=camera.height as f64 - 0.5).contains(&p.y);
-                    if !inside {
-                        return Err(CalibError::CornerOutsideImage {
-                            view: v,
-                            side,
-                            corner: i,
-                            u: p.x,
-                            v: p.y,
-                            width: camera.width,
-                            height: camera.height,
-                        });
-                    }
-                }
-            }
-            for i in 0..expected {
-                match (view.left[i], view.right[i]) {
-                    (Some(_), None) => {
-                        return Err(CalibError::CornerInOneImage {
-                            view: v,
-                            corner: i,
-                            missing: Side::Right,
-                        });
-                    }
-                    (None, Some(_)) => {
-                        return Err(CalibError::CornerInOneImage {
-                            view: v,
-                            corner: i,
-                            missing: Side::Left,
-                        });
-                    }
-                    _ => {}
-                }
-            }
-            let matched = view.matched().count();
-            if matched < MIN_VIEW_CORNERS {
-                return Err(CalibError::UnusableView {
-                    view: v,
-                    reason: format!(
-                        "{matched} corners seen in both images; a view needs at least {MIN_VIEW_CORNERS}"
-                    ),
-                });
-            }
-            let mut worst = f64::INFINITY;
-            for side in [Side::Left, Side::Right] {
-                let ratio = spread_ratio(board, view.side(side)).ok_or_else(|| {
-                    CalibError::UnusableView {
-                        view: v,
-                        reason: format!(
-                            "the {} corners do not span the board (all on one row or column)",
-                            side.name()
-                        ),
-                    }
-                })?;
-                worst = worst.min(ratio);
-            }
-            if worst < EDGE_ON_RATIO {
-                return Err(CalibError::UnusableView {
-                    view: v,
-                    reason: format!(
-                        "the board is seen edge-on: its corners lie on a line in the image (spread ratio {worst:.3} < {EDGE_ON_RATIO})"
-                    ),
-                });
-            }
-            if worst < OBLIQUE_RATIO {
-                warnings.push(format!(
-                    "view {v}: the board is seen very obliquely (spread ratio {worst:.3}): its corners constrain the axis poorly"
-                ));
-            }
-        }
-        let groups = compare_views(&self.view_corners());
-        groups.check_repeats()?;
-        for (views, rms) in &groups.same_pose {
-            warnings.push(format!(
-                "views {} show the same board pose (their corners lie within {rms:.2} px RMS of each other): they count as one pose; move or turn the board between views",
-                view_list(views)
-            ));
-        }
-        Ok(warnings)
-    }
-
-    /// The corners seen in both images of every view, for [`compare_views`].
-    pub fn view_corners(&self) -> Vec<ViewCorners> {
-        self.views
-            .iter()
-            .map(|v| {
-                v.matched()
-                    .map(|i| {
-                        (
-                            i,
-                            [v.left[i].expect("matched"), v.right[i].expect("matched")],
-                        )
-                    })
-                    .collect()
-            })
-            .collect()
-    }
-
-    /// Number of corners seen in both images, over all views.
-    pub fn matched_corners(&self) -> usize {
-        self.views.iter().map(|v| v.matched().count()).sum()
-    }
-}
-
 /// Ratio of the smaller to the larger singular value of the affine map from the board grid
 /// (in squares) to the image, fitted by least squares to the corners present: 1 for a board seen
 /// face-on with square pixels, → 0 as the board turns edge-on. `None` when the corners present
 /// do not span two grid directions.
-fn spread_ratio(board: &Board, corners: &[Option<Point2<f64>>]) -> Option<f64> {
+fn spread_ratio(board: &Board, corners: &[(usize, Point2<f64>)]) -> Option<f64> {
     let present: Vec<(Vector2<f64>, Vector2<f64>)> = corners
         .iter()
-        .enumerate()
-        .filter_map(|(i, c)| {
+        .map(|&(i, p)| {
             let (r, col) = board.grid_position(i);
-            c.map(|p| (Vector2::new(col as f64, r as f64), p.coords))
+            (Vector2::new(col as f64, r as f64), p.coords)
         })
         .collect();
     let n = present.len() as f64;
@@ -431,159 +538,202 @@ fn spread_ratio(board: &Board, corners: &[Option<Point2<f64>>]) -> Option<f64> {
     Some(small / large)
 }
 
+/// The views that cameras `a` and `b` both saw, for the costs of that pair: per view its number
+/// and the corners both saw, as (target index, [pixel in a, pixel in b]); views with fewer than
+/// [`MIN_VIEW_CORNERS`] such corners are left out.
+pub fn pair_views(seen: &[SeenView], a: usize, b: usize) -> Vec<(usize, PairCorners)> {
+    let mut out = Vec::new();
+    for (v, view) in seen.iter().enumerate() {
+        let (Some(first), Some(second)) = (view.corners_of(a), view.corners_of(b)) else {
+            continue;
+        };
+        // Both lists are in target order.
+        let mut matched = Vec::with_capacity(first.len().min(second.len()));
+        let mut j = 0;
+        for &(i, p) in first {
+            while j < second.len() && second[j].0 < i {
+                j += 1;
+            }
+            if j < second.len() && second[j].0 == i {
+                matched.push((i, [p, second[j].1]));
+            }
+        }
+        if matched.len() >= MIN_VIEW_CORNERS {
+            out.push((v, matched));
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::{Interface, PinholeCamera, RigCamera};
+    use nalgebra::{Matrix3, Vector3};
 
-    fn camera() -> PinholeCamera {
-        PinholeCamera::new("c", 640, 480, 500.0, 500.0, 320.0, 240.0, [0.0; 5]).unwrap()
+    const BOARD: Board = Board {
+        rows: 4,
+        cols: 5,
+        square: 0.04,
+    };
+
+    /// Two 640×480 cameras named left and right behind one port.
+    fn rig() -> Rig {
+        let camera = |name: &str, x: f64| {
+            let intrinsics =
+                PinholeCamera::new(name, 640, 480, 500.0, 500.0, 320.0, 240.0, [0.0; 5]).unwrap();
+            RigCamera::new(
+                name,
+                intrinsics,
+                Matrix3::identity(),
+                Vector3::new(x, 0.0, 0.0),
+            )
+            .unwrap()
+        };
+        let port = Interface::new(Vector3::z(), 0.02, vec![], 1.0, 1.333).unwrap();
+        Rig::new(vec![camera("left", 0.0), camera("right", -0.1)], port).unwrap()
     }
 
-    fn grid(board: &Board, shear: f64) -> Vec<Option<Point2<f64>>> {
-        (0..board.corners())
+    /// A board's corners on a sheared grid (`shear` 0: every corner on one line).
+    fn grid(shear: f64, shift: f64) -> Vec<Option<Point2<f64>>> {
+        (0..BOARD.corners())
             .map(|i| {
-                let (r, c) = board.grid_position(i);
+                let (r, c) = BOARD.grid_position(i);
                 Some(Point2::new(
-                    100.0 + 20.0 * c as f64,
-                    100.0 + shear * 20.0 * r as f64 + 2.0 * c as f64,
+                    100.0 + shift + 20.0 * c as f64,
+                    100.0 - 0.5 * shift + shear * 20.0 * r as f64 + 2.0 * c as f64,
                 ))
             })
             .collect()
     }
 
-    fn observations(views: Vec<StereoView>) -> Observations {
+    fn image(key: &str, corners: Vec<Option<Point2<f64>>>) -> Image {
+        Image {
+            camera: CameraKey::Name(key.into()),
+            key: key.into(),
+            corners,
+        }
+    }
+
+    fn stereo(views: Vec<[Vec<Option<Point2<f64>>>; 2]>) -> Observations {
         Observations {
-            board: Board {
-                rows: 4,
-                cols: 5,
-                square: 0.04,
-            },
-            views,
-            cameras: None,
+            target: Target::Board(BOARD),
+            views: views
+                .into_iter()
+                .map(|[l, r]| View {
+                    images: vec![image("left", l), image("right", r)],
+                })
+                .collect(),
+            stereo_form: true,
         }
     }
 
     #[test]
-    fn good_views_pass_and_bad_ones_are_named() {
-        let board = Board {
-            rows: 4,
-            cols: 5,
-            square: 0.04,
-        };
-        let good = StereoView {
-            left: grid(&board, 1.0),
-            right: grid(&board, 1.0),
-        };
-        assert_eq!(
-            observations(vec![good.clone()]).validate(&camera(), &camera()),
-            Ok(vec![])
-        );
+    fn good_views_resolve_and_bad_ones_are_named() {
+        let rig = rig();
+        let good = [grid(1.0, 0.0), grid(1.0, 0.0)];
+        let seen = stereo(vec![good.clone()]).resolve(&rig).unwrap();
+        assert_eq!(seen[0].cameras.len(), 2);
+        assert_eq!(seen[0].keys, ["left", "right"]);
+        assert_eq!(seen[0].observations(), 40);
 
         let mut short = good.clone();
-        short.right.pop();
-        assert!(matches!(
-            observations(vec![good.clone(), short]).validate(&camera(), &camera()),
-            Err(CalibError::CornerCount {
-                view: 1,
-                side: Side::Right,
-                got: 19,
-                expected: 20
-            })
-        ));
+        short[1].pop();
+        let error = stereo(vec![good.clone(), short]).resolve(&rig).unwrap_err();
+        assert!(
+            matches!(&error, CalibError::CornerCount { view: 1, image, got: 19, expected: 20 } if image == "right"),
+            "{error:?}"
+        );
+        assert_eq!(error.field(), "views[1].right");
 
         let mut outside = good.clone();
-        outside.left[3] = Some(Point2::new(700.0, 10.0));
-        let error = observations(vec![outside])
-            .validate(&camera(), &camera())
-            .unwrap_err();
-        assert!(matches!(
-            error,
-            CalibError::CornerOutsideImage {
-                view: 0,
-                side: Side::Left,
-                corner: 3,
-                ..
-            }
-        ));
+        outside[0][3] = Some(Point2::new(700.0, 10.0));
+        let error = stereo(vec![outside]).resolve(&rig).unwrap_err();
         assert_eq!(error.field(), "views[0].left[3]");
+        assert!(
+            error.to_string().contains("outside the 640×480 image"),
+            "{error}"
+        );
 
+        let mut not_finite = good.clone();
+        not_finite[1][0] = Some(Point2::new(f64::NAN, 10.0));
+        let error = stereo(vec![not_finite]).resolve(&rig).unwrap_err();
+        assert_eq!(error.field(), "views[0].right[0]");
+
+        // The stereo form's contract; in the general form one camera may miss a corner.
         let mut one_sided = good.clone();
-        one_sided.right[7] = None;
-        assert!(matches!(
-            observations(vec![one_sided]).validate(&camera(), &camera()),
-            Err(CalibError::CornerInOneImage {
-                view: 0,
-                corner: 7,
-                missing: Side::Right
-            })
-        ));
+        one_sided[1][7] = None;
+        let error = stereo(vec![one_sided.clone()]).resolve(&rig).unwrap_err();
+        assert!(
+            matches!(&error, CalibError::CornerInOneImage { view: 0, corner: 7, missing } if missing == "right"),
+            "{error:?}"
+        );
+        let mut general = stereo(vec![one_sided]);
+        general.stereo_form = false;
+        let seen = general.resolve(&rig).unwrap();
+        assert_eq!(seen[0].corners_of(1).unwrap().len(), 19);
+        assert_eq!(pair_views(&seen, 0, 1)[0].1.len(), 19);
 
-        let edge_on = StereoView {
-            left: grid(&board, 0.0),
-            right: grid(&board, 0.0),
-        };
-        assert!(matches!(
-            observations(vec![edge_on]).validate(&camera(), &camera()),
-            Err(CalibError::UnusableView { view: 0, .. })
-        ));
-        let oblique = StereoView {
-            left: grid(&board, 0.12),
-            right: grid(&board, 1.0),
-        };
-        let warnings = observations(vec![oblique])
-            .validate(&camera(), &camera())
-            .unwrap();
-        assert_eq!(warnings.len(), 1, "{warnings:?}");
-
-        let mut sparse = good;
-        for i in 0..15 {
-            sparse.left[i] = None;
-            sparse.right[i] = None;
+        let mut sparse = good.clone();
+        for corners in &mut sparse {
+            for c in corners.iter_mut().take(15) {
+                *c = None;
+            }
         }
         assert!(matches!(
-            observations(vec![sparse]).validate(&camera(), &camera()),
+            stereo(vec![sparse]).resolve(&rig),
             Err(CalibError::UnusableView { view: 0, .. })
         ));
-        assert_eq!(
-            observations(vec![]).validate(&camera(), &camera()),
-            Err(CalibError::NoViews)
+        let mut unknown = stereo(vec![good.clone()]);
+        unknown.views[0].images[1] = image("middle", grid(1.0, 0.0));
+        let error = unknown.resolve(&rig).unwrap_err();
+        assert!(
+            error
+                .to_string()
+                .contains("'middle' is not a camera of the rig (its cameras: left, right)"),
+            "{error}"
         );
+        let mut twice = stereo(vec![good]);
+        twice.views[0].images[1] = image("left", grid(1.0, 0.0));
+        assert!(
+            twice
+                .resolve(&rig)
+                .unwrap_err()
+                .to_string()
+                .contains("two images")
+        );
+        assert_eq!(stereo(vec![]).resolve(&rig), Err(CalibError::NoViews));
     }
 
-    /// A view moved by `shift` pixels in both images (a different pose when large).
-    fn shifted(view: &StereoView, shift: f64) -> StereoView {
-        let move_all = |c: &Vec<Option<Point2<f64>>>| {
-            c.iter()
-                .map(|p| p.map(|p| Point2::new(p.x + shift, p.y - 0.5 * shift)))
-                .collect()
-        };
-        StereoView {
-            left: move_all(&view.left),
-            right: move_all(&view.right),
-        }
+    #[test]
+    fn edge_on_views_are_refused_and_oblique_ones_reported() {
+        let rig = rig();
+        let edge_on = stereo(vec![[grid(0.0, 0.0), grid(0.0, 0.0)]]);
+        let seen = edge_on.resolve(&rig).unwrap();
+        assert!(matches!(
+            edge_on.check(&seen),
+            Err(CalibError::UnusableView { view: 0, .. })
+        ));
+        let oblique = stereo(vec![[grid(0.12, 0.0), grid(1.0, 0.0)]]);
+        let seen = oblique.resolve(&rig).unwrap();
+        let warnings = oblique.check(&seen).unwrap();
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(warnings[0].contains("left image"), "{warnings:?}");
     }
 
     #[test]
     fn repeated_views_are_named_and_same_poses_grouped() {
-        let board = Board {
-            rows: 4,
-            cols: 5,
-            square: 0.04,
-        };
-        let a = StereoView {
-            left: grid(&board, 1.0),
-            right: grid(&board, 1.1),
-        };
-        let views = vec![
-            a.clone(),
-            shifted(&a, 30.0),
-            shifted(&a, 60.0),
-            a.clone(),
-            shifted(&a, 30.004),
-        ];
-        let error = observations(views)
-            .validate(&camera(), &camera())
-            .unwrap_err();
+        let rig = rig();
+        let view = |shift: f64| [grid(1.0, shift), grid(1.1, shift)];
+        let observations = stereo(vec![
+            view(0.0),
+            view(30.0),
+            view(60.0),
+            view(0.0),
+            view(30.004),
+        ]);
+        let seen = observations.resolve(&rig).unwrap();
+        let error = observations.check(&seen).unwrap_err();
         assert!(
             matches!(
                 error,
@@ -597,45 +747,36 @@ mod tests {
             "{error:?}"
         );
         assert_eq!(error.field(), "views[3]");
-        assert!(
-            error.to_string().starts_with("views[3] repeats views[0]")
-                && error.to_string().contains("1 more"),
-            "{error}"
-        );
 
         // A copy with a few corners missing is still a copy.
-        let mut partial = a.clone();
-        partial.left[4] = None;
-        partial.right[4] = None;
-        let groups = compare_views(
-            &observations(vec![shifted(&a, 10.0), a.clone(), partial]).view_corners(),
+        let mut partial = view(0.0);
+        partial[0][4] = None;
+        partial[1][4] = None;
+        let seen = stereo(vec![view(10.0), view(0.0), partial])
+            .resolve(&rig)
+            .unwrap();
+        assert_eq!(
+            compare_views(&view_corners(&seen)).repeats,
+            vec![(2, 1, 0.0)]
         );
-        assert_eq!(groups.repeats, vec![(2, 1, 0.0)]);
 
         // Fifteen copies: one pose.
-        let groups = compare_views(&observations(vec![a.clone(); 15]).view_corners());
-        assert_eq!(groups.distinct, 1);
-        assert_eq!(groups.repeats.len(), 14);
-        assert!(groups.repeats.iter().all(|&(_, first, _)| first == 0));
+        let seen = stereo(vec![view(0.0); 15]).resolve(&rig).unwrap();
+        let groups = compare_views(&view_corners(&seen));
+        assert_eq!((groups.distinct, groups.repeats.len()), (1, 14));
 
-        // Re-detections of one pose (0.3 px apart) are not copies but one pose; 5 px apart is
-        // another pose.
-        let views = vec![
-            a.clone(),
-            shifted(&a, 0.3),
-            shifted(&a, 5.0),
-            shifted(&a, -0.2),
-        ];
-        let groups = compare_views(&observations(views.clone()).view_corners());
+        // Re-detections of one pose (0.3 px apart) are one pose, not copies; 5 px apart is another.
+        let observations = stereo(vec![view(0.0), view(0.3), view(5.0), view(-0.2)]);
+        let seen = observations.resolve(&rig).unwrap();
+        let groups = compare_views(&view_corners(&seen));
         assert!(groups.repeats.is_empty(), "{groups:?}");
         assert_eq!(groups.distinct, 2);
-        assert_eq!(groups.same_pose.len(), 1);
         assert_eq!(groups.same_pose[0].0, vec![0, 1, 3]);
-        let warnings = observations(views).validate(&camera(), &camera()).unwrap();
+        let warnings = observations.check(&seen).unwrap();
         assert!(
             warnings
                 .iter()
-                .any(|w| w.starts_with("views 0, 1, 3 show the same board pose")),
+                .any(|w| w.starts_with("views 0, 1, 3 show the same target pose")),
             "{warnings:?}"
         );
         assert_eq!(view_list(&[0, 1, 2, 3, 7, 9, 10]), "0–3, 7, 9, 10");

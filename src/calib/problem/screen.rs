@@ -29,9 +29,9 @@
 use nalgebra::{Matrix3, Point2, SMatrix, SVector, Vector2, Vector3};
 use rayon::prelude::*;
 
-use crate::calib::error::Side;
 use crate::calib::problem::board::Board;
-use crate::calib::problem::data::StereoData;
+use crate::calib::problem::observations::{MIN_VIEW_CORNERS, SeenView};
+use crate::model::Rig;
 
 /// Width of the block of grid positions a corner is predicted from.
 pub const WINDOW: usize = 5;
@@ -52,12 +52,10 @@ const MEDIAN_NORM: f64 = 1.177_410_022_515_474_6;
 pub struct Suspect {
     /// 0-based view.
     pub view: usize,
-    /// The image it is off in.
-    pub side: Side,
+    /// The rig camera whose image it is off in.
+    pub camera: usize,
     /// Corner index on the board (row-major).
     pub corner: usize,
-    /// Its position in `data.corners`.
-    pub position: usize,
     /// Its standardised deviation from the prediction of its neighbours, pixels.
     pub deviation_px: f64,
 }
@@ -75,93 +73,73 @@ pub struct Screening {
 }
 
 impl Screening {
-    /// A mask over `data.corners`: true for the corners to leave out (a suspect in either image).
-    pub fn mask(&self, corners: usize) -> Vec<bool> {
-        let mut mask = vec![false; corners];
-        for s in &self.suspects {
-            mask[s.position] = true;
+    /// Whether the corner image (view, camera, corner) is a suspect.
+    pub fn is_suspect(&self, view: usize, camera: usize, corner: usize) -> bool {
+        self.suspects
+            .iter()
+            .any(|s| (s.view, s.camera, s.corner) == (view, camera, corner))
+    }
+
+    /// `seen` without the suspects' corner images; `None` when an image would be left with fewer
+    /// than [`MIN_VIEW_CORNERS`] corners (then every estimate uses them all).
+    pub fn without_suspects(&self, seen: &[SeenView]) -> Option<Vec<SeenView>> {
+        if self.suspects.is_empty() {
+            return None;
         }
-        mask
+        let mut clean = seen.to_vec();
+        for (v, view) in clean.iter_mut().enumerate() {
+            for (k, corners) in &mut view.cameras {
+                corners.retain(|&(i, _)| !self.is_suspect(v, *k, i));
+                if corners.len() < MIN_VIEW_CORNERS {
+                    return None;
+                }
+            }
+        }
+        Some(clean)
     }
 }
 
-/// The corners of one image of one view on the board grid: `Some((position, pixel))` per index.
-type Image = Vec<Option<(usize, Point2<f64>)>>;
+/// The corners of one image of one view on the board grid: `Some(pixel)` per index.
+type Image = Vec<Option<Point2<f64>>>;
 
-/// Every image of every view: its corners' undistorted pixel offsets from the principal point
-/// (fx·x/z, fy·y/z of the air direction in that camera's frame) minus the image's fitted
-/// homography of the grid.
-fn images(data: &StereoData) -> Vec<(usize, Side, Image)> {
-    let mut out = Vec::with_capacity(2 * data.views.len());
-    for (v, range) in data.views.iter().enumerate() {
-        for (k, side) in [Side::Left, Side::Right].into_iter().enumerate() {
-            let camera = &data.rig.cameras()[data.cameras[k]];
-            let rotation = camera.cam_from_master.rotation;
-            let (fx, fy) = (camera.intrinsics.fx, camera.intrinsics.fy);
-            let corners = &data.corners[range.clone()];
-            let points: Vec<(Vector2<f64>, Vector2<f64>)> = corners
+/// Every image of every view, as (view, rig camera, corners): each corner's undistorted pixel
+/// offset from the principal point (fx·x, fy·y of its undistorted normalised coordinates)
+/// minus the image's fitted homography of the grid.
+fn images(rig: &Rig, board: &Board, seen: &[SeenView]) -> Vec<(usize, usize, Image)> {
+    let mut out = Vec::new();
+    for (v, view) in seen.iter().enumerate() {
+        for (k, corners) in &view.cameras {
+            let intrinsics = &rig.cameras()[*k].intrinsics;
+            let undistorted: Vec<(usize, Vector2<f64>)> = corners
                 .iter()
-                .map(|c| {
-                    let d = rotation * c.dirs[k].into_inner();
-                    let (r, col) = data.board.grid_position(c.index);
-                    (
-                        Vector2::new(col as f64, r as f64),
-                        Vector2::new(fx * d.x / d.z, fy * d.y / d.z),
-                    )
+                .filter_map(|(i, p)| {
+                    let x = intrinsics.normalized_from_img(p)?;
+                    Some((*i, Vector2::new(intrinsics.fx * x.x, intrinsics.fy * x.y)))
                 })
                 .collect();
-            let indices = corners.iter().map(|c| c.index);
-            let positions = range.clone();
-            out.push((
-                v,
-                side,
-                smooth_field(&data.board, indices.zip(positions), &points),
-            ));
+            out.push((v, *k, smooth_field(board, &undistorted)));
         }
     }
     out
 }
 
-/// One image's field e = p − H(g) on the board grid: `Some((position, e))` at each corner index
-/// of `corners` (index, position), from `points` (grid position, undistorted pixel offset) in the
-/// same order.
-fn smooth_field(
-    board: &Board,
-    corners: impl Iterator<Item = (usize, usize)>,
-    points: &[(Vector2<f64>, Vector2<f64>)],
-) -> Image {
-    let homography = fit_homography(points);
-    let mut image = vec![None; board.corners()];
-    for ((index, position), (g, p)) in corners.zip(points) {
-        let e = homography.as_ref().map_or(*p, |h| p - apply(h, g));
-        image[index] = Some((position, Point2::from(e)));
-    }
-    image
-}
-
-/// The corner noise σ̂ per coordinate, pixels, seen in images of `board`: each image is the
-/// corners it saw as (corner index, undistorted pixel offset from the principal point, fx·x/z and
-/// fy·y/z), and σ̂ is the median standardised deviation of every corner from the local
-/// polynomial through its neighbours (as [`screen`] finds it, without removing suspects: the
-/// median ignores a few). `None` when no corner can be predicted (boards under 3 × 3).
-pub fn board_noise_px(board: &Board, images: &[Vec<(usize, Vector2<f64>)>]) -> Option<f64> {
-    let none = vec![false; board.corners()];
-    let mut all: Vec<f64> = images
-        .par_iter()
-        .flat_map_iter(|corners| {
-            let points: Vec<(Vector2<f64>, Vector2<f64>)> = corners
-                .iter()
-                .map(|&(i, p)| {
-                    let (r, c) = board.grid_position(i);
-                    (Vector2::new(c as f64, r as f64), p)
-                })
-                .collect();
-            let indices = corners.iter().enumerate().map(|(k, &(i, _))| (i, k));
-            let image = smooth_field(board, indices, &points);
-            deviations(board, &image, &none).into_iter().map(|(_, d)| d)
+/// One image's field e = p − H(g) on the board grid, from its corners (index, undistorted pixel
+/// offset).
+fn smooth_field(board: &Board, corners: &[(usize, Vector2<f64>)]) -> Image {
+    let points: Vec<(Vector2<f64>, Vector2<f64>)> = corners
+        .iter()
+        .map(|&(i, p)| {
+            let (r, col) = board.grid_position(i);
+            (Vector2::new(col as f64, r as f64), p)
         })
         .collect();
-    median(&mut all).map(|m| m / MEDIAN_NORM)
+    let homography = fit_homography(&points);
+    let mut image = vec![None; board.corners()];
+    for (&(index, _), (g, p)) in corners.iter().zip(&points) {
+        let e = homography.as_ref().map_or(*p, |h| p - apply(h, g));
+        image[index] = Some(Point2::from(e));
+    }
+    image
 }
 
 /// Hartley normalisation of 2-D points: T with T·(x, 1) centred, mean distance √2.
@@ -257,7 +235,7 @@ fn deviation(board: &Board, image: &Image, excluded: &[bool], index: usize) -> O
             if i == index || excluded[i] {
                 continue;
             }
-            let Some((_, p)) = image[i] else { continue };
+            let Some(p) = image[i] else { continue };
             points.push((c as f64 - c0 as f64, r as f64 - r0 as f64, p));
             used_rows |= 1 << (r - rs);
             used_cols |= 1 << (c - cs);
@@ -269,7 +247,7 @@ fn deviation(board: &Board, image: &Image, excluded: &[bool], index: usize) -> O
     if points.len() < terms + 3 || used_rows.count_ones() < 3 || used_cols.count_ones() < 3 {
         return None;
     }
-    let (_, p) = image[index]?;
+    let p = image[index]?;
     let (predicted, leverage) = if cubic {
         predict::<10>(&points)?
     } else {
@@ -325,14 +303,15 @@ fn median(values: &mut [f64]) -> Option<f64> {
     Some(values[values.len() / 2])
 }
 
-/// Screens every image of every view of `data` (see the module documentation).
-pub fn screen(data: &StereoData) -> Screening {
-    let images = images(data);
-    let none = vec![false; data.board.corners()];
+/// Screens every image of every view of `seen` (observations of `board` by the cameras of
+/// `rig`; see the module documentation).
+pub fn screen(rig: &Rig, board: &Board, seen: &[SeenView]) -> Screening {
+    let images = images(rig, board, seen);
+    let none = vec![false; board.corners()];
     // Every image alone, in parallel: first without exclusions (for σ̂), then removing suspects.
     let first: Vec<Vec<(usize, f64)>> = images
         .par_iter()
-        .map(|(_, _, image)| deviations(&data.board, image, &none))
+        .map(|(_, _, image)| deviations(board, image, &none))
         .collect();
     let mut all: Vec<f64> = first.iter().flatten().map(|&(_, d)| d).collect();
     let Some(median_first) = median(&mut all) else {
@@ -346,7 +325,7 @@ pub fn screen(data: &StereoData) -> Screening {
     let screened: Vec<(Vec<Suspect>, Vec<f64>)> = images
         .par_iter()
         .zip(first)
-        .map(|((view, side, image), mut found)| {
+        .map(|((view, camera, image), mut found)| {
             let mut excluded = none.clone();
             let mut suspects = Vec::new();
             let present = image.iter().filter(|c| c.is_some()).count();
@@ -355,15 +334,13 @@ pub fn screen(data: &StereoData) -> Screening {
                 match worst {
                     Some((i, d)) if d > threshold && 4 * (suspects.len() + 1) <= present => {
                         excluded[i] = true;
-                        let position = image[i].expect("present").0;
                         suspects.push(Suspect {
                             view: *view,
-                            side: *side,
+                            camera: *camera,
                             corner: i,
-                            position,
                             deviation_px: d,
                         });
-                        found = deviations(&data.board, image, &excluded);
+                        found = deviations(board, image, &excluded);
                     }
                     _ => return (suspects, found.into_iter().map(|(_, d)| d).collect()),
                 }
@@ -384,73 +361,45 @@ pub fn screen(data: &StereoData) -> Screening {
     }
 }
 
-/// `data` without the corners marked in `mask` (views keep their indices; a view may be left
-/// with fewer corners). `None` when a view would keep fewer than
-/// [`MIN_VIEW_CORNERS`](crate::calib::problem::observations::MIN_VIEW_CORNERS).
-pub fn without_corners(data: &StereoData, mask: &[bool]) -> Option<StereoData> {
-    let mut corners = Vec::with_capacity(data.corners.len());
-    let mut views = Vec::with_capacity(data.views.len());
-    for range in &data.views {
-        let start = corners.len();
-        corners.extend(range.clone().filter(|&j| !mask[j]).map(|j| data.corners[j]));
-        if corners.len() - start < crate::calib::problem::observations::MIN_VIEW_CORNERS {
-            return None;
-        }
-        views.push(start..corners.len());
-    }
-    Some(StereoData {
-        rig: data.rig.clone(),
-        cameras: data.cameras,
-        board: data.board,
-        corners,
-        views,
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::{Board, SceneSpec, simulate};
+    use crate::calib::{SceneSpec, Target, simulate};
 
-    /// A simulated scene with gross errors (view, corner, image, pixels) added.
+    const BOARD: Board = Board {
+        rows: 6,
+        cols: 9,
+        square: 0.04,
+    };
+
+    /// A simulated scene with gross errors (view, corner, camera, pixels) added: the rig and the
+    /// views.
     fn data_with(
         noise: f64,
         seed: u64,
         tilt_deg: f64,
         errors: &[(usize, usize, usize, f64)],
-    ) -> StereoData {
+    ) -> (Rig, Vec<SeenView>) {
         let rig = crate::io::rig_from_json_str(
             include_str!("../../../data/example_rig.json"),
             "example".as_ref(),
         )
         .unwrap();
-        let mut spec = SceneSpec::new(
-            Board {
-                rows: 6,
-                cols: 9,
-                square: 0.04,
-            },
-            12,
-            noise,
-            seed,
-        );
-        spec.max_board_tilt = tilt_deg.to_radians();
-        let mut scene = simulate(&rig, 0, 1, &spec).unwrap();
+        let mut spec = SceneSpec::pair(Target::Board(BOARD), 12, noise, seed, 0, 1);
+        spec.max_target_tilt = tilt_deg.to_radians();
+        let mut scene = simulate(&rig, &spec).unwrap();
         for &(v, i, k, size) in errors {
-            let view = &mut scene.observations.views[v];
-            let p = if k == 0 {
-                view.left[i].as_mut()
-            } else {
-                view.right[i].as_mut()
-            }
-            .unwrap();
+            let p = scene.observations.views[v].images[k].corners[i]
+                .as_mut()
+                .unwrap();
             p.x += size * 0.6;
             p.y -= size * 0.8;
         }
-        StereoData::new(&rig, [0, 1], &scene.observations).unwrap()
+        let seen = scene.observations.resolve(&rig).unwrap();
+        (rig, seen)
     }
 
-    fn data(noise: f64, seed: u64, tilt_deg: f64) -> StereoData {
+    fn data(noise: f64, seed: u64, tilt_deg: f64) -> (Rig, Vec<SeenView>) {
         data_with(noise, seed, tilt_deg, &[])
     }
 
@@ -464,14 +413,14 @@ mod tests {
             (0.5, 3, 60.0),
             (1.0, 4, 30.0),
         ] {
-            let data = data(noise, seed, tilt);
-            let screening = screen(&data);
+            let (rig, seen) = data(noise, seed, tilt);
+            let screening = screen(&rig, &BOARD, &seen);
             let largest = screening.suspects.first().map_or(0.0, |s| s.deviation_px);
-            let images = images(&data);
+            let images = images(&rig, &BOARD, &seen);
             let none = vec![false; 54];
             let d = images
                 .iter()
-                .flat_map(|(_, _, image)| deviations(&data.board, image, &none))
+                .flat_map(|(_, _, image)| deviations(&BOARD, image, &none))
                 .map(|(_, d)| d)
                 .fold(0.0, f64::max);
             println!(
@@ -507,21 +456,30 @@ mod tests {
             (7, 31, 1, 30.0),
             (9, 53, 0, 6.0),
         ];
-        let data = data_with(0.2, 5, 45.0, &errors);
-        let screening = screen(&data);
+        let (rig, seen) = data_with(0.2, 5, 45.0, &errors);
+        let screening = screen(&rig, &BOARD, &seen);
         let mut found: Vec<(usize, usize, usize)> = screening
             .suspects
             .iter()
-            .map(|s| (s.view, s.corner, if s.side == Side::Left { 0 } else { 1 }))
+            .map(|s| (s.view, s.corner, s.camera))
             .collect();
         found.sort();
         let mut expected: Vec<(usize, usize, usize)> =
             errors.iter().map(|&(v, i, k, _)| (v, i, k)).collect();
         expected.sort();
         assert_eq!(found, expected, "{:?}", screening.suspects);
-        let mask = screening.mask(data.corners.len());
-        let reduced = without_corners(&data, &mask).unwrap();
-        assert_eq!(reduced.corners.len(), data.corners.len() - errors.len());
-        assert_eq!(reduced.views.len(), data.views.len());
+        let reduced = screening.without_suspects(&seen).unwrap();
+        let count = |views: &[SeenView]| views.iter().map(SeenView::observations).sum::<usize>();
+        assert_eq!(count(&reduced), count(&seen) - errors.len());
+        assert_eq!(reduced.len(), seen.len());
+        for s in &screening.suspects {
+            assert!(
+                reduced[s.view]
+                    .corners_of(s.camera)
+                    .unwrap()
+                    .iter()
+                    .all(|&(i, _)| i != s.corner)
+            );
+        }
     }
 }

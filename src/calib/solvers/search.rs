@@ -149,20 +149,20 @@ pub fn refine_axis_observed(
         let hyy = (at(0, 1) - 2.0 * f0 + at(0, -1)) / (h * h);
         let hxy = (at(1, 1) - at(1, -1) - at(-1, 1) + at(-1, -1)) / (4.0 * h * h);
         let hessian = Matrix2::new(hxx, hxy, hxy, hyy);
-        if g.iter().chain(hessian.iter()).all(|v| v.is_finite()) {
-            if let Some(cholesky) = hessian.cholesky() {
-                let mut newton = -cholesky.solve(&g);
-                if newton.norm() > 2.0 * h {
-                    newton *= 2.0 * h / newton.norm();
-                }
-                let (c, v) = backend.profile(kind, &[tangent_step(&centre, &newton)])?;
-                evaluations += 1;
-                if v[0] < best_cost {
-                    best = c[0];
-                    best_cost = v[0];
-                    moved = true;
-                    step_length = newton.norm();
-                }
+        if g.iter().chain(hessian.iter()).all(|v| v.is_finite())
+            && let Some(cholesky) = hessian.cholesky()
+        {
+            let mut newton = -cholesky.solve(&g);
+            if newton.norm() > 2.0 * h {
+                newton *= 2.0 * h / newton.norm();
+            }
+            let (c, v) = backend.profile(kind, &[tangent_step(&centre, &newton)])?;
+            evaluations += 1;
+            if v[0] < best_cost {
+                best = c[0];
+                best_cost = v[0];
+                moved = true;
+                step_length = newton.norm();
             }
         }
         // The stencil's best point, when it beats the Newton step.

@@ -14,11 +14,10 @@ use nalgebra::{Point2, Point3, Vector2};
 
 use rayon::prelude::*;
 
-use super::rig_bundle::Estimate;
-use super::rig_calibrate::{RigCalibrationOptions, calibrate_views};
+use super::bundle::Estimate;
+use super::{Options, calibrate_views};
 use crate::calib::problem::board::Board;
-use crate::calib::problem::data::StereoData;
-use crate::calib::problem::rig_observations::SeenView;
+use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::target::Target;
 use crate::model::Rig;
 
@@ -86,29 +85,29 @@ const HYPOTHESES: [(Undo, &str); 10] = [
 ];
 
 /// Findings on what the misfit of `rig` (ports and extrinsics: the start) to `views` of `target`
-/// looks like: one line per mistake whose undoing explains it (the calibration then fits within
-/// `options.max_rms_px`, far below the RMS as given), the best first, or one line saying that
-/// none does and what to check. Each hypothesis is a whole calibration ([`calibrate_views`] with
+/// looks like: `Ok` with one line per mistake whose undoing explains it (the calibration then
+/// fits within the options' RMS bound, far below the RMS as given), the best first, or `Err` with
+/// one line saying that none does and what to check. Each hypothesis is a whole calibration ([`calibrate_views`] with
 /// `options`, from `rig`'s start), since a start fitted to the wrong data can be far from where
 /// the right data lead; the hypotheses run in parallel.
 pub fn explain_misfit(
     rig: &Rig,
     target: &Target,
     views: &[SeenView],
-    options: &RigCalibrationOptions,
-) -> Vec<String> {
-    let options = RigCalibrationOptions {
+    options: &Options,
+) -> Result<Vec<String>, String> {
+    let options = Options {
         max_iterations: options.max_iterations.min(FIT_ITERATIONS),
-        ..*options
+        ..options.clone()
     };
     let refit = |rig: &Rig, target: &Target, views: &[SeenView]| {
         rms_after_calibration(rig, target, views, &options)
     };
     let Some(now) = refit(rig, target, views) else {
-        return vec![
+        return Err(
             "no calibration of the data as given finishes (are the corners in target order?)"
                 .into(),
-        ];
+        );
     };
     let has_distortion = rig.cameras().iter().any(|c| c.intrinsics.has_distortion());
     let undone: Vec<Option<f64>> = HYPOTHESES
@@ -137,12 +136,12 @@ pub fn explain_misfit(
             Undo::EstimateExtrinsics
                 if rig.cameras().len() >= 2 && !options.estimate.extrinsics =>
             {
-                let freed = RigCalibrationOptions {
+                let freed = Options {
                     estimate: Estimate {
                         extrinsics: true,
                         ..options.estimate
                     },
-                    ..options
+                    ..options.clone()
                 };
                 rms_after_calibration(rig, target, views, &freed)
             }
@@ -155,45 +154,28 @@ pub fn explain_misfit(
         .iter()
         .zip(undone)
         .filter_map(|((_, what), r)| Some((r?, *what)))
-        .filter(|(r, _)| *r < EXPLAINS * now && *r <= options.max_rms_px)
+        .filter(|(r, _)| *r < EXPLAINS * now && *r <= options.rms_bound())
         .collect();
     explained.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut findings: Vec<String> = explained
+    if explained.is_empty() {
+        return Err(format!(
+            "the RMS of {now:.2} px is not explained by a scaled target, half- or double-resolution pixels, corners undistorted twice, a baseline in millimetres or in-air extrinsics off; check that the corners are raw (distorted) pixels in target order in every camera, and the rig's intrinsics and extrinsics"
+        ));
+    }
+    Ok(explained
         .into_iter()
         .map(|(r, what)| {
             format!("{what} (with that fixed, the RMS falls from {now:.2} px to {r:.2} px)")
         })
-        .collect();
-    if findings.is_empty() {
-        findings.push(format!(
-            "the RMS of {now:.2} px is not explained by a scaled target, half- or double-resolution pixels, corners undistorted twice, a baseline in millimetres or in-air extrinsics off; check that the corners are raw (distorted) pixels in target order in every camera, and the rig's intrinsics and extrinsics"
-        ));
-    }
-    findings
+        .collect())
 }
 
-/// [`explain_misfit`] for the stereo problem of the thesis' pipeline: its two cameras' corners
-/// as views of its board, from its rig's start, the axis and air distance estimated, a fit
-/// accepted up to `max_rms_px`.
-pub fn explain_stereo_misfit(data: &StereoData, max_rms_px: f64) -> Vec<String> {
-    let [a, b] = data.cameras;
-    let views: Vec<SeenView> = data
-        .views
-        .iter()
-        .map(|range| {
-            let corners = &data.corners[range.clone()];
-            let side = |s: usize| corners.iter().map(|c| (c.index, c.pixels[s])).collect();
-            let mut cameras = vec![(a, side(0)), (b, side(1))];
-            cameras.sort_by_key(|(k, _)| *k);
-            SeenView { cameras }
-        })
-        .collect();
-    let options = RigCalibrationOptions {
-        estimate: Estimate::default(),
-        max_rms_px,
-        ..RigCalibrationOptions::default()
-    };
-    explain_misfit(&data.rig, &Target::Board(data.board), &views, &options)
+/// Whether a finding of [`explain_misfit`] names a mistake of scale (the target's size, or the
+/// baseline's unit), which a triangulated board of the wrong scale shows too.
+pub fn is_about_scale(finding: &str) -> bool {
+    HYPOTHESES.iter().any(|(undo, what)| {
+        matches!(undo, Undo::ScaleTarget(_) | Undo::ScaleBaseline(_)) && finding.starts_with(what)
+    })
 }
 
 /// The RMS reprojection error of a whole calibration of `views` from `rig`'s start; `None` when
@@ -202,9 +184,9 @@ fn rms_after_calibration(
     rig: &Rig,
     target: &Target,
     views: &[SeenView],
-    options: &RigCalibrationOptions,
+    options: &Options,
 ) -> Option<f64> {
-    calibrate_views(rig, target, views, options)
+    calibrate_views(rig, target, views, options, Vec::new(), &mut |_| {})
         .ok()
         .map(|c| c.report.rms_px)
         .filter(|r| r.is_finite())
@@ -220,6 +202,7 @@ fn map_pixels(views: &[SeenView], f: impl Fn(usize, &Point2<f64>) -> Point2<f64>
                 .iter()
                 .map(|(k, corners)| (*k, corners.iter().map(|(i, p)| (*i, f(*k, p))).collect()))
                 .collect(),
+            keys: view.keys.clone(),
         })
         .collect()
 }

@@ -224,27 +224,46 @@ pub fn explain(
     noise_px: Option<f64>,
 ) -> Vec<String> {
     let mut findings = pairing_findings(data);
+    let pairing = !findings.is_empty();
+    findings.extend(scale_finding(data, candidate, pairing));
+    findings.push(summary(data, noise_px));
+    findings
+}
+
+/// The scale of the triangulated board under `candidate` (or the rig's interface) when it is off
+/// by more than [`SCALE_TOLERANCE`]; `pairing` says whether the images' pairing already looks
+/// wrong (then a large factor is not put down to a unit).
+pub fn scale_finding(
+    data: &StereoData,
+    candidate: Option<&Candidate>,
+    pairing: bool,
+) -> Option<String> {
     let rig_candidate = Candidate::of(data.port());
     let under = candidate.copied().unwrap_or(rig_candidate);
-    if let Some(ratio) = square_ratio(data, &under) {
-        if (ratio - 1.0).abs() > SCALE_TOLERANCE {
-            let what = if candidate.is_some() {
-                "under the fitted interface"
-            } else {
-                "under the rig's start interface"
-            };
-            let hint = if !(0.2..=5.0).contains(&ratio) && findings.is_empty() {
-                " (a factor this large suggests a unit: a baseline or square in millimetres instead of metres?)"
-            } else {
-                ""
-            };
-            findings.push(format!(
-                "the triangulated board's squares measure {:.2} mm {what} (median), the observations give {:.2} mm: check the board's \"square\" (metres) and the rig's baseline{hint}",
-                ratio * data.board.square * 1e3,
-                data.board.square * 1e3
-            ));
-        }
+    let ratio = square_ratio(data, &under)?;
+    if (ratio - 1.0).abs() <= SCALE_TOLERANCE {
+        return None;
     }
+    let what = if candidate.is_some() {
+        "under the fitted interface"
+    } else {
+        "under the rig's start interface"
+    };
+    let hint = if !(0.2..=5.0).contains(&ratio) && !pairing {
+        " (a factor this large suggests a unit: a baseline or square in millimetres instead of metres?)"
+    } else {
+        ""
+    };
+    Some(format!(
+        "the triangulated board's squares measure {:.2} mm {what} (median), the observations give {:.2} mm: check the board's \"square\" (metres) and the rig's baseline{hint}",
+        ratio * data.board.square * 1e3,
+        data.board.square * 1e3
+    ))
+}
+
+/// One line of what the data are: views, corners, the corner noise `noise_px` seen in the images
+/// when known, how the in-air rays meet.
+pub fn summary(data: &StereoData, noise_px: Option<f64>) -> String {
     let meetings = pairings(data);
     let corners: usize = meetings.iter().map(|m| m[0].corners).sum();
     let in_front: usize = meetings.iter().map(|m| m[0].in_front).sum();
@@ -257,23 +276,24 @@ pub fn explain(
     let gap = gaps.get(gaps.len() / 2).map_or("none meet".into(), |g| {
         format!("median gap {:.2} mrad", g * 1e3)
     });
-    findings.push(format!(
+    format!(
         "{} views of a {}×{} board ({} mm squares), {} corners seen in both images{}; in air, {:.0} % of the corners' two rays meet in front of both cameras ({gap})",
         data.views.len(),
         data.board.cols,
         data.board.rows,
         data.board.square * 1e3,
         data.corners.len(),
-        noise_px.map_or(String::new(), |s| format!(", scattered σ ≈ {s:.3} px about the board's smooth shape in each image")),
+        noise_px.map_or(String::new(), |s| format!(
+            ", scattered σ ≈ {s:.3} px about the board's smooth shape in each image"
+        )),
         100.0 * in_front as f64 / corners.max(1) as f64,
-    ));
-    findings
+    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::{Board, Observations, SceneSpec, StereoView, simulate};
+    use crate::calib::{Board, Observations, SceneSpec, Target, simulate};
 
     fn scene(seed: u64) -> (crate::model::Rig, Observations) {
         let rig = crate::io::rig_from_json_str(
@@ -281,22 +301,12 @@ mod tests {
             "example".as_ref(),
         )
         .unwrap();
-        let scene = simulate(
-            &rig,
-            0,
-            1,
-            &SceneSpec::new(
-                Board {
-                    rows: 6,
-                    cols: 9,
-                    square: 0.04,
-                },
-                8,
-                0.2,
-                seed,
-            ),
-        )
-        .unwrap();
+        let board = Target::Board(Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        });
+        let scene = simulate(&rig, &SceneSpec::pair(board, 8, 0.2, seed, 0, 1)).unwrap();
         (rig, scene.observations)
     }
 
@@ -304,7 +314,7 @@ mod tests {
     fn correct_pairings_fit_and_their_alternatives_do_not() {
         for seed in 1..=4 {
             let (rig, observations) = scene(seed);
-            let data = StereoData::new(&rig, [0, 1], &observations).unwrap();
+            let data = StereoData::from_observations(&rig, [0, 1], &observations).unwrap();
             for (v, [given, exchanged, reversed]) in pairings(&data).iter().enumerate() {
                 println!("seed {seed} view {v}: {given:?} {exchanged:?} {reversed:?}");
                 assert_eq!(given.in_front, given.corners);
@@ -322,15 +332,13 @@ mod tests {
     fn swapped_and_reversed_views_are_named() {
         let (rig, mut observations) = scene(7);
         for v in [1, 2, 3] {
-            let view = &mut observations.views[v];
-            std::mem::swap(&mut view.left, &mut view.right);
+            let [left, right] = observations.views[v].images.as_mut_slice() else {
+                unreachable!("two images")
+            };
+            std::mem::swap(&mut left.corners, &mut right.corners);
         }
-        let view = &observations.views[5];
-        observations.views[5] = StereoView {
-            left: view.left.clone(),
-            right: view.right.iter().rev().copied().collect(),
-        };
-        let data = StereoData::new(&rig, [0, 1], &observations).unwrap();
+        observations.views[5].images[1].corners.reverse();
+        let data = StereoData::from_observations(&rig, [0, 1], &observations).unwrap();
         let findings = pairing_findings(&data);
         assert_eq!(findings.len(), 2, "{findings:?}");
         assert!(
@@ -346,8 +354,12 @@ mod tests {
     #[test]
     fn a_wrong_square_is_measured() {
         let (rig, mut observations) = scene(3);
-        observations.board.square = 0.03;
-        let data = StereoData::new(&rig, [0, 1], &observations).unwrap();
+        observations.target = Target::Board(Board {
+            rows: 6,
+            cols: 9,
+            square: 0.03,
+        });
+        let data = StereoData::from_observations(&rig, [0, 1], &observations).unwrap();
         let findings = explain(
             &data,
             Some(&Candidate::of(rig.shared_interface().unwrap())),

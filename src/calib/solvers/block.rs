@@ -1,37 +1,19 @@
-//! The maximum-likelihood refinement: Levenberg–Marquardt over the system axis, the air layer and
-//! every board pose, minimising the reprojection error of the board corners in both cameras
-//! (optionally under a Huber loss).
+//! The normal equations of a bundle adjustment: G global parameters shared by every residual and
+//! one pose of six parameters per view, which only that view's residuals depend on, solved by the
+//! Schur complement on the poses ([`BlockNormalEquations`]); each view's share from its
+//! residuals and their Jacobian ([`view_share`]), under an optional Huber loss ([`robust`]).
 //!
-//! Step parameters, in order: (δ₁, δ₂) the axis moved in its tangent plane
-//! ([`tangent_step`]), δd the air layer (m), then for each view ω (rotation vector, rad) and τ
-//! (translation, m) with master_from_board ← (τ, exp(ω)) · master_from_board.
+//! Pose step parameters: ω (rotation vector, rad) and τ (translation, m), with
+//! target pose ← (τ, exp(ω)) · pose ([`move_pose`]).
 
 use nalgebra::{
-    Cholesky, DMatrix, DVector, Dyn, Isometry3, Matrix6, OMatrix, Translation3, U6, Unit,
-    UnitQuaternion, Vector2, Vector3, Vector6,
+    Cholesky, DMatrix, DVector, Dyn, Isometry3, Matrix6, OMatrix, Translation3, U6, UnitQuaternion,
+    Vector2, Vector3, Vector6,
 };
-use rayon::prelude::*;
 
-use crate::calib::problem::data::{Candidate, StereoData};
-use crate::calib::solvers::lm::{LeastSquares, NormalEquations};
-use crate::calib::solvers::search::tangent_step;
-use crate::engine::simd;
-use crate::model::RefractiveCamera;
+use crate::calib::solvers::lm::NormalEquations;
 
-/// The interface and board poses being refined.
-#[derive(Debug, Clone, PartialEq)]
-pub struct BundleState {
-    /// System axis and air layer.
-    pub candidate: Candidate,
-    /// X_master = R·X_board + t per view.
-    pub poses: Vec<Isometry3<f64>>,
-}
-
-/// Parameters of the interface in a step: δ₁, δ₂, δd. These are the bundle's global parameters
-/// (shared by every residual); [`BlockNormalEquations`] takes their number as a value, so more
-/// can join them (extrinsics, layer thicknesses).
-pub const INTERFACE_PARAMETERS: usize = 3;
-/// Parameters of one board pose in a step: ω (rad), τ (m).
+/// Parameters of one target pose in a step: ω (rad), τ (m).
 pub const POSE_PARAMETERS: usize = 6;
 
 /// One view's share of the normal equations: its pose block, its coupling to the global
@@ -153,69 +135,6 @@ impl NormalEquations for BlockNormalEquations {
     }
 }
 
-/// Central-difference step for every parameter (rad or m): pixels are exact to ~1e-10 px, so the
-/// derivatives keep ~8 digits, and the truncation error (h²) is far below that.
-const DIFFERENCE_STEP: f64 = 1e-6;
-
-/// The reprojection problem of [`StereoData`].
-pub struct Bundle<'a> {
-    data: &'a StereoData,
-    /// Huber threshold in pixels on each corner's residual length; `None` for plain least squares.
-    huber: Option<f64>,
-}
-
-impl<'a> Bundle<'a> {
-    /// The problem over `data`, with an optional Huber threshold (pixels).
-    pub fn new(data: &'a StereoData, huber: Option<f64>) -> Self {
-        Self { data, huber }
-    }
-
-    /// Residuals (projected − observed, px) of the corners of `view`, left and right, in
-    /// `data.corners` order; `None` when one does not project. The view's corners are projected
-    /// together, in the lanes of the CPU engine's vector path.
-    fn view_residuals(
-        &self,
-        cameras: &[RefractiveCamera; 2],
-        view: usize,
-        pose: &Isometry3<f64>,
-        out: &mut Vec<Vector2<f64>>,
-    ) -> Option<()> {
-        let corners = &self.data.corners[self.data.views[view].clone()];
-        let points: Vec<[f64; 3]> = corners
-            .iter()
-            .map(|c| {
-                (pose * self.data.board.point_in_board(c.index))
-                    .coords
-                    .into()
-            })
-            .collect();
-        let [left, right] =
-            [&cameras[0], &cameras[1]].map(|camera| simd::project_all(camera, &points));
-        let (left, right) = (left?, right?);
-        for ((corner, l), r) in corners.iter().zip(&left).zip(&right) {
-            out.push(Vector2::new(l[0], l[1]) - corner.pixels[0].coords);
-            out.push(Vector2::new(r[0], r[1]) - corner.pixels[1].coords);
-        }
-        Some(())
-    }
-
-    /// Every residual at `state`, two per corner (left, right); views in parallel.
-    pub fn residuals(&self, state: &BundleState) -> Option<Vec<Vector2<f64>>> {
-        let cameras = self.data.cameras_behind(&state.candidate)?;
-        let per_view: Option<Vec<Vec<Vector2<f64>>>> = state
-            .poses
-            .par_iter()
-            .enumerate()
-            .map(|(v, pose)| {
-                let mut out = Vec::with_capacity(2 * self.data.views[v].len());
-                self.view_residuals(&cameras, v, pose, &mut out)
-                    .map(|()| out)
-            })
-            .collect();
-        Some(per_view?.concat())
-    }
-}
-
 /// (cost contribution, weight) of a residual of length² `r2` under an optional Huber threshold
 /// `huber`: r² and 1 inside the threshold k, 2k|r| − k² and k/|r| outside.
 pub fn robust(huber: Option<f64>, r2: f64) -> (f64, f64) {
@@ -296,144 +215,6 @@ pub fn move_pose(pose: &Isometry3<f64>, delta: &[f64]) -> Isometry3<f64> {
     let rotation = UnitQuaternion::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2]));
     let translation = Translation3::new(delta[3], delta[4], delta[5]);
     Isometry3::from_parts(translation, rotation) * pose
-}
-
-fn move_interface(candidate: &Candidate, delta: &[f64]) -> Candidate {
-    Candidate {
-        normal: tangent_step(&candidate.normal, &Vector2::new(delta[0], delta[1])),
-        air_distance: candidate.air_distance + delta[2],
-    }
-}
-
-impl LeastSquares for Bundle<'_> {
-    type State = BundleState;
-    type Normal = BlockNormalEquations;
-
-    fn dimension(&self, state: &BundleState) -> usize {
-        INTERFACE_PARAMETERS + POSE_PARAMETERS * state.poses.len()
-    }
-
-    fn cost(&self, state: &BundleState) -> Option<f64> {
-        Some(
-            self.residuals(state)?
-                .iter()
-                .map(|r| robust(self.huber, r.norm_squared()).0)
-                .sum(),
-        )
-    }
-
-    fn normal_equations(&self, state: &BundleState) -> Option<BlockNormalEquations> {
-        let data = self.data;
-        let globals = INTERFACE_PARAMETERS;
-        let cameras = data.cameras_behind(&state.candidate)?;
-        // The cameras behind the interface moved by ±h along each global parameter.
-        let shifted: Vec<[[RefractiveCamera; 2]; 2]> = (0..globals)
-            .map(|p| {
-                let mut delta = [0.0; INTERFACE_PARAMETERS];
-                delta[p] = DIFFERENCE_STEP;
-                let plus = data.cameras_behind(&move_interface(&state.candidate, &delta))?;
-                delta[p] = -DIFFERENCE_STEP;
-                let minus = data.cameras_behind(&move_interface(&state.candidate, &delta))?;
-                Some([plus, minus])
-            })
-            .collect::<Option<_>>()?;
-        // Per view, in parallel: ∂r/∂(globals) and ∂r/∂(pose v) by central differences (only
-        // this view's residuals depend on its pose), then its share of JᵀWJ and JᵀWr.
-        let shares: Vec<(DMatrix<f64>, DVector<f64>, f64)> = state
-            .poses
-            .par_iter()
-            .enumerate()
-            .map(|(v, pose)| {
-                let mut base = Vec::with_capacity(2 * data.views[v].len());
-                self.view_residuals(&cameras, v, pose, &mut base)?;
-                let count = base.len();
-                let columns = globals + POSE_PARAMETERS;
-                // jacobian[p * count + i] = ∂r_i/∂(parameter p), globals first.
-                let mut jacobian = vec![Vector2::zeros(); columns * count];
-                let (mut plus, mut minus) = (Vec::with_capacity(count), Vec::with_capacity(count));
-                for p in 0..columns {
-                    plus.clear();
-                    minus.clear();
-                    if p < globals {
-                        self.view_residuals(&shifted[p][0], v, pose, &mut plus)?;
-                        self.view_residuals(&shifted[p][1], v, pose, &mut minus)?;
-                    } else {
-                        let mut delta = [0.0; POSE_PARAMETERS];
-                        delta[p - globals] = DIFFERENCE_STEP;
-                        self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut plus)?;
-                        delta[p - globals] = -DIFFERENCE_STEP;
-                        self.view_residuals(&cameras, v, &move_pose(pose, &delta), &mut minus)?;
-                    }
-                    for (i, (plus, minus)) in plus.iter().zip(&minus).enumerate() {
-                        jacobian[p * count + i] = (plus - minus) / (2.0 * DIFFERENCE_STEP);
-                    }
-                }
-                Some(view_share(&base, &jacobian, columns, self.huber))
-            })
-            .collect::<Option<_>>()?;
-        Some(BlockNormalEquations::from_shares(globals, shares))
-    }
-
-    fn retract(&self, state: &BundleState, delta: &DVector<f64>) -> BundleState {
-        let d = delta.as_slice();
-        BundleState {
-            candidate: move_interface(&state.candidate, &d[..INTERFACE_PARAMETERS]),
-            poses: state
-                .poses
-                .iter()
-                .enumerate()
-                .map(|(v, pose)| {
-                    let offset = INTERFACE_PARAMETERS + POSE_PARAMETERS * v;
-                    move_pose(pose, &d[offset..offset + POSE_PARAMETERS])
-                })
-                .collect(),
-        }
-    }
-}
-
-/// Standard deviations of (tilt, azimuth, air layer) from the global block of (JᵀJ)⁻¹ (the
-/// inverse of the Schur complement, [`BlockNormalEquations::global_covariance`]) scaled by the
-/// residual variance σ̂² = cost / (residuals − parameters), with the tangent-plane axis
-/// parameters carried to tilt and azimuth by their derivatives at `candidate`. Also returns σ̂.
-pub fn interface_std(
-    candidate: &Candidate,
-    normal: &BlockNormalEquations,
-    cost: f64,
-    residuals: usize,
-) -> Option<([f64; 3], f64)> {
-    let parameters = normal.dimension();
-    let dof = residuals.checked_sub(parameters).filter(|&d| d > 0)?;
-    let sigma2 = cost / dof as f64;
-    let covariance = normal
-        .global_covariance()?
-        .fixed_view::<3, 3>(0, 0)
-        .into_owned()
-        * sigma2;
-    // ∂(tilt, azimuth)/∂(δ₁, δ₂) by central differences on the unit sphere.
-    let h = 1e-7;
-    let angles = |n: &Unit<Vector3<f64>>| (n.z.clamp(-1.0, 1.0).acos(), n.y.atan2(n.x));
-    let mut jacobian = nalgebra::Matrix3::identity();
-    for p in 0..2 {
-        let mut offset = Vector2::zeros();
-        offset[p] = h;
-        let plus = angles(&tangent_step(&candidate.normal, &offset));
-        offset[p] = -h;
-        let minus = angles(&tangent_step(&candidate.normal, &offset));
-        jacobian[(0, p)] = (plus.0 - minus.0) / (2.0 * h);
-        let mut d_azimuth = plus.1 - minus.1;
-        d_azimuth = (d_azimuth + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
-            - std::f64::consts::PI;
-        jacobian[(1, p)] = d_azimuth / (2.0 * h);
-    }
-    let propagated = jacobian * covariance * jacobian.transpose();
-    Some((
-        [
-            propagated[(0, 0)].sqrt(),
-            propagated[(1, 1)].sqrt(),
-            propagated[(2, 2)].sqrt(),
-        ],
-        sigma2.sqrt(),
-    ))
 }
 
 #[cfg(test)]

@@ -89,13 +89,13 @@ impl SweepSpec {
         if !(self.azimuth_deg.start.is_finite() && self.azimuth_deg.stop.is_finite()) {
             return bad("azimuths must be finite");
         }
-        if let Some(d) = self.distance {
-            if !(d.start > 0.0 && d.stop > 0.0 && d.start.is_finite() && d.stop.is_finite()) {
-                return bad(&format!(
-                    "air layers must be positive: got {}:{}",
-                    d.start, d.stop
-                ));
-            }
+        if let Some(d) = self.distance
+            && !(d.start > 0.0 && d.stop > 0.0 && d.start.is_finite() && d.stop.is_finite())
+        {
+            return bad(&format!(
+                "air layers must be positive: got {}:{}",
+                d.start, d.stop
+            ));
         }
         Ok(())
     }

@@ -1,0 +1,165 @@
+//! The start of every calibration: each view's target pose from the camera that saw most of it,
+//! by the pinhole model alone (a homography for a planar target, the direct linear transform for
+//! a 3-D one); the pipeline then fits the poses through the start port.
+
+use nalgebra::{
+    DMatrix, Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3,
+};
+
+use crate::calib::error::CalibError;
+use crate::calib::problem::observations::SeenView;
+use crate::calib::problem::target::Target;
+use crate::model::Rig;
+
+/// Each view's target pose (master frame) from the camera that saw most of it: the pinhole pose of
+/// its undistorted corners (homography for a planar target, DLT for a 3-D one).
+pub fn initial_poses(
+    rig: &Rig,
+    target: &Target,
+    views: &[SeenView],
+) -> Result<Vec<Isometry3<f64>>, CalibError> {
+    views
+        .iter()
+        .enumerate()
+        .map(|(v, view)| {
+            let (k, corners) = view.cameras.iter().max_by_key(|(_, c)| c.len()).expect("a resolved view has a camera");
+            let camera = &rig.cameras()[*k];
+            let mut object = Vec::with_capacity(corners.len());
+            let mut image = Vec::with_capacity(corners.len());
+            for (i, pixel) in corners {
+                let Some(x) = camera.intrinsics.normalized_from_img(pixel) else { continue };
+                object.push(target.point(*i));
+                image.push(x);
+            }
+            let cam_from_target = pinhole_pose(&object, &image).ok_or_else(|| CalibError::UnusableView {
+                view: v,
+                reason: format!("no pose of the target fits camera '{}''s corners (are they in target order?)", camera.name),
+            })?;
+            Ok(camera.cam_from_master.inverse() * cam_from_target)
+        })
+        .collect()
+}
+
+/// The pinhole pose cam_from_target of `object` points seen at undistorted normalised `image`
+/// coordinates: a homography when the points are coplanar, the DLT otherwise. `None` when
+/// degenerate.
+pub fn pinhole_pose(object: &[Point3<f64>], image: &[Vector2<f64>]) -> Option<Isometry3<f64>> {
+    if object.len() < 4 {
+        return None;
+    }
+    // The points' own frame: centroid and principal axes; a plane has a vanishing third axis.
+    let n = object.len() as f64;
+    let centre = object.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / n;
+    let scatter = object.iter().fold(Matrix3::zeros(), |a, p| {
+        let d = p.coords - centre;
+        a + d * d.transpose()
+    });
+    let eigen = scatter.symmetric_eigen();
+    let mut order = [0, 1, 2];
+    order.sort_by(|&a, &b| eigen.eigenvalues[b].total_cmp(&eigen.eigenvalues[a]));
+    let mut axes = Matrix3::from_columns(&order.map(|i| eigen.eigenvectors.column(i).into_owned()));
+    if axes.determinant() < 0.0 {
+        axes.column_mut(2).neg_mut();
+    }
+    let scale = (eigen.eigenvalues[order[0]] / n).sqrt().max(1e-12);
+    // local = axesᵀ (X − c) / scale; X = c + scale · axes · local.
+    let local: Vec<Vector3<f64>> = object
+        .iter()
+        .map(|p| axes.transpose() * (p.coords - centre) / scale)
+        .collect();
+    let planar = eigen.eigenvalues[order[2]] <= 1e-12 * eigen.eigenvalues[order[0]];
+    let (rotation, translation) = if planar {
+        homography_pose(&local, image)?
+    } else {
+        dlt_pose(&local, image)?
+    };
+    // x ~ R_l·local + t_l, and scaling the right side by `scale` changes no image point:
+    // X_cam = R_l·axesᵀ·(X − c) + scale·t_l, a rigid pose.
+    let r = rotation * axes.transpose();
+    let t = translation * scale - r * centre;
+    Some(Isometry3::from_parts(
+        Translation3::from(t),
+        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r)),
+    ))
+}
+
+/// Pose (R, t) of points on z = 0 of their (scaled) local frame from a homography.
+fn homography_pose(
+    local: &[Vector3<f64>],
+    image: &[Vector2<f64>],
+) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+    let mut a = DMatrix::zeros(2 * local.len(), 9);
+    for (i, (p, x)) in local.iter().zip(image).enumerate() {
+        let (u, v) = (x.x, x.y);
+        let row = [p.x, p.y, 1.0];
+        for j in 0..3 {
+            a[(2 * i, j)] = row[j];
+            a[(2 * i, 6 + j)] = -u * row[j];
+            a[(2 * i + 1, 3 + j)] = row[j];
+            a[(2 * i + 1, 6 + j)] = -v * row[j];
+        }
+    }
+    let h = smallest_right_singular_vector(&a)?;
+    let mut hm = Matrix3::from_row_slice(h.as_slice());
+    let (h1, h2) = (hm.column(0).norm(), hm.column(1).norm());
+    let lambda = 2.0 / (h1 + h2);
+    hm *= lambda;
+    if hm[(2, 2)] < 0.0 {
+        hm = -hm;
+    }
+    let r1 = hm.column(0).into_owned();
+    let r2 = hm.column(1).into_owned();
+    let r = orthonormal(&Matrix3::from_columns(&[r1, r2, r1.cross(&r2)]))?;
+    Some((r, hm.column(2).into_owned()))
+}
+
+/// Pose (R, t) of non-coplanar points (local frame) by the direct linear transform.
+fn dlt_pose(
+    local: &[Vector3<f64>],
+    image: &[Vector2<f64>],
+) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+    if local.len() < 6 {
+        return None;
+    }
+    let mut a = DMatrix::zeros(2 * local.len(), 12);
+    for (i, (p, x)) in local.iter().zip(image).enumerate() {
+        let row = [p.x, p.y, p.z, 1.0];
+        for j in 0..4 {
+            a[(2 * i, j)] = row[j];
+            a[(2 * i, 8 + j)] = -x.x * row[j];
+            a[(2 * i + 1, 4 + j)] = row[j];
+            a[(2 * i + 1, 8 + j)] = -x.y * row[j];
+        }
+    }
+    let p = smallest_right_singular_vector(&a)?;
+    let mut m = Matrix3::new(p[0], p[1], p[2], p[4], p[5], p[6], p[8], p[9], p[10]);
+    let mut t = Vector3::new(p[3], p[7], p[11]);
+    if m.determinant() < 0.0 {
+        m = -m;
+        t = -t;
+    }
+    let scale = m.singular_values().mean();
+    Some((orthonormal(&m)?, t / scale))
+}
+
+fn smallest_right_singular_vector(a: &DMatrix<f64>) -> Option<nalgebra::DVector<f64>> {
+    // Of AᵀA: its eigenvector of the smallest eigenvalue (A has ≥ 8 rows and 9 or 12 columns).
+    let ata = a.transpose() * a;
+    let eigen = ata.symmetric_eigen();
+    let i = eigen.eigenvalues.imin();
+    let v = eigen.eigenvectors.column(i).into_owned();
+    v.iter().all(|x| x.is_finite()).then_some(v)
+}
+
+/// The rotation nearest `m` (polar decomposition); `None` when `m` is degenerate.
+fn orthonormal(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let svd = m.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let mut r = u * v_t;
+    if r.determinant() < 0.0 {
+        let mut u = u;
+        u.column_mut(2).neg_mut();
+        r = u * v_t;
+    }
+    r.iter().all(|x| x.is_finite()).then_some(r)
+}

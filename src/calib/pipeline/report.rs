@@ -1,0 +1,486 @@
+//! What a calibration found and how well the data fit it: one [`Report`] for every rig, with the
+//! ports and cameras and their standard deviations, the residuals per camera and view, the corner
+//! images far above the rest, the stages that ran and, when the result does not fit, what the data
+//! look like.
+
+use std::collections::HashSet;
+use std::time::Instant;
+
+use nalgebra::{DMatrix, Isometry3, Matrix3, Vector2, Vector3};
+
+use super::Method;
+use super::bundle::{Estimate, Parameter, State};
+use crate::calib::costs::invariants::plane_basis;
+use crate::calib::problem::data::Candidate;
+use crate::calib::problem::observations::SeenView;
+use crate::calib::problem::screen::Screening;
+use crate::model::{Interface, Ports, Rig};
+
+/// A calibrated quantity with its standard deviation (`None` when known, not estimated, not
+/// refined by maximum likelihood, or when the covariance is singular).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimated {
+    /// The value.
+    pub value: f64,
+    /// Its standard deviation.
+    pub std: Option<f64>,
+}
+
+/// One calibrated port.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PortReport {
+    /// `shared`, or the name of the camera whose port it is.
+    pub name: String,
+    /// Unit axis in the port's frame (the master's when shared, its camera's otherwise).
+    pub normal: [f64; 3],
+    /// Tilt from that frame's z axis, radians.
+    pub tilt: Estimated,
+    /// Azimuth atan2(n_y, n_x), radians.
+    pub azimuth: Estimated,
+    /// Air distance, metres.
+    pub distance: Estimated,
+    /// Layer thicknesses, metres.
+    pub thicknesses: Vec<Estimated>,
+}
+
+/// One camera's share of the result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraReport {
+    /// Its name.
+    pub name: String,
+    /// Corners it saw.
+    pub observations: usize,
+    /// Views it saw.
+    pub views: usize,
+    /// RMS reprojection error over every corner it saw, pixels (NaN when it saw none).
+    pub rms_px: f64,
+    /// RMS reprojection error over its corner images that are not outliers, pixels.
+    pub inlier_rms_px: f64,
+    /// RMS reprojection error per view, pixels (NaN for a view it did not see).
+    pub rms_px_per_view: Vec<f64>,
+    /// Standard deviations of its rotation (about the x, y, z axes, radians) and translation (m),
+    /// when its extrinsics were estimated.
+    pub extrinsics_std: Option<([f64; 3], [f64; 3])>,
+}
+
+/// A corner image whose reprojection residual is far above the rest, or that the screening
+/// found off the board's shape in its image.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outlier {
+    /// 0-based view.
+    pub view: usize,
+    /// The image's key in the observations (`left`, or the camera's name).
+    pub image: String,
+    /// The rig camera that took that image.
+    pub camera: String,
+    /// Corner index on the target.
+    pub corner: usize,
+    /// Its reprojection residual under the result, pixels.
+    pub residual_px: f64,
+    /// Whether the screening of the images ([`screen`](crate::calib::problem::screen)) found it
+    /// before any fit; such corners are left out of the estimate.
+    pub screened: bool,
+}
+
+/// One stage of a calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stage {
+    /// What ran (`target poses`, `global search (affine-grid, 1262 axes)`, `refine axis
+    /// (affine-grid)`, `air layer (linear least squares on the ray gaps)`, `maximum likelihood
+    /// from …`).
+    pub name: String,
+    /// The first port's axis and air distance at its end (its frame), when the stage moves it.
+    pub port: Option<Candidate>,
+    /// The cost it minimised, at its end.
+    pub cost: f64,
+    /// The cost's unit.
+    pub unit: &'static str,
+    /// Iterations (or grid cells).
+    pub iterations: usize,
+    /// Seconds spent.
+    pub seconds: f64,
+}
+
+impl Stage {
+    /// A stage that ended at `port` with `cost`, started at `since`.
+    pub fn at(
+        name: &str,
+        port: Candidate,
+        cost: f64,
+        unit: &'static str,
+        iterations: usize,
+        since: Instant,
+    ) -> Self {
+        Self {
+            name: name.into(),
+            port: Some(port),
+            cost,
+            unit,
+            iterations,
+            seconds: since.elapsed().as_secs_f64(),
+        }
+    }
+}
+
+/// The 3-D errors of one camera pair's triangulated corners under the result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneErrors {
+    /// The pair's camera names.
+    pub cameras: [String; 2],
+    /// RMS residual of the rigid target fit to the triangulated corners, metres.
+    pub rms_m: f64,
+    /// RMS deviation of adjacent triangulated corners' distances from the board's square, metres.
+    pub square_deviation_rms_m: f64,
+}
+
+/// Everything a calibration found and how well the data fit it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Report {
+    /// The method asked for.
+    pub method: Method,
+    /// What ran, in words (`auto: consecutive (thesis) over 1 camera pair(s), best pair
+    /// left–right, maximum likelihood from 3 starts`).
+    pub strategy: String,
+    /// What was estimated.
+    pub estimate: Estimate,
+    /// The ports, in rig order (one when shared).
+    pub ports: Vec<PortReport>,
+    /// The cameras, in rig order.
+    pub cameras: Vec<CameraReport>,
+    /// Estimated pixel noise σ̂ from the residuals of a maximum-likelihood fit (`None` for the
+    /// consecutive method).
+    pub sigma_px: Option<f64>,
+    /// The corner noise σ per coordinate seen in the images themselves (the scatter of each
+    /// board corner about the board's smooth shape), pixels: what the reprojection RMS of a fit
+    /// comes close to. `None` for a 3-D target or a board under 3 × 3.
+    pub noise_px: Option<f64>,
+    /// RMS reprojection error over every corner image, pixels.
+    pub rms_px: f64,
+    /// The 3-D errors of a camera pair's triangulated corners (the pair the consecutive method
+    /// ran on, else the first pair that saw three views of a board together), if any.
+    pub scene: Option<SceneErrors>,
+    /// Target poses X_master = R·X_target + t per view.
+    pub poses: Vec<Isometry3<f64>>,
+    /// Whether the target is a board.
+    pub board: bool,
+    /// The stages that ran, in order.
+    pub stages: Vec<Stage>,
+    /// Iterations of the final refinement.
+    pub iterations: usize,
+    /// Why it stopped.
+    pub termination: String,
+    /// Corner images with residuals far above the rest (or that the screening found), worst first.
+    pub outliers: Vec<Outlier>,
+    /// Whether the result fits: every camera's RMS over its images that are not outliers is at
+    /// most the bound of [`Options::max_rms_px`](super::Options::max_rms_px) (by default also
+    /// within a few times the corner noise seen in the images). The CLI writes no rig otherwise.
+    pub fits: bool,
+    /// What the data look like, when the RMS is far above the noise or above the bound; empty
+    /// otherwise.
+    pub diagnosis: Vec<String>,
+    /// Everything worth a second look.
+    pub warnings: Vec<String>,
+    /// Wall-clock seconds of the whole calibration.
+    pub seconds: f64,
+    /// What evaluated the cost batches.
+    pub backend: String,
+    /// Views used.
+    pub views: usize,
+    /// Distinct corners used (a corner seen by several cameras in a view counts once).
+    pub corners: usize,
+    /// Corner observations (one per corner per camera that saw it).
+    pub observations: usize,
+}
+
+impl Report {
+    /// The largest RMS over a camera's images that are not outliers, pixels (0 when no camera saw
+    /// anything).
+    pub fn worst_inlier_rms_px(&self) -> f64 {
+        self.cameras
+            .iter()
+            .map(|c| c.inlier_rms_px)
+            .filter(|r| !r.is_nan())
+            .fold(0.0, f64::max)
+    }
+
+    /// The first port (the shared one, or the master's own): what a stereo calibration reports.
+    pub fn port(&self) -> &PortReport {
+        &self.ports[0]
+    }
+}
+
+/// Residuals of every corner image: per view, (camera, corner, residual) in the bundle's order.
+pub type Residuals = Vec<Vec<(usize, usize, Vector2<f64>)>>;
+
+/// The residuals of `views` as the bundle gives them (per view, camera by camera, corners in
+/// target order) labelled with their camera and corner.
+pub fn label_residuals(views: &[SeenView], residuals: &[Vec<Vector2<f64>>]) -> Residuals {
+    views
+        .iter()
+        .zip(residuals)
+        .map(|(view, r)| {
+            view.cameras
+                .iter()
+                .flat_map(|(k, corners)| corners.iter().map(move |(i, _)| (*k, *i)))
+                .zip(r)
+                .map(|((k, i), r)| (k, i, *r))
+                .collect()
+        })
+        .collect()
+}
+
+/// Corner images whose residual exceeds max(1 px, 5 × the robust σ: 1.4826 × the median over
+/// the corners of each corner's largest image residual), and the images the screening found,
+/// marked (a screened image the result explains is not an outlier); worst first.
+pub fn find_outliers(
+    rig: &Rig,
+    views: &[SeenView],
+    residuals: &Residuals,
+    screening: Option<&Screening>,
+) -> Vec<Outlier> {
+    let mut largest: std::collections::BTreeMap<(usize, usize), f64> = Default::default();
+    for (v, view) in residuals.iter().enumerate() {
+        for &(_, i, r) in view {
+            let e = largest.entry((v, i)).or_insert(0.0);
+            *e = e.max(r.norm());
+        }
+    }
+    let mut sorted: Vec<f64> = largest.values().copied().collect();
+    if sorted.is_empty() {
+        return Vec::new();
+    }
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let threshold = (5.0 * 1.4826 * median).max(1.0);
+    let mut outliers = Vec::new();
+    for (v, view) in residuals.iter().enumerate() {
+        for &(k, i, r) in view {
+            let length = r.norm();
+            if length > threshold {
+                let key = views[v]
+                    .cameras
+                    .iter()
+                    .position(|(c, _)| *c == k)
+                    .map_or_else(
+                        || rig.cameras()[k].name.clone(),
+                        |p| views[v].keys[p].clone(),
+                    );
+                outliers.push(Outlier {
+                    view: v,
+                    image: key,
+                    camera: rig.cameras()[k].name.clone(),
+                    corner: i,
+                    residual_px: length,
+                    screened: screening.is_some_and(|s| s.is_suspect(v, k, i)),
+                });
+            }
+        }
+    }
+    outliers.sort_by(|a, b| b.residual_px.total_cmp(&a.residual_px));
+    outliers
+}
+
+/// Per camera: (RMS over every corner image, RMS over those that are not `outliers`, RMS per
+/// view), pixels; NaN where a camera saw nothing.
+pub fn camera_rms(
+    rig: &Rig,
+    residuals: &Residuals,
+    outliers: &[Outlier],
+) -> Vec<(f64, f64, Vec<f64>)> {
+    let flagged: HashSet<(usize, &str, usize)> = outliers
+        .iter()
+        .map(|o| (o.view, o.camera.as_str(), o.corner))
+        .collect();
+    let rms = |sum: f64, n: usize| {
+        if n == 0 {
+            f64::NAN
+        } else {
+            (sum / n as f64).sqrt()
+        }
+    };
+    rig.cameras()
+        .iter()
+        .enumerate()
+        .map(|(k, camera)| {
+            let (mut all, mut inliers, mut per_view) = ((0.0, 0), (0.0, 0), Vec::new());
+            for (v, view) in residuals.iter().enumerate() {
+                let mut this = (0.0, 0);
+                for &(_, i, r) in view.iter().filter(|(c, _, _)| *c == k) {
+                    let r2 = r.norm_squared();
+                    this.0 += r2;
+                    this.1 += 1;
+                    if !flagged.contains(&(v, camera.name.as_str(), i)) {
+                        inliers.0 += r2;
+                        inliers.1 += 1;
+                    }
+                }
+                all.0 += this.0;
+                all.1 += this.1;
+                per_view.push(rms(this.0, this.1));
+            }
+            (rms(all.0, all.1), rms(inliers.0, inliers.1), per_view)
+        })
+        .collect()
+}
+
+/// The standard deviation of global parameter `parameter`, from the covariance.
+fn std_of(
+    globals: &[Parameter],
+    covariance: Option<&DMatrix<f64>>,
+    parameter: Parameter,
+) -> Option<f64> {
+    let i = globals.iter().position(|&g| g == parameter)?;
+    covariance.map(|c| c[(i, i)].max(0.0).sqrt())
+}
+
+/// Every port of `state` with its standard deviations from `covariance` (of the global
+/// parameters `globals`, σ̂² applied): tilt and azimuth carried from the tangent-plane parameters.
+pub fn port_reports(
+    rig: &Rig,
+    state: &State,
+    globals: &[Parameter],
+    covariance: Option<&DMatrix<f64>>,
+) -> Vec<PortReport> {
+    state
+        .ports
+        .iter()
+        .enumerate()
+        .map(|(p, port)| {
+            let name = port_names(rig).swap_remove(p).0;
+            let n = port.normal;
+            // (tilt, azimuth) from the tangent-plane parameters by their derivatives at n.
+            let (tilt_std, azimuth_std) = match (
+                globals.iter().position(|&g| g == Parameter::Axis(p, 0)),
+                globals.iter().position(|&g| g == Parameter::Axis(p, 1)),
+                covariance,
+            ) {
+                (Some(i), Some(j), Some(c)) => {
+                    let [e1, e2] = plane_basis(&n);
+                    let sin_tilt = (n.x * n.x + n.y * n.y).sqrt();
+                    // d tilt = −d n_z / sin t; d azimuth = (n_x d n_y − n_y d n_x) / sin² t.
+                    let d_tilt = |e: &Vector3<f64>| -e.z / sin_tilt.max(1e-12);
+                    let d_azimuth = |e: &Vector3<f64>| {
+                        (n.x * e.y - n.y * e.x) / (sin_tilt * sin_tilt).max(1e-24)
+                    };
+                    let jt = Vector2::new(d_tilt(&e1), d_tilt(&e2));
+                    let ja = Vector2::new(d_azimuth(&e1), d_azimuth(&e2));
+                    let cov = nalgebra::Matrix2::new(c[(i, i)], c[(i, j)], c[(j, i)], c[(j, j)]);
+                    // At zero tilt the angles are singular: report the axis σ as the tilt's.
+                    if sin_tilt < 1e-9 {
+                        (Some(cov.trace().sqrt()), None)
+                    } else {
+                        (
+                            Some(jt.dot(&(cov * jt)).max(0.0).sqrt()),
+                            Some(ja.dot(&(cov * ja)).max(0.0).sqrt()),
+                        )
+                    }
+                }
+                _ => (None, None),
+            };
+            PortReport {
+                name,
+                normal: [n.x, n.y, n.z],
+                tilt: Estimated {
+                    value: n.z.clamp(-1.0, 1.0).acos(),
+                    std: tilt_std,
+                },
+                azimuth: Estimated {
+                    value: n.y.atan2(n.x),
+                    std: azimuth_std,
+                },
+                distance: Estimated {
+                    value: port.distance,
+                    std: std_of(globals, covariance, Parameter::Distance(p)),
+                },
+                thicknesses: port
+                    .thicknesses
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &t)| Estimated {
+                        value: t,
+                        std: std_of(globals, covariance, Parameter::Thickness(p, i)),
+                    })
+                    .collect(),
+            }
+        })
+        .collect()
+}
+
+/// Every camera's share: what it saw in `views`, its RMS values (from [`camera_rms`]) and, when
+/// its extrinsics were estimated, their standard deviations.
+pub fn camera_reports(
+    rig: &Rig,
+    views: &[SeenView],
+    rms: Vec<(f64, f64, Vec<f64>)>,
+    globals: &[Parameter],
+    covariance: Option<&DMatrix<f64>>,
+    extrinsics: &[Isometry3<f64>],
+) -> Vec<CameraReport> {
+    rig.cameras()
+        .iter()
+        .zip(rms)
+        .enumerate()
+        .map(|(k, (camera, (rms_px, inlier_rms_px, rms_px_per_view)))| {
+            let seen: Vec<usize> = views
+                .iter()
+                .filter_map(|v| v.corners_of(k).map(<[_]>::len))
+                .collect();
+            CameraReport {
+                name: camera.name.clone(),
+                observations: seen.iter().sum(),
+                views: seen.len(),
+                rms_px,
+                inlier_rms_px,
+                rms_px_per_view,
+                extrinsics_std: extrinsics_std(globals, covariance, k, &extrinsics[k]),
+            }
+        })
+        .collect()
+}
+
+/// σ of camera `k`'s rotation (about the master's axes) and of the translation t of its
+/// cam_from_master, from the covariance of its step parameters (ω, τ): a step turns the whole
+/// transform, t ← exp(ω)·t + τ, so δt = ω × t + τ = −[t]× ω + τ and Σ_t = A Σ Aᵀ with
+/// A = [−[t]×  I]. (The τ block alone is not t's covariance: ω moves t as well.)
+fn extrinsics_std(
+    globals: &[Parameter],
+    covariance: Option<&DMatrix<f64>>,
+    k: usize,
+    cam_from_master: &Isometry3<f64>,
+) -> Option<([f64; 3], [f64; 3])> {
+    let c = covariance?;
+    let index: Vec<usize> = (0..3)
+        .map(|a| Parameter::Rotation(k, a))
+        .chain((0..3).map(|a| Parameter::Translation(k, a)))
+        .map(|p| globals.iter().position(|&g| g == p))
+        .collect::<Option<_>>()?;
+    let block = nalgebra::Matrix6::from_fn(|i, j| c[(index[i], index[j])]);
+    let mut a = nalgebra::Matrix3x6::zeros();
+    a.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(-cam_from_master.translation.vector.cross_matrix()));
+    a.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&Matrix3::identity());
+    let translation = a * block * a.transpose();
+    let std = |m: f64| m.max(0.0).sqrt();
+    Some((
+        [std(block[(0, 0)]), std(block[(1, 1)]), std(block[(2, 2)])],
+        [
+            std(translation[(0, 0)]),
+            std(translation[(1, 1)]),
+            std(translation[(2, 2)]),
+        ],
+    ))
+}
+
+/// Each port with its name in reports: `shared`, or its camera's name.
+pub fn port_names(rig: &Rig) -> Vec<(String, Interface)> {
+    match rig.ports() {
+        Ports::Shared(port) => vec![("shared".into(), port.clone())],
+        Ports::PerCamera(ports) => rig
+            .cameras()
+            .iter()
+            .map(|c| c.name.clone())
+            .zip(ports.iter().cloned())
+            .collect(),
+    }
+}
