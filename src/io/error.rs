@@ -69,6 +69,26 @@ pub enum IoError {
     },
 }
 
+/// Longest piece of user input (a key, a header, a line) echoed in an error message, in
+/// characters: a 40 MB header or key must not be copied into the message.
+pub(crate) const EXCERPT_CHARS: usize = 60;
+
+/// The first `max_chars` characters of `text`, or `None` when it is no longer than that.
+pub(crate) fn head(text: &str, max_chars: usize) -> Option<&str> {
+    text.char_indices()
+        .nth(max_chars)
+        .map(|(end, _)| &text[..end])
+}
+
+/// `text` for an error message: whole up to `max_chars` characters, else its start, `…` and its
+/// length (`abc… (40000000 bytes)`).
+pub(crate) fn excerpt(text: &str, max_chars: usize) -> String {
+    match head(text, max_chars) {
+        None => text.to_string(),
+        Some(start) => format!("{start}… ({} bytes)", text.len()),
+    }
+}
+
 /// `path:line:column: `, leaving out positions that are unknown (0).
 fn located(path: &Path, position: &[usize]) -> String {
     let mut text = path.display().to_string();
