@@ -60,6 +60,19 @@ fn names(dir: &Path) -> Vec<String> {
 const RIG_OK: &str = r#"{"cameras": [{"name": "a", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240}],
  "interface": {"normal": [0, 0, 1], "distance": 0.02}}"#;
 
+/// Two cameras 6 cm apart behind one port whose normal is `NORMAL`.
+const TWO_CAMERAS: &str = r#"{"cameras": [
+ {"name": "left", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240},
+ {"name": "right", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "translation": [-0.06, 0, 0]}],
+ "interface": {"normal": NORMAL, "distance": 0.02}}"#;
+
+/// Two cameras with a port each, the second's normal underflowing.
+const PORT_PER_CAMERA: &str = r#"{"cameras": [
+ {"name": "left", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240,
+  "interface": {"normal": [0, 0, 1], "distance": 0.02}},
+ {"name": "right", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "translation": [-0.06, 0, 0],
+  "interface": {"normal": [1e-320, 0, 1e-320], "distance": 0.02}}]}"#;
+
 /// A rig file with `interface` replaced.
 fn rig_with(interface: &str) -> String {
     format!(
@@ -173,6 +186,63 @@ fn hostile_input_gets_a_clear_error_and_leaves_nothing_behind() {
                 "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
             ],
             &["rig.json"],
+        ),
+        // A normal whose length underflows: named as the normal, not as a camera "not in the
+        // air" (the direction such a normal gave put the second camera in the water). Through
+        // project, rig show and calibrate's start rig, with a shared port and a port per camera.
+        case(
+            vec![
+                (
+                    "rig.json",
+                    TWO_CAMERAS.replace("NORMAL", "[1e-320, 0, 1e-320]"),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &[
+                "rig.json",
+                "interface.normal",
+                "not representable",
+                "underflows",
+            ],
+        ),
+        case(
+            vec![("rig.json", TWO_CAMERAS.replace("NORMAL", "[0, 0, 1e-310]"))],
+            &["rig", "show", "rig.json"],
+            &["rig.json", "interface.normal", "not representable"],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    TWO_CAMERAS.replace("NORMAL", "[1e-320, 0, 1e-320]"),
+                ),
+                (
+                    "obs.json",
+                    r#"{"board": {"rows": 2, "cols": 2, "square": 0.04}, "views": []}"#.into(),
+                ),
+            ],
+            &[
+                "calibrate",
+                "--rig",
+                "rig.json",
+                "--observations",
+                "obs.json",
+                "-o",
+                "c.json",
+            ],
+            &["rig.json", "interface.normal", "not representable"],
+        ),
+        case(
+            vec![("rig.json", PORT_PER_CAMERA.to_string())],
+            &["rig", "show", "rig.json"],
+            &[
+                "rig.json",
+                "cameras[1].interface.normal",
+                "not representable",
+            ],
         ),
         // CSV files.
         case(
@@ -375,8 +445,9 @@ fn hostile_input_gets_a_clear_error_and_leaves_nothing_behind() {
 #[test]
 fn edge_cases_that_are_valid_succeed() {
     let dir = tempfile::tempdir().unwrap();
-    // A normal given with huge or tiny components keeps its direction.
-    for normal in ["[1e308, 0, 1e308]", "[1e-320, 0, 1e-320]"] {
+    // A normal given with huge or tiny components keeps its direction, as long as its length is
+    // an ordinary f64 (1e-320 components, whose length underflows, are refused above).
+    for normal in ["[1e308, 0, 1e308]", "[1e-300, 0, 1e-300]"] {
         std::fs::write(
             dir.path().join("rig.json"),
             rig_with(&format!(r#"{{"normal": {normal}, "distance": 0.02}}"#)),

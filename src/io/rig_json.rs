@@ -287,7 +287,9 @@ pub(crate) fn interface_to_file(i: &Interface) -> InterfaceFile {
 /// The rig-file field an interface error is about.
 fn interface_field(error: &ModelError, object: &str) -> String {
     match error {
-        ModelError::ZeroNormal | ModelError::NormalAwayFromWater { .. } => {
+        ModelError::ZeroNormal
+        | ModelError::NormalLength { .. }
+        | ModelError::NormalAwayFromWater { .. } => {
             format!("{object}.normal")
         }
         ModelError::NonPositiveAirDistance { .. } => format!("{object}.distance"),
