@@ -244,6 +244,111 @@ fn hostile_input_gets_a_clear_error_and_leaves_nothing_behind() {
                 "not representable",
             ],
         ),
+        // User text echoed in errors is cut to its start and its size: a header of 20 million
+        // columns (40 MB), a 1 MB key or value in JSON, observations and OpenCV YAML, a 1 MB
+        // camera name (every message naming the camera would carry it).
+        case(
+            vec![
+                rig(),
+                ("p.csv", format!("{}x\n0,0,1\n", "x,".repeat(19_999_999))),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &[
+                "p.csv:1",
+                "column '2'",
+                "header is 'x,x,x",
+                "(20000000 columns, 39999999 bytes), expected 'x,y,z'",
+            ],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    rig_with(&format!(
+                        r#"{{"normal": [0, 0, 1], "distance": 0.02, "{}": 3}}"#,
+                        "k".repeat(1 << 20)
+                    )),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json:1:", "unknown field `kkkk", "(1048576 bytes)"],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    RIG_OK.replace(
+                        "\"fx\": 500",
+                        &format!("\"fx\": \"{}\"", "5".repeat(1 << 20)),
+                    ),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &[
+                "rig.json:1:",
+                "cameras[0].fx",
+                "invalid type: string \"5555",
+                "(1048576 bytes)",
+            ],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    RIG_OK.replace(
+                        "\"name\": \"a\"",
+                        &format!("\"name\": \"{}\"", "a".repeat(1 << 20)),
+                    ),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json", "cameras[0].name", "1048576 bytes"],
+        ),
+        case(
+            vec![
+                rig(),
+                (
+                    "obs.json",
+                    format!(
+                        r#"{{"board": {{"rows": 2, "cols": 2, "square": 0.04}}, "views": [{{"{}": [[1, 1], [2, 2], [3, 3], [4, 4]]}}]}}"#,
+                        "k".repeat(1 << 20)
+                    ),
+                ),
+            ],
+            &[
+                "calibrate",
+                "--rig",
+                "rig.json",
+                "--observations",
+                "obs.json",
+                "-o",
+                "c.json",
+            ],
+            &["obs.json", "views[0]", "kkkk", "1048576 bytes"],
+        ),
+        case(
+            vec![(
+                "s.yml",
+                format!("%YAML:1.0\n---\n{k}: 1\n{k}: 2\n", k = "k".repeat(1 << 20)),
+            )],
+            &["rig", "from-opencv", "s.yml", "--distance", "0.02"],
+            &[
+                "s.yml:3:",
+                "key 'kkkk",
+                "(1048576 bytes)' is longer than YAML allows",
+            ],
+        ),
         // CSV files.
         case(
             vec![rig(), points("")],

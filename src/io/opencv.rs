@@ -208,6 +208,24 @@ impl<'t> Reader<'t> {
                 );
             }
         }
+        let text = self
+            .text
+            .split('\n')
+            .nth(at.line().saturating_sub(1))
+            .unwrap_or_default()
+            .trim_end_matches('\r');
+        // YAML 1.2 keeps a key written without '?' to 1024 characters.
+        if let Some((name, _)) = text.trim_start().split_once(':')
+            && name.chars().count() > 1024
+        {
+            return self.error(
+                at.line(),
+                format!(
+                    "key '{}' is longer than YAML allows a plain key (1024 characters)",
+                    excerpt(name.trim(), EXCERPT_CHARS)
+                ),
+            );
+        }
         if key.is_none() && self.open.len() <= 1 {
             // Between two top-level entries: the first line after the last one read that holds
             // no `key:` is the culprit.
@@ -232,12 +250,6 @@ impl<'t> Reader<'t> {
         }
         // The key names the value being read unless the line is a top-level line of its own
         // (a value's lines are indented).
-        let text = self
-            .text
-            .split('\n')
-            .nth(at.line().saturating_sub(1))
-            .unwrap_or_default()
-            .trim_end_matches('\r');
         let prefix = match key {
             Some(k)
                 if at.line() == self.key_line
@@ -268,7 +280,12 @@ impl<'t> Reader<'t> {
                 }
                 // An empty document.
                 Event::Scalar(text, ..) if text.trim().is_empty() => continue,
-                Event::Scalar(text, ..) => format!("'{}'", excerpt(&text, EXCERPT_CHARS)),
+                Event::Scalar(text, ..) => {
+                    // A key too long for YAML comes as a scalar document, then the parser's
+                    // complaint about its ':': that complaint says more.
+                    self.next()?;
+                    format!("'{}'", excerpt(&text, EXCERPT_CHARS))
+                }
                 Event::SequenceStart(..) => "a sequence".into(),
                 _ => "something else".into(),
             };
@@ -1166,6 +1183,21 @@ nested:
     #[test]
     fn huge_keys_and_lines_are_shown_by_their_start() {
         let long = "k".repeat(1 << 20);
+        // Inside the top-level mapping, and as the document's first line.
+        let (line, m) = failure(&format!("%YAML:1.0\n---\n{long}: 1\n"));
+        assert_eq!(line, 3);
+        assert!(m.contains("is longer than YAML allows a plain key"), "{m}");
+        let (line, m) = failure(&format!("{STEREO}{long}: 1\n"));
+        assert_eq!(line, 58);
+        assert!(
+            m.ends_with(
+                "… (1048576 bytes)' is longer than YAML allows a plain key (1024 characters)"
+            ),
+            "{}",
+            &m[..m.len().min(400)]
+        );
+        let (_, m) = failure(&format!("{STEREO}{}: 1\n{0}: 2\n", &long[..1000]));
+        assert!(m.contains("… (1000 bytes) appears twice"), "{m}");
         for text in [
             format!("{STEREO}{long}: 1\n{long}: 2\n"),
             edited("flags: 0", &long),
