@@ -60,6 +60,19 @@ fn names(dir: &Path) -> Vec<String> {
 const RIG_OK: &str = r#"{"cameras": [{"name": "a", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240}],
  "interface": {"normal": [0, 0, 1], "distance": 0.02}}"#;
 
+/// Two cameras 6 cm apart behind one port whose normal is `NORMAL`.
+const TWO_CAMERAS: &str = r#"{"cameras": [
+ {"name": "left", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240},
+ {"name": "right", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "translation": [-0.06, 0, 0]}],
+ "interface": {"normal": NORMAL, "distance": 0.02}}"#;
+
+/// Two cameras with a port each, the second's normal underflowing.
+const PORT_PER_CAMERA: &str = r#"{"cameras": [
+ {"name": "left", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240,
+  "interface": {"normal": [0, 0, 1], "distance": 0.02}},
+ {"name": "right", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "translation": [-0.06, 0, 0],
+  "interface": {"normal": [1e-320, 0, 1e-320], "distance": 0.02}}]}"#;
+
 /// A rig file with `interface` replaced.
 fn rig_with(interface: &str) -> String {
     format!(
@@ -173,6 +186,168 @@ fn hostile_input_gets_a_clear_error_and_leaves_nothing_behind() {
                 "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
             ],
             &["rig.json"],
+        ),
+        // A normal whose length underflows: named as the normal, not as a camera "not in the
+        // air" (the direction such a normal gave put the second camera in the water). Through
+        // project, rig show and calibrate's start rig, with a shared port and a port per camera.
+        case(
+            vec![
+                (
+                    "rig.json",
+                    TWO_CAMERAS.replace("NORMAL", "[1e-320, 0, 1e-320]"),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &[
+                "rig.json",
+                "interface.normal",
+                "not representable",
+                "underflows",
+            ],
+        ),
+        case(
+            vec![("rig.json", TWO_CAMERAS.replace("NORMAL", "[0, 0, 1e-310]"))],
+            &["rig", "show", "rig.json"],
+            &["rig.json", "interface.normal", "not representable"],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    TWO_CAMERAS.replace("NORMAL", "[1e-320, 0, 1e-320]"),
+                ),
+                (
+                    "obs.json",
+                    r#"{"board": {"rows": 2, "cols": 2, "square": 0.04}, "views": []}"#.into(),
+                ),
+            ],
+            &[
+                "calibrate",
+                "--rig",
+                "rig.json",
+                "--observations",
+                "obs.json",
+                "-o",
+                "c.json",
+            ],
+            &["rig.json", "interface.normal", "not representable"],
+        ),
+        case(
+            vec![("rig.json", PORT_PER_CAMERA.to_string())],
+            &["rig", "show", "rig.json"],
+            &[
+                "rig.json",
+                "cameras[1].interface.normal",
+                "not representable",
+            ],
+        ),
+        // User text echoed in errors is cut to its start and its size: a header of 20 million
+        // columns (40 MB), a 1 MB key or value in JSON, observations and OpenCV YAML, a 1 MB
+        // camera name (every message naming the camera would carry it).
+        case(
+            vec![
+                rig(),
+                ("p.csv", format!("{}x\n0,0,1\n", "x,".repeat(19_999_999))),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &[
+                "p.csv:1",
+                "column '2'",
+                "header is 'x,x,x",
+                "(20000000 columns, 39999999 bytes), expected 'x,y,z'",
+            ],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    rig_with(&format!(
+                        r#"{{"normal": [0, 0, 1], "distance": 0.02, "{}": 3}}"#,
+                        "k".repeat(1 << 20)
+                    )),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json:1:", "unknown field `kkkk", "(1048576 bytes)"],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    RIG_OK.replace(
+                        "\"fx\": 500",
+                        &format!("\"fx\": \"{}\"", "5".repeat(1 << 20)),
+                    ),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &[
+                "rig.json:1:",
+                "cameras[0].fx",
+                "invalid type: string \"5555",
+                "(1048576 bytes)",
+            ],
+        ),
+        case(
+            vec![
+                (
+                    "rig.json",
+                    RIG_OK.replace(
+                        "\"name\": \"a\"",
+                        &format!("\"name\": \"{}\"", "a".repeat(1 << 20)),
+                    ),
+                ),
+                points("x,y,z\n0,0,1\n"),
+            ],
+            &[
+                "project", "--rig", "rig.json", "--points", "p.csv", "-o", "out.csv",
+            ],
+            &["rig.json", "cameras[0].name", "1048576 bytes"],
+        ),
+        case(
+            vec![
+                rig(),
+                (
+                    "obs.json",
+                    format!(
+                        r#"{{"board": {{"rows": 2, "cols": 2, "square": 0.04}}, "views": [{{"{}": [[1, 1], [2, 2], [3, 3], [4, 4]]}}]}}"#,
+                        "k".repeat(1 << 20)
+                    ),
+                ),
+            ],
+            &[
+                "calibrate",
+                "--rig",
+                "rig.json",
+                "--observations",
+                "obs.json",
+                "-o",
+                "c.json",
+            ],
+            &["obs.json", "views[0]", "kkkk", "1048576 bytes"],
+        ),
+        case(
+            vec![(
+                "s.yml",
+                format!("%YAML:1.0\n---\n{k}: 1\n{k}: 2\n", k = "k".repeat(1 << 20)),
+            )],
+            &["rig", "from-opencv", "s.yml", "--distance", "0.02"],
+            &[
+                "s.yml:3:",
+                "key 'kkkk",
+                "(1048576 bytes)' is longer than YAML allows",
+            ],
         ),
         // CSV files.
         case(
@@ -375,8 +550,9 @@ fn hostile_input_gets_a_clear_error_and_leaves_nothing_behind() {
 #[test]
 fn edge_cases_that_are_valid_succeed() {
     let dir = tempfile::tempdir().unwrap();
-    // A normal given with huge or tiny components keeps its direction.
-    for normal in ["[1e308, 0, 1e308]", "[1e-320, 0, 1e-320]"] {
+    // A normal given with huge or tiny components keeps its direction, as long as its length is
+    // an ordinary f64 (1e-320 components, whose length underflows, are refused above).
+    for normal in ["[1e308, 0, 1e308]", "[1e-300, 0, 1e-300]"] {
         std::fs::write(
             dir.path().join("rig.json"),
             rig_with(&format!(r#"{{"normal": {normal}, "distance": 0.02}}"#)),

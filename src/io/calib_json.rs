@@ -6,7 +6,8 @@ use std::path::Path;
 use nalgebra::{Isometry3, Matrix3, Point2, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::rig_json::interface_to_file;
+use super::error::{EXCERPT_CHARS, excerpt};
+use super::rig_json::{MAX_CAMERA_NAME_BYTES, interface_to_file};
 use super::{IoError, read_text, write_atomic};
 use crate::calib::{Board, CameraKey, Estimated, Image, Observations, Report, Target, View};
 use crate::model::{Interface, Rig};
@@ -144,7 +145,8 @@ impl<'de> Deserialize<'de> for GeneralView {
                 while let Some(key) = map.next_key::<String>()? {
                     if images.iter().any(|(k, _)| *k == key) {
                         return Err(serde::de::Error::custom(format!(
-                            "camera '{key}' appears twice in this view"
+                            "camera '{}' appears twice in this view",
+                            excerpt(&key, EXCERPT_CHARS)
                         )));
                     }
                     let corners = map.next_value()?;
@@ -256,6 +258,15 @@ pub fn observations_from_json_str(text: &str, path: &Path) -> Result<Observation
     for (v, view) in file.views.iter().enumerate() {
         let mut images = Vec::with_capacity(view.0.len());
         for (key, corners) in &view.0 {
+            if key.len() > MAX_CAMERA_NAME_BYTES {
+                return Err(invalid(
+                    &format!("views[{v}]"),
+                    format!(
+                        "the key '{}' is longer than a camera name may be ({MAX_CAMERA_NAME_BYTES} bytes)",
+                        excerpt(key, EXCERPT_CHARS)
+                    ),
+                ));
+            }
             let camera = match (&file.cameras, key.as_str()) {
                 (Some(names), "left") => CameraKey::Name(names[0].clone()),
                 (Some(names), "right") => CameraKey::Name(names[1].clone()),

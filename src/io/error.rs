@@ -69,6 +69,72 @@ pub enum IoError {
     },
 }
 
+/// Longest piece of user input (a key, a header, a line) echoed in an error message, in
+/// characters: a 40 MB header or key must not be copied into the message.
+pub(crate) const EXCERPT_CHARS: usize = 60;
+
+/// The first `max_chars` characters of `text`, or `None` when it is no longer than that.
+pub(crate) fn head(text: &str, max_chars: usize) -> Option<&str> {
+    text.char_indices()
+        .nth(max_chars)
+        .map(|(end, _)| &text[..end])
+}
+
+/// `text` for an error message: whole up to `max_chars` characters, else its start, `…` and its
+/// length (`abc… (40000000 bytes)`).
+pub(crate) fn excerpt(text: &str, max_chars: usize) -> String {
+    match head(text, max_chars) {
+        None => text.to_string(),
+        Some(start) => format!("{start}… ({} bytes)", text.len()),
+    }
+}
+
+/// `text` in `quote`s for an error message: whole up to `max_chars` characters, else its start
+/// and `…` inside the quotes and its length after them (`"abc…" (40000000 bytes)`).
+pub(crate) fn quoted(text: &str, quote: char, max_chars: usize) -> String {
+    match head(text, max_chars) {
+        None => format!("{quote}{text}{quote}"),
+        Some(start) => format!("{quote}{start}…{quote} ({} bytes)", text.len()),
+    }
+}
+
+/// A message written by another crate (serde_json's `unknown field `…``, `invalid type: string
+/// "…"`) with every quoted piece longer than `max_chars` characters cut as [`quoted`] cuts it,
+/// and the whole cut to a few such pieces' length if it is still long.
+pub(crate) fn shorten_quoted(message: &str, max_chars: usize) -> String {
+    let mut out = String::with_capacity(message.len().min(16 * max_chars));
+    let mut rest = message;
+    while let Some(open) = rest.find(['`', '"']) {
+        let quote = if rest.as_bytes()[open] == b'`' {
+            '`'
+        } else {
+            '"'
+        };
+        out.push_str(&rest[..open]);
+        let inner = &rest[open + 1..];
+        // The closing quote; a double-quoted piece (Rust's Debug form) escapes quotes with '\'.
+        let mut escaped = false;
+        let close = inner.char_indices().find_map(|(i, c)| {
+            let found = c == quote && !escaped;
+            escaped = quote == '"' && c == '\\' && !escaped;
+            found.then_some(i)
+        });
+        let Some(close) = close else {
+            out.push(quote);
+            out.push_str(&excerpt(inner, max_chars));
+            rest = "";
+            break;
+        };
+        out.push_str(&quoted(&inner[..close], quote, max_chars));
+        rest = &inner[close + 1..];
+    }
+    out.push_str(rest);
+    match head(&out, 16 * max_chars) {
+        Some(start) => format!("{start}… ({} bytes)", out.len()),
+        None => out,
+    }
+}
+
 /// `path:line:column: `, leaving out positions that are unknown (0).
 fn located(path: &Path, position: &[usize]) -> String {
     let mut text = path.display().to_string();
@@ -91,6 +157,45 @@ fn prefix(field: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn long_quoted_pieces_of_messages_are_cut() {
+        // Short messages pass unchanged, also with an unclosed quote.
+        for m in [
+            "unknown field `colour`, expected one of `cameras`, `interface`",
+            "invalid type: string \"a\\\"b\", expected f64",
+            "expected `",
+        ] {
+            assert_eq!(shorten_quoted(m, 12), m);
+        }
+        let key = "k".repeat(1000);
+        assert_eq!(
+            shorten_quoted(&format!("unknown field `{key}`, expected `a` or `b`"), 8),
+            "unknown field `kkkkkkkk…` (1000 bytes), expected `a` or `b`"
+        );
+        // An escaped quote does not end a double-quoted piece.
+        let value = format!("{}\\\"{}", "v".repeat(10), "w".repeat(1000));
+        assert_eq!(
+            shorten_quoted(
+                &format!("invalid type: string \"{value}\", expected f64"),
+                8
+            ),
+            format!(
+                "invalid type: string \"vvvvvvvv…\" ({} bytes), expected f64",
+                value.len()
+            )
+        );
+        assert_eq!(
+            shorten_quoted(&format!("expected `{key}"), 8),
+            "expected `kkkkkkkk… (1000 bytes)"
+        );
+        // A long message without quotes keeps its start.
+        let m = shorten_quoted(&"z".repeat(1000), 8);
+        assert_eq!(m, format!("{}… (1000 bytes)", "z".repeat(128)));
+        assert_eq!(excerpt("abc", 3), "abc");
+        assert_eq!(excerpt("abcd", 3), "abc… (4 bytes)");
+        assert_eq!(excerpt("ééé", 2), "éé… (6 bytes)");
+    }
 
     #[test]
     fn messages_leave_out_unknown_positions() {

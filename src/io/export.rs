@@ -242,9 +242,9 @@ pub fn opencv_yaml(rig: &Rig, a: usize, b: Option<usize>) -> Result<String, Expo
     let _ = writeln!(text, "image_height: {}", first.intrinsics.height);
     let _ = writeln!(
         text,
-        "camera_names: [ \"{}\"{} ]",
-        first.name,
-        b.map(|b| format!(", \"{}\"", cameras[b].name))
+        "camera_names: [ {}{} ]",
+        yaml_quoted(&first.name),
+        b.map(|b| format!(", {}", yaml_quoted(&cameras[b].name)))
             .unwrap_or_default()
     );
     write_matrix(&mut text, "M1", 3, 3, &camera_matrix(&first.intrinsics));
@@ -289,6 +289,29 @@ fn c_exponential(v: f64) -> String {
         }
         None => text, // inf, NaN
     }
+}
+
+/// `text` as a YAML double-quoted scalar: `"` and `\` escaped, and every character that YAML
+/// or a reader may take for a line break or a control (C0, DEL, C1, U+2028, U+2029, U+FEFF) as
+/// `\xXX` or `\uXXXX`, so that any camera name reads back as itself.
+fn yaml_quoted(text: &str) -> String {
+    let mut quoted = String::with_capacity(text.len() + 2);
+    quoted.push('"');
+    for c in text.chars() {
+        match c {
+            '"' => quoted.push_str("\\\""),
+            '\\' => quoted.push_str("\\\\"),
+            c if (c as u32) < 0x20 || ('\u{7f}'..='\u{9f}').contains(&c) => {
+                let _ = write!(quoted, "\\x{:02x}", c as u32);
+            }
+            '\u{2028}' | '\u{2029}' | '\u{feff}' => {
+                let _ = write!(quoted, "\\u{:04x}", c as u32);
+            }
+            c => quoted.push(c),
+        }
+    }
+    quoted.push('"');
+    quoted
 }
 
 /// K row-major.
@@ -439,6 +462,28 @@ mod tests {
             (a.to_homogeneous() - b.to_homogeneous()).abs().max() < 1e-15,
             "{a} vs {b}"
         );
+    }
+
+    #[test]
+    fn camera_names_of_any_text_read_back_from_the_yaml() {
+        // YAML's own characters, escapes, line breaks and controls in the names.
+        let names = ["le\"ft: [x] # y", "ri\\ght\n\u{2028}\u{7}\u{85}é"];
+        let cameras = STEREO
+            .replacen("\"left\"", &serde_json::to_string(names[0]).unwrap(), 1)
+            .replacen("\"right\"", &serde_json::to_string(names[1]).unwrap(), 1);
+        let rig = rig("[]", &cameras);
+        let text = opencv_yaml(&rig, 0, Some(1)).unwrap();
+        parse_opencv_stereo(&text, Path::new("names.yml")).unwrap();
+        // The camera_names sequence holds the names themselves.
+        let events: Vec<String> =
+            saphyr_parser::Parser::new_from_str(text.strip_prefix("%YAML:1.0\n").unwrap())
+                .filter_map(|e| match e.unwrap().0 {
+                    saphyr_parser::Event::Scalar(s, ..) => Some(s.into_owned()),
+                    _ => None,
+                })
+                .collect();
+        let at = events.iter().position(|s| s == "camera_names").unwrap();
+        assert_eq!(&events[at + 1..at + 3], &names);
     }
 
     #[test]

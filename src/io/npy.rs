@@ -1,10 +1,25 @@
 //! NumPy `.npy` files (format 1.0, little-endian f64 or f32, C order), written as a stream so a large
 //! array never has to be in memory, into a temporary file renamed into place by
-//! [`NpyWriter::finish`].
+//! [`NpyWriter::finish`], and read as a stream by [`NpyReader`].
+//!
+//! Reading goes through the `npyz` crate: it parses the header dict as the Python literal it is
+//! (any key order, quoting or spacing numpy or another writer uses; format 1.0, 2.0 and 3.0) and
+//! decodes the values (`<f8` and `>f8`) one by one from any reader. Before handing it the header,
+//! the header's length is checked here against the file and a bound, as npyz allocates whatever
+//! length a file claims (up to 4 GiB), and the element count is recomputed with overflow checks,
+//! as npyz multiplies the shape unchecked.
+//!
+//! Writing stays here, for two reasons npyz does not serve: its header spells the shape `(2, 3, )`
+//! where numpy writes `(2, 3)`, and a sweep's `cost.npy` is compared byte for byte with a header
+//! written from numpy's format (tests/sizes.rs), sharded and merged sweeps byte for byte with each
+//! other; and its writer keeps the output it writes to (no `into_inner`), while the file must go
+//! back to [`OutputFile::finish`] to be renamed into place. The writer is 20 lines of the format:
+//! the preamble, the dict and the values' little-endian bytes.
 
 use std::io::Write;
 use std::path::Path;
 
+use super::error::{EXCERPT_CHARS, excerpt};
 use super::{IoError, OutputFile};
 
 /// The 10-byte preamble and the header dict, padded with spaces and a newline so the data starts
@@ -125,12 +140,13 @@ pub fn npy_from_bytes(bytes: &[u8], path: &Path) -> Result<(Vec<usize>, Vec<f64>
 /// Longest `.npy` header read, bytes (numpy's own are a few hundred).
 const MAX_HEADER_BYTES: usize = 1 << 20;
 
-/// A little-endian f64 `.npy` file (format 1.0 or 2.0, C order) read value by value in bounded
-/// memory: the reading twin of [`NpyWriter`], for sweeps whose arrays do not fit in memory. Its
-/// header is checked whole on opening: the data must hold exactly the values of the shape.
-pub struct NpyReader<R = std::io::BufReader<std::fs::File>> {
+/// An f64 `.npy` file (format 1.0, 2.0 or 3.0, C order, little- or big-endian) read value by value
+/// in bounded memory: the reading twin of [`NpyWriter`], for sweeps whose arrays do not fit in
+/// memory. Its header is checked whole on opening: the data must hold exactly the values of the
+/// shape.
+pub struct NpyReader<R: std::io::Read = std::io::BufReader<std::fs::File>> {
     path: std::path::PathBuf,
-    input: R,
+    values: npyz::NpyReader<f64, R>,
     shape: Vec<usize>,
     left: usize,
 }
@@ -159,59 +175,55 @@ impl<R: std::io::Read> NpyReader<R> {
             field: String::new(),
             reason,
         };
-        let mut preamble = [0u8; 8];
+        // The preamble and the header's length, read here to bound what npyz will allocate.
+        let mut bytes = vec![0u8; 8];
         input
-            .read_exact(&mut preamble)
+            .read_exact(&mut bytes)
             .map_err(|_| invalid("not a .npy file (too short)".into()))?;
-        if &preamble[..6] != b"\x93NUMPY" {
+        if &bytes[..6] != b"\x93NUMPY" {
             return Err(invalid("not a .npy file (no \\x93NUMPY magic)".into()));
         }
-        let header_len = match preamble[6] {
-            1 => {
-                let mut n = [0u8; 2];
-                input
-                    .read_exact(&mut n)
-                    .map_err(|_| invalid("truncated header".into()))?;
-                u16::from_le_bytes(n) as usize
-            }
-            2 | 3 => {
-                let mut n = [0u8; 4];
-                input
-                    .read_exact(&mut n)
-                    .map_err(|_| invalid("truncated header".into()))?;
-                u32::from_le_bytes(n) as usize
-            }
+        let size_bytes = match bytes[6] {
+            1 => 2,
+            2 | 3 => 4,
             v => return Err(invalid(format!("unknown .npy format version {v}"))),
         };
-        let prefix = if preamble[6] == 1 { 10 } else { 12 };
+        bytes.resize(8 + size_bytes, 0);
+        input
+            .read_exact(&mut bytes[8..])
+            .map_err(|_| invalid("truncated header".into()))?;
+        let header_len = bytes[8..]
+            .iter()
+            .rev()
+            .fold(0usize, |n, &b| n << 8 | usize::from(b));
+        let prefix = bytes.len();
         if (prefix + header_len) as u64 > length || header_len > MAX_HEADER_BYTES {
             return Err(invalid("the file ends inside the header".into()));
         }
-        let mut header = vec![0u8; header_len];
+        bytes.resize(prefix + header_len, 0);
         input
-            .read_exact(&mut header)
+            .read_exact(&mut bytes[prefix..])
             .map_err(|_| invalid("the file ends inside the header".into()))?;
-        let header =
-            String::from_utf8(header).map_err(|_| invalid("the header is not text".into()))?;
-        if !header.contains("'descr': '<f8'") || !header.contains("'fortran_order': False") {
+        let text = std::str::from_utf8(&bytes[prefix..])
+            .map_err(|_| invalid("the header is not text".into()))?;
+        let shown = excerpt(text.trim(), 4 * EXCERPT_CHARS);
+        let header = npyz::NpyHeader::from_reader(&bytes[..]).map_err(|e| {
+            // npyz's parse errors quote the whole header after their first line.
+            let e = e.to_string();
+            let why = excerpt(e.lines().next().unwrap_or_default(), 2 * EXCERPT_CHARS);
+            invalid(format!("the header {shown} is not numpy's: {why}"))
+        })?;
+        if header.dtype().descr() != "'<f8'" && header.dtype().descr() != "'>f8'"
+            || header.order() != npyz::Order::C
+        {
             return Err(invalid(format!(
-                "only little-endian f64 in C order is read, the header says {}",
-                header.trim()
+                "only f64 in C order is read, the header says {shown}"
             )));
         }
-        let shape_text = header
-            .split("'shape': (")
-            .nth(1)
-            .and_then(|s| s.split(')').next())
-            .ok_or_else(|| invalid("the header has no shape".into()))?;
-        let shape: Vec<usize> = shape_text
-            .split(',')
-            .filter(|s| !s.trim().is_empty())
-            .map(|s| {
-                s.trim()
-                    .parse()
-                    .map_err(|_| invalid(format!("bad shape ({shape_text})")))
-            })
+        let shape: Vec<usize> = header
+            .shape()
+            .iter()
+            .map(|&d| usize::try_from(d).map_err(|_| invalid("the shape overflows".into())))
             .collect::<Result<_, _>>()?;
         let values = shape
             .iter()
@@ -223,9 +235,12 @@ impl<R: std::io::Read> NpyReader<R> {
                 "{data} data bytes for the shape {shape:?} ({values} values of 8 bytes)"
             )));
         }
+        let values_in = npyz::NpyFile::with_header(header, input)
+            .data::<f64>()
+            .map_err(|e| invalid(format!("only f64 is read: {e}")))?;
         Ok(Self {
             path: path.to_path_buf(),
-            input,
+            values: values_in,
             shape,
             left: values,
         })
@@ -241,18 +256,19 @@ impl<R: std::io::Read> NpyReader<R> {
     pub fn read(&mut self, max: usize, values: &mut Vec<f64>) -> Result<usize, IoError> {
         values.clear();
         let n = max.max(1).min(self.left);
-        let mut bytes = vec![0u8; 8 * n];
-        self.input
-            .read_exact(&mut bytes)
-            .map_err(|source| IoError::Read {
+        values.reserve(n);
+        for value in self.values.by_ref().take(n) {
+            values.push(value.map_err(|source| IoError::Read {
                 path: self.path.clone(),
                 source,
-            })?;
-        values.extend(
-            bytes
-                .chunks_exact(8)
-                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))),
-        );
+            })?);
+        }
+        if values.len() != n {
+            return Err(IoError::Read {
+                path: self.path.clone(),
+                source: std::io::ErrorKind::UnexpectedEof.into(),
+            });
+        }
         self.left -= n;
         Ok(n)
     }
@@ -280,6 +296,117 @@ mod tests {
         bytes.extend_from_slice(&(dict.len() as u16).to_le_bytes());
         bytes.extend_from_slice(dict.as_bytes());
         assert!(npy_from_bytes(&bytes, path).is_err());
+    }
+
+    /// A `.npy` file as numpy 2.4's `np.save` writes one (format 1.0, the dict padded with spaces
+    /// to 118 bytes and a newline, so the data start at byte 128), with the header dict `dict`:
+    /// `b = io.BytesIO(); np.save(b, np.arange(6.0).reshape(2, 3)); b.getvalue()` gives the
+    /// 176 bytes of `numpy_file("{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }", …)`.
+    fn numpy_file(dict: &str, version: u8, data: &[u8]) -> Vec<u8> {
+        let mut bytes = b"\x93NUMPY".to_vec();
+        bytes.extend_from_slice(&[version, 0]);
+        let size = if version == 1 { 2 } else { 4 };
+        let text = format!("{dict:<width$}\n", width = 128 - 8 - size - 1);
+        bytes.extend_from_slice(&(text.len() as u32).to_le_bytes()[..size]);
+        bytes.extend_from_slice(text.as_bytes());
+        bytes.extend_from_slice(data);
+        bytes
+    }
+
+    fn le(values: &[f64]) -> Vec<u8> {
+        values.iter().flat_map(|v| v.to_le_bytes()).collect()
+    }
+
+    #[test]
+    fn files_numpy_writes_are_read() {
+        let path = Path::new("numpy.npy");
+        let six = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0];
+        let c = numpy_file(
+            "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }",
+            1,
+            &le(&six),
+        );
+        assert_eq!(c.len(), 176);
+        assert_eq!(
+            npy_from_bytes(&c, path).unwrap(),
+            (vec![2, 3], six.to_vec())
+        );
+        // Big-endian, as `a.astype('>f8')` saves.
+        let be: Vec<u8> = six.iter().flat_map(|v| v.to_be_bytes()).collect();
+        let big = numpy_file(
+            "{'descr': '>f8', 'fortran_order': False, 'shape': (2, 3), }",
+            1,
+            &be,
+        );
+        assert_eq!(
+            npy_from_bytes(&big, path).unwrap(),
+            (vec![2, 3], six.to_vec())
+        );
+        // One dimension, none (np.float64(2.5)), and another spelling of the dict in format 2.0.
+        let one = numpy_file(
+            "{'descr': '<f8', 'fortran_order': False, 'shape': (7,), }",
+            1,
+            &le(&[1.5; 7]),
+        );
+        assert_eq!(npy_from_bytes(&one, path).unwrap(), (vec![7], vec![1.5; 7]));
+        let scalar = numpy_file(
+            "{'descr': '<f8', 'fortran_order': False, 'shape': (), }",
+            1,
+            &le(&[2.5]),
+        );
+        assert_eq!(npy_from_bytes(&scalar, path).unwrap(), (vec![], vec![2.5]));
+        let spelled = numpy_file(
+            "{\"shape\": (3, 2), \"descr\": \"<f8\", \"fortran_order\": False}",
+            2,
+            &le(&six),
+        );
+        assert_eq!(
+            npy_from_bytes(&spelled, path).unwrap(),
+            (vec![3, 2], six.to_vec())
+        );
+    }
+
+    #[test]
+    fn what_is_not_read_is_named() {
+        let path = Path::new("x.npy");
+        let message = |bytes: &[u8]| npy_from_bytes(bytes, path).unwrap_err().to_string();
+        let m = message(&numpy_file(
+            "{'descr': '<f8', 'fortran_order': True, 'shape': (2, 3), }",
+            1,
+            &le(&[0.0; 6]),
+        ));
+        assert!(m.starts_with("x.npy: only f64 in C order is read, the header says {'descr': '<f8', 'fortran_order': True"), "{m}");
+        let m = message(&numpy_file(
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (2,), }",
+            1,
+            &[0; 8],
+        ));
+        assert!(
+            m.contains("only f64 in C order is read") && m.contains("'<f4'"),
+            "{m}"
+        );
+        let m = message(&numpy_file(
+            "{'descr': '<f8', 'fortran_order': False}",
+            1,
+            &[],
+        ));
+        assert!(m.contains("is not numpy's") && m.contains("shape"), "{m}");
+        let m = message(&numpy_file(
+            "{'descr': '<f8', 'fortran_order': False, 'shape': (2, 3), }",
+            1,
+            &le(&[0.0; 5]),
+        ));
+        assert!(
+            m.contains("40 data bytes for the shape [2, 3] (6 values of 8 bytes)"),
+            "{m}"
+        );
+        // A dict nested 60 000 deep (the parser recurses): an error, not a stack overflow.
+        let deep = format!("{}{}", "(".repeat(60_000), ")".repeat(5000));
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend_from_slice(&(deep.len() as u16).to_le_bytes());
+        bytes.extend_from_slice(deep.as_bytes());
+        let m = message(&bytes);
+        assert!(m.len() < 600 && m.contains("is not numpy's"), "{m}");
     }
 
     #[test]

@@ -1,17 +1,33 @@
 //! Import of OpenCV `stereoCalibrate` results saved with `cv::FileStorage` as YAML
 //! (`%YAML:1.0`, `!!opencv-matrix` entries).
 //!
-//! Only the subset of YAML that `cv::FileStorage` writes at the top level is read: `key: scalar`,
-//! `key: [flow, sequence]` and `key: !!opencv-matrix` blocks (`rows`, `cols`, `dt`, `data`), where a
-//! flow sequence may span lines. Everything else (nested mappings, `!!opencv-nd-matrix`, E, F, R1,
-//! P1, Q, per-view errors, …) is skipped without being interpreted, so it cannot make the import
-//! fail. Several documents in one file (`cat intrinsics.yml extrinsics.yml`) are read as one.
+//! The text is parsed by `saphyr-parser`, a YAML 1.2 event parser, after every `%YAML:1.0` line
+//! is blanked: that directive (YAML 1.0, written with a colon) is not YAML 1.2, and a parser
+//! refuses it before a document without `---` and between two documents without `...`. Blanking
+//! keeps every line number. The crate gives tags (`!!opencv-matrix` and its verbatim form
+//! `!<tag:yaml.org,2002:opencv-matrix>` alike), the line of every event, and aliases as events
+//! (never expanded).
+//!
+//! Only the top-level keys are interpreted: `key: scalar`, `key: [sequence]` and
+//! `key: !!opencv-matrix` mappings (`rows`, `cols`, `dt`, `data`). Everything else (nested
+//! mappings, `!!opencv-nd-matrix`, E, F, R1, P1, Q, per-view errors, …) is passed over event by
+//! event without being interpreted, so it cannot make the import fail. Several documents in one
+//! file (`cat intrinsics.yml extrinsics.yml`) are read as one.
+//!
+//! Done here because the crate does not: the `%YAML` first line is required (a YAML file of
+//! another tool is refused as no FileStorage output); numbers are read from the scalars' text
+//! (the crate resolves no schema at the event level; OpenCV writes `1.`, `.5e-3`, `-3.7e-01`,
+//! `.Nan`, `.Inf`, all of which Rust's `f64` parser reads, non-finite ones refused by name); a key
+//! given twice, also across documents, is an error; and the crate's syntax errors are said in the
+//! file's terms where the cause is plain (a `[` never closed, a top-level line without `key:`).
 
 use std::collections::HashMap;
 use std::path::Path;
 
 use nalgebra::{Matrix3, Vector3};
+use saphyr_parser::{Event, Marker, Parser, ScanError, Span, StrInput, Tag};
 
+use super::error::{EXCERPT_CHARS, excerpt};
 use super::{IoError, read_text};
 use crate::model::{Interface, PinholeCamera, Rig, RigCamera};
 
@@ -30,24 +46,40 @@ pub struct OpenCvStereo {
     pub image_size: Option<(u32, u32)>,
 }
 
-/// Text of a flow sequence `[ … ]`, as (line, text) pieces without the brackets.
-type Flow = Vec<(usize, String)>;
+/// A scalar's text and its 1-based line.
+#[derive(Debug, Clone)]
+struct Scalar {
+    text: String,
+    line: usize,
+}
+
+/// A value of the file, as far as it is read.
+#[derive(Debug)]
+enum Value {
+    Scalar(Scalar),
+    /// A sequence of scalars (`[ 1, 2 ]` or a block list).
+    Sequence(Vec<Scalar>),
+    Matrix(Box<RawMatrix>),
+    /// `*name`: a reference to an anchored value (OpenCV writes none; not followed).
+    Alias,
+    /// Anything else (a mapping, a sequence holding collections, another type tag): not
+    /// interpreted.
+    Other,
+}
+
+/// A field of an `!!opencv-matrix` and the line of its name.
+#[derive(Debug)]
+struct Field {
+    line: usize,
+    value: Value,
+}
 
 #[derive(Debug, Default)]
 struct RawMatrix {
-    rows: Option<(usize, String)>,
-    cols: Option<(usize, String)>,
-    dt: Option<(usize, String)>,
-    data: Option<Flow>,
-}
-
-#[derive(Debug)]
-enum Value {
-    Scalar(String),
-    Sequence(Flow),
-    Matrix(RawMatrix),
-    /// Anything else (a nested mapping, another type tag): not interpreted.
-    Other,
+    rows: Option<Field>,
+    cols: Option<Field>,
+    dt: Option<Field>,
+    data: Option<Field>,
 }
 
 #[derive(Debug)]
@@ -57,41 +89,338 @@ struct Entry {
     value: Value,
 }
 
-/// Where the lines of an unclosed flow sequence go.
-enum Open {
-    /// The top-level key's own value.
-    Sequence,
-    /// The `data` of the current matrix.
-    MatrixData,
-    /// A sequence inside something that is skipped.
-    Skipped,
-}
-
 /// Reads and parses an OpenCV FileStorage YAML file (`-` = standard input).
 pub fn read_opencv_stereo(path: &Path) -> Result<OpenCvStereo, IoError> {
     parse_opencv_stereo(&read_text(path)?, path)
 }
 
-/// The line without its comment (a `#` outside quotes).
-fn strip_comment(line: &str) -> &str {
-    let mut quote = None;
-    for (i, c) in line.char_indices() {
-        match (c, quote) {
-            ('"' | '\'', None) => quote = Some(c),
-            (c, Some(q)) if c == q => quote = None,
-            ('#', None) => return &line[..i],
-            _ => {}
+/// The text with every `%YAML:…` directive line emptied (its line end kept, so line numbers stay).
+fn without_yaml_directives(text: &str) -> String {
+    let mut kept = String::with_capacity(text.len());
+    for line in text.split_inclusive('\n') {
+        if line.starts_with("%YAML:") {
+            kept.push_str(if line.ends_with("\r\n") { "\r\n" } else { "\n" });
+        } else {
+            kept.push_str(line);
         }
     }
-    line
+    kept
 }
 
-/// Splits the start of a flow sequence: `[ a, b` → ("a, b", closed = false).
-fn open_flow(text: &str) -> (String, bool) {
-    let inner = text.trim().trim_start_matches('[');
-    match inner.find(']') {
-        Some(end) => (inner[..end].to_string(), true),
-        None => (inner.to_string(), false),
+/// Whether `tag` is OpenCV's matrix tag, `!!opencv-matrix` (`tag:yaml.org,2002:opencv-matrix`).
+fn is_opencv_matrix(tag: &Tag) -> bool {
+    tag.handle == "tag:yaml.org,2002:" && tag.suffix == "opencv-matrix"
+        || tag.handle.is_empty() && tag.suffix == "tag:yaml.org,2002:opencv-matrix"
+}
+
+/// The byte offset of character `index` of `text` (its length past the end).
+fn byte_offset(text: &str, index: usize) -> usize {
+    text.char_indices()
+        .nth(index)
+        .map_or(text.len(), |(b, _)| b)
+}
+
+/// The events of one file, read into top-level entries, with what is needed to say where a
+/// syntax error is in the file's terms.
+struct Reader<'t> {
+    events: Parser<'t, StrInput<'t>>,
+    text: &'t str,
+    path: &'t Path,
+    /// The top-level key whose value is being read, and its line.
+    key: Option<String>,
+    key_line: usize,
+    /// Where each collection still open starts, innermost last.
+    open: Vec<Marker>,
+    /// Where the last event ended.
+    last_end: Marker,
+}
+
+impl<'t> Reader<'t> {
+    fn new(text: &'t str, path: &'t Path) -> Self {
+        Self {
+            events: Parser::new_from_str(text),
+            text,
+            path,
+            key: None,
+            key_line: 0,
+            open: Vec::new(),
+            last_end: Marker::new(0, 1, 0),
+        }
+    }
+
+    fn error(&self, line: usize, reason: String) -> IoError {
+        IoError::OpenCv {
+            path: self.path.to_path_buf(),
+            line,
+            reason,
+        }
+    }
+
+    /// The next event; a syntax error is located and explained.
+    fn next(&mut self) -> Result<(Event<'t>, Span), IoError> {
+        match self.events.next_event() {
+            Some(Ok((event, span))) => {
+                match event {
+                    Event::SequenceStart(..) | Event::MappingStart(..) => {
+                        self.open.push(span.start)
+                    }
+                    Event::SequenceEnd | Event::MappingEnd => {
+                        self.open.pop();
+                    }
+                    _ => {}
+                }
+                self.last_end = span.end;
+                Ok((event, span))
+            }
+            Some(Err(e)) => Err(self.syntax_error(&e)),
+            // The parser ends with StreamEnd, after which nothing is asked.
+            None => Err(self.error(self.last_end.line(), "unexpected end of the YAML".into())),
+        }
+    }
+
+    /// A parser error said in the file's terms where the cause is plain: a `[` (or `{`) still
+    /// open where the file ends or a later line goes on, a top-level line that is no `key: value`.
+    fn syntax_error(&self, e: &ScanError) -> IoError {
+        let (info, at) = (e.info(), e.marker());
+        let key = self.key.as_deref().map(|k| excerpt(k, EXCERPT_CHARS));
+        let innermost = self.open.last();
+        let flow = innermost
+            .and_then(|m| {
+                self.text[byte_offset(self.text, m.index())..]
+                    .chars()
+                    .next()
+            })
+            .filter(|c| matches!(c, '[' | '{'));
+        if let (Some(open), Some(start), Some(key)) = (flow, innermost, &key) {
+            let close = if open == '[' { ']' } else { '}' };
+            if at.index() >= self.text.chars().count() {
+                return self.error(
+                    start.line(),
+                    format!("{key}: '{open}' is never closed with '{close}'"),
+                );
+            }
+            if at.line() > start.line() {
+                return self.error(
+                    at.line(),
+                    format!(
+                        "{key}: '{open}' is never closed with '{close}' before this line (YAML: {info})"
+                    ),
+                );
+            }
+        }
+        let text = self
+            .text
+            .split('\n')
+            .nth(at.line().saturating_sub(1))
+            .unwrap_or_default()
+            .trim_end_matches('\r');
+        // YAML 1.2 keeps a key written without '?' to 1024 characters.
+        if let Some((name, _)) = text.trim_start().split_once(':')
+            && name.chars().count() > 1024
+        {
+            return self.error(
+                at.line(),
+                format!(
+                    "key '{}' is longer than YAML allows a plain key (1024 characters)",
+                    excerpt(name.trim(), EXCERPT_CHARS)
+                ),
+            );
+        }
+        if key.is_none() && self.open.len() <= 1 {
+            // Between two top-level entries: the first line after the last one read that holds
+            // no `key:` is the culprit.
+            let from = byte_offset(self.text, self.last_end.index());
+            let to = byte_offset(self.text, at.index()).max(from);
+            let found = self.text[from..to]
+                .split('\n')
+                .enumerate()
+                .map(|(i, l)| (self.last_end.line() + i, l.trim()))
+                .find(|(_, l)| !l.is_empty() && !l.starts_with('#'));
+            if let Some((line, found)) = found
+                && !found.contains(':')
+            {
+                return self.error(
+                    line,
+                    format!(
+                        "expected 'key: value' at the top level, found '{}'",
+                        excerpt(found, EXCERPT_CHARS)
+                    ),
+                );
+            }
+        }
+        // The key names the value being read unless the line is a top-level line of its own
+        // (a value's lines are indented).
+        let prefix = match key {
+            Some(k)
+                if at.line() == self.key_line
+                    || !text.starts_with(|c: char| !c.is_whitespace()) =>
+            {
+                format!("{k}: ")
+            }
+            _ => String::new(),
+        };
+        let shown = match text.trim() {
+            "" => String::new(),
+            t => format!("; the line reads '{}'", excerpt(t, EXCERPT_CHARS)),
+        };
+        self.error(at.line(), format!("{prefix}not valid YAML: {info}{shown}"))
+    }
+
+    /// Every top-level entry of every document.
+    fn entries(mut self) -> Result<HashMap<String, Entry>, IoError> {
+        let mut entries = HashMap::new();
+        loop {
+            let (event, span) = self.next()?;
+            let found = match event {
+                Event::StreamStart | Event::DocumentStart(_) | Event::DocumentEnd => continue,
+                Event::StreamEnd => return Ok(entries),
+                Event::MappingStart(..) if self.open.len() == 1 => {
+                    self.mapping(&mut entries)?;
+                    continue;
+                }
+                // An empty document.
+                Event::Scalar(text, ..) if text.trim().is_empty() => continue,
+                Event::Scalar(text, ..) => {
+                    // A key too long for YAML comes as a scalar document, then the parser's
+                    // complaint about its ':': that complaint says more.
+                    self.next()?;
+                    format!("'{}'", excerpt(&text, EXCERPT_CHARS))
+                }
+                Event::SequenceStart(..) => "a sequence".into(),
+                _ => "something else".into(),
+            };
+            return Err(self.error(
+                span.start.line(),
+                format!("expected 'key: value' at the top level, found {found}"),
+            ));
+        }
+    }
+
+    /// The entries of a document's top-level mapping, whose start was just read.
+    fn mapping(&mut self, entries: &mut HashMap<String, Entry>) -> Result<(), IoError> {
+        loop {
+            let (event, span) = self.next()?;
+            let key = match event {
+                Event::MappingEnd => return Ok(()),
+                Event::Scalar(text, ..) => text.into_owned(),
+                // A collection or an alias as key: no name flatport reads; passed over.
+                Event::SequenceStart(..) | Event::MappingStart(..) => {
+                    self.skip_rest()?;
+                    self.value(false)?;
+                    continue;
+                }
+                _ => {
+                    self.value(false)?;
+                    continue;
+                }
+            };
+            self.key = Some(key);
+            self.key_line = span.start.line();
+            let value = self.value(true)?;
+            let key = self.key.take().unwrap_or_default();
+            insert(
+                entries,
+                key,
+                Entry {
+                    line: span.start.line(),
+                    value,
+                },
+                self.path,
+            )?;
+        }
+    }
+
+    /// The value that comes next; an `!!opencv-matrix` is read as one when `matrices`.
+    fn value(&mut self, matrices: bool) -> Result<Value, IoError> {
+        let (event, span) = self.next()?;
+        Ok(match event {
+            Event::Scalar(text, ..) => Value::Scalar(Scalar {
+                text: text.into_owned(),
+                line: span.start.line(),
+            }),
+            Event::Alias(_) => Value::Alias,
+            Event::SequenceStart(..) => self.sequence()?,
+            Event::MappingStart(_, Some(tag)) if matrices && is_opencv_matrix(&tag) => {
+                Value::Matrix(Box::new(self.matrix_fields()?))
+            }
+            Event::MappingStart(..) => {
+                self.skip_rest()?;
+                Value::Other
+            }
+            _ => Value::Other,
+        })
+    }
+
+    /// The rest of a sequence whose start was just read: its scalars, or `Other` when it holds
+    /// anything else.
+    fn sequence(&mut self) -> Result<Value, IoError> {
+        let mut items = Vec::new();
+        let mut flat = true;
+        loop {
+            let (event, span) = self.next()?;
+            match event {
+                Event::SequenceEnd => break,
+                Event::Scalar(text, ..) => items.push(Scalar {
+                    text: text.into_owned(),
+                    line: span.start.line(),
+                }),
+                Event::SequenceStart(..) | Event::MappingStart(..) => {
+                    flat = false;
+                    self.skip_rest()?;
+                }
+                _ => flat = false,
+            }
+        }
+        Ok(if flat {
+            Value::Sequence(items)
+        } else {
+            Value::Other
+        })
+    }
+
+    /// The fields of an `!!opencv-matrix` mapping whose start was just read.
+    fn matrix_fields(&mut self) -> Result<RawMatrix, IoError> {
+        let mut matrix = RawMatrix::default();
+        loop {
+            let (event, span) = self.next()?;
+            let name = match event {
+                Event::MappingEnd => return Ok(matrix),
+                Event::Scalar(text, ..) => text,
+                Event::SequenceStart(..) | Event::MappingStart(..) => {
+                    self.skip_rest()?;
+                    self.value(false)?;
+                    continue;
+                }
+                _ => {
+                    self.value(false)?;
+                    continue;
+                }
+            };
+            let field = Some(Field {
+                line: span.start.line(),
+                value: self.value(false)?,
+            });
+            match &*name {
+                "rows" => matrix.rows = field,
+                "cols" => matrix.cols = field,
+                "dt" => matrix.dt = field,
+                "data" => matrix.data = field,
+                _ => {}
+            }
+        }
+    }
+
+    /// Passes over the rest of a collection whose start was just read.
+    fn skip_rest(&mut self) -> Result<(), IoError> {
+        let mut depth = 1usize;
+        while depth > 0 {
+            match self.next()?.0 {
+                Event::SequenceStart(..) | Event::MappingStart(..) => depth += 1,
+                Event::SequenceEnd | Event::MappingEnd => depth -= 1,
+                _ => {}
+            }
+        }
+        Ok(())
     }
 }
 
@@ -103,15 +432,15 @@ fn parse_entries(text: &str, path: &Path) -> Result<HashMap<String, Entry>, IoEr
     };
     // A UTF-8 byte order mark before %YAML carries no meaning: skip it, as the CSV reader does.
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .map(|(i, l)| (i + 1, strip_comment(l)));
-    match lines.by_ref().find(|(_, l)| !l.trim().is_empty()) {
+    let first = text.lines().enumerate().find(|(_, l)| {
+        let l = l.trim();
+        !l.is_empty() && !l.starts_with('#')
+    });
+    match first {
         Some((_, l)) if l.trim_start().starts_with("%YAML") => {}
         Some((n, _)) => {
             return Err(err(
-                n,
+                n + 1,
                 "not an OpenCV FileStorage YAML file: it must start with %YAML:1.0".into(),
             ));
         }
@@ -122,111 +451,8 @@ fn parse_entries(text: &str, path: &Path) -> Result<HashMap<String, Entry>, IoEr
             ));
         }
     }
-    let mut entries: HashMap<String, Entry> = HashMap::new();
-    // The top-level key being read, and the flow sequence still open, if any.
-    let mut current: Option<(String, Entry)> = None;
-    let mut open: Option<Open> = None;
-    for (n, line) in lines {
-        if let Some(target) = &open {
-            // FileStorage indents continuation lines: a top-level line means the ']' is missing.
-            if !line.starts_with([' ', '\t', ']']) && !line.trim().is_empty() {
-                let key = current.as_ref().map_or("", |(k, _)| k.as_str());
-                return Err(err(
-                    n,
-                    format!("{key}: '[' is never closed with ']' before this line"),
-                ));
-            }
-            let (piece, closed) = match line.find(']') {
-                Some(end) => (&line[..end], true),
-                None => (line, false),
-            };
-            let flow = match (target, current.as_mut().map(|c| &mut c.1.value)) {
-                (Open::Sequence, Some(Value::Sequence(flow))) => Some(flow),
-                (Open::MatrixData, Some(Value::Matrix(m))) => m.data.as_mut(),
-                _ => None,
-            };
-            if let Some(flow) = flow {
-                flow.push((n, piece.to_string()));
-            }
-            if closed {
-                open = None;
-            }
-            continue;
-        }
-        let trimmed = line.trim();
-        if trimmed.is_empty() || trimmed == "---" || trimmed == "..." || trimmed.starts_with('%') {
-            continue;
-        }
-        let indented = line.starts_with([' ', '\t']);
-        if indented {
-            // Inside the current key's value: only the fields of an !!opencv-matrix are read.
-            let field = trimmed.split_once(':').map(|(k, v)| (k.trim(), v.trim()));
-            let matrix = match current.as_mut().map(|c| &mut c.1.value) {
-                Some(Value::Matrix(m)) => Some(m),
-                _ => None,
-            };
-            match (matrix, field) {
-                (Some(m), Some(("rows", v))) => m.rows = Some((n, v.to_string())),
-                (Some(m), Some(("cols", v))) => m.cols = Some((n, v.to_string())),
-                (Some(m), Some(("dt", v))) => m.dt = Some((n, v.trim_matches('"').to_string())),
-                (Some(m), Some(("data", v))) => {
-                    let (inner, closed) = open_flow(v);
-                    m.data = Some(vec![(n, inner)]);
-                    if !closed {
-                        open = Some(Open::MatrixData);
-                    }
-                }
-                (_, Some((_, v))) if v.starts_with('[') && !open_flow(v).1 => {
-                    open = Some(Open::Skipped)
-                }
-                _ if trimmed.starts_with('[') && !open_flow(trimmed).1 => {
-                    open = Some(Open::Skipped)
-                }
-                _ => {}
-            }
-            continue;
-        }
-        let (key, rest) = trimmed.split_once(':').ok_or_else(|| {
-            err(
-                n,
-                format!("expected 'key: value' at the top level, found '{trimmed}'"),
-            )
-        })?;
-        let (key, rest) = (key.trim().trim_matches('"').to_string(), rest.trim());
-        if let Some((key, entry)) = current.take() {
-            insert(&mut entries, key, entry, path)?;
-        }
-        let value = if rest.starts_with("!!opencv-matrix") {
-            Value::Matrix(RawMatrix::default())
-        } else if rest.starts_with('[') {
-            let (inner, closed) = open_flow(rest);
-            if !closed {
-                open = Some(Open::Sequence);
-            }
-            Value::Sequence(vec![(n, inner)])
-        } else if rest.is_empty() || rest.starts_with(['!', '{', '&', '*', '|', '>']) {
-            if rest.starts_with('{') && !rest.contains('}') {
-                return Err(err(
-                    n,
-                    format!("{key}: flow mappings spanning lines are not supported"),
-                ));
-            }
-            Value::Other
-        } else {
-            Value::Scalar(rest.trim_matches('"').to_string())
-        };
-        current = Some((key, Entry { line: n, value }));
-    }
-    if open.is_some() {
-        let (key, line) = current
-            .as_ref()
-            .map_or((String::new(), 0), |(k, e)| (k.clone(), e.line));
-        return Err(err(line, format!("{key}: '[' is never closed with ']'")));
-    }
-    if let Some((key, entry)) = current.take() {
-        insert(&mut entries, key, entry, path)?;
-    }
-    Ok(entries)
+    let text = without_yaml_directives(text);
+    Reader::new(&text, path).entries()
 }
 
 fn insert(
@@ -239,35 +465,41 @@ fn insert(
         return Err(IoError::OpenCv {
             path: path.to_path_buf(),
             line: entry.line,
-            reason: format!("key {key} appears twice (first on line {})", first.line),
+            reason: format!(
+                "key {} appears twice (first on line {})",
+                excerpt(&key, EXCERPT_CHARS),
+                first.line
+            ),
         });
     }
     entries.insert(key, entry);
     Ok(())
 }
 
-/// The finite numbers of a flow sequence; errors name the line of the bad value.
-fn numbers(key: &str, flow: &Flow, path: &Path) -> Result<Vec<f64>, IoError> {
-    let mut values = Vec::new();
-    for (line, text) in flow {
-        for s in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+/// The finite numbers of a sequence; errors name the line of the bad value.
+fn numbers(key: &str, items: &[Scalar], path: &Path) -> Result<Vec<f64>, IoError> {
+    items
+        .iter()
+        .map(|Scalar { text, line }| {
             let err = |reason: String| IoError::OpenCv {
                 path: path.to_path_buf(),
                 line: *line,
                 reason,
             };
+            let s = text.trim();
             // OpenCV writes non-finite values as .Nan, .Inf, -.Inf.
             let word = s.trim_start_matches(['+', '-', '.']).to_ascii_lowercase();
             if word == "nan" || word == "inf" || word == "infinity" {
                 return Err(err(format!("{key}: '{s}' is not finite")));
             }
-            let value: f64 = s
-                .parse()
-                .map_err(|_| err(format!("{key}: '{s}' is not a number")))?;
-            values.push(value);
-        }
-    }
-    Ok(values)
+            s.parse().map_err(|_| {
+                err(format!(
+                    "{key}: '{}' is not a number",
+                    excerpt(s, EXCERPT_CHARS)
+                ))
+            })
+        })
+        .collect()
 }
 
 /// A used `!!opencv-matrix`: its shape (rows, cols) and values (row-major), checked.
@@ -277,25 +509,51 @@ fn matrix(key: &str, entry: &Entry, path: &Path) -> Result<(usize, usize, Vec<f6
         line,
         reason,
     };
-    let Value::Matrix(m) = &entry.value else {
-        return Err(err(entry.line, format!("{key} is not an !!opencv-matrix")));
+    let m = match &entry.value {
+        Value::Matrix(m) => m,
+        Value::Alias => {
+            return Err(err(
+                entry.line,
+                format!(
+                    "{key} is a YAML alias (*name), which is not followed: write the !!opencv-matrix itself"
+                ),
+            ));
+        }
+        _ => return Err(err(entry.line, format!("{key} is not an !!opencv-matrix"))),
     };
-    let count = |field: &Option<(usize, String)>, name: &str| match field {
+    let count = |field: &Option<Field>, name: &str| match field {
         None => Err(err(
             entry.line,
             format!("{key}: !!opencv-matrix without '{name}'"),
         )),
-        Some((line, text)) => text
-            .parse::<usize>()
-            .map_err(|_| err(*line, format!("{key}: {name} '{text}' is not a count"))),
+        Some(Field {
+            value: Value::Scalar(Scalar { text, line }),
+            ..
+        }) => text.parse::<usize>().map_err(|_| {
+            err(
+                *line,
+                format!(
+                    "{key}: {name} '{}' is not a count",
+                    excerpt(text, EXCERPT_CHARS)
+                ),
+            )
+        }),
+        Some(Field { line, .. }) => Err(err(*line, format!("{key}: {name} is not a count"))),
     };
     let (rows, cols) = (count(&m.rows, "rows")?, count(&m.cols, "cols")?);
     match &m.dt {
-        Some((_, dt)) if dt == "d" || dt == "f" => {}
-        Some((line, dt)) => {
+        Some(Field {
+            value: Value::Scalar(Scalar { text, .. }),
+            ..
+        }) if text == "d" || text == "f" => {}
+        Some(Field { line, value }) => {
+            let dt = match value {
+                Value::Scalar(Scalar { text, .. }) => format!("'{}'", excerpt(text, EXCERPT_CHARS)),
+                _ => "(not a scalar)".into(),
+            };
             return Err(err(
                 *line,
-                format!("{key}: element type dt '{dt}' (expected d or f)"),
+                format!("{key}: element type dt {dt} (expected d or f)"),
             ));
         }
         None => {
@@ -305,12 +563,25 @@ fn matrix(key: &str, entry: &Entry, path: &Path) -> Result<(usize, usize, Vec<f6
             ));
         }
     }
-    let data = m
-        .data
-        .as_ref()
-        .ok_or_else(|| err(entry.line, format!("{key}: !!opencv-matrix without 'data'")))?;
-    let values = numbers(key, data, path)?;
-    if values.len() != rows * cols {
+    let values = match &m.data {
+        None => {
+            return Err(err(
+                entry.line,
+                format!("{key}: !!opencv-matrix without 'data'"),
+            ));
+        }
+        Some(Field {
+            value: Value::Sequence(items),
+            ..
+        }) => numbers(key, items, path)?,
+        Some(Field { line, .. }) => {
+            return Err(err(
+                *line,
+                format!("{key}: data must be a sequence of numbers [ … ]"),
+            ));
+        }
+    };
+    if rows.checked_mul(cols) != Some(values.len()) {
         return Err(err(
             entry.line,
             format!("{key}: {rows}x{cols} matrix with {} values", values.len()),
@@ -431,7 +702,7 @@ fn image_size(
     };
     let scalar = |name: &str, entry: &Entry| {
         match &entry.value {
-            Value::Scalar(s) => s.parse::<f64>().ok().and_then(pixels),
+            Value::Scalar(s) => s.text.trim().parse::<f64>().ok().and_then(pixels),
             _ => None,
         }
         .ok_or_else(|| {
@@ -456,7 +727,7 @@ fn image_size(
         )),
         (None, None, Some(entry)) => {
             let values = match &entry.value {
-                Value::Sequence(flow) => numbers("imageSize", flow, path)?,
+                Value::Sequence(items) => numbers("imageSize", items, path)?,
                 Value::Matrix(_) => matrix("imageSize", entry, path)?.2,
                 _ => vec![],
             };
@@ -842,6 +1113,111 @@ nested:
         let (line, m) = failure(&edited("flags: 0", "just some words"));
         assert_eq!(line, 8);
         assert!(m.contains("expected 'key: value'"), "{m}");
+    }
+
+    #[test]
+    fn yaml_forms_opencv_and_other_writers_use_are_read() {
+        // The verbatim form of the tag, OpenCV's number spellings, a block list for data, a flow
+        // mapping over two lines and an anchor in keys flatport does not read.
+        let text = edited(
+            "M1: !!opencv-matrix",
+            "M1: !<tag:yaml.org,2002:opencv-matrix>",
+        )
+        .replacen(
+            "data: [ -6.0e-02, 0., 0. ]",
+            "data:\n     - -6.e-02\n     - +0.\n     - -0.0e+00",
+            1,
+        )
+        .replacen(
+            "nested:",
+            "flow: { a: 1,\n   b: [ 2, 3 ] }\nanchored: &x [ 1 ]\nalias: *x\nnested:",
+            1,
+        );
+        let s = parse(&text).unwrap();
+        assert_eq!(s, parse(STEREO).unwrap());
+        // A directive line without '---' after it (older OpenCV), and a %YAML 1.2 directive.
+        let bare = edited("%YAML:1.0\n---\n", "%YAML:1.0\n");
+        assert_eq!(parse(&bare).unwrap(), parse(STEREO).unwrap());
+        let standard = edited("%YAML:1.0\n", "%YAML 1.2\n");
+        assert_eq!(parse(&standard).unwrap(), parse(STEREO).unwrap());
+    }
+
+    #[test]
+    fn bad_yaml_is_located_and_named() {
+        // Not YAML inside a matrix: the key and the line of the parser's complaint.
+        let (line, m) = failure(&edited("   rows: 1\n   cols: 5", "   rows: 1\n  - cols: 5"));
+        assert_eq!(line, 17, "{m}");
+        assert!(
+            m.starts_with("stereo.yml:17: not valid YAML: ")
+                && m.ends_with("; the line reads '- cols: 5'"),
+            "{m}"
+        );
+        // An alias where a matrix is read, data that is no sequence, a dt that is a list.
+        let (_, m) = failure(&edited("M2: !!opencv-matrix", "M2: &m !!opencv-matrix").replacen(
+            "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 9.99",
+            "R: *m\nR_unused: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 9.99",
+            1,
+        ));
+        assert!(
+            m.contains("R is a YAML alias (*name), which is not followed"),
+            "{m}"
+        );
+        let (line, m) = failure(&edited("data: [ -6.0e-02, 0., 0. ]", "data: 0.06"));
+        assert_eq!(line, 41);
+        assert!(m.contains("T: data must be a sequence of numbers"), "{m}");
+        let (line, m) = failure(&edited(
+            "rows: 1\n   cols: 5\n   dt: d",
+            "rows: 1\n   cols: 5\n   dt: [ d ]",
+        ));
+        assert_eq!(line, 18);
+        assert!(m.contains("D1: element type dt (not a scalar)"), "{m}");
+        // A document that is no mapping.
+        let (line, m) = failure("%YAML:1.0\n---\n- 1\n- 2\n");
+        assert_eq!(line, 3);
+        assert!(
+            m.contains("expected 'key: value' at the top level, found a sequence"),
+            "{m}"
+        );
+    }
+
+    #[test]
+    fn huge_keys_and_lines_are_shown_by_their_start() {
+        let long = "k".repeat(1 << 20);
+        // Inside the top-level mapping, and as the document's first line.
+        let (line, m) = failure(&format!("%YAML:1.0\n---\n{long}: 1\n"));
+        assert_eq!(line, 3);
+        assert!(m.contains("is longer than YAML allows a plain key"), "{m}");
+        let (line, m) = failure(&format!("{STEREO}{long}: 1\n"));
+        assert_eq!(line, 58);
+        assert!(
+            m.ends_with(
+                "… (1048576 bytes)' is longer than YAML allows a plain key (1024 characters)"
+            ),
+            "{}",
+            &m[..m.len().min(400)]
+        );
+        let (_, m) = failure(&format!("{STEREO}{}: 1\n{0}: 2\n", &long[..1000]));
+        assert!(m.contains("… (1000 bytes) appears twice"), "{m}");
+        for text in [
+            format!("{STEREO}{long}: 1\n{long}: 2\n"),
+            edited("flags: 0", &long),
+            format!("{STEREO}{long}: [ 1,\n2\n"),
+        ] {
+            let (_, m) = failure(&text);
+            assert!(
+                m.len() < 300 && m.contains(&format!("'{}… (10485", "k".repeat(60))),
+                "{}",
+                &m[..m.len().min(400)]
+            );
+        }
+        let (_, m) = failure(&edited(
+            "[ -6.0e-02, 0., 0. ]",
+            &format!("[ -6.0e-02, {long}, 0. ]"),
+        ));
+        assert!(
+            m.len() < 300 && m.starts_with("stereo.yml:41: T: 'kkk"),
+            "{m}"
+        );
     }
 
     #[test]

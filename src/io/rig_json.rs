@@ -7,6 +7,7 @@ use std::path::Path;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::error::{EXCERPT_CHARS, excerpt, shorten_quoted};
 use super::opencv::MAX_BASELINE_M;
 use super::{IoError, read_text, write_atomic};
 use crate::model::interface::{DEFAULT_INDEX_AIR, DEFAULT_INDEX_WATER};
@@ -100,12 +101,18 @@ pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(
     text: &str,
     path: &Path,
 ) -> Result<T, IoError> {
+    // serde_json quotes the offending key or string whole, and serde_path_to_error ends the path
+    // with an unknown key: both are cut to their start (a 1 MB key must not fill the message).
     let json_error = |field: String, error: serde_json::Error| IoError::Json {
         path: path.to_path_buf(),
-        field: if field == "." { String::new() } else { field },
+        field: if field == "." {
+            String::new()
+        } else {
+            excerpt(&field, 2 * EXCERPT_CHARS)
+        },
         line: error.line(),
         column: error.column(),
-        reason: strip_position(&error.to_string()),
+        reason: shorten_quoted(&strip_position(&error.to_string()), EXCERPT_CHARS),
     };
     // A UTF-8 byte order mark (Windows editors write one) is not JSON but carries no meaning:
     // skip it, as the CSV reader does.
@@ -120,6 +127,11 @@ pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(
         .map_err(|e| json_error(String::new(), e))?;
     Ok(value)
 }
+
+/// Longest camera name of a rig file, bytes: a name is a folder's name (the images of
+/// `flatport render` and `detect`, colmap's image prefix), which file systems keep to 255 bytes,
+/// and a longer one would be copied into every message about the camera.
+pub const MAX_CAMERA_NAME_BYTES: usize = 255;
 
 /// Parses and validates a rig from JSON text; `path` only labels errors.
 pub fn rig_from_json_str(text: &str, path: &Path) -> Result<Rig, IoError> {
@@ -137,6 +149,16 @@ pub(crate) fn rig_from_file(file: &RigFile, path: &Path) -> Result<Rig, IoError>
     let mut cameras = Vec::with_capacity(file.cameras.len());
     for (i, c) in file.cameras.iter().enumerate() {
         let field = format!("cameras[{i}]");
+        if c.name.len() > MAX_CAMERA_NAME_BYTES {
+            return Err(IoError::Invalid {
+                path: path.to_path_buf(),
+                field: format!("{field}.name"),
+                reason: format!(
+                    "'{}' is longer than a camera name may be ({MAX_CAMERA_NAME_BYTES} bytes: it names the folder of the camera's images, and every message about the camera)",
+                    excerpt(&c.name, EXCERPT_CHARS)
+                ),
+            });
+        }
         if c.distortion.len() > 5 {
             return Err(IoError::Invalid {
                 path: path.to_path_buf(),
@@ -287,7 +309,9 @@ pub(crate) fn interface_to_file(i: &Interface) -> InterfaceFile {
 /// The rig-file field an interface error is about.
 fn interface_field(error: &ModelError, object: &str) -> String {
     match error {
-        ModelError::ZeroNormal | ModelError::NormalAwayFromWater { .. } => {
+        ModelError::ZeroNormal
+        | ModelError::NormalLength { .. }
+        | ModelError::NormalAwayFromWater { .. } => {
             format!("{object}.normal")
         }
         ModelError::NonPositiveAirDistance { .. } => format!("{object}.distance"),

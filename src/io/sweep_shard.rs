@@ -16,6 +16,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use super::error::{EXCERPT_CHARS, excerpt};
 use super::rig_json::parse_json;
 use super::{IoError, read_text, write_atomic};
 
@@ -151,7 +152,10 @@ pub fn read_shard_manifest(path: &Path) -> Result<ShardManifest, IoError> {
     if manifest.format != SHARD_FORMAT {
         return Err(invalid(
             "format",
-            format!("'{}' is not '{SHARD_FORMAT}'", manifest.format),
+            format!(
+                "'{}' is not '{SHARD_FORMAT}'",
+                excerpt(&manifest.format, EXCERPT_CHARS)
+            ),
         ));
     }
     if manifest.version != SHARD_VERSION {

@@ -16,6 +16,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 
+use super::error::{EXCERPT_CHARS, head, quoted};
 use super::{IoError, OutputFile};
 
 /// Buffer size of the readers and writers opened here: large enough that system calls cost
@@ -219,15 +220,21 @@ impl<const N: usize, R: BufRead> TableReader<N, R> {
             .find(|&i| found.get(i).copied() != self.header.get(i).map(String::as_str))
             .unwrap_or(0)
             + 1;
+        // A header of millions of columns is shown by its start and its size.
+        let joined = found.join(",");
+        let shown = match head(&joined, HEADER_CHARS) {
+            None => format!("'{joined}'"),
+            Some(start) => format!(
+                "'{start}…' ({} columns, {} bytes)",
+                found.len(),
+                joined.len()
+            ),
+        };
         Err(csv_error(
             &self.path,
             self.lines.number,
             column.to_string(),
-            format!(
-                "header is '{}', expected '{}'",
-                found.join(","),
-                self.expected
-            ),
+            format!("header is {shown}, expected '{}'", self.expected),
         ))
     }
 }
@@ -358,13 +365,13 @@ fn column_name(header: &[String], index: usize) -> String {
 /// Longest cell text echoed in an error, in characters.
 const SHOWN_CHARS: usize = 40;
 
+/// Longest header text echoed in an error, in characters.
+const HEADER_CHARS: usize = EXCERPT_CHARS;
+
 /// A cell's text for an error message, quoted: whole up to [`SHOWN_CHARS`] characters, else its
 /// start and its length (a 300 MB cell must not be copied into the message).
 fn shown(value: &str) -> String {
-    match value.char_indices().nth(SHOWN_CHARS) {
-        None => format!("\"{value}\""),
-        Some((end, _)) => format!("\"{}…\" ({} bytes)", &value[..end], value.len()),
-    }
+    quoted(value, '"', SHOWN_CHARS)
 }
 
 fn csv_error(path: &Path, line: usize, column: String, reason: String) -> IoError {
@@ -614,6 +621,22 @@ mod tests {
         assert!(m.contains("header is '1,2,3'"), "{m}");
         let (line, _, m) = failure("\n\nX,y,z\n");
         assert_eq!(line, 3, "{m}");
+    }
+
+    #[test]
+    fn a_huge_header_is_shown_by_its_start_and_size() {
+        // 20 million columns, 40 MB: the message names file, line, column and what is wrong in a
+        // few hundred bytes.
+        let header = format!("{}x", "x,".repeat(19_999_999));
+        let (line, column, m) = failure(&format!("\n{header}\n1,2,3\n"));
+        assert_eq!((line, column.as_str()), (2, "2"));
+        assert_eq!(
+            m,
+            format!(
+                "p.csv:2: column '2': header is '{}…' (20000000 columns, 39999999 bytes), expected 'x,y,z'",
+                "x,".repeat(30)
+            )
+        );
     }
 
     #[test]

@@ -17,6 +17,21 @@ pub enum ModelError {
     /// The system axis has zero length.
     #[error("interface normal must not be zero")]
     ZeroNormal,
+    /// The system axis' length is no ordinary f64: below the smallest normal number (it underflows,
+    /// so normalising it means dividing by a subnormal or by zero) or past the largest.
+    #[error(
+        "interface normal [{x:e}, {y:e}, {z:e}]: its length is zero or not representable (|n| = {length:e} underflows below 2.2e-308 or overflows past 1.8e308 in f64); give it at an ordinary scale, e.g. [0.1, 0.1, 1]"
+    )]
+    NormalLength {
+        /// x component of the normal as given.
+        x: f64,
+        /// y component of the normal as given.
+        y: f64,
+        /// z component of the normal as given.
+        z: f64,
+        /// Its length |n|, as f64 holds it (subnormal, zero or infinite).
+        length: f64,
+    },
     /// The system axis points away from the water (n·z ≤ 0 in the master frame).
     #[error(
         "interface normal [{x}, {y}, {z}] must point from the camera into the water (positive z in the master camera frame)"

@@ -59,11 +59,29 @@ impl Interface {
         if largest == 0.0 {
             return Err(ModelError::ZeroNormal);
         }
+        // Its true length |n| = largest · |n / largest|. A length below the smallest normal f64
+        // (a normal given as [1e-320, 0, 1e-320]) or past the largest is no length f64 holds: such
+        // a normal is refused here, naming it, rather than normalised through a subnormal scale
+        // into a direction that then fails elsewhere (a camera "not in the air").
+        let length = largest * (normal / largest).norm();
+        let unrepresentable = ModelError::NormalLength {
+            x: normal.x,
+            y: normal.y,
+            z: normal.z,
+            length,
+        };
+        if !(f64::MIN_POSITIVE..=f64::MAX).contains(&length) {
+            return Err(unrepresentable);
+        }
         let normal = if (1e-150..=1e150).contains(&largest) {
             normal
         } else {
             normal / largest
         };
+        let unit = Unit::new_normalize(normal);
+        if (unit.norm() - 1.0).abs() > 1e-12 {
+            return Err(unrepresentable);
+        }
         if normal.z <= 0.0 {
             return Err(ModelError::NormalAwayFromWater {
                 x: normal.x,
@@ -90,7 +108,7 @@ impl Interface {
             check_index(&format!("layer {i}"), layer.index)?;
         }
         Ok(Self {
-            normal: Unit::new_normalize(normal),
+            normal: unit,
             air_distance,
             layers,
             index_air,
@@ -281,7 +299,8 @@ mod tests {
 
     #[test]
     fn huge_and_tiny_normals_keep_their_direction() {
-        for scale in [1e308, 1e-320, 1.0] {
+        // 1e-300: tiny, yet its length 1.4e-300 is an ordinary f64 (1e-320 is not: see below).
+        for scale in [1e308, 1e-300, 1.0] {
             let i =
                 Interface::new(Vector3::new(scale, 0.0, scale), 0.02, vec![], 1.0, 1.333).unwrap();
             let expected = Vector3::new(1.0, 0.0, 1.0) / 2f64.sqrt();
@@ -295,5 +314,40 @@ mod tests {
             Interface::new(Vector3::zeros(), 0.02, vec![], 1.0, 1.333),
             Err(ModelError::ZeroNormal)
         ));
+    }
+
+    #[test]
+    fn a_normal_whose_length_f64_does_not_hold_is_refused() {
+        // |n| of [1e-320, 0, 1e-320] is subnormal; of [1.5e308, 1.5e308, 1.5e308] past f64::MAX;
+        // of [5e-324, 0, 5e-324] (the smallest subnormals) it rounds to one subnormal step.
+        for normal in [
+            Vector3::new(1e-320, 0.0, 1e-320),
+            Vector3::new(0.0, 0.0, 1e-310),
+            Vector3::new(5e-324, 0.0, 5e-324),
+            Vector3::new(1.5e308, 1.5e308, 1.5e308),
+        ] {
+            let error = Interface::new(normal, 0.02, vec![], 1.0, 1.333).unwrap_err();
+            assert!(
+                matches!(error, ModelError::NormalLength { .. }),
+                "{normal:?}: {error:?}"
+            );
+            let message = error.to_string();
+            assert!(
+                message.contains("length is zero or not representable")
+                    && message.contains("underflows"),
+                "{message}"
+            );
+        }
+        // The smallest normal f64 as the only component is still a length f64 holds.
+        assert!(
+            Interface::new(
+                Vector3::new(0.0, 0.0, f64::MIN_POSITIVE),
+                0.02,
+                vec![],
+                1.0,
+                1.333
+            )
+            .is_ok()
+        );
     }
 }
