@@ -544,3 +544,160 @@ impl LeastSquares for Bundle<'_> {
         moved
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::problem::board::Board;
+    use crate::model::{Layer, PinholeCamera, RigCamera};
+    use nalgebra::{Matrix3, Point2};
+
+    fn camera(name: &str, x: f64) -> RigCamera {
+        let intrinsics =
+            PinholeCamera::new(name, 640, 480, 500.0, 500.0, 320.0, 240.0, [0.0; 5]).unwrap();
+        RigCamera::new(
+            name,
+            intrinsics,
+            Matrix3::identity(),
+            Vector3::new(-x, 0.0, 0.0),
+        )
+        .unwrap()
+    }
+
+    fn port(distance: f64) -> Interface {
+        let glass = vec![
+            Layer {
+                thickness: 0.01,
+                index: 1.49,
+            },
+            Layer {
+                thickness: 0.004,
+                index: 1.5,
+            },
+        ];
+        Interface::new(Vector3::new(0.05, 0.0, 1.0), distance, glass, 1.0, 1.333).unwrap()
+    }
+
+    #[test]
+    fn estimates_parse_and_name_each_other() {
+        for text in [
+            "axis,distance",
+            "axis,layers,extrinsics",
+            "distance,layer:0,layer:3",
+        ] {
+            assert_eq!(Estimate::parse(text).unwrap().name(), text);
+        }
+        assert_eq!(
+            Estimate::parse("axis,distance").unwrap(),
+            Estimate::default()
+        );
+        let error = Estimate::parse("axis,tilt").unwrap_err();
+        assert!(
+            error.contains("'tilt' is not something to estimate"),
+            "{error}"
+        );
+        assert!(Estimate::parse("layer:32").unwrap_err().contains("0 to 31"));
+        let layers = Estimate::parse("layer:1").unwrap();
+        assert!(layers.layer(1) && !layers.layer(0) && !layers.layer(40));
+    }
+
+    #[test]
+    fn the_global_parameters_follow_what_is_estimated_and_whose_port_it_is() {
+        let target = Target::Board(Board {
+            rows: 3,
+            cols: 3,
+            square: 0.05,
+        });
+        let views: Vec<SeenView> = Vec::new();
+        let shared = Rig::new(vec![camera("a", 0.0), camera("b", 0.1)], port(0.02)).unwrap();
+        let all = Estimate::parse("axis,distance,layers,extrinsics").unwrap();
+        let bundle = Bundle::new(&shared, &target, &views, all, None);
+        assert_eq!(
+            bundle.globals(),
+            &[
+                Parameter::Axis(0, 0),
+                Parameter::Axis(0, 1),
+                Parameter::Distance(0),
+                Parameter::Thickness(0, 0),
+                Parameter::Thickness(0, 1),
+                Parameter::Rotation(1, 0),
+                Parameter::Rotation(1, 1),
+                Parameter::Rotation(1, 2),
+                Parameter::Translation(1, 0),
+                Parameter::Translation(1, 1),
+                Parameter::Translation(1, 2),
+            ]
+        );
+        // A shared port moves every camera; a camera's own port moves that camera only.
+        assert_eq!(bundle.camera_of(Parameter::Axis(0, 1)), None);
+        let housings = Rig::with_ports(
+            vec![camera("a", 0.0), camera("b", 0.2)],
+            Ports::PerCamera(vec![port(0.02), port(0.03)]),
+        )
+        .unwrap();
+        let bundle = Bundle::new(&housings, &target, &views, Estimate::default(), None);
+        assert_eq!(bundle.globals().len(), 6);
+        assert_eq!(bundle.camera_of(Parameter::Distance(1)), Some(1));
+        // Air on both sides of a slab: its place changes no ray, its distance is not estimated.
+        let tank = Interface::new(
+            Vector3::z(),
+            0.05,
+            vec![Layer {
+                thickness: 0.1,
+                index: 1.333,
+            }],
+            1.0,
+            1.0,
+        )
+        .unwrap();
+        assert!(distance_unobservable(&tank));
+        let rig = Rig::new(vec![camera("a", 0.0)], tank).unwrap();
+        let bundle = Bundle::new(&rig, &target, &views, Estimate::default(), None);
+        assert_eq!(
+            bundle.globals(),
+            &[Parameter::Axis(0, 0), Parameter::Axis(0, 1)]
+        );
+    }
+
+    #[test]
+    fn a_state_is_the_rig_it_describes_and_moves_one_parameter_at_a_time() {
+        let rig = Rig::new(vec![camera("a", 0.0), camera("b", 0.1)], port(0.02)).unwrap();
+        let state = State::of(&rig, vec![Isometry3::identity()]);
+        // The same rig, its normal normalised again (to the last bit).
+        let again = state.rig(&rig).unwrap();
+        assert_eq!(again.cameras(), rig.cameras());
+        let (a, b) = (
+            again.shared_interface().unwrap(),
+            rig.shared_interface().unwrap(),
+        );
+        assert!(a.normal().angle(b.normal()) < 1e-15);
+        assert_eq!(
+            (a.air_distance(), a.layers()),
+            (b.air_distance(), b.layers())
+        );
+        let target = Target::Board(Board {
+            rows: 3,
+            cols: 3,
+            square: 0.05,
+        });
+        let views = vec![SeenView {
+            cameras: vec![(0, vec![(0, Point2::new(1.0, 1.0))])],
+            keys: vec!["a".into()],
+        }];
+        let all = Estimate::parse("axis,distance,layers,extrinsics").unwrap();
+        let bundle = Bundle::new(&rig, &target, &views, all, None);
+        let moved = bundle.moved(&state, Parameter::Distance(0), 1e-3);
+        assert!((moved.ports[0].distance - 0.021).abs() < 1e-15);
+        let moved = bundle.moved(&state, Parameter::Thickness(0, 1), -1e-3);
+        assert!((moved.ports[0].thicknesses[1] - 0.003).abs() < 1e-15);
+        let moved = bundle.moved(&state, Parameter::Translation(1, 2), 0.01);
+        assert!((moved.extrinsics[1].translation.vector.z - 0.01).abs() < 1e-15);
+        // A tangent step of 0.01 turns the axis by atan(0.01) (normalise(n + 0.01 e₁)).
+        let moved = bundle.moved(&state, Parameter::Axis(0, 0), 0.01);
+        let turned = moved.ports[0].normal.angle(&state.ports[0].normal);
+        assert!((turned - 0.01f64.atan()).abs() < 1e-12, "{turned}");
+        // A distance that puts a camera outside the air is no rig.
+        let outside = bundle.moved(&state, Parameter::Distance(0), -0.03);
+        assert!(outside.rig(&rig).is_none());
+    }
+}

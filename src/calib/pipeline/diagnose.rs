@@ -19,9 +19,14 @@
 
 use nalgebra::{Point2, Point3, Unit, Vector3};
 
+use super::report::Report;
+use super::{MIN_VIEWS, Options};
 use crate::calib::costs::triangulate_corner;
 use crate::calib::problem::data::{Candidate, StereoData};
+use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::observations::view_list;
+use crate::calib::problem::target::Target;
+use crate::model::{Ports, Rig};
 use crate::model::{Ray, triangulate_rays};
 
 /// How the in-air rays of one view's corners meet.
@@ -288,6 +293,65 @@ pub fn summary(data: &StereoData, noise_px: Option<f64>) -> String {
         )),
         100.0 * in_front as f64 / corners.max(1) as f64,
     )
+}
+
+/// What the data look like when the result does not fit. First what a camera pair's rays show
+/// (swapped images, a reversed corner order, a triangulated board of the wrong scale); then the
+/// usual input mistakes, each undone in turn and calibrated again ([`misfit`]), those whose
+/// undoing explains the misfit (a scale finding that one of them names already is left out); or,
+/// when none does, a summary of the data and the line that says so.
+pub(super) fn diagnosis(
+    rig: &Rig,
+    target: &Target,
+    seen: &[SeenView],
+    report: &Report,
+    options: &Options,
+) -> Vec<String> {
+    // The pair the 3-D errors are about, else the first that saw three views of a board together.
+    let named =
+        report
+            .scene
+            .as_ref()
+            .and_then(|s| match s.cameras.clone().map(|n| rig.camera_index(&n)) {
+                [Some(a), Some(b)] => Some([a, b]),
+                _ => None,
+            });
+    let n = rig.cameras().len();
+    let pair = target.board().and_then(|board| {
+        named
+            .into_iter()
+            .chain((0..n).flat_map(|a| (a + 1..n).map(move |b| [a, b])))
+            .filter_map(|pair| StereoData::new(rig, pair, board, seen).ok())
+            .find(|d| d.views.len() >= MIN_VIEWS)
+    });
+    let mut findings = Vec::new();
+    let mut scale = None;
+    if let Some(data) = &pair {
+        findings = pairing_findings(data);
+        // The fitted port where it is the pair's (a shared one), else the pair's start.
+        let candidate = matches!(rig.ports(), Ports::Shared(_)).then(|| Candidate {
+            normal: nalgebra::Unit::new_normalize(nalgebra::Vector3::from(report.port().normal)),
+            air_distance: report.port().distance.value,
+        });
+        scale = scale_finding(data, candidate.as_ref(), !findings.is_empty());
+    }
+    match super::misfit::explain_misfit(rig, target, seen, options) {
+        Ok(verified) => {
+            let named_scale = verified.iter().any(|v| super::misfit::is_about_scale(v));
+            if !named_scale {
+                findings.extend(scale);
+            }
+            findings.extend(verified);
+        }
+        Err(unexplained) => {
+            findings.extend(scale);
+            if let Some(data) = &pair {
+                findings.push(summary(data, report.noise_px));
+            }
+            findings.push(unexplained);
+        }
+    }
+    findings
 }
 
 #[cfg(test)]

@@ -3,17 +3,24 @@
 //! images far above the rest, the stages that ran and, when the result does not fit, what the data
 //! look like.
 
-use std::collections::HashSet;
+use std::collections::{BTreeSet, HashSet};
 use std::time::Instant;
 
 use nalgebra::{DMatrix, Isometry3, Matrix3, Vector2, Vector3};
 
-use super::Method;
-use super::bundle::{Estimate, Parameter, State};
+use super::bundle::{Bundle, Estimate, Parameter, State};
+use super::consecutive::no_solution;
+use super::estimate::{Fit, Outcome};
+use super::{MIN_VIEWS, Method, Options, WEAK_AIR_STD_M, WEAK_TILT_STD_DEG};
+use crate::calib::costs::SceneFit;
 use crate::calib::costs::invariants::plane_basis;
-use crate::calib::problem::data::Candidate;
+use crate::calib::error::CalibError;
+use crate::calib::problem::data::{Candidate, StereoData};
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::screen::Screening;
+use crate::calib::problem::target::Target;
+use crate::calib::solvers::block::{BlockNormalEquations, POSE_PARAMETERS};
+use crate::calib::solvers::lm::{LmReport, Termination};
 use crate::model::{Interface, Ports, Rig};
 
 /// A calibrated quantity with its standard deviation (`None` when known, not estimated, not
@@ -483,4 +490,257 @@ pub fn port_names(rig: &Rig) -> Vec<(String, Interface)> {
             .zip(ports.iter().cloned())
             .collect(),
     }
+}
+
+/// What step 6 of the pipeline reports on: the problem, the screening, the pairs, the estimate
+/// and the stages and warnings so far.
+pub(super) struct Input<'a> {
+    pub rig: &'a Rig,
+    pub target: &'a Target,
+    pub seen: &'a [SeenView],
+    pub screening: Option<&'a Screening>,
+    pub pairs: &'a [StereoData],
+    pub options: &'a Options,
+}
+
+/// Step 6: the report of `estimate` over every corner of `input.seen` (the screened ones
+/// included), and the calibrated rig.
+pub(super) fn make_report(
+    input: &Input,
+    estimate: Outcome,
+    stages: Vec<Stage>,
+    mut warnings: Vec<String>,
+) -> Result<(Report, Rig), CalibError> {
+    let Input {
+        rig,
+        target,
+        seen,
+        screening,
+        pairs,
+        options,
+    } = *input;
+    let Outcome {
+        state,
+        fit,
+        strategy,
+        pair,
+    } = estimate;
+    let calibrated = state
+        .rig(rig)
+        .ok_or_else(|| no_solution(options, "the result puts a camera outside the air"))?;
+    // The residuals under the result over every corner (the screened ones too).
+    let every = Bundle::new(rig, target, seen, Estimate::NOTHING, options.huber);
+    let residuals = every
+        .all_residuals(&state)
+        .ok_or_else(|| no_solution(options, "a fitted corner does not project under the result"))?;
+    let labelled = label_residuals(seen, &residuals);
+    let outliers = find_outliers(rig, seen, &labelled, screening);
+    warnings.extend(outlier_warning(&outliers, options, fit.is_some()));
+    let (covariance, sigma_px, iterations, termination, globals) =
+        uncertainty(&state, fit.as_ref(), seen, screening, &stages);
+    let ports = port_reports(rig, &state, &globals, covariance.as_ref());
+    warnings.extend(uncertainty_warnings(
+        &ports,
+        fit.as_ref().map(|f| &f.report),
+        &covariance,
+    ));
+    let cameras = camera_reports(
+        rig,
+        seen,
+        camera_rms(rig, &labelled, &outliers),
+        &globals,
+        covariance.as_ref(),
+        &state.extrinsics,
+    );
+    let fits = cameras
+        .iter()
+        .all(|c| c.inlier_rms_px.is_nan() || c.inlier_rms_px <= options.rms_bound());
+    let squares: Vec<f64> = residuals
+        .iter()
+        .flatten()
+        .map(|r| r.norm_squared())
+        .collect();
+    let report = Report {
+        method: options.method,
+        strategy,
+        estimate: options.estimate,
+        ports,
+        cameras,
+        sigma_px,
+        noise_px: screening.and_then(|s| s.noise_px),
+        rms_px: (squares.iter().sum::<f64>() / squares.len().max(1) as f64).sqrt(),
+        scene: scene_errors(&calibrated, target, seen, pairs, pair),
+        poses: state.poses.clone(),
+        board: target.board().is_some(),
+        stages,
+        iterations,
+        termination,
+        outliers,
+        fits,
+        diagnosis: Vec::new(),
+        warnings,
+        seconds: 0.0,
+        backend: options.backend.describe(),
+        views: seen.len(),
+        corners: distinct_corners(seen),
+        observations: seen.iter().map(SeenView::observations).sum(),
+    };
+    Ok((report, calibrated))
+}
+
+/// Distinct corners of `seen` (a corner seen by several cameras in a view counts once).
+fn distinct_corners(seen: &[SeenView]) -> usize {
+    seen.iter()
+        .map(|v| {
+            let set: BTreeSet<usize> = v
+                .cameras
+                .iter()
+                .flat_map(|(_, c)| c.iter().map(|(i, _)| *i))
+                .collect();
+            set.len()
+        })
+        .sum()
+}
+
+/// The warning for corner images far above the rest, if any.
+fn outlier_warning(outliers: &[Outlier], options: &Options, fitted: bool) -> Option<String> {
+    let worst = outliers.first()?;
+    let corners: BTreeSet<(usize, usize)> = outliers.iter().map(|o| (o.view, o.corner)).collect();
+    let huber = options.huber.is_none() && fitted && outliers.iter().any(|o| !o.screened);
+    Some(format!(
+        "{} corner(s) have residuals far above the rest (largest {:.2} px at view {} corner {}, {} image): check the detections{}",
+        corners.len(),
+        worst.residual_px,
+        worst.view,
+        worst.corner,
+        worst.image,
+        if huber { ", or use the Huber loss" } else { "" }
+    ))
+}
+
+/// The covariance of the global parameters (σ̂² applied), σ̂, the iterations and termination of
+/// the final stage, and the global parameters, of a maximum-likelihood fit; the consecutive
+/// method (no fit) has none of them and reports its last refinement's iterations.
+#[allow(clippy::type_complexity)]
+fn uncertainty(
+    state: &State,
+    fit: Option<&Fit>,
+    seen: &[SeenView],
+    screening: Option<&Screening>,
+    stages: &[Stage],
+) -> (
+    Option<DMatrix<f64>>,
+    Option<f64>,
+    usize,
+    String,
+    Vec<Parameter>,
+) {
+    let Some(fit) = fit else {
+        let iterations = stages
+            .iter()
+            .rev()
+            .find(|s| s.name.starts_with("refine"))
+            .map_or(0, |s| s.iterations);
+        return (None, None, iterations, "converged".into(), Vec::new());
+    };
+    let dimension = fit.globals.len() + POSE_PARAMETERS * state.poses.len();
+    // The fit ran on the views without the screened corner images: two residuals per image.
+    let clean = screening.and_then(|s| s.without_suspects(seen));
+    let views = clean.as_deref().unwrap_or(seen);
+    let residuals = 2 * views.iter().map(SeenView::observations).sum::<usize>();
+    let dof = residuals.saturating_sub(dimension);
+    let sigma2 = if dof > 0 {
+        fit.report.final_cost / dof as f64
+    } else {
+        f64::NAN
+    };
+    let covariance = fit
+        .normal
+        .as_ref()
+        .and_then(BlockNormalEquations::global_covariance)
+        .map(|c| c * sigma2);
+    (
+        covariance,
+        Some(sigma2.sqrt()),
+        fit.report.iterations,
+        fit.report.termination.describe().to_string(),
+        fit.globals.clone(),
+    )
+}
+
+/// Warnings about what the standard deviations say: an undetermined azimuth, a singular or weak
+/// fit, a fit that ran out of iterations.
+fn uncertainty_warnings(
+    ports: &[PortReport],
+    fit: Option<&LmReport>,
+    covariance: &Option<DMatrix<f64>>,
+) -> Vec<String> {
+    let mut warnings = Vec::new();
+    let port = &ports[0];
+    if let Some(tilt_std) = port.tilt.std
+        && port.tilt.value < 3.0 * tilt_std
+    {
+        warnings.push(format!(
+            "the tilt ({:.3}°) is within 3 standard deviations of zero: the azimuth is undetermined",
+            port.tilt.value.to_degrees()
+        ));
+    }
+    match (fit, covariance) {
+        (Some(_), None) => warnings.push("JᵀJ is singular at the result: the views do not determine what is estimated (vary the target's angle and distance)".into()),
+        (Some(_), Some(_)) => {
+            let weak_tilt = port.tilt.std.is_some_and(|s| s > WEAK_TILT_STD_DEG.to_radians());
+            let weak_air = port.distance.std.is_some_and(|s| s > WEAK_AIR_STD_M);
+            if weak_tilt || weak_air {
+                warnings.push(format!(
+                    "the views hardly constrain the result (σ tilt {:.2}°, σ air layer {:.1} mm): vary the target's angle and distance between views",
+                    port.tilt.std.unwrap_or(f64::NAN).to_degrees(),
+                    port.distance.std.unwrap_or(f64::NAN) * 1e3
+                ));
+            }
+        }
+        _ => {}
+    }
+    if fit.is_some_and(|r| r.termination == Termination::MaxIterations) {
+        warnings.push("raise --max-iterations".into());
+    }
+    warnings
+}
+
+/// The 3-D errors of the triangulated corners of one camera pair under the calibrated rig: the
+/// pair the consecutive start ran on, else the first pair that saw the board in three views.
+fn scene_errors(
+    calibrated: &Rig,
+    target: &Target,
+    seen: &[SeenView],
+    pairs: &[StereoData],
+    pair: Option<[usize; 2]>,
+) -> Option<SceneErrors> {
+    let board = target.board()?;
+    let pair = pair
+        .or_else(|| pairs.first().map(|d| d.cameras))
+        .or_else(|| {
+            let n = calibrated.cameras().len();
+            (0..n)
+                .flat_map(|a| (a + 1..n).map(move |b| [a, b]))
+                .find(|&[a, b]| {
+                    StereoData::new(calibrated, [a, b], board, seen)
+                        .is_ok_and(|d| d.views.len() >= MIN_VIEWS)
+                })
+        })?;
+    let cameras = pair.map(|k| calibrated.refractive_camera(k));
+    // Over every corner, else (a screened corner that does not triangulate) over the kept ones.
+    let every = StereoData::new(calibrated, pair, board, seen).ok()?;
+    let (data, fit) = match SceneFit::new(&every, &cameras) {
+        Some(fit) => (every, fit),
+        None => {
+            let kept = pairs.iter().find(|d| d.cameras == pair)?.clone();
+            let fit = SceneFit::new(&kept, &cameras)?;
+            (kept, fit)
+        }
+    };
+    Some(SceneErrors {
+        cameras: pair.map(|k| calibrated.cameras()[k].name.clone()),
+        rms_m: fit.scene_rms(),
+        square_deviation_rms_m: fit.square_deviation_rms(&data),
+    })
 }

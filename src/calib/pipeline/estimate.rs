@@ -1,0 +1,413 @@
+//! Steps 3 to 5 of the pipeline ([`super`]): the target poses, the start of the ports, and the
+//! maximum-likelihood refinement from one start or several.
+
+use std::time::Instant;
+
+use super::bundle::{Bundle, Estimate, Parameter, State};
+use super::report::Stage;
+use super::{MIN_VIEWS, Method, Options, Progress, consecutive, poses, search};
+use crate::calib::costs::SceneFit;
+use crate::calib::error::CalibError;
+use crate::calib::problem::data::{Candidate, StereoData};
+use crate::calib::problem::observations::SeenView;
+use crate::calib::problem::target::Target;
+use crate::calib::solvers::block::BlockNormalEquations;
+use crate::calib::solvers::lm::{
+    LeastSquares, LmOptions, LmReport, levenberg_marquardt, levenberg_marquardt_observed,
+};
+use crate::model::{Ports, Rig};
+
+/// The camera pairs behind the shared port that saw the board together in [`MIN_VIEWS`] or more
+/// views, prepared for the pair costs: none for a 3-D target or a port per camera.
+pub(super) fn shared_board_pairs(
+    rig: &Rig,
+    target: &Target,
+    seen: &[SeenView],
+) -> Result<Vec<StereoData>, CalibError> {
+    let (Ports::Shared(_), Some(board)) = (rig.ports(), target.board()) else {
+        return Ok(Vec::new());
+    };
+    let n = rig.cameras().len();
+    let mut pairs = Vec::new();
+    for a in 0..n {
+        for b in a + 1..n {
+            let data = StereoData::new(rig, [a, b], board, seen)?;
+            if data.views.len() >= MIN_VIEWS {
+                pairs.push(data);
+            }
+        }
+    }
+    Ok(pairs)
+}
+
+/// Levenberg–Marquardt for at most `iterations` steps: the short fits of the poses and the search.
+pub(crate) fn fit_briefly(bundle: &Bundle, state: State, iterations: usize) -> State {
+    let options = LmOptions {
+        max_iterations: iterations,
+        ..LmOptions::default()
+    };
+    levenberg_marquardt(bundle, state, &options).0
+}
+
+/// RMS reprojection error (the residual vector's length) of `state` under `bundle`, pixels (+∞
+/// when it has none).
+pub(crate) fn rms(bundle: &Bundle, state: &State) -> f64 {
+    bundle.cost(state).map_or(f64::INFINITY, |c| {
+        (2.0 * c / bundle.residuals() as f64).sqrt()
+    })
+}
+
+/// The maximum-likelihood fit that ended a method: the optimiser's report, the normal equations
+/// at the result (for the covariance) and the global parameters they are over.
+pub(super) struct Fit {
+    pub report: LmReport,
+    pub normal: Option<BlockNormalEquations>,
+    pub globals: Vec<Parameter>,
+}
+
+/// The outcome of the estimate: the state reached, the maximum-likelihood fit if one ran, what ran in words,
+/// and the camera pair whose consecutive result started it.
+pub(super) struct Outcome {
+    pub state: State,
+    pub fit: Option<Fit>,
+    pub strategy: String,
+    pub pair: Option<[usize; 2]>,
+}
+
+/// What the steps share: the problem, the options, and where the stages, warnings and progress
+/// go.
+pub(super) struct Steps<'a> {
+    pub rig: &'a Rig,
+    pub target: &'a Target,
+    pub views: &'a [SeenView],
+    pub options: &'a Options,
+    pub stages: &'a mut Vec<Stage>,
+    pub warnings: &'a mut Vec<String>,
+    pub progress: &'a mut dyn FnMut(&Progress),
+}
+
+/// The start and the refinement of the method (steps 3 to 5 of the pipeline): the pinhole poses,
+/// the ports' starts (the consecutive method over `pairs`, else the axis search), then maximum
+/// likelihood from each start (none for the consecutive method).
+pub(super) fn estimate(steps: &mut Steps, pairs: &[StereoData]) -> Result<Outcome, CalibError> {
+    let (pinhole, rig_start) = target_poses(steps)?;
+    let options = steps.options;
+    let mut strategy = format!("{}: ", options.method.name());
+    let (mut starts, pair) = port_starts(steps, pairs, &pinhole, &rig_start, &mut strategy)?;
+    if options.method == Method::Consecutive {
+        let (_, state) = starts.swap_remove(0);
+        return Ok(Outcome {
+            state,
+            fit: None,
+            strategy,
+            pair,
+        });
+    }
+    if starts.is_empty() {
+        starts.push(("the rig's start guess".into(), rig_start));
+    }
+    let count = starts.len();
+    let (state, fit) = maximum_likelihood(steps, &starts)?;
+    strategy += &if count > 1 {
+        format!(", maximum likelihood from {count} starts")
+    } else {
+        ", maximum likelihood".to_string()
+    };
+    Ok(Outcome {
+        state,
+        fit: Some(fit),
+        strategy,
+        pair,
+    })
+}
+
+/// Step 3: each view's target pose by the pinhole model, and the same poses fitted through the
+/// rig's start ports: (pinhole, rig start).
+fn target_poses(steps: &mut Steps) -> Result<(State, State), CalibError> {
+    let clock = Instant::now();
+    let (rig, target, views) = (steps.rig, steps.target, steps.views);
+    let pinhole = State::of(rig, poses::initial_poses(rig, target, views)?);
+    let pose_only = Bundle::new(rig, target, views, Estimate::NOTHING, steps.options.huber);
+    let rig_start = fit_briefly(&pose_only, pinhole.clone(), search::POSE_ITERATIONS);
+    steps.stages.push(Stage {
+        name: "target poses (pinhole, then through the start port)".into(),
+        port: None,
+        cost: rms(&pose_only, &rig_start),
+        unit: "px",
+        iterations: search::POSE_ITERATIONS,
+        seconds: clock.elapsed().as_secs_f64(),
+    });
+    Ok((pinhole, rig_start))
+}
+
+/// Named states the maximum-likelihood fit may start from, and the pair of cameras the
+/// consecutive method chose.
+type Starts = (Vec<(String, State)>, Option<[usize; 2]>);
+
+/// Step 4: the named starts of the ports. The consecutive method over the pairs behind a shared
+/// port (and for `auto` its pair's reprojection profile minimum and the rig's start too), else
+/// the global axis search over each port; nothing when no port is estimated. Returns the starts
+/// and the pair the consecutive method chose; `strategy` gets what ran.
+fn port_starts(
+    steps: &mut Steps,
+    pairs: &[StereoData],
+    pinhole: &State,
+    rig_start: &State,
+    strategy: &mut String,
+) -> Result<Starts, CalibError> {
+    let options = steps.options;
+    let moves_ports = options.estimate.axis || options.estimate.distance;
+    let use_pairs = !pairs.is_empty() && moves_ports;
+    let mut starts: Vec<(String, State)> = Vec::new();
+    let mut chosen = None;
+    if use_pairs {
+        match consecutive_start(steps, pinhole, pairs) {
+            Ok((state, pair, profile)) => {
+                chosen = Some(pair);
+                let names = pair.map(|k| steps.rig.cameras()[k].name.as_str());
+                *strategy += &format!(
+                    "consecutive (thesis) over {} camera pair(s), best pair {}–{}",
+                    pairs.len(),
+                    names[0],
+                    names[1]
+                );
+                starts.push(("the consecutive result".into(), state));
+                if let Some(profile) = profile {
+                    starts.push(("the reprojection profile's minimum".into(), profile));
+                }
+            }
+            // The consecutive method takes the in-air extrinsics as given: a few mm off can leave
+            // its linear air layer without a solution. Where they are estimated too, its failure
+            // is no verdict on the data, and `auto` goes on from the axis search instead.
+            Err(e)
+                if options.method == Method::Auto
+                    && options.estimate.axis
+                    && options.estimate.extrinsics =>
+            {
+                steps.warnings.push(format!(
+                    "the consecutive start failed ({e}); the global axis search replaced it"
+                ));
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    if starts.is_empty() {
+        if options.estimate.axis {
+            starts.push((
+                "the axis search's result".into(),
+                axis_search(steps, rig_start.clone())?,
+            ));
+            *strategy += "pose per view, global search over each port's axis";
+        } else {
+            *strategy += "pose per view";
+        }
+    }
+    if options.method == Method::Auto && use_pairs {
+        starts.push(("the rig's start guess".into(), rig_start.clone()));
+    }
+    Ok((starts, chosen))
+}
+
+/// The global search over each port's axis ([`search::search_axis`]), the poses refitted after.
+fn axis_search(steps: &mut Steps, start: State) -> Result<State, CalibError> {
+    let clock = Instant::now();
+    let (rig, target, views, options) = (steps.rig, steps.target, steps.views, steps.options);
+    let mut state = start;
+    for p in 0..state.ports.len() {
+        state = search::search_axis(rig, target, views, state, p, options)?;
+    }
+    let pose_only = Bundle::new(rig, target, views, Estimate::NOTHING, options.huber);
+    let state = fit_briefly(&pose_only, state, search::POSE_ITERATIONS);
+    steps.stages.push(Stage {
+        name: "global axis search".into(),
+        port: Some(first_port(&state)),
+        cost: rms(&pose_only, &state),
+        unit: "px",
+        iterations: 0,
+        seconds: clock.elapsed().as_secs_f64(),
+    });
+    Ok(state)
+}
+
+/// Step 5: maximum likelihood from each named start; the lowest cost wins. A start that does not
+/// explain every corner is skipped with a warning; one that ends nearly as low far away, and a
+/// fit that stops early, are warnings.
+fn maximum_likelihood(
+    steps: &mut Steps,
+    starts: &[(String, State)],
+) -> Result<(State, Fit), CalibError> {
+    let options = steps.options;
+    let full = Bundle::new(
+        steps.rig,
+        steps.target,
+        steps.views,
+        options.estimate,
+        options.huber,
+    );
+    let lm = LmOptions {
+        max_iterations: options.max_iterations,
+        ..LmOptions::default()
+    };
+    let residuals = full.residuals();
+    let report_rms = |cost: f64| (2.0 * cost / residuals as f64).sqrt();
+    let mut best: Option<(State, LmReport, Option<BlockNormalEquations>)> = None;
+    let mut finals = Vec::new();
+    for (name, start) in starts {
+        if full.cost(start).is_none_or(|c| !c.is_finite()) {
+            let port = first_port(start);
+            steps.warnings.push(format!(
+                "{name} (tilt {:.2}°, air layer {:.1} mm) does not explain every corner (a target behind the port, or a camera outside the air): not used as a start",
+                port.tilt().to_degrees(),
+                port.air_distance * 1e3
+            ));
+            continue;
+        }
+        let clock = Instant::now();
+        let stage_name = format!("maximum likelihood from {name}");
+        let progress = &mut *steps.progress;
+        let (state, report, normal) =
+            levenberg_marquardt_observed(&full, start.clone(), &lm, &mut |i| {
+                progress(&Progress {
+                    stage: &stage_name,
+                    done: i.iteration,
+                    total: None,
+                    cost: report_rms(i.cost),
+                    unit: "px",
+                })
+            });
+        steps.stages.push(Stage {
+            name: format!("{stage_name} ({})", report.termination.describe()),
+            port: Some(first_port(&state)),
+            cost: report_rms(report.final_cost),
+            unit: "px",
+            iterations: report.iterations,
+            seconds: clock.elapsed().as_secs_f64(),
+        });
+        finals.push((name.clone(), first_port(&state), report.final_cost));
+        if best
+            .as_ref()
+            .is_none_or(|(_, r, _)| report.final_cost < r.final_cost)
+        {
+            best = Some((state, report, normal));
+        }
+    }
+    let (state, report, normal) =
+        best.ok_or_else(|| consecutive::no_solution(options, "no start explains every corner"))?;
+    let best_port = first_port(&state);
+    for (name, port, cost) in &finals {
+        let apart = port.normal.angle(&best_port.normal).to_degrees();
+        // A start that ends in a clearly worse minimum only shows the cost has several; one
+        // that ends nearly as low elsewhere makes the answer ambiguous.
+        if *cost < report.final_cost * 1.5 && apart > 0.5 {
+            steps.warnings.push(format!(
+                "the refinement from {name} ended {apart:.2}° away at a cost only ×{:.2} higher: the data hardly tell the two axes apart",
+                cost / report.final_cost.max(f64::MIN_POSITIVE)
+            ));
+        }
+    }
+    if !report.termination.converged() {
+        steps.warnings.push(format!(
+            "the maximum-likelihood refinement stopped early: {}",
+            report.termination.describe()
+        ));
+    }
+    let globals = full.globals().to_vec();
+    Ok((
+        state,
+        Fit {
+            report,
+            normal,
+            globals,
+        },
+    ))
+}
+
+/// The first port's axis and air distance in `state`.
+pub(super) fn first_port(state: &State) -> Candidate {
+    Candidate {
+        normal: state.ports[0].normal,
+        air_distance: state.ports[0].distance,
+    }
+}
+
+/// The thesis' consecutive method on every pair (its cost batches on the options' backend); each
+/// pair's axis and air distance is tried as the start of the whole rig and the one that explains
+/// every corner best wins. Returns that state, its pair and, for `auto`, the state at the minimum
+/// of that pair's reprojection profile.
+fn consecutive_start(
+    steps: &mut Steps,
+    pinhole: &State,
+    pairs: &[StereoData],
+) -> Result<(State, [usize; 2], Option<State>), CalibError> {
+    let (rig, target, views, options) = (steps.rig, steps.target, steps.views, steps.options);
+    let pose_only = Bundle::new(rig, target, views, Estimate::NOTHING, options.huber);
+    // The rig behind a pair's candidate port, its target poses from the pair's corners
+    // triangulated under it and fitted rigidly (the views the pair did not see keep the pinhole
+    // poses), then fitted through the port over every camera.
+    let at = |candidate: &Candidate, data: &StereoData| {
+        let mut state = pinhole.clone();
+        state.ports[0].normal = candidate.normal;
+        state.ports[0].distance = candidate.air_distance;
+        if let Some(fit) = data
+            .cameras_behind(candidate)
+            .and_then(|cameras| SceneFit::new(data, &cameras))
+        {
+            for (pose, &v) in fit.poses().into_iter().zip(&data.view_numbers) {
+                state.poses[v] = pose;
+            }
+        }
+        fit_briefly(&pose_only, state, search::POSE_ITERATIONS)
+    };
+    let mut best: Option<(f64, State, usize)> = None;
+    let mut last_error = None;
+    let several = pairs.len() > 1;
+    for (p, data) in pairs.iter().enumerate() {
+        let backend = options.backend.over(data);
+        let mut pair_stages = Vec::new();
+        let candidate = match consecutive::consecutive_estimate(
+            backend.as_ref(),
+            options,
+            &mut pair_stages,
+            steps.warnings,
+            steps.progress,
+        ) {
+            Ok(c) => c,
+            Err(e) => {
+                last_error = Some(e);
+                continue;
+            }
+        };
+        if several {
+            let name = data
+                .cameras
+                .map(|k| rig.cameras()[k].name.clone())
+                .join("–");
+            for stage in &mut pair_stages {
+                stage.name = format!("{} [{name}]", stage.name);
+            }
+        }
+        steps.stages.extend(pair_stages);
+        let state = at(&candidate, data);
+        let cost = rms(&pose_only, &state);
+        if best.as_ref().is_none_or(|(c, _, _)| cost < *c) {
+            best = Some((cost, state, p));
+        }
+    }
+    let Some((_, state, p)) = best else {
+        return Err(last_error.unwrap_or_else(|| {
+            CalibError::Options(
+                "no pair of cameras shares enough views of the board for the consecutive method"
+                    .into(),
+            )
+        }));
+    };
+    let profile = if options.method == Method::Auto {
+        let backend = options.backend.over(&pairs[p]);
+        let candidate =
+            consecutive::profile_minimum(backend.as_ref(), options, steps.stages, steps.progress)?;
+        Some(at(&candidate, &pairs[p]))
+    } else {
+        None
+    };
+    Ok((state, pairs[p].cameras, profile))
+}
