@@ -4,7 +4,7 @@ use std::path::Path;
 
 use anyhow::Context;
 
-use flatport::io::scene_json::read_scene;
+use flatport::io::scene_json::{read_scene, read_scene_without_rig};
 use flatport::io::stereo_files::write_npy_f32;
 use flatport::io::{read_rig, write_grey_png, write_grey16_png, write_rig};
 use flatport::render::{RenderOptions, render_textured};
@@ -32,17 +32,21 @@ pub struct SceneRun<'a> {
 /// Renders DIR/CAMERA/frame_NNN.png and DIR/CAMERA/depth_NNN.npy for every frame and camera, and
 /// DIR/rig.json. Nothing is written when the scene, the rig or an option is refused.
 pub fn run(run: SceneRun) -> anyhow::Result<()> {
-    let contents = read_scene(run.scene)?;
-    let rig = match (run.rig, contents.rig) {
-        (Some(path), _) => read_rig(path)?,
-        (None, Some(rig)) => rig,
-        (None, None) => anyhow::bail!(
-            "{}: the scene names no rig (a \"rig\" key); give --rig RIG.json",
-            run.scene.display()
-        ),
+    let (scene, rig) = match run.rig {
+        Some(path) => (read_scene_without_rig(run.scene)?, read_rig(path)?),
+        None => {
+            let contents = read_scene(run.scene)?;
+            let Some(rig) = contents.rig else {
+                anyhow::bail!(
+                    "{}: the scene names no rig (a \"rig\" key); give --rig RIG.json",
+                    run.scene.display()
+                );
+            };
+            (contents.scene, rig)
+        }
     };
     let engine = run.engine.engine()?;
-    let scene = &contents.scene;
+    let scene = &scene;
     let names: Vec<String> = rig.cameras().iter().map(|c| c.name.clone()).collect();
     let cameras: Vec<_> = (0..names.len()).map(|k| rig.refractive_camera(k)).collect();
     let total = scene.frames.len() * names.len();

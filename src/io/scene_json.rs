@@ -198,8 +198,18 @@ pub fn read_scene(path: &Path) -> Result<SceneFileContents, IoError> {
     scene_from_json_str(&read_text(path)?, path)
 }
 
+/// [`read_scene`] without the rig it names (its `rig` key is parsed but no rig file is read):
+/// for a caller that has a rig of its own (`--rig`).
+pub fn read_scene_without_rig(path: &Path) -> Result<TexturedScene, IoError> {
+    Ok(parse_scene(&read_text(path)?, path, false)?.scene)
+}
+
 /// Parses a scene from JSON text; `path` labels errors and is where relative paths start.
 pub fn scene_from_json_str(text: &str, path: &Path) -> Result<SceneFileContents, IoError> {
+    parse_scene(text, path, true)
+}
+
+fn parse_scene(text: &str, path: &Path, with_rig: bool) -> Result<SceneFileContents, IoError> {
     let file: SceneFile = parse_json(text, path)?;
     let folder = path.parent().unwrap_or(Path::new("")).to_path_buf();
     let invalid = |field: String, reason: String| IoError::Invalid {
@@ -366,6 +376,7 @@ pub fn scene_from_json_str(text: &str, path: &Path) -> Result<SceneFileContents,
         }
     };
     let rig = match &file.rig {
+        _ if !with_rig => None,
         None => None,
         Some(RigRef::Path(p)) => Some(read_rig(&folder.join(p))?),
         Some(RigRef::Inline(rig)) => Some(rig_from_file(rig, path).map_err(|e| match e {
