@@ -66,16 +66,16 @@ pub fn near_mask(mask: &[bool], width: usize, height: usize, radius: usize) -> V
     let mut rows = vec![false; w * h];
     rows.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
         let row = &mask[y * w..(y + 1) * w];
-        for x in 0..w {
+        for (x, out) in out.iter_mut().enumerate() {
             let (a, b) = (x.saturating_sub(radius), (x + radius).min(w - 1));
-            out[x] = row[a..=b].iter().any(|&m| m);
+            *out = row[a..=b].iter().any(|&m| m);
         }
     });
     let mut near = vec![false; w * h];
     near.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
         let (a, b) = (y.saturating_sub(radius), (y + radius).min(h - 1));
-        for x in 0..w {
-            out[x] = (a..=b).any(|yy| rows[yy * w + x]);
+        for (x, out) in out.iter_mut().enumerate() {
+            *out = (a..=b).any(|yy| rows[yy * w + x]);
         }
     });
     near

@@ -115,9 +115,9 @@ pub struct StereoOptions {
     /// Relative depth jump within a window radius that marks a depth edge, whose pixels are
     /// returned as NaN (the window straddles two surfaces there); `None`: no such test.
     pub edge_jump: Option<f64>,
-    /// Pixels within this many pixels of one whose depth the other cameras contradict are
-    /// returned as NaN (0: none): at an occlusion's border the foreground's fattened depth is
-    /// confirmed by the other camera's own fattened map.
+    /// Pixels within this many pixels of two or more neighbouring pixels whose depths the other
+    /// cameras contradict are returned as NaN (0: none): at an occlusion's border the
+    /// foreground's fattened depth is confirmed by the other camera's own fattened map.
     pub occlusion_margin: usize,
     /// How many other cameras compute their depth maps for the consistency check (the nearest
     /// first; `None`: all). 0 turns the check off (every match is returned unchecked).
@@ -460,8 +460,21 @@ pub fn stereo_with_progress(
         None => vec![false; w * h],
     };
     if options.occlusion_margin > 0 && options.check_cameras != Some(0) {
+        // The contradicted pixels that have a contradicted neighbour: a lone one in a textured
+        // surface does not cut a hole, while an occlusion's band, however thin, runs along its
+        // edge.
         let refused: Vec<bool> = checks.iter().map(|c| *c == Check::Contradicted).collect();
-        let near = near_mask(&refused, w, h, options.occlusion_margin);
+        let grouped: Vec<bool> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                refused[i]
+                    && (y.saturating_sub(1)..=(y + 1).min(h - 1)).any(|yy| {
+                        (x.saturating_sub(1)..=(x + 1).min(w - 1))
+                            .any(|xx| (xx, yy) != (x, y) && refused[yy * w + xx])
+                    })
+            })
+            .collect();
+        let near = near_mask(&grouped, w, h, options.occlusion_margin);
         for (edge, near) in near_edge.iter_mut().zip(near) {
             *edge |= near;
         }

@@ -266,7 +266,7 @@ pub fn accuracy(map: &DepthMap, truth: &[f32], seen: &[bool]) -> Accuracy {
             }
         } else if estimate.is_finite() {
             unseen_points += 1;
-            if !(error <= 0.02) {
+            if error.is_nan() || error > 0.02 {
                 unseen_gross += 1;
             }
         }
