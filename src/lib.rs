@@ -55,3 +55,4 @@ pub mod gpu;
 pub mod io;
 pub mod model;
 pub mod render;
+pub mod stereo;

@@ -22,9 +22,11 @@ mod geometry;
 mod info;
 mod progress;
 mod render;
+mod render_scene;
 mod rig;
 mod signals;
 mod simulate;
+mod stereo;
 mod sweep;
 mod values;
 
@@ -143,11 +145,50 @@ simulate draws them. Writes DIR/CAMERA/view_NNN.png, DIR/rig.json (the rig with 
 DIR/truth.json and DIR/corners.json (the exact corners, the observations file's format: every
 board corner projected through the port by the model).
 
+With --scene SCENE.json it renders a textured scene instead (planes, height fields, spheres with
+procedural noise or image textures; see data/scenes/ and the README): every sub-sample of every
+pixel is back-projected exactly and meets the nearest surface; writes DIR/CAMERA/frame_NNN.png,
+DIR/CAMERA/depth_NNN.npy (float32 [H,W]: z of the hit point in that camera's frame, NaN where
+nothing is hit) and DIR/rig.json. Unknown keys in the scene file are errors naming their path.
+
 Examples:
+  flatport render --scene data/scenes/seabed.json --noise 2 --output seabed
   flatport render --rig data/example_rig.json --board 9x6@0.04 --views 15 --seed 1 --noise 2 --output shots
   flatport render --rig rig.json --truth scene/truth.json --board 9x6@0.04 --blur 0.8 --output shots
   flatport detect --board 9x6@0.04 --images left='shots/left/*.png' --images right='shots/right/*.png' -o obs.json")]
     Render(render::RenderArgs),
+    /// Dense refraction-exact multi-view stereo: depth maps, points and point clouds from a rig's images
+    #[command(after_help = "\
+DIR holds one folder per rig camera, named as in the rig (the layout `flatport render` writes);
+frames are paired by sorted file name; PNG, JPEG or TIFF, 8 or 16 bit, grey or colour. Every
+input is checked before anything is written.
+
+Each reference pixel's water ray (exact back-projection through its port) carries N hypotheses
+uniform in 1/z between MIN and MAX (z in the reference camera's frame, default 0.3:3 m). Each
+hypothesis point is projected exactly into every other camera through that camera's own port
+(not rectified: refraction bends the epipolar lines into curves), the other images are sampled
+there and compared with the reference by windowed ZNCC, which a change of gain and offset between
+viewpoints (attenuation, backscatter) does not affect. The cameras that see a hypothesis vote;
+semi-global matching (8 paths) aggregates, the best hypothesis is refined by a parabola in 1/z,
+and every other camera's own depth map must agree within 1 px (left-right consistency).
+Untextured, occluded, inconsistent or unconfident pixels are NaN, never guesses.
+
+Per frame, OUT/FRAME/ (FRAME = the reference image's file name without extension):
+  points.npy      float32 [H,W,3]: each reference pixel's surface point, rig master frame, NaN where none
+  depth.npy       float32 [H,W]: z in the reference camera's frame, metres, NaN where none
+  confidence.npy  float32 [H,W]: 0 to 1 (0 where none)
+  cloud.ply       binary little-endian PLY: float x y z, uchar red green blue (the points only)
+  depth.png       the depth, colour-mapped, with a colour bar
+and OUT/summary.json (per frame: valid fraction, seconds per stage, device, hypotheses).
+
+Examples:
+  flatport render --scene data/scenes/seabed.json --noise 2 -o seabed
+  flatport stereo --rig seabed/rig.json --images seabed --output seabed-stereo --depth 0.8:2.5
+  flatport stereo --rig rig.json --images shots --output out --reference right --hypotheses 96
+Timing a full-size pair (1280 x 1024, 128 hypotheses):
+  flatport render --scene data/scenes/seabed.json --noise 2 -o big
+  time flatport stereo --rig big/rig.json --images big --output big-out --depth 0.8:2.5")]
+    Stereo(stereo::StereoArgs),
     /// Calibrate the ports of a rig (axis, air layer; layers and extrinsics when asked) from views of a target
     #[command(after_help = "\
 The rig's cameras are calibrated in air (intrinsics, distortion, extrinsics); its ports (the shared
@@ -393,6 +434,7 @@ pub fn main() -> ExitCode {
         Command::Demo(args) => demo::run(args),
         Command::Detect(args) => detect::run(args),
         Command::Render(args) => render::run(args),
+        Command::Stereo(args) => stereo::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Info => info::run(),
     };

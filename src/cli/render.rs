@@ -22,9 +22,14 @@ use super::progress::Progress;
 /// `flatport render`
 #[derive(Debug, Args)]
 pub struct RenderArgs {
-    /// Rig file: the cameras, and the port (unless --truth gives it)
-    #[arg(long, value_name = "RIG.json")]
-    rig: PathBuf,
+    /// Rig file: the cameras, and the port (unless --truth gives it); with --scene, in place of
+    /// the scene file's rig
+    #[arg(long, value_name = "RIG.json", required_unless_present = "scene")]
+    rig: Option<PathBuf>,
+    /// Scene file: textured planes, height fields and spheres (and the rig, unless --rig);
+    /// renders CAMERA/frame_NNN.png and the exact depth CAMERA/depth_NNN.npy instead of a board
+    #[arg(long, value_name = "SCENE.json", conflicts_with_all = ["truth", "views", "board", "margin_px", "border"])]
+    scene: Option<PathBuf>,
     /// Truth file of a simulated scene (`flatport simulate`): its port and board poses
     #[arg(long, value_name = "TRUTH.json", conflicts_with_all = ["views", "seed"])]
     truth: Option<PathBuf>,
@@ -41,9 +46,10 @@ pub struct RenderArgs {
     /// The board's corners keep this many pixels from the image border (poses drawn without --truth)
     #[arg(long, value_name = "PX", default_value_t = 40.0, value_parser = super::values::non_negative)]
     margin_px: f64,
-    /// Sub-samples per axis of every pixel that crosses an edge of the pattern (1 = no anti-aliasing)
-    #[arg(long, value_name = "N", default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=32))]
-    supersample: u32,
+    /// Sub-samples per axis of every pixel that crosses an edge of the pattern (1 = no
+    /// anti-aliasing; default 8); with --scene, of every pixel (default 3)
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=32))]
+    supersample: Option<u32>,
     /// Standard deviation of the Gaussian image noise, grey levels of 255
     #[arg(long, value_name = "GREY", default_value_t = 0.0, value_parser = super::values::non_negative)]
     noise: f64,
@@ -197,7 +203,27 @@ pub fn render_scene(
 }
 
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
-    let rig = read_rig(&args.rig)?;
+    if let Some(scene) = &args.scene {
+        return super::render_scene::run(super::render_scene::SceneRun {
+            scene,
+            rig: args.rig.as_deref(),
+            options: RenderOptions {
+                supersample: args.supersample.unwrap_or(3),
+                blur_px: args.blur,
+                noise: args.noise,
+                seed: args.seed,
+                ..RenderOptions::default()
+            },
+            bits: args.bits,
+            output: &args.output,
+            quiet: args.quiet,
+            engine: &args.engine,
+        });
+    }
+    let Some(rig_path) = &args.rig else {
+        anyhow::bail!("--rig RIG.json is needed to render a board (or give --scene)");
+    };
+    let rig = read_rig(rig_path)?;
     let board = args.board;
     let scene = match &args.truth {
         Some(path) => {
@@ -228,7 +254,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         }
     };
     let options = RenderOptions {
-        supersample: args.supersample,
+        supersample: args.supersample.unwrap_or(8),
         blur_px: args.blur,
         noise: args.noise,
         seed: args.seed,

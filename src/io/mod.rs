@@ -11,6 +11,8 @@ pub mod output;
 pub mod overlay;
 pub mod plot;
 pub mod rig_json;
+pub mod scene_json;
+pub mod stereo_files;
 pub mod sweep_shard;
 pub mod tabular;
 

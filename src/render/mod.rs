@@ -12,6 +12,19 @@
 //! pixel whose centre and four neighbours' centres all see the water is water: the board's outer
 //! edge may clip a corner of such a pixel's footprint (less than an eighth of it), never an edge
 //! of the pattern, so the corners are unaffected.
+//!
+//! Textured scenes (planes, height fields and spheres with procedural or image textures) and
+//! their exact depth maps: [`scene`], [`textured`].
+
+pub mod noise;
+pub mod scene;
+pub mod textured;
+
+pub use scene::{
+    Extent, Hit, ImageTexture, Relief, Shape, Sphere, Surface, SurfaceFrame, Texture,
+    TexturedScene, Wave,
+};
+pub use textured::{RenderedView, render_textured};
 
 use nalgebra::{Isometry3, Point3, Vector3};
 use thiserror::Error;
@@ -245,17 +258,23 @@ pub fn render_board(
             *out = (sum / (n * n) as f64) as f32;
         }
     });
-    let mut image = GreyImage {
+    let image = GreyImage {
         width,
         height,
         pixels,
     };
+    Ok(finish_image(image, options))
+}
+
+/// The options' Gaussian blur, then their Gaussian noise (one generator per image row, seeded
+/// from the seed and the row: the same image whatever the number of threads).
+pub(crate) fn finish_image(mut image: GreyImage, options: &RenderOptions) -> GreyImage {
+    use rayon::prelude::*;
+    let w = image.width as usize;
     if options.blur_px > 0.0 {
         image = blur(&image, options.blur_px);
     }
     if options.noise > 0.0 {
-        // One generator per image row, seeded from the seed and the row: the same image whatever
-        // the number of threads.
         let sigma = (options.noise / 255.0) as f32;
         let seed = options.seed;
         image
@@ -284,7 +303,7 @@ pub fn render_board(
                 }
             });
     }
-    Ok(image)
+    image
 }
 
 fn check_options(options: &RenderOptions) -> Result<(), RenderError> {

@@ -1,0 +1,349 @@
+//! `flatport stereo`: dense depth maps and point clouds from a rig's synchronised images.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use anyhow::{Context, bail};
+use clap::Args;
+use serde_json::json;
+
+use flatport::io::read_rig;
+use flatport::io::stereo_files::{
+    CloudPoint, read_colour_image, read_grey_f32, write_depth_png, write_npy_f32,
+    write_point_cloud_ply,
+};
+use flatport::io::write_atomic;
+use flatport::model::Rig;
+use flatport::render::GreyImage;
+use flatport::stereo::{StereoOptions, resolve_depth_range, stereo_with_progress};
+
+use super::Device;
+use super::progress::Progress;
+
+/// `flatport stereo`
+#[derive(Debug, Args)]
+pub struct StereoArgs {
+    /// Rig file: the cameras and their port(s)
+    #[arg(long, value_name = "RIG.json")]
+    rig: PathBuf,
+    /// Folder with one sub-folder of images per rig camera, named as in the rig (the layout
+    /// `flatport render` writes); frames are matched by sorted file name
+    #[arg(long, value_name = "DIR")]
+    images: PathBuf,
+    /// Output folder: FRAME/{points,depth,confidence}.npy, FRAME/cloud.ply, FRAME/depth.png per
+    /// frame, and summary.json
+    #[arg(long, short, value_name = "DIR")]
+    output: PathBuf,
+    /// The reference camera (name or index; default: the master, the rig's first camera)
+    #[arg(long, value_name = "CAMERA")]
+    reference: Option<String>,
+    /// Range of depth z in the reference camera's frame, metres (default: 0.3:3, the near end
+    /// moved 5 cm beyond the port when the port is farther than 0.25 m)
+    #[arg(long, value_name = "MIN:MAX", value_parser = parse_range, allow_hyphen_values = true)]
+    depth: Option<(f64, f64)>,
+    /// Depth hypotheses per pixel, uniform in 1/z
+    #[arg(long, value_name = "N", default_value_t = 128)]
+    hypotheses: usize,
+    /// ZNCC window radius in pixels: (2R+1)² windows
+    #[arg(long, value_name = "R", default_value_t = 3)]
+    window: usize,
+    /// Least confidence (0 to 1) of a returned point
+    #[arg(long, value_name = "C", default_value_t = StereoOptions::default().min_confidence)]
+    min_confidence: f64,
+    /// Where the stages run. The stereo stages have CPU code only so far (their GPU kernels are a
+    /// later step): auto runs the CPU, gpu is refused
+    #[arg(long, value_enum, default_value_t = Device::Auto)]
+    device: Device,
+    /// No progress bar
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+/// `MIN:MAX`, two finite numbers.
+fn parse_range(text: &str) -> Result<(f64, f64), String> {
+    let parts: Vec<&str> = text.split(':').collect();
+    let [a, b] = parts[..] else {
+        return Err(format!(
+            "expected MIN:MAX in metres such as 0.5:3, got '{text}'"
+        ));
+    };
+    let number = |t: &str| -> Result<f64, String> {
+        t.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("'{t}' is not a finite number (in '{text}')"))
+    };
+    Ok((number(a)?, number(b)?))
+}
+
+/// File name extensions read as images.
+const IMAGE_EXTENSIONS: [&str; 5] = ["png", "jpg", "jpeg", "tif", "tiff"];
+
+/// Each camera's image files (rig order), sorted by file name, with the frames checked to match:
+/// the same count everywhere, and a file name that two cameras share at the same place in both.
+pub fn list_frames(rig: &Rig, dir: &Path) -> anyhow::Result<Vec<Vec<PathBuf>>> {
+    if !dir.is_dir() {
+        bail!(
+            "{}: not a folder (--images takes a folder with one sub-folder per rig camera)",
+            dir.display()
+        );
+    }
+    let mut cameras = Vec::new();
+    for camera in rig.cameras() {
+        let folder = dir.join(&camera.name);
+        if !folder.is_dir() {
+            bail!(
+                "{}: missing: the folder of camera '{}' (--images needs one sub-folder per rig camera, named as in the rig)",
+                folder.display(),
+                camera.name
+            );
+        }
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&folder)
+            .with_context(|| format!("{}: cannot list the folder", folder.display()))?
+            .filter_map(|entry| entry.ok().map(|e| e.path()))
+            .filter(|p| {
+                p.is_file()
+                    && p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+                        IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str())
+                    })
+            })
+            .collect();
+        files.sort_by(|a, b| a.file_name().cmp(&b.file_name()));
+        if files.is_empty() {
+            bail!(
+                "{}: no image (PNG, JPEG or TIFF) of camera '{}'",
+                folder.display(),
+                camera.name
+            );
+        }
+        cameras.push(files);
+    }
+    let first = &rig.cameras()[0].name;
+    for (k, files) in cameras.iter().enumerate().skip(1) {
+        let name = &rig.cameras()[k].name;
+        if files.len() != cameras[0].len() {
+            bail!(
+                "frames do not match: camera '{first}' has {} images and camera '{name}' has {} (frames are paired by sorted file name, so every camera needs one image per frame)",
+                cameras[0].len(),
+                files.len()
+            );
+        }
+        let positions: HashMap<_, usize> = cameras[0]
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (p.file_stem().map(|s| s.to_os_string()), i))
+            .collect();
+        for (i, file) in files.iter().enumerate() {
+            if let Some(&j) = positions.get(&file.file_stem().map(|s| s.to_os_string()))
+                && j != i
+            {
+                bail!(
+                    "frames do not match: {} is frame {} of camera '{name}' but {} is frame {} of camera '{first}' (an image missing in one camera?)",
+                    file.display(),
+                    i,
+                    cameras[0][j].display(),
+                    j
+                );
+            }
+        }
+    }
+    Ok(cameras)
+}
+
+pub fn run(args: StereoArgs) -> anyhow::Result<()> {
+    let rig = read_rig(&args.rig)?;
+    let device = match args.device {
+        Device::Gpu => bail!(
+            "--device gpu: the stereo stages have no GPU kernels yet; run with --device cpu or auto"
+        ),
+        Device::Cpu | Device::Auto => format!(
+            "cpu (vector {}, {} threads)",
+            flatport::engine::simd::instruction_set(),
+            rayon::current_num_threads()
+        ),
+    };
+    if args.device == Device::Auto {
+        eprintln!(
+            "device: {device} (auto: the stereo stages run on the CPU; their GPU kernels are a later step)"
+        );
+    } else {
+        eprintln!("device: {device}");
+    }
+    let reference = match &args.reference {
+        None => 0,
+        Some(name) => rig.camera_index(name).with_context(|| {
+            format!(
+                "--reference {name}: the rig {} has cameras {}",
+                args.rig.display(),
+                rig.cameras()
+                    .iter()
+                    .map(|c| c.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })?,
+    };
+    let options = StereoOptions {
+        reference,
+        depth_range: args.depth,
+        hypotheses: args.hypotheses,
+        window_radius: args.window,
+        min_confidence: args.min_confidence,
+        ..StereoOptions::default()
+    };
+    let range = resolve_depth_range(&rig, &options).context("--depth")?;
+    let options = StereoOptions {
+        depth_range: Some(range),
+        ..options
+    };
+    let frames = list_frames(&rig, &args.images)?;
+    // Every image is read and checked before anything is written.
+    for (k, files) in frames.iter().enumerate() {
+        let camera = &rig.cameras()[k];
+        for file in files {
+            let image = read_grey_f32(file)?;
+            let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
+            if (image.width, image.height) != (w, h) {
+                bail!(
+                    "{}: the image is {} × {} pixels, camera '{}' of the rig is {w} × {h}",
+                    file.display(),
+                    image.width,
+                    image.height,
+                    camera.name
+                );
+            }
+        }
+    }
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("cannot create {}", args.output.display()))?;
+    let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
+    let count = frames[0].len();
+    let mut summary = Vec::with_capacity(count);
+    for f in 0..count {
+        let started = std::time::Instant::now();
+        let reference_file = &frames[reference][f];
+        let stem = reference_file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| format!("frame_{f:03}"));
+        let colour = read_colour_image(reference_file)?;
+        let mut images: Vec<GreyImage> = Vec::with_capacity(names.len());
+        for (k, files) in frames.iter().enumerate() {
+            images.push(if k == reference {
+                colour.grey.clone()
+            } else {
+                read_grey_f32(&files[f])?
+            });
+        }
+        let bar = Mutex::new(Progress::new(
+            &format!("stereo {stem} ({})", names[reference]),
+            "hypotheses",
+            args.quiet,
+        ));
+        let map = stereo_with_progress(&rig, &images, &options, &|p| {
+            if let Ok(mut bar) = bar.lock() {
+                bar.update(p.run * p.total + p.done, p.runs * p.total);
+            }
+        })?;
+        let dir = args.output.join(&stem);
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+        let (w, h) = (map.width, map.height);
+        let flat: Vec<f32> = map.points.iter().flatten().copied().collect();
+        write_npy_f32(&dir.join("points.npy"), &[h, w, 3], &flat)?;
+        write_npy_f32(&dir.join("depth.npy"), &[h, w], &map.depth)?;
+        write_npy_f32(&dir.join("confidence.npy"), &[h, w], &map.confidence)?;
+        let cloud: Vec<CloudPoint> = map
+            .points
+            .iter()
+            .zip(&colour.rgb)
+            .filter(|(p, _)| p[0].is_finite())
+            .map(|(p, c)| CloudPoint {
+                position: *p,
+                colour: *c,
+            })
+            .collect();
+        write_point_cloud_ply(
+            &dir.join("cloud.ply"),
+            &cloud,
+            &[
+                format!(
+                    "flatport stereo, frame {stem}, reference camera {}",
+                    names[reference]
+                ),
+                "points in the rig's master frame, metres".into(),
+            ],
+        )?;
+        let fraction = map.valid as f64 / (w * h) as f64;
+        write_depth_png(
+            &dir.join("depth.png"),
+            w as u32,
+            h as u32,
+            &map.depth,
+            &format!(
+                "{stem}: depth z in camera '{}', {:.1} % of pixels",
+                names[reference],
+                100.0 * fraction
+            ),
+        )?;
+        let seconds = started.elapsed().as_secs_f64();
+        outln!(
+            "{stem}: {:.1} % of pixels with a point ({} points), {:.1} s",
+            100.0 * fraction,
+            map.valid,
+            seconds
+        );
+        let stages: serde_json::Map<String, serde_json::Value> = map
+            .stage_seconds
+            .iter()
+            .map(|(stage, s)| (stage.to_string(), json!(s)))
+            .collect();
+        summary.push(json!({
+            "frame": stem,
+            "valid_fraction": fraction,
+            "valid_points": map.valid,
+            "pixels": w * h,
+            "seconds": seconds,
+            "stage_seconds": stages,
+            "device": device,
+            "hypotheses": map.hypotheses,
+            "depth_maps": map.runs,
+        }));
+    }
+    let document = json!({
+        "rig": args.rig.display().to_string(),
+        "images": args.images.display().to_string(),
+        "reference": names[reference],
+        "depth_range_m": [range.0, range.1],
+        "hypotheses": options.hypotheses,
+        "window": 2 * options.window_radius + 1,
+        "min_confidence": options.min_confidence,
+        "device": device,
+        "frames": summary,
+    });
+    let mut text = serde_json::to_string_pretty(&document).expect("plain data");
+    text.push('\n');
+    write_atomic(&args.output.join("summary.json"), text.as_bytes())?;
+    outln!(
+        "wrote {} frame(s) into {}/: FRAME/points.npy, depth.npy, confidence.npy, cloud.ply, depth.png; summary.json",
+        count,
+        args.output.display()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranges_parse() {
+        assert_eq!(parse_range("0.5:3").unwrap(), (0.5, 3.0));
+        assert_eq!(parse_range("-1:2").unwrap(), (-1.0, 2.0));
+        assert!(parse_range("0.5").is_err());
+        assert!(parse_range("a:2").is_err());
+        assert!(parse_range("1:inf").is_err());
+    }
+}

@@ -1,0 +1,497 @@
+//! Stages 3–6 of the sweep: the exact forward projection of the hypothesis points into each
+//! voting camera, the warped images (bilinear samples at those projections), the windowed ZNCC
+//! cost of the reference against each warped image, and the combination of the cameras' costs
+//! into the cost volume.
+//!
+//! **Windowed ZNCC.** Over the (2r + 1)² window Ω(p) of reference pixel p, clipped to the image,
+//! with n = |Ω|, reference values I and warped values W:
+//!
+//!   ZNCC = (ΣIW − ΣI·ΣW/n) / √((ΣI² − (ΣI)²/n)·(ΣW² − (ΣW)²/n)),
+//!
+//! invariant to a gain and an offset of W against I, which is what changes between the
+//! viewpoints of an underwater rig: attenuation along paths of different length (a gain) and
+//! backscatter (an offset). The sums are box sums, separable: a running sum down the columns
+//! then along the row, O(1) per pixel whatever r, in f64 (no drift). The sums run over the
+//! window's samples that have an answer (a projection without an answer or outside the other
+//! image has none); a camera votes for (p, h) when at least half of the window has one, so a
+//! correspondence up to the other image's very border is matched. A reference window whose
+//! standard deviation is below `min_texture` has no cost at all (untextured: left to the
+//! neighbours, and NaN in the end).
+//!
+//! **Combination.** Per camera c = min(1 − ZNCC, 1) ∈ [0, 1] (negative correlations are all
+//! equally wrong); of the k cameras that vote, the mean of all when k ≤ 2, else the mean of the
+//! best ⌈k/2⌉ (a camera that sees an occluder in front of the point does not spoil the others).
+//! Stored as u16, c·[`COST_SCALE`], and [`NO_VOTE`] where no camera votes.
+
+use rayon::prelude::*;
+
+use super::rays::{RayGrid, hypothesis_points};
+use crate::engine::simd;
+use crate::model::RefractiveCamera;
+use crate::render::GreyImage;
+
+/// A cost of 1 (ZNCC ≤ 0) in the volume's u16 units.
+pub const COST_SCALE: u16 = 2047;
+/// The cost volume's value where no camera votes: worse than any vote.
+pub const NO_VOTE: u16 = 2048;
+
+/// Image rows per task of the cost volume: each task sweeps every hypothesis over its rows (and
+/// r rows of halo above and below for the windows).
+pub(crate) const BAND_ROWS: usize = 32;
+
+/// Statistics of the reference image's windows.
+#[derive(Debug, Clone)]
+pub struct ReferenceWindows {
+    /// Window radius r.
+    pub radius: usize,
+    /// n: pixels of each window inside the image.
+    pub count: Vec<f32>,
+    /// ΣI / n.
+    pub mean: Vec<f32>,
+    /// 1/√(ΣI² − (ΣI)²/n), 0 where the window is untextured.
+    pub inv_spread: Vec<f32>,
+}
+
+impl ReferenceWindows {
+    /// Whether pixel `i`'s window has texture enough to match.
+    #[inline]
+    pub fn textured(&self, i: usize) -> bool {
+        self.inv_spread[i] > 0.0
+    }
+}
+
+/// `reference_windows`: the window sums of the reference image (stage 4's fixed half).
+pub fn reference_windows(image: &GreyImage, radius: usize, min_texture: f64) -> ReferenceWindows {
+    let (w, h) = (image.width as usize, image.height as usize);
+    let mut count = vec![0f32; w * h];
+    let mut mean = vec![0f32; w * h];
+    let mut inv_spread = vec![0f32; w * h];
+    count
+        .par_chunks_mut(w)
+        .zip(mean.par_chunks_mut(w))
+        .zip(inv_spread.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, ((count, mean), inv_spread))| {
+            let (lo, hi) = (y.saturating_sub(radius), (y + radius).min(h - 1));
+            let mut column = vec![[0f64; 2]; w];
+            for yy in lo..=hi {
+                for (x, c) in column.iter_mut().enumerate() {
+                    let v = f64::from(image.pixels[yy * w + x]);
+                    c[0] += v;
+                    c[1] += v * v;
+                }
+            }
+            let rows = (hi - lo + 1) as f64;
+            let mut acc = [0f64; 2];
+            for c in &column[..radius.min(w)] {
+                acc[0] += c[0];
+                acc[1] += c[1];
+            }
+            for x in 0..w {
+                if x + radius < w {
+                    acc[0] += column[x + radius][0];
+                    acc[1] += column[x + radius][1];
+                }
+                let cols = ((x + radius).min(w - 1) - x.saturating_sub(radius) + 1) as f64;
+                let n = rows * cols;
+                let m = acc[0] / n;
+                let spread = acc[1] - acc[0] * m;
+                count[x] = n as f32;
+                mean[x] = m as f32;
+                // Standard deviation √(spread/n) ≥ min_texture, else untextured.
+                inv_spread[x] = if spread > 0.0 && spread / n >= min_texture * min_texture {
+                    (1.0 / spread.sqrt()) as f32
+                } else {
+                    0.0
+                };
+                if x >= radius {
+                    acc[0] -= column[x - radius][0];
+                    acc[1] -= column[x - radius][1];
+                }
+            }
+        });
+    ReferenceWindows {
+        radius,
+        count,
+        mean,
+        inv_spread,
+    }
+}
+
+/// A camera that votes: its projection and its image.
+pub struct Voter<'a> {
+    /// The camera behind its port.
+    pub camera: RefractiveCamera,
+    /// Its image (grey 0 … 1).
+    pub image: &'a GreyImage,
+}
+
+/// Stage 3, `project_hypotheses`: the exact forward projection of `points` into `camera` by the
+/// engine's vector path (Newton in lanes, the scalar model for the rare rows it leaves).
+pub fn project_hypotheses(
+    camera: &RefractiveCamera,
+    points: &[[f64; 3]],
+    pixels: &mut [[f64; 2]],
+    status: &mut [u32],
+) {
+    simd::project(camera, points, pixels, status);
+}
+
+/// Stage 4a, `warp_bilinear`: the image sampled bilinearly at `pixels` ((0, 0) the centre of the
+/// top-left pixel); NaN where the projection has no answer or falls outside [0, w − 1] × [0, h − 1].
+pub fn warp_bilinear(image: &GreyImage, pixels: &[[f64; 2]], status: &[u32], warped: &mut [f32]) {
+    let (w, h) = (image.width as usize, image.height as usize);
+    let (max_u, max_v) = ((w - 1) as f64, (h - 1) as f64);
+    for ((p, s), out) in pixels.iter().zip(status).zip(warped.iter_mut()) {
+        let (u, v) = (p[0], p[1]);
+        if *s != 0 || !(u >= 0.0 && u <= max_u && v >= 0.0 && v <= max_v) {
+            *out = f32::NAN;
+            continue;
+        }
+        // The cell's top-left corner, kept one short of the last row/column so that its
+        // neighbours exist (u = w − 1 is then the cell's right edge, fx = 1).
+        let x0 = (u.floor() as usize).min(w.saturating_sub(2));
+        let y0 = (v.floor() as usize).min(h.saturating_sub(2));
+        let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
+        let x1 = (x0 + 1).min(w - 1);
+        let y1 = (y0 + 1).min(h - 1);
+        let at = |x: usize, y: usize| image.pixels[y * w + x];
+        let top = at(x0, y0) + fx * (at(x1, y0) - at(x0, y0));
+        let bottom = at(x0, y1) + fx * (at(x1, y1) - at(x0, y1));
+        *out = top + fy * (bottom - top);
+    }
+}
+
+/// Least fraction of a window's pixels (inside the reference image) whose warped samples must
+/// have an answer for the camera to vote: a correspondence up to the other image's very border
+/// still has more than half of its window inside.
+pub const MIN_VALID_FRACTION: f64 = 0.5;
+
+/// Stage 4b, `window_zncc`: the ZNCC of the reference against one warped image for the rows
+/// `first_row .. first_row + rows` (`zncc`, rows · w values), from the warped samples of the rows
+/// `ext_first ..` (`warped`, which must cover every window: r rows above and below, clipped to
+/// the image). The sums run over the window's samples that have an answer (Ω′ ⊆ Ω, the
+/// reference's sums over Ω′ too); NaN where fewer than [`MIN_VALID_FRACTION`] of the window has
+/// one, where the reference window is untextured, or where its part Ω′ is.
+#[allow(clippy::too_many_arguments)]
+pub fn window_zncc(
+    reference: &GreyImage,
+    windows: &ReferenceWindows,
+    min_texture: f64,
+    warped: &[f32],
+    ext_first: usize,
+    first_row: usize,
+    rows: usize,
+    column: &mut Vec<[f64; 6]>,
+    zncc: &mut [f32],
+) {
+    let (w, h) = (reference.width as usize, reference.height as usize);
+    let r = windows.radius;
+    column.clear();
+    column.resize(w, [0.0; 6]);
+    // Adds (sign +1) or removes (−1) image row `y` from the column sums over the samples with an
+    // answer: (count, ΣW, ΣW², ΣIW, ΣI, ΣI²).
+    let accumulate = |column: &mut [[f64; 6]], y: usize, sign: f64| {
+        let warped_row = &warped[(y - ext_first) * w..(y - ext_first + 1) * w];
+        let image_row = &reference.pixels[y * w..(y + 1) * w];
+        for ((c, &s), &i) in column.iter_mut().zip(warped_row).zip(image_row) {
+            if s.is_finite() {
+                let (s, i) = (f64::from(s), f64::from(i));
+                c[0] += sign;
+                c[1] += sign * s;
+                c[2] += sign * s * s;
+                c[3] += sign * s * i;
+                c[4] += sign * i;
+                c[5] += sign * i * i;
+            }
+        }
+    };
+    let (lo, hi) = (first_row.saturating_sub(r), (first_row + r).min(h - 1));
+    for y in lo..=hi {
+        accumulate(column, y, 1.0);
+    }
+    let min_spread_per_sample = min_texture * min_texture;
+    for k in 0..rows {
+        let y = first_row + k;
+        if k > 0 {
+            if y + r < h {
+                accumulate(column, y + r, 1.0);
+            }
+            if y > r {
+                accumulate(column, y - r - 1, -1.0);
+            }
+        }
+        let out = &mut zncc[k * w..(k + 1) * w];
+        let mut acc = [0f64; 6];
+        for c in &column[..r.min(w)] {
+            for q in 0..6 {
+                acc[q] += c[q];
+            }
+        }
+        for x in 0..w {
+            if x + r < w {
+                for q in 0..6 {
+                    acc[q] += column[x + r][q];
+                }
+            }
+            let i = y * w + x;
+            let n_window = f64::from(windows.count[i]);
+            let n = acc[0];
+            out[x] = if windows.inv_spread[i] > 0.0 && n >= MIN_VALID_FRACTION * n_window {
+                let spread_w = acc[2] - acc[1] * acc[1] / n;
+                let spread_i = acc[5] - acc[4] * acc[4] / n;
+                if spread_i < min_spread_per_sample * n {
+                    f32::NAN
+                } else if spread_w > 1e-12 * n {
+                    let covariance = acc[3] - acc[4] * acc[1] / n;
+                    (covariance / (spread_i * spread_w).sqrt()) as f32
+                } else {
+                    0.0
+                }
+            } else {
+                f32::NAN
+            };
+            if x >= r {
+                for q in 0..6 {
+                    acc[q] -= column[x - r][q];
+                }
+            }
+        }
+    }
+}
+
+/// Stage 5, `combine_views`: the cost of hypothesis `h` for every pixel of a band from the
+/// cameras' ZNCC (see the module docs), written at `volume[i·D + h]`.
+pub fn combine_views(zncc: &[Vec<f32>], h: usize, depth_count: usize, volume: &mut [u16]) {
+    let pixels = volume.len() / depth_count;
+    let mut costs = Vec::with_capacity(zncc.len());
+    for i in 0..pixels {
+        costs.clear();
+        costs.extend(
+            zncc.iter()
+                .map(|z| z[i])
+                .filter(|z| z.is_finite())
+                .map(|z| (1.0 - z).clamp(0.0, 1.0)),
+        );
+        volume[i * depth_count + h] = match costs.len() {
+            0 => NO_VOTE,
+            k => {
+                let used = if k <= 2 {
+                    k
+                } else {
+                    costs.sort_by(f32::total_cmp);
+                    k.div_ceil(2)
+                };
+                let mean = costs[..used].iter().sum::<f32>() / used as f32;
+                (mean * f32::from(COST_SCALE)).round() as u16
+            }
+        };
+    }
+}
+
+/// The cost volume (stages 2–5 for every hypothesis): `volume[(y·w + x)·D + h]` for the D
+/// inverse depths, in bands of [`BAND_ROWS`] rows in parallel, every hypothesis of a band in
+/// turn. `progress` is called once per band and hypothesis.
+#[allow(clippy::too_many_arguments)]
+pub fn cost_volume(
+    rays: &RayGrid,
+    reference: &GreyImage,
+    windows: &ReferenceWindows,
+    min_texture: f64,
+    voters: &[Voter],
+    inverse_depths: &[f64],
+    progress: &(dyn Fn() + Sync),
+) -> Vec<u16> {
+    let (w, h) = (rays.width, rays.height);
+    let d = inverse_depths.len();
+    let r = windows.radius;
+    let mut volume = vec![NO_VOTE; w * h * d];
+    volume
+        .par_chunks_mut(BAND_ROWS * w * d)
+        .enumerate()
+        .for_each(|(band, volume)| {
+            let first = band * BAND_ROWS;
+            let rows = volume.len() / (w * d);
+            let (ext_first, ext_end) = (first.saturating_sub(r), (first + rows + r).min(h));
+            let ext = (ext_end - ext_first) * w;
+            let mut points = vec![[0.0; 3]; ext];
+            let mut pixels = vec![[0.0; 2]; ext];
+            let mut status = vec![0u32; ext];
+            let mut warped = vec![0f32; ext];
+            let mut column = Vec::new();
+            let mut zncc = vec![vec![0f32; rows * w]; voters.len()];
+            let any_textured = (first * w..(first + rows) * w).any(|i| windows.textured(i));
+            for (hypothesis, &q) in inverse_depths.iter().enumerate() {
+                if any_textured {
+                    for (voter, zncc) in voters.iter().zip(zncc.iter_mut()) {
+                        let placeholder = voter.camera.centre().coords.into();
+                        hypothesis_points(rays, ext_first, q, placeholder, &mut points);
+                        project_hypotheses(&voter.camera, &points, &mut pixels, &mut status);
+                        warp_bilinear(voter.image, &pixels, &status, &mut warped);
+                        window_zncc(
+                            reference,
+                            windows,
+                            min_texture,
+                            &warped,
+                            ext_first,
+                            first,
+                            rows,
+                            &mut column,
+                            zncc,
+                        );
+                    }
+                    combine_views(&zncc, hypothesis, d, volume);
+                }
+                progress();
+            }
+        });
+    volume
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image(w: u32, h: u32, f: impl Fn(usize, usize) -> f32) -> GreyImage {
+        GreyImage {
+            width: w,
+            height: h,
+            pixels: (0..(w * h) as usize)
+                .map(|i| f(i % w as usize, i / w as usize))
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn zncc_is_one_under_gain_and_offset_and_the_sums_match_brute_force() {
+        let (w, h, r) = (23usize, 17usize, 2usize);
+        let texture = |x: usize, y: usize| {
+            ((x * 7 + y * 13) % 11) as f32 / 11.0 + (x as f32 * 0.3).sin() * 0.2
+        };
+        let reference = image(w as u32, h as u32, texture);
+        let windows = reference_windows(&reference, r, 0.01);
+        // A warped image 0.6·I + 0.2 with one sample missing.
+        let mut warped: Vec<f32> = reference.pixels.iter().map(|v| 0.6 * v + 0.2).collect();
+        warped[5 * w + 9] = f32::NAN;
+        let mut zncc = vec![0f32; w * h];
+        window_zncc(
+            &reference,
+            &windows,
+            0.01,
+            &warped,
+            0,
+            0,
+            h,
+            &mut Vec::new(),
+            &mut zncc,
+        );
+        // The window around the missing sample is matched over the samples it has.
+        for (i, z) in zncc.iter().enumerate() {
+            assert!((z - 1.0).abs() < 1e-5, "({}, {}): {z}", i % w, i / w);
+        }
+        // Less than half a window: no vote.
+        let mut sparse = warped.clone();
+        for y in 3..8 {
+            for x in 7..12 {
+                if (x + y) % 4 != 0 {
+                    sparse[y * w + x] = f32::NAN;
+                }
+            }
+        }
+        window_zncc(
+            &reference,
+            &windows,
+            0.01,
+            &sparse,
+            0,
+            0,
+            h,
+            &mut Vec::new(),
+            &mut zncc,
+        );
+        assert!(zncc[5 * w + 9].is_nan(), "{}", zncc[5 * w + 9]);
+        assert!((zncc[12 * w + 3] - 1.0).abs() < 1e-5);
+        // Against a brute-force ZNCC with another warped image, on a band with a halo.
+        let other = image(w as u32, h as u32, |x, y| {
+            ((x * 3 + y * 5) % 7) as f32 / 7.0
+        });
+        let (first, rows) = (6, 5);
+        let (ext_first, ext_end) = (first - r, first + rows + r);
+        let mut band = vec![0f32; rows * w];
+        window_zncc(
+            &reference,
+            &windows,
+            0.01,
+            &other.pixels[ext_first * w..ext_end * w],
+            ext_first,
+            first,
+            rows,
+            &mut Vec::new(),
+            &mut band,
+        );
+        for k in 0..rows {
+            for x in 0..w {
+                let y = first + k;
+                let (mut si, mut sw, mut sii, mut sww, mut siw, mut n) =
+                    (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+                for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                    for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                        let (i, v) = (
+                            f64::from(reference.pixels[yy * w + xx]),
+                            f64::from(other.pixels[yy * w + xx]),
+                        );
+                        si += i;
+                        sw += v;
+                        sii += i * i;
+                        sww += v * v;
+                        siw += i * v;
+                        n += 1.0;
+                    }
+                }
+                let expected =
+                    (siw - si * sw / n) / ((sii - si * si / n) * (sww - sw * sw / n)).sqrt();
+                assert!(
+                    (f64::from(band[k * w + x]) - expected).abs() < 1e-5,
+                    "({x}, {y}): {} against {expected}",
+                    band[k * w + x]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn bilinear_samples_and_rejects_outside() {
+        let img = image(4, 3, |x, y| (x + 10 * y) as f32);
+        let pixels = [
+            [1.5, 1.25],
+            [3.0, 2.0],
+            [-0.01, 1.0],
+            [0.0, 2.01],
+            [1.0, 1.0],
+        ];
+        let status = [0, 0, 0, 0, 4];
+        let mut out = [0f32; 5];
+        warp_bilinear(&img, &pixels, &status, &mut out);
+        assert!((out[0] - 14.0).abs() < 1e-5, "{}", out[0]);
+        assert_eq!(out[1], 23.0);
+        assert!(out[2].is_nan() && out[3].is_nan() && out[4].is_nan());
+    }
+
+    #[test]
+    fn views_combine_as_the_mean_of_the_best_half() {
+        let d = 2;
+        let mut volume = vec![0u16; 3 * d];
+        // Pixel 0: two votes; pixel 1: three votes (best two of three: ⌈3/2⌉ = 2); pixel 2: none.
+        let zncc = vec![
+            vec![0.9, 0.9, f32::NAN],
+            vec![0.5, 0.7, f32::NAN],
+            vec![f32::NAN, -0.4, f32::NAN],
+        ];
+        combine_views(&zncc, 1, d, &mut volume);
+        let cost = |c: f32| (c * f32::from(COST_SCALE)).round() as u16;
+        assert_eq!(volume[1], cost((0.1 + 0.5) / 2.0));
+        assert_eq!(volume[3], cost((0.1 + 0.3) / 2.0));
+        assert_eq!(volume[5], NO_VOTE);
+        assert_eq!(volume[0], 0, "other hypotheses untouched");
+    }
+}

@@ -1,0 +1,211 @@
+//! Stage 7, semi-global matching (Hirschmüller, PAMI 2008) over the hypotheses.
+//!
+//! Along each path direction r the cost of hypothesis h at pixel p is
+//!
+//!   L_r(p, h) = C(p, h) + min(L_r(p − r, h), L_r(p − r, h ± 1) + P1, min_k L_r(p − r, k) + P2(p, r))
+//!               − min_k L_r(p − r, k),
+//!
+//! and S(p, h) = Σ_r L_r(p, h). P1 charges a step of one hypothesis (a slanted surface), P2 any
+//! larger jump; P2 is lowered where the reference image changes along the path, where depth edges
+//! are likely: P2(p, r) = max(P1 + 1, P2 / (1 + |I(p) − I(p − r)| / g)). Eight paths (the four
+//! axes and the four diagonals) or four (the axes). L ≤ C + P2, so with C ≤ [`NO_VOTE`] and P2 ≤
+//! 2048 every L fits 12 bits and S over 8 paths fits u16.
+//!
+//! Loop shape (the GPU twin's): the horizontal paths row by row (each row a sequence), the
+//! vertical and diagonal paths as sweeps down and up the image, every pixel of a row
+//! independent given the previous row.
+
+use rayon::prelude::*;
+
+use super::cost::NO_VOTE;
+
+/// Padding of a path's previous costs at both ends of the hypotheses: large, and far from overflow
+/// when P1 is added.
+const PAD: u16 = 0x7FFF;
+
+/// SGM's parameters in cost units (the volume's u16).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SgmParams {
+    /// P1: a step of one hypothesis.
+    pub p1: u16,
+    /// P2: a larger jump, before the image's gradient lowers it.
+    pub p2: u16,
+    /// g: the grey-level change (0 … 1) along a path at which P2 is halved.
+    pub gradient: f32,
+    /// 8 or 4 paths.
+    pub paths: usize,
+}
+
+impl SgmParams {
+    #[inline]
+    fn p2_at(&self, a: f32, b: f32) -> u16 {
+        let p2 = f32::from(self.p2) / (1.0 + (a - b).abs() / self.gradient);
+        (p2.round() as u16).max(self.p1 + 1)
+    }
+}
+
+/// One step of a path: L(p, ·) from L(p − r, ·) (`previous`, padded with [`PAD`] at both ends,
+/// D + 2 values) and C(p, ·); written into `current` (padded likewise), added to `sum`.
+#[inline]
+fn path_step(
+    previous: &[u16],
+    cost: &[u16],
+    p1: u16,
+    p2: u16,
+    current: &mut [u16],
+    sum: &mut [u16],
+) {
+    let d = cost.len();
+    assert!(previous.len() == d + 2 && current.len() == d + 2 && sum.len() == d);
+    let minimum = previous[1..=d].iter().copied().min().unwrap_or(0);
+    let cap = minimum + p2;
+    let (below, same, above) = (&previous[..d], &previous[1..d + 1], &previous[2..]);
+    let out = &mut current[1..d + 1];
+    for i in 0..d {
+        let v = same[i].min(below[i] + p1).min(above[i] + p1).min(cap);
+        let l = cost[i] + v - minimum;
+        out[i] = l;
+        sum[i] = sum[i].saturating_add(l);
+    }
+    current[0] = PAD;
+    current[d + 1] = PAD;
+}
+
+/// The first pixel of a path: L = C.
+#[inline]
+fn path_start(cost: &[u16], current: &mut [u16], sum: &mut [u16]) {
+    let d = cost.len();
+    current[0] = PAD;
+    current[d + 1] = PAD;
+    current[1..=d].copy_from_slice(cost);
+    for (s, &c) in sum.iter_mut().zip(cost) {
+        *s = s.saturating_add(c);
+    }
+}
+
+/// `sgm_aggregate`: S = Σ_r L_r over the cost volume `cost` (`[(y·w + x)·D + h]`), with the
+/// reference image (grey, row-major) for P2.
+pub fn sgm_aggregate(
+    cost: &[u16],
+    width: usize,
+    height: usize,
+    depth_count: usize,
+    image: &[f32],
+    params: &SgmParams,
+) -> Vec<u16> {
+    let (w, d) = (width, depth_count);
+    debug_assert!(cost.iter().all(|&c| c <= NO_VOTE));
+    let mut sum = vec![0u16; w * height * d];
+    // Left to right and right to left, every row on its own.
+    sum.par_chunks_mut(w * d)
+        .zip(cost.par_chunks(w * d))
+        .enumerate()
+        .for_each(|(y, (sum, cost))| {
+            let row = &image[y * w..(y + 1) * w];
+            let (mut previous, mut current) = (vec![PAD; d + 2], vec![PAD; d + 2]);
+            for forward in [true, false] {
+                for k in 0..w {
+                    let x = if forward { k } else { w - 1 - k };
+                    let (c, s) = (&cost[x * d..(x + 1) * d], &mut sum[x * d..(x + 1) * d]);
+                    if k == 0 {
+                        path_start(c, &mut current, s);
+                    } else {
+                        let before = if forward { x - 1 } else { x + 1 };
+                        let p2 = params.p2_at(row[x], row[before]);
+                        path_step(&previous, c, params.p1, p2, &mut current, s);
+                    }
+                    std::mem::swap(&mut previous, &mut current);
+                }
+            }
+        });
+    // Down and up the image: the vertical path and, with 8 paths, the two diagonals.
+    let columns: &[isize] = if params.paths >= 8 { &[0, 1, -1] } else { &[0] };
+    let n = columns.len();
+    for down in [true, false] {
+        let mut previous = vec![PAD; w * n * (d + 2)];
+        let mut current = vec![PAD; w * n * (d + 2)];
+        for k in 0..height {
+            let y = if down { k } else { height - 1 - k };
+            let before_row = if down { y.wrapping_sub(1) } else { y + 1 };
+            let row = &image[y * w..(y + 1) * w];
+            let cost_row = &cost[y * w * d..(y + 1) * w * d];
+            let sum_row = &mut sum[y * w * d..(y + 1) * w * d];
+            let previous_ref = &previous;
+            const CHUNK: usize = 64;
+            sum_row
+                .par_chunks_mut(CHUNK * d)
+                .zip(current.par_chunks_mut(CHUNK * n * (d + 2)))
+                .enumerate()
+                .for_each(|(chunk, (sum, current))| {
+                    for j in 0..sum.len() / d {
+                        let x = chunk * CHUNK + j;
+                        let c = &cost_row[x * d..(x + 1) * d];
+                        let s = &mut sum[j * d..(j + 1) * d];
+                        for (m, &dx) in columns.iter().enumerate() {
+                            let out =
+                                &mut current[(j * n + m) * (d + 2)..(j * n + m + 1) * (d + 2)];
+                            // The path comes from (x − dx, y ∓ 1).
+                            let from = x as isize - dx;
+                            if k == 0 || from < 0 || from >= w as isize {
+                                path_start(c, out, s);
+                            } else {
+                                let from = from as usize;
+                                let p2 = params.p2_at(row[x], image[before_row * w + from]);
+                                let prev = &previous_ref
+                                    [(from * n + m) * (d + 2)..(from * n + m + 1) * (d + 2)];
+                                path_step(prev, c, params.p1, p2, out, s);
+                            }
+                        }
+                    }
+                });
+            std::mem::swap(&mut previous, &mut current);
+        }
+    }
+    sum
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_path_step_follows_the_recursion() {
+        let previous = [PAD, 10, 4, 9, 30, PAD];
+        let cost = [5, 5, 5, 5];
+        let mut current = [0u16; 6];
+        let mut sum = [1u16; 4];
+        path_step(&previous, &cost, 2, 7, &mut current, &mut sum);
+        // min = 4; h0: min(10, 4+2, 11) = 6 → 5 + 6 − 4 = 7; h1: 4 → 5; h2: min(9, 6) = 6 → 7;
+        // h3: min(30, 9+2, 11) = 11 → 12.
+        assert_eq!(current, [PAD, 7, 5, 7, 12, PAD]);
+        assert_eq!(sum, [8, 6, 8, 13]);
+    }
+
+    #[test]
+    fn aggregation_fills_a_gap_from_its_neighbours() {
+        // 9 × 7 pixels, 6 hypotheses: every pixel prefers hypothesis 2 except the centre, which
+        // has no vote; the aggregated minimum there is hypothesis 2 too, on 8 and on 4 paths.
+        let (w, h, d) = (9, 7, 6);
+        let mut cost = vec![0u16; w * h * d];
+        for p in 0..w * h {
+            for k in 0..d {
+                cost[p * d + k] = if k == 2 { 100 } else { 900 };
+            }
+        }
+        let centre = 3 * w + 4;
+        cost[centre * d..(centre + 1) * d].fill(NO_VOTE);
+        let image = vec![0.5f32; w * h];
+        for paths in [8, 4] {
+            let params = SgmParams {
+                p1: 50,
+                p2: 400,
+                gradient: 0.05,
+                paths,
+            };
+            let sum = sgm_aggregate(&cost, w, h, d, &image, &params);
+            let s = &sum[centre * d..(centre + 1) * d];
+            let best = (0..d).min_by_key(|&k| s[k]).unwrap();
+            assert_eq!(best, 2, "{paths} paths: {s:?}");
+        }
+    }
+}
