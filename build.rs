@@ -1,5 +1,5 @@
-//! Parses and validates every composed WGSL kernel with naga, in both precisions, both
-//! reductions and both corner-row bindings, so that a WGSL mistake is a build error naming the
+//! Parses and validates every composed WGSL kernel with naga, in both precisions and both
+//! corner-row bindings, so that a WGSL mistake is a build error naming the
 //! kernel, never a panic or a `GpuError::Kernel` at pipeline creation. The composition is the crate's own
 //! (`src/gpu/shaders/compose.rs`, with a copy of the CPU's stopping rules that `tests/gpu.rs` holds
 //! equal to the engine's); the validation is `build/wgsl.rs`, which `tests/gpu.rs` also runs.
@@ -11,7 +11,7 @@ mod compose;
 mod wgsl;
 
 // `CpuBounds` is named by build/wgsl.rs as `super::CpuBounds`.
-use compose::{CpuBounds, Kernel, Precision, Reduction, Rows};
+use compose::{CpuBounds, Kernel, Precision, Rows};
 use wgsl::CPU_BOUNDS_COPY;
 
 fn main() {
@@ -29,41 +29,22 @@ fn main() {
             {
                 continue;
             }
-            let reductions: &[Reduction] = if kernel.is_cost() {
-                &[Reduction::Workgroup, Reduction::Subgroup]
-            } else {
-                &[Reduction::Workgroup]
-            };
             let bindings: &[Rows] = if kernel.reads_view_rows() {
                 &Rows::ALL
             } else {
                 &[Rows::Storage]
             };
-            for &reduction in reductions {
-                for &rows in bindings {
-                    let source =
-                        compose::source(kernel, precision, reduction, rows, &CPU_BOUNDS_COPY);
-                    let reduction_name = if kernel.is_cost() {
-                        format!(" {reduction:?} reduction")
-                    } else {
-                        String::new()
-                    };
-                    let rows_name = if kernel.reads_view_rows() {
-                        format!(" {} rows", rows.name())
-                    } else {
-                        String::new()
-                    };
-                    let label = format!(
-                        "kernel {} {precision}{reduction_name}{rows_name}",
-                        kernel.name()
-                    );
-                    let capabilities = wgsl::capabilities(
-                        precision == Precision::F64,
-                        reduction == Reduction::Subgroup,
-                    );
-                    if let Err(error) = wgsl::check(&label, &source, capabilities) {
-                        errors.push(error);
-                    }
+            for &rows in bindings {
+                let source = compose::source(kernel, precision, rows, &CPU_BOUNDS_COPY);
+                let rows_name = if kernel.reads_view_rows() {
+                    format!(" {} rows", rows.name())
+                } else {
+                    String::new()
+                };
+                let label = format!("kernel {} {precision}{rows_name}", kernel.name());
+                let capabilities = wgsl::capabilities(precision == Precision::F64);
+                if let Err(error) = wgsl::check(&label, &source, capabilities) {
+                    errors.push(error);
                 }
             }
         }

@@ -305,6 +305,30 @@ fn chunked_batches_match_one_dispatch() {
     assert_eq!(chunked_values, whole_values, "chunking changed a value");
 }
 
+/// The staging path (discrete GPUs: storage buffers copied to and from host-mapped staging
+/// buffers) gives the values of the directly mapped path lavapipe uses by default, bit for bit,
+/// for every cost and the air layers (candidate and per-view kernels), in both precisions.
+#[test]
+fn staged_and_mapped_buffers_agree() {
+    let data = stereo_data(4, 11);
+    let batch = candidates(&data, 50, 13);
+    for precision in [Precision::F32, Precision::F64] {
+        let (Some(mapped), Some(staged)) = (
+            gpu_harness::engine_with(precision, true),
+            gpu_harness::engine_with(precision, false),
+        ) else {
+            return;
+        };
+        assert!(!staged.context().maps_storage());
+        let (_, in_mapped) = compare(&data, &GpuBackend::new(&data, &mapped), &batch);
+        let (_, in_staged) = compare(&data, &GpuBackend::new(&data, &staged), &batch);
+        assert_eq!(
+            in_mapped, in_staged,
+            "{precision}: the staging changed a value"
+        );
+    }
+}
+
 /// A board of 300 corners: a view's affine-grid rows (2 700 f64 vec4) exceed a uniform window,
 /// so every view of that kernel is read from one storage block.
 const BOARD_20X15: Board = Board {

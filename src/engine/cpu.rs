@@ -4,10 +4,8 @@
 use rayon::prelude::*;
 
 use super::simd::{self, backproject_row, project_row, scalar_row, triangulate_row, vop_row};
-use crate::model::{
-    ModelError, NoSolution, RefractiveCamera, Rig, binocular_vop, triangulate_rays,
-};
-use nalgebra::{Point2, Unit, Vector3};
+use crate::model::{NoSolution, RefractiveCamera, binocular_vop};
+use nalgebra::Point2;
 
 /// Items per rayon task: large enough to amortise scheduling, small enough to balance.
 const TASK_ITEMS: usize = 4096;
@@ -199,48 +197,6 @@ impl CpuEngine {
                 bv.axis_offset,
                 bv.conditioning,
             ])
-        });
-    }
-
-    /// See [`Engine::ray_gap_cost`](super::Engine::ray_gap_cost).
-    pub fn ray_gap_cost(
-        &self,
-        rig: &Rig,
-        a: usize,
-        b: usize,
-        air_rays: &[[f64; 6]],
-        candidates: &[[f64; 4]],
-        costs: &mut [[f64; 2]],
-    ) {
-        assert_eq!(candidates.len(), costs.len(), "one cost per candidate");
-        let term = |a: &RefractiveCamera, b: &RefractiveCamera, r: &[f64; 6]| -> Option<f64> {
-            let v_a = Unit::new_normalize(Vector3::new(r[0], r[1], r[2]));
-            let v_b = Unit::new_normalize(Vector3::new(r[3], r[4], r[5]));
-            let t =
-                triangulate_rays(&a.ray_in_water(&v_a).ok()?, &b.ray_in_water(&v_b).ok()?).ok()?;
-            Some(t.residual * t.residual)
-        };
-        self.pool.install(|| {
-            candidates
-                .par_iter()
-                .zip(costs.par_iter_mut())
-                .for_each(|(c, cost)| {
-                    let moved = rig
-                        .shared_interface()
-                        .ok_or(ModelError::MixedPorts("no shared port".into()))
-                        .and_then(|i| i.with_pose(Vector3::new(c[0], c[1], c[2]), c[3]))
-                        .and_then(|i| rig.with_interface(i));
-                    // A candidate that puts a camera outside the air has no term.
-                    let Ok(moved) = moved else {
-                        *cost = [0.0, 0.0];
-                        return;
-                    };
-                    let (a, b) = (moved.refractive_camera(a), moved.refractive_camera(b));
-                    *cost = air_rays
-                        .iter()
-                        .filter_map(|r| term(&a, &b, r))
-                        .fold([0.0, 0.0], |acc, x| [acc[0] + x, acc[1] + 1.0]);
-                });
         });
     }
 }

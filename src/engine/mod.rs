@@ -26,7 +26,7 @@ pub mod workload;
 pub use cpu::{CpuEngine, CpuPath};
 
 use crate::gpu::{GpuContext, GpuEngine, GpuError, Precision};
-use crate::model::{RefractiveCamera, Rig};
+use crate::model::RefractiveCamera;
 
 /// Where a batch runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -304,31 +304,6 @@ impl Engine {
         widened(matches, points, status, |i, o, s| {
             self.triangulate(a, b, i, o, s)
         })
-    }
-
-    /// The ray-gap cost of candidate interfaces for cameras `a` and `b` of `rig`. Each candidate
-    /// is (n_x, n_y, n_z, d): a system axis (normalised here) and the master's air layer, the
-    /// layers and indices staying those of the rig. For every pair of air rays (v_a xyz, v_b
-    /// xyz, master frame: [`RefractiveCamera::dir_in_air_from_img`] of a correspondence) both
-    /// water rays are formed behind the candidate and triangulated; `costs[c] = [Σ residual²,
-    /// number of pairs with an answer]`. A candidate the rig rejects (a camera outside the air)
-    /// gets `[0, 0]`, and so does every candidate of a rig with a port per camera (no shared port to move).
-    pub fn ray_gap_cost(
-        &self,
-        rig: &Rig,
-        a: usize,
-        b: usize,
-        air_rays: &[[f64; 6]],
-        candidates: &[[f64; 4]],
-        costs: &mut [[f64; 2]],
-    ) -> Result<(), EngineError> {
-        match self {
-            Self::Cpu(cpu) => {
-                cpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs);
-                Ok(())
-            }
-            Self::Gpu(gpu) => Ok(gpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs)?),
-        }
     }
 }
 

@@ -16,7 +16,7 @@ use rayon::prelude::*;
 
 use super::context::{GpuContext, GpuError};
 use super::layout::{MAX_LAYERS, Params};
-use super::shaders::{Kernel, Precision, Reduction, Rows, STATUS_RETRY, WORKGROUP_SIZE, source};
+use super::shaders::{Kernel, Precision, Rows, STATUS_RETRY, WORKGROUP_SIZE, source};
 use crate::model::{Ports, RefractiveCamera, Rig};
 
 mod affine_grid;
@@ -90,7 +90,6 @@ impl Slot {
 #[derive(Default)]
 struct Buffers {
     uniform: Slot,
-    input: Slot,
     candidates: Slot,
     output: Slot,
     status: Slot,
@@ -106,7 +105,6 @@ struct Buffers {
 pub struct GpuEngine {
     context: GpuContext,
     precision: Precision,
-    reduction: Reduction,
     /// Compiled pipelines by kernel, corner-row binding and `RIG_LAYERS`.
     pipelines: Mutex<HashMap<(Kernel, Rows, u32), Arc<wgpu::ComputePipeline>>>,
     buffers: Mutex<Buffers>,
@@ -137,17 +135,6 @@ fn extend_reals(bytes: &mut Vec<u8>, precision: Precision, values: &[f64]) {
                         o.copy_from_slice(&(*v as f32).to_le_bytes());
                     }
                 });
-        }
-    }
-}
-
-/// Reads value `k` of mapped real data.
-#[inline]
-fn real_at(bytes: &[u8], precision: Precision, k: usize) -> f64 {
-    match precision {
-        Precision::F64 => f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().expect("8 bytes")),
-        Precision::F32 => {
-            f32::from_le_bytes(bytes[4 * k..4 * k + 4].try_into().expect("4 bytes")) as f64
         }
     }
 }
@@ -209,8 +196,8 @@ pub fn default_stream_chunk_rows(context: &GpuContext) -> usize {
 }
 
 impl GpuEngine {
-    /// The backend on `context` at `precision`, with the subgroup reduction where the adapter has
-    /// SUBGROUP. Errors when f64 is asked of an adapter without SHADER_F64.
+    /// The backend on `context` at `precision`. Errors when f64 is asked of an adapter without
+    /// SHADER_F64.
     pub fn new(context: GpuContext, precision: Precision) -> Result<Self, GpuError> {
         if precision == Precision::F64 && !context.adapter().f64 {
             return Err(GpuError::Unsupported(format!(
@@ -218,16 +205,10 @@ impl GpuEngine {
                 context.adapter().name
             )));
         }
-        let reduction = if context.adapter().subgroup {
-            Reduction::Subgroup
-        } else {
-            Reduction::Workgroup
-        };
         let stream_chunk_rows = default_stream_chunk_rows(&context);
         Ok(Self {
             context,
             precision,
-            reduction,
             pipelines: Mutex::default(),
             buffers: Mutex::default(),
             max_chunk_items: MAX_CHUNK_ITEMS,
@@ -244,28 +225,6 @@ impl GpuEngine {
     /// The kernels' precision.
     pub fn precision(&self) -> Precision {
         self.precision
-    }
-
-    /// The reduction cost kernels use.
-    pub fn reduction(&self) -> Reduction {
-        self.reduction
-    }
-
-    /// Chooses the reduction of cost kernels (the portable one always works; the subgroup one
-    /// needs SUBGROUP). For tests and benchmarks.
-    pub fn set_reduction(&mut self, reduction: Reduction) -> Result<(), GpuError> {
-        if reduction == Reduction::Subgroup && !self.context.adapter().subgroup {
-            return Err(GpuError::Unsupported(format!(
-                "adapter '{}' has no SUBGROUP",
-                self.context.adapter().name
-            )));
-        }
-        self.reduction = reduction;
-        self.pipelines
-            .lock()
-            .expect("pipeline cache")
-            .retain(|&(kernel, _, _), _| kernel != Kernel::RayGapCost);
-        Ok(())
     }
 
     /// Fixes where the per-(candidate, view) kernels read their corner rows: `Some(Rows::Uniform)`
@@ -334,7 +293,7 @@ impl GpuEngine {
         };
         let pipeline = Arc::new(self.context.pipeline(
             &label,
-            &source(kernel, precision, self.reduction, rows),
+            &source(kernel, precision, rows),
             layers,
         )?);
         cache.insert((kernel, rows, layers), pipeline.clone());
@@ -802,139 +761,6 @@ impl GpuEngine {
                 out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
                 rows_from(data[0], self.precision, out_status, out_rows);
             })?;
-        }
-        Ok(())
-    }
-
-    /// See [`Engine::ray_gap_cost`](crate::engine::Engine::ray_gap_cost). The terms are summed
-    /// on the device per workgroup (subgroup operations where available); the host adds the
-    /// workgroup sums.
-    pub fn ray_gap_cost(
-        &self,
-        rig: &Rig,
-        a: usize,
-        b: usize,
-        air_rays: &[[f64; 6]],
-        candidates: &[[f64; 4]],
-        costs: &mut [[f64; 2]],
-    ) -> Result<(), GpuError> {
-        assert_eq!(candidates.len(), costs.len(), "one cost per candidate");
-        let (a, b) = (&rig.refractive_camera(a), &rig.refractive_camera(b));
-        // Unit normals; a candidate the rig rejects (a camera outside the air) gets d = −1, which
-        // the kernel counts as no term, as the CPU path does.
-        let candidates: Vec<[f64; 4]> = candidates
-            .iter()
-            .map(|c| {
-                match rig
-                    .shared_interface()
-                    .ok_or(crate::model::ModelError::MixedPorts(
-                        "no shared port".into(),
-                    ))
-                    .and_then(|i| i.with_pose(nalgebra::Vector3::new(c[0], c[1], c[2]), c[3]))
-                    .and_then(|i| rig.with_interface(i))
-                {
-                    Ok(moved) => {
-                        let n = moved
-                            .shared_interface()
-                            .expect("moved behind a shared port")
-                            .normal();
-                        [n.x, n.y, n.z, c[3]]
-                    }
-                    Err(_) => [0.0, 0.0, 1.0, -1.0],
-                }
-            })
-            .collect();
-        Self::check_layers(a)?;
-        Self::check_layers(b)?;
-        costs.iter_mut().for_each(|c| *c = [0.0; 2]);
-        if air_rays.is_empty() || candidates.is_empty() {
-            return Ok(());
-        }
-        let s = self.precision.size();
-        let pairs_per_chunk = (self.chunk_items(6 * s))
-            .min(GROUP * MAX_GROUPS_PER_DIMENSION)
-            .min(air_rays.len());
-        let groups_x = pairs_per_chunk.div_ceil(GROUP);
-        let candidates_per_chunk = (self.max_chunk_items / groups_x)
-            .clamp(1, MAX_GROUPS_PER_DIMENSION)
-            .min(candidates.len());
-        let mut params = Params::new(self.precision, a, b, [0; 4]);
-        let pipeline = self.pipeline(Kernel::RayGapCost, &params)?;
-        let mut guard = self.buffers();
-        let buffers = &mut *guard;
-        let partial_bytes = candidates_per_chunk * groups_x * 2 * s;
-        let uniform = self.uniform(&mut buffers.uniform, &params)?;
-        let in_buf = buffers
-            .input
-            .get(
-                &self.context,
-                "input",
-                pairs_per_chunk * 6 * s,
-                self.input_usage(),
-            )?
-            .clone();
-        let cand_buf = buffers
-            .candidates
-            .get(
-                &self.context,
-                "candidates",
-                candidates_per_chunk * 4 * s,
-                self.input_usage(),
-            )?
-            .clone();
-        let (out_buf, out_staging) = self.readable(
-            &mut buffers.output,
-            &mut buffers.output_staging,
-            "output",
-            partial_bytes,
-        )?;
-        let bind_group = self.bind_group(
-            &pipeline,
-            "ray_gap_cost",
-            &[(0, &uniform), (1, &in_buf), (2, &out_buf), (4, &cand_buf)],
-        );
-        for pair_start in (0..air_rays.len()).step_by(pairs_per_chunk) {
-            let pair_end = (pair_start + pairs_per_chunk).min(air_rays.len());
-            let pairs = pair_end - pair_start;
-            let groups = pairs.div_ceil(GROUP);
-            params.set_info([pairs as u32, 0, 0, 0]);
-            self.context.queue.write_buffer(&uniform, 0, params.bytes());
-            buffers.scratch.clear();
-            extend_reals(
-                &mut buffers.scratch,
-                self.precision,
-                bytemuck::cast_slice(&air_rays[pair_start..pair_end]),
-            );
-            self.upload(&in_buf, &buffers.scratch)?;
-            for cand_start in (0..candidates.len()).step_by(candidates_per_chunk) {
-                let cand_end = (cand_start + candidates_per_chunk).min(candidates.len());
-                let count = cand_end - cand_start;
-                buffers.scratch.clear();
-                extend_reals(
-                    &mut buffers.scratch,
-                    self.precision,
-                    bytemuck::cast_slice(&candidates[cand_start..cand_end]),
-                );
-                self.upload(&cand_buf, &buffers.scratch)?;
-                let encoder = self.encode_dispatch(
-                    &pipeline,
-                    &bind_group,
-                    "ray_gap_cost",
-                    (groups as u32, count as u32),
-                );
-                let copies = [(&out_buf, &out_staging, (count * groups * 2 * s) as u64)];
-                let precision = self.precision;
-                let out = &mut costs[cand_start..cand_end];
-                self.context.read_back(encoder, &copies, |data| {
-                    for (c, cost) in out.iter_mut().enumerate() {
-                        for g in 0..groups {
-                            let k = 2 * (c * groups + g);
-                            cost[0] += real_at(data[0], precision, k);
-                            cost[1] += real_at(data[0], precision, k + 1);
-                        }
-                    }
-                })?;
-            }
         }
         Ok(())
     }

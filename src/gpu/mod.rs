@@ -18,4 +18,4 @@ pub use engine::{
     AffineGridInput, GpuEngine, HostReal, KernelTimer, ResidentRows, SCENE_ROW, SceneFitInput,
     SceneSum, ViewRows,
 };
-pub use shaders::{Kernel, Precision, Reduction, Rows};
+pub use shaders::{Kernel, Precision, Rows};

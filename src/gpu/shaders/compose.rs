@@ -45,15 +45,6 @@ impl std::fmt::Display for Precision {
     }
 }
 
-/// How a cost kernel sums its terms within a workgroup.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Reduction {
-    /// Tree in workgroup memory: every adapter.
-    Workgroup,
-    /// `subgroupAdd`, then workgroup memory across subgroups: adapters with SUBGROUP.
-    Subgroup,
-}
-
 /// Where a per-view kernel ([`Kernel::reads_view_rows`]) reads its corner rows: binding 1,
 /// `input: array<vec4r…>`, composed in front of the kernel. Both bindings hold the same blocks:
 /// a view table, (first vec4, corners, 0, 0) per view, followed by the views' rows.
@@ -126,8 +117,6 @@ pub enum Kernel {
     Triangulate,
     /// ul,vl,ur,vr → both VOPs, axis offset, conditioning.
     BinocularVop,
-    /// Candidate interfaces × air-ray pairs → Σ triangulation residual², reduced per workgroup.
-    RayGapCost,
     /// Candidate interfaces × corners (two air rays) → x, y, z, gap.
     CalibTriangulate,
     /// Candidate axes × corners (air rays and their pixel Jacobians) → projected binocular VOP
@@ -152,7 +141,7 @@ pub enum Kernel {
 
 impl Kernel {
     /// Every kernel.
-    pub const ALL: [Kernel; 15] = [
+    pub const ALL: [Kernel; 14] = [
         Self::Backproject,
         Self::BackprojectGrid,
         Self::Project,
@@ -160,7 +149,6 @@ impl Kernel {
         Self::Vop,
         Self::Triangulate,
         Self::BinocularVop,
-        Self::RayGapCost,
         Self::CalibTriangulate,
         Self::CalibProjectedVop,
         Self::CalibAffineGrid,
@@ -190,7 +178,6 @@ impl Kernel {
             Self::Vop => "vop",
             Self::Triangulate => "triangulate",
             Self::BinocularVop => "binocular_vop",
-            Self::RayGapCost => "ray_gap_cost",
             Self::CalibTriangulate => "calib_triangulate",
             Self::CalibProjectedVop => "calib_projected_vop",
             Self::CalibAffineGrid => "calib_affine_grid",
@@ -212,7 +199,6 @@ impl Kernel {
             Self::Vop => include_str!("../../../shaders/kernels/vop.wgsl"),
             Self::Triangulate => include_str!("../../../shaders/kernels/triangulate.wgsl"),
             Self::BinocularVop => include_str!("../../../shaders/kernels/binocular_vop.wgsl"),
-            Self::RayGapCost => include_str!("../../../shaders/kernels/ray_gap_cost.wgsl"),
             Self::CalibTriangulate => {
                 include_str!("../../../shaders/kernels/calib_triangulate.wgsl")
             }
@@ -249,7 +235,6 @@ impl Kernel {
     fn bindings(self) -> &'static str {
         match self {
             Self::BackprojectGrid
-            | Self::RayGapCost
             | Self::CalibAffineGrid
             | Self::CalibSceneGap
             | Self::CalibSceneFit
@@ -287,11 +272,6 @@ impl Kernel {
                 | Self::CalibSceneReprojectionSafeguarded
         )
     }
-
-    /// True for kernels whose entry point is a reduction.
-    pub fn is_cost(self) -> bool {
-        matches!(self, Self::RayGapCost)
-    }
 }
 
 const COMMON: &str = include_str!("../../../shaders/common.wgsl");
@@ -321,8 +301,7 @@ pub struct CpuBounds {
 }
 
 /// The precision prelude: type aliases and the stopping rules of the CPU path. f32 kernels stop
-/// at tolerances a few ulps above f32 rounding instead of the CPU's f64 ones. (Naga 30 takes
-/// subgroup operations without WGSL's `enable subgroups;`, which it does not parse yet.)
+/// at tolerances a few ulps above f32 rounding instead of the CPU's f64 ones.
 pub fn prelude(precision: Precision, bounds: &CpuBounds) -> String {
     let (undistort_tolerance, project_tolerance) = match precision {
         Precision::F32 => (4e-7, 2.5e-7),
@@ -349,21 +328,9 @@ pub fn prelude(precision: Precision, bounds: &CpuBounds) -> String {
     )
 }
 
-/// The composed WGSL module of `kernel` at `precision` with the stopping rules `bounds`;
-/// `reduction` picks the entry point of cost kernels, `rows` the corner-row binding of per-view
-/// kernels (each ignored by the other kernels).
-pub fn source(
-    kernel: Kernel,
-    precision: Precision,
-    reduction: Reduction,
-    rows: Rows,
-    bounds: &CpuBounds,
-) -> String {
-    let reduction = if kernel.is_cost() {
-        reduction
-    } else {
-        Reduction::Workgroup
-    };
+/// The composed WGSL module of `kernel` at `precision` with the stopping rules `bounds`; `rows`
+/// is the corner-row binding of per-view kernels (ignored by the other kernels).
+pub fn source(kernel: Kernel, precision: Precision, rows: Rows, bounds: &CpuBounds) -> String {
     let mut text = prelude(precision, bounds);
     let rows = if kernel.reads_view_rows() {
         rows.declaration(precision)
@@ -378,12 +345,6 @@ pub fn source(
     ]) {
         text.push_str(part);
         text.push('\n');
-    }
-    if kernel.is_cost() {
-        text.push_str(match reduction {
-            Reduction::Workgroup => include_str!("../../../shaders/reduce/workgroup.wgsl"),
-            Reduction::Subgroup => include_str!("../../../shaders/reduce/subgroup.wgsl"),
-        });
     }
     text
 }
