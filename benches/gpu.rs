@@ -6,7 +6,7 @@
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 
 use flatport::engine::workload::Workload;
-use flatport::gpu::engine::MAX_CHUNK_ITEMS;
+use flatport::gpu::MAX_CHUNK_ITEMS;
 use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision};
 use flatport::io::rig_from_json_str;
 

@@ -794,7 +794,7 @@ fn staged_and_mapped_buffers_agree() {
         let (_, rig) = configurations().remove(3);
         let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
         let mut random = Random(0x6A09_E667_F3BC_C909);
-        let n = flatport::gpu::engine::MAX_CHUNK_ITEMS + 777; // two chunks
+        let n = flatport::gpu::MAX_CHUNK_ITEMS + 777; // two chunks
         let points = random_points(&mut random, &a, n);
         let run = |gpu: &GpuEngine| {
             let (mut pixels, mut status) = (vec![[0.0; 2]; n], vec![0; n]);

@@ -528,12 +528,6 @@ impl GpuContext {
         }
     }
 
-    /// Workgroup counts (x, y) for `items` items in [`WORKGROUP_SIZE`]-wide workgroups: see
-    /// [`dispatch_grid`].
-    pub(crate) fn dispatch_size(&self, items: u32) -> (u32, u32) {
-        dispatch_grid(items, self.summary.max_workgroups_per_dimension)
-    }
-
     /// Submits `encoder` after copying each `(source, staging, bytes)` into its staging buffer
     /// (nothing to copy where `staging` is `source`, a host-mappable storage buffer),
     /// waits, and hands the mapped bytes of every staging buffer, in order, to `read`.
@@ -687,21 +681,6 @@ impl GpuContext {
     }
 }
 
-/// Workgroup counts (x, y) for `items` items in [`WORKGROUP_SIZE`]-wide workgroups, at most
-/// `max_per_dimension` per dimension: 1-D while it fits, else y rows of x groups with x·y as close
-/// above the needed count as the rows allow (fewer than y spare groups), since the kernels index
-/// items as `gid.x + gid.y · groups.x · WORKGROUP_SIZE` and guard the tail. A full 2²² chunk is
-/// 65 536 groups of 64: 2 rows of 32 768, not 2 rows of 65 535 (twice the work).
-pub(crate) fn dispatch_grid(items: u32, max_per_dimension: u32) -> (u32, u32) {
-    let groups = items.div_ceil(WORKGROUP_SIZE).max(1);
-    let max = max_per_dimension.max(1);
-    if groups <= max {
-        return (groups, 1);
-    }
-    let rows = groups.div_ceil(max);
-    (groups.div_ceil(rows), rows)
-}
-
 fn list(names: &[String]) -> String {
     if names.is_empty() {
         "none".to_string()
@@ -712,7 +691,6 @@ fn list(names: &[String]) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{WORKGROUP_SIZE, dispatch_grid};
 
     fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
         wgpu::AdapterInfo {
@@ -753,34 +731,5 @@ mod tests {
                 .contains("'radeon'")
         );
         assert!(choose_adapter(&[], None).is_err());
-    }
-
-    #[test]
-    fn dispatch_grids_cover_every_item_with_fewer_spare_groups_than_rows() {
-        for items in [
-            1u32,
-            63,
-            64,
-            65,
-            65_535 * 64,
-            65_535 * 64 + 1,
-            1 << 22,
-            (1 << 22) + 17,
-            u32::MAX,
-        ] {
-            let (x, y) = dispatch_grid(items, 65_535);
-            let needed = items.div_ceil(WORKGROUP_SIZE) as u64;
-            assert!(x <= 65_535 && y <= 65_535, "{items}: {x} × {y}");
-            assert!(
-                x as u64 * y as u64 >= needed,
-                "{items}: {x} × {y} misses items"
-            );
-            assert!(
-                x as u64 * y as u64 - needed < y as u64,
-                "{items}: {x} × {y} for {needed} groups"
-            );
-        }
-        assert_eq!(dispatch_grid(1 << 22, 65_535), (32_768, 2));
-        assert_eq!(dispatch_grid(0, 65_535), (1, 1));
     }
 }

@@ -12,9 +12,11 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use rayon::prelude::*;
-
+use super::buffers::{ReadSlot, Slot, rows_from};
 use super::context::{GpuContext, GpuError};
+use super::dispatch::{
+    Dispatch, GROUP, KernelTimer, MAX_CHUNK_ITEMS, MAX_GROUPS_PER_DIMENSION, chunk_items,
+};
 use super::layout::{MAX_LAYERS, Params};
 use super::shaders::{Kernel, Precision, Rows, STATUS_RETRY, WORKGROUP_SIZE, source};
 use crate::model::{Ports, RefractiveCamera, Rig};
@@ -32,73 +34,15 @@ pub use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
 pub use stream::{HostReal, RING, STREAM_CHUNK_ROWS};
 pub use views::ViewRows;
 
-/// Largest number of items per dispatch whatever the binding cap: bounds the device and staging
-/// memory (4 Mi items: 96 MiB of f32 rays, 192 MiB in f64 split over two chunks by the cap).
-pub const MAX_CHUNK_ITEMS: usize = 1 << 22;
-
-/// Largest workgroup count per dispatch dimension every Vulkan adapter supports.
-const MAX_GROUPS_PER_DIMENSION: usize = 65_535;
-
-/// Items per workgroup ([`WORKGROUP_SIZE`]) as a host count.
-const GROUP: usize = WORKGROUP_SIZE as usize;
-
-/// The clock behind a kernel time of [`GpuEngine::kernel_seconds`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum KernelTimer {
-    /// GPU timestamps at the start and end of the compute pass: the kernel alone.
-    GpuTimestamp,
-    /// Host clocks around submit and wait: the kernel plus the driver's latency.
-    Host,
-}
-
-impl KernelTimer {
-    /// `gpu_timestamp` or `host`, as `flatport bench --json` writes it.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::GpuTimestamp => "gpu_timestamp",
-            Self::Host => "host",
-        }
-    }
-}
-
-/// A buffer that is replaced when a call needs more bytes or another usage.
-#[derive(Default)]
-struct Slot(Option<wgpu::Buffer>);
-
-impl Slot {
-    fn get(
-        &mut self,
-        context: &GpuContext,
-        label: &str,
-        bytes: usize,
-        usage: wgpu::BufferUsages,
-    ) -> Result<&wgpu::Buffer, GpuError> {
-        let bytes = (bytes.max(16) as u64).next_multiple_of(16);
-        match &mut self.0 {
-            Some(buffer) if buffer.size() >= bytes && buffer.usage() == usage => {}
-            slot => {
-                // The old buffer goes first, so that both never hold device memory at once.
-                *slot = None;
-                *slot = Some(context.buffer(label, bytes, usage)?);
-            }
-        }
-        Ok(self.0.as_ref().expect("just set"))
-    }
-}
-
 /// Device and staging buffers, reused across chunks and calls.
 #[derive(Default)]
 struct Buffers {
     uniform: Slot,
     candidates: Slot,
-    output: Slot,
-    status: Slot,
-    output_staging: Slot,
-    status_staging: Slot,
-    /// Host bytes of an f32 chunk before upload.
-    scratch: Vec<u8>,
+    output: ReadSlot,
+    status: ReadSlot,
     /// The buffer sets the row kernels stream their chunks through.
-    ring: [stream::Lane; stream::RING],
+    ring: stream::Ring,
 }
 
 /// The GPU backend on one adapter at one precision.
@@ -115,65 +59,6 @@ pub struct GpuEngine {
     /// Most rows per streamed chunk of the row kernels ([`default_stream_chunk_rows`] unless
     /// changed).
     stream_chunk_rows: usize,
-}
-
-/// Rows per parallel task of the host-side conversions.
-const CONVERT_ROWS: usize = 1 << 14;
-
-/// Bytes of `values` in `precision`, appended to `bytes` (converted on all cores).
-fn extend_reals(bytes: &mut Vec<u8>, precision: Precision, values: &[f64]) {
-    match precision {
-        Precision::F64 => bytes.extend_from_slice(bytemuck::cast_slice(values)),
-        Precision::F32 => {
-            let start = bytes.len();
-            bytes.resize(start + 4 * values.len(), 0);
-            bytes[start..]
-                .par_chunks_mut(4 * CONVERT_ROWS)
-                .zip(values.par_chunks(CONVERT_ROWS))
-                .for_each(|(out, values)| {
-                    for (o, v) in out.chunks_exact_mut(4).zip(values) {
-                        o.copy_from_slice(&(*v as f32).to_le_bytes());
-                    }
-                });
-        }
-    }
-}
-
-/// Copies mapped rows into `output` where `status` is 0, NaN elsewhere (on all cores).
-fn rows_from<const M: usize>(
-    bytes: &[u8],
-    precision: Precision,
-    status: &[u32],
-    output: &mut [[f64; M]],
-) {
-    let s = precision.size();
-    let bytes = &bytes[..output.len() * M * s];
-    output
-        .par_chunks_mut(CONVERT_ROWS)
-        .zip(status.par_chunks(CONVERT_ROWS))
-        .zip(bytes.par_chunks(CONVERT_ROWS * M * s))
-        .for_each(|((output, status), bytes)| match precision {
-            Precision::F64 => {
-                let values: &[f64] = bytemuck::cast_slice(bytes);
-                for ((row, chunk), s) in output.iter_mut().zip(values.chunks_exact(M)).zip(status) {
-                    *row = if *s == 0 {
-                        chunk.try_into().expect("M values")
-                    } else {
-                        [f64::NAN; M]
-                    };
-                }
-            }
-            Precision::F32 => {
-                let values: &[f32] = bytemuck::cast_slice(bytes);
-                for ((row, chunk), s) in output.iter_mut().zip(values.chunks_exact(M)).zip(status) {
-                    *row = if *s == 0 {
-                        std::array::from_fn(|k| chunk[k] as f64)
-                    } else {
-                        [f64::NAN; M]
-                    };
-                }
-            }
-        });
 }
 
 /// The most rows per streamed chunk of the row kernels that [`GpuEngine::new`] chooses for
@@ -304,143 +189,14 @@ impl GpuEngine {
         self.buffers.lock().expect("buffer cache")
     }
 
-    /// Usage of a buffer the kernels read and the host fills: mapped directly where the adapter
-    /// shares the host's memory, written through the queue otherwise.
-    fn input_usage(&self) -> wgpu::BufferUsages {
-        use wgpu::BufferUsages as U;
-        if self.context.maps_storage() {
-            U::STORAGE | U::MAP_WRITE
-        } else {
-            U::STORAGE | U::COPY_DST
-        }
-    }
-
-    /// Writes `bytes` at the start of a buffer made with [`input_usage`](Self::input_usage).
-    fn upload(&self, buffer: &wgpu::Buffer, bytes: &[u8]) -> Result<(), GpuError> {
-        if self.context.maps_storage() {
-            self.context.write_mapped(buffer, bytes)
-        } else {
-            self.context.queue.write_buffer(buffer, 0, bytes);
-            Ok(())
-        }
-    }
-
-    /// The uniform buffer of `slot`, large enough for `params` (written per chunk by the caller).
-    fn uniform(&self, slot: &mut Slot, params: &Params) -> Result<wgpu::Buffer, GpuError> {
-        Ok(slot
-            .get(
-                &self.context,
-                "params",
-                params.bytes().len(),
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            )?
-            .clone())
-    }
-
-    /// A buffer of `bytes` the kernels write, and the buffer the host maps to read it: the same
-    /// one where the adapter shares the host's memory, a staging copy otherwise.
-    fn readable(
-        &self,
-        slot: &mut Slot,
-        staging: &mut Slot,
-        label: &str,
-        bytes: usize,
-    ) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
-        use wgpu::BufferUsages as U;
-        let context = &self.context;
-        if context.maps_storage() {
-            let buffer = slot
-                .get(context, label, bytes, U::STORAGE | U::MAP_READ)?
-                .clone();
-            Ok((buffer.clone(), buffer))
-        } else {
-            let buffer = slot
-                .get(context, label, bytes, U::STORAGE | U::COPY_SRC)?
-                .clone();
-            Ok((
-                buffer,
-                staging
-                    .get(context, label, bytes, U::MAP_READ | U::COPY_DST)?
-                    .clone(),
-            ))
-        }
-    }
-
-    /// A bind group of `pipeline` with each `(binding, buffer)` bound whole.
-    fn bind_group(
-        &self,
-        pipeline: &wgpu::ComputePipeline,
-        label: &str,
-        entries: &[(u32, &wgpu::Buffer)],
-    ) -> wgpu::BindGroup {
-        let resources = entries
-            .iter()
-            .map(|&(binding, buffer)| (binding, buffer.as_entire_binding()));
-        self.bind_resources(pipeline, label, resources)
-    }
-
-    /// [`bind_group`](Self::bind_group) with each binding's resource given (a range of a
-    /// buffer, say).
-    fn bind_resources<'a>(
-        &self,
-        pipeline: &wgpu::ComputePipeline,
-        label: &str,
-        entries: impl IntoIterator<Item = (u32, wgpu::BindingResource<'a>)>,
-    ) -> wgpu::BindGroup {
-        let entries: Vec<wgpu::BindGroupEntry> = entries
-            .into_iter()
-            .map(|(binding, resource)| wgpu::BindGroupEntry { binding, resource })
-            .collect();
-        self.context
-            .device
-            .create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some(label),
-                layout: &pipeline.get_bind_group_layout(0),
-                entries: &entries,
-            })
-    }
-
-    /// An encoder holding one dispatch of `pipeline` over `groups` = (x, y) workgroups.
-    fn encode_dispatch(
-        &self,
-        pipeline: &wgpu::ComputePipeline,
-        bind_group: &wgpu::BindGroup,
-        label: &str,
-        groups: (u32, u32),
-    ) -> wgpu::CommandEncoder {
-        self.encode_timed_dispatch(pipeline, bind_group, label, groups, None)
-    }
-
-    /// [`encode_dispatch`](Self::encode_dispatch), with GPU timestamps written around the pass.
-    fn encode_timed_dispatch(
-        &self,
-        pipeline: &wgpu::ComputePipeline,
-        bind_group: &wgpu::BindGroup,
-        label: &str,
-        groups: (u32, u32),
-        timestamp_writes: Option<wgpu::ComputePassTimestampWrites>,
-    ) -> wgpu::CommandEncoder {
-        let mut encoder = self
-            .context
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(label),
-                timestamp_writes,
-            });
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, bind_group, &[]);
-            pass.dispatch_workgroups(groups.0, groups.1, 1);
-        }
-        encoder
-    }
-
-    /// Items per chunk when each item needs at most `bytes_per_item` of one binding.
+    /// Items per chunk when each item needs at most `bytes_per_item` of one binding, at most the
+    /// engine's item limit.
     fn chunk_items(&self, bytes_per_item: usize) -> usize {
-        let cap = (self.context.max_storage_binding() as usize / bytes_per_item.max(1))
-            .min(self.max_chunk_items);
-        (cap / GROUP * GROUP).max(GROUP)
+        chunk_items(
+            self.context.max_storage_binding(),
+            bytes_per_item,
+            self.max_chunk_items,
+        )
     }
 
     /// The uniform of a candidate kernel over the pair `cameras` of `rig`: behind a port per
@@ -502,85 +258,16 @@ impl GpuEngine {
         // Uploads the data and leaves it resident in the first lane's buffers.
         self.run_map_in(kernel, a, b, input, &mut output, &mut status, usize::MAX)?;
         let pipeline = self.pipeline(kernel, &Params::new(self.precision, a, b, [0; 4]))?;
-        let buffers = self.buffers();
-        // One chunk runs on the ring's first lane.
-        let lane = &buffers.ring[0];
-        let resident = |slot: &Slot| slot.0.clone().expect("allocated by run_map");
-        let (uniform, in_buf, out_buf, status_buf) = (
-            resident(&lane.uniform),
-            resident(&lane.input),
-            resident(&lane.output),
-            resident(&lane.status),
-        );
-        drop(buffers);
-        let bind_group = self.bind_group(
-            &pipeline,
-            kernel.name(),
-            &[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)],
-        );
-        let invocations = input.len().div_ceil(kernel.rows_per_invocation());
-        let groups = self.context.dispatch_size(invocations as u32);
-        let device = self.context.device();
-        let timestamps = if device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
-            let queries = device.create_query_set(&wgpu::QuerySetDescriptor {
-                label: Some("kernel time"),
-                ty: wgpu::QueryType::Timestamp,
-                count: 2,
-            });
-            let resolve = self.context.buffer(
-                "kernel time",
-                16,
-                wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-            )?;
-            let staging = self.context.buffer(
-                "kernel time staging",
-                16,
-                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            )?;
-            Some((queries, resolve, staging))
-        } else {
-            None
-        };
-        let mut best = f64::INFINITY;
-        match timestamps {
-            Some((queries, resolve, staging)) => {
-                let tick = self.context.queue.get_timestamp_period() as f64 * 1e-9;
-                for _ in 0..=repeats {
-                    let writes = wgpu::ComputePassTimestampWrites {
-                        query_set: &queries,
-                        beginning_of_pass_write_index: Some(0),
-                        end_of_pass_write_index: Some(1),
-                    };
-                    let mut encoder = self.encode_timed_dispatch(
-                        &pipeline,
-                        &bind_group,
-                        kernel.name(),
-                        groups,
-                        Some(writes),
-                    );
-                    encoder.resolve_query_set(&queries, 0..2, &resolve, 0);
-                    let ticks =
-                        self.context
-                            .read_back(encoder, &[(&resolve, &staging, 16)], |data| {
-                                let stamps: &[u64] = bytemuck::cast_slice(data[0]);
-                                stamps[1].saturating_sub(stamps[0])
-                            })?;
-                    best = best.min(ticks as f64 * tick);
-                }
-                Ok((best, KernelTimer::GpuTimestamp))
-            }
-            None => {
-                for _ in 0..=repeats {
-                    let encoder =
-                        self.encode_dispatch(&pipeline, &bind_group, kernel.name(), groups);
-                    let started = std::time::Instant::now();
-                    self.context.queue.submit([encoder.finish()]);
-                    self.context.wait()?;
-                    best = best.min(started.elapsed().as_secs_f64());
-                }
-                Ok((best, KernelTimer::Host))
-            }
-        }
+        let [uniform, in_buf, out_buf, status_buf] = self
+            .buffers()
+            .ring
+            .first_lane()
+            .expect("allocated by run_map");
+        let dispatch = Dispatch::new(&self.context, &pipeline, kernel.name());
+        let bind_group =
+            dispatch.bind(&[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)]);
+        let groups = dispatch.grid(input.len().div_ceil(kernel.rows_per_invocation()));
+        dispatch.seconds(&bind_group, groups, repeats)
     }
 
     /// Back-projects raw pixels of `camera` into `rays` (origin xyz on the outer interface, unit
@@ -720,44 +407,34 @@ impl GpuEngine {
         let rows = (self.chunk_items(6 * s) / w).clamp(1, MAX_GROUPS_PER_DIMENSION);
         let mut params = Params::new(self.precision, camera, camera, [0; 4]);
         let pipeline = self.pipeline(Kernel::BackprojectGrid, &params)?;
+        let dispatch = Dispatch::new(&self.context, &pipeline, "backproject_grid");
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform = self.uniform(&mut buffers.uniform, &params)?;
-        let (out_buf, out_staging) = self.readable(
-            &mut buffers.output,
-            &mut buffers.output_staging,
-            "output",
-            rows * w * 6 * s,
-        )?;
-        let (status_buf, status_staging) = self.readable(
-            &mut buffers.status,
-            &mut buffers.status_staging,
-            "status",
-            rows * w * 4,
-        )?;
-        let bind_group = self.bind_group(
-            &pipeline,
-            "backproject_grid",
-            &[(0, &uniform), (2, &out_buf), (3, &status_buf)],
-        );
+        let uniform = buffers
+            .uniform
+            .uniform(&self.context, params.bytes().len())?;
+        let (out_buf, out_staging) =
+            buffers
+                .output
+                .get(&self.context, "output", rows * w * 6 * s)?;
+        let (status_buf, status_staging) =
+            buffers.status.get(&self.context, "status", rows * w * 4)?;
+        let bind_group = dispatch.bind(&[(0, &uniform), (2, &out_buf), (3, &status_buf)]);
         for first in (0..h).step_by(rows) {
             let count = rows.min(h - first);
             let items = count * w;
             params.set_info([items as u32, width, first_row + first as u32, 0]);
-            self.context.queue.write_buffer(&uniform, 0, params.bytes());
-            let encoder = self.encode_dispatch(
-                &pipeline,
-                &bind_group,
-                "backproject_grid",
-                (width.div_ceil(WORKGROUP_SIZE), count as u32),
-            );
+            self.context
+                .queue()
+                .write_buffer(&uniform, 0, params.bytes());
+            let groups = (width.div_ceil(WORKGROUP_SIZE), count as u32);
             let copies = [
                 (&out_buf, &out_staging, (items * 6 * s) as u64),
                 (&status_buf, &status_staging, (items * 4) as u64),
             ];
             let range = first * w..first * w + items;
             let (out_rows, out_status) = (&mut rays[range.clone()], &mut status[range]);
-            self.context.read_back(encoder, &copies, |data| {
+            dispatch.run(&[(&bind_group, groups)], &copies, |data| {
                 out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
                 rows_from(data[0], self.precision, out_status, out_rows);
             })?;

@@ -8,14 +8,17 @@
 //! - [`layout`]: the `#[repr(C)]` host mirrors of the kernels' uniform;
 //! - [`engine`]: chunked batches, buffer reuse, f32/f64 conversion.
 
+pub(crate) mod buffers;
 pub mod context;
+pub mod dispatch;
 pub mod engine;
 pub mod layout;
 pub mod shaders;
 
 pub use context::{AdapterSummary, GpuContext, GpuError, adapters};
+pub use dispatch::{KernelTimer, MAX_CHUNK_ITEMS};
 pub use engine::{
-    AffineGridInput, GpuEngine, HostReal, KernelTimer, ResidentRows, SCENE_ROW, SceneFitInput,
-    SceneSum, ViewRows,
+    AffineGridInput, GpuEngine, HostReal, ResidentRows, SCENE_ROW, SceneFitInput, SceneSum,
+    ViewRows,
 };
 pub use shaders::{Kernel, Precision, Rows};

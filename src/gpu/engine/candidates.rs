@@ -3,10 +3,12 @@
 //! calibration geometry lives in the kernels and their CPU twins in [`crate::calib`]; here only
 //! indexing, chunking and buffers.
 
-use super::{GpuEngine, extend_reals, rows_from};
+use super::GpuEngine;
+use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
 use crate::gpu::context::GpuError;
+use crate::gpu::dispatch::Dispatch;
 use crate::gpu::engine::ResidentRows;
-use crate::gpu::shaders::{Kernel, Precision};
+use crate::gpu::shaders::Kernel;
 use crate::model::Rig;
 
 impl GpuEngine {
@@ -105,104 +107,59 @@ impl GpuEngine {
         }
         let per_chunk = per_chunk.min(candidates.len());
         let pipeline = self.pipeline(kernel, &params)?;
+        let dispatch = Dispatch::new(&self.context, &pipeline, kernel.name());
+        let context = &self.context;
         let mut guard = self.buffers();
         let buffers = &mut *guard;
 
-        let uniform = self.uniform(&mut buffers.uniform, &params)?;
-        let in_buf = input.on_device(self, self.precision)?;
+        let uniform = buffers.uniform.uniform(context, params.bytes().len())?;
+        let in_buf = input.on_device(context, self.precision)?;
         let cand_buf = buffers
             .candidates
             .get(
-                &self.context,
+                context,
                 "candidates",
                 per_chunk * 4 * s,
-                self.input_usage(),
+                input_usage(context),
             )?
             .clone();
-        let (out_buf, out_staging) = self.readable(
-            &mut buffers.output,
-            &mut buffers.output_staging,
-            "output",
-            per_chunk * corners * M * s,
-        )?;
-        let (status_buf, status_staging) = self.readable(
-            &mut buffers.status,
-            &mut buffers.status_staging,
-            "status",
-            per_chunk * corners * 4,
-        )?;
-        let bind_group = self.bind_group(
-            &pipeline,
-            kernel.name(),
-            &[
-                (0, &uniform),
-                (1, &in_buf),
-                (2, &out_buf),
-                (3, &status_buf),
-                (4, &cand_buf),
-            ],
-        );
+        let (out_buf, out_staging) =
+            buffers
+                .output
+                .get(context, "output", per_chunk * corners * M * s)?;
+        let (status_buf, status_staging) =
+            buffers
+                .status
+                .get(context, "status", per_chunk * corners * 4)?;
+        let bind_group = dispatch.bind(&[
+            (0, &uniform),
+            (1, &in_buf),
+            (2, &out_buf),
+            (3, &status_buf),
+            (4, &cand_buf),
+        ]);
         for first in (0..candidates.len()).step_by(per_chunk) {
             let last = (first + per_chunk).min(candidates.len());
             let range = first * corners..last * corners;
             let count = range.len();
             params.set_info([count as u32, corners as u32, 0, 0]);
-            self.context.queue.write_buffer(&uniform, 0, params.bytes());
-            self.upload_reals(
-                &mut buffers.scratch,
+            context.queue().write_buffer(&uniform, 0, params.bytes());
+            upload_reals(
+                context,
+                self.precision,
                 &cand_buf,
                 bytemuck::cast_slice(&candidates[first..last]),
             )?;
-            let encoder = self.encode_dispatch(
-                &pipeline,
-                &bind_group,
-                kernel.name(),
-                self.context.dispatch_size(count as u32),
-            );
             let copies = [
                 (&out_buf, &out_staging, (count * M * s) as u64),
                 (&status_buf, &status_staging, (count * 4) as u64),
             ];
             let (out_rows, out_status) = (&mut output[range.clone()], &mut status[range]);
-            self.context.read_back(encoder, &copies, |data| {
+            dispatch.run(&[(&bind_group, dispatch.grid(count))], &copies, |data| {
                 out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
                 rows_from(data[0], self.precision, out_status, out_rows);
             })?;
         }
         Ok(())
-    }
-
-    /// Uploads f64 `values` in `precision` (converted through a temporary for f32).
-    pub(super) fn upload_reals_as(
-        &self,
-        precision: Precision,
-        buffer: &wgpu::Buffer,
-        values: &[f64],
-    ) -> Result<(), GpuError> {
-        match precision {
-            Precision::F64 => self.upload(buffer, bytemuck::cast_slice(values)),
-            Precision::F32 => {
-                let mut bytes = Vec::with_capacity(4 * values.len());
-                extend_reals(&mut bytes, precision, values);
-                self.upload(buffer, &bytes)
-            }
-        }
-    }
-
-    /// Uploads f64 `values` in the kernel precision (through `scratch` for f32).
-    pub(super) fn upload_reals(
-        &self,
-        scratch: &mut Vec<u8>,
-        buffer: &wgpu::Buffer,
-        values: &[f64],
-    ) -> Result<(), GpuError> {
-        match self.precision {
-            Precision::F64 => self.upload(buffer, bytemuck::cast_slice(values)),
-            Precision::F32 => {
-                scratch.clear();
-                extend_reals(scratch, self.precision, values);
-                self.upload(buffer, scratch)
-            }
-        }
     }
 }

@@ -5,8 +5,8 @@
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use super::GpuEngine;
-use crate::gpu::context::GpuError;
+use crate::gpu::buffers::{input_usage, upload_reals};
+use crate::gpu::context::{GpuContext, GpuError};
 use crate::gpu::shaders::Precision;
 
 /// Rows of `width` reals, kept on the host and, once a kernel has read them, on the device.
@@ -89,14 +89,14 @@ impl ResidentRows {
         *self.device.lock().unwrap_or_else(|p| p.into_inner()) = None;
     }
 
-    /// The rows on `engine`'s device in `precision`: the kept copy, or a new one uploaded now.
-    pub(super) fn on_device(
+    /// The rows on `context`'s device in `precision`: the kept copy, or a new one uploaded now.
+    pub(crate) fn on_device(
         &self,
-        engine: &GpuEngine,
+        context: &GpuContext,
         precision: Precision,
     ) -> Result<wgpu::Buffer, GpuError> {
         let mut copy = self.device.lock().unwrap_or_else(|p| p.into_inner());
-        let device = engine.context().device();
+        let device = context.device();
         if let Some(kept) = copy.as_ref()
             && kept.device == *device
             && kept.precision == precision
@@ -107,14 +107,12 @@ impl ResidentRows {
         *copy = None;
         let bytes = (self.reals.len().max(4) * precision.size()) as u64;
         let usage = if self.uniform {
-            engine.input_usage() | wgpu::BufferUsages::UNIFORM
+            input_usage(context) | wgpu::BufferUsages::UNIFORM
         } else {
-            engine.input_usage()
+            input_usage(context)
         };
-        let buffer = engine
-            .context()
-            .buffer("resident rows", bytes.next_multiple_of(16), usage)?;
-        engine.upload_reals_as(precision, &buffer, &self.reals)?;
+        let buffer = context.buffer("resident rows", bytes.next_multiple_of(16), usage)?;
+        upload_reals(context, precision, &buffer, &self.reals)?;
         self.uploads.fetch_add(1, Ordering::Relaxed);
         *copy = Some(DeviceCopy {
             device: device.clone(),

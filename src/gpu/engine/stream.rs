@@ -10,8 +10,10 @@ use std::ops::Range;
 use rayon::prelude::*;
 use wgpu::WriteOnly;
 
-use super::{CONVERT_ROWS, GpuEngine, Slot};
+use super::GpuEngine;
+use crate::gpu::buffers::{CONVERT_ROWS, ReadSlot, Slot, WriteSlot};
 use crate::gpu::context::GpuError;
+use crate::gpu::dispatch::Dispatch;
 use crate::gpu::layout::Params;
 use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::{NoSolution, RefractiveCamera};
@@ -72,16 +74,30 @@ impl HostReal for f32 {
 
 /// One buffer set of the ring: what one chunk needs, kept across chunks and calls.
 #[derive(Default)]
-pub(super) struct Lane {
-    pub(super) uniform: Slot,
-    /// The rows the kernel reads, and where the host writes them (unused where the adapter maps
-    /// the kernel's buffer directly).
-    pub(super) input: Slot,
-    input_host: Slot,
-    pub(super) output: Slot,
-    output_host: Slot,
-    pub(super) status: Slot,
-    status_host: Slot,
+struct Lane {
+    uniform: Slot,
+    /// The rows the kernel reads, and where the host writes them.
+    input: WriteSlot,
+    output: ReadSlot,
+    status: ReadSlot,
+}
+
+/// The buffer sets the row kernels stream their chunks through, kept across calls.
+#[derive(Default)]
+pub(super) struct Ring([Lane; RING]);
+
+impl Ring {
+    /// The first lane's (uniform, input, output, status) buffers, where the last one-chunk
+    /// [`run_map_in`](GpuEngine::run_map_in) left its data.
+    pub(super) fn first_lane(&self) -> Option<[wgpu::Buffer; 4]> {
+        let lane = &self.0[0];
+        Some([
+            lane.uniform.buffer()?.clone(),
+            lane.input.buffer()?.clone(),
+            lane.output.buffer()?.clone(),
+            lane.status.buffer()?.clone(),
+        ])
+    }
 }
 
 /// The buffers of one lane for one call (handles: cheap clones).
@@ -197,31 +213,6 @@ fn read_rows<K: HostReal, H: HostReal, const N: usize, const M: usize>(
 }
 
 impl GpuEngine {
-    /// The host-written buffer for rows the kernels read, and the one the host maps to write
-    /// them: the same where the adapter shares the host's memory, a staging buffer otherwise.
-    fn writable(
-        &self,
-        slot: &mut Slot,
-        staging: &mut Slot,
-        label: &str,
-        bytes: usize,
-    ) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
-        use wgpu::BufferUsages as U;
-        let context = &self.context;
-        if context.maps_storage() {
-            let buffer = slot.get(context, label, bytes, self.input_usage())?.clone();
-            Ok((buffer.clone(), buffer))
-        } else {
-            let buffer = slot
-                .get(context, label, bytes, U::STORAGE | U::COPY_DST)?
-                .clone();
-            let host = staging
-                .get(context, label, bytes, U::MAP_WRITE | U::COPY_SRC)?
-                .clone();
-            Ok((buffer, host))
-        }
-    }
-
     /// Runs a kernel mapping N reals to M reals per item with cameras `a` and `b`, streaming the
     /// chunks (at most [`stream_chunk_rows`](Self::stream_chunk_rows) rows each) through the
     /// ring. On an error the ring's buffers are dropped (a later call makes new ones), so no
@@ -267,31 +258,19 @@ impl GpuEngine {
             .min(input.len());
         let params = Params::new(self.precision, a, b, [0; 4]);
         let pipeline = self.pipeline(kernel, &params)?;
+        let dispatch = Dispatch::new(&self.context, &pipeline, kernel.name());
         let mut guard = self.buffers();
         // As many lanes as chunks, at most the ring (one chunk needs no second set).
         let chunks = input.len().div_ceil(chunk);
         let mut lanes = Vec::with_capacity(RING);
-        for lane in guard.ring.iter_mut().take(chunks.min(RING)) {
-            let uniform = self.uniform(&mut lane.uniform, &params)?;
-            let (input, input_host) = self.writable(
-                &mut lane.input,
-                &mut lane.input_host,
-                "input",
-                chunk * N * s,
-            )?;
-            let (output, output_host) = self.readable(
-                &mut lane.output,
-                &mut lane.output_host,
-                "output",
-                chunk * M * s,
-            )?;
-            let (status, status_host) =
-                self.readable(&mut lane.status, &mut lane.status_host, "status", chunk * 4)?;
-            let bind_group = self.bind_group(
-                &pipeline,
-                kernel.name(),
-                &[(0, &uniform), (1, &input), (2, &output), (3, &status)],
-            );
+        for lane in guard.ring.0.iter_mut().take(chunks.min(RING)) {
+            let context = &self.context;
+            let uniform = lane.uniform.uniform(context, params.bytes().len())?;
+            let (input, input_host) = lane.input.get(context, "input", chunk * N * s)?;
+            let (output, output_host) = lane.output.get(context, "output", chunk * M * s)?;
+            let (status, status_host) = lane.status.get(context, "status", chunk * 4)?;
+            let bind_group =
+                dispatch.bind(&[(0, &uniform), (1, &input), (2, &output), (3, &status)]);
             lanes.push(LaneBuffers {
                 uniform,
                 input,
@@ -304,7 +283,7 @@ impl GpuEngine {
             });
         }
         let streamed = self.stream(
-            kernel, &pipeline, params, &lanes, chunk, input, output, status,
+            kernel, &dispatch, params, &lanes, chunk, input, output, status,
         );
         if streamed.is_err() {
             guard.ring = Default::default();
@@ -319,7 +298,7 @@ impl GpuEngine {
     fn stream<H: HostReal, const N: usize, const M: usize>(
         &self,
         kernel: Kernel,
-        pipeline: &wgpu::ComputePipeline,
+        dispatch: &Dispatch<'_>,
         mut params: Params,
         lanes: &[LaneBuffers],
         chunk: usize,
@@ -337,7 +316,7 @@ impl GpuEngine {
             let lane = &lanes[k % RING];
             let range = rows(k);
             params.set_info([range.len() as u32, 0, 0, 0]);
-            let submit = || self.submit_chunk::<N, M>(kernel, pipeline, lane, range.len(), &params);
+            let submit = || self.submit_chunk::<N, M>(kernel, dispatch, lane, range.len(), &params);
             if previous.is_none() && k + 1 == chunks {
                 // One chunk: nothing to overlap.
                 let (submission, mapped) = submit()?;
@@ -429,7 +408,7 @@ impl GpuEngine {
     fn submit_chunk<const N: usize, const M: usize>(
         &self,
         kernel: Kernel,
-        pipeline: &wgpu::ComputePipeline,
+        dispatch: &Dispatch<'_>,
         lane: &LaneBuffers,
         items: usize,
         params: &Params,
@@ -447,28 +426,14 @@ impl GpuEngine {
             (items * 4) as u64,
         );
         self.context
-            .queue
+            .queue()
             .write_buffer(&lane.uniform, 0, params.bytes());
-        let mut encoder =
-            self.context
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some(kernel.name()),
-                });
+        let mut encoder = dispatch.encoder();
         if lane.input != lane.input_host {
             encoder.copy_buffer_to_buffer(&lane.input_host, 0, &lane.input, 0, in_bytes);
         }
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(kernel.name()),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, &lane.bind_group, &[]);
-            let invocations = items.div_ceil(kernel.rows_per_invocation());
-            let (x, y) = self.context.dispatch_size(invocations as u32);
-            pass.dispatch_workgroups(x, y, 1);
-        }
+        let groups = dispatch.grid(items.div_ceil(kernel.rows_per_invocation()));
+        dispatch.record(&mut encoder, &[(&lane.bind_group, groups)], None);
         for (source, host, bytes) in [
             (&lane.output, &lane.output_host, out_bytes),
             (&lane.status, &lane.status_host, status_bytes),

@@ -10,8 +10,10 @@ use std::num::NonZeroU64;
 use std::ops::Range;
 use std::sync::OnceLock;
 
-use super::{GROUP, GpuEngine, rows_from};
+use super::GpuEngine;
+use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
 use crate::gpu::context::GpuError;
+use crate::gpu::dispatch::{Dispatch, GROUP};
 use crate::gpu::engine::ResidentRows;
 use crate::gpu::shaders::{Kernel, Precision, Rows, UNIFORM_WINDOW_BYTES};
 use crate::model::Rig;
@@ -308,43 +310,27 @@ impl GpuEngine {
         let most_pieces = batches.iter().map(|b| b.len()).max().unwrap_or(1);
 
         let pipeline = self.pipeline_reading(job.kernel, packed.rows, &params)?;
-        let rows_buf = packed.resident.on_device(self, precision)?;
+        let dispatch = Dispatch::new(&self.context, &pipeline, job.kernel.name());
+        let context = &self.context;
+        let rows_buf = packed.resident.on_device(context, precision)?;
         // One uniform slot per dispatch of a submission, each at an aligned offset.
         let params_bytes = params.bytes().len();
         let stride = params_bytes.next_multiple_of(UNIFORM_ALIGNMENT);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform_buf = buffers
-            .uniform
-            .get(
-                &self.context,
-                "params",
-                most_pieces * stride,
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            )?
-            .clone();
+        let uniform_buf = buffers.uniform.uniform(context, most_pieces * stride)?;
         let cand_buf = buffers
             .candidates
             .get(
-                &self.context,
+                context,
                 "candidates",
                 per_view * 4 * real,
-                self.input_usage(),
+                input_usage(context),
             )?
             .clone();
         let items = per_view * views_per_chunk;
-        let (out_buf, out_staging) = self.readable(
-            &mut buffers.output,
-            &mut buffers.output_staging,
-            "output",
-            items * M * real,
-        )?;
-        let (status_buf, status_staging) = self.readable(
-            &mut buffers.status,
-            &mut buffers.status_staging,
-            "status",
-            items * 4,
-        )?;
+        let (out_buf, out_staging) = buffers.output.get(context, "output", items * M * real)?;
+        let (status_buf, status_staging) = buffers.status.get(context, "status", items * 4)?;
         // The pieces in order, each reading the uniform slot of its place in its submission.
         let slots_in_order = batches.iter().flat_map(|batch| 0..batch.len());
         let bind_groups: Vec<wgpu::BindGroup> = pieces
@@ -359,7 +345,7 @@ impl GpuEngine {
                         size: NonZeroU64::new(bytes),
                     })
                 };
-                let entries = [
+                dispatch.bind_resources([
                     (
                         0,
                         range(&uniform_buf, (slot * stride) as u64, params_bytes as u64),
@@ -368,8 +354,7 @@ impl GpuEngine {
                     (2, out_buf.as_entire_binding()),
                     (3, status_buf.as_entire_binding()),
                     (4, cand_buf.as_entire_binding()),
-                ];
-                self.bind_resources(&pipeline, job.kernel.name(), entries)
+                ])
             })
             .collect();
 
@@ -384,7 +369,7 @@ impl GpuEngine {
             for (k, slot) in chunk.iter_mut().enumerate() {
                 *slot = candidates[(first + k).min(last - 1)];
             }
-            self.upload_reals_as(precision, &cand_buf, chunk.as_flattened())?;
+            upload_reals(context, precision, &cand_buf, chunk.as_flattened())?;
             for batch in &batches {
                 // Item base of each piece within the submission.
                 let mut bases = Vec::with_capacity(batch.len());
@@ -403,34 +388,22 @@ impl GpuEngine {
                     bases.push(count);
                     count += n;
                 }
-                self.context
-                    .queue
+                context
+                    .queue()
                     .write_buffer(&uniform_buf, 0, &slots[..batch.len() * stride]);
-                let mut encoder =
-                    self.context
-                        .device()
-                        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                            label: Some(job.kernel.name()),
-                        });
-                {
-                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                        label: Some(job.kernel.name()),
-                        timestamp_writes: None,
-                    });
-                    pass.set_pipeline(&pipeline);
-                    for k in batch.clone() {
+                let dispatches: Vec<_> = batch
+                    .clone()
+                    .map(|k| {
                         let n = per_view * pieces[k].views.len();
-                        let groups = self.context.dispatch_size(n as u32);
-                        pass.set_bind_group(0, &bind_groups[k], &[]);
-                        pass.dispatch_workgroups(groups.0, groups.1, 1);
-                    }
-                }
+                        (&bind_groups[k], dispatch.grid(n))
+                    })
+                    .collect();
                 let copies = [
                     (&out_buf, &out_staging, (count * M * real) as u64),
                     (&status_buf, &status_staging, (count * 4) as u64),
                 ];
                 let (values, codes) = (&mut values[..count], &mut codes[..count]);
-                self.context.read_back(encoder, &copies, |data| {
+                dispatch.run(&dispatches, &copies, |data| {
                     codes.copy_from_slice(bytemuck::cast_slice(data[1]));
                     rows_from(data[0], precision, codes, values);
                 })?;
