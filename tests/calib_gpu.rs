@@ -345,19 +345,19 @@ const BOARD_20X15: Board = Board {
 #[test]
 fn uniform_windows_match_one_storage_block() {
     for precision in [Precision::F64, Precision::F32] {
-        let Some(mut windows) = engine(precision) else {
+        let Some(engine) = engine(precision) else {
             return;
         };
-        let Some(mut storage) = engine(precision) else {
-            return;
-        };
-        windows.set_rows(Some(Rows::Uniform));
-        storage.set_rows(Some(Rows::Storage));
         for (board, views, seed) in [(BOARD_9X6, 30, 5), (BOARD_20X15, 3, 8)] {
             let data = board_data(board, views, seed);
             let batch = candidates(&data, 40, seed + 1);
-            let (deviations, in_windows) =
-                compare(&data, &GpuBackend::new(&data, &windows), &batch);
+            let (mut windows, mut storage) = (
+                GpuBackend::new(&data, &engine),
+                GpuBackend::new(&data, &engine),
+            );
+            windows.set_rows(Some(Rows::Uniform));
+            storage.set_rows(Some(Rows::Storage));
+            let (deviations, in_windows) = compare(&data, &windows, &batch);
             for (name, d) in deviations {
                 let bound = match (precision, name) {
                     (Precision::F64, _) => F64_RELATIVE,
@@ -371,7 +371,7 @@ fn uniform_windows_match_one_storage_block() {
                     d.relative
                 );
             }
-            let (_, in_storage) = compare(&data, &GpuBackend::new(&data, &storage), &batch);
+            let (_, in_storage) = compare(&data, &storage, &batch);
             assert_eq!(
                 in_windows, in_storage,
                 "{precision} {views} views: the binding changed a value"

@@ -17,28 +17,20 @@ use super::context::{GpuContext, GpuError};
 use super::dispatch::{
     Dispatch, GROUP, KernelTimer, MAX_CHUNK_ITEMS, MAX_GROUPS_PER_DIMENSION, chunk_items,
 };
-use super::layout::{MAX_LAYERS, Params};
+use super::layout::{Params, check_layers};
 use super::shaders::{Kernel, Precision, Rows, STATUS_RETRY, WORKGROUP_SIZE, source};
-use crate::model::{Ports, RefractiveCamera, Rig};
+use crate::model::RefractiveCamera;
 
-mod affine_grid;
-mod candidates;
 mod resident;
-mod scene_fit;
 mod stream;
-mod views;
 
-pub use affine_grid::AffineGridInput;
 pub use resident::ResidentRows;
-pub use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
 pub use stream::{HostReal, RING, STREAM_CHUNK_ROWS};
-pub use views::ViewRows;
 
 /// Device and staging buffers, reused across chunks and calls.
 #[derive(Default)]
 struct Buffers {
     uniform: Slot,
-    candidates: Slot,
     output: ReadSlot,
     status: ReadSlot,
     /// The buffer sets the row kernels stream their chunks through.
@@ -54,8 +46,6 @@ pub struct GpuEngine {
     buffers: Mutex<Buffers>,
     /// Most items per dispatch ([`MAX_CHUNK_ITEMS`] unless a test lowers it).
     max_chunk_items: usize,
-    /// The corner-row binding of the per-view kernels, if a test fixes it (else chosen per call).
-    rows: Option<Rows>,
     /// Most rows per streamed chunk of the row kernels ([`default_stream_chunk_rows`] unless
     /// changed).
     stream_chunk_rows: usize,
@@ -97,7 +87,6 @@ impl GpuEngine {
             pipelines: Mutex::default(),
             buffers: Mutex::default(),
             max_chunk_items: MAX_CHUNK_ITEMS,
-            rows: None,
             stream_chunk_rows,
         })
     }
@@ -112,19 +101,17 @@ impl GpuEngine {
         self.precision
     }
 
-    /// Fixes where the per-(candidate, view) kernels read their corner rows: `Some(Rows::Uniform)`
-    /// in uniform windows wherever every view fits one, `Some(Rows::Storage)` in one storage
-    /// block, `None` (the default) chosen per call (windows for calls large enough to pay for a
-    /// dispatch per window). For tests of the two bindings.
-    pub fn set_rows(&mut self, rows: Option<Rows>) {
-        self.rows = rows;
-    }
-
     /// Lowers the most items per dispatch below [`MAX_CHUNK_ITEMS`] (at least one workgroup,
     /// [`WORKGROUP_SIZE`]; values above it are capped), so that small batches run over several
     /// chunks. For tests of the chunking.
     pub fn set_max_chunk_items(&mut self, items: usize) {
         self.max_chunk_items = items.clamp(GROUP, MAX_CHUNK_ITEMS);
+    }
+
+    /// The most items per dispatch now ([`MAX_CHUNK_ITEMS`] unless lowered): also the limit of
+    /// the calibration backends that run on this engine.
+    pub fn max_chunk_items(&self) -> usize {
+        self.max_chunk_items
     }
 
     /// Sets the most rows per streamed chunk of the row kernels (at least 1; the default is
@@ -154,7 +141,7 @@ impl GpuEngine {
     /// layers: one pipeline per layer count, whose layer loops have a constant trip count), reading
     /// its corner rows as `rows` says (ignored by kernels without per-view rows), compiled on
     /// first use.
-    fn pipeline_reading(
+    pub(crate) fn pipeline_reading(
         &self,
         kernel: Kernel,
         rows: Rows,
@@ -197,34 +184,6 @@ impl GpuEngine {
             bytes_per_item,
             self.max_chunk_items,
         )
-    }
-
-    /// The uniform of a candidate kernel over the pair `cameras` of `rig`: behind a port per
-    /// camera, the candidates move the first camera's port and the second keeps its own
-    /// ([`Params::hold_port`]); behind a shared port they move both.
-    fn candidate_params(
-        precision: Precision,
-        rig: &Rig,
-        cameras: [usize; 2],
-    ) -> Result<Params, GpuError> {
-        let [a, b] = cameras.map(|k| rig.refractive_camera(k));
-        Self::check_layers(&a)?;
-        Self::check_layers(&b)?;
-        let mut params = Params::new(precision, &a, &b, [0; 4]);
-        if matches!(rig.ports(), Ports::PerCamera(_)) {
-            params.hold_port(1);
-        }
-        Ok(params)
-    }
-
-    fn check_layers(camera: &RefractiveCamera) -> Result<(), GpuError> {
-        if camera.layers().len() > MAX_LAYERS {
-            return Err(GpuError::Unsupported(format!(
-                "the GPU kernels take at most {MAX_LAYERS} layers, this interface has {}",
-                camera.layers().len()
-            )));
-        }
-        Ok(())
     }
 
     /// Most rows of a row kernel with N input and M output reals per dispatch (one chunk): the
@@ -402,7 +361,7 @@ impl GpuEngine {
         if w == 0 || h == 0 {
             return Ok(());
         }
-        Self::check_layers(camera)?;
+        check_layers(camera)?;
         let s = self.precision.size();
         let rows = (self.chunk_items(6 * s) / w).clamp(1, MAX_GROUPS_PER_DIMENSION);
         let mut params = Params::new(self.precision, camera, camera, [0; 4]);

@@ -17,8 +17,5 @@ pub mod shaders;
 
 pub use context::{AdapterSummary, GpuContext, GpuError, adapters};
 pub use dispatch::{KernelTimer, MAX_CHUNK_ITEMS};
-pub use engine::{
-    AffineGridInput, GpuEngine, HostReal, ResidentRows, SCENE_ROW, SceneFitInput, SceneSum,
-    ViewRows,
-};
+pub use engine::{GpuEngine, HostReal, ResidentRows};
 pub use shaders::{Kernel, Precision, Rows};

@@ -17,7 +17,7 @@ use crate::gpu::shaders::Precision;
 pub struct ResidentRows {
     reals: Vec<f64>,
     width: usize,
-    /// Also bound as a uniform buffer (windows of [`ViewRows`](super::ViewRows)).
+    /// Also bound as a uniform buffer (windows of the calibration backend's per-view rows).
     uniform: bool,
     device: Mutex<Option<DeviceCopy>>,
     uploads: AtomicUsize,
@@ -37,7 +37,7 @@ impl ResidentRows {
     }
 
     /// `reals` as rows of `width` (a multiple of `width` long).
-    pub(super) fn from_reals(reals: Vec<f64>, width: usize) -> Self {
+    pub(crate) fn from_reals(reals: Vec<f64>, width: usize) -> Self {
         assert!(
             width > 0 && reals.len().is_multiple_of(width),
             "whole rows of {width} reals"
@@ -52,14 +52,14 @@ impl ResidentRows {
     }
 
     /// The same rows, to be bound as uniform windows as well as storage.
-    pub(super) fn bound_as_uniform(mut self) -> Self {
+    pub(crate) fn bound_as_uniform(mut self) -> Self {
         self.uniform = true;
         self
     }
 
     /// The reals as the device gets them (before rounding to the precision).
     #[cfg(test)]
-    pub(super) fn reals_for_tests(&self) -> &[f64] {
+    pub(crate) fn reals_for_tests(&self) -> &[f64] {
         &self.reals
     }
 

@@ -14,7 +14,7 @@ use super::GpuEngine;
 use crate::gpu::buffers::{CONVERT_ROWS, ReadSlot, Slot, WriteSlot};
 use crate::gpu::context::GpuError;
 use crate::gpu::dispatch::Dispatch;
-use crate::gpu::layout::Params;
+use crate::gpu::layout::{Params, check_layers};
 use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::{NoSolution, RefractiveCamera};
 
@@ -246,8 +246,8 @@ impl GpuEngine {
             input.len() == output.len() && input.len() == status.len(),
             "input, output and status of equal length"
         );
-        Self::check_layers(a)?;
-        Self::check_layers(b)?;
+        check_layers(a)?;
+        check_layers(b)?;
         if input.is_empty() {
             return Ok(());
         }

@@ -1,17 +1,18 @@
-//! Kernels over batches of candidate interfaces × corners (`shaders/kernels/calib_*.wgsl`): one
-//! item per (candidate, corner), candidate-major, in one dispatch per chunk of candidates. The
-//! calibration geometry lives in the kernels and their CPU twins in [`crate::calib`]; here only
-//! indexing, chunking and buffers.
+//! Kernels over batches of candidate interfaces × corners (`calib_triangulate`,
+//! `calib_projected_vop`): one item per (candidate, corner), candidate-major, in one dispatch per
+//! chunk of candidates. The calibration geometry lives in the kernels and their CPU twins in
+//! [`crate::calib::costs`]; here only indexing, chunking and buffers.
 
-use super::GpuEngine;
+use super::{KernelRunner, candidate_params};
+use crate::gpu::GpuEngine;
+use crate::gpu::ResidentRows;
 use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
 use crate::gpu::context::GpuError;
 use crate::gpu::dispatch::Dispatch;
-use crate::gpu::engine::ResidentRows;
-use crate::gpu::shaders::Kernel;
+use crate::gpu::shaders::{Kernel, Rows};
 use crate::model::Rig;
 
-impl GpuEngine {
+impl KernelRunner {
     /// Triangulates every corner under every candidate interface (n unit, d: the plane n·x = d of
     /// the master frame; behind a port per camera it moves the port of `cameras[0]` and
     /// `cameras[1]` keeps its own):
@@ -21,8 +22,10 @@ impl GpuEngine {
     /// `status` is 0 or the [`NoSolution`](crate::model::NoSolution) code, the row NaN where not 0.
     ///
     /// Panics if `points` and `status` are not `candidates.len() · air_rays.len()` long.
-    pub fn calib_triangulate(
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn triangulate(
         &self,
+        engine: &GpuEngine,
         rig: &Rig,
         cameras: [usize; 2],
         air_rays: &ResidentRows,
@@ -31,6 +34,7 @@ impl GpuEngine {
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         self.run_candidates::<6, 4>(
+            engine,
             Kernel::CalibTriangulate,
             rig,
             cameras,
@@ -43,15 +47,17 @@ impl GpuEngine {
 
     /// The binocular VOP of every corner under every candidate axis (unit, master frame; the
     /// fourth value is ignored), projected along n into the plane ⟂ n, and its Jacobian for
-    /// pixel noise, as [`calib::invariants::projected_vop`](crate::calib::costs::invariants::projected_vop):
+    /// pixel noise, as [`costs::invariants::projected_vop`](crate::calib::costs::invariants::projected_vop):
     /// `corners` holds v_l, v_r, ∂v_l/∂u, ∂v_l/∂v, ∂v_r/∂u, ∂v_r/∂v (xyz each; rows of 18, kept
     /// on the device across calls); `vops` gets
     /// q₁, q₂ and J = ∂q/∂(u_l, v_l, u_r, v_r) column by column. Status 6 (degenerate) where the
     /// VOP is undetermined.
     ///
     /// Panics if `vops` and `status` are not `axes.len() · corners.len()` long.
-    pub fn calib_projected_vop(
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn projected_vop(
         &self,
+        engine: &GpuEngine,
         rig: &Rig,
         cameras: [usize; 2],
         corners: &ResidentRows,
@@ -60,6 +66,7 @@ impl GpuEngine {
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         self.run_candidates::<18, 10>(
+            engine,
             Kernel::CalibProjectedVop,
             rig,
             cameras,
@@ -76,6 +83,7 @@ impl GpuEngine {
     #[allow(clippy::too_many_arguments)]
     fn run_candidates<const N: usize, const M: usize>(
         &self,
+        engine: &GpuEngine,
         kernel: Kernel,
         rig: &Rig,
         cameras: [usize; 2],
@@ -91,29 +99,29 @@ impl GpuEngine {
             "output and status of candidates · corners"
         );
         assert_eq!(input.width(), N, "one input row of {N} per corner");
-        let mut params = Self::candidate_params(self.precision, rig, cameras)?;
+        let (context, precision) = (engine.context(), engine.precision());
+        let mut params = candidate_params(precision, rig, cameras)?;
         if items == 0 {
             return Ok(());
         }
-        let s = self.precision.size();
+        let s = precision.size();
         let item_bytes = M * s;
-        let per_chunk = self.chunk_items(item_bytes.max(4)) / corners;
-        let cap = self.context.max_storage_binding() as usize;
+        let per_chunk = self.chunk_items(engine, item_bytes.max(4)) / corners;
+        let cap = context.max_storage_binding() as usize;
         if per_chunk == 0 || corners * N * s > cap {
             return Err(GpuError::Unsupported(format!(
                 "{corners} corners per candidate do not fit one dispatch ({} items, {cap} bytes per binding)",
-                self.chunk_items(item_bytes.max(4))
+                self.chunk_items(engine, item_bytes.max(4))
             )));
         }
         let per_chunk = per_chunk.min(candidates.len());
-        let pipeline = self.pipeline(kernel, &params)?;
-        let dispatch = Dispatch::new(&self.context, &pipeline, kernel.name());
-        let context = &self.context;
+        let pipeline = engine.pipeline_reading(kernel, Rows::Storage, &params)?;
+        let dispatch = Dispatch::new(context, &pipeline, kernel.name());
         let mut guard = self.buffers();
         let buffers = &mut *guard;
 
         let uniform = buffers.uniform.uniform(context, params.bytes().len())?;
-        let in_buf = input.on_device(context, self.precision)?;
+        let in_buf = input.on_device(context, precision)?;
         let cand_buf = buffers
             .candidates
             .get(
@@ -146,7 +154,7 @@ impl GpuEngine {
             context.queue().write_buffer(&uniform, 0, params.bytes());
             upload_reals(
                 context,
-                self.precision,
+                precision,
                 &cand_buf,
                 bytemuck::cast_slice(&candidates[first..last]),
             )?;
@@ -157,7 +165,7 @@ impl GpuEngine {
             let (out_rows, out_status) = (&mut output[range.clone()], &mut status[range]);
             dispatch.run(&[(&bind_group, dispatch.grid(count))], &copies, |data| {
                 out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
-                rows_from(data[0], self.precision, out_status, out_rows);
+                rows_from(data[0], precision, out_status, out_rows);
             })?;
         }
         Ok(())

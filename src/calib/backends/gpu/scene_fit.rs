@@ -4,8 +4,9 @@
 //! Indexing, chunking and buffers only; the geometry is in the kernel and its CPU twin
 //! [`crate::calib::costs::scene`].
 
-use super::GpuEngine;
+use super::KernelRunner;
 use super::views::{ViewKernel, ViewRows};
+use crate::gpu::GpuEngine;
 use crate::gpu::context::GpuError;
 use crate::gpu::shaders::{Kernel, STATUS_RETRY};
 use crate::model::Rig;
@@ -14,7 +15,7 @@ use crate::model::Rig;
 /// u_l v_l u_r v_r.
 pub const SCENE_ROW: usize = 12;
 
-/// What [`GpuEngine::calib_scene_fit`] sums per (candidate, view).
+/// What the scene-fit kernel sums per (candidate, view).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SceneSum {
     /// (Σa², Σab, Σb², 0) of the view's gap lines g(d) = a·d + b under the axis (the candidate's
@@ -68,7 +69,7 @@ impl SceneFitInput {
     }
 }
 
-impl GpuEngine {
+impl KernelRunner {
     /// The sums `what` of every view of `input` under every candidate interface (n unit, d: the
     /// plane n·x = d of the master frame; behind a port per camera it moves the port of
     /// `cameras[0]` and `cameras[1]` keeps its own), in the engine's precision: `sums[c · views + v]` gets view v under
@@ -80,8 +81,9 @@ impl GpuEngine {
     ///
     /// Panics if `sums` and `status` are not `candidates.len() · views` long.
     #[allow(clippy::too_many_arguments)]
-    pub fn calib_scene_fit(
+    pub(super) fn scene_fit(
         &self,
+        engine: &GpuEngine,
         rig: &Rig,
         cameras: [usize; 2],
         input: &SceneFitInput,
@@ -92,10 +94,10 @@ impl GpuEngine {
     ) -> Result<(), GpuError> {
         let job = ViewKernel {
             kernel: what.kernel(),
-            precision: self.precision,
+            precision: engine.precision(),
             input: &input.rows,
         };
-        self.run_views(job, rig, cameras, candidates, sums, status)?;
+        self.run_views(engine, job, rig, cameras, candidates, sums, status)?;
         if what != SceneSum::Reprojection {
             return Ok(());
         }
@@ -113,10 +115,11 @@ impl GpuEngine {
         let mut again_status = vec![0; again_sums.len()];
         let job = ViewKernel {
             kernel: Kernel::CalibSceneReprojectionSafeguarded,
-            precision: self.precision,
+            precision: engine.precision(),
             input: &input.rows,
         };
         self.run_views(
+            engine,
             job,
             rig,
             cameras,

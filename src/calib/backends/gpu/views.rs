@@ -1,20 +1,17 @@
-//! The skeleton the per-(candidate, view) kernels share ([`calib_affine_grid`] and
-//! [`calib_scene_fit`]): one item per (candidate, view), M reals out each, the corner rows
-//! resident on the device ([`ViewRows`]), chunked over candidates and views. Indexing, chunking
-//! and buffers only.
-//!
-//! [`calib_affine_grid`]: GpuEngine::calib_affine_grid
-//! [`calib_scene_fit`]: GpuEngine::calib_scene_fit
+//! The skeleton the per-(candidate, view) kernels share (the fused affine grid and the scene
+//! fit): one item per (candidate, view), M reals out each, the corner rows resident on the device
+//! ([`ViewRows`]), chunked over candidates and views. Indexing, chunking and buffers only.
 
 use std::num::NonZeroU64;
 use std::ops::Range;
 use std::sync::OnceLock;
 
-use super::GpuEngine;
+use super::{KernelRunner, candidate_params};
+use crate::gpu::GpuEngine;
+use crate::gpu::ResidentRows;
 use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
 use crate::gpu::context::GpuError;
 use crate::gpu::dispatch::{Dispatch, GROUP};
-use crate::gpu::engine::ResidentRows;
 use crate::gpu::shaders::{Kernel, Precision, Rows, UNIFORM_WINDOW_BYTES};
 use crate::model::Rig;
 
@@ -225,7 +222,7 @@ struct Piece {
     views: Range<usize>,
 }
 
-impl GpuEngine {
+impl KernelRunner {
     /// Runs `job` over every (candidate, view): `output[c · views + v]` and `status[c · views +
     /// v]` get the kernel's item for candidate c and view v, the row NaN where the status is not
     /// 0. A chunk holds `per_view` candidates for each of its views, view-major: every candidate
@@ -236,8 +233,10 @@ impl GpuEngine {
     /// submission and read-back as the output binding holds.
     ///
     /// Panics if `output` and `status` are not `candidates.len() · views` long.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn run_views<const M: usize>(
         &self,
+        engine: &GpuEngine,
         job: ViewKernel<'_>,
         rig: &Rig,
         cameras: [usize; 2],
@@ -254,9 +253,10 @@ impl GpuEngine {
             return Ok(());
         }
         let precision = job.precision;
-        let mut params = Self::candidate_params(precision, rig, cameras)?;
+        let context = engine.context();
+        let mut params = candidate_params(precision, rig, cameras)?;
         let real = precision.size();
-        let capacity = self.chunk_items(M * real);
+        let capacity = self.chunk_items(engine, M * real);
         let views_per_chunk = view_count.min((capacity / GROUP).max(1));
         let fit = ((capacity / views_per_chunk) / GROUP * GROUP).max(GROUP);
         let per_view = if candidates.len() <= fit {
@@ -264,7 +264,7 @@ impl GpuEngine {
         } else {
             fit
         };
-        let windows = self.context.adapter().max_uniform_binding >= UNIFORM_WINDOW_BYTES as u64
+        let windows = context.adapter().max_uniform_binding >= UNIFORM_WINDOW_BYTES as u64
             && match self.rows {
                 Some(rows) => rows == Rows::Uniform,
                 None => {
@@ -274,7 +274,7 @@ impl GpuEngine {
                 }
             };
         let packed = job.input.packed(precision, windows);
-        let cap = self.context.max_storage_binding();
+        let cap = context.max_storage_binding();
         if packed.rows == Rows::Storage && packed.blocks[0].bytes > cap {
             return Err(GpuError::Unsupported(format!(
                 "{} corner rows do not fit one binding of {cap} bytes",
@@ -309,9 +309,8 @@ impl GpuEngine {
         }
         let most_pieces = batches.iter().map(|b| b.len()).max().unwrap_or(1);
 
-        let pipeline = self.pipeline_reading(job.kernel, packed.rows, &params)?;
-        let dispatch = Dispatch::new(&self.context, &pipeline, job.kernel.name());
-        let context = &self.context;
+        let pipeline = engine.pipeline_reading(job.kernel, packed.rows, &params)?;
+        let dispatch = Dispatch::new(context, &pipeline, job.kernel.name());
         let rows_buf = packed.resident.on_device(context, precision)?;
         // One uniform slot per dispatch of a submission, each at an aligned offset.
         let params_bytes = params.bytes().len();
