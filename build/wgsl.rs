@@ -5,7 +5,7 @@ use naga::valid::{Capabilities, ValidationFlags, Validator};
 
 use super::CpuBounds;
 
-/// A copy of the CPU's stopping rules (`gpu::shaders::CPU_BOUNDS`, from `crate::model`, which a
+/// A copy of the CPU's stopping rules (`gpu::CPU_BOUNDS`, from `crate::model`, which a
 /// build script cannot reach), so that the build validates the very text the engine compiles;
 /// `tests/gpu.rs` fails when the two differ.
 pub const CPU_BOUNDS_COPY: CpuBounds = CpuBounds {

@@ -60,7 +60,7 @@ const BOARD_9X6: Board = Board {
 };
 
 /// A board of 96 corners: more than the scene kernel keeps of a view between its passes
-/// (`CACHED_CORNERS` in `shaders/kernels/calib_scene_fit.wgsl`), so it triangulates them again.
+/// (`CACHED_CORNERS` in `shaders/calib/scene_fit.wgsl`), so it triangulates them again.
 const BOARD_12X8: Board = Board {
     rows: 8,
     cols: 12,
@@ -338,7 +338,7 @@ const BOARD_20X15: Board = Board {
 };
 
 /// The per-view kernels read their corner rows from uniform windows where every view fits one
-/// (`Rows` in src/gpu/shaders/compose.rs): 30 views of 54 corners fill two f32 windows of the
+/// (`Rows` in src/gpu/compose.rs): 30 views of 54 corners fill two f32 windows of the
 /// scene kernels, three f64 ones, and eight of the affine grid; the 300-corner views of a 20×15
 /// board send the affine grid to storage in both precisions. Either way the values are those of
 /// one storage block, bit for bit, and match the CPU.

@@ -10,9 +10,10 @@ mod common;
 mod gpu_harness;
 
 use common::*;
+use flatport::calib::backends::gpu::kernels as calibration_kernels;
 use flatport::engine::CpuEngine;
-use flatport::gpu::shaders::{CPU_BOUNDS, CpuBounds, Rows, source};
-use flatport::gpu::{GpuEngine, Kernel, Precision};
+use flatport::engine::gpu::kernels;
+use flatport::gpu::{CPU_BOUNDS, CpuBounds, GpuEngine, KernelSource, Precision, Rows, source};
 use flatport::model::{NoSolution, RefractiveCamera, Rig};
 use gpu_harness::{Random, engine, engine_with};
 use nalgebra::{Point2, Vector3};
@@ -36,15 +37,21 @@ fn the_build_validates_the_texts_the_engine_compiles() {
     );
 }
 
-/// The texts the engine compiles: every kernel in f32 and f64 with both corner-row bindings,
-/// through the build's validation with no more capabilities than each kernel needs.
+/// Every kernel of every catalogue: the relation kernels and the calibration kernels.
+fn every_kernel() -> impl Iterator<Item = &'static KernelSource> {
+    kernels::ALL.into_iter().chain(calibration_kernels::ALL)
+}
+
+/// The texts the pipeline cache compiles: every kernel of every catalogue in f32 and f64 with
+/// both view-row bindings, through the build's validation with no more capabilities than each
+/// kernel needs.
 #[test]
 fn every_shader_parses_and_validates() {
-    for kernel in Kernel::ALL {
+    for kernel in every_kernel() {
         for precision in [Precision::F32, Precision::F64] {
             for rows in Rows::ALL {
-                let precision = kernel.fixed_precision().unwrap_or(precision);
-                let name = format!("{} {precision} {} rows", kernel.name(), rows.name());
+                let precision = kernel.precision(precision);
+                let name = format!("{} {precision}", kernel.label(rows));
                 wgsl::check(
                     &name,
                     &source(kernel, precision, rows),
@@ -56,12 +63,48 @@ fn every_shader_parses_and_validates() {
     }
 }
 
+/// Every kernel's composed text is the same every time, holds each of its parts once, in order,
+/// after the shared files, and the view-row binding exactly where the kernel reads view rows;
+/// the names are unique across the catalogues (the pipeline cache's key).
+#[test]
+fn every_kernel_composes_deterministically_from_its_parts() {
+    let mut names = std::collections::HashSet::new();
+    for kernel in every_kernel() {
+        assert!(names.insert(kernel.name), "{} twice", kernel.name);
+        assert!(!kernel.parts.is_empty(), "{}", kernel.name);
+        for precision in [Precision::F32, Precision::F64] {
+            for rows in Rows::ALL {
+                let text = source(kernel, precision, rows);
+                assert_eq!(text, source(kernel, precision, rows), "{}", kernel.name);
+                let mut from = text
+                    .find("override RIG_LAYERS")
+                    .expect("shaders/common.wgsl first");
+                for part in kernel.parts {
+                    let at = text[from..].find(part).unwrap_or_else(|| {
+                        panic!("{}: a part missing or out of order", kernel.name)
+                    });
+                    from += at + part.len();
+                }
+                // The binding of view rows (the others declare `input: array<real>` themselves).
+                let view_rows = text.contains("@group(0) @binding(1) var<uniform> input")
+                    || text.contains("@binding(1) var<storage, read> input: array<vec4r>;");
+                assert_eq!(
+                    view_rows, kernel.reads_view_rows,
+                    "{} {rows:?}",
+                    kernel.name
+                );
+            }
+        }
+    }
+    assert_eq!(names.len(), 14);
+}
+
 /// The build's validation fails a broken kernel with naga's message naming the kernel: syntax and
 /// an undeclared name (front end), a type error and a capability the kernel was not granted (f64
 /// arithmetic) (validator).
 #[test]
 fn broken_wgsl_is_an_error_naming_the_kernel() {
-    let project = source(Kernel::Project, Precision::F32, Rows::Storage);
+    let project = source(&kernels::PROJECT, Precision::F32, Rows::Storage);
     let cases = [
         (
             "project f32 (missing semicolon)",
@@ -83,7 +126,7 @@ fn broken_wgsl_is_an_error_naming_the_kernel() {
         ),
         (
             "project f64 (without FLOAT64)",
-            source(Kernel::Project, Precision::F64, Rows::Storage),
+            source(&kernels::PROJECT, Precision::F64, Rows::Storage),
             "validation error",
         ),
     ];
@@ -127,7 +170,7 @@ fn host_mirrors_have_the_wgsl_layout() {
         ($ty:ty: $($field:ident),*) => { [$((stringify!($field), offset_of!($ty, $field))),*] };
     }
     for precision in [Precision::F32, Precision::F64] {
-        let text = source(Kernel::Project, precision, Rows::Storage);
+        let text = source(&kernels::PROJECT, precision, Rows::Storage);
         let module = wgsl::check("project", &text, capabilities(precision))
             .unwrap_or_else(|e| panic!("{e}"));
         let mut layouter = naga::proc::Layouter::default();
@@ -418,7 +461,7 @@ fn project_matches_cpu() {
     }
 }
 
-/// The forward-projection kernel takes two rows per invocation (`Kernel::rows_per_invocation`),
+/// The forward-projection kernel takes two rows per invocation (`KernelSource::rows_per_invocation`),
 /// paired by their place in the chunk: batches and chunks of odd length, down to one row, must
 /// give every row the pixel and status it gets in one whole batch (which must match the CPU), bit
 /// for bit, whichever row it is paired with. A row skipped, written twice or swapped with its

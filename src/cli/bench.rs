@@ -15,10 +15,11 @@ use flatport::calib::{
     Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData,
     simulate,
 };
+use flatport::engine::gpu::kernels;
 use flatport::engine::workload::{Workload, without_distortion};
 use flatport::engine::{CpuEngine, CpuPath};
 use flatport::gpu::engine::STREAM_CHUNK_ROWS;
-use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision};
+use flatport::gpu::{GpuContext, GpuEngine, KernelSource, Precision};
 use flatport::io::{rig_from_json_str, write_atomic};
 use flatport::model::{RefractiveCamera, Rig, normal_from_tilt_azimuth};
 
@@ -503,20 +504,20 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 gpu = GpuEngine::new(context, Precision::F64)?;
             }
             let p = precision.name();
-            let kernel_only = |kernel: Kernel,
+            let kernel_only = |kernel: &KernelSource,
                                gpu: &GpuEngine,
                                a: &RefractiveCamera,
                                b: &RefractiveCamera|
              -> anyhow::Result<f64> {
                 // One chunk at most: the kernel over the batch's first rows.
-                let (seconds, timer, items) = match kernel {
-                    Kernel::Backproject => {
+                let (seconds, timer, items) = match kernel.name {
+                    name if name == kernels::BACKPROJECT.name => {
                         let rows = &work.pixels[..n.min(gpu.chunk_rows::<2, 6>())];
                         let (s, t) =
                             gpu.kernel_seconds::<2, 6>(kernel, a, b, rows, args.repeats)?;
                         (s, t, rows.len())
                     }
-                    Kernel::Project => {
+                    name if name == kernels::PROJECT.name => {
                         let rows = &work.points[..n.min(gpu.chunk_rows::<3, 2>())];
                         let (s, t) =
                             gpu.kernel_seconds::<3, 2>(kernel, a, b, rows, args.repeats)?;
@@ -539,7 +540,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 p,
                 0,
                 "kernel",
-                kernel_only(Kernel::Backproject, &gpu, &a, &a)?,
+                kernel_only(&kernels::BACKPROJECT, &gpu, &a, &a)?,
             );
             let t = fastest(args.repeats, || {
                 Ok(gpu.backproject(&a, &work.pixels, &mut out6, &mut status)?)
@@ -555,7 +556,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 p,
                 0,
                 "kernel",
-                kernel_only(Kernel::Project, &gpu, &a, &a)?,
+                kernel_only(&kernels::PROJECT, &gpu, &a, &a)?,
             );
             // Streamed through the ring in chunks of STREAM_CHUNK_ROWS, and in as few chunks as
             // the bindings allow (one here, so nothing overlaps), round by round in turn;
@@ -593,7 +594,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 p,
                 0,
                 "kernel",
-                kernel_only(Kernel::Triangulate, &gpu, &a, &b)?,
+                kernel_only(&kernels::TRIANGULATE, &gpu, &a, &b)?,
             );
             let t = fastest(args.repeats, || {
                 Ok(gpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status)?)

@@ -19,6 +19,7 @@
 //! ```
 
 pub mod cpu;
+pub mod gpu;
 pub mod raymap;
 pub mod simd;
 pub mod workload;

@@ -6,8 +6,8 @@
 
 use rayon::prelude::*;
 
+use super::compose::Precision;
 use super::context::{GpuContext, GpuError};
-use super::shaders::Precision;
 
 /// Rows per parallel task of the host-side conversions.
 pub(crate) const CONVERT_ROWS: usize = 1 << 14;

@@ -4,8 +4,8 @@
 //! it (items per chunk under the binding cap, workgroup grids past the per-dimension limit).
 //! Indexing and encoding only.
 
+use super::compose::WORKGROUP_SIZE;
 use super::context::{GpuContext, GpuError};
-use super::shaders::WORKGROUP_SIZE;
 
 /// Largest number of items per dispatch whatever the binding cap: bounds the device and staging
 /// memory (4 Mi items: 96 MiB of f32 rays, 192 MiB in f64 split over two chunks by the cap).

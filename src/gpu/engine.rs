@@ -9,16 +9,16 @@
 //! ([`HostReal`]); the other calls take f64 slices and convert for f32 kernels.
 //! Rows with no answer get their status code and NaN.
 
-use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use super::buffers::{ReadSlot, Slot, rows_from};
+use super::compose::{KernelSource, Precision, Rows, STATUS_RETRY, WORKGROUP_SIZE};
 use super::context::{GpuContext, GpuError};
 use super::dispatch::{
     Dispatch, GROUP, KernelTimer, MAX_CHUNK_ITEMS, MAX_GROUPS_PER_DIMENSION, chunk_items,
 };
 use super::layout::{Params, check_layers};
-use super::shaders::{Kernel, Precision, Rows, STATUS_RETRY, WORKGROUP_SIZE, source};
+use crate::engine::gpu::kernels;
 use crate::model::RefractiveCamera;
 
 mod resident;
@@ -41,8 +41,6 @@ struct Buffers {
 pub struct GpuEngine {
     context: GpuContext,
     precision: Precision,
-    /// Compiled pipelines by kernel, corner-row binding and `RIG_LAYERS`.
-    pipelines: Mutex<HashMap<(Kernel, Rows, u32), Arc<wgpu::ComputePipeline>>>,
     buffers: Mutex<Buffers>,
     /// Most items per dispatch ([`MAX_CHUNK_ITEMS`] unless a test lowers it).
     max_chunk_items: usize,
@@ -84,7 +82,6 @@ impl GpuEngine {
         Ok(Self {
             context,
             precision,
-            pipelines: Mutex::default(),
             buffers: Mutex::default(),
             max_chunk_items: MAX_CHUNK_ITEMS,
             stream_chunk_rows,
@@ -127,49 +124,15 @@ impl GpuEngine {
         self.stream_chunk_rows
     }
 
-    /// The compiled pipeline of `kernel` for the cameras of `params`, compiled on first use
-    /// (per-view kernels with their rows in a storage buffer).
+    /// The compiled pipeline of `kernel` for the cameras of `params` (its `RIG_LAYERS`: their
+    /// most layers), from the context's cache.
     fn pipeline(
         &self,
-        kernel: Kernel,
+        kernel: &KernelSource,
         params: &Params,
     ) -> Result<Arc<wgpu::ComputePipeline>, GpuError> {
-        self.pipeline_reading(kernel, Rows::Storage, params)
-    }
-
-    /// The compiled pipeline of `kernel` for the cameras of `params` (its `RIG_LAYERS`, their most
-    /// layers: one pipeline per layer count, whose layer loops have a constant trip count), reading
-    /// its corner rows as `rows` says (ignored by kernels without per-view rows), compiled on
-    /// first use.
-    pub(crate) fn pipeline_reading(
-        &self,
-        kernel: Kernel,
-        rows: Rows,
-        params: &Params,
-    ) -> Result<Arc<wgpu::ComputePipeline>, GpuError> {
-        let layers = params.layers();
-        let rows = if kernel.reads_view_rows() {
-            rows
-        } else {
-            Rows::Storage
-        };
-        let mut cache = self.pipelines.lock().expect("pipeline cache");
-        if let Some(pipeline) = cache.get(&(kernel, rows, layers)) {
-            return Ok(pipeline.clone());
-        }
-        let precision = kernel.fixed_precision().unwrap_or(self.precision);
-        let label = if kernel.reads_view_rows() {
-            format!("{} ({} rows)", kernel.name(), rows.name())
-        } else {
-            kernel.name().to_string()
-        };
-        let pipeline = Arc::new(self.context.pipeline(
-            &label,
-            &source(kernel, precision, rows),
-            layers,
-        )?);
-        cache.insert((kernel, rows, layers), pipeline.clone());
-        Ok(pipeline)
+        self.context
+            .kernel_pipeline(kernel, self.precision, Rows::Storage, params.layers())
     }
 
     fn buffers(&self) -> MutexGuard<'_, Buffers> {
@@ -199,7 +162,7 @@ impl GpuEngine {
     /// own time), else host clocks around submit and wait (which add the driver's latency).
     pub fn kernel_seconds<const N: usize, const M: usize>(
         &self,
-        kernel: Kernel,
+        kernel: &KernelSource,
         a: &RefractiveCamera,
         b: &RefractiveCamera,
         input: &[[f64; N]],
@@ -222,10 +185,10 @@ impl GpuEngine {
             .ring
             .first_lane()
             .expect("allocated by run_map");
-        let dispatch = Dispatch::new(&self.context, &pipeline, kernel.name());
+        let dispatch = Dispatch::new(&self.context, &pipeline, kernel.name);
         let bind_group =
             dispatch.bind(&[(0, &uniform), (1, &in_buf), (2, &out_buf), (3, &status_buf)]);
-        let groups = dispatch.grid(input.len().div_ceil(kernel.rows_per_invocation()));
+        let groups = dispatch.grid(input.len().div_ceil(kernel.rows_per_invocation));
         dispatch.seconds(&bind_group, groups, repeats)
     }
 
@@ -243,7 +206,7 @@ impl GpuEngine {
         rays: &mut [[H; 6]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_map(Kernel::Backproject, camera, camera, pixels, rays, status)
+        self.run_map(&kernels::BACKPROJECT, camera, camera, pixels, rays, status)
     }
 
     /// Forward projection of points (master frame) to raw pixels; status as in
@@ -258,7 +221,7 @@ impl GpuEngine {
         pixels: &mut [[H; 2]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_map(Kernel::Project, camera, camera, points, pixels, status)?;
+        self.run_map(&kernels::PROJECT, camera, camera, points, pixels, status)?;
         // The rows the unbracketed iteration left: through every safeguard.
         let retry: Vec<usize> = (0..status.len())
             .filter(|&i| status[i] == STATUS_RETRY)
@@ -268,7 +231,7 @@ impl GpuEngine {
             let mut out = vec![[H::from_f64(0.0); 2]; again.len()];
             let mut codes = vec![0; again.len()];
             self.run_map(
-                Kernel::ProjectSafeguarded,
+                &kernels::PROJECT_SAFEGUARDED,
                 camera,
                 camera,
                 &again,
@@ -291,7 +254,7 @@ impl GpuEngine {
         vops: &mut [[H; 6]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_map(Kernel::Vop, camera, camera, points, vops, status)?;
+        self.run_map(&kernels::VOP, camera, camera, points, vops, status)?;
         // The kernel returns tan a: WGSL has no f64 arctangent.
         for row in vops.iter_mut() {
             row[5] = H::from_f64(row[5].to_f64().atan());
@@ -312,7 +275,7 @@ impl GpuEngine {
         points: &mut [[H; 4]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_map(Kernel::Triangulate, a, b, matches, points, status)
+        self.run_map(&kernels::TRIANGULATE, a, b, matches, points, status)
     }
 
     /// Binocular VOPs of matches (ul, vl, ur, vr): left VOP xyz, right VOP xyz, axis offset m,
@@ -325,7 +288,7 @@ impl GpuEngine {
         vops: &mut [[H; 8]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        self.run_map(Kernel::BinocularVop, a, b, matches, vops, status)
+        self.run_map(&kernels::BINOCULAR_VOP, a, b, matches, vops, status)
     }
 
     /// Back-projects every pixel (u, v) = (column, row) of a `width` × `height` image, pixels
@@ -365,7 +328,7 @@ impl GpuEngine {
         let s = self.precision.size();
         let rows = (self.chunk_items(6 * s) / w).clamp(1, MAX_GROUPS_PER_DIMENSION);
         let mut params = Params::new(self.precision, camera, camera, [0; 4]);
-        let pipeline = self.pipeline(Kernel::BackprojectGrid, &params)?;
+        let pipeline = self.pipeline(&kernels::BACKPROJECT_GRID, &params)?;
         let dispatch = Dispatch::new(&self.context, &pipeline, "backproject_grid");
         let mut guard = self.buffers();
         let buffers = &mut *guard;

@@ -8,8 +8,8 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec4, UVec4, Vec4};
 
+use super::compose::Precision;
 use super::context::GpuError;
-use super::shaders::Precision;
 use crate::model::RefractiveCamera;
 
 /// Largest number of layers the kernels take (`MAX_LAYERS` in `shaders/common.wgsl`).

@@ -6,8 +6,8 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use crate::gpu::buffers::{input_usage, upload_reals};
+use crate::gpu::compose::Precision;
 use crate::gpu::context::{GpuContext, GpuError};
-use crate::gpu::shaders::Precision;
 
 /// Rows of `width` reals, kept on the host and, once a kernel has read them, on the device.
 ///

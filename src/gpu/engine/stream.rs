@@ -12,10 +12,10 @@ use wgpu::WriteOnly;
 
 use super::GpuEngine;
 use crate::gpu::buffers::{CONVERT_ROWS, ReadSlot, Slot, WriteSlot};
+use crate::gpu::compose::{KernelSource, Precision};
 use crate::gpu::context::GpuError;
 use crate::gpu::dispatch::Dispatch;
 use crate::gpu::layout::{Params, check_layers};
-use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::{NoSolution, RefractiveCamera};
 
 /// Buffer sets in flight: chunk k runs while k − 1 is read back and k + 1 written.
@@ -219,7 +219,7 @@ impl GpuEngine {
     /// mapping is left behind.
     pub(super) fn run_map<H: HostReal, const N: usize, const M: usize>(
         &self,
-        kernel: Kernel,
+        kernel: &KernelSource,
         a: &RefractiveCamera,
         b: &RefractiveCamera,
         input: &[[H; N]],
@@ -234,7 +234,7 @@ impl GpuEngine {
     #[allow(clippy::too_many_arguments)]
     pub(super) fn run_map_in<H: HostReal, const N: usize, const M: usize>(
         &self,
-        kernel: Kernel,
+        kernel: &KernelSource,
         a: &RefractiveCamera,
         b: &RefractiveCamera,
         input: &[[H; N]],
@@ -258,7 +258,7 @@ impl GpuEngine {
             .min(input.len());
         let params = Params::new(self.precision, a, b, [0; 4]);
         let pipeline = self.pipeline(kernel, &params)?;
-        let dispatch = Dispatch::new(&self.context, &pipeline, kernel.name());
+        let dispatch = Dispatch::new(&self.context, &pipeline, kernel.name);
         let mut guard = self.buffers();
         // As many lanes as chunks, at most the ring (one chunk needs no second set).
         let chunks = input.len().div_ceil(chunk);
@@ -297,7 +297,7 @@ impl GpuEngine {
     #[allow(clippy::too_many_arguments)]
     fn stream<H: HostReal, const N: usize, const M: usize>(
         &self,
-        kernel: Kernel,
+        kernel: &KernelSource,
         dispatch: &Dispatch<'_>,
         mut params: Params,
         lanes: &[LaneBuffers],
@@ -407,7 +407,7 @@ impl GpuEngine {
     #[allow(clippy::type_complexity)]
     fn submit_chunk<const N: usize, const M: usize>(
         &self,
-        kernel: Kernel,
+        kernel: &KernelSource,
         dispatch: &Dispatch<'_>,
         lane: &LaneBuffers,
         items: usize,
@@ -432,7 +432,7 @@ impl GpuEngine {
         if lane.input != lane.input_host {
             encoder.copy_buffer_to_buffer(&lane.input_host, 0, &lane.input, 0, in_bytes);
         }
-        let groups = dispatch.grid(items.div_ceil(kernel.rows_per_invocation()));
+        let groups = dispatch.grid(items.div_ceil(kernel.rows_per_invocation));
         dispatch.record(&mut encoder, &[(&lane.bind_group, groups)], None);
         for (source, host, bytes) in [
             (&lane.output, &lane.output_host, out_bytes),

@@ -1,12 +1,13 @@
-//! The fused affine-grid kernel (`shaders/kernels/calib_affine_grid.wgsl`): candidate axes ×
+//! The fused affine-grid kernel (`shaders/calib/affine_grid.wgsl`): candidate axes ×
 //! views, one (χ², dof) per pair, always in f64. Indexing, chunking and buffers only; the
 //! formulation is in [`crate::calib::costs::affine_grid`].
 
 use super::KernelRunner;
+use super::kernels;
 use super::views::{ViewKernel, ViewRows};
 use crate::gpu::GpuEngine;
+use crate::gpu::compose::Precision;
 use crate::gpu::context::GpuError;
-use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::Rig;
 
 /// The fused affine-grid kernel's input: N reals per corner (a multiple of 4: the kernel reads
@@ -62,7 +63,7 @@ impl KernelRunner {
             )));
         }
         let job = ViewKernel {
-            kernel: Kernel::CalibAffineGrid,
+            kernel: &kernels::AFFINE_GRID,
             precision: Precision::F64,
             input: &input.rows,
         };

@@ -3,13 +3,14 @@
 //! chunk of candidates. The calibration geometry lives in the kernels and their CPU twins in
 //! [`crate::calib::costs`]; here only indexing, chunking and buffers.
 
+use super::kernels;
 use super::{KernelRunner, candidate_params};
 use crate::gpu::GpuEngine;
 use crate::gpu::ResidentRows;
 use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
+use crate::gpu::compose::{KernelSource, Rows};
 use crate::gpu::context::GpuError;
 use crate::gpu::dispatch::Dispatch;
-use crate::gpu::shaders::{Kernel, Rows};
 use crate::model::Rig;
 
 impl KernelRunner {
@@ -35,7 +36,7 @@ impl KernelRunner {
     ) -> Result<(), GpuError> {
         self.run_candidates::<6, 4>(
             engine,
-            Kernel::CalibTriangulate,
+            &kernels::TRIANGULATE,
             rig,
             cameras,
             air_rays,
@@ -67,7 +68,7 @@ impl KernelRunner {
     ) -> Result<(), GpuError> {
         self.run_candidates::<18, 10>(
             engine,
-            Kernel::CalibProjectedVop,
+            &kernels::PROJECTED_VOP,
             rig,
             cameras,
             corners,
@@ -84,7 +85,7 @@ impl KernelRunner {
     fn run_candidates<const N: usize, const M: usize>(
         &self,
         engine: &GpuEngine,
-        kernel: Kernel,
+        kernel: &KernelSource,
         rig: &Rig,
         cameras: [usize; 2],
         input: &ResidentRows,
@@ -115,8 +116,9 @@ impl KernelRunner {
             )));
         }
         let per_chunk = per_chunk.min(candidates.len());
-        let pipeline = engine.pipeline_reading(kernel, Rows::Storage, &params)?;
-        let dispatch = Dispatch::new(context, &pipeline, kernel.name());
+        let pipeline =
+            context.kernel_pipeline(kernel, precision, Rows::Storage, params.layers())?;
+        let dispatch = Dispatch::new(context, &pipeline, kernel.name);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
 

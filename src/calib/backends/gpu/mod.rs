@@ -18,6 +18,7 @@
 
 mod affine_grid;
 mod candidates;
+pub mod kernels;
 mod scene_fit;
 mod views;
 

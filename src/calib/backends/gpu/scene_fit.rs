@@ -1,14 +1,15 @@
 //! The triangulating calibration costs reduced on the device
-//! (`shaders/kernels/calib_scene_fit.wgsl`): candidate interfaces × views, four numbers per pair
+//! (`shaders/calib/scene_fit.wgsl`): candidate interfaces × views, four numbers per pair
 //! (a view's gap-line sums, or its rigid board fit's sum of squares) instead of a row per corner.
 //! Indexing, chunking and buffers only; the geometry is in the kernel and its CPU twin
 //! [`crate::calib::costs::scene`].
 
 use super::KernelRunner;
+use super::kernels;
 use super::views::{ViewKernel, ViewRows};
 use crate::gpu::GpuEngine;
+use crate::gpu::compose::{KernelSource, STATUS_RETRY};
 use crate::gpu::context::GpuError;
-use crate::gpu::shaders::{Kernel, STATUS_RETRY};
 use crate::model::Rig;
 
 /// Reals per corner row of [`SceneFitInput`]: v_l xyz, v_r xyz, board point x y, pixels
@@ -34,11 +35,11 @@ pub enum SceneSum {
 
 impl SceneSum {
     /// The kernel that sums it (one WGSL file, its mode a constant).
-    fn kernel(self) -> Kernel {
+    fn kernel(self) -> &'static KernelSource {
         match self {
-            Self::GapLines => Kernel::CalibSceneGap,
-            Self::Scene => Kernel::CalibSceneFit,
-            Self::Reprojection => Kernel::CalibSceneReprojection,
+            Self::GapLines => &kernels::SCENE_GAP,
+            Self::Scene => &kernels::SCENE_FIT,
+            Self::Reprojection => &kernels::SCENE_REPROJECTION,
         }
     }
 }
@@ -114,7 +115,7 @@ impl KernelRunner {
         let mut again_sums = vec![[0.0; 4]; again.len() * views];
         let mut again_status = vec![0; again_sums.len()];
         let job = ViewKernel {
-            kernel: Kernel::CalibSceneReprojectionSafeguarded,
+            kernel: &kernels::SCENE_REPROJECTION_SAFEGUARDED,
             precision: engine.precision(),
             input: &input.rows,
         };

@@ -10,9 +10,9 @@ use super::{KernelRunner, candidate_params};
 use crate::gpu::GpuEngine;
 use crate::gpu::ResidentRows;
 use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
+use crate::gpu::compose::{KernelSource, Precision, Rows, UNIFORM_WINDOW_BYTES};
 use crate::gpu::context::GpuError;
 use crate::gpu::dispatch::{Dispatch, GROUP};
-use crate::gpu::shaders::{Kernel, Precision, Rows, UNIFORM_WINDOW_BYTES};
 use crate::model::Rig;
 
 /// Byte alignment of every bound range of a uniform buffer: the largest value WebGPU allows for
@@ -210,7 +210,7 @@ fn large_enough_for_windows(per_view: usize, views: usize, windows: usize) -> bo
 
 /// What a per-(candidate, view) dispatch needs besides its candidates.
 pub(super) struct ViewKernel<'a> {
-    pub kernel: Kernel,
+    pub kernel: &'static KernelSource,
     pub precision: Precision,
     /// The corner rows, as the kernel reads them (binding 1).
     pub input: &'a ViewRows,
@@ -309,8 +309,9 @@ impl KernelRunner {
         }
         let most_pieces = batches.iter().map(|b| b.len()).max().unwrap_or(1);
 
-        let pipeline = engine.pipeline_reading(job.kernel, packed.rows, &params)?;
-        let dispatch = Dispatch::new(context, &pipeline, job.kernel.name());
+        let pipeline =
+            context.kernel_pipeline(job.kernel, precision, packed.rows, params.layers())?;
+        let dispatch = Dispatch::new(context, &pipeline, job.kernel.name);
         let rows_buf = packed.resident.on_device(context, precision)?;
         // One uniform slot per dispatch of a submission, each at an aligned offset.
         let params_bytes = params.bytes().len();
