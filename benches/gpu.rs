@@ -5,10 +5,11 @@
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 
+use flatport::engine::GpuEngine;
 use flatport::engine::gpu::kernels;
 use flatport::engine::workload::Workload;
 use flatport::gpu::MAX_CHUNK_ITEMS;
-use flatport::gpu::{GpuContext, GpuEngine, Precision};
+use flatport::gpu::{GpuContext, Precision};
 use flatport::io::rig_from_json_str;
 
 const RIG: &str = include_str!("../data/example_rig.json");

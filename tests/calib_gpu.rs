@@ -9,7 +9,8 @@ use flatport::calib::{
     Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData,
     simulate,
 };
-use flatport::gpu::{GpuEngine, Precision, Rows};
+use flatport::engine::GpuEngine;
+use flatport::gpu::{Precision, Rows};
 use flatport::model::Rig;
 use gpu_harness::{Random, engine};
 use nalgebra::{Unit, Vector3};

@@ -12,8 +12,9 @@ mod gpu_harness;
 use common::*;
 use flatport::calib::backends::gpu::kernels as calibration_kernels;
 use flatport::engine::CpuEngine;
+use flatport::engine::GpuEngine;
 use flatport::engine::gpu::kernels;
-use flatport::gpu::{CPU_BOUNDS, CpuBounds, GpuEngine, KernelSource, Precision, Rows, source};
+use flatport::gpu::{CPU_BOUNDS, CpuBounds, KernelSource, Precision, Rows, source};
 use flatport::model::{NoSolution, RefractiveCamera, Rig};
 use gpu_harness::{Random, engine, engine_with};
 use nalgebra::{Point2, Vector3};
@@ -1008,7 +1009,7 @@ fn the_chunking_follows_the_adapter_kind() {
     let expected = if software {
         usize::MAX
     } else {
-        flatport::gpu::engine::STREAM_CHUNK_ROWS
+        flatport::gpu::STREAM_CHUNK_ROWS
     };
     assert_eq!(gpu.stream_chunk_rows(), expected, "{}", adapter.name);
 }

@@ -15,11 +15,11 @@ use flatport::calib::{
     Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData,
     simulate,
 };
+use flatport::engine::GpuEngine;
 use flatport::engine::gpu::kernels;
 use flatport::engine::workload::{Workload, without_distortion};
 use flatport::engine::{CpuEngine, CpuPath};
-use flatport::gpu::engine::STREAM_CHUNK_ROWS;
-use flatport::gpu::{GpuContext, GpuEngine, KernelSource, Precision};
+use flatport::gpu::{GpuContext, KernelSource, Precision, STREAM_CHUNK_ROWS};
 use flatport::io::{rig_from_json_str, write_atomic};
 use flatport::model::{RefractiveCamera, Rig, normal_from_tilt_azimuth};
 
@@ -95,7 +95,7 @@ fn sweep_workload(rig: &Rig, cells: usize) -> anyhow::Result<(StereoData, Vec<Ca
 struct Figure {
     kernel: &'static str,
     path: &'static str,
-    /// On the CPU: `scalar` (the model row by row) or `vector` (the lanes of `engine::simd`).
+    /// On the CPU: `scalar` (the model row by row) or `vector` (the lanes of `engine::cpu::lanes`).
     #[serde(skip_serializing_if = "Option::is_none")]
     cpu_path: Option<&'static str>,
     precision: &'static str,
@@ -192,11 +192,11 @@ fn where_the_time_goes(
     clock_hz: Option<f64>,
 ) -> Option<Floors> {
     let hz = clock_hz?;
-    let (sqrt_s, div_s) = flatport::engine::simd::sqrt_div_seconds(200_000);
+    let (sqrt_s, div_s) = flatport::engine::cpu::lanes::sqrt_div_seconds(200_000);
     let (sqrt_c, div_c) = (sqrt_s * hz, div_s * hz);
     let layers = a.layers().len() as f64;
     let backproject = |camera: &RefractiveCamera| {
-        let steps = flatport::engine::simd::undistortion_steps(camera, &work.pixels);
+        let steps = flatport::engine::cpu::lanes::undistortion_steps(camera, &work.pixels);
         let distorts = if camera.intrinsics().has_distortion() {
             1.0
         } else {
@@ -437,7 +437,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let mut status = vec![0u32; n];
     // The first camera without its distortion: the refraction alone.
     let a_pinhole = without_distortion(&rig)?.refractive_camera(0);
-    let isa = flatport::engine::simd::instruction_set();
+    let isa = flatport::engine::cpu::lanes::instruction_set();
     eprintln!("CPU paths: scalar (the model row by row) and vector ({isa}), run by run in turn");
     for threads in [1, all.threads()] {
         let [scalar, vector] = [CpuPath::Scalar, CpuPath::Vector]

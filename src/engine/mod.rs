@@ -1,5 +1,8 @@
-//! One batch API over two backends: [`cpu`] (the f64 reference of [`crate::model`], parallel
-//! over all cores) and [`gpu`](crate::gpu) (WGSL kernels through wgpu, f32 or f64).
+//! The batch engine: one API, [`Engine`], over two backends: [`CpuEngine`] ([`cpu`]: the f64
+//! reference of [`crate::model`], parallel over all cores, on a vector path in [`cpu::lanes`])
+//! and [`GpuEngine`] ([`gpu`]: the relations as WGSL kernels through the wgpu toolkit of
+//! [`crate::gpu`], f32 or f64). [`raymap`] back-projects whole images on either; [`workload`]
+//! makes the benchmarks' batches.
 //!
 //! Every call takes input rows as f64 slices and writes into caller-provided output slices of
 //! the same length, so a pipeline embeds it without copies. `status[i]` is 0 where row i has an
@@ -21,12 +24,12 @@
 pub mod cpu;
 pub mod gpu;
 pub mod raymap;
-pub mod simd;
 pub mod workload;
 
 pub use cpu::{CpuEngine, CpuPath};
+pub use gpu::GpuEngine;
 
-use crate::gpu::{GpuContext, GpuEngine, GpuError, Precision};
+use crate::gpu::{GpuContext, GpuError, Precision};
 use crate::model::RefractiveCamera;
 
 /// Where a batch runs.

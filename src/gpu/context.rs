@@ -381,7 +381,7 @@ impl GpuContext {
     /// }).await?;
     /// // … the pipeline's own work on `device` …
     /// let context = flatport::gpu::GpuContext::from_device(&adapter, device.clone(), queue.clone());
-    /// let engine = flatport::gpu::GpuEngine::new(context, flatport::gpu::Precision::F32)?;
+    /// let engine = flatport::engine::GpuEngine::new(context, flatport::gpu::Precision::F32)?;
     /// # Ok(()) }
     /// ```
     pub fn from_device(adapter: &wgpu::Adapter, device: wgpu::Device, queue: wgpu::Queue) -> Self {

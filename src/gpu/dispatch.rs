@@ -17,7 +17,7 @@ pub(crate) const MAX_GROUPS_PER_DIMENSION: usize = 65_535;
 /// Items per workgroup ([`WORKGROUP_SIZE`]) as a host count.
 pub(crate) const GROUP: usize = WORKGROUP_SIZE as usize;
 
-/// The clock behind a kernel time ([`Dispatch::seconds`]).
+/// The clock behind a kernel time (`GpuEngine::kernel_seconds`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum KernelTimer {
     /// GPU timestamps at the start and end of the compute pass: the kernel alone.

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use crate::calib::problem::data::{Candidate, StereoData};
 use crate::calib::solvers::lm::{LeastSquares, NormalEquations};
 use crate::calib::solvers::search::tangent_step;
-use crate::engine::simd;
+use crate::engine::cpu::lanes;
 use crate::model::RefractiveCamera;
 
 /// The interface and board poses being refined.
@@ -190,7 +190,7 @@ impl<'a> Bundle<'a> {
             })
             .collect();
         let [left, right] =
-            [&cameras[0], &cameras[1]].map(|camera| simd::project_all(camera, &points));
+            [&cameras[0], &cameras[1]].map(|camera| lanes::project_all(camera, &points));
         let (left, right) = (left?, right?);
         for ((corner, l), r) in corners.iter().zip(&left).zip(&right) {
             out.push(Vector2::new(l[0], l[1]) - corner.pixels[0].coords);

@@ -16,7 +16,7 @@ use crate::calib::problem::rig_observations::SeenView;
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::lm::LeastSquares;
 use crate::calib::solvers::search::tangent_step;
-use crate::engine::simd;
+use crate::engine::cpu::lanes;
 use crate::model::{Interface, Ports, RefractiveCamera, Rig};
 
 /// What a calibration estimates (`--estimate`); the rest is known.
@@ -337,7 +337,7 @@ impl<'a> RigBundle<'a> {
                         .into()
                 })
                 .collect();
-            let pixels = simd::project_all(&cameras[*k], &points)?;
+            let pixels = lanes::project_all(&cameras[*k], &points)?;
             out.extend(
                 corners
                     .iter()

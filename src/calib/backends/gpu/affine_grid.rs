@@ -5,7 +5,7 @@
 use super::KernelRunner;
 use super::kernels;
 use super::views::{ViewKernel, ViewRows};
-use crate::gpu::GpuEngine;
+use crate::engine::GpuEngine;
 use crate::gpu::compose::Precision;
 use crate::gpu::context::GpuError;
 use crate::model::Rig;

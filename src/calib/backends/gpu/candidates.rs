@@ -5,7 +5,7 @@
 
 use super::kernels;
 use super::{KernelRunner, candidate_params};
-use crate::gpu::GpuEngine;
+use crate::engine::GpuEngine;
 use crate::gpu::ResidentRows;
 use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
 use crate::gpu::compose::{KernelSource, Rows};

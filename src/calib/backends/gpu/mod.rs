@@ -2,9 +2,9 @@
 //! WGSL kernels over the whole batch, in f32 or f64, on a [`GpuEngine`]'s device. The kernels'
 //! pipelines are compiled in the engine's context (shared with every other user of it); the
 //! backend keeps its own buffers. The host code of the calibration kernels is here, one file per
-//! kind of dispatch: [`candidates`] (per candidate × corner), [`views`] (per candidate × view, the
-//! corner rows in uniform windows or one storage block), [`affine_grid`] and [`scene_fit`] (the
-//! two per-view kernels' inputs).
+//! kind of dispatch: `candidates.rs` (per candidate × corner), `views.rs` (per candidate × view,
+//! the corner rows in uniform windows or one storage block), `affine_grid.rs` and `scene_fit.rs`
+//! (the two per-view kernels' inputs); [`kernels`] is their catalogue.
 //!
 //! Per cost: [`CostKind::Scene`] and [`CostKind::Reprojection`] are reduced on the device per
 //! (candidate, view) (the scene-fit kernel: triangulation, the rigid board fit and the view's sum
@@ -36,7 +36,7 @@ use crate::calib::costs::invariants::ProjectedVop;
 use crate::calib::costs::{CostKind, plane_cost, ray_gap_rms};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
-use crate::gpu::GpuEngine;
+use crate::engine::GpuEngine;
 use crate::gpu::buffers::{ReadSlot, Slot};
 use crate::gpu::context::GpuError;
 use crate::gpu::dispatch::chunk_items;

@@ -7,7 +7,7 @@
 use super::KernelRunner;
 use super::kernels;
 use super::views::{ViewKernel, ViewRows};
-use crate::gpu::GpuEngine;
+use crate::engine::GpuEngine;
 use crate::gpu::compose::{KernelSource, STATUS_RETRY};
 use crate::gpu::context::GpuError;
 use crate::model::Rig;

@@ -7,7 +7,7 @@ use std::ops::Range;
 use std::sync::OnceLock;
 
 use super::{KernelRunner, candidate_params};
-use crate::gpu::GpuEngine;
+use crate::engine::GpuEngine;
 use crate::gpu::ResidentRows;
 use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
 use crate::gpu::compose::{KernelSource, Precision, Rows, UNIFORM_WINDOW_BYTES};

@@ -1,4 +1,5 @@
-//! The streaming row kernels (one output row per input row): a batch cut into chunks that run
+//! Streaming of row kernels (one output row per input row, any [`KernelSource`] with the row
+//! bindings: uniform 0, input 1, output 2, status 3): a batch cut into chunks that run
 //! through a ring of [`RING`] buffer sets, so that while the device runs chunk k the host reads
 //! back chunk k − 1 and writes chunk k + 1. The host converts straight into and out of mapped
 //! memory (the kernels' own buffers where the adapter shares the host's memory, staging buffers
@@ -10,13 +11,12 @@ use std::ops::Range;
 use rayon::prelude::*;
 use wgpu::WriteOnly;
 
-use super::GpuEngine;
-use crate::gpu::buffers::{CONVERT_ROWS, ReadSlot, Slot, WriteSlot};
-use crate::gpu::compose::{KernelSource, Precision};
-use crate::gpu::context::GpuError;
-use crate::gpu::dispatch::Dispatch;
-use crate::gpu::layout::{Params, check_layers};
-use crate::model::{NoSolution, RefractiveCamera};
+use super::buffers::{CONVERT_ROWS, ReadSlot, Slot, WriteSlot};
+use super::compose::{KernelSource, Precision};
+use super::context::{GpuContext, GpuError};
+use super::dispatch::Dispatch;
+use super::layout::Params;
+use crate::model::NoSolution;
 
 /// Buffer sets in flight: chunk k runs while k − 1 is read back and k + 1 written.
 pub const RING: usize = 2;
@@ -24,8 +24,26 @@ pub const RING: usize = 2;
 /// Most rows per streamed chunk on a hardware adapter: a batch of more rows streams through the
 /// ring in several chunks, so that its upload and read-back overlap the kernel (a 4 M-row batch
 /// in 8 chunks). A software adapter runs a batch in as few chunks as the bindings allow
-/// ([`default_stream_chunk_rows`](super::default_stream_chunk_rows)).
+/// ([`default_stream_chunk_rows`]).
 pub const STREAM_CHUNK_ROWS: usize = 1 << 19;
+
+/// The most rows per streamed chunk for `context`: [`STREAM_CHUNK_ROWS`], so that a large
+/// batch's upload and read-back overlap its kernel, except on a software adapter (lavapipe),
+/// where batches run in as few chunks as the bindings allow (`usize::MAX`). There the kernel
+/// already runs on every core of the host, so the overlap leaves no core idle for the
+/// conversions, and each further chunk costs a submission and a wait: `flatport bench --items
+/// 4000000` puts forward projection in 8 chunks through the ring at 0.68–0.81 of its rate in one
+/// chunk (three runs on lavapipe; README, "A batch in one chunk on lavapipe"). The cost is
+/// memory: the buffers, kept across calls, then hold the largest batch up to the binding limit
+/// (128 MiB per binding on lavapipe; two sets where a batch needs more than one chunk) instead
+/// of 2¹⁹ rows per set. `flatport`'s CSV commands pass batches of at most 2²⁰ rows.
+pub fn default_stream_chunk_rows(context: &GpuContext) -> usize {
+    if context.is_software() {
+        usize::MAX
+    } else {
+        STREAM_CHUNK_ROWS
+    }
+}
 
 mod sealed {
     pub trait Sealed {}
@@ -84,12 +102,12 @@ struct Lane {
 
 /// The buffer sets the row kernels stream their chunks through, kept across calls.
 #[derive(Default)]
-pub(super) struct Ring([Lane; RING]);
+pub(crate) struct Ring([Lane; RING]);
 
 impl Ring {
     /// The first lane's (uniform, input, output, status) buffers, where the last one-chunk
-    /// [`run_map_in`](GpuEngine::run_map_in) left its data.
-    pub(super) fn first_lane(&self) -> Option<[wgpu::Buffer; 4]> {
+    /// [`map`](Self::map) left its data.
+    pub(crate) fn first_lane(&self) -> Option<[wgpu::Buffer; 4]> {
         let lane = &self.0[0];
         Some([
             lane.uniform.buffer()?.clone(),
@@ -212,59 +230,39 @@ fn read_rows<K: HostReal, H: HostReal, const N: usize, const M: usize>(
         });
 }
 
-impl GpuEngine {
-    /// Runs a kernel mapping N reals to M reals per item with cameras `a` and `b`, streaming the
-    /// chunks (at most [`stream_chunk_rows`](Self::stream_chunk_rows) rows each) through the
-    /// ring. On an error the ring's buffers are dropped (a later call makes new ones), so no
-    /// mapping is left behind.
-    pub(super) fn run_map<H: HostReal, const N: usize, const M: usize>(
-        &self,
-        kernel: &KernelSource,
-        a: &RefractiveCamera,
-        b: &RefractiveCamera,
-        input: &[[H; N]],
-        output: &mut [[H; M]],
-        status: &mut [u32],
-    ) -> Result<(), GpuError> {
-        self.run_map_in(kernel, a, b, input, output, status, self.stream_chunk_rows)
-    }
-
-    /// [`run_map`](Self::run_map) in chunks of at most `max_rows` rows (and what the bindings
-    /// allow): [`kernel_seconds`](Self::kernel_seconds) puts a whole chunk on the first lane.
+impl Ring {
+    /// Runs `kernel` (compiled as `pipeline`, in `precision`) over `input`, N reals to M reals per
+    /// row, with the uniform `params` (its `info` set per chunk), in chunks of `chunk` rows
+    /// streamed through the ring. On an error the ring's buffers are dropped (a later call makes
+    /// new ones), so no mapping is left behind.
+    ///
+    /// Panics if the slices differ in length or `chunk` is 0 for a batch of rows.
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn run_map_in<H: HostReal, const N: usize, const M: usize>(
-        &self,
+    pub(crate) fn map<H: HostReal, const N: usize, const M: usize>(
+        &mut self,
+        context: &GpuContext,
         kernel: &KernelSource,
-        a: &RefractiveCamera,
-        b: &RefractiveCamera,
+        pipeline: &wgpu::ComputePipeline,
+        precision: Precision,
+        params: Params,
+        chunk: usize,
         input: &[[H; N]],
         output: &mut [[H; M]],
         status: &mut [u32],
-        max_rows: usize,
     ) -> Result<(), GpuError> {
         assert!(
             input.len() == output.len() && input.len() == status.len(),
             "input, output and status of equal length"
         );
-        check_layers(a)?;
-        check_layers(b)?;
         if input.is_empty() {
             return Ok(());
         }
-        let s = self.precision.size();
-        let chunk = self
-            .chunk_items(N.max(M) * s)
-            .min(max_rows.max(1))
-            .min(input.len());
-        let params = Params::new(self.precision, a, b, [0; 4]);
-        let pipeline = self.pipeline(kernel, &params)?;
-        let dispatch = Dispatch::new(&self.context, &pipeline, kernel.name);
-        let mut guard = self.buffers();
+        let s = precision.size();
+        let dispatch = Dispatch::new(context, pipeline, kernel.name);
         // As many lanes as chunks, at most the ring (one chunk needs no second set).
         let chunks = input.len().div_ceil(chunk);
         let mut lanes = Vec::with_capacity(RING);
-        for lane in guard.ring.0.iter_mut().take(chunks.min(RING)) {
-            let context = &self.context;
+        for lane in self.0.iter_mut().take(chunks.min(RING)) {
             let uniform = lane.uniform.uniform(context, params.bytes().len())?;
             let (input, input_host) = lane.input.get(context, "input", chunk * N * s)?;
             let (output, output_host) = lane.output.get(context, "output", chunk * M * s)?;
@@ -282,23 +280,34 @@ impl GpuEngine {
                 bind_group,
             });
         }
-        let streamed = self.stream(
-            kernel, &dispatch, params, &lanes, chunk, input, output, status,
-        );
+        let stream = Stream {
+            context,
+            precision,
+            kernel,
+            dispatch,
+        };
+        let streamed = stream.run(params, &lanes, chunk, input, output, status);
         if streamed.is_err() {
-            guard.ring = Default::default();
+            *self = Self::default();
         }
         streamed
     }
+}
 
-    /// The chunk loop of [`run_map`](Self::run_map): chunk k is submitted from a second thread
+/// One call's streaming: what every chunk of it shares.
+struct Stream<'a> {
+    context: &'a GpuContext,
+    precision: Precision,
+    kernel: &'a KernelSource,
+    dispatch: Dispatch<'a>,
+}
+
+impl Stream<'_> {
+    /// The chunk loop of [`Ring::map`]: chunk k is submitted from a second thread
     /// (a driver that runs the kernel inside its submit then still overlaps) while this one reads
     /// back chunk k − 1 and writes chunk k + 1 into the lane k − 1 freed.
-    #[allow(clippy::too_many_arguments)]
-    fn stream<H: HostReal, const N: usize, const M: usize>(
+    fn run<H: HostReal, const N: usize, const M: usize>(
         &self,
-        kernel: &KernelSource,
-        dispatch: &Dispatch<'_>,
         mut params: Params,
         lanes: &[LaneBuffers],
         chunk: usize,
@@ -316,7 +325,7 @@ impl GpuEngine {
             let lane = &lanes[k % RING];
             let range = rows(k);
             params.set_info([range.len() as u32, 0, 0, 0]);
-            let submit = || self.submit_chunk::<N, M>(kernel, dispatch, lane, range.len(), &params);
+            let submit = || self.submit_chunk::<N, M>(lane, range.len(), &params);
             if previous.is_none() && k + 1 == chunks {
                 // One chunk: nothing to overlap.
                 let (submission, mapped) = submit()?;
@@ -407,8 +416,6 @@ impl GpuEngine {
     #[allow(clippy::type_complexity)]
     fn submit_chunk<const N: usize, const M: usize>(
         &self,
-        kernel: &KernelSource,
-        dispatch: &Dispatch<'_>,
         lane: &LaneBuffers,
         items: usize,
         params: &Params,
@@ -428,11 +435,12 @@ impl GpuEngine {
         self.context
             .queue()
             .write_buffer(&lane.uniform, 0, params.bytes());
+        let dispatch = &self.dispatch;
         let mut encoder = dispatch.encoder();
         if lane.input != lane.input_host {
             encoder.copy_buffer_to_buffer(&lane.input_host, 0, &lane.input, 0, in_bytes);
         }
-        let groups = dispatch.grid(items.div_ceil(kernel.rows_per_invocation));
+        let groups = dispatch.grid(items.div_ceil(self.kernel.rows_per_invocation));
         dispatch.record(&mut encoder, &[(&lane.bind_group, groups)], None);
         for (source, host, bytes) in [
             (&lane.output, &lane.output_host, out_bytes),

@@ -1,10 +1,12 @@
 //! The CPU backend: the f64 model of [`crate::model`] over batches, parallel with rayon, on the
-//! vector path of [`super::simd`] (16 rows at a time) or row by row through the scalar model.
+//! vector path of [`lanes`] (16 rows at a time) or row by row through the scalar model.
 
 use rayon::prelude::*;
 
-use super::simd::{self, backproject_row, project_row, scalar_row, triangulate_row, vop_row};
+pub mod lanes;
+
 use crate::model::{NoSolution, RefractiveCamera, binocular_vop};
+use lanes::{backproject_row, project_row, scalar_row, triangulate_row, vop_row};
 use nalgebra::Point2;
 
 /// Items per rayon task: large enough to amortise scheduling, small enough to balance.
@@ -13,7 +15,7 @@ const TASK_ITEMS: usize = 4096;
 /// How the CPU engine evaluates back-projection, forward projection and triangulation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum CpuPath {
-    /// Blocks of 16 rows through the lane twins in [`simd`] (AVX-512, AVX2 or NEON, chosen at run
+    /// Blocks of 16 rows through the lane twins in [`lanes`] (AVX-512, AVX2 or NEON, chosen at run
     /// time), rare rows through the scalar model. The default.
     #[default]
     Vector,
@@ -24,7 +26,7 @@ pub enum CpuPath {
 impl std::fmt::Display for CpuPath {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Self::Vector => write!(f, "vector {}", simd::instruction_set()),
+            Self::Vector => write!(f, "vector {}", lanes::instruction_set()),
             Self::Scalar => f.write_str("scalar"),
         }
     }
@@ -118,7 +120,7 @@ impl CpuEngine {
     ) {
         match self.path {
             CpuPath::Vector => self.split(pixels, rays, status, |p, r, s| {
-                simd::backproject(camera, p, r, s);
+                lanes::backproject(camera, p, r, s);
             }),
             CpuPath::Scalar => self.map(pixels, rays, status, |p| backproject_row(camera, p)),
         }
@@ -134,7 +136,7 @@ impl CpuEngine {
     ) {
         match self.path {
             CpuPath::Vector => self.split(points, pixels, status, |p, q, s| {
-                simd::project(camera, p, q, s);
+                lanes::project(camera, p, q, s);
             }),
             CpuPath::Scalar => self.map(points, pixels, status, |p| project_row(camera, p)),
         }
@@ -150,7 +152,7 @@ impl CpuEngine {
     ) {
         match self.path {
             CpuPath::Vector => self.split(points, vops, status, |p, v, s| {
-                simd::vop(camera, p, v, s);
+                lanes::vop(camera, p, v, s);
             }),
             CpuPath::Scalar => self.map(points, vops, status, |p| vop_row(camera, p)),
         }
@@ -167,7 +169,7 @@ impl CpuEngine {
     ) {
         match self.path {
             CpuPath::Vector => self.split(matches, points, status, |m, p, s| {
-                simd::triangulate(a, b, m, p, s);
+                lanes::triangulate(a, b, m, p, s);
             }),
             CpuPath::Scalar => self.map(matches, points, status, |m| triangulate_row(a, b, m)),
         }
