@@ -1,5 +1,5 @@
-//! The GPU backend: every shader validated by naga (no GPU needed), host/WGSL layouts in sync, and
-//! GPU-vs-CPU parity on random batches on lavapipe, f32 and f64, including the rows with no
+//! The GPU engine and toolkit: every kernel of every catalogue validated by naga (no GPU
+//! needed), host/WGSL layouts in sync, and GPU-vs-CPU parity on random batches on lavapipe, f32 and f64, including the rows with no
 //! answer. With `CI` set, a missing Vulkan adapter fails the run: GPU tests are never skipped
 //! silently there.
 //!

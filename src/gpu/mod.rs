@@ -2,7 +2,7 @@
 //! run over batches of any size, headless, on a Vulkan adapter. It holds no geometry beyond
 //! indexing and buffer layout, and knows no kernel by name: each user keeps a catalogue of
 //! [`KernelSource`]s beside its host code (the batch engine's relation kernels in
-//! [`crate::engine::gpu`], the calibration costs' kernels in [`crate::calib::backends`]).
+//! [`crate::engine::gpu`], the cost kernels beside the GPU cost backend).
 //!
 //! - [`compose`]: the pure-string composition of a kernel in a precision (also compiled by
 //!   `build.rs`, which validates every kernel of every catalogue with naga);

@@ -1,6 +1,6 @@
 //! Data that stays on the device: rows uploaded at the first call that needs them and kept for
-//! every later call on the same device and precision (the per-corner rows of a calibration, read
-//! by the hundreds of small calls of a stencil refinement). Buffers only.
+//! every later call on the same device and precision (per-item rows read by the hundreds of
+//! small calls of a stencil refinement, say). Buffers only.
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -11,13 +11,13 @@ use crate::gpu::context::{GpuContext, GpuError};
 
 /// Rows of `width` reals, kept on the host and, once a kernel has read them, on the device.
 ///
-/// The rows never change: data that change make a new `ResidentRows` (the calibration backend
-/// builds its own from its data set), so a device copy is never stale. The copy is made again
+/// The rows never change: data that change make a new `ResidentRows` (a cost backend builds its
+/// own from its data set), so a device copy is never stale. The copy is made again
 /// only for another device or precision.
 pub struct ResidentRows {
     reals: Vec<f64>,
     width: usize,
-    /// Also bound as a uniform buffer (windows of the calibration backend's per-view rows).
+    /// Also bound as a uniform buffer (windows of view rows, [`Rows::Uniform`](super::Rows)).
     uniform: bool,
     device: Mutex<Option<DeviceCopy>>,
     uploads: AtomicUsize,

@@ -1,5 +1,6 @@
-//! The passes of the triangulating costs under one axis ([`crate::calib::costs::scene`]) on the
-//! vector path, over [`Columns`]: the water rays of every corner with their gap-line sums, the
+//! The lane twin of the triangulating costs: their passes under one axis
+//! ([`crate::calib::costs::scene`]) on the CPU engine's vector path
+//! ([`crate::engine::cpu::lanes`]), over [`Columns`]: the water rays of every corner with their gap-line sums, the
 //! triangulation at an air layer, and the reprojection of the fitted board corners.
 //!
 //! A sweep evaluates these for thousands of axes over every corner, so the data is held as

@@ -1,5 +1,6 @@
-//! The CPU backend: the f64 model of [`crate::model`] over batches, parallel with rayon, on the
-//! vector path of [`lanes`] (16 rows at a time) or row by row through the scalar model.
+//! The batch engine's CPU backend, [`CpuEngine`]: the f64 model of [`crate::model`] over
+//! batches, parallel with rayon, on the vector path of [`lanes`] (16 rows at a time) or row by
+//! row through the scalar model.
 
 use rayon::prelude::*;
 
