@@ -1,7 +1,7 @@
 //! Device buffers reused across chunks and calls, and the host-side conversions of rows to and
 //! from a kernel precision. A [`Slot`] keeps one buffer and replaces it only when a call needs
-//! more bytes or another usage; [`ReadSlot`] and [`WriteSlot`] pair a buffer the kernels write or
-//! read with the one the host maps: the same buffer where the adapter shares the host's memory
+//! more bytes or another usage; a [`SlotPair`] pairs a buffer the kernels write or read with the
+//! one the host maps: the same buffer where the adapter shares the host's memory
 //! ([`GpuContext::maps_storage`]), a staging copy otherwise. Layout and bytes only.
 
 use rayon::prelude::*;
@@ -60,81 +60,70 @@ impl Slot {
     }
 }
 
-/// A buffer the kernels write and the buffer the host maps to read it.
+/// A kernel's buffer and the buffer the host maps to reach it: one buffer where the adapter shares
+/// the host's memory ([`GpuContext::maps_storage`]), a storage buffer and a staging copy
+/// otherwise; [`readable`](Self::readable) for what the kernels write, [`writable`](Self::writable)
+/// for what they read.
 #[derive(Default)]
-pub(crate) struct ReadSlot {
+pub(crate) struct SlotPair {
     device: Slot,
     host: Slot,
 }
 
-impl ReadSlot {
-    /// (the kernels' buffer, the host's) of at least `bytes`: one buffer, mapped by the host,
-    /// where the adapter shares the host's memory; a storage buffer and a staging copy otherwise.
-    pub(crate) fn get(
+impl SlotPair {
+    /// (the kernels' buffer, the host's) of at least `bytes` that the kernels write and the host
+    /// reads.
+    pub(crate) fn readable(
         &mut self,
         context: &GpuContext,
         label: &str,
         bytes: usize,
     ) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
         use wgpu::BufferUsages as U;
-        if context.maps_storage() {
-            let buffer = self
-                .device
-                .get(context, label, bytes, U::STORAGE | U::MAP_READ)?
-                .clone();
-            Ok((buffer.clone(), buffer))
-        } else {
-            let buffer = self
-                .device
-                .get(context, label, bytes, U::STORAGE | U::COPY_SRC)?
-                .clone();
-            let host = self
-                .host
-                .get(context, label, bytes, U::MAP_READ | U::COPY_DST)?
-                .clone();
-            Ok((buffer, host))
-        }
+        self.get(
+            context,
+            label,
+            bytes,
+            [U::MAP_READ, U::COPY_SRC, U::COPY_DST],
+        )
     }
 
-    /// The kernels' buffer now, if any.
-    pub(crate) fn buffer(&self) -> Option<&wgpu::Buffer> {
-        self.device.buffer()
-    }
-}
-
-/// A buffer the kernels read and the buffer the host maps to write it.
-#[derive(Default)]
-pub(crate) struct WriteSlot {
-    device: Slot,
-    host: Slot,
-}
-
-impl WriteSlot {
-    /// (the kernels' buffer, the host's) of at least `bytes`: one buffer, mapped by the host,
-    /// where the adapter shares the host's memory; a storage buffer and a staging buffer
-    /// otherwise.
-    pub(crate) fn get(
+    /// (the kernels' buffer, the host's) of at least `bytes` that the host writes and the
+    /// kernels read (mapped: of usage [`input_usage`]).
+    pub(crate) fn writable(
         &mut self,
         context: &GpuContext,
         label: &str,
         bytes: usize,
     ) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
         use wgpu::BufferUsages as U;
+        self.get(
+            context,
+            label,
+            bytes,
+            [U::MAP_WRITE, U::COPY_DST, U::COPY_SRC],
+        )
+    }
+
+    /// One buffer of usage `STORAGE | map` where the context maps storage, else a buffer of
+    /// `STORAGE | copy` and a staging buffer of `map | staged`.
+    fn get(
+        &mut self,
+        context: &GpuContext,
+        label: &str,
+        bytes: usize,
+        [map, copy, staged]: [wgpu::BufferUsages; 3],
+    ) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
+        use wgpu::BufferUsages as U;
         if context.maps_storage() {
-            let buffer = self
-                .device
-                .get(context, label, bytes, input_usage(context))?
-                .clone();
-            Ok((buffer.clone(), buffer))
+            let buffer = self.device.get(context, label, bytes, U::STORAGE | map)?;
+            Ok((buffer.clone(), buffer.clone()))
         } else {
             let buffer = self
                 .device
-                .get(context, label, bytes, U::STORAGE | U::COPY_DST)?
+                .get(context, label, bytes, U::STORAGE | copy)?
                 .clone();
-            let host = self
-                .host
-                .get(context, label, bytes, U::MAP_WRITE | U::COPY_SRC)?
-                .clone();
+            let host = self.host.get(context, label, bytes, map | staged)?.clone();
             Ok((buffer, host))
         }
     }

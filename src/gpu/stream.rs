@@ -11,7 +11,7 @@ use std::ops::Range;
 use rayon::prelude::*;
 use wgpu::WriteOnly;
 
-use super::buffers::{CONVERT_ROWS, ReadSlot, Slot, WriteSlot};
+use super::buffers::{CONVERT_ROWS, Slot, SlotPair};
 use super::compose::{KernelSource, Precision};
 use super::context::{GpuContext, GpuError};
 use super::dispatch::Dispatch;
@@ -95,9 +95,9 @@ impl HostReal for f32 {
 struct Lane {
     uniform: Slot,
     /// The rows the kernel reads, and where the host writes them.
-    input: WriteSlot,
-    output: ReadSlot,
-    status: ReadSlot,
+    input: SlotPair,
+    output: SlotPair,
+    status: SlotPair,
 }
 
 /// The buffer sets the row kernels stream their chunks through, kept across calls.
@@ -264,9 +264,9 @@ impl Ring {
         let mut lanes = Vec::with_capacity(RING);
         for lane in self.0.iter_mut().take(chunks.min(RING)) {
             let uniform = lane.uniform.uniform(context, params.bytes().len())?;
-            let (input, input_host) = lane.input.get(context, "input", chunk * N * s)?;
-            let (output, output_host) = lane.output.get(context, "output", chunk * M * s)?;
-            let (status, status_host) = lane.status.get(context, "status", chunk * 4)?;
+            let (input, input_host) = lane.input.writable(context, "input", chunk * N * s)?;
+            let (output, output_host) = lane.output.readable(context, "output", chunk * M * s)?;
+            let (status, status_host) = lane.status.readable(context, "status", chunk * 4)?;
             let bind_group =
                 dispatch.bind(&[(0, &uniform), (1, &input), (2, &output), (3, &status)]);
             lanes.push(LaneBuffers {

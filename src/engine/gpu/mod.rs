@@ -15,7 +15,7 @@
 
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use crate::gpu::buffers::{ReadSlot, Slot, rows_from};
+use crate::gpu::buffers::{Slot, SlotPair, rows_from};
 use crate::gpu::compose::{KernelSource, Precision, Rows, STATUS_RETRY, WORKGROUP_SIZE};
 use crate::gpu::context::{GpuContext, GpuError};
 use crate::gpu::dispatch::{
@@ -31,13 +31,13 @@ pub mod kernels;
 #[derive(Default)]
 struct Buffers {
     uniform: Slot,
-    output: ReadSlot,
-    status: ReadSlot,
+    output: SlotPair,
+    status: SlotPair,
     /// The buffer sets the row kernels stream their chunks through.
     ring: Ring,
 }
 
-/// The GPU backend on one adapter at one precision.
+/// The batch engine on a GPU: the relation kernels on one adapter at one precision.
 pub struct GpuEngine {
     context: GpuContext,
     precision: Precision,
@@ -375,9 +375,11 @@ impl GpuEngine {
         let (out_buf, out_staging) =
             buffers
                 .output
-                .get(&self.context, "output", rows * w * 6 * s)?;
+                .readable(&self.context, "output", rows * w * 6 * s)?;
         let (status_buf, status_staging) =
-            buffers.status.get(&self.context, "status", rows * w * 4)?;
+            buffers
+                .status
+                .readable(&self.context, "status", rows * w * 4)?;
         let bind_group = dispatch.bind(&[(0, &uniform), (2, &out_buf), (3, &status_buf)]);
         for first in (0..h).step_by(rows) {
             let count = rows.min(h - first);

@@ -136,11 +136,11 @@ impl KernelRunner {
         let (out_buf, out_staging) =
             buffers
                 .output
-                .get(context, "output", per_chunk * corners * M * s)?;
+                .readable(context, "output", per_chunk * corners * M * s)?;
         let (status_buf, status_staging) =
             buffers
                 .status
-                .get(context, "status", per_chunk * corners * 4)?;
+                .readable(context, "status", per_chunk * corners * 4)?;
         let bind_group = dispatch.bind(&[
             (0, &uniform),
             (1, &in_buf),

@@ -37,7 +37,7 @@ use crate::calib::costs::{CostKind, plane_cost, ray_gap_rms};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
 use crate::engine::GpuEngine;
-use crate::gpu::buffers::{ReadSlot, Slot};
+use crate::gpu::buffers::{Slot, SlotPair};
 use crate::gpu::context::GpuError;
 use crate::gpu::dispatch::chunk_items;
 use crate::gpu::layout::{Params, check_layers};
@@ -51,8 +51,8 @@ use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
 struct Buffers {
     uniform: Slot,
     candidates: Slot,
-    output: ReadSlot,
-    status: ReadSlot,
+    output: SlotPair,
+    status: SlotPair,
 }
 
 /// The host side of the calibration kernels for one backend: its buffers and where the per-view

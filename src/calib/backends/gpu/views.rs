@@ -329,8 +329,11 @@ impl KernelRunner {
             )?
             .clone();
         let items = per_view * views_per_chunk;
-        let (out_buf, out_staging) = buffers.output.get(context, "output", items * M * real)?;
-        let (status_buf, status_staging) = buffers.status.get(context, "status", items * 4)?;
+        let (out_buf, out_staging) =
+            buffers
+                .output
+                .readable(context, "output", items * M * real)?;
+        let (status_buf, status_staging) = buffers.status.readable(context, "status", items * 4)?;
         // The pieces in order, each reading the uniform slot of its place in its submission.
         let slots_in_order = batches.iter().flat_map(|batch| 0..batch.len());
         let bind_groups: Vec<wgpu::BindGroup> = pieces
