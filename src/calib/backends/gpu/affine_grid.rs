@@ -2,8 +2,8 @@
 //! views, one (χ², dof) per pair, always in f64. Indexing, chunking and buffers only; the
 //! formulation is in [`crate::calib::costs::affine_grid`].
 
-use super::KernelRunner;
 use super::kernels;
+use super::runner::KernelRunner;
 use super::views::{ViewKernel, ViewRows};
 use crate::engine::GpuEngine;
 use crate::gpu::compose::Precision;

@@ -4,7 +4,7 @@
 //! [`crate::calib::costs`]; here only indexing, chunking and buffers.
 
 use super::kernels;
-use super::{KernelRunner, candidate_params};
+use super::runner::{KernelRunner, candidate_params};
 use crate::engine::GpuEngine;
 use crate::gpu::ResidentRows;
 use crate::gpu::buffers::{input_usage, rows_from, upload_reals};

@@ -2,7 +2,7 @@
 //! WGSL kernels over the whole batch, in f32 or f64, on a [`GpuEngine`]'s device. The kernels'
 //! pipelines are compiled in the engine's context (shared with every other user of it); the
 //! backend keeps its own buffers. The host code of the calibration kernels is here, one file per
-//! kind of dispatch: `candidates.rs` (per candidate × corner), `views.rs` (per candidate × view,
+//! kind of dispatch (`runner.rs` their shared state: the backend's buffers): `candidates.rs` (per candidate × corner), `views.rs` (per candidate × view,
 //! the corner rows in uniform windows or one storage block), `affine_grid.rs` and `scene_fit.rs`
 //! (the two per-view kernels' inputs); [`kernels`] is their catalogue.
 //!
@@ -19,11 +19,12 @@
 mod affine_grid;
 mod candidates;
 pub mod kernels;
+mod runner;
 mod scene_fit;
 mod views;
 
 use std::ops::Deref;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::Arc;
 
 use nalgebra::{Unit, Vector3};
 use rayon::prelude::*;
@@ -37,66 +38,10 @@ use crate::calib::costs::{CostKind, plane_cost, ray_gap_rms};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
 use crate::engine::GpuEngine;
-use crate::gpu::buffers::{Slot, SlotPair};
-use crate::gpu::context::GpuError;
-use crate::gpu::dispatch::chunk_items;
-use crate::gpu::layout::{Params, check_layers};
-use crate::gpu::{Precision, ResidentRows, Rows};
-use crate::model::{Ports, Rig};
+use crate::gpu::{ResidentRows, Rows};
 use affine_grid::AffineGridInput;
+use runner::KernelRunner;
 use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
-
-/// The calibration kernels' buffers, reused across the calls of one backend.
-#[derive(Default)]
-struct Buffers {
-    uniform: Slot,
-    candidates: Slot,
-    output: SlotPair,
-    status: SlotPair,
-}
-
-/// The host side of the calibration kernels for one backend: its buffers and where the per-view
-/// kernels read their corner rows; the device, the pipelines and the item limit are the engine's
-/// (each call names it).
-#[derive(Default)]
-struct KernelRunner {
-    buffers: Mutex<Buffers>,
-    /// The corner-row binding of the per-view kernels, if fixed (else chosen per call).
-    rows: Option<Rows>,
-}
-
-impl KernelRunner {
-    fn buffers(&self) -> MutexGuard<'_, Buffers> {
-        self.buffers.lock().expect("buffer cache")
-    }
-
-    /// Items per chunk on `engine` when each item needs at most `bytes_per_item` of one binding.
-    fn chunk_items(&self, engine: &GpuEngine, bytes_per_item: usize) -> usize {
-        chunk_items(
-            engine.context().max_storage_binding(),
-            bytes_per_item,
-            engine.max_chunk_items(),
-        )
-    }
-}
-
-/// The uniform of a candidate kernel over the pair `cameras` of `rig`: behind a port per camera,
-/// the candidates move the first camera's port and the second keeps its own
-/// ([`Params::hold_port`]); behind a shared port they move both.
-fn candidate_params(
-    precision: Precision,
-    rig: &Rig,
-    cameras: [usize; 2],
-) -> Result<Params, GpuError> {
-    let [a, b] = cameras.map(|k| rig.refractive_camera(k));
-    check_layers(&a)?;
-    check_layers(&b)?;
-    let mut params = Params::new(precision, &a, &b, [0; 4]);
-    if matches!(rig.ports(), Ports::PerCamera(_)) {
-        params.hold_port(1);
-    }
-    Ok(params)
-}
 
 /// The costs of candidate batches evaluated by a [`GpuEngine`] (any adapter, f32 or f64).
 ///

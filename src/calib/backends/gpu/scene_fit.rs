@@ -4,8 +4,8 @@
 //! Indexing, chunking and buffers only; the geometry is in the kernel and its CPU twin
 //! [`crate::calib::costs::scene`].
 
-use super::KernelRunner;
 use super::kernels;
+use super::runner::KernelRunner;
 use super::views::{ViewKernel, ViewRows};
 use crate::engine::GpuEngine;
 use crate::gpu::compose::{KernelSource, STATUS_RETRY};

@@ -6,7 +6,7 @@ use std::num::NonZeroU64;
 use std::ops::Range;
 use std::sync::OnceLock;
 
-use super::{KernelRunner, candidate_params};
+use super::runner::{KernelRunner, candidate_params};
 use crate::engine::GpuEngine;
 use crate::gpu::ResidentRows;
 use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
