@@ -1,69 +1,77 @@
-//! Parses and validates every composed WGSL kernel with naga, in both precisions, both
-//! reductions and both corner-row bindings, so that a WGSL mistake is a build error naming the
-//! kernel, never a panic or a `GpuError::Kernel` at pipeline creation. The composition is the crate's own
-//! (`src/gpu/shaders/compose.rs`, with a copy of the CPU's stopping rules that `tests/gpu.rs` holds
-//! equal to the engine's); the validation is `build/wgsl.rs`, which `tests/gpu.rs` also runs.
+//! Parses and validates every composed WGSL kernel of every catalogue with naga, in both
+//! precisions and both view-row bindings, so that a WGSL mistake is a build error naming the
+//! kernel, never a panic or a `GpuError::Kernel` at pipeline creation. The composition is the
+//! crate's own (`src/gpu/compose.rs`, with a copy of the CPU's stopping rules that `tests/gpu.rs`
+//! holds equal to the context's), the catalogues are the crate's (`src/engine/gpu/kernels.rs`,
+//! `src/calib/backends/gpu/kernels.rs`), the validation is `build/wgsl.rs`, which `tests/gpu.rs`
+//! also runs.
 
 #[allow(dead_code)]
-#[path = "src/gpu/shaders/compose.rs"]
-mod compose;
+#[path = "src/gpu/compose.rs"]
+pub mod compose;
+/// The catalogues name `crate::gpu::compose::KernelSource`, as in the crate.
+mod gpu {
+    pub use super::compose;
+}
+#[allow(dead_code)]
+#[path = "src/calib/backends/gpu/kernels.rs"]
+mod calibration_kernels;
+#[allow(dead_code)]
+#[path = "src/engine/gpu/kernels.rs"]
+mod relation_kernels;
 #[path = "build/wgsl.rs"]
 mod wgsl;
 
+use std::collections::HashSet;
+
 // `CpuBounds` is named by build/wgsl.rs as `super::CpuBounds`.
-use compose::{CpuBounds, Kernel, Precision, Reduction, Rows};
+use compose::{CpuBounds, KernelSource, Precision, Rows};
 use wgsl::CPU_BOUNDS_COPY;
 
 fn main() {
-    println!("cargo:rerun-if-changed=shaders");
-    println!("cargo:rerun-if-changed=src/gpu/shaders/compose.rs");
-    println!("cargo:rerun-if-changed=build/wgsl.rs");
-    println!("cargo:rerun-if-changed=build.rs");
+    for path in [
+        "shaders",
+        "src/gpu/compose.rs",
+        "src/engine/gpu/kernels.rs",
+        "src/calib/backends/gpu/kernels.rs",
+        "build/wgsl.rs",
+        "build.rs",
+    ] {
+        println!("cargo:rerun-if-changed={path}");
+    }
+    let kernels: Vec<&KernelSource> = relation_kernels::ALL
+        .iter()
+        .chain(&calibration_kernels::ALL)
+        .copied()
+        .collect();
     let mut errors = Vec::new();
-    for kernel in Kernel::ALL {
+    // The pipeline cache keys kernels by name.
+    let mut names = HashSet::new();
+    for kernel in &kernels {
+        if !names.insert(kernel.name) {
+            errors.push(format!(
+                "kernel {}: the name is taken by another kernel of a catalogue",
+                kernel.name
+            ));
+        }
+    }
+    for kernel in kernels {
         for precision in [Precision::F32, Precision::F64] {
-            // A kernel of fixed precision is composed once, as the engine composes it.
-            if kernel
-                .fixed_precision()
-                .is_some_and(|fixed| fixed != precision)
-            {
+            // A kernel of fixed precision is composed once, as the pipeline cache composes it.
+            if kernel.precision(precision) != precision {
                 continue;
             }
-            let reductions: &[Reduction] = if kernel.is_cost() {
-                &[Reduction::Workgroup, Reduction::Subgroup]
-            } else {
-                &[Reduction::Workgroup]
-            };
-            let bindings: &[Rows] = if kernel.reads_view_rows() {
+            let bindings: &[Rows] = if kernel.reads_view_rows {
                 &Rows::ALL
             } else {
                 &[Rows::Storage]
             };
-            for &reduction in reductions {
-                for &rows in bindings {
-                    let source =
-                        compose::source(kernel, precision, reduction, rows, &CPU_BOUNDS_COPY);
-                    let reduction_name = if kernel.is_cost() {
-                        format!(" {reduction:?} reduction")
-                    } else {
-                        String::new()
-                    };
-                    let rows_name = if kernel.reads_view_rows() {
-                        format!(" {} rows", rows.name())
-                    } else {
-                        String::new()
-                    };
-                    let label = format!(
-                        "kernel {} {precision}{reduction_name}{rows_name}",
-                        kernel.name()
-                    );
-                    let capabilities = wgsl::capabilities(
-                        precision == Precision::F64,
-                        reduction == Reduction::Subgroup,
-                    );
-                    if let Err(error) = wgsl::check(&label, &source, capabilities) {
-                        errors.push(error);
-                    }
+            for &rows in bindings {
+                let source = compose::compose(kernel, precision, rows, &CPU_BOUNDS_COPY);
+                let label = format!("kernel {} {precision}", kernel.label(rows));
+                let capabilities = wgsl::capabilities(precision == Precision::F64);
+                if let Err(error) = wgsl::check(&label, &source, capabilities) {
+                    errors.push(error);
                 }
             }
         }
@@ -71,8 +79,8 @@ fn main() {
     if !errors.is_empty() {
         // Cargo prints a failed build script's stderr.
         eprintln!(
-            "{} composed WGSL kernel(s) failed naga's checks (line numbers count in the composed module: prelude, \
-             shaders/common.wgsl, shaders/lib/, then the kernel; src/gpu/shaders/compose.rs):\n\n{}",
+            "{} composed WGSL kernel(s) failed the build's checks (line numbers count in the composed module: \
+             prelude, shaders/common.wgsl, shaders/lib/, then the kernel's parts; src/gpu/compose.rs):\n\n{}",
             errors.len(),
             errors.join("\n")
         );

@@ -1,6 +1,6 @@
 //! The CPU engine, one thread, f64: back-projection (with and without lens distortion), forward
 //! projection and triangulation on the scalar path (the model row by row) and the vector path
-//! (`engine::simd`), side by side, for batch sizes 10³–10⁶.
+//! (`engine::cpu::lanes`), side by side, for batch sizes 10³–10⁶.
 //!
 //! Run: `cargo bench --bench cpu` (criterion; throughput in elements per second). Each group
 //! holds both paths at every size, so their ratio comes from one run. `flatport bench` gives the

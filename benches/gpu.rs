@@ -5,9 +5,11 @@
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 
+use flatport::engine::GpuEngine;
+use flatport::engine::gpu::kernels;
 use flatport::engine::workload::Workload;
-use flatport::gpu::engine::MAX_CHUNK_ITEMS;
-use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision};
+use flatport::gpu::MAX_CHUNK_ITEMS;
+use flatport::gpu::{GpuContext, Precision};
 use flatport::io::rig_from_json_str;
 
 const RIG: &str = include_str!("../data/example_rig.json");
@@ -61,7 +63,7 @@ fn kernels(c: &mut Criterion) {
                     bench.iter_custom(|iters| {
                         let (s, _) = gpu
                             .kernel_seconds::<2, 6>(
-                                Kernel::Backproject,
+                                &kernels::BACKPROJECT,
                                 &a,
                                 &a,
                                 &work.pixels[..n],

@@ -5,7 +5,7 @@ use naga::valid::{Capabilities, ValidationFlags, Validator};
 
 use super::CpuBounds;
 
-/// A copy of the CPU's stopping rules (`gpu::shaders::CPU_BOUNDS`, from `crate::model`, which a
+/// A copy of the CPU's stopping rules (`gpu::CPU_BOUNDS`, from `crate::model`, which a
 /// build script cannot reach), so that the build validates the very text the engine compiles;
 /// `tests/gpu.rs` fails when the two differ.
 pub const CPU_BOUNDS_COPY: CpuBounds = CpuBounds {
@@ -17,12 +17,10 @@ pub const CPU_BOUNDS_COPY: CpuBounds = CpuBounds {
 };
 
 /// The shader capabilities a kernel needs of the adapter, and no more: `FLOAT64` for f64
-/// arithmetic (the context requests SHADER_F64), `SUBGROUP` for the `subgroupAdd` reduction (the
-/// context requests SUBGROUP). An f32 kernel with the workgroup reduction needs none.
-pub fn capabilities(float64: bool, subgroups: bool) -> Capabilities {
+/// arithmetic (the context requests SHADER_F64). An f32 kernel needs none.
+pub fn capabilities(float64: bool) -> Capabilities {
     let mut capabilities = Capabilities::empty();
     capabilities.set(Capabilities::FLOAT64, float64);
-    capabilities.set(Capabilities::SUBGROUP, subgroups);
     capabilities
 }
 

@@ -1,12 +1,14 @@
 // Shared structs, status codes and indexing of every flatport kernel. Every kernel declares the
 // uniform `params: Params` at binding 0, which the relations in shaders/lib/ read.
 //
-// A kernel module is composed (src/gpu/shaders.rs) from: a precision prelude that defines
+// A kernel module is composed (src/gpu/compose.rs) from: a precision prelude that defines
 // `real` (f32 or f64), `vec2r`..`vec4r` and the tolerances; this file; the relations in
-// shaders/lib/; one kernel from shaders/kernels/. `Camera` and `Params` are mirrored by the
-// `#[repr(C)]` structs `CameraF32`/`CameraF64` and `ParamsF32`/`ParamsF64` in src/gpu/layout.rs:
-// keep them in sync (tests/gpu.rs compares their sizes and field offsets with naga's layouter for
-// both precisions). build.rs parses and validates every composed kernel with naga.
+// shaders/lib/; one kernel's parts as its catalogue lists them (src/engine/gpu/kernels.rs for
+// shaders/kernels/, src/calib/backends/gpu/kernels.rs for shaders/calib/). `Camera` and
+// `Params` are mirrored by the `#[repr(C)]` structs `CameraF32`/`CameraF64` and
+// `ParamsF32`/`ParamsF64` in src/gpu/layout.rs: keep them in sync (tests/gpu.rs compares their
+// sizes and field offsets with naga's layouter for both precisions). build.rs parses and
+// validates every composed kernel of every catalogue with naga.
 
 // Per-element status: 0 = answer, otherwise `NoSolution::code()` of the CPU path.
 const STATUS_OK: u32 = 0u;
@@ -19,13 +21,12 @@ const STATUS_DEGENERATE: u32 = 6u;
 const STATUS_NO_CONVERGENCE: u32 = 7u;
 const STATUS_OUT_OF_RANGE: u32 = 8u; // also set by the host for inputs beyond ±REAL_HUGE and non-finite results
 // Not a `NoSolution`: a fast kernel left the row to its safeguarded twin, which the host runs on it
-// (`STATUS_RETRY` in src/gpu/engine.rs).
+// (`STATUS_RETRY` in src/gpu/compose.rs).
 const STATUS_RETRY: u32 = 255u;
 
 const MAX_LAYERS: u32 = 8u;
-// Invocations per workgroup of every kernel, a power of two (the workgroup tree reduction halves
-// it). No default: the host sets it at pipeline creation from `WORKGROUP_SIZE` in
-// src/gpu/shaders.rs, which its dispatch arithmetic reads too.
+// Invocations per workgroup of every kernel. No default: the host sets it at pipeline creation
+// from `WORKGROUP_SIZE` in src/gpu/compose.rs, which its dispatch arithmetic reads too.
 override WORKGROUP_SIZE: u32;
 // The most layers of a camera the pipeline serves (0 to MAX_LAYERS), set by the host at pipeline
 // creation (`Params::layers`, one pipeline per value). The layer loops run to it, not to a

@@ -9,7 +9,8 @@ use flatport::calib::{
     Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, Target,
     simulate,
 };
-use flatport::gpu::{GpuEngine, Precision, Rows};
+use flatport::engine::GpuEngine;
+use flatport::gpu::{Precision, Rows};
 use flatport::model::Rig;
 use gpu_harness::{Random, engine};
 use nalgebra::{Unit, Vector3};
@@ -60,7 +61,7 @@ const BOARD_9X6: Board = Board {
 };
 
 /// A board of 96 corners: more than the scene kernel keeps of a view between its passes
-/// (`CACHED_CORNERS` in `shaders/kernels/calib_scene_fit.wgsl`), so it triangulates them again.
+/// (`CACHED_CORNERS` in `shaders/calib/scene_fit.wgsl`), so it triangulates them again.
 const BOARD_12X8: Board = Board {
     rows: 8,
     cols: 12,
@@ -305,6 +306,30 @@ fn chunked_batches_match_one_dispatch() {
     assert_eq!(chunked_values, whole_values, "chunking changed a value");
 }
 
+/// The staging path (discrete GPUs: storage buffers copied to and from host-mapped staging
+/// buffers) gives the values of the directly mapped path lavapipe uses by default, bit for bit,
+/// for every cost and the air layers (candidate and per-view kernels), in both precisions.
+#[test]
+fn staged_and_mapped_buffers_agree() {
+    let data = stereo_data(4, 11);
+    let batch = candidates(&data, 50, 13);
+    for precision in [Precision::F32, Precision::F64] {
+        let (Some(mapped), Some(staged)) = (
+            gpu_harness::engine_with(precision, true),
+            gpu_harness::engine_with(precision, false),
+        ) else {
+            return;
+        };
+        assert!(!staged.context().maps_storage());
+        let (_, in_mapped) = compare(&data, &GpuBackend::new(&data, &mapped), &batch);
+        let (_, in_staged) = compare(&data, &GpuBackend::new(&data, &staged), &batch);
+        assert_eq!(
+            in_mapped, in_staged,
+            "{precision}: the staging changed a value"
+        );
+    }
+}
+
 /// A board of 300 corners: a view's affine-grid rows (2 700 f64 vec4) exceed a uniform window,
 /// so every view of that kernel is read from one storage block.
 const BOARD_20X15: Board = Board {
@@ -314,26 +339,26 @@ const BOARD_20X15: Board = Board {
 };
 
 /// The per-view kernels read their corner rows from uniform windows where every view fits one
-/// (`Rows` in src/gpu/shaders/compose.rs): 30 views of 54 corners fill two f32 windows of the
+/// (`Rows` in src/gpu/compose.rs): 30 views of 54 corners fill two f32 windows of the
 /// scene kernels, three f64 ones, and eight of the affine grid; the 300-corner views of a 20×15
 /// board send the affine grid to storage in both precisions. Either way the values are those of
 /// one storage block, bit for bit, and match the CPU.
 #[test]
 fn uniform_windows_match_one_storage_block() {
     for precision in [Precision::F64, Precision::F32] {
-        let Some(mut windows) = engine(precision) else {
+        let Some(engine) = engine(precision) else {
             return;
         };
-        let Some(mut storage) = engine(precision) else {
-            return;
-        };
-        windows.set_rows(Some(Rows::Uniform));
-        storage.set_rows(Some(Rows::Storage));
         for (board, views, seed) in [(BOARD_9X6, 30, 5), (BOARD_20X15, 3, 8)] {
             let data = board_data(board, views, seed);
             let batch = candidates(&data, 40, seed + 1);
-            let (deviations, in_windows) =
-                compare(&data, &GpuBackend::new(&data, &windows), &batch);
+            let (mut windows, mut storage) = (
+                GpuBackend::new(&data, &engine),
+                GpuBackend::new(&data, &engine),
+            );
+            windows.set_rows(Some(Rows::Uniform));
+            storage.set_rows(Some(Rows::Storage));
+            let (deviations, in_windows) = compare(&data, &windows, &batch);
             for (name, d) in deviations {
                 let bound = match (precision, name) {
                     (Precision::F64, _) => F64_RELATIVE,
@@ -347,7 +372,7 @@ fn uniform_windows_match_one_storage_block() {
                     d.relative
                 );
             }
-            let (_, in_storage) = compare(&data, &GpuBackend::new(&data, &storage), &batch);
+            let (_, in_storage) = compare(&data, &storage, &batch);
             assert_eq!(
                 in_windows, in_storage,
                 "{precision} {views} views: the binding changed a value"

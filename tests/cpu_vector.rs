@@ -342,7 +342,7 @@ proptest! {
 /// the lanes answer every row themselves.
 #[test]
 fn the_lanes_answer_ordinary_rows_themselves() {
-    use flatport::engine::{simd, workload::Workload};
+    use flatport::engine::{cpu::lanes, workload::Workload};
     let text = std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/data/example_rig.json"
@@ -355,19 +355,19 @@ fn the_lanes_answer_ordinary_rows_themselves() {
     let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
     let mut status = vec![0; n];
     assert_eq!(
-        simd::backproject(&a, &work.pixels, &mut vec![[0.0; 6]; n], &mut status),
+        lanes::backproject(&a, &work.pixels, &mut vec![[0.0; 6]; n], &mut status),
         0
     );
     assert_eq!(
-        simd::project(&a, &work.points, &mut vec![[0.0; 2]; n], &mut status),
+        lanes::project(&a, &work.points, &mut vec![[0.0; 2]; n], &mut status),
         0
     );
     assert_eq!(
-        simd::triangulate(&a, &b, &work.matches, &mut vec![[0.0; 4]; n], &mut status),
+        lanes::triangulate(&a, &b, &work.matches, &mut vec![[0.0; 4]; n], &mut status),
         0
     );
     assert_eq!(
-        simd::vop(&a, &work.points, &mut vec![[0.0; 6]; n], &mut status),
+        lanes::vop(&a, &work.points, &mut vec![[0.0; 6]; n], &mut status),
         0
     );
 }
@@ -395,7 +395,7 @@ fn empty_and_short_batches() {
     }
 }
 
-/// [`CameraLanes::project_near`](flatport::engine::simd::refractive_camera::CameraLanes::project_near)
+/// [`CameraLanes::project_near`](flatport::engine::cpu::lanes::refractive_camera::CameraLanes::project_near)
 /// (the reprojection's unsafeguarded Newton iteration from the tan a of a nearby observed ray)
 /// against the scalar model's safeguarded projection: a lane it settles has the scalar pixel
 /// within 1e-12 relative (times the pixel's condition |x/z| beyond the image), and where no medium is less dense than the air it settles every
@@ -404,8 +404,8 @@ fn empty_and_short_batches() {
 /// none (its iteration needs concave terms).
 #[test]
 fn project_near_settles_on_the_scalar_pixel() {
-    use flatport::engine::simd::lanes::{F64s, LANES, Vec3s};
-    use flatport::engine::simd::refractive_camera::CameraLanes;
+    use flatport::engine::cpu::lanes::refractive_camera::CameraLanes;
+    use flatport::engine::cpu::lanes::{F64s, LANES, Vec3s};
     let (mut settled, mut ordinary, mut wrong) = (0, 0, Vec::new());
     for (f, fixture) in all_fixtures().iter().enumerate() {
         let air = fixture.stack.index_air();

@@ -14,8 +14,8 @@ use std::sync::Arc;
 
 use flatport::calib::{CostBackend, CostKind, CpuBackend, SceneSpec, StereoData, simulate};
 use flatport::engine::raymap::{backproject_rows, rows_per_band};
-use flatport::engine::{CpuEngine, Engine};
-use flatport::gpu::{GpuContext, GpuEngine, Precision};
+use flatport::engine::{CpuEngine, Engine, GpuEngine};
+use flatport::gpu::{GpuContext, Precision};
 use flatport::io::npy::read_npy;
 use flatport::io::read_rig;
 use flatport::model::Rig;

@@ -1,5 +1,5 @@
-//! The GPU backend: every shader validated by naga (no GPU needed), host/WGSL layouts in sync, and
-//! GPU-vs-CPU parity on random batches on lavapipe, f32 and f64, including the rows with no
+//! The GPU engine and toolkit: every kernel of every catalogue validated by naga (no GPU
+//! needed), host/WGSL layouts in sync, and GPU-vs-CPU parity on random batches on lavapipe, f32 and f64, including the rows with no
 //! answer. With `CI` set, a missing Vulkan adapter fails the run: GPU tests are never skipped
 //! silently there.
 //!
@@ -10,9 +10,11 @@ mod common;
 mod gpu_harness;
 
 use common::*;
+use flatport::calib::backends::gpu::kernels as calibration_kernels;
 use flatport::engine::CpuEngine;
-use flatport::gpu::shaders::{CPU_BOUNDS, CpuBounds, Rows, source};
-use flatport::gpu::{GpuEngine, Kernel, Precision, Reduction};
+use flatport::engine::GpuEngine;
+use flatport::engine::gpu::kernels;
+use flatport::gpu::{CPU_BOUNDS, CpuBounds, KernelSource, Precision, Rows, source};
 use flatport::model::{NoSolution, RefractiveCamera, Rig};
 use gpu_harness::{Random, engine, engine_with};
 use nalgebra::{Point2, Vector3};
@@ -21,16 +23,9 @@ use nalgebra::{Point2, Vector3};
 #[path = "../build/wgsl.rs"]
 mod wgsl;
 
-/// The capabilities a kernel composed at `precision` with `reduction` needs (as build.rs asks).
-fn capabilities(
-    kernel: Kernel,
-    precision: Precision,
-    reduction: Reduction,
-) -> naga::valid::Capabilities {
-    wgsl::capabilities(
-        precision == Precision::F64,
-        kernel.is_cost() && reduction == Reduction::Subgroup,
-    )
+/// The capabilities a kernel composed at `precision` needs (as build.rs asks).
+fn capabilities(precision: Precision) -> naga::valid::Capabilities {
+    wgsl::capabilities(precision == Precision::F64)
 }
 
 /// build.rs composes with a copy of the CPU's stopping rules: the same as the engine's.
@@ -43,43 +38,74 @@ fn the_build_validates_the_texts_the_engine_compiles() {
     );
 }
 
-/// The texts the engine compiles: every kernel in f32 and f64 with both reductions, through the build's validation with no more
-/// capabilities than each kernel needs.
+/// Every kernel of every catalogue: the relation kernels and the calibration kernels.
+fn every_kernel() -> impl Iterator<Item = &'static KernelSource> {
+    kernels::ALL.into_iter().chain(calibration_kernels::ALL)
+}
+
+/// The texts the pipeline cache compiles: every kernel of every catalogue in f32 and f64 with
+/// both view-row bindings, through the build's validation with no more capabilities than each
+/// kernel needs.
 #[test]
 fn every_shader_parses_and_validates() {
-    for kernel in Kernel::ALL {
+    for kernel in every_kernel() {
         for precision in [Precision::F32, Precision::F64] {
-            for reduction in [Reduction::Workgroup, Reduction::Subgroup] {
-                for rows in Rows::ALL {
-                    let precision = kernel.fixed_precision().unwrap_or(precision);
-                    let name = format!(
-                        "{} {precision} {reduction:?} {} rows",
-                        kernel.name(),
-                        rows.name()
-                    );
-                    wgsl::check(
-                        &name,
-                        &source(kernel, precision, reduction, rows),
-                        capabilities(kernel, precision, reduction),
-                    )
-                    .unwrap_or_else(|e| panic!("{e}"));
-                }
+            for rows in Rows::ALL {
+                let precision = kernel.precision(precision);
+                let name = format!("{} {precision}", kernel.label(rows));
+                wgsl::check(
+                    &name,
+                    &source(kernel, precision, rows),
+                    capabilities(precision),
+                )
+                .unwrap_or_else(|e| panic!("{e}"));
             }
         }
     }
 }
 
+/// Every kernel's composed text is the same every time, holds each of its parts once, in order,
+/// after the shared files, and the view-row binding exactly where the kernel reads view rows;
+/// the names are unique across the catalogues (the pipeline cache's key).
+#[test]
+fn every_kernel_composes_deterministically_from_its_parts() {
+    let mut names = std::collections::HashSet::new();
+    for kernel in every_kernel() {
+        assert!(names.insert(kernel.name), "{} twice", kernel.name);
+        assert!(!kernel.parts.is_empty(), "{}", kernel.name);
+        for precision in [Precision::F32, Precision::F64] {
+            for rows in Rows::ALL {
+                let text = source(kernel, precision, rows);
+                assert_eq!(text, source(kernel, precision, rows), "{}", kernel.name);
+                let mut from = text
+                    .find("override RIG_LAYERS")
+                    .expect("shaders/common.wgsl first");
+                for part in kernel.parts {
+                    let at = text[from..].find(part).unwrap_or_else(|| {
+                        panic!("{}: a part missing or out of order", kernel.name)
+                    });
+                    from += at + part.len();
+                }
+                // The binding of view rows (the others declare `input: array<real>` themselves).
+                let view_rows = text.contains("@group(0) @binding(1) var<uniform> input")
+                    || text.contains("@binding(1) var<storage, read> input: array<vec4r>;");
+                assert_eq!(
+                    view_rows, kernel.reads_view_rows,
+                    "{} {rows:?}",
+                    kernel.name
+                );
+            }
+        }
+    }
+    assert_eq!(names.len(), 14);
+}
+
 /// The build's validation fails a broken kernel with naga's message naming the kernel: syntax and
 /// an undeclared name (front end), a type error and a capability the kernel was not granted (f64
-/// arithmetic, subgroups) (validator).
+/// arithmetic) (validator).
 #[test]
 fn broken_wgsl_is_an_error_naming_the_kernel() {
-    let project = source(
-        Kernel::Project,
-        Precision::F32,
-        Reduction::Workgroup,
-        Rows::Storage,
-    );
+    let project = source(&kernels::PROJECT, Precision::F32, Rows::Storage);
     let cases = [
         (
             "project f32 (missing semicolon)",
@@ -101,28 +127,13 @@ fn broken_wgsl_is_an_error_naming_the_kernel() {
         ),
         (
             "project f64 (without FLOAT64)",
-            source(
-                Kernel::Project,
-                Precision::F64,
-                Reduction::Workgroup,
-                Rows::Storage,
-            ),
-            "validation error",
-        ),
-        (
-            "ray_gap_cost f32 subgroup (without SUBGROUP)",
-            source(
-                Kernel::RayGapCost,
-                Precision::F32,
-                Reduction::Subgroup,
-                Rows::Storage,
-            ),
+            source(&kernels::PROJECT, Precision::F64, Rows::Storage),
             "validation error",
         ),
     ];
     for (name, text, kind) in cases {
         assert_ne!(text, project, "{name}: the case changes the kernel");
-        let error = wgsl::check(name, &text, wgsl::capabilities(false, false))
+        let error = wgsl::check(name, &text, wgsl::capabilities(false))
             .err()
             .unwrap_or_else(|| panic!("{name} validated"));
         assert!(
@@ -130,7 +141,7 @@ fn broken_wgsl_is_an_error_naming_the_kernel() {
             "{name}: {error}"
         );
     }
-    let fine = wgsl::check("project f32", &project, wgsl::capabilities(false, false));
+    let fine = wgsl::check("project f32", &project, wgsl::capabilities(false));
     assert!(fine.is_ok(), "{:?}", fine.err());
 }
 
@@ -160,18 +171,9 @@ fn host_mirrors_have_the_wgsl_layout() {
         ($ty:ty: $($field:ident),*) => { [$((stringify!($field), offset_of!($ty, $field))),*] };
     }
     for precision in [Precision::F32, Precision::F64] {
-        let text = source(
-            Kernel::Project,
-            precision,
-            Reduction::Workgroup,
-            Rows::Storage,
-        );
-        let module = wgsl::check(
-            "project",
-            &text,
-            capabilities(Kernel::Project, precision, Reduction::Workgroup),
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
+        let text = source(&kernels::PROJECT, precision, Rows::Storage);
+        let module = wgsl::check("project", &text, capabilities(precision))
+            .unwrap_or_else(|e| panic!("{e}"));
         let mut layouter = naga::proc::Layouter::default();
         layouter.update(module.to_ctx()).unwrap();
         let size = |name: &str| {
@@ -460,7 +462,7 @@ fn project_matches_cpu() {
     }
 }
 
-/// The forward-projection kernel takes two rows per invocation (`Kernel::rows_per_invocation`),
+/// The forward-projection kernel takes two rows per invocation (`KernelSource::rows_per_invocation`),
 /// paired by their place in the chunk: batches and chunks of odd length, down to one row, must
 /// give every row the pixel and status it gets in one whole batch (which must match the CPU), bit
 /// for bit, whichever row it is paired with. A row skipped, written twice or swapped with its
@@ -740,76 +742,6 @@ fn image_grid_backprojection_matches_pixel_buffer() {
 }
 
 #[test]
-fn ray_gap_cost_matches_cpu_with_both_reductions() {
-    let cpu = CpuEngine::new(None);
-    for precision in [Precision::F32, Precision::F64] {
-        let Some(mut gpu) = engine(precision) else {
-            return;
-        };
-        let mut random = Random(0x2545_F491_4F6C_DD1D);
-        let (_, rig) = configurations().remove(2);
-        let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
-        // 0.5 px noise: residuals of millimetres, so f32 sums are meaningful.
-        let matches = random_matches(&mut random, &a, &b, 3001, 0.5);
-        let air_rays: Vec<[f64; 6]> = matches
-            .iter()
-            .filter_map(|m| {
-                let va = a.dir_in_air_from_img(&Point2::new(m[0], m[1])).ok()?;
-                let vb = b.dir_in_air_from_img(&Point2::new(m[2], m[3])).ok()?;
-                Some([va.x, va.y, va.z, vb.x, vb.y, vb.z])
-            })
-            .collect();
-        let n0 = rig.shared_interface().unwrap().normal().into_inner();
-        let d0 = rig.shared_interface().unwrap().air_distance();
-        let mut candidates: Vec<[f64; 4]> = (0..97)
-            .map(|_| {
-                let n = (n0
-                    + Vector3::new(random.range(-0.05, 0.05), random.range(-0.05, 0.05), 0.0))
-                .normalize();
-                [n.x, n.y, n.z, d0 + random.range(-0.01, 0.01)]
-            })
-            .collect();
-        candidates.push([n0.x, n0.y, n0.z, d0]);
-        candidates.push([0.0, 0.0, 1.0, -0.5]); // puts the cameras in the water: no terms
-        let mut expected = vec![[0.0; 2]; candidates.len()];
-        cpu.ray_gap_cost(&rig, 0, 1, &air_rays, &candidates, &mut expected);
-        assert_eq!(expected.last().unwrap(), &[0.0, 0.0]);
-        let mut reductions = vec![Reduction::Workgroup];
-        if gpu.context().adapter().subgroup {
-            reductions.push(Reduction::Subgroup);
-        }
-        for reduction in reductions {
-            gpu.set_reduction(reduction).unwrap();
-            let mut costs = vec![[0.0; 2]; candidates.len()];
-            gpu.ray_gap_cost(&rig, 0, 1, &air_rays, &candidates, &mut costs)
-                .unwrap();
-            let mut worst: f64 = 0.0;
-            for (c, g) in expected.iter().zip(&costs) {
-                match precision {
-                    Precision::F64 => assert_eq!(c[1], g[1], "{reduction:?}: counts"),
-                    Precision::F32 => assert!(
-                        (c[1] - g[1]).abs() <= c[1] / 500.0,
-                        "{reduction:?}: counts {} vs {}",
-                        c[1],
-                        g[1]
-                    ),
-                }
-                if c[1] > 0.0 {
-                    worst = worst.max((g[0] / g[1] - c[0] / c[1]).abs() / (c[0] / c[1]));
-                }
-            }
-            println!(
-                "ray_gap_cost {precision} {reduction:?}: max relative |Δ mean residual²| {worst:.1e}"
-            );
-            match precision {
-                Precision::F32 => assert!(worst < 1e-3),
-                Precision::F64 => assert!(worst < 1e-9),
-            }
-        }
-    }
-}
-
-#[test]
 fn statuses_match_where_the_cpu_has_no_answer() {
     let cpu = CpuEngine::new(None);
     // Light from a denser "air" (1.333) into a thinner last medium (1.0): steep pixels are totally
@@ -892,7 +824,8 @@ fn six_million_rows_go_through() {
 
 /// The staging path (discrete GPUs: storage buffers copied to and from host-mapped staging
 /// buffers) gives the same results as the directly mapped path lavapipe uses by default, for a
-/// row kernel over several chunks, the image grid and the cost.
+/// row kernel over several chunks and the image grid (the calibration kernels' staging:
+/// tests/calib_gpu.rs).
 #[test]
 fn staged_and_mapped_buffers_agree() {
     for precision in [Precision::F32, Precision::F64] {
@@ -905,7 +838,7 @@ fn staged_and_mapped_buffers_agree() {
         let (_, rig) = configurations().remove(3);
         let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
         let mut random = Random(0x6A09_E667_F3BC_C909);
-        let n = flatport::gpu::engine::MAX_CHUNK_ITEMS + 777; // two chunks
+        let n = flatport::gpu::MAX_CHUNK_ITEMS + 777; // two chunks
         let points = random_points(&mut random, &a, n);
         let run = |gpu: &GpuEngine| {
             let (mut pixels, mut status) = (vec![[0.0; 2]; n], vec![0; n]);
@@ -913,31 +846,7 @@ fn staged_and_mapped_buffers_agree() {
             let (mut rays, mut grid_status) = (vec![[0.0; 6]; 200 * 150], vec![0; 200 * 150]);
             gpu.backproject_grid(&b, 200, 150, &mut rays, &mut grid_status)
                 .unwrap();
-            let air: Vec<[f64; 6]> = (0..500)
-                .map(|k| {
-                    let v = a
-                        .dir_in_air_from_img(&Point2::new(300.0 + k as f64, 400.0))
-                        .unwrap();
-                    let w = b
-                        .dir_in_air_from_img(&Point2::new(250.0 + k as f64, 410.0))
-                        .unwrap();
-                    [v.x, v.y, v.z, w.x, w.y, w.z]
-                })
-                .collect();
-            let n0 = rig.shared_interface().unwrap().normal();
-            let candidates = [
-                [
-                    n0.x,
-                    n0.y,
-                    n0.z,
-                    rig.shared_interface().unwrap().air_distance(),
-                ],
-                [0.0, 0.0, 1.0, 0.03],
-            ];
-            let mut costs = [[0.0; 2]; 2];
-            gpu.ray_gap_cost(&rig, 0, 1, &air, &candidates, &mut costs)
-                .unwrap();
-            (pixels, status, rays, grid_status, costs)
+            (pixels, status, rays, grid_status)
         };
         let (m, s) = (run(&mapped), run(&staged));
         assert_eq!(m.1, s.1, "{precision} project statuses");
@@ -958,10 +867,6 @@ fn staged_and_mapped_buffers_agree() {
         assert!(
             same(m.2.as_flattened(), s.2.as_flattened()),
             "{precision} grid"
-        );
-        assert!(
-            same(m.4.as_flattened(), s.4.as_flattened()),
-            "{precision} cost"
         );
     }
 }
@@ -1104,7 +1009,7 @@ fn the_chunking_follows_the_adapter_kind() {
     let expected = if software {
         usize::MAX
     } else {
-        flatport::gpu::engine::STREAM_CHUNK_ROWS
+        flatport::gpu::STREAM_CHUNK_ROWS
     };
     assert_eq!(gpu.stream_chunk_rows(), expected, "{}", adapter.name);
 }

@@ -54,7 +54,7 @@ struct PyRig {
     rig: Arc<Rig>,
     engines: Mutex<HashMap<(String, String), Arc<Engine>>>,
     /// The f64 GPU engines the calibration's cost batches run on, by device.
-    gpu_engines: Mutex<HashMap<String, Arc<flatport::gpu::GpuEngine>>>,
+    gpu_engines: Mutex<HashMap<String, Arc<flatport::engine::GpuEngine>>>,
 }
 
 impl PyRig {
@@ -76,7 +76,7 @@ impl PyRig {
 
     /// The f64 GPU engine of `device` for the calibration's cost batches; `None` where `device`
     /// (`auto`) finds no GPU.
-    fn gpu_engine(&self, py: Python<'_>, device: &str) -> PyResult<Option<Arc<flatport::gpu::GpuEngine>>> {
+    fn gpu_engine(&self, py: Python<'_>, device: &str) -> PyResult<Option<Arc<flatport::engine::GpuEngine>>> {
         if let Some(engine) = self.gpu_engines.lock().expect("engine cache").get(device) {
             return Ok(Some(engine.clone()));
         }

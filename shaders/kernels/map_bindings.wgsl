@@ -1,6 +1,6 @@
 // Bindings of the row-mapping kernels (backproject, project, vop, triangulate, binocular_vop):
-// N input reals and M output reals per item, flat, and one status per item. Composed in front of
-// each of those kernels by src/gpu/shaders.rs.
+// N input reals and M output reals per item, flat, and one status per item. The first part of
+// each of those kernels in src/engine/gpu/kernels.rs.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> input: array<real>;

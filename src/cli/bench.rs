@@ -15,10 +15,11 @@ use flatport::calib::{
     Board, Candidate, CostBackend, CostKind, CpuBackend, GpuBackend, SceneSpec, StereoData, Target,
     simulate,
 };
+use flatport::engine::GpuEngine;
+use flatport::engine::gpu::kernels;
 use flatport::engine::workload::{Workload, without_distortion};
 use flatport::engine::{CpuEngine, CpuPath};
-use flatport::gpu::engine::STREAM_CHUNK_ROWS;
-use flatport::gpu::{GpuContext, GpuEngine, Kernel, Precision};
+use flatport::gpu::{GpuContext, KernelSource, Precision, STREAM_CHUNK_ROWS};
 use flatport::io::{rig_from_json_str, write_atomic};
 use flatport::model::{RefractiveCamera, Rig, normal_from_tilt_azimuth};
 
@@ -85,7 +86,7 @@ fn sweep_workload(rig: &Rig, cells: usize) -> anyhow::Result<(StereoData, Vec<Ca
 struct Figure {
     kernel: &'static str,
     path: &'static str,
-    /// On the CPU: `scalar` (the model row by row) or `vector` (the lanes of `engine::simd`).
+    /// On the CPU: `scalar` (the model row by row) or `vector` (the lanes of `engine::cpu::lanes`).
     #[serde(skip_serializing_if = "Option::is_none")]
     cpu_path: Option<&'static str>,
     precision: &'static str,
@@ -182,11 +183,11 @@ fn where_the_time_goes(
     clock_hz: Option<f64>,
 ) -> Option<Floors> {
     let hz = clock_hz?;
-    let (sqrt_s, div_s) = flatport::engine::simd::sqrt_div_seconds(200_000);
+    let (sqrt_s, div_s) = flatport::engine::cpu::lanes::sqrt_div_seconds(200_000);
     let (sqrt_c, div_c) = (sqrt_s * hz, div_s * hz);
     let layers = a.layers().len() as f64;
     let backproject = |camera: &RefractiveCamera| {
-        let steps = flatport::engine::simd::undistortion_steps(camera, &work.pixels);
+        let steps = flatport::engine::cpu::lanes::undistortion_steps(camera, &work.pixels);
         let distorts = if camera.intrinsics().has_distortion() {
             1.0
         } else {
@@ -427,7 +428,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     let mut status = vec![0u32; n];
     // The first camera without its distortion: the refraction alone.
     let a_pinhole = without_distortion(&rig)?.refractive_camera(0);
-    let isa = flatport::engine::simd::instruction_set();
+    let isa = flatport::engine::cpu::lanes::instruction_set();
     eprintln!("CPU paths: scalar (the model row by row) and vector ({isa}), run by run in turn");
     for threads in [1, all.threads()] {
         let [scalar, vector] = [CpuPath::Scalar, CpuPath::Vector]
@@ -494,20 +495,20 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 gpu = GpuEngine::new(context, Precision::F64)?;
             }
             let p = precision.name();
-            let kernel_only = |kernel: Kernel,
+            let kernel_only = |kernel: &KernelSource,
                                gpu: &GpuEngine,
                                a: &RefractiveCamera,
                                b: &RefractiveCamera|
              -> anyhow::Result<f64> {
                 // One chunk at most: the kernel over the batch's first rows.
-                let (seconds, timer, items) = match kernel {
-                    Kernel::Backproject => {
+                let (seconds, timer, items) = match kernel.name {
+                    name if name == kernels::BACKPROJECT.name => {
                         let rows = &work.pixels[..n.min(gpu.chunk_rows::<2, 6>())];
                         let (s, t) =
                             gpu.kernel_seconds::<2, 6>(kernel, a, b, rows, args.repeats)?;
                         (s, t, rows.len())
                     }
-                    Kernel::Project => {
+                    name if name == kernels::PROJECT.name => {
                         let rows = &work.points[..n.min(gpu.chunk_rows::<3, 2>())];
                         let (s, t) =
                             gpu.kernel_seconds::<3, 2>(kernel, a, b, rows, args.repeats)?;
@@ -530,7 +531,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 p,
                 0,
                 "kernel",
-                kernel_only(Kernel::Backproject, &gpu, &a, &a)?,
+                kernel_only(&kernels::BACKPROJECT, &gpu, &a, &a)?,
             );
             let t = fastest(args.repeats, || {
                 Ok(gpu.backproject(&a, &work.pixels, &mut out6, &mut status)?)
@@ -546,7 +547,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 p,
                 0,
                 "kernel",
-                kernel_only(Kernel::Project, &gpu, &a, &a)?,
+                kernel_only(&kernels::PROJECT, &gpu, &a, &a)?,
             );
             // Streamed through the ring in chunks of STREAM_CHUNK_ROWS, and in as few chunks as
             // the bindings allow (one here, so nothing overlaps), round by round in turn;
@@ -584,7 +585,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 p,
                 0,
                 "kernel",
-                kernel_only(Kernel::Triangulate, &gpu, &a, &b)?,
+                kernel_only(&kernels::TRIANGULATE, &gpu, &a, &b)?,
             );
             let t = fastest(args.repeats, || {
                 Ok(gpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status)?)

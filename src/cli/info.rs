@@ -20,8 +20,8 @@ pub fn run() -> anyhow::Result<()> {
     outln!("devices:");
     outln!(
         "  cpu: f64 reference, {threads} hardware threads; vector path on {} ({} rows at a time)",
-        flatport::engine::simd::instruction_set(),
-        flatport::engine::simd::lanes::LANES
+        flatport::engine::cpu::lanes::instruction_set(),
+        flatport::engine::cpu::lanes::LANES
     );
     let found = adapters();
     if found.is_empty() {

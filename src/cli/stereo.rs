@@ -160,7 +160,7 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
         ),
         Device::Cpu | Device::Auto => format!(
             "cpu (vector {}, {} threads)",
-            flatport::engine::simd::instruction_set(),
+            flatport::engine::cpu::lanes::instruction_set(),
             rayon::current_num_threads()
         ),
     };

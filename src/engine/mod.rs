@@ -1,5 +1,8 @@
-//! One batch API over two backends: [`cpu`] (the f64 reference of [`crate::model`], parallel
-//! over all cores) and [`gpu`](crate::gpu) (WGSL kernels through wgpu, f32 or f64).
+//! The batch engine: one API, [`Engine`], over two backends: [`CpuEngine`] ([`cpu`]: the f64
+//! reference of [`crate::model`], parallel over all cores, on a vector path in [`cpu::lanes`])
+//! and [`GpuEngine`] ([`gpu`]: the relations as WGSL kernels through the wgpu toolkit of
+//! [`crate::gpu`], f32 or f64). [`raymap`] back-projects whole images on either; [`workload`]
+//! makes the benchmarks' batches.
 //!
 //! Every call takes input rows as f64 slices and writes into caller-provided output slices of
 //! the same length, so a pipeline embeds it without copies. `status[i]` is 0 where row i has an
@@ -19,14 +22,15 @@
 //! ```
 
 pub mod cpu;
+pub mod gpu;
 pub mod raymap;
-pub mod simd;
 pub mod workload;
 
 pub use cpu::{CpuEngine, CpuPath};
+pub use gpu::GpuEngine;
 
-use crate::gpu::{GpuContext, GpuEngine, GpuError, Precision};
-use crate::model::{RefractiveCamera, Rig};
+use crate::gpu::{GpuContext, GpuError, Precision};
+use crate::model::RefractiveCamera;
 
 /// Where a batch runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -304,31 +308,6 @@ impl Engine {
         widened(matches, points, status, |i, o, s| {
             self.triangulate(a, b, i, o, s)
         })
-    }
-
-    /// The ray-gap cost of candidate interfaces for cameras `a` and `b` of `rig`. Each candidate
-    /// is (n_x, n_y, n_z, d): a system axis (normalised here) and the master's air layer, the
-    /// layers and indices staying those of the rig. For every pair of air rays (v_a xyz, v_b
-    /// xyz, master frame: [`RefractiveCamera::dir_in_air_from_img`] of a correspondence) both
-    /// water rays are formed behind the candidate and triangulated; `costs[c] = [Σ residual²,
-    /// number of pairs with an answer]`. A candidate the rig rejects (a camera outside the air)
-    /// gets `[0, 0]`, and so does every candidate of a rig with a port per camera (no shared port to move).
-    pub fn ray_gap_cost(
-        &self,
-        rig: &Rig,
-        a: usize,
-        b: usize,
-        air_rays: &[[f64; 6]],
-        candidates: &[[f64; 4]],
-        costs: &mut [[f64; 2]],
-    ) -> Result<(), EngineError> {
-        match self {
-            Self::Cpu(cpu) => {
-                cpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs);
-                Ok(())
-            }
-            Self::Gpu(gpu) => Ok(gpu.ray_gap_cost(rig, a, b, air_rays, candidates, costs)?),
-        }
     }
 }
 

@@ -1,13 +1,45 @@
 //! The headless wgpu context: Vulkan only (never a silent fallback to OpenGL), an adapter chosen
-//! explicitly, features and limits requested from what the adapter has. Built once, reused for
-//! every call. All wgpu calls that moved between releases are in this file.
+//! explicitly, features and limits requested from what the adapter has, and the cache of compiled
+//! pipelines every user of the context shares. Built once, reused for every call. All wgpu calls
+//! that moved between releases are in this file.
 //!
 //! Mesa prints `XDG_RUNTIME_DIR` warnings on headless machines unless that variable is set; the
 //! `flatport` binary sets it at start-up, and `scripts/test.sh` exports it.
 
+use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
-use super::shaders::WORKGROUP_SIZE;
+use super::compose::{CpuBounds, KernelSource, Precision, Rows, WORKGROUP_SIZE, compose};
+use crate::model::camera::UNDISTORT_MAX_ITERATIONS;
+use crate::model::refractive_camera::{PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE};
+use crate::model::stereo::{MIN_BINOCULAR_CONDITIONING, MIN_RAY_ANGLE_SIN2};
+
+/// The CPU path's stopping rules, as every kernel of the pipeline cache gets them (in its
+/// prelude, [`compose`](super::compose::prelude)).
+pub const CPU_BOUNDS: CpuBounds = CpuBounds {
+    undistort_max_iterations: UNDISTORT_MAX_ITERATIONS,
+    project_tolerance: PROJECT_TOLERANCE,
+    project_max_iterations: PROJECT_MAX_ITERATIONS,
+    min_ray_angle_sin2: MIN_RAY_ANGLE_SIN2,
+    min_binocular_conditioning: MIN_BINOCULAR_CONDITIONING,
+};
+
+/// The composed WGSL module of `kernel` at `precision` with the CPU's stopping rules, its view
+/// rows bound as `rows` (ignored by kernels without): the text [`GpuContext::kernel_pipeline`]
+/// compiles, for `precision` = [`KernelSource::precision`].
+pub fn source(kernel: &KernelSource, precision: Precision, rows: Rows) -> String {
+    compose(kernel, precision, rows, &CPU_BOUNDS)
+}
+
+/// What a pipeline of the cache is compiled from: the kernel (by its name, unique across the
+/// catalogues), its precision, its view-row binding and `RIG_LAYERS`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+struct PipelineKey {
+    kernel: &'static str,
+    precision: Precision,
+    rows: Rows,
+    rig_layers: u32,
+}
 
 /// Why no GPU context could be made.
 #[derive(Debug, thiserror::Error)]
@@ -230,6 +262,8 @@ pub struct GpuContext {
     faults: Arc<Faults>,
     /// Limit of one wait.
     timeout: std::time::Duration,
+    /// Compiled pipelines, shared by every user of the context.
+    pipelines: Mutex<HashMap<PipelineKey, Arc<wgpu::ComputePipeline>>>,
 }
 
 /// What wgpu's callbacks report, for [`GpuContext::check`].
@@ -323,6 +357,7 @@ impl GpuContext {
             software: adapter.get_info().device_type == wgpu::DeviceType::Cpu,
             faults,
             timeout: wait_limit(),
+            pipelines: Mutex::default(),
         })
     }
 
@@ -346,7 +381,7 @@ impl GpuContext {
     /// }).await?;
     /// // … the pipeline's own work on `device` …
     /// let context = flatport::gpu::GpuContext::from_device(&adapter, device.clone(), queue.clone());
-    /// let engine = flatport::gpu::GpuEngine::new(context, flatport::gpu::Precision::F32)?;
+    /// let engine = flatport::engine::GpuEngine::new(context, flatport::gpu::Precision::F32)?;
     /// # Ok(()) }
     /// ```
     pub fn from_device(adapter: &wgpu::Adapter, device: wgpu::Device, queue: wgpu::Queue) -> Self {
@@ -361,6 +396,7 @@ impl GpuContext {
             software: adapter.get_info().device_type == wgpu::DeviceType::Cpu,
             faults: Arc::new(Faults::default()),
             timeout: wait_limit(),
+            pipelines: Mutex::default(),
         }
     }
 
@@ -467,6 +503,37 @@ impl GpuContext {
         }
     }
 
+    /// The compiled pipeline of `kernel` for a caller at `precision` (the kernel's own where it
+    /// is fixed), its view rows bound as `rows` (ignored by kernels without), its layer loops
+    /// running to `rig_layers` (`RIG_LAYERS`: the most layers of the cameras it will see; one
+    /// pipeline per layer count, whose loops have a constant trip count). Compiled from
+    /// [`source`] on first use and kept: every later call with the same kernel, precision,
+    /// binding and layer count, by any user of this context, gets the same pipeline.
+    ///
+    /// Errors: [`GpuError::Kernel`] as [`pipeline`](Self::pipeline).
+    pub fn kernel_pipeline(
+        &self,
+        kernel: &KernelSource,
+        precision: Precision,
+        rows: Rows,
+        rig_layers: u32,
+    ) -> Result<Arc<wgpu::ComputePipeline>, GpuError> {
+        let key = PipelineKey {
+            kernel: kernel.name,
+            precision: kernel.precision(precision),
+            rows: kernel.rows(rows),
+            rig_layers,
+        };
+        let mut cache = self.pipelines.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(pipeline) = cache.get(&key) {
+            return Ok(pipeline.clone());
+        }
+        let text = source(kernel, key.precision, key.rows);
+        let pipeline = Arc::new(self.pipeline(&kernel.label(key.rows), &text, rig_layers)?);
+        cache.insert(key, pipeline.clone());
+        Ok(pipeline)
+    }
+
     /// Allocates a buffer of `bytes`.
     ///
     /// Errors: [`GpuError::OutOfMemory`] naming the buffer when `bytes` exceeds the adapter's
@@ -526,12 +593,6 @@ impl GpuContext {
             }),
             None => Ok(()),
         }
-    }
-
-    /// Workgroup counts (x, y) for `items` items in [`WORKGROUP_SIZE`]-wide workgroups: see
-    /// [`dispatch_grid`].
-    pub(crate) fn dispatch_size(&self, items: u32) -> (u32, u32) {
-        dispatch_grid(items, self.summary.max_workgroups_per_dimension)
     }
 
     /// Submits `encoder` after copying each `(source, staging, bytes)` into its staging buffer
@@ -687,21 +748,6 @@ impl GpuContext {
     }
 }
 
-/// Workgroup counts (x, y) for `items` items in [`WORKGROUP_SIZE`]-wide workgroups, at most
-/// `max_per_dimension` per dimension: 1-D while it fits, else y rows of x groups with x·y as close
-/// above the needed count as the rows allow (fewer than y spare groups), since the kernels index
-/// items as `gid.x + gid.y · groups.x · WORKGROUP_SIZE` and guard the tail. A full 2²² chunk is
-/// 65 536 groups of 64: 2 rows of 32 768, not 2 rows of 65 535 (twice the work).
-pub(crate) fn dispatch_grid(items: u32, max_per_dimension: u32) -> (u32, u32) {
-    let groups = items.div_ceil(WORKGROUP_SIZE).max(1);
-    let max = max_per_dimension.max(1);
-    if groups <= max {
-        return (groups, 1);
-    }
-    let rows = groups.div_ceil(max);
-    (groups.div_ceil(rows), rows)
-}
-
 fn list(names: &[String]) -> String {
     if names.is_empty() {
         "none".to_string()
@@ -712,7 +758,9 @@ fn list(names: &[String]) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{WORKGROUP_SIZE, dispatch_grid};
+    use std::sync::Arc;
+
+    use super::{KernelSource, Precision, Rows};
 
     fn info(name: &str, device_type: wgpu::DeviceType) -> wgpu::AdapterInfo {
         wgpu::AdapterInfo {
@@ -755,32 +803,55 @@ mod tests {
         assert!(choose_adapter(&[], None).is_err());
     }
 
+    /// A kernel of the context's prelude that writes one number: `RIG_LAYERS` plus the first
+    /// `info` word.
+    const PROBE: KernelSource = KernelSource::new(
+        "probe",
+        &["@group(0) @binding(0) var<uniform> params: Params;\n\
+           @group(0) @binding(1) var<storage, read_write> out: array<u32>;\n\
+           @compute @workgroup_size(WORKGROUP_SIZE) fn main() { out[0] = RIG_LAYERS + params.info.x; }"],
+    );
+
+    /// One compiled pipeline per (kernel, precision, binding, layer count): the same one for the
+    /// same key, whoever asks, another for another layer count or precision, and the view-row
+    /// binding ignored by a kernel that reads none.
     #[test]
-    fn dispatch_grids_cover_every_item_with_fewer_spare_groups_than_rows() {
-        for items in [
-            1u32,
-            63,
-            64,
-            65,
-            65_535 * 64,
-            65_535 * 64 + 1,
-            1 << 22,
-            (1 << 22) + 17,
-            u32::MAX,
-        ] {
-            let (x, y) = dispatch_grid(items, 65_535);
-            let needed = items.div_ceil(WORKGROUP_SIZE) as u64;
-            assert!(x <= 65_535 && y <= 65_535, "{items}: {x} × {y}");
+    fn the_pipeline_cache_compiles_each_key_once() {
+        let context = match super::GpuContext::new(None) {
+            Ok(context) => context,
+            Err(e) if std::env::var_os("CI").is_none() => {
+                eprintln!("SKIPPED (no Vulkan adapter; CI fails here instead): {e}");
+                return;
+            }
+            Err(e) => panic!("CI needs a Vulkan adapter: {e}"),
+        };
+        let get = |precision, rows, layers| {
+            context
+                .kernel_pipeline(&PROBE, precision, rows, layers)
+                .unwrap()
+        };
+        let one = get(Precision::F32, Rows::Storage, 1);
+        assert!(Arc::ptr_eq(&one, &get(Precision::F32, Rows::Storage, 1)));
+        assert!(
+            Arc::ptr_eq(&one, &get(Precision::F32, Rows::Uniform, 1)),
+            "the binding of view rows the probe does not read"
+        );
+        assert!(!Arc::ptr_eq(&one, &get(Precision::F32, Rows::Storage, 2)));
+        if context.adapter().f64 {
+            let f64_one = get(Precision::F64, Rows::Storage, 1);
+            assert!(!Arc::ptr_eq(&one, &f64_one));
+            let fixed = PROBE.in_precision(Precision::F64);
+            let fixed = context
+                .kernel_pipeline(&fixed, Precision::F32, Rows::Storage, 1)
+                .unwrap();
             assert!(
-                x as u64 * y as u64 >= needed,
-                "{items}: {x} × {y} misses items"
-            );
-            assert!(
-                x as u64 * y as u64 - needed < y as u64,
-                "{items}: {x} × {y} for {needed} groups"
+                Arc::ptr_eq(&f64_one, &fixed),
+                "a fixed precision is the key's"
             );
         }
-        assert_eq!(dispatch_grid(1 << 22, 65_535), (32_768, 2));
-        assert_eq!(dispatch_grid(0, 65_535), (1, 1));
+        assert_eq!(
+            context.pipelines.lock().unwrap().len(),
+            2 + usize::from(context.adapter().f64)
+        );
     }
 }

@@ -8,11 +8,23 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec4, UVec4, Vec4};
 
-use super::shaders::Precision;
+use super::compose::Precision;
+use super::context::GpuError;
 use crate::model::RefractiveCamera;
 
 /// Largest number of layers the kernels take (`MAX_LAYERS` in `shaders/common.wgsl`).
 pub const MAX_LAYERS: usize = 8;
+
+/// Refuses a camera behind more than [`MAX_LAYERS`] layers, which no kernel takes.
+pub(crate) fn check_layers(camera: &RefractiveCamera) -> Result<(), GpuError> {
+    if camera.layers().len() > MAX_LAYERS {
+        return Err(GpuError::Unsupported(format!(
+            "the GPU kernels take at most {MAX_LAYERS} layers, this interface has {}",
+            camera.layers().len()
+        )));
+    }
+    Ok(())
+}
 
 /// A vec4 of reals in a kernel precision, from f64 values (rounded to nearest in f32).
 trait Real4 {

@@ -1,21 +1,32 @@
-//! The GPU backend: WGSL compute kernels (`shaders/`) run through wgpu over batches of any size,
-//! checked against the f64 CPU reference. This module holds no geometry beyond indexing and
-//! buffer layout; every kernel function has a CPU twin of the same name in [`crate::model`].
+//! The wgpu toolkit: WGSL compute kernels (`shaders/`) composed, compiled once per context and
+//! run over batches of any size, headless, on a Vulkan adapter. It holds no geometry beyond
+//! indexing and buffer layout, and knows no kernel by name: each user keeps a catalogue of
+//! [`KernelSource`]s beside its host code (the batch engine's relation kernels in
+//! [`crate::engine::gpu`], the cost kernels beside the GPU cost backend).
 //!
-//! - [`context`]: adapter choice, device, read-back (all version-sensitive wgpu calls);
-//! - [`shaders`]: composition of the WGSL sources per kernel and precision (also compiled by
-//!   `build.rs`, which validates every kernel with naga);
+//! - [`compose`]: the pure-string composition of a kernel in a precision (also compiled by
+//!   `build.rs`, which validates every kernel of every catalogue with naga);
+//! - [`context`]: adapter choice, device, the pipeline cache every user of a context shares,
+//!   waits and read-back (all version-sensitive wgpu calls);
 //! - [`layout`]: the `#[repr(C)]` host mirrors of the kernels' uniform;
-//! - [`engine`]: chunked batches, buffer reuse, f32/f64 conversion.
+//! - `buffers`: buffers reused across chunks and calls, mapped or staged, and the host-side
+//!   conversions to and from a kernel precision;
+//! - [`dispatch`]: one dispatch from bind group to results in host memory, kernel timing, the
+//!   chunking arithmetic;
+//! - [`stream`]: row kernels streamed through a ring of buffer sets, f32 or f64 host rows
+//!   ([`HostReal`]);
+//! - [`resident`]: rows kept on the device across calls ([`ResidentRows`]).
 
+pub(crate) mod buffers;
+pub mod compose;
 pub mod context;
-pub mod engine;
+pub mod dispatch;
 pub mod layout;
-pub mod shaders;
+pub mod resident;
+pub mod stream;
 
-pub use context::{AdapterSummary, GpuContext, GpuError, adapters};
-pub use engine::{
-    AffineGridInput, GpuEngine, HostReal, KernelTimer, ResidentRows, SCENE_ROW, SceneFitInput,
-    SceneSum, ViewRows,
-};
-pub use shaders::{Kernel, Precision, Reduction, Rows};
+pub use compose::{CpuBounds, KernelSource, Precision, Rows};
+pub use context::{AdapterSummary, CPU_BOUNDS, GpuContext, GpuError, adapters, source};
+pub use dispatch::{KernelTimer, MAX_CHUNK_ITEMS};
+pub use resident::ResidentRows;
+pub use stream::{HostReal, STREAM_CHUNK_ROWS, default_stream_chunk_rows};

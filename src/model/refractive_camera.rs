@@ -218,7 +218,7 @@ impl RefractiveCamera {
     }
 
     /// The forward-projection root finder's media, for the vector twin in
-    /// [`engine::simd`](crate::engine::simd): (air, water, then the layers; the index of the
+    /// [`engine::cpu::lanes`](crate::engine::cpu::lanes): (air, water, then the layers; the index of the
     /// slowest).
     pub(crate) fn path_media(&self) -> (&[Medium], usize) {
         (&self.media, self.slowest)

@@ -13,7 +13,7 @@
 use rayon::prelude::*;
 
 use super::rays::TASK_PIXELS;
-use crate::engine::simd;
+use crate::engine::cpu::lanes;
 use crate::model::RefractiveCamera;
 
 /// What the other cameras say about a reference pixel's point.
@@ -118,7 +118,7 @@ pub fn consistency(
                     .zip(&has_point)
                     .map(|(p, &ok)| if ok { *p } else { placeholder })
                     .collect();
-                simd::project(check.camera, &queried, &mut there, &mut status);
+                lanes::project(check.camera, &queried, &mut there, &mut status);
                 let mut found = vec![false; n];
                 for j in 0..n {
                     back[j] = reference_centre;
@@ -130,7 +130,7 @@ pub fn consistency(
                         found[j] = true;
                     }
                 }
-                simd::project(reference, &back, &mut again, &mut status_back);
+                lanes::project(reference, &back, &mut again, &mut status_back);
                 for j in 0..n {
                     if found[j] && status_back[j] == 0 {
                         let i = task * TASK_PIXELS + j;

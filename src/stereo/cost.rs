@@ -26,7 +26,7 @@
 use rayon::prelude::*;
 
 use super::rays::{RayGrid, hypothesis_points};
-use crate::engine::simd;
+use crate::engine::cpu::lanes;
 use crate::model::RefractiveCamera;
 use crate::render::GreyImage;
 
@@ -134,7 +134,7 @@ pub fn project_hypotheses(
     pixels: &mut [[f64; 2]],
     status: &mut [u32],
 ) {
-    simd::project(camera, points, pixels, status);
+    lanes::project(camera, points, pixels, status);
 }
 
 /// Stage 4a, `warp_bilinear`: the image sampled bilinearly at `pixels` ((0, 0) the centre of the

@@ -8,7 +8,7 @@
 
 use rayon::prelude::*;
 
-use crate::engine::simd;
+use crate::engine::cpu::lanes;
 use crate::model::RefractiveCamera;
 
 /// Pixels per task of the batch stages.
@@ -76,7 +76,7 @@ pub fn reference_rays(camera: &RefractiveCamera) -> RayGrid {
                     [(i % width) as f64, (i / width) as f64]
                 })
                 .collect();
-            simd::backproject(camera, &pixels, rays, status);
+            lanes::backproject(camera, &pixels, rays, status);
         });
     let mut grid = RayGrid {
         width,

@@ -2,7 +2,8 @@
 //! fails the run when `CI` is set and there is none, and a small reproducible random source.
 #![allow(dead_code)]
 
-use flatport::gpu::{GpuContext, GpuEngine, Precision};
+use flatport::engine::GpuEngine;
+use flatport::gpu::{GpuContext, Precision};
 use flatport::model::Rig;
 
 /// The GPU engine at `precision`, or `None` (with a note) when there is no adapter outside CI.

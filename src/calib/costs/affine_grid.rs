@@ -1,6 +1,6 @@
 //! The weighted affine-grid invariant fused per (candidate axis, view): the batch path of
 //! [`CostKind::AffineGrid`](super::CostKind::AffineGrid). CPU twin of
-//! `shaders/kernels/calib_affine_grid.wgsl` (same names, same loop).
+//! `shaders/calib/affine_grid.wgsl` (same names, same loop).
 //!
 //! **Formulation.** For the axis n write t = n / n_z. The binocular VOP of a corner lies at
 //! s along its left air ray, s = (t·p)/(t·m) with p = b × v_r, m = v_l × v_r, b = C_r − C_l
@@ -36,7 +36,7 @@ use crate::calib::problem::data::{Corner, StereoData};
 pub const ROW: usize = 36;
 
 /// κ of the taper: corners within κ pixel-noise standard deviations of the degenerate plane lose
-/// their weight smoothly. Mirrored in `shaders/kernels/calib_affine_grid.wgsl` (a test checks).
+/// their weight smoothly. Mirrored in `shaders/calib/affine_grid.wgsl` (a test checks).
 pub const TAPER: f64 = 2.0;
 
 /// |t·m| at or below which a corner carries no weight at all (its VOP is undetermined).
@@ -406,7 +406,7 @@ mod tests {
 
     #[test]
     fn the_kernel_uses_the_same_taper() {
-        let kernel = include_str!("../../../shaders/kernels/calib_affine_grid.wgsl");
+        let kernel = include_str!("../../../shaders/calib/affine_grid.wgsl");
         assert!(
             kernel.contains(&format!("const TAPER: real = {TAPER:?};")),
             "TAPER differs from {TAPER}"

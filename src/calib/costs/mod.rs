@@ -9,12 +9,16 @@
 //!   ([`affine_grid`]); [`CostKind::PlaneFitting`], [`CostKind::PlaneAngles`]: the thesis'
 //!   plane errors ([`invariants`]). These ignore the air layer.
 //!
+//! [`lanes`] is the triangulating costs' vector twin (every corner under one axis at a time, for
+//! the sweeps), on the lanes of [`crate::engine::cpu::lanes`].
+//!
 //! A candidate under which some corner has no answer (a camera outside the air, a ray that is
 //! totally reflected, a point that triangulates behind the port) costs +∞.
 
 pub mod affine_grid;
 pub mod air_layer;
 pub mod invariants;
+pub mod lanes;
 pub mod scene;
 
 use nalgebra::{Isometry3, Point2, Point3, Vector2};
@@ -22,7 +26,7 @@ use nalgebra::{Isometry3, Point2, Point3, Vector2};
 use crate::calib::costs::invariants::{ProjectedVop, plane_angles, plane_fitting, projected_vops};
 use crate::calib::problem::board::{RigidFit, fit_rigid};
 use crate::calib::problem::data::{Candidate, Corner, StereoData};
-use crate::engine::simd;
+use crate::engine::cpu::lanes::project_all;
 use crate::model::{RefractiveCamera, Triangulation, triangulate_rays};
 
 /// Which cost to evaluate.
@@ -234,8 +238,8 @@ pub fn reprojection_residuals(
         .iter()
         .map(|c| fitted_corner(data, &poses[c.view], c).coords.into())
         .collect();
-    let left = simd::project_all(&cameras[0], &points)?;
-    let right = simd::project_all(&cameras[1], &points)?;
+    let left = project_all(&cameras[0], &points)?;
+    let right = project_all(&cameras[1], &points)?;
     let pixel = |p: &[f64; 2]| Point2::new(p[0], p[1]);
     Some(
         data.corners

@@ -16,9 +16,9 @@ use nalgebra::{Point3, Unit, Vector3};
 
 use super::CostKind;
 use super::air_layer::{MIN_GAP_LINE_SIN, air_distance_from_sums, sample_cameras};
+use super::lanes::{self, Columns, GapSums, RayColumns};
 use crate::calib::problem::board::fit_rigid;
 use crate::calib::problem::data::{Candidate, StereoData};
-use crate::engine::simd::axis::{self, Columns, GapSums, RayColumns};
 
 /// The least-squares air layer for the axis `normal`, with the RMS ray gap there (metres).
 ///
@@ -59,7 +59,7 @@ impl SceneRows {
 }
 
 /// The water rays of every corner of `data` under one axis, for every air layer at once
-/// ([`axis::axis_rays`]' columns per camera: the origin at the air layer d₀, the unit water
+/// ([`lanes::axis_rays`]' columns per camera: the origin at the air layer d₀, the unit water
 /// direction and ∂origin/∂d), with the sums of their gap lines.
 /// Holds its buffers for reuse ([`fill`](Self::fill)): a sweep evaluates thousands of axes, and
 /// fresh buffers of this size cost page faults each time.
@@ -99,7 +99,7 @@ impl AxisRays {
             return false;
         };
         let moved = data.ports_moved();
-        self.gaps = axis::axis_rays(
+        self.gaps = lanes::axis_rays(
             &near,
             &prepared.dirs,
             d0,
@@ -154,7 +154,7 @@ impl AxisRays {
         let shifts = data
             .ports_moved()
             .map(|moved| if moved { d - self.d0 } else { 0.0 });
-        if !axis::triangulate_shifted(&self.rays, shifts, &mut self.points) {
+        if !lanes::triangulate_shifted(&self.rays, shifts, &mut self.points) {
             return None;
         }
         if kind == CostKind::RayGap {
@@ -195,7 +195,8 @@ impl AxisRays {
             return Some((sum_squares / corners as f64).sqrt());
         }
         self.fitted.pad();
-        let sum = axis::reprojection_squares(&cameras, &self.fitted, &self.rays, &prepared.pixels)?;
+        let sum =
+            lanes::reprojection_squares(&cameras, &self.fitted, &self.rays, &prepared.pixels)?;
         Some((sum / (2 * corners) as f64).sqrt())
     }
 }

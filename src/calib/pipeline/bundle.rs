@@ -19,7 +19,7 @@ use crate::calib::solvers::block::{
 };
 use crate::calib::solvers::lm::LeastSquares;
 use crate::calib::solvers::search::tangent_step;
-use crate::engine::simd;
+use crate::engine::cpu::lanes;
 use crate::model::{Interface, Ports, RefractiveCamera, Rig};
 
 /// What a calibration estimates (`--estimate`); the rest is known.
@@ -341,7 +341,7 @@ impl<'a> Bundle<'a> {
                         .into()
                 })
                 .collect();
-            let pixels = simd::project_all(&cameras[*k], &points)?;
+            let pixels = lanes::project_all(&cameras[*k], &points)?;
             out.extend(
                 corners
                     .iter()

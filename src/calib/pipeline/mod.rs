@@ -44,7 +44,7 @@ use crate::calib::error::CalibError;
 use crate::calib::problem::data::StereoData;
 use crate::calib::problem::observations::{Observations, SeenView};
 use crate::calib::problem::target::Target;
-use crate::gpu::GpuEngine;
+use crate::engine::GpuEngine;
 use crate::model::Rig;
 
 /// Which estimator.

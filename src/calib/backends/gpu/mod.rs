@@ -1,15 +1,27 @@
 //! The calibration costs on the GPU: a [`CostBackend`] whose per-(candidate, corner) work runs in
-//! WGSL kernels over the whole batch, in f32 or f64.
+//! WGSL kernels over the whole batch, in f32 or f64, on a [`GpuEngine`]'s device. The kernels'
+//! pipelines are compiled in the engine's context (shared with every other user of it); the
+//! backend keeps its own buffers. The host code of the calibration kernels is here, one file per
+//! kind of dispatch (`runner.rs` their shared state: the backend's buffers): `candidates.rs` (per candidate × corner), `views.rs` (per candidate × view,
+//! the corner rows in uniform windows or one storage block), `affine_grid.rs` and `scene_fit.rs`
+//! (the two per-view kernels' inputs); [`kernels`] is their catalogue.
 //!
 //! Per cost: [`CostKind::Scene`] and [`CostKind::Reprojection`] are reduced on the device per
-//! (candidate, view) ([`GpuEngine::calib_scene_fit`]: triangulation, the rigid board fit and the
-//! view's sum of squares), and the host adds the views; the profile's air layers come from the
-//! same kernel's gap-line sums per (axis, view). [`CostKind::RayGap`] triangulates per corner on
-//! the device ([`GpuEngine::calib_triangulate`]) and sums on the host ([`ray_gap_rms`]). The
-//! affine-grid invariant is fused per (axis, view) ([`GpuEngine::calib_affine_grid`]); the plane
-//! errors run one dispatch of projected VOPs ([`GpuEngine::calib_projected_vop`]), then the
-//! per-view fits on the host ([`plane_cost`]). A candidate that puts a camera outside the air, or
-//! under which a corner has no answer, costs +∞ as on the CPU.
+//! (candidate, view) (the scene-fit kernel: triangulation, the rigid board fit and the view's sum
+//! of squares), and the host adds the views; the profile's air layers come from the same
+//! kernel's gap-line sums per (axis, view). [`CostKind::RayGap`] triangulates per corner on the
+//! device (`calib_triangulate`) and sums on the host ([`ray_gap_rms`]). The affine-grid invariant
+//! is fused per (axis, view) (`calib_affine_grid`); the plane errors run one dispatch of projected
+//! VOPs (`calib_projected_vop`), then the per-view fits on the host ([`plane_cost`]). A candidate
+//! that puts a camera outside the air, or under which a corner has no answer, costs +∞ as on the
+//! CPU.
+
+mod affine_grid;
+mod candidates;
+pub mod kernels;
+mod runner;
+mod scene_fit;
+mod views;
 
 use std::ops::Deref;
 use std::sync::Arc;
@@ -25,7 +37,11 @@ use crate::calib::costs::invariants::ProjectedVop;
 use crate::calib::costs::{CostKind, plane_cost, ray_gap_rms};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
-use crate::gpu::{AffineGridInput, GpuEngine, ResidentRows, SCENE_ROW, SceneFitInput, SceneSum};
+use crate::engine::GpuEngine;
+use crate::gpu::{ResidentRows, Rows};
+use affine_grid::AffineGridInput;
+use runner::KernelRunner;
+use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
 
 /// The costs of candidate batches evaluated by a [`GpuEngine`] (any adapter, f32 or f64).
 ///
@@ -44,11 +60,13 @@ pub struct GpuBackend<D = Arc<StereoData>, E = Arc<GpuEngine>> {
     /// Air rays, board points and pixels of every corner with the view table, packed for the
     /// scene-fit kernel (gap lines, 3-D scene and reprojection costs reduced per view).
     scene_input: SceneFitInput,
+    /// The kernels' buffers and row binding.
+    kernels: KernelRunner,
 }
 
 impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, E> {
-    /// A backend over `data` running on `engine` (whose pipelines and buffers it reuses). The
-    /// per-corner rows are packed here once and go to the device at the first call that needs
+    /// A backend over `data` running on `engine` (whose device and pipelines it uses; its buffers
+    /// are its own, reused across its calls). The per-corner rows are packed here once and go to the device at the first call that needs
     /// them; they stay there for every later call of this backend (the data never change under
     /// it: other data make another backend, [`CostBackend::over`]).
     pub fn new(data: D, engine: E) -> Self {
@@ -94,7 +112,17 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             vop_rows: ResidentRows::new(&vop_rows),
             affine_input,
             scene_input,
+            kernels: KernelRunner::default(),
         }
+    }
+
+    /// Fixes where the per-(candidate, view) kernels read their corner rows: `Some(Rows::Uniform)`
+    /// in uniform windows wherever every view fits one, `Some(Rows::Storage)` in one storage
+    /// block, `None` (the default) chosen per call (windows for calls large enough to pay for a
+    /// dispatch per window). For tests of the two bindings; a backend [`over`](CostBackend::over)
+    /// other data keeps the choice.
+    pub fn set_rows(&mut self, rows: Option<Rows>) {
+        self.kernels.rows = rows;
     }
 
     /// The engine the kernels run on.
@@ -149,7 +177,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             let views = self.scene_input.views();
             let mut sums = vec![[0.0; 4]; interfaces.len() * views];
             let mut status = vec![0; sums.len()];
-            self.engine.calib_scene_fit(
+            self.kernels.scene_fit(
+                &self.engine,
                 &data.rig,
                 data.cameras,
                 &self.scene_input,
@@ -171,7 +200,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
         }
         let mut rows = vec![[0.0; 4]; interfaces.len() * corners];
         let mut status = vec![0; rows.len()];
-        self.engine.calib_triangulate(
+        self.kernels.triangulate(
+            &self.engine,
             &data.rig,
             data.cameras,
             &self.air_rays,
@@ -221,7 +251,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             .collect();
         let mut fits = vec![[0.0; 2]; axes.len() * views];
         let mut status = vec![0; fits.len()];
-        self.engine.calib_affine_grid(
+        self.kernels.affine_grid(
+            &self.engine,
             &data.rig,
             data.cameras,
             &self.affine_input,
@@ -262,7 +293,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             .collect();
         let mut rows = vec![[0.0; 10]; axes.len() * corners];
         let mut status = vec![0; rows.len()];
-        self.engine.calib_projected_vop(
+        self.kernels.projected_vop(
+            &self.engine,
             &data.rig,
             data.cameras,
             &self.vop_rows,
@@ -310,7 +342,9 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
     }
 
     fn over<'b>(&'b self, data: &'b StereoData) -> Box<dyn CostBackend + 'b> {
-        Box::new(GpuBackend::new(data, &*self.engine))
+        let mut backend = GpuBackend::new(data, &*self.engine);
+        backend.set_rows(self.kernels.rows);
+        Box::new(backend)
     }
 
     fn costs(&self, kind: CostKind, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
@@ -346,7 +380,8 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
         let views = self.scene_input.views();
         let mut sums = vec![[0.0; 4]; axes.len() * views];
         let mut status = vec![0; sums.len()];
-        self.engine.calib_scene_fit(
+        self.kernels.scene_fit(
+            &self.engine,
             &data.rig,
             data.cameras,
             &self.scene_input,

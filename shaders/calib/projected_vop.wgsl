@@ -5,7 +5,7 @@
 // Twin of `calib::invariants::{plane_basis, projected_vop}`; degenerate where the binocular VOP
 // is undetermined (the host leaves those corners out).
 
-// Bindings: shaders/kernels/candidate_bindings.wgsl (input per corner, 18 reals: v_l xyz, v_r xyz,
+// Bindings: shaders/calib/candidate_bindings.wgsl (input per corner, 18 reals: v_l xyz, v_r xyz,
 // ∂v_l/∂u xyz, ∂v_l/∂v xyz, ∂v_r/∂u xyz, ∂v_r/∂v xyz, master frame).
 
 // e₁ = unit(x − (n·x) n), e₂ = n × e₁: an orthonormal basis of the plane ⟂ n, continuous around

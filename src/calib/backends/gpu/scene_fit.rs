@@ -1,20 +1,22 @@
 //! The triangulating calibration costs reduced on the device
-//! (`shaders/kernels/calib_scene_fit.wgsl`): candidate interfaces × views, four numbers per pair
+//! (`shaders/calib/scene_fit.wgsl`): candidate interfaces × views, four numbers per pair
 //! (a view's gap-line sums, or its rigid board fit's sum of squares) instead of a row per corner.
 //! Indexing, chunking and buffers only; the geometry is in the kernel and its CPU twin
 //! [`crate::calib::costs::scene`].
 
-use super::GpuEngine;
+use super::kernels;
+use super::runner::KernelRunner;
 use super::views::{ViewKernel, ViewRows};
+use crate::engine::GpuEngine;
+use crate::gpu::compose::{KernelSource, STATUS_RETRY};
 use crate::gpu::context::GpuError;
-use crate::gpu::shaders::{Kernel, STATUS_RETRY};
 use crate::model::Rig;
 
 /// Reals per corner row of [`SceneFitInput`]: v_l xyz, v_r xyz, board point x y, pixels
 /// u_l v_l u_r v_r.
 pub const SCENE_ROW: usize = 12;
 
-/// What [`GpuEngine::calib_scene_fit`] sums per (candidate, view).
+/// What the scene-fit kernel sums per (candidate, view).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SceneSum {
     /// (Σa², Σab, Σb², 0) of the view's gap lines g(d) = a·d + b under the axis (the candidate's
@@ -33,11 +35,11 @@ pub enum SceneSum {
 
 impl SceneSum {
     /// The kernel that sums it (one WGSL file, its mode a constant).
-    fn kernel(self) -> Kernel {
+    fn kernel(self) -> &'static KernelSource {
         match self {
-            Self::GapLines => Kernel::CalibSceneGap,
-            Self::Scene => Kernel::CalibSceneFit,
-            Self::Reprojection => Kernel::CalibSceneReprojection,
+            Self::GapLines => &kernels::SCENE_GAP,
+            Self::Scene => &kernels::SCENE_FIT,
+            Self::Reprojection => &kernels::SCENE_REPROJECTION,
         }
     }
 }
@@ -68,7 +70,7 @@ impl SceneFitInput {
     }
 }
 
-impl GpuEngine {
+impl KernelRunner {
     /// The sums `what` of every view of `input` under every candidate interface (n unit, d: the
     /// plane n·x = d of the master frame; behind a port per camera it moves the port of
     /// `cameras[0]` and `cameras[1]` keeps its own), in the engine's precision: `sums[c · views + v]` gets view v under
@@ -80,8 +82,9 @@ impl GpuEngine {
     ///
     /// Panics if `sums` and `status` are not `candidates.len() · views` long.
     #[allow(clippy::too_many_arguments)]
-    pub fn calib_scene_fit(
+    pub(super) fn scene_fit(
         &self,
+        engine: &GpuEngine,
         rig: &Rig,
         cameras: [usize; 2],
         input: &SceneFitInput,
@@ -92,10 +95,10 @@ impl GpuEngine {
     ) -> Result<(), GpuError> {
         let job = ViewKernel {
             kernel: what.kernel(),
-            precision: self.precision,
+            precision: engine.precision(),
             input: &input.rows,
         };
-        self.run_views(job, rig, cameras, candidates, sums, status)?;
+        self.run_views(engine, job, rig, cameras, candidates, sums, status)?;
         if what != SceneSum::Reprojection {
             return Ok(());
         }
@@ -112,11 +115,12 @@ impl GpuEngine {
         let mut again_sums = vec![[0.0; 4]; again.len() * views];
         let mut again_status = vec![0; again_sums.len()];
         let job = ViewKernel {
-            kernel: Kernel::CalibSceneReprojectionSafeguarded,
-            precision: self.precision,
+            kernel: &kernels::SCENE_REPROJECTION_SAFEGUARDED,
+            precision: engine.precision(),
             input: &input.rows,
         };
         self.run_views(
+            engine,
             job,
             rig,
             cameras,

@@ -1,11 +1,13 @@
-//! The fused affine-grid kernel (`shaders/kernels/calib_affine_grid.wgsl`): candidate axes ×
+//! The fused affine-grid kernel (`shaders/calib/affine_grid.wgsl`): candidate axes ×
 //! views, one (χ², dof) per pair, always in f64. Indexing, chunking and buffers only; the
 //! formulation is in [`crate::calib::costs::affine_grid`].
 
-use super::GpuEngine;
+use super::kernels;
+use super::runner::KernelRunner;
 use super::views::{ViewKernel, ViewRows};
+use crate::engine::GpuEngine;
+use crate::gpu::compose::Precision;
 use crate::gpu::context::GpuError;
-use crate::gpu::shaders::{Kernel, Precision};
 use crate::model::Rig;
 
 /// The fused affine-grid kernel's input: N reals per corner (a multiple of 4: the kernel reads
@@ -34,7 +36,7 @@ impl AffineGridInput {
     }
 }
 
-impl GpuEngine {
+impl KernelRunner {
     /// The weighted affine-grid χ² and degrees of freedom of every view of `input` under every
     /// axis (unit, fourth value ignored). `fits[c · views + v]` gets
     /// (χ², dof) of view v under axis c; `status` is 0, or 6 (degenerate) where the view has
@@ -43,8 +45,10 @@ impl GpuEngine {
     /// uploaded at the first call and kept on the device for the later ones.
     ///
     /// Panics if `fits` and `status` are not `axes.len() · views.len()` long.
-    pub fn calib_affine_grid(
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn affine_grid(
         &self,
+        engine: &GpuEngine,
         rig: &Rig,
         cameras: [usize; 2],
         input: &AffineGridInput,
@@ -52,17 +56,17 @@ impl GpuEngine {
         fits: &mut [[f64; 2]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
-        if !self.context.adapter().f64 {
+        if !engine.context().adapter().f64 {
             return Err(GpuError::Unsupported(format!(
                 "the affine-grid kernel runs in f64 and adapter '{}' has no SHADER_F64",
-                self.context.adapter().name
+                engine.context().adapter().name
             )));
         }
         let job = ViewKernel {
-            kernel: Kernel::CalibAffineGrid,
+            kernel: &kernels::AFFINE_GRID,
             precision: Precision::F64,
             input: &input.rows,
         };
-        self.run_views(job, rig, cameras, axes, fits, status)
+        self.run_views(engine, job, rig, cameras, axes, fits, status)
     }
 }

@@ -26,7 +26,7 @@
 // size, so the invocations of a workgroup read the same corner rows. The item's view is entry
 // i / info.y + info.w of the block's view table; its output goes to item info.z + i.
 // input (binding 1, composed in front of this file: a storage buffer or a uniform window, see
-// `Rows` in src/gpu/shaders/compose.rs): a block of (first vec4 of the view's rows, row count,
+// `Rows` in src/gpu/compose.rs): a block of (first vec4 of the view's rows, row count,
 // 0, 0) per view, then 3 vec4 per corner: (v_l xyz, v_r x), (v_r yz, P x, P y),
 // (u_l, v_l, u_r, v_r).
 

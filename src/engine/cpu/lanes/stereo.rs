@@ -1,7 +1,7 @@
 //! Lane twin of [`triangulate_rays`](crate::model::triangulate_rays): midpoint triangulation of
-//! [`LANES`](super::lanes::LANES) pairs of rays at once.
+//! [`LANES`](super::f64s::LANES) pairs of rays at once.
 
-use super::lanes::{F64s, Mask, Vec3s};
+use super::f64s::{F64s, Mask, Vec3s};
 use super::refractive_camera::{Rays, Status};
 use crate::model::NoSolution;
 use crate::model::stereo::MIN_RAY_ANGLE_SIN2;

@@ -1,4 +1,5 @@
-//! The streaming row kernels (one output row per input row): a batch cut into chunks that run
+//! Streaming of row kernels (one output row per input row, any [`KernelSource`] with the row
+//! bindings: uniform 0, input 1, output 2, status 3): a batch cut into chunks that run
 //! through a ring of [`RING`] buffer sets, so that while the device runs chunk k the host reads
 //! back chunk k − 1 and writes chunk k + 1. The host converts straight into and out of mapped
 //! memory (the kernels' own buffers where the adapter shares the host's memory, staging buffers
@@ -10,11 +11,12 @@ use std::ops::Range;
 use rayon::prelude::*;
 use wgpu::WriteOnly;
 
-use super::{CONVERT_ROWS, GpuEngine, Slot};
-use crate::gpu::context::GpuError;
-use crate::gpu::layout::Params;
-use crate::gpu::shaders::{Kernel, Precision};
-use crate::model::{NoSolution, RefractiveCamera};
+use super::buffers::{CONVERT_ROWS, Slot, SlotPair};
+use super::compose::{KernelSource, Precision};
+use super::context::{GpuContext, GpuError};
+use super::dispatch::Dispatch;
+use super::layout::Params;
+use crate::model::NoSolution;
 
 /// Buffer sets in flight: chunk k runs while k − 1 is read back and k + 1 written.
 pub const RING: usize = 2;
@@ -22,8 +24,26 @@ pub const RING: usize = 2;
 /// Most rows per streamed chunk on a hardware adapter: a batch of more rows streams through the
 /// ring in several chunks, so that its upload and read-back overlap the kernel (a 4 M-row batch
 /// in 8 chunks). A software adapter runs a batch in as few chunks as the bindings allow
-/// ([`default_stream_chunk_rows`](super::default_stream_chunk_rows)).
+/// ([`default_stream_chunk_rows`]).
 pub const STREAM_CHUNK_ROWS: usize = 1 << 19;
+
+/// The most rows per streamed chunk for `context`: [`STREAM_CHUNK_ROWS`], so that a large
+/// batch's upload and read-back overlap its kernel, except on a software adapter (lavapipe),
+/// where batches run in as few chunks as the bindings allow (`usize::MAX`). There the kernel
+/// already runs on every core of the host, so the overlap leaves no core idle for the
+/// conversions, and each further chunk costs a submission and a wait: `flatport bench --items
+/// 4000000` puts forward projection in 8 chunks through the ring at 0.68–0.81 of its rate in one
+/// chunk (three runs on lavapipe; README, "A batch in one chunk on lavapipe"). The cost is
+/// memory: the buffers, kept across calls, then hold the largest batch up to the binding limit
+/// (128 MiB per binding on lavapipe; two sets where a batch needs more than one chunk) instead
+/// of 2¹⁹ rows per set. `flatport`'s CSV commands pass batches of at most 2²⁰ rows.
+pub fn default_stream_chunk_rows(context: &GpuContext) -> usize {
+    if context.is_software() {
+        usize::MAX
+    } else {
+        STREAM_CHUNK_ROWS
+    }
+}
 
 mod sealed {
     pub trait Sealed {}
@@ -72,16 +92,30 @@ impl HostReal for f32 {
 
 /// One buffer set of the ring: what one chunk needs, kept across chunks and calls.
 #[derive(Default)]
-pub(super) struct Lane {
-    pub(super) uniform: Slot,
-    /// The rows the kernel reads, and where the host writes them (unused where the adapter maps
-    /// the kernel's buffer directly).
-    pub(super) input: Slot,
-    input_host: Slot,
-    pub(super) output: Slot,
-    output_host: Slot,
-    pub(super) status: Slot,
-    status_host: Slot,
+struct Lane {
+    uniform: Slot,
+    /// The rows the kernel reads, and where the host writes them.
+    input: SlotPair,
+    output: SlotPair,
+    status: SlotPair,
+}
+
+/// The buffer sets the row kernels stream their chunks through, kept across calls.
+#[derive(Default)]
+pub(crate) struct Ring([Lane; RING]);
+
+impl Ring {
+    /// The first lane's (uniform, input, output, status) buffers, where the last one-chunk
+    /// [`map`](Self::map) left its data.
+    pub(crate) fn first_lane(&self) -> Option<[wgpu::Buffer; 4]> {
+        let lane = &self.0[0];
+        Some([
+            lane.uniform.buffer()?.clone(),
+            lane.input.buffer()?.clone(),
+            lane.output.buffer()?.clone(),
+            lane.status.buffer()?.clone(),
+        ])
+    }
 }
 
 /// The buffers of one lane for one call (handles: cheap clones).
@@ -196,102 +230,45 @@ fn read_rows<K: HostReal, H: HostReal, const N: usize, const M: usize>(
         });
 }
 
-impl GpuEngine {
-    /// The host-written buffer for rows the kernels read, and the one the host maps to write
-    /// them: the same where the adapter shares the host's memory, a staging buffer otherwise.
-    fn writable(
-        &self,
-        slot: &mut Slot,
-        staging: &mut Slot,
-        label: &str,
-        bytes: usize,
-    ) -> Result<(wgpu::Buffer, wgpu::Buffer), GpuError> {
-        use wgpu::BufferUsages as U;
-        let context = &self.context;
-        if context.maps_storage() {
-            let buffer = slot.get(context, label, bytes, self.input_usage())?.clone();
-            Ok((buffer.clone(), buffer))
-        } else {
-            let buffer = slot
-                .get(context, label, bytes, U::STORAGE | U::COPY_DST)?
-                .clone();
-            let host = staging
-                .get(context, label, bytes, U::MAP_WRITE | U::COPY_SRC)?
-                .clone();
-            Ok((buffer, host))
-        }
-    }
-
-    /// Runs a kernel mapping N reals to M reals per item with cameras `a` and `b`, streaming the
-    /// chunks (at most [`stream_chunk_rows`](Self::stream_chunk_rows) rows each) through the
-    /// ring. On an error the ring's buffers are dropped (a later call makes new ones), so no
-    /// mapping is left behind.
-    pub(super) fn run_map<H: HostReal, const N: usize, const M: usize>(
-        &self,
-        kernel: Kernel,
-        a: &RefractiveCamera,
-        b: &RefractiveCamera,
-        input: &[[H; N]],
-        output: &mut [[H; M]],
-        status: &mut [u32],
-    ) -> Result<(), GpuError> {
-        self.run_map_in(kernel, a, b, input, output, status, self.stream_chunk_rows)
-    }
-
-    /// [`run_map`](Self::run_map) in chunks of at most `max_rows` rows (and what the bindings
-    /// allow): [`kernel_seconds`](Self::kernel_seconds) puts a whole chunk on the first lane.
+impl Ring {
+    /// Runs `kernel` (compiled as `pipeline`, in `precision`) over `input`, N reals to M reals per
+    /// row, with the uniform `params` (its `info` set per chunk), in chunks of `chunk` rows
+    /// streamed through the ring. On an error the ring's buffers are dropped (a later call makes
+    /// new ones), so no mapping is left behind.
+    ///
+    /// Panics if the slices differ in length or `chunk` is 0 for a batch of rows.
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn run_map_in<H: HostReal, const N: usize, const M: usize>(
-        &self,
-        kernel: Kernel,
-        a: &RefractiveCamera,
-        b: &RefractiveCamera,
+    pub(crate) fn map<H: HostReal, const N: usize, const M: usize>(
+        &mut self,
+        context: &GpuContext,
+        kernel: &KernelSource,
+        pipeline: &wgpu::ComputePipeline,
+        precision: Precision,
+        params: Params,
+        chunk: usize,
         input: &[[H; N]],
         output: &mut [[H; M]],
         status: &mut [u32],
-        max_rows: usize,
     ) -> Result<(), GpuError> {
         assert!(
             input.len() == output.len() && input.len() == status.len(),
             "input, output and status of equal length"
         );
-        Self::check_layers(a)?;
-        Self::check_layers(b)?;
         if input.is_empty() {
             return Ok(());
         }
-        let s = self.precision.size();
-        let chunk = self
-            .chunk_items(N.max(M) * s)
-            .min(max_rows.max(1))
-            .min(input.len());
-        let params = Params::new(self.precision, a, b, [0; 4]);
-        let pipeline = self.pipeline(kernel, &params)?;
-        let mut guard = self.buffers();
+        let s = precision.size();
+        let dispatch = Dispatch::new(context, pipeline, kernel.name);
         // As many lanes as chunks, at most the ring (one chunk needs no second set).
         let chunks = input.len().div_ceil(chunk);
         let mut lanes = Vec::with_capacity(RING);
-        for lane in guard.ring.iter_mut().take(chunks.min(RING)) {
-            let uniform = self.uniform(&mut lane.uniform, &params)?;
-            let (input, input_host) = self.writable(
-                &mut lane.input,
-                &mut lane.input_host,
-                "input",
-                chunk * N * s,
-            )?;
-            let (output, output_host) = self.readable(
-                &mut lane.output,
-                &mut lane.output_host,
-                "output",
-                chunk * M * s,
-            )?;
-            let (status, status_host) =
-                self.readable(&mut lane.status, &mut lane.status_host, "status", chunk * 4)?;
-            let bind_group = self.bind_group(
-                &pipeline,
-                kernel.name(),
-                &[(0, &uniform), (1, &input), (2, &output), (3, &status)],
-            );
+        for lane in self.0.iter_mut().take(chunks.min(RING)) {
+            let uniform = lane.uniform.uniform(context, params.bytes().len())?;
+            let (input, input_host) = lane.input.writable(context, "input", chunk * N * s)?;
+            let (output, output_host) = lane.output.readable(context, "output", chunk * M * s)?;
+            let (status, status_host) = lane.status.readable(context, "status", chunk * 4)?;
+            let bind_group =
+                dispatch.bind(&[(0, &uniform), (1, &input), (2, &output), (3, &status)]);
             lanes.push(LaneBuffers {
                 uniform,
                 input,
@@ -303,23 +280,34 @@ impl GpuEngine {
                 bind_group,
             });
         }
-        let streamed = self.stream(
-            kernel, &pipeline, params, &lanes, chunk, input, output, status,
-        );
+        let stream = Stream {
+            context,
+            precision,
+            kernel,
+            dispatch,
+        };
+        let streamed = stream.run(params, &lanes, chunk, input, output, status);
         if streamed.is_err() {
-            guard.ring = Default::default();
+            *self = Self::default();
         }
         streamed
     }
+}
 
-    /// The chunk loop of [`run_map`](Self::run_map): chunk k is submitted from a second thread
+/// One call's streaming: what every chunk of it shares.
+struct Stream<'a> {
+    context: &'a GpuContext,
+    precision: Precision,
+    kernel: &'a KernelSource,
+    dispatch: Dispatch<'a>,
+}
+
+impl Stream<'_> {
+    /// The chunk loop of [`Ring::map`]: chunk k is submitted from a second thread
     /// (a driver that runs the kernel inside its submit then still overlaps) while this one reads
     /// back chunk k − 1 and writes chunk k + 1 into the lane k − 1 freed.
-    #[allow(clippy::too_many_arguments)]
-    fn stream<H: HostReal, const N: usize, const M: usize>(
+    fn run<H: HostReal, const N: usize, const M: usize>(
         &self,
-        kernel: Kernel,
-        pipeline: &wgpu::ComputePipeline,
         mut params: Params,
         lanes: &[LaneBuffers],
         chunk: usize,
@@ -337,7 +325,7 @@ impl GpuEngine {
             let lane = &lanes[k % RING];
             let range = rows(k);
             params.set_info([range.len() as u32, 0, 0, 0]);
-            let submit = || self.submit_chunk::<N, M>(kernel, pipeline, lane, range.len(), &params);
+            let submit = || self.submit_chunk::<N, M>(lane, range.len(), &params);
             if previous.is_none() && k + 1 == chunks {
                 // One chunk: nothing to overlap.
                 let (submission, mapped) = submit()?;
@@ -428,8 +416,6 @@ impl GpuEngine {
     #[allow(clippy::type_complexity)]
     fn submit_chunk<const N: usize, const M: usize>(
         &self,
-        kernel: Kernel,
-        pipeline: &wgpu::ComputePipeline,
         lane: &LaneBuffers,
         items: usize,
         params: &Params,
@@ -447,28 +433,15 @@ impl GpuEngine {
             (items * 4) as u64,
         );
         self.context
-            .queue
+            .queue()
             .write_buffer(&lane.uniform, 0, params.bytes());
-        let mut encoder =
-            self.context
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some(kernel.name()),
-                });
+        let dispatch = &self.dispatch;
+        let mut encoder = dispatch.encoder();
         if lane.input != lane.input_host {
             encoder.copy_buffer_to_buffer(&lane.input_host, 0, &lane.input, 0, in_bytes);
         }
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(kernel.name()),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, &lane.bind_group, &[]);
-            let invocations = items.div_ceil(kernel.rows_per_invocation());
-            let (x, y) = self.context.dispatch_size(invocations as u32);
-            pass.dispatch_workgroups(x, y, 1);
-        }
+        let groups = dispatch.grid(items.div_ceil(self.kernel.rows_per_invocation));
+        dispatch.record(&mut encoder, &[(&lane.bind_group, groups)], None);
         for (source, host, bytes) in [
             (&lane.output, &lane.output_host, out_bytes),
             (&lane.status, &lane.status_host, status_bytes),

@@ -1,14 +1,16 @@
-//! The passes of the triangulating costs under one axis ([`crate::calib::costs::scene`]) on the
-//! vector path, over [`Columns`]: the water rays of every corner with their gap-line sums, the
+//! The lane twin of the triangulating costs: their passes under one axis
+//! ([`crate::calib::costs::scene`]) on the CPU engine's vector path
+//! ([`crate::engine::cpu::lanes`]), over [`Columns`]: the water rays of every corner with their gap-line sums, the
 //! triangulation at an air layer, and the reprojection of the fitted board corners.
 //!
 //! A sweep evaluates these for thousands of axes over every corner, so the data is held as
 //! columns (one `Vec<f64>` per coordinate, padded to whole blocks of [`LANES`]): a block is one
 //! contiguous load or store per coordinate, where rows would take [`LANES`] scalar moves each.
 
-use super::lanes::{F64s, LANES, Mask, Vec3s};
-use super::refractive_camera::{CameraLanes, Rays, Status};
-use super::{project_row, scalar_row, stereo};
+use crate::engine::cpu::lanes::refractive_camera::{CameraLanes, Rays, Status};
+use crate::engine::cpu::lanes::{
+    F64s, LANES, Mask, Vec3s, dispatched, project_row, scalar_row, stereo,
+};
 use crate::model::RefractiveCamera;
 
 /// `N` columns of f64 over `len` rows, each padded to a whole number of blocks of [`LANES`]; the
@@ -244,7 +246,7 @@ dispatched! {
     /// tan a of its observed ray by [`CameraLanes::project_near`], taken from `rays`' ∂origin/∂d
     /// = v/(n·v), whose squared length is 1 + tan² a (here, not in [`axis_rays`], so that the other
     /// costs do not pay for it); the lanes it leaves take [`CameraLanes::project`], and its
-    /// rare rows the scalar model, as [`project`](super::project) does.
+    /// rare rows the scalar model, as [`project`](crate::engine::cpu::lanes::project) does.
     pub fn reprojection_squares(cameras: &[RefractiveCamera; 2], fitted: &Columns<3>, rays: &[RayColumns; 2], observed: &[Columns<2>; 2]) -> Option<f64> {
         let lanes = cameras.each_ref().map(CameraLanes::new);
         let zero = F64s::splat(0.0);

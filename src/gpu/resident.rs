@@ -1,23 +1,23 @@
 //! Data that stays on the device: rows uploaded at the first call that needs them and kept for
-//! every later call on the same device and precision (the per-corner rows of a calibration, read
-//! by the hundreds of small calls of a stencil refinement). Buffers only.
+//! every later call on the same device and precision (per-item rows read by the hundreds of
+//! small calls of a stencil refinement, say). Buffers only.
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use super::GpuEngine;
-use crate::gpu::context::GpuError;
-use crate::gpu::shaders::Precision;
+use crate::gpu::buffers::{input_usage, upload_reals};
+use crate::gpu::compose::Precision;
+use crate::gpu::context::{GpuContext, GpuError};
 
 /// Rows of `width` reals, kept on the host and, once a kernel has read them, on the device.
 ///
-/// The rows never change: data that change make a new `ResidentRows` (the calibration backend
-/// builds its own from its data set), so a device copy is never stale. The copy is made again
+/// The rows never change: data that change make a new `ResidentRows` (a cost backend builds its
+/// own from its data set), so a device copy is never stale. The copy is made again
 /// only for another device or precision.
 pub struct ResidentRows {
     reals: Vec<f64>,
     width: usize,
-    /// Also bound as a uniform buffer (windows of [`ViewRows`](super::ViewRows)).
+    /// Also bound as a uniform buffer (windows of view rows, [`Rows::Uniform`](super::Rows)).
     uniform: bool,
     device: Mutex<Option<DeviceCopy>>,
     uploads: AtomicUsize,
@@ -37,7 +37,7 @@ impl ResidentRows {
     }
 
     /// `reals` as rows of `width` (a multiple of `width` long).
-    pub(super) fn from_reals(reals: Vec<f64>, width: usize) -> Self {
+    pub(crate) fn from_reals(reals: Vec<f64>, width: usize) -> Self {
         assert!(
             width > 0 && reals.len().is_multiple_of(width),
             "whole rows of {width} reals"
@@ -52,14 +52,14 @@ impl ResidentRows {
     }
 
     /// The same rows, to be bound as uniform windows as well as storage.
-    pub(super) fn bound_as_uniform(mut self) -> Self {
+    pub(crate) fn bound_as_uniform(mut self) -> Self {
         self.uniform = true;
         self
     }
 
     /// The reals as the device gets them (before rounding to the precision).
     #[cfg(test)]
-    pub(super) fn reals_for_tests(&self) -> &[f64] {
+    pub(crate) fn reals_for_tests(&self) -> &[f64] {
         &self.reals
     }
 
@@ -89,14 +89,14 @@ impl ResidentRows {
         *self.device.lock().unwrap_or_else(|p| p.into_inner()) = None;
     }
 
-    /// The rows on `engine`'s device in `precision`: the kept copy, or a new one uploaded now.
-    pub(super) fn on_device(
+    /// The rows on `context`'s device in `precision`: the kept copy, or a new one uploaded now.
+    pub(crate) fn on_device(
         &self,
-        engine: &GpuEngine,
+        context: &GpuContext,
         precision: Precision,
     ) -> Result<wgpu::Buffer, GpuError> {
         let mut copy = self.device.lock().unwrap_or_else(|p| p.into_inner());
-        let device = engine.context().device();
+        let device = context.device();
         if let Some(kept) = copy.as_ref()
             && kept.device == *device
             && kept.precision == precision
@@ -107,14 +107,12 @@ impl ResidentRows {
         *copy = None;
         let bytes = (self.reals.len().max(4) * precision.size()) as u64;
         let usage = if self.uniform {
-            engine.input_usage() | wgpu::BufferUsages::UNIFORM
+            input_usage(context) | wgpu::BufferUsages::UNIFORM
         } else {
-            engine.input_usage()
+            input_usage(context)
         };
-        let buffer = engine
-            .context()
-            .buffer("resident rows", bytes.next_multiple_of(16), usage)?;
-        engine.upload_reals_as(precision, &buffer, &self.reals)?;
+        let buffer = context.buffer("resident rows", bytes.next_multiple_of(16), usage)?;
+        upload_reals(context, precision, &buffer, &self.reals)?;
         self.uploads.fetch_add(1, Ordering::Relaxed);
         *copy = Some(DeviceCopy {
             device: device.clone(),

@@ -1,7 +1,7 @@
 //! Lane twin of [`crate::model::camera`]: OpenCV distortion, its Jacobian, and the undistortion
-//! Newton iteration, for [`LANES`](super::lanes::LANES) normalised points at once.
+//! Newton iteration, for [`LANES`](super::f64s::LANES) normalised points at once.
 
-use super::lanes::{F64s, Mask};
+use super::f64s::{F64s, Mask};
 use crate::model::PinholeCamera;
 use crate::model::camera::UNDISTORT_MAX_ITERATIONS;
 

@@ -1,8 +1,7 @@
-// Bindings of the candidate-batch kernels (calib_*): one item per candidate × corner, items
+// Bindings of the candidate-batch kernels (calib_triangulate, calib_projected_vop): one item per candidate × corner, items
 // candidate-major (item i = candidate c · corners + corner j, corners = params.info.y). `input`
 // holds rows per corner (shared by every candidate); `output` M reals per item; one status per
-// item. Composed in front of each of those kernels by
-// src/gpu/shaders.rs.
+// item. The first part of each of those kernels in src/calib/backends/gpu/kernels.rs.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> input: array<real>;

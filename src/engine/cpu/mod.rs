@@ -1,13 +1,14 @@
-//! The CPU backend: the f64 model of [`crate::model`] over batches, parallel with rayon, on the
-//! vector path of [`super::simd`] (16 rows at a time) or row by row through the scalar model.
+//! The batch engine's CPU backend, [`CpuEngine`]: the f64 model of [`crate::model`] over
+//! batches, parallel with rayon, on the vector path of [`lanes`] (16 rows at a time) or row by
+//! row through the scalar model.
 
 use rayon::prelude::*;
 
-use super::simd::{self, backproject_row, project_row, scalar_row, triangulate_row, vop_row};
-use crate::model::{
-    ModelError, NoSolution, RefractiveCamera, Rig, binocular_vop, triangulate_rays,
-};
-use nalgebra::{Point2, Unit, Vector3};
+pub mod lanes;
+
+use crate::model::{NoSolution, RefractiveCamera, binocular_vop};
+use lanes::{backproject_row, project_row, scalar_row, triangulate_row, vop_row};
+use nalgebra::Point2;
 
 /// Items per rayon task: large enough to amortise scheduling, small enough to balance.
 const TASK_ITEMS: usize = 4096;
@@ -15,7 +16,7 @@ const TASK_ITEMS: usize = 4096;
 /// How the CPU engine evaluates back-projection, forward projection and triangulation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum CpuPath {
-    /// Blocks of 16 rows through the lane twins in [`simd`] (AVX-512, AVX2 or NEON, chosen at run
+    /// Blocks of 16 rows through the lane twins in [`lanes`] (AVX-512, AVX2 or NEON, chosen at run
     /// time), rare rows through the scalar model. The default.
     #[default]
     Vector,
@@ -26,7 +27,7 @@ pub enum CpuPath {
 impl std::fmt::Display for CpuPath {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Self::Vector => write!(f, "vector {}", simd::instruction_set()),
+            Self::Vector => write!(f, "vector {}", lanes::instruction_set()),
             Self::Scalar => f.write_str("scalar"),
         }
     }
@@ -120,7 +121,7 @@ impl CpuEngine {
     ) {
         match self.path {
             CpuPath::Vector => self.split(pixels, rays, status, |p, r, s| {
-                simd::backproject(camera, p, r, s);
+                lanes::backproject(camera, p, r, s);
             }),
             CpuPath::Scalar => self.map(pixels, rays, status, |p| backproject_row(camera, p)),
         }
@@ -136,7 +137,7 @@ impl CpuEngine {
     ) {
         match self.path {
             CpuPath::Vector => self.split(points, pixels, status, |p, q, s| {
-                simd::project(camera, p, q, s);
+                lanes::project(camera, p, q, s);
             }),
             CpuPath::Scalar => self.map(points, pixels, status, |p| project_row(camera, p)),
         }
@@ -152,7 +153,7 @@ impl CpuEngine {
     ) {
         match self.path {
             CpuPath::Vector => self.split(points, vops, status, |p, v, s| {
-                simd::vop(camera, p, v, s);
+                lanes::vop(camera, p, v, s);
             }),
             CpuPath::Scalar => self.map(points, vops, status, |p| vop_row(camera, p)),
         }
@@ -169,7 +170,7 @@ impl CpuEngine {
     ) {
         match self.path {
             CpuPath::Vector => self.split(matches, points, status, |m, p, s| {
-                simd::triangulate(a, b, m, p, s);
+                lanes::triangulate(a, b, m, p, s);
             }),
             CpuPath::Scalar => self.map(matches, points, status, |m| triangulate_row(a, b, m)),
         }
@@ -199,48 +200,6 @@ impl CpuEngine {
                 bv.axis_offset,
                 bv.conditioning,
             ])
-        });
-    }
-
-    /// See [`Engine::ray_gap_cost`](super::Engine::ray_gap_cost).
-    pub fn ray_gap_cost(
-        &self,
-        rig: &Rig,
-        a: usize,
-        b: usize,
-        air_rays: &[[f64; 6]],
-        candidates: &[[f64; 4]],
-        costs: &mut [[f64; 2]],
-    ) {
-        assert_eq!(candidates.len(), costs.len(), "one cost per candidate");
-        let term = |a: &RefractiveCamera, b: &RefractiveCamera, r: &[f64; 6]| -> Option<f64> {
-            let v_a = Unit::new_normalize(Vector3::new(r[0], r[1], r[2]));
-            let v_b = Unit::new_normalize(Vector3::new(r[3], r[4], r[5]));
-            let t =
-                triangulate_rays(&a.ray_in_water(&v_a).ok()?, &b.ray_in_water(&v_b).ok()?).ok()?;
-            Some(t.residual * t.residual)
-        };
-        self.pool.install(|| {
-            candidates
-                .par_iter()
-                .zip(costs.par_iter_mut())
-                .for_each(|(c, cost)| {
-                    let moved = rig
-                        .shared_interface()
-                        .ok_or(ModelError::MixedPorts("no shared port".into()))
-                        .and_then(|i| i.with_pose(Vector3::new(c[0], c[1], c[2]), c[3]))
-                        .and_then(|i| rig.with_interface(i));
-                    // A candidate that puts a camera outside the air has no term.
-                    let Ok(moved) = moved else {
-                        *cost = [0.0, 0.0];
-                        return;
-                    };
-                    let (a, b) = (moved.refractive_camera(a), moved.refractive_camera(b));
-                    *cost = air_rays
-                        .iter()
-                        .filter_map(|r| term(&a, &b, r))
-                        .fold([0.0, 0.0], |acc, x| [acc[0] + x, acc[1] + 1.0]);
-                });
         });
     }
 }

@@ -2,7 +2,7 @@
 // master frame) → x, y, z, gap (midpoint of the closest approach of the two water rays and their
 // distance there). Twin of `calib::costs::triangulate_corner`.
 
-// Bindings: shaders/kernels/candidate_bindings.wgsl (input: v_l xyz, v_r xyz per corner).
+// Bindings: shaders/calib/candidate_bindings.wgsl (input: v_l xyz, v_r xyz per corner).
 
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {

@@ -1,19 +1,18 @@
-//! The skeleton the per-(candidate, view) kernels share ([`calib_affine_grid`] and
-//! [`calib_scene_fit`]): one item per (candidate, view), M reals out each, the corner rows
-//! resident on the device ([`ViewRows`]), chunked over candidates and views. Indexing, chunking
-//! and buffers only.
-//!
-//! [`calib_affine_grid`]: GpuEngine::calib_affine_grid
-//! [`calib_scene_fit`]: GpuEngine::calib_scene_fit
+//! The skeleton the per-(candidate, view) kernels share (the fused affine grid and the scene
+//! fit): one item per (candidate, view), M reals out each, the corner rows resident on the device
+//! ([`ViewRows`]), chunked over candidates and views. Indexing, chunking and buffers only.
 
 use std::num::NonZeroU64;
 use std::ops::Range;
 use std::sync::OnceLock;
 
-use super::{GROUP, GpuEngine, rows_from};
+use super::runner::{KernelRunner, candidate_params};
+use crate::engine::GpuEngine;
+use crate::gpu::ResidentRows;
+use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
+use crate::gpu::compose::{KernelSource, Precision, Rows, UNIFORM_WINDOW_BYTES};
 use crate::gpu::context::GpuError;
-use crate::gpu::engine::ResidentRows;
-use crate::gpu::shaders::{Kernel, Precision, Rows, UNIFORM_WINDOW_BYTES};
+use crate::gpu::dispatch::{Dispatch, GROUP};
 use crate::model::Rig;
 
 /// Byte alignment of every bound range of a uniform buffer: the largest value WebGPU allows for
@@ -211,7 +210,7 @@ fn large_enough_for_windows(per_view: usize, views: usize, windows: usize) -> bo
 
 /// What a per-(candidate, view) dispatch needs besides its candidates.
 pub(super) struct ViewKernel<'a> {
-    pub kernel: Kernel,
+    pub kernel: &'static KernelSource,
     pub precision: Precision,
     /// The corner rows, as the kernel reads them (binding 1).
     pub input: &'a ViewRows,
@@ -223,7 +222,7 @@ struct Piece {
     views: Range<usize>,
 }
 
-impl GpuEngine {
+impl KernelRunner {
     /// Runs `job` over every (candidate, view): `output[c · views + v]` and `status[c · views +
     /// v]` get the kernel's item for candidate c and view v, the row NaN where the status is not
     /// 0. A chunk holds `per_view` candidates for each of its views, view-major: every candidate
@@ -234,8 +233,10 @@ impl GpuEngine {
     /// submission and read-back as the output binding holds.
     ///
     /// Panics if `output` and `status` are not `candidates.len() · views` long.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn run_views<const M: usize>(
         &self,
+        engine: &GpuEngine,
         job: ViewKernel<'_>,
         rig: &Rig,
         cameras: [usize; 2],
@@ -252,9 +253,10 @@ impl GpuEngine {
             return Ok(());
         }
         let precision = job.precision;
-        let mut params = Self::candidate_params(precision, rig, cameras)?;
+        let context = engine.context();
+        let mut params = candidate_params(precision, rig, cameras)?;
         let real = precision.size();
-        let capacity = self.chunk_items(M * real);
+        let capacity = self.chunk_items(engine, M * real);
         let views_per_chunk = view_count.min((capacity / GROUP).max(1));
         let fit = ((capacity / views_per_chunk) / GROUP * GROUP).max(GROUP);
         let per_view = if candidates.len() <= fit {
@@ -262,7 +264,7 @@ impl GpuEngine {
         } else {
             fit
         };
-        let windows = self.context.adapter().max_uniform_binding >= UNIFORM_WINDOW_BYTES as u64
+        let windows = context.adapter().max_uniform_binding >= UNIFORM_WINDOW_BYTES as u64
             && match self.rows {
                 Some(rows) => rows == Rows::Uniform,
                 None => {
@@ -272,7 +274,7 @@ impl GpuEngine {
                 }
             };
         let packed = job.input.packed(precision, windows);
-        let cap = self.context.max_storage_binding();
+        let cap = context.max_storage_binding();
         if packed.rows == Rows::Storage && packed.blocks[0].bytes > cap {
             return Err(GpuError::Unsupported(format!(
                 "{} corner rows do not fit one binding of {cap} bytes",
@@ -307,44 +309,31 @@ impl GpuEngine {
         }
         let most_pieces = batches.iter().map(|b| b.len()).max().unwrap_or(1);
 
-        let pipeline = self.pipeline_reading(job.kernel, packed.rows, &params)?;
-        let rows_buf = packed.resident.on_device(self, precision)?;
+        let pipeline =
+            context.kernel_pipeline(job.kernel, precision, packed.rows, params.layers())?;
+        let dispatch = Dispatch::new(context, &pipeline, job.kernel.name);
+        let rows_buf = packed.resident.on_device(context, precision)?;
         // One uniform slot per dispatch of a submission, each at an aligned offset.
         let params_bytes = params.bytes().len();
         let stride = params_bytes.next_multiple_of(UNIFORM_ALIGNMENT);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform_buf = buffers
-            .uniform
-            .get(
-                &self.context,
-                "params",
-                most_pieces * stride,
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            )?
-            .clone();
+        let uniform_buf = buffers.uniform.uniform(context, most_pieces * stride)?;
         let cand_buf = buffers
             .candidates
             .get(
-                &self.context,
+                context,
                 "candidates",
                 per_view * 4 * real,
-                self.input_usage(),
+                input_usage(context),
             )?
             .clone();
         let items = per_view * views_per_chunk;
-        let (out_buf, out_staging) = self.readable(
-            &mut buffers.output,
-            &mut buffers.output_staging,
-            "output",
-            items * M * real,
-        )?;
-        let (status_buf, status_staging) = self.readable(
-            &mut buffers.status,
-            &mut buffers.status_staging,
-            "status",
-            items * 4,
-        )?;
+        let (out_buf, out_staging) =
+            buffers
+                .output
+                .readable(context, "output", items * M * real)?;
+        let (status_buf, status_staging) = buffers.status.readable(context, "status", items * 4)?;
         // The pieces in order, each reading the uniform slot of its place in its submission.
         let slots_in_order = batches.iter().flat_map(|batch| 0..batch.len());
         let bind_groups: Vec<wgpu::BindGroup> = pieces
@@ -359,7 +348,7 @@ impl GpuEngine {
                         size: NonZeroU64::new(bytes),
                     })
                 };
-                let entries = [
+                dispatch.bind_resources([
                     (
                         0,
                         range(&uniform_buf, (slot * stride) as u64, params_bytes as u64),
@@ -368,8 +357,7 @@ impl GpuEngine {
                     (2, out_buf.as_entire_binding()),
                     (3, status_buf.as_entire_binding()),
                     (4, cand_buf.as_entire_binding()),
-                ];
-                self.bind_resources(&pipeline, job.kernel.name(), entries)
+                ])
             })
             .collect();
 
@@ -384,7 +372,7 @@ impl GpuEngine {
             for (k, slot) in chunk.iter_mut().enumerate() {
                 *slot = candidates[(first + k).min(last - 1)];
             }
-            self.upload_reals_as(precision, &cand_buf, chunk.as_flattened())?;
+            upload_reals(context, precision, &cand_buf, chunk.as_flattened())?;
             for batch in &batches {
                 // Item base of each piece within the submission.
                 let mut bases = Vec::with_capacity(batch.len());
@@ -403,34 +391,22 @@ impl GpuEngine {
                     bases.push(count);
                     count += n;
                 }
-                self.context
-                    .queue
+                context
+                    .queue()
                     .write_buffer(&uniform_buf, 0, &slots[..batch.len() * stride]);
-                let mut encoder =
-                    self.context
-                        .device()
-                        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                            label: Some(job.kernel.name()),
-                        });
-                {
-                    let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                        label: Some(job.kernel.name()),
-                        timestamp_writes: None,
-                    });
-                    pass.set_pipeline(&pipeline);
-                    for k in batch.clone() {
+                let dispatches: Vec<_> = batch
+                    .clone()
+                    .map(|k| {
                         let n = per_view * pieces[k].views.len();
-                        let groups = self.context.dispatch_size(n as u32);
-                        pass.set_bind_group(0, &bind_groups[k], &[]);
-                        pass.dispatch_workgroups(groups.0, groups.1, 1);
-                    }
-                }
+                        (&bind_groups[k], dispatch.grid(n))
+                    })
+                    .collect();
                 let copies = [
                     (&out_buf, &out_staging, (count * M * real) as u64),
                     (&status_buf, &status_staging, (count * 4) as u64),
                 ];
                 let (values, codes) = (&mut values[..count], &mut codes[..count]);
-                self.context.read_back(encoder, &copies, |data| {
+                dispatch.run(&dispatches, &copies, |data| {
                     codes.copy_from_slice(bytemuck::cast_slice(data[1]));
                     rows_from(data[0], precision, codes, values);
                 })?;

@@ -1,5 +1,5 @@
 //! Lane twin of [`RefractiveCamera`]: back-projection (pixel → ray in the water) and forward
-//! projection (point in the water → pixel) for [`LANES`](super::lanes::LANES) rows at once.
+//! projection (point in the water → pixel) for [`LANES`](super::f64s::LANES) rows at once.
 //!
 //! Each function follows its scalar twin line by line, in the same order of operations, so a lane
 //! rounds as the scalar code does. Where the scalar code branches, every lane computes and a
@@ -9,20 +9,20 @@
 //! runs the scalar model for that row, which is then the answer by definition.
 
 use super::camera::Distortion;
-use super::lanes::{F64s, Mask, Vec3s, scaled};
+use super::f64s::{F64s, Mask, Vec3s, scaled};
 use crate::model::refractive_camera::{AIR, Medium, SCALE_ABOVE, WATER};
 use crate::model::refractive_camera::{PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE};
 use crate::model::{MAX_INPUT, NoSolution, RefractiveCamera};
 
 /// A status code per lane: 0 = an answer, else the [`NoSolution`] code of the first reason found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Status(pub [u32; super::lanes::LANES]);
+pub struct Status(pub [u32; super::f64s::LANES]);
 
 impl Status {
     /// Every lane answered so far.
     #[inline(always)]
     pub fn ok() -> Self {
-        Self([0; super::lanes::LANES])
+        Self([0; super::f64s::LANES])
     }
 
     /// Records `reason` in the lanes of `mask` that have no reason yet: the scalar code returns at

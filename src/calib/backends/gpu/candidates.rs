@@ -1,15 +1,19 @@
-//! Kernels over batches of candidate interfaces × corners (`shaders/kernels/calib_*.wgsl`): one
-//! item per (candidate, corner), candidate-major, in one dispatch per chunk of candidates. The
-//! calibration geometry lives in the kernels and their CPU twins in [`crate::calib`]; here only
-//! indexing, chunking and buffers.
+//! Kernels over batches of candidate interfaces × corners (`calib_triangulate`,
+//! `calib_projected_vop`): one item per (candidate, corner), candidate-major, in one dispatch per
+//! chunk of candidates. The calibration geometry lives in the kernels and their CPU twins in
+//! [`crate::calib::costs`]; here only indexing, chunking and buffers.
 
-use super::{GpuEngine, extend_reals, rows_from};
+use super::kernels;
+use super::runner::{KernelRunner, candidate_params};
+use crate::engine::GpuEngine;
+use crate::gpu::ResidentRows;
+use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
+use crate::gpu::compose::{KernelSource, Rows};
 use crate::gpu::context::GpuError;
-use crate::gpu::engine::ResidentRows;
-use crate::gpu::shaders::{Kernel, Precision};
+use crate::gpu::dispatch::Dispatch;
 use crate::model::Rig;
 
-impl GpuEngine {
+impl KernelRunner {
     /// Triangulates every corner under every candidate interface (n unit, d: the plane n·x = d of
     /// the master frame; behind a port per camera it moves the port of `cameras[0]` and
     /// `cameras[1]` keeps its own):
@@ -19,8 +23,10 @@ impl GpuEngine {
     /// `status` is 0 or the [`NoSolution`](crate::model::NoSolution) code, the row NaN where not 0.
     ///
     /// Panics if `points` and `status` are not `candidates.len() · air_rays.len()` long.
-    pub fn calib_triangulate(
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn triangulate(
         &self,
+        engine: &GpuEngine,
         rig: &Rig,
         cameras: [usize; 2],
         air_rays: &ResidentRows,
@@ -29,7 +35,8 @@ impl GpuEngine {
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         self.run_candidates::<6, 4>(
-            Kernel::CalibTriangulate,
+            engine,
+            &kernels::TRIANGULATE,
             rig,
             cameras,
             air_rays,
@@ -41,15 +48,17 @@ impl GpuEngine {
 
     /// The binocular VOP of every corner under every candidate axis (unit, master frame; the
     /// fourth value is ignored), projected along n into the plane ⟂ n, and its Jacobian for
-    /// pixel noise, as [`calib::invariants::projected_vop`](crate::calib::costs::invariants::projected_vop):
+    /// pixel noise, as [`costs::invariants::projected_vop`](crate::calib::costs::invariants::projected_vop):
     /// `corners` holds v_l, v_r, ∂v_l/∂u, ∂v_l/∂v, ∂v_r/∂u, ∂v_r/∂v (xyz each; rows of 18, kept
     /// on the device across calls); `vops` gets
     /// q₁, q₂ and J = ∂q/∂(u_l, v_l, u_r, v_r) column by column. Status 6 (degenerate) where the
     /// VOP is undetermined.
     ///
     /// Panics if `vops` and `status` are not `axes.len() · corners.len()` long.
-    pub fn calib_projected_vop(
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn projected_vop(
         &self,
+        engine: &GpuEngine,
         rig: &Rig,
         cameras: [usize; 2],
         corners: &ResidentRows,
@@ -58,7 +67,8 @@ impl GpuEngine {
         status: &mut [u32],
     ) -> Result<(), GpuError> {
         self.run_candidates::<18, 10>(
-            Kernel::CalibProjectedVop,
+            engine,
+            &kernels::PROJECTED_VOP,
             rig,
             cameras,
             corners,
@@ -74,7 +84,8 @@ impl GpuEngine {
     #[allow(clippy::too_many_arguments)]
     fn run_candidates<const N: usize, const M: usize>(
         &self,
-        kernel: Kernel,
+        engine: &GpuEngine,
+        kernel: &KernelSource,
         rig: &Rig,
         cameras: [usize; 2],
         input: &ResidentRows,
@@ -89,120 +100,76 @@ impl GpuEngine {
             "output and status of candidates · corners"
         );
         assert_eq!(input.width(), N, "one input row of {N} per corner");
-        let mut params = Self::candidate_params(self.precision, rig, cameras)?;
+        let (context, precision) = (engine.context(), engine.precision());
+        let mut params = candidate_params(precision, rig, cameras)?;
         if items == 0 {
             return Ok(());
         }
-        let s = self.precision.size();
+        let s = precision.size();
         let item_bytes = M * s;
-        let per_chunk = self.chunk_items(item_bytes.max(4)) / corners;
-        let cap = self.context.max_storage_binding() as usize;
+        let per_chunk = self.chunk_items(engine, item_bytes.max(4)) / corners;
+        let cap = context.max_storage_binding() as usize;
         if per_chunk == 0 || corners * N * s > cap {
             return Err(GpuError::Unsupported(format!(
                 "{corners} corners per candidate do not fit one dispatch ({} items, {cap} bytes per binding)",
-                self.chunk_items(item_bytes.max(4))
+                self.chunk_items(engine, item_bytes.max(4))
             )));
         }
         let per_chunk = per_chunk.min(candidates.len());
-        let pipeline = self.pipeline(kernel, &params)?;
+        let pipeline =
+            context.kernel_pipeline(kernel, precision, Rows::Storage, params.layers())?;
+        let dispatch = Dispatch::new(context, &pipeline, kernel.name);
         let mut guard = self.buffers();
         let buffers = &mut *guard;
 
-        let uniform = self.uniform(&mut buffers.uniform, &params)?;
-        let in_buf = input.on_device(self, self.precision)?;
+        let uniform = buffers.uniform.uniform(context, params.bytes().len())?;
+        let in_buf = input.on_device(context, precision)?;
         let cand_buf = buffers
             .candidates
             .get(
-                &self.context,
+                context,
                 "candidates",
                 per_chunk * 4 * s,
-                self.input_usage(),
+                input_usage(context),
             )?
             .clone();
-        let (out_buf, out_staging) = self.readable(
-            &mut buffers.output,
-            &mut buffers.output_staging,
-            "output",
-            per_chunk * corners * M * s,
-        )?;
-        let (status_buf, status_staging) = self.readable(
-            &mut buffers.status,
-            &mut buffers.status_staging,
-            "status",
-            per_chunk * corners * 4,
-        )?;
-        let bind_group = self.bind_group(
-            &pipeline,
-            kernel.name(),
-            &[
-                (0, &uniform),
-                (1, &in_buf),
-                (2, &out_buf),
-                (3, &status_buf),
-                (4, &cand_buf),
-            ],
-        );
+        let (out_buf, out_staging) =
+            buffers
+                .output
+                .readable(context, "output", per_chunk * corners * M * s)?;
+        let (status_buf, status_staging) =
+            buffers
+                .status
+                .readable(context, "status", per_chunk * corners * 4)?;
+        let bind_group = dispatch.bind(&[
+            (0, &uniform),
+            (1, &in_buf),
+            (2, &out_buf),
+            (3, &status_buf),
+            (4, &cand_buf),
+        ]);
         for first in (0..candidates.len()).step_by(per_chunk) {
             let last = (first + per_chunk).min(candidates.len());
             let range = first * corners..last * corners;
             let count = range.len();
             params.set_info([count as u32, corners as u32, 0, 0]);
-            self.context.queue.write_buffer(&uniform, 0, params.bytes());
-            self.upload_reals(
-                &mut buffers.scratch,
+            context.queue().write_buffer(&uniform, 0, params.bytes());
+            upload_reals(
+                context,
+                precision,
                 &cand_buf,
                 bytemuck::cast_slice(&candidates[first..last]),
             )?;
-            let encoder = self.encode_dispatch(
-                &pipeline,
-                &bind_group,
-                kernel.name(),
-                self.context.dispatch_size(count as u32),
-            );
             let copies = [
                 (&out_buf, &out_staging, (count * M * s) as u64),
                 (&status_buf, &status_staging, (count * 4) as u64),
             ];
             let (out_rows, out_status) = (&mut output[range.clone()], &mut status[range]);
-            self.context.read_back(encoder, &copies, |data| {
+            dispatch.run(&[(&bind_group, dispatch.grid(count))], &copies, |data| {
                 out_status.copy_from_slice(bytemuck::cast_slice(data[1]));
-                rows_from(data[0], self.precision, out_status, out_rows);
+                rows_from(data[0], precision, out_status, out_rows);
             })?;
         }
         Ok(())
-    }
-
-    /// Uploads f64 `values` in `precision` (converted through a temporary for f32).
-    pub(super) fn upload_reals_as(
-        &self,
-        precision: Precision,
-        buffer: &wgpu::Buffer,
-        values: &[f64],
-    ) -> Result<(), GpuError> {
-        match precision {
-            Precision::F64 => self.upload(buffer, bytemuck::cast_slice(values)),
-            Precision::F32 => {
-                let mut bytes = Vec::with_capacity(4 * values.len());
-                extend_reals(&mut bytes, precision, values);
-                self.upload(buffer, &bytes)
-            }
-        }
-    }
-
-    /// Uploads f64 `values` in the kernel precision (through `scratch` for f32).
-    pub(super) fn upload_reals(
-        &self,
-        scratch: &mut Vec<u8>,
-        buffer: &wgpu::Buffer,
-        values: &[f64],
-    ) -> Result<(), GpuError> {
-        match self.precision {
-            Precision::F64 => self.upload(buffer, bytemuck::cast_slice(values)),
-            Precision::F32 => {
-                scratch.clear();
-                extend_reals(scratch, self.precision, values);
-                self.upload(buffer, scratch)
-            }
-        }
     }
 }

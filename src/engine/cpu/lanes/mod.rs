@@ -1,14 +1,12 @@
 //! The CPU engine's vector path: the relations of [`crate::model`] over blocks of
 //! [`LANES`] rows held as structures of arrays, so that one vector instruction serves 4–8 rays.
 //!
-//! Layout (each file the twin of the scalar module of the same name):
-//! - [`lanes`]: the vocabulary, [`F64s`] (16 f64), [`Mask`], 3-vectors;
+//! Layout (each file but the first the twin of the scalar module of the same name):
+//! - [`f64s`]: the vocabulary, [`F64s`] (16 f64), [`Mask`], 3-vectors ([`Vec3s`]);
 //! - [`camera`]: distortion and the undistortion Newton iteration;
 //! - [`refractive_camera`]: back-projection and forward projection (its safeguarded Newton
 //!   iteration, every lane until the slowest converges);
 //! - [`stereo`]: midpoint triangulation;
-//! - [`axis`]: the triangulating costs' passes under one axis (rays, triangulation, reprojection
-//!   of the fitted boards) over columns of every corner, for the sweeps;
 //! - this file: the batch functions over slices, compiled once per instruction set and chosen at
 //!   run time (`multiversion`: AVX-512, else AVX2 + FMA, else NEON, else the baseline), and the
 //!   scalar fallback for the rows the lanes leave to the model.
@@ -20,7 +18,8 @@
 //! rigs: equal statuses, values within 1e-12 relative (in practice bit for bit).
 
 /// Applies the `multiversion` attribute with the one list of instruction sets every kernel is
-/// compiled for; [`instruction_set`] names the one the machine runs, in the same order.
+/// compiled for; [`instruction_set`] names the one the machine runs, in the same order. Also used
+/// by the calibration costs' lane twin (`calib::costs::lanes`).
 macro_rules! dispatched {
     ($($item:item)*) => {$(
         #[multiversion::multiversion(targets(
@@ -31,14 +30,14 @@ macro_rules! dispatched {
         $item
     )*};
 }
+pub(crate) use dispatched;
 
-pub mod axis;
 pub mod camera;
-pub mod lanes;
+pub mod f64s;
 pub mod refractive_camera;
 pub mod stereo;
 
-use lanes::{F64s, LANES, Mask, Vec3s};
+pub use f64s::{F64s, LANES, Mask, Vec3s};
 use refractive_camera::CameraLanes;
 
 use crate::model::{MAX_INPUT, NoSolution, RefractiveCamera, triangulate_rays};
