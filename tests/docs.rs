@@ -11,7 +11,16 @@ const README_MAX_LINES: usize = 200;
 /// Info strings a fenced code block may carry: `sh` and `python` run in `scripts/check-docs.sh`,
 /// `rust` in the doctests; the others are shown only. Anything else (```bash, a bare ```) would
 /// silently escape both checks, or be compiled as Rust.
-const INFO_STRINGS: [&str; 8] = ["sh", "sh skip", "python", "python skip", "rust", "text", "json", "yaml"];
+const INFO_STRINGS: [&str; 8] = [
+    "sh",
+    "sh skip",
+    "python",
+    "python skip",
+    "rust",
+    "text",
+    "json",
+    "yaml",
+];
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -34,7 +43,10 @@ fn read(path: &Path) -> String {
 }
 
 fn name(path: &Path) -> String {
-    path.strip_prefix(root()).unwrap_or(path).display().to_string()
+    path.strip_prefix(root())
+        .unwrap_or(path)
+        .display()
+        .to_string()
 }
 
 #[test]
@@ -52,11 +64,17 @@ fn every_code_block_says_how_it_is_checked() {
     for path in documents() {
         let mut open: Option<usize> = None;
         for (i, line) in read(&path).lines().enumerate() {
-            let Some(info) = line.strip_prefix("```") else { continue };
+            let Some(info) = line.strip_prefix("```") else {
+                continue;
+            };
             let info = info.trim();
             match open {
                 Some(_) if info.is_empty() => open = None,
-                Some(start) => bad.push(format!("{}:{}: a fence inside the block opened at line {start}", name(&path), i + 1)),
+                Some(start) => bad.push(format!(
+                    "{}:{}: a fence inside the block opened at line {start}",
+                    name(&path),
+                    i + 1
+                )),
                 None => {
                     if !INFO_STRINGS.contains(&info) {
                         bad.push(format!(
@@ -95,13 +113,21 @@ fn every_relative_link_leads_to_a_file() {
                 let rest = &line[at + 2..];
                 let Some(end) = rest.find(')') else { continue };
                 let target = &rest[..end];
-                if target.contains("://") || target.starts_with('#') || target.starts_with("mailto:") {
+                if target.contains("://")
+                    || target.starts_with('#')
+                    || target.starts_with("mailto:")
+                {
                     continue;
                 }
                 let file = target.split('#').next().unwrap_or(target);
                 let resolved = path.parent().expect("a document has a folder").join(file);
                 if !resolved.exists() {
-                    bad.push(format!("{}:{}: link to {target}: {} does not exist", name(&path), i + 1, name(&resolved)));
+                    bad.push(format!(
+                        "{}:{}: link to {target}: {} does not exist",
+                        name(&path),
+                        i + 1,
+                        name(&resolved)
+                    ));
                 }
             }
         }
@@ -138,7 +164,13 @@ fn the_job_files_of_the_sweeps_guide_are_well_formed() {
             .position(|l| !l.trim().is_empty() && !l.starts_with('#'))
             .expect("a job runs something");
         let lines: Vec<&str> = text.lines().collect();
-        let last_directive = lines.iter().rposition(|l| l.starts_with("#SBATCH")).expect("#SBATCH lines");
-        assert!(last_directive < first_command, "{file}: an #SBATCH line after the first command is ignored by sbatch");
+        let last_directive = lines
+            .iter()
+            .rposition(|l| l.starts_with("#SBATCH"))
+            .expect("#SBATCH lines");
+        assert!(
+            last_directive < first_command,
+            "{file}: an #SBATCH line after the first command is ignored by sbatch"
+        );
     }
 }
