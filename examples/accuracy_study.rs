@@ -1,4 +1,4 @@
-//! The calibration accuracy study of the README: axis and air-layer errors against pixel noise
+//! The calibration accuracy study of docs/accuracy.md: axis and air-layer errors against pixel noise
 //! and against the number of views, over random simulated scenes, for each method.
 //!
 //! Scene: the example rig (data/example_rig.json: two 1280×1024 cameras, f = 864.91 px, mild
@@ -7,11 +7,11 @@
 //! 40 mm squares at random poses seen whole by both cameras. Every calibration starts from the
 //! naive rig: axis on the camera's z axis, 10 mm air layer.
 //!
-//! The `rigs` tables: the general calibration (`calibrate_rig`, method `auto`) of the rigs of
+//! The `rigs` tables: the calibration (`calibrate`, method `auto`) of the rigs of
 //! issue 10 (`tests/common/rigs.rs`, shared with the tests: one camera in a housing, four cameras
 //! behind one window, two housings, a stereo pair behind one port), each from the naive start
 //! (every axis on its camera's z axis, 10 mm of air), 0.125 px of noise, a 9×6 board of 40 mm
-//! squares at random poses from the library's simulator (`simulate_rig`: seen whole by the
+//! squares at random poses from the library's simulator (`simulate`: seen whole by the
 //! master, by the other cameras when they see it whole). The stereo pair's in-air extrinsics are
 //! off by the size OpenCV's `stereoCalibrate` gave (0.15° in R, 3 mm in T), calibrated with them
 //! held fixed and with `extrinsics` estimated. Errors: the angle between the found and the true

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs the Python package `flatport` (python/, README "Python") into a virtual environment:
+# Installs the Python package `flatport` (python/, docs/python.md) into a virtual environment:
 # the one that is active ($VIRTUAL_ENV), else $FLATPORT_VENV, else ./.venv (created). It runs
 # `pip install ./python`, which builds the crate with maturin (Rust needed, as for the CLI).
 # Debian's own Python refuses packages outside a virtual environment (PEP 668), and a fresh Debian

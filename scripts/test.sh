@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Runs flatport's whole test suite: unit tests, integration tests against independent oracles,
 # golden values, property tests, CLI tests, GPU-vs-CPU parity on Vulkan (lavapipe when there is
-# no GPU), benches compiled and run once, doc examples. Release mode: nalgebra code is ~100x
-# slower unoptimised.
+# no GPU), benches compiled and run once, doc examples (README.md and docs/*.md included), the
+# Python package's tests, and the guides' commands (scripts/check-docs.sh). Release mode: nalgebra
+# code is ~100x slower unoptimised.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -33,14 +34,14 @@ export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 cargo test --release --all-targets "$@"
 cargo test --release --doc "$@"
 
-# The Python package (python/, README "Python"): built by maturin (`pip install ./python`) into a
+# The Python package (python/, docs/python.md): built by maturin (`pip install ./python`) into a
 # virtual environment under target/, sharing target/ with the builds above, then its pytest suite,
 # which also compares with the CLI just built (target/release/flatport).
-python_tests() {
-    local venv=target/python-venv
-    CARGO_TARGET_DIR="$PWD/target" FLATPORT_VENV="$venv" VIRTUAL_ENV= scripts/install-python.sh
-    # opencv-python-headless: OpenCV itself reads the exported FileStorage YAML.
-    "$venv/bin/python" -m pip install -q numpy pytest opencv-python-headless
-    FLATPORT_BIN="$PWD/target/release/flatport" "$venv/bin/python" -m pytest python/tests -q
-}
-python_tests
+venv=target/python-venv
+CARGO_TARGET_DIR="$PWD/target" FLATPORT_VENV="$venv" VIRTUAL_ENV= scripts/install-python.sh
+# opencv-python-headless: OpenCV itself reads the exported FileStorage YAML.
+"$venv/bin/python" -m pip install -q numpy pytest opencv-python-headless
+FLATPORT_BIN="$PWD/target/release/flatport" "$venv/bin/python" -m pytest python/tests -q
+
+# The commands of README.md and docs/*.md, run as written (shell and Python blocks; docs/testing.md).
+FLATPORT_BIN="$PWD/target/release/flatport" FLATPORT_PYTHON="$PWD/$venv/bin/python" scripts/check-docs.sh

@@ -48,6 +48,31 @@
 #[doc = include_str!("../README.md")]
 pub struct ReadmeDoctests;
 
+/// The guides' Rust examples (docs/*.md), compiled and run by `cargo test --doc` as the README's
+/// are; their shell and Python blocks are run by `scripts/check-docs.sh`.
+#[cfg(doctest)]
+pub mod guides {
+    macro_rules! guide {
+        ($name:ident, $path:literal) => {
+            #[doc = include_str!($path)]
+            pub struct $name;
+        };
+    }
+    guide!(Architecture, "../docs/architecture.md");
+    guide!(Accuracy, "../docs/accuracy.md");
+    guide!(Calibration, "../docs/calibration.md");
+    guide!(Design, "../docs/DESIGN.md");
+    guide!(Export, "../docs/export.md");
+    guide!(Geometry, "../docs/geometry.md");
+    guide!(Images, "../docs/images.md");
+    guide!(Library, "../docs/library.md");
+    guide!(Performance, "../docs/performance.md");
+    guide!(Python, "../docs/python.md");
+    guide!(Rigs, "../docs/rigs.md");
+    guide!(Sweeps, "../docs/sweeps.md");
+    guide!(Testing, "../docs/testing.md");
+}
+
 pub mod calib;
 pub mod detect;
 pub mod engine;

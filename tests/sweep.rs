@@ -109,7 +109,7 @@ fn a_noise_free_sweep_finds_the_true_axis_within_a_grid_step() {
         if cost == "3d" {
             // The profile's air layer at the minimum: the cell is up to half a grid step off the
             // true axis (0.19° of tilt, 2.9° of azimuth: up to ~0.6° at 12° tilt), and the air
-            // layer follows the axis at roughly 10 mm per degree here (README accuracy study:
+            // layer follows the axis at roughly 10 mm per degree here (docs/accuracy.md:
             // 0.05° ↔ 0.5 mm), so it lies within 10 mm.
             let d = summary["argmin"]["distance"].as_f64().unwrap();
             assert!((d - 0.025).abs() < 1e-2, "{d}");

@@ -67,7 +67,7 @@ def calibrate(
     grid_step_deg: float = 1.5,
     huber: Optional[float] = None,
     max_iterations: int = 200,
-    max_rms_px: float = 3.0,
+    max_rms_px: Optional[float] = None,
 ) -> CalibrationResult: ...
 
 class Simulation(NamedTuple):

@@ -662,7 +662,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
 }
 
 /// Ratios between the paths of this run, without verdicts: the speed goals, and the outside
-/// reference they were set against, are in the README's "Speed goals" section (this command
+/// reference they were set against, are in docs/performance.md, "Speed goals" (this command
 /// cannot run that reference, so it does not compare against it).
 fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
     // A CPU figure is the vector path's unless `scalar` is asked for.

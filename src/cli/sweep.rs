@@ -25,7 +25,7 @@ use flatport::io::{IoError, TableWriter, Truth, read_truth, write_atomic};
 use super::progress::Progress;
 
 /// Which cost to sweep (`--cost`). The names are `CostKind::name`, as in the summary, the report
-/// and the README; `invariant` and `3d` are the older spellings, still accepted.
+/// and docs/sweeps.md; `invariant` and `3d` are the older spellings, still accepted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum CostArg {
     /// The weighted affine-grid invariant (axis only): χ² per degree of freedom, px²

@@ -69,16 +69,16 @@ pub struct Detection {
 }
 
 /// The ChESS front end: the workspace defaults of calib-targets with the saddle-point refiner,
-/// which replaces the centre of mass of the response (measured on rendered images: see the
-/// README, "Detecting corners").
+/// which replaces the centre of mass of the response (measured on rendered images: see
+/// docs/images.md, "The detector").
 fn chess_config() -> DetectorConfig {
     calib_targets::detect::default_chess_config().with_refiner(ImageRefiner::saddle_point())
 }
 
 /// Standard deviation (pixels) of the Gaussian blur before the corners are found. On sharp
 /// rendered images (anti-aliased, no blur) the saddle-point refiner's worst corner was 0.37 px
-/// off without it and 0.07 px with 0.8–1.2 px (RMS 0.02 px either way); see the README,
-/// "Detecting corners".
+/// off without it and 0.07 px with 0.8–1.2 px (RMS 0.02 px either way); see docs/images.md,
+/// "The detector".
 pub const PRE_BLUR_PX: f32 = 1.0;
 
 /// Board corner (column, row) → grid label (i, j), given the grid's width and height.
