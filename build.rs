@@ -6,29 +6,46 @@
 //! `src/calib/backends/gpu/kernels.rs`), the validation is `build/wgsl.rs`, which `tests/gpu.rs`
 //! also runs.
 
+//!
+//! Without the `gpu` feature there are no kernels, and nothing to check.
+
+#[cfg(feature = "gpu")]
 #[allow(dead_code)]
 #[path = "src/gpu/compose.rs"]
 pub mod compose;
 /// The catalogues name `crate::gpu::compose::KernelSource`, as in the crate.
+#[cfg(feature = "gpu")]
 mod gpu {
     pub use super::compose;
 }
+#[cfg(feature = "gpu")]
 #[allow(dead_code)]
 #[path = "src/calib/backends/gpu/kernels.rs"]
 mod calibration_kernels;
+#[cfg(feature = "gpu")]
 #[allow(dead_code)]
 #[path = "src/engine/gpu/kernels.rs"]
 mod relation_kernels;
+#[cfg(feature = "gpu")]
 #[path = "build/wgsl.rs"]
 mod wgsl;
 
-use std::collections::HashSet;
-
 // `CpuBounds` is named by build/wgsl.rs as `super::CpuBounds`.
+#[cfg(feature = "gpu")]
 use compose::{CpuBounds, KernelSource, Precision, Rows};
-use wgsl::CPU_BOUNDS_COPY;
 
 fn main() {
+    println!("cargo:rerun-if-changed=build.rs");
+    #[cfg(feature = "gpu")]
+    validate();
+}
+
+/// Composes and validates every kernel; exits with the errors.
+#[cfg(feature = "gpu")]
+fn validate() {
+    use std::collections::HashSet;
+    use wgsl::CPU_BOUNDS_COPY;
+
     for path in [
         "shaders",
         "src/gpu/compose.rs",

@@ -33,6 +33,9 @@ export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 
 cargo test --release --all-targets "$@"
 cargo test --release --doc "$@"
+# The library without the optional features (no wgpu, no image crates, no clap): what an embedder
+# who needs only the CPU geometry compiles (Cargo.toml's [features]).
+cargo build --release --lib --no-default-features
 
 # The Python package (python/, docs/python.md): built by maturin (`pip install ./python`) into a
 # virtual environment under target/, sharing target/ with the builds above, then its pytest suite,

@@ -74,10 +74,12 @@ pub mod guides {
 }
 
 pub mod calib;
+#[cfg(feature = "images")]
 pub mod detect;
 pub mod engine;
 pub mod gpu;
 pub mod io;
 pub mod model;
+#[cfg(feature = "images")]
 pub mod render;
 pub mod stereo;

@@ -717,6 +717,38 @@ fn bench_json_has_every_path() {
     };
     assert!(sweep("cpu"), "sweep cpu");
     assert!(!gpu || sweep("gpu"), "sweep gpu");
+    // Every figure names what ran it; every GPU relation figure is read against its roof, the
+    // device memory for a kernel, the host link end to end, both measured in this run.
+    for r in results {
+        assert!(r["device"].as_str().is_some_and(|d| !d.is_empty()), "{r}");
+    }
+    if gpu {
+        for key in [
+            "host_link_upload_bytes_per_s",
+            "host_link_download_bytes_per_s",
+            "device_memory_bytes_per_s",
+        ] {
+            assert!(report[key].as_f64().is_some_and(|x| x > 1e7), "{key}");
+        }
+        let relations = ["backproject", "project", "triangulate"];
+        for r in results
+            .iter()
+            .filter(|r| r["path"] == "gpu" && relations.iter().any(|k| r["kernel"] == *k))
+        {
+            let roof = if r["stage"] == "kernel" {
+                "device_memory"
+            } else {
+                "host_link"
+            };
+            assert_eq!(r["roof"], roof, "{r}");
+            assert!(
+                r["roof_fraction"]
+                    .as_f64()
+                    .is_some_and(|f| f.is_finite() && f > 0.0),
+                "{r}"
+            );
+        }
+    }
     for kernel in ["backproject", "project", "triangulate"] {
         assert!(
             has(kernel, "cpu", "f64", "end_to_end", Some(true)),

@@ -215,3 +215,39 @@ fn bad_grids_are_refused_and_nothing_is_written() {
         assert!(!out.join("cost.npy").exists());
     }
 }
+
+/// The summary names the precision the cost ran in: the affine-grid kernel is f64 on the GPU even
+/// when the engine's relations run in f32 (the default), and the summary says so.
+#[test]
+fn the_summary_names_the_precision_the_cost_ran_in() {
+    let dir = tempfile::tempdir().unwrap();
+    let rig = held_out_rig(dir.path());
+    let scene = dir.path().join("scene");
+    ok(&[
+        "simulate", "--rig", p(&rig), "--views", "6", "--noise", "0", "--seed", "3", "--output",
+        p(&scene),
+    ]);
+    let out = dir.path().join("sweep");
+    ok(&[
+        "sweep",
+        "--rig",
+        p(&rig),
+        "--observations",
+        p(&scene.join("observations.json")),
+        "--cost",
+        "invariant",
+        "--tilt-deg",
+        "0:20:4",
+        "--azimuth-deg",
+        "-180:180:4",
+        "--output",
+        p(&out),
+        "--device",
+        "gpu",
+        "--quiet",
+    ]);
+    let summary: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let device = summary["device"].as_str().unwrap();
+    assert!(device.starts_with("gpu: ") && device.contains("), f64"), "{device}");
+}

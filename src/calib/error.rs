@@ -178,6 +178,7 @@ fn more_repeats(more: usize) -> String {
     }
 }
 
+#[cfg(feature = "gpu")]
 impl From<crate::gpu::GpuError> for CalibError {
     fn from(error: crate::gpu::GpuError) -> Self {
         Self::Gpu(error.to_string())

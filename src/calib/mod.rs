@@ -27,6 +27,7 @@ pub mod simulate;
 pub mod solvers;
 pub mod sweep;
 
+#[cfg(feature = "gpu")]
 pub use backends::gpu::GpuBackend;
 pub use backends::{CostBackend, CpuBackend};
 pub use costs::CostKind;

@@ -233,7 +233,8 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
     let truth = args.truth.as_deref().map(read_truth).transpose()?;
     let engine: Engine = args.engine.engine_quiet()?;
     let backend = super::calib::cost_backend(&engine, &data);
-    eprintln!("device: {}", engine.describe());
+    let device = backend.describe_cost(spec.kind);
+    eprintln!("device: {device}");
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let cells = args
         .shard
@@ -290,7 +291,7 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
                 distance: spec.distance.as_ref().map(grid_axis),
             },
             inputs,
-            device: engine.describe(),
+            device,
             seconds: summary.seconds,
             finite_cells: summary.finite,
         };
@@ -309,7 +310,7 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
         correspondences: data.corners.len(),
         views: data.views.len(),
         seconds: summary.seconds,
-        device: engine.describe(),
+        device,
     };
     outputs.finish(dir, &spec, &summary, &info, truth.as_ref())
 }

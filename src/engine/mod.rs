@@ -22,14 +22,18 @@
 //! ```
 
 pub mod cpu;
+#[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod raymap;
 pub mod workload;
 
 pub use cpu::{CpuEngine, CpuPath};
+#[cfg(feature = "gpu")]
 pub use gpu::GpuEngine;
 
-use crate::gpu::{GpuContext, GpuError, Precision};
+use crate::gpu::Precision;
+#[cfg(feature = "gpu")]
+use crate::gpu::{GpuContext, GpuError};
 use crate::model::RefractiveCamera;
 
 /// Where a batch runs.
@@ -61,6 +65,7 @@ pub struct EngineOptions {
 #[derive(Debug, thiserror::Error)]
 pub enum EngineError {
     /// A GPU failure (no adapter, device lost, unsupported input).
+    #[cfg(feature = "gpu")]
     #[error(transparent)]
     Gpu(#[from] GpuError),
     /// Options that contradict each other.
@@ -74,6 +79,7 @@ pub enum Engine {
     /// The f64 reference.
     Cpu(CpuEngine),
     /// The WGSL kernels.
+    #[cfg(feature = "gpu")]
     Gpu(GpuEngine),
 }
 
@@ -88,7 +94,6 @@ impl Engine {
     /// As [`new`](Self::new), with a sentence saying why this device runs (for `--device auto`:
     /// which adapter was taken, or why the CPU runs instead).
     pub fn choose(options: &EngineOptions) -> Result<(Self, String), EngineError> {
-        let precision = options.precision.unwrap_or(Precision::F32);
         match options.device {
             Device::Cpu => {
                 if options.precision == Some(Precision::F32) {
@@ -101,45 +106,19 @@ impl Engine {
                     "asked for (--device cpu)".into(),
                 ))
             }
-            Device::Gpu => {
-                let gpu = GpuEngine::new(GpuContext::new(options.adapter.as_deref())?, precision)?;
-                Ok((Self::Gpu(gpu), "asked for (--device gpu)".into()))
+            #[cfg(feature = "gpu")]
+            Device::Gpu | Device::Auto => {
+                gpu_or_cpu(options, options.precision.unwrap_or(Precision::F32))
             }
-            Device::Auto => {
-                let cpu = || Self::Cpu(CpuEngine::new(options.threads));
-                let found = crate::gpu::adapters();
-                let hardware: Vec<&str> = found
-                    .iter()
-                    .filter(|a| a.device_type != "Cpu")
-                    .map(|a| a.name.as_str())
-                    .collect();
-                if hardware.is_empty() && options.adapter.is_none() {
-                    let why = match found.first() {
-                        Some(software) => format!(
-                            "auto: no hardware GPU (only the software adapter '{}', which runs on these same cores; --device gpu takes it)",
-                            software.name
-                        ),
-                        None => "auto: no Vulkan adapter (flatport info says what to install)"
-                            .to_string(),
-                    };
-                    return Ok((cpu(), why));
-                }
-                match GpuContext::new(options.adapter.as_deref())
-                    .and_then(|context| GpuEngine::new(context, precision))
-                {
-                    Ok(gpu) => {
-                        let a = gpu.context().adapter();
-                        let why = format!(
-                            "auto: the {} GPU '{}', the best of {} adapter(s)",
-                            a.device_type.to_lowercase(),
-                            a.name,
-                            found.len()
-                        );
-                        Ok((Self::Gpu(gpu), why))
-                    }
-                    Err(error) => Ok((cpu(), format!("auto: the GPU could not be used ({error})"))),
-                }
-            }
+            #[cfg(not(feature = "gpu"))]
+            Device::Gpu => Err(EngineError::Options(
+                "this build of flatport has no GPU support (the crate's `gpu` feature is off): use --device cpu".into(),
+            )),
+            #[cfg(not(feature = "gpu"))]
+            Device::Auto => Ok((
+                Self::Cpu(CpuEngine::new(options.threads)),
+                "auto: this build has no GPU support (the crate's `gpu` feature is off)".into(),
+            )),
         }
     }
 
@@ -152,6 +131,7 @@ impl Engine {
                 cpu.path(),
                 cpu.threads()
             ),
+            #[cfg(feature = "gpu")]
             Self::Gpu(gpu) => {
                 let a = gpu.context().adapter();
                 format!(
@@ -181,6 +161,7 @@ impl Engine {
                 cpu.backproject(camera, pixels, rays, status);
                 Ok(())
             }
+            #[cfg(feature = "gpu")]
             Self::Gpu(gpu) => Ok(gpu.backproject(camera, pixels, rays, status)?),
         }
     }
@@ -198,6 +179,7 @@ impl Engine {
                 cpu.project(camera, points, pixels, status);
                 Ok(())
             }
+            #[cfg(feature = "gpu")]
             Self::Gpu(gpu) => Ok(gpu.project(camera, points, pixels, status)?),
         }
     }
@@ -216,6 +198,7 @@ impl Engine {
                 cpu.vop(camera, points, vops, status);
                 Ok(())
             }
+            #[cfg(feature = "gpu")]
             Self::Gpu(gpu) => Ok(gpu.vop(camera, points, vops, status)?),
         }
     }
@@ -234,6 +217,7 @@ impl Engine {
                 cpu.triangulate(a, b, matches, points, status);
                 Ok(())
             }
+            #[cfg(feature = "gpu")]
             Self::Gpu(gpu) => Ok(gpu.triangulate(a, b, matches, points, status)?),
         }
     }
@@ -253,6 +237,7 @@ impl Engine {
                 cpu.binocular_vop(a, b, matches, vops, status);
                 Ok(())
             }
+            #[cfg(feature = "gpu")]
             Self::Gpu(gpu) => Ok(gpu.binocular_vop(a, b, matches, vops, status)?),
         }
     }
@@ -308,6 +293,57 @@ impl Engine {
         widened(matches, points, status, |i, o, s| {
             self.triangulate(a, b, i, o, s)
         })
+    }
+}
+
+/// `Device::Gpu` and `Device::Auto` of [`Engine::choose`].
+#[cfg(feature = "gpu")]
+fn gpu_or_cpu(
+    options: &EngineOptions,
+    precision: Precision,
+) -> Result<(Engine, String), EngineError> {
+    match options.device {
+        Device::Cpu => unreachable!("Engine::choose builds the CPU engine itself"),
+        Device::Gpu => {
+            let gpu = GpuEngine::new(GpuContext::new(options.adapter.as_deref())?, precision)?;
+            Ok((Engine::Gpu(gpu), "asked for (--device gpu)".into()))
+        }
+        Device::Auto => {
+            let cpu = || Engine::Cpu(CpuEngine::new(options.threads));
+            let found = crate::gpu::adapters();
+            let hardware: Vec<&str> = found
+                .iter()
+                .filter(|a| a.device_type != "Cpu")
+                .map(|a| a.name.as_str())
+                .collect();
+            if hardware.is_empty() && options.adapter.is_none() {
+                let why = match found.first() {
+                    Some(software) => format!(
+                        "auto: no hardware GPU (only the software adapter '{}', which runs on these same cores; --device gpu takes it)",
+                        software.name
+                    ),
+                    None => {
+                        "auto: no Vulkan adapter (flatport info says what to install)".to_string()
+                    }
+                };
+                return Ok((cpu(), why));
+            }
+            match GpuContext::new(options.adapter.as_deref())
+                .and_then(|context| GpuEngine::new(context, precision))
+            {
+                Ok(gpu) => {
+                    let a = gpu.context().adapter();
+                    let why = format!(
+                        "auto: the {} GPU '{}', the best of {} adapter(s)",
+                        a.device_type.to_lowercase(),
+                        a.name,
+                        found.len()
+                    );
+                    Ok((Engine::Gpu(gpu), why))
+                }
+                Err(error) => Ok((cpu(), format!("auto: the GPU could not be used ({error})"))),
+            }
+        }
     }
 }
 

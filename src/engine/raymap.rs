@@ -23,6 +23,7 @@ pub fn backproject_rows(
 ) -> Result<(), EngineError> {
     let width = camera.intrinsics().width;
     match engine {
+        #[cfg(feature = "gpu")]
         Engine::Gpu(gpu) => {
             Ok(gpu.backproject_grid_rows(camera, width, first_row, rows, rays, status)?)
         }

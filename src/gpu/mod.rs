@@ -15,18 +15,35 @@
 //!   chunking arithmetic;
 //! - [`stream`]: row kernels streamed through a ring of buffer sets, f32 or f64 host rows
 //!   ([`HostReal`]);
-//! - [`resident`]: rows kept on the device across calls ([`ResidentRows`]).
+//! - [`resident`]: rows kept on the device across calls ([`ResidentRows`]);
+//! - [`roofs`]: the host link's and the device memory's bandwidths, which GPU figures are read
+//!   against (`flatport bench`).
+//!
+//! Without the crate's `gpu` feature only [`compose`] is here (a kernel precision names what the
+//! options ask for, whichever device runs).
 
+#[cfg(feature = "gpu")]
 pub(crate) mod buffers;
 pub mod compose;
+#[cfg(feature = "gpu")]
 pub mod context;
+#[cfg(feature = "gpu")]
 pub mod dispatch;
+#[cfg(feature = "gpu")]
 pub mod layout;
+#[cfg(feature = "gpu")]
 pub mod resident;
+#[cfg(feature = "gpu")]
+pub mod roofs;
+#[cfg(feature = "gpu")]
 pub mod stream;
 
 pub use compose::{CpuBounds, KernelSource, Precision, Rows};
+#[cfg(feature = "gpu")]
 pub use context::{AdapterSummary, CPU_BOUNDS, GpuContext, GpuError, adapters, source};
+#[cfg(feature = "gpu")]
 pub use dispatch::{KernelTimer, MAX_CHUNK_ITEMS};
+#[cfg(feature = "gpu")]
 pub use resident::ResidentRows;
+#[cfg(feature = "gpu")]
 pub use stream::{HostReal, STREAM_CHUNK_ROWS, default_stream_chunk_rows};

@@ -4,20 +4,26 @@ pub mod calib_json;
 pub mod detections;
 pub mod error;
 pub mod export;
+#[cfg(feature = "images")]
 pub mod image;
 pub mod npy;
 pub mod opencv;
 pub mod output;
+#[cfg(feature = "images")]
 pub mod overlay;
+#[cfg(feature = "images")]
 pub mod plot;
 pub mod rig_json;
+#[cfg(feature = "images")]
 pub mod scene_json;
+#[cfg(feature = "images")]
 pub mod stereo_files;
 pub mod sweep_shard;
 pub mod tabular;
 
 use std::path::Path;
 
+#[cfg(feature = "images")]
 pub use self::image::{
     image_size, read_grey_image, write_grey_png, write_grey16_png, write_rgb_jpeg,
 };

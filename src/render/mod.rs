@@ -20,6 +20,8 @@ pub mod noise;
 pub mod scene;
 pub mod textured;
 
+/// The images rendered here are the stereo matcher's input.
+pub use crate::stereo::GreyImage;
 pub use scene::{
     Extent, Hit, ImageTexture, Relief, Shape, Sphere, Surface, SurfaceFrame, Texture,
     TexturedScene, Wave,
@@ -102,35 +104,6 @@ pub enum RenderError {
         /// What is wrong.
         reason: String,
     },
-}
-
-/// A grey image, row-major, values 0 … 1.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GreyImage {
-    /// Width in pixels.
-    pub width: u32,
-    /// Height in pixels.
-    pub height: u32,
-    /// `width · height` values, row-major.
-    pub pixels: Vec<f32>,
-}
-
-impl GreyImage {
-    /// The image as 8-bit grey levels (rounded, clamped).
-    pub fn to_u8(&self) -> Vec<u8> {
-        self.pixels
-            .iter()
-            .map(|&p| (p * 255.0).round().clamp(0.0, 255.0) as u8)
-            .collect()
-    }
-
-    /// The image as 16-bit grey levels (rounded, clamped).
-    pub fn to_u16(&self) -> Vec<u16> {
-        self.pixels
-            .iter()
-            .map(|&p| (p * 65535.0).round().clamp(0.0, 65535.0) as u16)
-            .collect()
-    }
 }
 
 /// Pixels per band of the back-projection: bounds memory (48 bytes a ray) whatever the image.

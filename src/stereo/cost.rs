@@ -28,7 +28,7 @@ use rayon::prelude::*;
 use super::rays::{RayGrid, hypothesis_points};
 use crate::engine::cpu::lanes;
 use crate::model::RefractiveCamera;
-use crate::render::GreyImage;
+use crate::stereo::GreyImage;
 
 /// A cost of 1 (ZNCC ≤ 0) in the volume's u16 units.
 pub const COST_SCALE: u16 = 2047;

@@ -52,7 +52,7 @@
 //! ```no_run
 //! use flatport::stereo::{StereoOptions, stereo};
 //! # let rig: flatport::model::Rig = unimplemented!();
-//! # let images: Vec<flatport::render::GreyImage> = unimplemented!();
+//! # let images: Vec<flatport::stereo::GreyImage> = unimplemented!();
 //! let options = StereoOptions { depth_range: Some((0.8, 2.5)), ..StereoOptions::default() };
 //! let map = stereo(&rig, &images, &options)?;
 //! println!("{} of {} pixels have a depth", map.valid, map.depth.len());
@@ -62,9 +62,12 @@
 pub mod check;
 pub mod cost;
 pub mod edges;
+mod image;
 pub mod rays;
 pub mod select;
 pub mod sgm;
+
+pub use image::GreyImage;
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
@@ -72,7 +75,6 @@ use std::time::Instant;
 use thiserror::Error;
 
 use crate::model::{RefractiveCamera, Rig};
-use crate::render::GreyImage;
 use check::{Check, CheckView, consistency};
 use cost::{COST_SCALE, Voter, cost_volume, reference_windows};
 use edges::{depth_edges, near_mask};

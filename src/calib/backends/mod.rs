@@ -1,6 +1,7 @@
 //! Where batches of candidate costs are evaluated: the host optimisers hand a whole batch
 //! (a search grid, a finite-difference stencil) to a [`CostBackend`] in one call.
 
+#[cfg(feature = "gpu")]
 pub mod gpu;
 
 use std::ops::Deref;
@@ -20,6 +21,13 @@ use crate::calib::problem::data::{Candidate, StereoData};
 pub trait CostBackend: Sync {
     /// One line saying what evaluates (`cpu (f64, 2 threads)`, `gpu: llvmpipe …, f64`).
     fn describe(&self) -> String;
+
+    /// What evaluates cost `kind`: [`describe`](Self::describe), unless this backend runs that
+    /// cost elsewhere or in another precision (the GPU's affine-grid kernel is always f64).
+    fn describe_cost(&self, kind: CostKind) -> String {
+        let _ = kind;
+        self.describe()
+    }
 
     /// The data the costs are computed from.
     fn data(&self) -> &StereoData;

@@ -33,17 +33,20 @@ pub mod search;
 
 pub(crate) use estimate::{fit_briefly, rms};
 
+#[cfg(feature = "gpu")]
 use std::sync::Arc;
 use std::time::Instant;
 
 use self::bundle::Estimate;
 use self::report::{Report, Stage};
+#[cfg(feature = "gpu")]
 use crate::calib::backends::gpu::GpuBackend;
 use crate::calib::backends::{CostBackend, CpuBackend};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::StereoData;
 use crate::calib::problem::observations::{Observations, SeenView};
 use crate::calib::problem::target::Target;
+#[cfg(feature = "gpu")]
 use crate::engine::GpuEngine;
 use crate::model::Rig;
 
@@ -89,6 +92,7 @@ pub enum Backend {
     Cpu,
     /// The WGSL kernels of a GPU engine (f64 kernels agree with the CPU to ~1e-12; the
     /// refinement's finite differences need them).
+    #[cfg(feature = "gpu")]
     Gpu(Arc<GpuEngine>),
 }
 
@@ -96,6 +100,7 @@ impl std::fmt::Debug for Backend {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Self::Cpu => f.write_str("Cpu"),
+            #[cfg(feature = "gpu")]
             Self::Gpu(engine) => write!(f, "Gpu({})", engine.context().adapter().name),
         }
     }
@@ -106,6 +111,7 @@ impl Backend {
     pub fn over<'a>(&'a self, data: &'a StereoData) -> Box<dyn CostBackend + 'a> {
         match self {
             Self::Cpu => Box::new(CpuBackend::new(data)),
+            #[cfg(feature = "gpu")]
             Self::Gpu(engine) => Box::new(GpuBackend::new(data, engine.as_ref())),
         }
     }
@@ -117,6 +123,7 @@ impl Backend {
                 "cpu (f64 reference, {} threads)",
                 rayon::current_num_threads()
             ),
+            #[cfg(feature = "gpu")]
             Self::Gpu(engine) => {
                 let a = engine.context().adapter();
                 format!("gpu: {} ({}), {}", a.name, a.driver, engine.precision())

@@ -337,6 +337,22 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
         )
     }
 
+    fn describe_cost(&self, kind: CostKind) -> String {
+        let a = self.engine.context().adapter();
+        match kind {
+            CostKind::AffineGrid if a.f64 => format!(
+                "gpu: {} ({}, {}), f64 (the affine-grid kernel, whatever the engine's precision)",
+                a.name, a.backend, a.driver
+            ),
+            CostKind::AffineGrid => format!(
+                "cpu (f64 reference, {} threads): the affine-grid cost needs SHADER_F64, which {} lacks",
+                rayon::current_num_threads(),
+                a.name
+            ),
+            _ => self.describe(),
+        }
+    }
+
     fn data(&self) -> &StereoData {
         &self.data
     }
