@@ -224,7 +224,16 @@ fn the_summary_names_the_precision_the_cost_ran_in() {
     let rig = held_out_rig(dir.path());
     let scene = dir.path().join("scene");
     ok(&[
-        "simulate", "--rig", p(&rig), "--views", "6", "--noise", "0", "--seed", "3", "--output",
+        "simulate",
+        "--rig",
+        p(&rig),
+        "--views",
+        "6",
+        "--noise",
+        "0",
+        "--seed",
+        "3",
+        "--output",
         p(&scene),
     ]);
     let out = dir.path().join("sweep");
@@ -249,5 +258,8 @@ fn the_summary_names_the_precision_the_cost_ran_in() {
     let summary: Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let device = summary["device"].as_str().unwrap();
-    assert!(device.starts_with("gpu: ") && device.contains("), f64"), "{device}");
+    assert!(
+        device.starts_with("gpu: ") && device.contains("), f64"),
+        "{device}"
+    );
 }

@@ -102,41 +102,124 @@ struct ImageResult {
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     if let Some(dictionary) = &args.charuco {
         bail!(
-            "--charuco {dictionary}: ChArUco boards are not supported yet; print a plain chessboard (see the README, \"Detecting corners\")"
+            "--charuco {dictionary}: ChArUco boards are not supported yet; print a plain chessboard (docs/images.md, \"What is left out, and said\")"
         );
     }
     let board = args.board;
     let names: Vec<String> = args.images.iter().map(|(c, _)| c.clone()).collect();
     let rig: Option<Rig> = args.rig.as_deref().map(read_rig).transpose()?;
-    let rig_cameras: Option<Vec<usize>> = match &rig {
-        Some(rig) => Some(
-            names
-                .iter()
-                .map(|name| {
-                    rig.cameras().iter().position(|c| &c.name == name).with_context(|| {
-                        let known: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
-                        format!("--images names camera '{name}', which the rig does not have (it has {})", known.join(", "))
-                    })
-                })
-                .collect::<anyhow::Result<_>>()?,
-        ),
-        None => None,
-    };
+    let rig_cameras = rig
+        .as_ref()
+        .map(|rig| cameras_in_rig(rig, &names))
+        .transpose()?;
     let files = list_images(&args.images)?;
     let views = files[0].len();
-    let jobs: Vec<(usize, usize)> = (0..views)
-        .flat_map(|v| (0..names.len()).map(move |k| (v, k)))
-        .collect();
-
     // Sizes first, from the headers: a wrong image fails before any detection runs.
+    check_sizes(&files, &names, rig.as_ref().zip(rig_cameras.as_deref()))?;
+    let results = detect_all(&files, &board, args.quiet)?;
+    let pair = rig.as_ref().zip(rig_cameras.as_deref());
+    let resolved = resolve_views(&board, &names, &files, pair, &results);
+    let left_out = write_detections(&args.output, &board, &names, &resolved.detected)?;
+    let left_out: Vec<String> = left_out
+        .iter()
+        .map(|&i| {
+            let v = resolved.kept_views[i];
+            let saw: Vec<&str> = (0..names.len())
+                .filter(|&k| resolved.detected[i][k].is_some())
+                .map(|k| names[k].as_str())
+                .collect();
+            format!(
+                "view {v} ({}): only {} found the board, and today's stereo observations file holds views both cameras saw",
+                file_list(&files, v),
+                saw.join(", ")
+            )
+        })
+        .collect();
+    if let Some(dir) = &args.overlay {
+        write_overlays(
+            dir,
+            &board,
+            &names,
+            &files,
+            &results,
+            &resolved.chosen_per_image,
+            &resolved.view_notes,
+        )?;
+    }
+    for line in &resolved.misses {
+        eprintln!("no board: {line}");
+    }
+    for line in &resolved.dropped {
+        eprintln!("dropped: {line}");
+    }
+    for line in &resolved.unresolved {
+        eprintln!("warning: corner 0 unresolved, view left out: {line}");
+    }
+    for line in &left_out {
+        eprintln!("left out: {line}");
+    }
+    let per_camera: Vec<String> = names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let count = (0..views)
+                .filter(|&v| results[v * names.len() + k].found.is_ok())
+                .count();
+            format!("{name} {count}/{views}")
+        })
+        .collect();
+    let written = resolved.detected.len() - left_out.len();
+    outln!(
+        "boards found: {}; wrote {} of {views} views to {}{}",
+        per_camera.join(", "),
+        written,
+        args.output.display(),
+        if let Some(dir) = &args.overlay {
+            format!(", overlays in {}", dir.display())
+        } else {
+            String::new()
+        }
+    );
+    if written == 0 {
+        bail!(
+            "no view of the board in any camera could be used: {} holds no views",
+            args.output.display()
+        );
+    }
+    Ok(())
+}
+
+/// The rig's index of each camera `--images` names.
+fn cameras_in_rig(rig: &Rig, names: &[String]) -> anyhow::Result<Vec<usize>> {
+    names
+        .iter()
+        .map(|name| {
+            rig.cameras()
+                .iter()
+                .position(|c| &c.name == name)
+                .with_context(|| {
+                    let known: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
+                    format!(
+                        "--images names camera '{name}', which the rig does not have (it has {})",
+                        known.join(", ")
+                    )
+                })
+        })
+        .collect()
+}
+
+/// Every image of a camera has the size of the first, and of the rig's camera where a rig is
+/// given (read from the headers only).
+fn check_sizes(
+    files: &[Vec<PathBuf>],
+    names: &[String],
+    rig: Option<(&Rig, &[usize])>,
+) -> anyhow::Result<()> {
     for (k, list) in files.iter().enumerate() {
-        let expected = match (&rig, &rig_cameras) {
-            (Some(rig), Some(indices)) => {
-                let i = &rig.cameras()[indices[k]].intrinsics;
-                Some((i.width, i.height))
-            }
-            _ => None,
-        };
+        let expected = rig.map(|(rig, indices)| {
+            let i = &rig.cameras()[indices[k]].intrinsics;
+            (i.width, i.height)
+        });
         let mut first: Option<(u32, u32, &Path)> = None;
         for path in list {
             let size = flatport::io::image_size(path)?;
@@ -165,37 +248,76 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
             }
         }
     }
+    Ok(())
+}
 
-    let progress = Mutex::new(Progress::new("detect", "images", args.quiet));
+/// Detects the board in every image, view by view and camera by camera within a view (the
+/// order of the results), on every core, with progress.
+fn detect_all(
+    files: &[Vec<PathBuf>],
+    board: &Board,
+    quiet: bool,
+) -> anyhow::Result<Vec<ImageResult>> {
+    let (cameras, views) = (files.len(), files[0].len());
+    let jobs: Vec<(usize, usize)> = (0..views)
+        .flat_map(|v| (0..cameras).map(move |k| (v, k)))
+        .collect();
+    let progress = Mutex::new(Progress::new("detect", "images", quiet));
     let done = AtomicUsize::new(0);
-    let results: Vec<ImageResult> = jobs
-        .par_iter()
+    jobs.par_iter()
         .map(|&(v, k)| {
             let path = &files[k][v];
             let image = read_grey_image(path)?;
-            let found = detect_board(&image, &board).map(|d| Found::new(&image, &board, d));
+            let found = detect_board(&image, board).map(|d| Found::new(&image, board, d));
             let n = done.fetch_add(1, Ordering::Relaxed) + 1;
             if let Ok(mut p) = progress.lock() {
                 p.update(n, jobs.len());
             }
             Ok(ImageResult { found })
         })
-        .collect::<anyhow::Result<_>>()?;
+        .collect()
+}
 
-    // Corner 0 in every view, and the file's views.
-    let mut detected: Vec<DetectedView> = Vec::new();
-    let mut kept_views: Vec<usize> = Vec::new();
-    let mut dropped: Vec<String> = Vec::new();
-    let mut unresolved: Vec<String> = Vec::new();
-    let mut misses: Vec<String> = Vec::new();
-    let mut chosen_per_image: Vec<Option<(usize, Rule)>> = vec![None; jobs.len()];
-    let mut view_notes: Vec<Option<String>> = vec![None; views];
-    let file_list = |v: usize| {
-        files
-            .iter()
-            .map(|f| f[v].display().to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
+/// The image files of view `v`, comma-separated.
+fn file_list(files: &[Vec<PathBuf>], v: usize) -> String {
+    files
+        .iter()
+        .map(|f| f[v].display().to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The views kept, with corner 0 resolved in each, and what was left out and why.
+struct Resolved {
+    detected: Vec<DetectedView>,
+    /// The view number of each of `detected`.
+    kept_views: Vec<usize>,
+    dropped: Vec<String>,
+    unresolved: Vec<String>,
+    misses: Vec<String>,
+    /// Per image (view-major): the ordering chosen and the rule that chose it.
+    chosen_per_image: Vec<Option<(usize, Rule)>>,
+    /// Per view: why corner 0 stayed unresolved.
+    view_notes: Vec<Option<String>>,
+}
+
+/// Resolves corner 0 in every view where some camera found the board.
+fn resolve_views(
+    board: &Board,
+    names: &[String],
+    files: &[Vec<PathBuf>],
+    rig: Option<(&Rig, &[usize])>,
+    results: &[ImageResult],
+) -> Resolved {
+    let views = files[0].len();
+    let mut resolved = Resolved {
+        detected: Vec::new(),
+        kept_views: Vec::new(),
+        dropped: Vec::new(),
+        unresolved: Vec::new(),
+        misses: Vec::new(),
+        chosen_per_image: vec![None; results.len()],
+        view_notes: vec![None; views],
     };
     for v in 0..views {
         let found: Vec<Option<Found>> = (0..names.len())
@@ -203,18 +325,19 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
             .collect();
         for k in 0..names.len() {
             if let Err(miss) = &results[v * names.len() + k].found {
-                misses.push(format!("{}: {miss}", files[k][v].display()));
+                resolved
+                    .misses
+                    .push(format!("{}: {miss}", files[k][v].display()));
             }
         }
         if found.iter().all(Option::is_none) {
-            dropped.push(format!(
+            resolved.dropped.push(format!(
                 "view {v} ({}): no camera found the board",
-                file_list(v)
+                file_list(files, v)
             ));
             continue;
         }
-        let pair = rig.as_ref().zip(rig_cameras.as_deref());
-        match resolve_view(&board, &names, pair, &found) {
+        match resolve_view(board, names, rig, &found) {
             Ok(chosen) => {
                 let view: DetectedView = chosen
                     .iter()
@@ -224,84 +347,20 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
                     })
                     .collect();
                 for (k, c) in chosen.iter().enumerate() {
-                    chosen_per_image[v * names.len() + k] = *c;
+                    resolved.chosen_per_image[v * names.len() + k] = *c;
                 }
-                detected.push(view);
-                kept_views.push(v);
+                resolved.detected.push(view);
+                resolved.kept_views.push(v);
             }
             Err(why) => {
-                view_notes[v] = Some(why.clone());
-                unresolved.push(format!("view {v} ({}): {why}", file_list(v)));
+                resolved.view_notes[v] = Some(why.clone());
+                resolved
+                    .unresolved
+                    .push(format!("view {v} ({}): {why}", file_list(files, v)));
             }
         }
     }
-    let left_out = write_detections(&args.output, &board, &names, &detected)?;
-    let left_out: Vec<String> = left_out
-        .iter()
-        .map(|&i| {
-            let v = kept_views[i];
-            let saw: Vec<&str> = (0..names.len()).filter(|&k| detected[i][k].is_some()).map(|k| names[k].as_str()).collect();
-            format!(
-                "view {v} ({}): only {} found the board, and today's stereo observations file holds views both cameras saw",
-                file_list(v),
-                saw.join(", ")
-            )
-        })
-        .collect();
-
-    if let Some(dir) = &args.overlay {
-        write_overlays(
-            dir,
-            &board,
-            &names,
-            &files,
-            &results,
-            &chosen_per_image,
-            &view_notes,
-        )?;
-    }
-
-    for line in &misses {
-        eprintln!("no board: {line}");
-    }
-    for line in &dropped {
-        eprintln!("dropped: {line}");
-    }
-    for line in &unresolved {
-        eprintln!("warning: corner 0 unresolved, view left out: {line}");
-    }
-    for line in &left_out {
-        eprintln!("left out: {line}");
-    }
-    let per_camera: Vec<String> = names
-        .iter()
-        .enumerate()
-        .map(|(k, name)| {
-            let count = (0..views)
-                .filter(|&v| results[v * names.len() + k].found.is_ok())
-                .count();
-            format!("{name} {count}/{views}")
-        })
-        .collect();
-    let written = detected.len() - left_out.len();
-    outln!(
-        "boards found: {}; wrote {} of {views} views to {}{}",
-        per_camera.join(", "),
-        written,
-        args.output.display(),
-        if let Some(dir) = &args.overlay {
-            format!(", overlays in {}", dir.display())
-        } else {
-            String::new()
-        }
-    );
-    if written == 0 {
-        bail!(
-            "no view of the board in any camera could be used: {} holds no views",
-            args.output.display()
-        );
-    }
-    Ok(())
+    resolved
 }
 
 /// One overlay per image: DIR/CAMERA/<file stem>.jpg.

@@ -146,7 +146,7 @@ DIR/truth.json and DIR/corners.json (the exact corners, the observations file's 
 board corner projected through the port by the model).
 
 With --scene SCENE.json it renders a textured scene instead (planes, height fields, spheres with
-procedural noise or image textures; see data/scenes/ and the README): every sub-sample of every
+procedural noise or image textures; see data/scenes/ and docs/stereo.md): every sub-sample of every
 pixel is back-projected exactly and meets the nearest surface; writes DIR/CAMERA/frame_NNN.png,
 DIR/CAMERA/depth_NNN.npy (float32 [H,W]: z of the hit point in that camera's frame, NaN where
 nothing is hit) and DIR/rig.json. Unknown keys in the scene file are errors naming their path.
@@ -245,7 +245,7 @@ Examples:
   flatport sweep --rig rig.json --observations obs.json --cost reprojection \\
       --tilt-deg 6:10:21 --azimuth-deg 40:50:21 --distance 0.015:0.025:11 --output sweep3d --device gpu
 
-Over many machines (a SLURM array, a Kubernetes Indexed Job; see the README): --shard I/N writes
+Over many machines (a SLURM array, a Kubernetes Indexed Job; see docs/sweeps.md): --shard I/N writes
 slice I of N into its own folder, `flatport sweep merge` joins the folders into the files above:
   flatport sweep ... --shard 0/4 --output shard-0      (and 1/4, 2/4, 3/4)
   flatport sweep merge shard-0 shard-1 shard-2 shard-3 --output sweep")]
@@ -261,33 +261,44 @@ slice I of N into its own folder, `flatport sweep merge` joins the folders into 
 Example:
   flatport demo --output flatport-demo")]
     Demo(demo::DemoArgs),
-    /// Measure items/s of every path (CPU scalar/vector, 1 thread/all threads, GPU f32/f64) and the memory bandwidth
+    /// Measure items/s of every path (CPU scalar/vector, 1 thread/all threads, GPU f32/f64), each against its measured roof
     #[command(after_help = "\
 Prints items per second for back-projection (with the rig's lens distortion and without),
 forward projection and triangulation on the CPU (f64; the scalar path, the model row by row, and
 the vector path, run by run in turn; one thread, with cycles per item at the OS's clock, and all
 threads), where the vector path's time goes against the floor of its square roots and divisions
-(each costed at this machine's measured throughput), and the GPU (f32 and f64; `kernel` = dispatch only with the
-data on the device, timed by GPU timestamps where the adapter has TIMESTAMP_QUERY, `end_to_end` =
-upload, dispatch and results in host memory, host clocks, in the chunks the engine chooses for the
-adapter; forward projection also `end_to_end_streamed` (chunks of 2^19 rows through the ring of buffer sets,
-the choice on a hardware GPU), `end_to_end_one_chunk` (no overlap, the choice on lavapipe) and
-`end_to_end_f32_host` (f32 host data)), the memory
-streaming bandwidth measured by a STREAM triad as the physical limit, and ratios between the paths
-of this run (the speed goals and their reference are in the README, \"Speed goals\"). The sweep
-figure counts axis cells × correspondences per second of the weighted affine-grid invariant over
-185 simulated views (9 990 correspondences); its kernel is f64 on every adapter, so the GPU has one
-sweep figure. JSON: {\"memory_stream_bytes_per_s\": B, \"cpu_instruction_set\", \"cpu_clock_hz\", \"floors\":
-{\"sqrt_cycles_per_lane\", \"div_cycles_per_lane\", \"kernels\": [{\"kernel\", \"sqrt_per_item\",
-\"div_per_item\", \"floor_cycles_per_item\", \"cycles_per_item\"}]}, \"results\": [{\"kernel\",
-\"path\", \"cpu_path\" (scalar|vector, CPU only), \"precision\", \"threads\" (0 on the GPU),
-\"stage\", \"timer\" (gpu_timestamp|host), \"items\", \"items_per_s\", \"cycles_per_item\" (one CPU
-thread)}, ...]}.
+(each costed at this machine's measured throughput), and the GPU (f32 and f64; `kernel` = dispatch
+only with the data on the device, timed by GPU timestamps where the adapter has TIMESTAMP_QUERY,
+`end_to_end` = upload, dispatch and results in host memory, host clocks, in the chunks the engine
+chooses for the adapter; forward projection also `end_to_end_streamed` (chunks of 2^19 rows through
+the ring of buffer sets, the choice on a hardware GPU), `end_to_end_one_chunk` (no overlap, the
+choice on lavapipe) and `end_to_end_f32_host` (f32 host data)).
+
+Roofs, measured in the same run: the CPU's memory bandwidth (a STREAM triad); the GPU's host link
+(256 MiB up and down through wgpu) and its device memory (a copy kernel). Each GPU relation figure
+says what share of its roof it uses: a kernel of the device memory (its rows read and written), an
+end-to-end call of the host link (its inputs up and its outputs down). Every figure names its
+device and precision.
+
+Costs: the weighted affine-grid sweep (axis cells x correspondences per second over 185 simulated
+views, 9 990 correspondences; its GPU kernel is f64 on every adapter), the reprojection and scene
+sweeps over a quarter of the cells (GPU, f64 engine), and the calibration backend's stencil calls
+(7 candidates, rows resident or uploaded each call). Then the ratios between the paths of this run
+(the speed goals and their reference are in docs/performance.md, \"Speed goals\").
+
+JSON: {\"memory_stream_bytes_per_s\", \"cpu_model\", \"cpu_threads\", \"cpu_instruction_set\",
+\"cpu_clock_hz\", \"floors\": {\"sqrt_cycles_per_lane\", \"div_cycles_per_lane\", \"kernels\": [...]},
+\"gpu_adapter\", \"host_link_upload_bytes_per_s\", \"host_link_download_bytes_per_s\",
+\"device_memory_bytes_per_s\", \"results\": [{\"kernel\", \"path\", \"cpu_path\" (scalar|vector,
+CPU only), \"precision\", \"threads\" (0 on the GPU), \"stage\", \"device\", \"timer\"
+(gpu_timestamp|host), \"items\", \"items_per_s\", \"cycles_per_item\" (one CPU thread), \"roof\"
+(device_memory|host_link, GPU relations), \"roof_fraction\"}, ...]}.
 
 Examples:
   flatport bench
   flatport bench --items 4000000 --json bench.json
-  flatport bench --no-gpu")]
+  flatport bench --no-gpu
+  scripts/gpu-check.sh      (the GPU tests and this bench on a GPU machine, one report)")]
     Bench(bench::BenchArgs),
     /// Version, build and the compute devices found
     Info,
@@ -377,7 +388,7 @@ impl EngineArgs {
 /// Arguments every geometry command shares.
 #[derive(Debug, Args)]
 pub struct CommonArgs {
-    /// Rig file (JSON: cameras and interface, see the README)
+    /// Rig file (JSON: cameras and interface, see docs/rigs.md)
     #[arg(long, value_name = "RIG.json")]
     pub rig: PathBuf,
     /// Output CSV file (default: standard output); written only when every input row parsed

@@ -593,16 +593,58 @@ const MERGE_BATCH: usize = 1 << 16;
 /// of different sweeps (cost, grid, rig or observations differ), a shard given twice, and a set
 /// that leaves cells out.
 pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
-    let mut shards = Vec::with_capacity(args.shards.len());
-    for dir in &args.shards {
-        let manifest = read_shard_manifest(&dir.join("shard.json")).with_context(|| {
-            format!(
-                "{} is not a sweep shard (flatport sweep --shard I/N writes one)",
-                dir.display()
-            )
-        })?;
-        shards.push((dir.clone(), manifest));
+    let shards = read_shards(&args.shards)?;
+    check_same_sweep(&shards)?;
+    let order = shard_order(&shards)?;
+    let (first_dir, first) = &shards[0];
+    let spec = merged_spec(first_dir, first)?;
+    let truth = args.truth.as_deref().map(read_truth).transpose()?;
+    let dir = &args.output;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let mut outputs = SweepOutputs::create(dir, &spec)?;
+    let mut merged = Merged::default();
+    let mut devices: Vec<&str> = Vec::new();
+    for k in order {
+        let (shard_dir, m) = &shards[k];
+        merged.seconds += m.seconds;
+        if !devices.contains(&m.device.as_str()) {
+            devices.push(&m.device);
+        }
+        merge_shard(shard_dir, m, &spec, &mut merged, &mut outputs)?;
     }
+    let summary = SweepSummary {
+        minimum: merged.minimum,
+        cells: spec.cells(),
+        finite: merged.finite,
+        seconds: merged.seconds,
+    };
+    let info = SweepInfo {
+        correspondences: first.inputs.correspondences,
+        views: first.inputs.views,
+        seconds: merged.seconds,
+        device: devices.join("; "),
+    };
+    eprintln!("merged {} shards of {} cells", shards.len(), spec.cells());
+    outputs.finish(dir, &spec, &summary, &info, truth.as_ref())
+}
+
+/// The manifest of each shard folder.
+fn read_shards(dirs: &[PathBuf]) -> anyhow::Result<Vec<(PathBuf, ShardManifest)>> {
+    dirs.iter()
+        .map(|dir| {
+            let manifest = read_shard_manifest(&dir.join("shard.json")).with_context(|| {
+                format!(
+                    "{} is not a sweep shard (flatport sweep --shard I/N writes one)",
+                    dir.display()
+                )
+            })?;
+            Ok((dir.clone(), manifest))
+        })
+        .collect()
+}
+
+/// Every shard is of the first's sweep: the same cost, grid, rig, observations and shard count.
+fn check_same_sweep(shards: &[(PathBuf, ShardManifest)]) -> anyhow::Result<()> {
     let (first_dir, first) = &shards[0];
     for (dir, m) in &shards[1..] {
         let differs = |what: &str| {
@@ -631,6 +673,13 @@ pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
             )));
         }
     }
+    Ok(())
+}
+
+/// The shards in cell order (indices into `shards`): each shard once, with the cells its index
+/// owns, none missing.
+fn shard_order(shards: &[(PathBuf, ShardManifest)]) -> anyhow::Result<Vec<usize>> {
+    let first = &shards[0].1;
     let count = first.shard.count;
     let mut by_index: Vec<Option<usize>> = vec![None; count];
     for (k, (dir, m)) in shards.iter().enumerate() {
@@ -674,8 +723,13 @@ pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
             missing.join(", ")
         );
     }
+    Ok(by_index.into_iter().flatten().collect())
+}
+
+/// The whole sweep's grid and cost, from the first shard's manifest.
+fn merged_spec(dir: &Path, first: &ShardManifest) -> anyhow::Result<SweepSpec> {
     let kind = CostKind::from_name(&first.cost)
-        .ok_or_else(|| anyhow::anyhow!("{}: unknown cost '{}'", first_dir.display(), first.cost))?;
+        .ok_or_else(|| anyhow::anyhow!("{}: unknown cost '{}'", dir.display(), first.cost))?;
     let spec = SweepSpec {
         kind,
         tilt_deg: linspace(&first.grid.tilt_deg),
@@ -686,96 +740,96 @@ pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
     if spec.cells() != first.cells.total {
         bail!(
             "{}: the grid has {} cells, the manifest says {}",
-            first_dir.display(),
+            dir.display(),
             spec.cells(),
             first.cells.total
         );
     }
-    let truth = args.truth.as_deref().map(read_truth).transpose()?;
-    let dir = &args.output;
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let profile_distance = spec.profiles_air_distance();
+    Ok(spec)
+}
+
+/// The running minimum, finite count and seconds of a merge.
+#[derive(Default)]
+struct Merged {
+    minimum: Option<SweepMinimum>,
+    finite: usize,
+    seconds: f64,
+    /// Buffers reused from batch to batch.
+    costs: Vec<f64>,
+    distances: Vec<f64>,
+}
+
+/// Streams one shard's cost.npy (and distance.npy where the sweep profiles the air layer) into
+/// `outputs` in batches of [`MERGE_BATCH`] cells, keeping the minimum.
+fn merge_shard(
+    shard_dir: &Path,
+    m: &ShardManifest,
+    spec: &SweepSpec,
+    merged: &mut Merged,
+    outputs: &mut SweepOutputs,
+) -> anyhow::Result<()> {
     let depth = spec.distance.map_or(1, |d| d.count);
-    let mut outputs = SweepOutputs::create(dir, &spec)?;
-    let (mut minimum, mut finite, mut seconds) = (None::<SweepMinimum>, 0, 0.0);
-    let mut devices: Vec<&str> = Vec::new();
-    let (mut costs, mut distances) = (Vec::new(), Vec::new());
-    for k in by_index.into_iter().flatten() {
-        let (shard_dir, m) = &shards[k];
-        seconds += m.seconds;
-        if !devices.contains(&m.device.as_str()) {
-            devices.push(&m.device);
+    let open = |name: &str| -> anyhow::Result<NpyReader> {
+        let path = shard_dir.join(name);
+        let reader = NpyReader::open(&path)?;
+        if reader.shape() != [m.cells.end - m.cells.start] {
+            bail!(
+                "{}: shape {:?}, but the shard has {} cells",
+                path.display(),
+                reader.shape(),
+                m.cells.end - m.cells.start
+            );
         }
-        let open = |name: &str| -> anyhow::Result<NpyReader> {
-            let path = shard_dir.join(name);
-            let reader = NpyReader::open(&path)?;
-            if reader.shape() != [m.cells.end - m.cells.start] {
-                bail!(
-                    "{}: shape {:?}, but the shard has {} cells",
-                    path.display(),
-                    reader.shape(),
-                    m.cells.end - m.cells.start
+        Ok(reader)
+    };
+    let mut cost_reader = open("cost.npy")?;
+    let mut distance_reader = if spec.profiles_air_distance() {
+        Some(open("distance.npy")?)
+    } else {
+        None
+    };
+    let (mut costs, mut distances) = (
+        std::mem::take(&mut merged.costs),
+        std::mem::take(&mut merged.distances),
+    );
+    let mut cell = m.cells.start;
+    while cost_reader.read(MERGE_BATCH, &mut costs)? > 0 {
+        match distance_reader.as_mut() {
+            Some(reader) => {
+                reader.read(costs.len(), &mut distances)?;
+            }
+            None => {
+                distances.clear();
+                distances.extend(
+                    (cell..cell + costs.len())
+                        .map(|c| spec.distance.map_or(f64::NAN, |d| d.value(c % depth))),
                 );
             }
-            Ok(reader)
-        };
-        let mut cost_reader = open("cost.npy")?;
-        let mut distance_reader = if profile_distance {
-            Some(open("distance.npy")?)
-        } else {
-            None
-        };
-        let mut cell = m.cells.start;
-        while cost_reader.read(MERGE_BATCH, &mut costs)? > 0 {
-            match distance_reader.as_mut() {
-                Some(reader) => {
-                    reader.read(costs.len(), &mut distances)?;
-                }
-                None => {
-                    distances.clear();
-                    distances.extend(
-                        (cell..cell + costs.len())
-                            .map(|c| spec.distance.map_or(f64::NAN, |d| d.value(c % depth))),
-                    );
-                }
-            }
-            for (i, &cost) in costs.iter().enumerate() {
-                if cost.is_finite() {
-                    finite += 1;
-                    if minimum.is_none_or(|best| cost < best.cost) {
-                        let (tilt_deg, azimuth_deg) = spec.cell_angles_deg(cell + i);
-                        minimum = Some(SweepMinimum {
-                            cell: cell + i,
-                            tilt_deg,
-                            azimuth_deg,
-                            distance: distances[i],
-                            cost,
-                        });
-                    }
-                }
-            }
-            outputs.add(&SweepChunk {
-                first: cell,
-                costs: &costs,
-                distances: &distances,
-            })?;
-            cell += costs.len();
         }
+        for (i, &cost) in costs.iter().enumerate() {
+            if cost.is_finite() {
+                merged.finite += 1;
+                if merged.minimum.is_none_or(|best| cost < best.cost) {
+                    let (tilt_deg, azimuth_deg) = spec.cell_angles_deg(cell + i);
+                    merged.minimum = Some(SweepMinimum {
+                        cell: cell + i,
+                        tilt_deg,
+                        azimuth_deg,
+                        distance: distances[i],
+                        cost,
+                    });
+                }
+            }
+        }
+        outputs.add(&SweepChunk {
+            first: cell,
+            costs: &costs,
+            distances: &distances,
+        })?;
+        cell += costs.len();
     }
-    let summary = SweepSummary {
-        minimum,
-        cells: spec.cells(),
-        finite,
-        seconds,
-    };
-    let info = SweepInfo {
-        correspondences: first.inputs.correspondences,
-        views: first.inputs.views,
-        seconds,
-        device: devices.join("; "),
-    };
-    eprintln!("merged {count} shards of {} cells", spec.cells());
-    outputs.finish(dir, &spec, &summary, &info, truth.as_ref())
+    (merged.costs, merged.distances) = (costs, distances);
+    Ok(())
 }
 
 /// `flatport sweep …` (a sweep, or one shard of it) or `flatport sweep merge …`.

@@ -33,7 +33,7 @@ pub const STREAM_CHUNK_ROWS: usize = 1 << 19;
 /// already runs on every core of the host, so the overlap leaves no core idle for the
 /// conversions, and each further chunk costs a submission and a wait: `flatport bench --items
 /// 4000000` puts forward projection in 8 chunks through the ring at 0.68–0.81 of its rate in one
-/// chunk (three runs on lavapipe; README, "A batch in one chunk on lavapipe"). The cost is
+/// chunk (three runs on lavapipe; docs/performance.md). The cost is
 /// memory: the buffers, kept across calls, then hold the largest batch up to the binding limit
 /// (128 MiB per binding on lavapipe; two sets where a batch needs more than one chunk) instead
 /// of 2¹⁹ rows per set. `flatport`'s CSV commands pass batches of at most 2²⁰ rows.

@@ -1,7 +1,8 @@
 //! The GPU figures of `flatport bench`, on one adapter: its roofs (the host link both ways, the
 //! device memory by a copy kernel); per precision each relation's kernel alone and end to end
 //! (host rows in f64 and in f32, forward projection streamed and in one chunk); and in f64 the
-//! affine-grid sweep and the calibration backend's stencil calls.
+//! affine-grid sweep, the reprojection and scene sweeps and the calibration backend's stencil
+//! calls.
 
 use std::time::Instant;
 
@@ -208,6 +209,31 @@ fn cost_figures(
             .map(drop)?)
     })?;
     recorder.record(Measure::gpu("sweep", "f64", "end_to_end"), t);
+    // The reprojection and scene sweeps (the air layer held at the rig's) over a quarter of the
+    // cells (128² for the 256²), in the engine's precision.
+    let cells: Vec<Candidate> = setup
+        .sweep_candidates
+        .iter()
+        .take(setup.sweep_candidates.len().div_ceil(4))
+        .map(|c| Candidate {
+            normal: c.normal,
+            air_distance: setup.air_distance,
+        })
+        .collect();
+    for (kernel, kind) in [
+        ("sweep_reprojection", CostKind::Reprojection),
+        ("sweep_scene", CostKind::Scene),
+    ] {
+        let t = fastest(repeats.min(2), || {
+            Ok(backend.costs(kind, &cells).map(drop)?)
+        })?;
+        let items = cells.len() * setup.sweep_data.corners.len();
+        let precision = gpu.precision().name();
+        recorder.record(
+            Measure::gpu(kernel, precision, "end_to_end").over(items, "host"),
+            t,
+        );
+    }
     let stencil: Vec<Candidate> = setup
         .sweep_candidates
         .iter()

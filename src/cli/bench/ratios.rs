@@ -128,12 +128,22 @@ pub(super) fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
             ratio(resident, uploaded),
         );
     }
-    // The README's sweep figure: 256 × 256 axes over 10 000 correspondences.
+    // The sweep figure (docs/performance.md): 256 × 256 axes over 10 000 correspondences.
     let seconds = |r: Option<f64>| r.map(|r| 256.0 * 256.0 * 1e4 / r);
     show(
         "sweep GPU (f64 kernel): seconds for 256² axes × 10⁴ correspondences",
         seconds(rate("sweep", "gpu", "f64", None, "end_to_end")),
     );
+    for kernel in ["sweep_reprojection", "sweep_scene"] {
+        let rate = results
+            .iter()
+            .find(|f| f.kernel == kernel && f.path == "gpu")
+            .map(|f| f.items_per_s);
+        show(
+            &format!("{kernel} GPU (f64 engine): seconds for 128² axes × 10⁴ correspondences"),
+            rate.map(|r| 128.0 * 128.0 * 1e4 / r),
+        );
+    }
     show(
         "sweep CPU f64 all threads: seconds for 256² axes × 10⁴ correspondences",
         seconds(rate("sweep", "cpu", "f64", Some(threads), "end_to_end")),
