@@ -4,6 +4,8 @@
 //! Lens distortion is independent of refraction: pixels are undistorted before back-projection and
 //! distorted after projection.
 
+use std::ops::{Add, Mul};
+
 use nalgebra::{Matrix2, Point2, Point3, Unit, Vector2, Vector3};
 
 use super::error::{ModelError, check_finite};
@@ -96,23 +98,14 @@ impl PinholeCamera {
         self.distort_with_jacobian(p).0
     }
 
-    /// Distortion and its 2×2 Jacobian ∂(x′, y′)/∂(x, y).
+    /// Distortion and its 2×2 Jacobian ∂(x′, y′)/∂(x, y) ([`distort_with_jacobian`]).
     #[inline]
     fn distort_with_jacobian(&self, p: &Vector2<f64>) -> (Vector2<f64>, Matrix2<f64>) {
-        let [k1, k2, p1, p2, k3] = self.distortion;
-        let (x, y) = (p.x, p.y);
-        let r2 = x * x + y * y;
-        // Estrin's split, (1 + k1 r²) + r⁴(k2 + k3 r²): a shorter chain than Horner's.
-        let r4 = r2 * r2;
-        let radial = (1.0 + k1 * r2) + r4 * (k2 + k3 * r2);
-        // dR/d(r²)
-        let radial_d = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2);
-        let xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
-        let yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
-        let dxx = radial + 2.0 * x * x * radial_d + 2.0 * p1 * y + 6.0 * p2 * x;
-        let dxy = 2.0 * x * y * radial_d + 2.0 * p1 * x + 2.0 * p2 * y;
-        let dyy = radial + 2.0 * y * y * radial_d + 6.0 * p1 * y + 2.0 * p2 * x;
-        (Vector2::new(xd, yd), Matrix2::new(dxx, dxy, dxy, dyy))
+        let d = distort_with_jacobian(self.distortion, p.x, p.y);
+        (
+            Vector2::new(d.x, d.y),
+            Matrix2::new(d.dxx, d.dxy, d.dxy, d.dyy),
+        )
     }
 
     /// Inverts [`distort_normalized`](Self::distort_normalized) by Newton's method with the analytic
@@ -254,6 +247,63 @@ impl PinholeCamera {
         let n = self.normalized_from_img(pixel)?;
         Some(Unit::new_normalize(Vector3::new(n.x, n.y, 1.0)))
     }
+}
+
+/// Distorted normalised coordinates (x′, y′) and the Jacobian ∂(x′, y′)/∂(x, y) =
+/// [[dxx, dxy], [dxy, dyy]], of one point (`T = f64`) or of a block of lanes.
+#[derive(Debug, Clone, Copy)]
+pub struct Distorted<T> {
+    /// x′.
+    pub x: T,
+    /// y′.
+    pub y: T,
+    /// ∂x′/∂x.
+    pub dxx: T,
+    /// ∂x′/∂y = ∂y′/∂x.
+    pub dxy: T,
+    /// ∂y′/∂y.
+    pub dyy: T,
+}
+
+/// The OpenCV lens model (`coefficients` = [k1, k2, p1, p2, k3]) at normalised (x, y), with its
+/// Jacobian: R = 1 + k1 r² + k2 r⁴ + k3 r⁶, x′ = x R + 2 p1 x y + p2 (r² + 2x²),
+/// y′ = y R + p1 (r² + 2y²) + 2 p2 x y.
+///
+/// The one Rust definition of the model: [`PinholeCamera`] calls it with `f64`, the CPU's vector
+/// path with its lanes (`engine::cpu::lanes`), so every lane rounds exactly as the scalar code
+/// (the same expressions in the same order; Rust never fuses a multiply-add on its own). The
+/// kernels' twin is `shaders/lib/lens.wgsl`.
+#[inline(always)]
+pub fn distort_with_jacobian<T>(coefficients: [f64; 5], x: T, y: T) -> Distorted<T>
+where
+    T: Copy + Add<Output = T> + Mul<Output = T>,
+    f64: Add<T, Output = T> + Mul<T, Output = T>,
+{
+    let [k1, k2, p1, p2, k3] = coefficients;
+    // The coefficients' constant multiples, formed in f64 as the expressions below would form
+    // them left to right (2·p1·x·y = ((2·p1)·x)·y): the same roundings.
+    let [k2_2, k3_3, p1_2, p2_2, p1_6, p2_6] = scaled_coefficients(coefficients);
+    let r2 = x * x + y * y;
+    // Estrin's split, (1 + k1 r²) + r⁴(k2 + k3 r²): a shorter chain than Horner's.
+    let r4 = r2 * r2;
+    let radial = (1.0 + k1 * r2) + r4 * (k2 + k3 * r2);
+    // dR/d(r²)
+    let radial_d = k1 + r2 * (k2_2 + k3_3 * r2);
+    let (two_x, two_y) = (2.0 * x, 2.0 * y);
+    Distorted {
+        x: x * radial + p1_2 * x * y + p2 * (r2 + two_x * x),
+        y: y * radial + p1 * (r2 + two_y * y) + p2_2 * x * y,
+        dxx: radial + two_x * x * radial_d + p1_2 * y + p2_6 * x,
+        dxy: two_x * y * radial_d + p1_2 * x + p2_2 * y,
+        dyy: radial + two_y * y * radial_d + p1_6 * y + p2_2 * x,
+    }
+}
+
+/// 2 k2, 3 k3, 2 p1, 2 p2, 6 p1, 6 p2 (outside the generic function, whose bounds would make
+/// `2.0 * k2` mean `f64 · T`).
+#[inline(always)]
+fn scaled_coefficients([_, k2, p1, p2, k3]: [f64; 5]) -> [f64; 6] {
+    [2.0 * k2, 3.0 * k3, 2.0 * p1, 2.0 * p2, 6.0 * p1, 6.0 * p2]
 }
 
 /// Residual at which undistortion stops: 1e-14·(1 + |x′|), normalised units.

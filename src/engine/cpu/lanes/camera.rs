@@ -1,5 +1,6 @@
-//! Lane twin of [`crate::model::camera`]: OpenCV distortion, its Jacobian, and the undistortion
-//! Newton iteration, for [`LANES`](super::f64s::LANES) normalised points at once.
+//! The lanes' side of [`crate::model::camera`]: the OpenCV distortion and its Jacobian (the
+//! model's own generic function) and the undistortion Newton iteration, for
+//! [`LANES`](super::f64s::LANES) normalised points at once.
 
 use super::f64s::{F64s, Mask};
 use crate::model::PinholeCamera;
@@ -16,20 +17,8 @@ pub struct Distortion {
     k3: f64,
 }
 
-/// Distorted coordinates and the Jacobian ∂(x′, y′)/∂(x, y) = [[dxx, dxy], [dxy, dyy]].
-#[derive(Debug, Clone, Copy)]
-pub struct Distorted {
-    /// x′.
-    pub x: F64s,
-    /// y′.
-    pub y: F64s,
-    /// ∂x′/∂x.
-    pub dxx: F64s,
-    /// ∂x′/∂y = ∂y′/∂x.
-    pub dxy: F64s,
-    /// ∂y′/∂y.
-    pub dyy: F64s,
-}
+/// Distorted coordinates and their Jacobian, a block of lanes.
+pub type Distorted = crate::model::camera::Distorted<F64s>;
 
 impl Distortion {
     /// The coefficients of `intrinsics`.
@@ -38,24 +27,12 @@ impl Distortion {
         Self { k1, k2, p1, p2, k3 }
     }
 
-    /// [`PinholeCamera::distort_normalized`] and its Jacobian, the same expressions in the same
-    /// order (R = (1 + k1 r²) + r⁴(k2 + k3 r²), dR/d(r²) = k1 + r²(2k2 + 3k3 r²)).
+    /// [`PinholeCamera::distort_normalized`] and its Jacobian: the model's own
+    /// [`distort_with_jacobian`](crate::model::camera::distort_with_jacobian) over lanes.
     #[inline(always)]
     pub fn distort_with_jacobian(&self, x: F64s, y: F64s) -> Distorted {
         let Self { k1, k2, p1, p2, k3 } = *self;
-        let r2 = x * x + y * y;
-        let r4 = r2 * r2;
-        let radial = (1.0 + k1 * r2) + r4 * (k2 + k3 * r2);
-        let radial_d = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2);
-        let two_x = 2.0 * x;
-        let two_y = 2.0 * y;
-        Distorted {
-            x: x * radial + 2.0 * p1 * x * y + p2 * (r2 + two_x * x),
-            y: y * radial + p1 * (r2 + two_y * y) + 2.0 * p2 * x * y,
-            dxx: radial + two_x * x * radial_d + 2.0 * p1 * y + 6.0 * p2 * x,
-            dxy: two_x * y * radial_d + 2.0 * p1 * x + 2.0 * p2 * y,
-            dyy: radial + two_y * y * radial_d + 6.0 * p1 * y + 2.0 * p2 * x,
-        }
+        crate::model::camera::distort_with_jacobian([k1, k2, p1, p2, k3], x, y)
     }
 
     /// [`PinholeCamera::undistort_normalized_in_fold`]'s first run for every lane: Newton from the
