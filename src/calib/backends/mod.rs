@@ -2,6 +2,7 @@
 //! (a search grid, a finite-difference stencil) to a [`CostBackend`] in one call.
 
 pub mod gpu;
+pub mod residuals;
 
 use std::ops::Deref;
 use std::sync::Arc;
