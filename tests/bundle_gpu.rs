@@ -183,3 +183,30 @@ fn corners_stay_on_the_device_and_f32_is_refused() {
     };
     assert!(GpuResiduals::new(&f32_engine, &corners).is_err());
 }
+
+/// A batch cut into many chunks (the engine's item limit lowered to one workgroup) answers as
+/// one dispatch does.
+#[test]
+fn chunked_batches_match_one_dispatch() {
+    let (Some(whole), Some(mut small)) = (engine(Precision::F64), engine(Precision::F64)) else {
+        return;
+    };
+    small.set_max_chunk_items(64);
+    let rig = rig("rigs/housings.json");
+    let (target, seen, state) = scene(&rig, 3, 4);
+    let all = Estimate::parse("axis,distance,extrinsics").unwrap();
+    let bundle = Bundle::new(&rig, &target, &seen, all, None);
+    let corners = bundle.observed_corners();
+    let batch = bundle.stencil(&state).unwrap();
+    let one = GpuResiduals::new(&whole, &corners)
+        .unwrap()
+        .residuals(&batch);
+    let chunked = GpuResiduals::new(&small, &corners).unwrap();
+    assert!(corners.len() > 64, "more corners than a chunk holds");
+    // A chunk of fewer items than one evaluation's corners cannot hold an evaluation.
+    assert!(chunked.evaluate(&batch).is_err());
+    let mut medium = engine(Precision::F64).unwrap();
+    medium.set_max_chunk_items(3 * corners.len());
+    let chunked = GpuResiduals::new(&medium, &corners).unwrap();
+    assert_eq!(chunked.evaluate(&batch).unwrap(), one);
+}
