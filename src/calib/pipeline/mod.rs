@@ -132,7 +132,7 @@ impl Backend {
         match self {
             Self::Cpu => self.describe(),
             Self::Gpu(engine) if engine.precision() == Precision::F64 => format!(
-                "{}; on the GPU: the pair costs of the consecutive method and the bundle's residual stencils (target poses, axis search, maximum likelihood); on the CPU: the normal equations' sums and solves",
+                "{}; on the GPU: the pair costs of the consecutive method and the bundle's residual stencils (target poses, axis search, maximum likelihood); on the CPU: the normal equations' sums and solves, and the report's residuals",
                 self.describe()
             ),
             Self::Gpu(_) => format!(
