@@ -2,50 +2,94 @@
 # Checks a flatport build on the GPU of this machine, in minutes: runs the GPU test binaries and
 # `flatport bench` on the hardware adapter and writes one report, text and JSON.
 #
-#   scripts/gpu-check.sh [OUT_DIR]          (default OUT_DIR: gpu-check)
+#   scripts/gpu-check.sh [OUT_DIR]              check here (default OUT_DIR: gpu-check)
+#   scripts/gpu-check.sh --pack BUNDLE.tar.xz   build, and pack what a machine without Rust needs
 #
-# From a checkout with Rust, it builds what it runs (release). On a machine without Rust, point it
-# at binaries built elsewhere (docs/testing.md, "A GPU machine"):
-#   FLATPORT_BIN=path/to/flatport FLATPORT_GPU_TESTS=dir/of/test/executables scripts/gpu-check.sh
-# The test executables read data/ at the absolute path of the checkout they were built in.
+# From a checkout with Rust, it builds what it runs (release). For a GPU machine without Rust,
+# pack a bundle here, copy it there, and run the script inside it (docs/testing.md, "A GPU machine"):
+#   tar -xJf BUNDLE.tar.xz && gpu-check-bundle/gpu-check.sh OUT_DIR
+# The test executables read data/ (and run the flatport binary) at the absolute path of the
+# checkout they were built in: inside a bundle, the script links that path to the bundle when it
+# does not exist (as root, or where the parent folder is writable).
 #
-# Other settings: FLATPORT_ADAPTER (which adapter, as `flatport info` lists them; default the best),
-# FLATPORT_ALLOW_SOFTWARE=1 (accept lavapipe: to try the script without a GPU), and the bench's
-# sizes BENCH_ITEMS (16000000), BENCH_REPEATS (5), BENCH_SWEEP_CELLS (65536 = 256² axes).
+# Other settings: FLATPORT_BIN and FLATPORT_GPU_TESTS (a flatport binary and a folder of test
+# executables to use instead), FLATPORT_ADAPTER (which adapter, as `flatport info` lists them;
+# default the best), FLATPORT_ALLOW_SOFTWARE=1 (accept lavapipe: to try the script without a GPU),
+# and the bench's sizes BENCH_ITEMS (4194304), BENCH_REPEATS (3), BENCH_SWEEP_CELLS (65536 = 256²).
 #
 # Outputs: OUT_DIR/report.txt and OUT_DIR/report.json (adapter, each test binary's counts, the
 # bench's figures), OUT_DIR/info.txt, OUT_DIR/tests/*.txt, OUT_DIR/bench.txt, OUT_DIR/bench.json.
 # Exit status: 0 when every test passed and the bench ran; 1 otherwise.
 set -uo pipefail
-cd "$(dirname "$0")/.."
-
-out="${1:-gpu-check}"
-mkdir -p "$out/tests"
-export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
-# The GPU test binaries: the relations, the calibration kernels, failure handling, and every other
-# test file whose name says it runs on the GPU.
-gpu_tests="gpu calib_gpu gpu_failures device_rows stereo_gpu calibrate_gpu"
-
+here="$(cd "$(dirname "$0")" && pwd)"
 die() { echo "gpu-check: $*" >&2; exit 1; }
 
-# The flatport binary and the test executables: given, or built here.
-bin="${FLATPORT_BIN:-}"
-tests_dir="${FLATPORT_GPU_TESTS:-}"
-if [ -z "$bin" ] || [ -z "$tests_dir" ]; then
-    command -v cargo >/dev/null 2>&1 || die "no cargo here: set FLATPORT_BIN and FLATPORT_GPU_TESTS to binaries built elsewhere"
+# The GPU test binaries: every tests/*gpu*.rs (the relations, the calibration kernels and
+# backends, failure handling, device-resident rows, stereo).
+gpu_test_names() {
+    for f in tests/*gpu*.rs; do [ -f "$f" ] && basename "$f" .rs; done
+}
+
+# Builds flatport and the GPU test executables; links (or with --copy, copies and strips) them
+# into $1 as NAME, the test's file name.
+build_tests() {
+    local dir="$1" mode="${2:-link}" args=()
+    for t in $(gpu_test_names); do args+=(--test "$t"); done
     echo "building flatport and the GPU test binaries (release)..." >&2
     cargo build --release --bin flatport >&2 || die "cargo build failed"
-    bin="${bin:-target/release/flatport}"
+    mkdir -p "$dir"
+    # cargo prints one JSON message per artifact; the test executables are the "executable"
+    # fields under target/release/deps/.
+    cargo test --release --no-run --message-format=json "${args[@]}" 2>/dev/null \
+        | grep -o '"executable":"[^"]*/deps/[^"]*"' | sed 's/"executable":"//; s/"$//' \
+        | while read -r exe; do
+            name="$(basename "$exe" | sed 's/-[0-9a-f]*$//')"
+            if [ "$mode" = copy ]; then
+                cp "$exe" "$dir/$name" && strip "$dir/$name"
+            else
+                ln -sf "$(realpath "$exe")" "$dir/$name"
+            fi
+        done
+}
+
+if [ "${1:-}" = "--pack" ]; then
+    bundle="${2:?usage: scripts/gpu-check.sh --pack BUNDLE.tar.xz}"
+    cd "$here/.."
+    stage="$(mktemp -d)/gpu-check-bundle"
+    mkdir -p "$stage/target/release" "$stage/scripts"
+    build_tests "$stage/tests" copy
+    cp target/release/flatport "$stage/target/release/" && strip "$stage/target/release/flatport"
+    cp -r data "$stage/"
+    cp scripts/gpu-check.sh "$stage/gpu-check.sh"
+    pwd >"$stage/build-root"
+    tar -C "$(dirname "$stage")" -cf - gpu-check-bundle | xz -T0 -6 >"$bundle"
+    echo "wrote $bundle ($(du -h "$bundle" | cut -f1)); on the GPU machine: tar -xJf $(basename "$bundle") && gpu-check-bundle/gpu-check.sh OUT_DIR" >&2
+    exit 0
+fi
+
+out="$(realpath -m "${1:-gpu-check}")"
+mkdir -p "$out/tests"
+export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
+
+bin="${FLATPORT_BIN:-}"
+tests_dir="${FLATPORT_GPU_TESTS:-}"
+if [ -f "$here/build-root" ]; then
+    # Inside a bundle: its binaries, and the checkout's path where the tests look.
+    root="$(cat "$here/build-root")"
+    bin="${bin:-$here/target/release/flatport}"
+    tests_dir="${tests_dir:-$here/tests}"
+    if [ ! -e "$root" ]; then
+        mkdir -p "$(dirname "$root")" && ln -s "$here" "$root" \
+            || die "the tests read $root/data: link it to $here (ln -s $here $root), or run as root"
+    fi
+    [ -d "$root/data" ] || die "$root exists but has no data/: the tests read $root/data"
+elif [ -z "$bin" ] || [ -z "$tests_dir" ]; then
+    cd "$here/.."
+    command -v cargo >/dev/null 2>&1 || die "no cargo here: pack a bundle on a machine with Rust (--pack)"
+    bin="${bin:-$PWD/target/release/flatport}"
     if [ -z "$tests_dir" ]; then
         tests_dir="$out/test-bin"
-        mkdir -p "$tests_dir"
-        args=()
-        for t in $gpu_tests; do [ -f "tests/$t.rs" ] && args+=(--test "$t"); done
-        # cargo prints one JSON message per artifact; the test executables are the non-null
-        # "executable" fields of the test targets.
-        cargo test --release --no-run --message-format=json "${args[@]}" 2>/dev/null \
-            | grep -o '"executable":"[^"]*/deps/[^"]*"' | sed 's/"executable":"//; s/"$//' \
-            | while read -r exe; do ln -sf "$(realpath "$exe")" "$tests_dir/$(basename "$exe" | sed 's/-[0-9a-f]*$//')"; done
+        build_tests "$tests_dir"
     fi
 fi
 [ -x "$bin" ] || die "no flatport binary at $bin"
@@ -77,7 +121,7 @@ done
 [ -n "$tests_json" ] || die "no test executables in $tests_dir"
 
 echo "running flatport bench..." >&2
-"$bin" bench --items "${BENCH_ITEMS:-16000000}" --repeats "${BENCH_REPEATS:-5}" \
+"$bin" bench --items "${BENCH_ITEMS:-4194304}" --repeats "${BENCH_REPEATS:-3}" \
     --sweep-cells "${BENCH_SWEEP_CELLS:-65536}" --json "$out/bench.json" >"$out/bench.txt" 2>&1 \
     || { status=1; echo '{}' >"$out/bench.json"; }
 

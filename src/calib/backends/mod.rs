@@ -3,6 +3,7 @@
 
 #[cfg(feature = "gpu")]
 pub mod gpu;
+pub mod residuals;
 
 use std::ops::Deref;
 use std::sync::Arc;

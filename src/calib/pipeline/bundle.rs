@@ -8,10 +8,17 @@
 //! complement on the poses), with as many global parameters as are estimated. Derivatives are
 //! central differences; a global parameter only moves the residuals of the cameras it belongs to.
 //! The corners of a view are projected together, in the lanes of the CPU engine's vector path.
+//!
+//! On a [`ResidualBackend`] ([`Bundle::on`]) the bundle instead hands each whole stencil (the
+//! state and its ± steps along every parameter) to the backend in one call
+//! ([`Bundle::stencil`]) and assembles the same normal equations from the residuals it returns.
 
 use nalgebra::{DMatrix, DVector, Isometry3, Translation3, Unit, UnitQuaternion, Vector2, Vector3};
 use rayon::prelude::*;
 
+use crate::calib::backends::residuals::{
+    Evaluation, ObservedCorner, ResidualBackend, StencilBatch,
+};
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::block::{
@@ -230,6 +237,8 @@ pub struct Bundle<'a> {
     huber: Option<f64>,
     /// Every target corner, target frame.
     points: Vec<[f64; 3]>,
+    /// Where whole stencils are evaluated; `None`: the bundle's own CPU code.
+    backend: Option<&'a dyn ResidualBackend>,
 }
 
 impl<'a> Bundle<'a> {
@@ -276,7 +285,42 @@ impl<'a> Bundle<'a> {
             globals,
             huber,
             points,
+            backend: None,
         }
+    }
+
+    /// The same problem with its residuals evaluated by `backend` (made for
+    /// [`observed_corners`](Self::observed_corners) of these views), or by the bundle's own CPU
+    /// code where `None`.
+    ///
+    /// Panics if the backend was made for another number of corners.
+    pub fn on(mut self, backend: Option<&'a dyn ResidualBackend>) -> Self {
+        if let Some(b) = backend {
+            assert_eq!(
+                b.observations(),
+                self.residuals() / 2,
+                "a residual backend made for these views"
+            );
+        }
+        self.backend = backend;
+        self
+    }
+
+    /// Every observed corner in the order of the residuals: views in order, camera by camera in
+    /// the view's order, corners in target order.
+    pub fn observed_corners(&self) -> Vec<ObservedCorner> {
+        let mut out = Vec::with_capacity(self.residuals() / 2);
+        for (v, view) in self.views.iter().enumerate() {
+            for (k, corners) in &view.cameras {
+                out.extend(corners.iter().map(|(i, observed)| ObservedCorner {
+                    view: v,
+                    camera: *k,
+                    point_in_target: self.points[*i],
+                    observed: observed.coords.into(),
+                }));
+            }
+        }
+        out
     }
 
     /// The same problem estimating only the global parameters `keep` accepts (a search over one
@@ -354,6 +398,9 @@ impl<'a> Bundle<'a> {
 
     /// Every residual at `state`, views in order.
     pub fn all_residuals(&self, state: &State) -> Option<Vec<Vec<Vector2<f64>>>> {
+        if let Some(backend) = self.backend {
+            return self.all_residuals_on(backend, state);
+        }
         let cameras = self.cameras(state)?;
         state
             .poses
@@ -392,6 +439,123 @@ impl<'a> Bundle<'a> {
                 })
                 .collect(),
         )
+    }
+
+    /// The range of the observed corners ([`observed_corners`](Self::observed_corners)) of
+    /// every view.
+    fn view_ranges(&self) -> Vec<std::ops::Range<usize>> {
+        let mut start = 0;
+        self.views
+            .iter()
+            .map(|view| {
+                let range = start..start + view.observations();
+                start = range.end;
+                range
+            })
+            .collect()
+    }
+
+    /// [`all_residuals`](Self::all_residuals) by `backend`: one evaluation.
+    fn all_residuals_on(
+        &self,
+        backend: &dyn ResidualBackend,
+        state: &State,
+    ) -> Option<Vec<Vec<Vector2<f64>>>> {
+        let batch = StencilBatch {
+            cameras: vec![self.cameras(state)?],
+            poses: vec![state.poses.clone()],
+            evaluations: vec![Evaluation {
+                cameras: 0,
+                poses: 0,
+                only: None,
+            }],
+        };
+        let residuals = backend.residuals(&batch).swap_remove(0)?;
+        Some(
+            self.view_ranges()
+                .into_iter()
+                .map(|range| residuals[range].to_vec())
+                .collect(),
+        )
+    }
+
+    /// The central-difference stencil at `state`, `None` when a step leaves the valid rigs:
+    /// evaluation 0 is the state itself; evaluations 1 + 2c and 2 + 2c are the state moved by
+    /// +h and −h along column c of the step (the global parameters in order, only the camera a
+    /// parameter moves evaluated; then the six pose parameters, every view's pose moved at once:
+    /// a corner depends on its own view's pose alone).
+    pub fn stencil(&self, state: &State) -> Option<StencilBatch> {
+        let mut batch = StencilBatch {
+            cameras: vec![self.cameras(state)?],
+            poses: vec![state.poses.clone()],
+            evaluations: vec![Evaluation {
+                cameras: 0,
+                poses: 0,
+                only: None,
+            }],
+        };
+        for &parameter in &self.globals {
+            for step in [DIFFERENCE_STEP, -DIFFERENCE_STEP] {
+                batch
+                    .cameras
+                    .push(self.cameras(&self.moved(state, parameter, step))?);
+                batch.evaluations.push(Evaluation {
+                    cameras: batch.cameras.len() - 1,
+                    poses: 0,
+                    only: self.camera_of(parameter),
+                });
+            }
+        }
+        for q in 0..POSE_PARAMETERS {
+            for step in [DIFFERENCE_STEP, -DIFFERENCE_STEP] {
+                let mut delta = [0.0; POSE_PARAMETERS];
+                delta[q] = step;
+                batch
+                    .poses
+                    .push(state.poses.iter().map(|p| move_pose(p, &delta)).collect());
+                batch.evaluations.push(Evaluation {
+                    cameras: 0,
+                    poses: batch.poses.len() - 1,
+                    only: None,
+                });
+            }
+        }
+        Some(batch)
+    }
+
+    /// [`normal_equations`](LeastSquares::normal_equations) from the residuals of the whole
+    /// [`stencil`](Self::stencil) evaluated by `backend` in one call: each view's Jacobian by
+    /// central differences of its rows, then its share as on the CPU path.
+    fn normal_equations_on(
+        &self,
+        backend: &dyn ResidualBackend,
+        state: &State,
+    ) -> Option<BlockNormalEquations> {
+        let globals = self.globals.len();
+        let columns = globals + POSE_PARAMETERS;
+        // Every evaluation answered, or no normal equations (as on the CPU path).
+        let residuals: Vec<Vec<Vector2<f64>>> = backend
+            .residuals(&self.stencil(state)?)
+            .into_iter()
+            .collect::<Option<_>>()?;
+        let shares = self
+            .view_ranges()
+            .into_par_iter()
+            .map(|range| {
+                let count = range.len();
+                // jacobian[c * count + i] = ∂r_i/∂(parameter c), globals first.
+                let mut jacobian = vec![Vector2::zeros(); columns * count];
+                for c in 0..columns {
+                    let plus = &residuals[1 + 2 * c][range.clone()];
+                    let minus = &residuals[2 + 2 * c][range.clone()];
+                    for (i, (a, b)) in plus.iter().zip(minus).enumerate() {
+                        jacobian[c * count + i] = (a - b) / (2.0 * DIFFERENCE_STEP);
+                    }
+                }
+                view_share(&residuals[0][range], &jacobian, columns, self.huber)
+            })
+            .collect();
+        Some(BlockNormalEquations::from_shares(globals, shares))
     }
 
     fn moved(&self, state: &State, parameter: Parameter, delta: f64) -> State {
@@ -438,6 +602,9 @@ impl LeastSquares for Bundle<'_> {
     }
 
     fn normal_equations(&self, state: &State) -> Option<BlockNormalEquations> {
+        if let Some(backend) = self.backend {
+            return self.normal_equations_on(backend, state);
+        }
         let globals = self.globals.len();
         let cameras = self.cameras(state)?;
         // The cameras of the state moved by ±h along each global parameter.
@@ -699,5 +866,59 @@ mod tests {
         // A distance that puts a camera outside the air is no rig.
         let outside = bundle.moved(&state, Parameter::Distance(0), -0.03);
         assert!(outside.rig(&rig).is_none());
+    }
+
+    /// The rig, views and state (the true poses, a port moved off the truth) of a simulated scene
+    /// of `rig` with 0.1 px noise.
+    fn simulated(rig: &Rig, views: usize) -> (Target, Vec<SeenView>, State) {
+        use crate::calib::simulate::{SceneSpec, simulate};
+        let target = Target::Board(Board {
+            rows: 4,
+            cols: 5,
+            square: 0.04,
+        });
+        let scene = simulate(rig, &SceneSpec::new(target.clone(), views, 0.1, 5)).unwrap();
+        let seen = scene.observations.resolve(rig).unwrap();
+        let mut state = State::of(rig, scene.master_from_target);
+        state.ports[0].distance += 2e-3;
+        state.ports[0].normal = tangent_step(&state.ports[0].normal, &Vector2::new(0.01, -0.02));
+        (target, seen, state)
+    }
+
+    /// The stencil evaluated by the CPU residual backend gives the bundle's own normal
+    /// equations bit for bit: the batch's evaluations are the columns' ± steps in order, a
+    /// parameter of one camera leaves the others' rows zero, and a pose set moving every view at
+    /// once gives each view's pose columns. Over a shared port with every layer and the
+    /// extrinsics estimated (global columns of every camera and of one camera), and over a port
+    /// per camera (each port's columns only its camera's rows).
+    #[test]
+    fn the_stencil_on_the_cpu_backend_gives_the_same_normal_equations_bit_for_bit() {
+        let shared = Rig::new(vec![camera("a", 0.0), camera("b", 0.1)], port(0.02)).unwrap();
+        let housings = Rig::with_ports(
+            vec![camera("a", 0.0), camera("b", 0.1)],
+            Ports::PerCamera(vec![port(0.02), port(0.025)]),
+        )
+        .unwrap();
+        let all = Estimate::parse("axis,distance,layers,extrinsics").unwrap();
+        for rig in [&shared, &housings] {
+            let (target, seen, state) = simulated(rig, 5);
+            for huber in [None, Some(0.2)] {
+                let cpu = Bundle::new(rig, &target, &seen, all, huber);
+                let backend =
+                    crate::calib::backends::residuals::CpuResiduals::new(&cpu.observed_corners());
+                let batched = Bundle::new(rig, &target, &seen, all, huber).on(Some(&backend));
+                let stencil = batched.stencil(&state).unwrap();
+                assert_eq!(
+                    stencil.evaluations.len(),
+                    1 + 2 * (cpu.globals().len() + POSE_PARAMETERS)
+                );
+                assert_eq!(
+                    batched.normal_equations(&state).unwrap(),
+                    cpu.normal_equations(&state).unwrap()
+                );
+                assert_eq!(batched.cost(&state), cpu.cost(&state));
+                assert_eq!(batched.rms_per_camera(&state), cpu.rms_per_camera(&state));
+            }
+        }
     }
 }

@@ -6,6 +6,7 @@ use std::time::Instant;
 use super::bundle::{Bundle, Estimate, Parameter, State};
 use super::report::Stage;
 use super::{MIN_VIEWS, Method, Options, Progress, consecutive, poses, search};
+use crate::calib::backends::residuals::ResidualBackend;
 use crate::calib::costs::SceneFit;
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::{Candidate, StereoData};
@@ -80,6 +81,8 @@ pub(super) struct Steps<'a> {
     pub rig: &'a Rig,
     pub target: &'a Target,
     pub views: &'a [SeenView],
+    /// Where the residual stencils of bundles over `views` run (`None`: the bundle's CPU code).
+    pub residuals: Option<&'a dyn ResidualBackend>,
     pub options: &'a Options,
     pub stages: &'a mut Vec<Stage>,
     pub warnings: &'a mut Vec<String>,
@@ -127,7 +130,8 @@ fn target_poses(steps: &mut Steps) -> Result<(State, State), CalibError> {
     let clock = Instant::now();
     let (rig, target, views) = (steps.rig, steps.target, steps.views);
     let pinhole = State::of(rig, poses::initial_poses(rig, target, views)?);
-    let pose_only = Bundle::new(rig, target, views, Estimate::NOTHING, steps.options.huber);
+    let pose_only =
+        Bundle::new(rig, target, views, Estimate::NOTHING, steps.options.huber).on(steps.residuals);
     let rig_start = fit_briefly(&pose_only, pinhole.clone(), search::POSE_ITERATIONS);
     steps.stages.push(Stage {
         name: "target poses (pinhole, then through the start port)".into(),
@@ -216,7 +220,8 @@ fn axis_search(steps: &mut Steps, start: State) -> Result<State, CalibError> {
     for p in 0..state.ports.len() {
         state = search::search_axis(rig, target, views, state, p, options)?;
     }
-    let pose_only = Bundle::new(rig, target, views, Estimate::NOTHING, options.huber);
+    let pose_only =
+        Bundle::new(rig, target, views, Estimate::NOTHING, options.huber).on(steps.residuals);
     let state = fit_briefly(&pose_only, state, search::POSE_ITERATIONS);
     steps.stages.push(Stage {
         name: "global axis search".into(),
@@ -243,7 +248,8 @@ fn maximum_likelihood(
         steps.views,
         options.estimate,
         options.huber,
-    );
+    )
+    .on(steps.residuals);
     let lm = LmOptions {
         max_iterations: options.max_iterations,
         ..LmOptions::default()
@@ -340,7 +346,8 @@ fn consecutive_start(
     pairs: &[StereoData],
 ) -> Result<(State, [usize; 2], Option<State>), CalibError> {
     let (rig, target, views, options) = (steps.rig, steps.target, steps.views, steps.options);
-    let pose_only = Bundle::new(rig, target, views, Estimate::NOTHING, options.huber);
+    let pose_only =
+        Bundle::new(rig, target, views, Estimate::NOTHING, options.huber).on(steps.residuals);
     // The rig behind a pair's candidate port, its target poses from the pair's corners
     // triangulated under it and fitted rigidly (the views the pair did not see keep the pinhole
     // poses), then fitted through the port over every camera.

@@ -37,10 +37,11 @@ pub(crate) use estimate::{fit_briefly, rms};
 use std::sync::Arc;
 use std::time::Instant;
 
-use self::bundle::Estimate;
+use self::bundle::{Bundle, Estimate};
 use self::report::{Report, Stage};
 #[cfg(feature = "gpu")]
-use crate::calib::backends::gpu::GpuBackend;
+use crate::calib::backends::gpu::{GpuBackend, GpuResiduals};
+use crate::calib::backends::residuals::ResidualBackend;
 use crate::calib::backends::{CostBackend, CpuBackend};
 use crate::calib::error::CalibError;
 use crate::calib::problem::data::StereoData;
@@ -48,6 +49,8 @@ use crate::calib::problem::observations::{Observations, SeenView};
 use crate::calib::problem::target::Target;
 #[cfg(feature = "gpu")]
 use crate::engine::GpuEngine;
+#[cfg(feature = "gpu")]
+use crate::gpu::Precision;
 use crate::model::Rig;
 
 /// Which estimator.
@@ -84,14 +87,16 @@ impl Method {
     }
 }
 
-/// Where the cost batches of the consecutive method run.
+/// Where the cost batches of the consecutive method and the bundle's residual stencils run.
 #[derive(Clone, Default)]
 pub enum Backend {
     /// The f64 reference on every CPU core.
     #[default]
     Cpu,
     /// The WGSL kernels of a GPU engine (f64 kernels agree with the CPU to ~1e-12; the
-    /// refinement's finite differences need them).
+    /// refinement's finite differences need them): the pair costs of the consecutive method,
+    /// and, with f64 kernels, the bundle's residual stencils (target poses, axis search, maximum
+    /// likelihood) of every rig.
     #[cfg(feature = "gpu")]
     Gpu(Arc<GpuEngine>),
 }
@@ -113,6 +118,38 @@ impl Backend {
             Self::Cpu => Box::new(CpuBackend::new(data)),
             #[cfg(feature = "gpu")]
             Self::Gpu(engine) => Box::new(GpuBackend::new(data, engine.as_ref())),
+        }
+    }
+
+    /// The backend of `bundle`'s residual stencils on this device: `None` on the CPU (the
+    /// bundle's own code) and on an f32 engine (the bundle's central differences need f64
+    /// residuals: it stays on the CPU).
+    #[cfg_attr(not(feature = "gpu"), allow(unused_variables))]
+    pub fn bundle_residuals(&self, bundle: &Bundle) -> Option<Box<dyn ResidualBackend>> {
+        match self {
+            Self::Cpu => None,
+            #[cfg(feature = "gpu")]
+            Self::Gpu(engine) => GpuResiduals::new(engine.clone(), &bundle.observed_corners())
+                .ok()
+                .map(|b| Box::new(b) as Box<dyn ResidualBackend>),
+        }
+    }
+
+    /// One line saying where each stage of a calibration runs: [`describe`](Self::describe),
+    /// then, on a GPU, which stages use it.
+    pub fn describe_stages(&self) -> String {
+        match self {
+            Self::Cpu => self.describe(),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(engine) if engine.precision() == Precision::F64 => format!(
+                "{}; on the GPU: the pair costs of the consecutive method and the bundle's residual stencils (target poses, axis search, maximum likelihood); on the CPU: the normal equations' sums and solves, and the report's residuals",
+                self.describe()
+            ),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(_) => format!(
+                "{}; on the GPU: the pair costs of the consecutive method; on the CPU: the bundle (target poses, axis search, maximum likelihood), whose central differences need f64 kernels",
+                self.describe()
+            ),
         }
     }
 
@@ -336,10 +373,16 @@ pub(crate) fn calibrate_views(
         warnings.extend(diagnose::pairing_findings(data));
     }
     let mut stages = Vec::new();
+    // The bundle's residual stencils over these views on the options' device (None: the CPU).
+    let residuals =
+        options
+            .backend
+            .bundle_residuals(&Bundle::new(rig, target, clean, Estimate::NOTHING, None));
     let mut steps = estimate::Steps {
         rig,
         target,
         views: clean,
+        residuals: residuals.as_deref(),
         options,
         stages: &mut stages,
         warnings: &mut warnings,
@@ -361,6 +404,11 @@ pub(crate) fn calibrate_views(
             (other, _) => other,
         }
     })?;
+    if let Some(reason) = residuals.as_ref().and_then(|r| r.failure()) {
+        warnings.push(format!(
+            "the GPU failed in the bundle ({reason}): its residuals ran on the CPU from then on"
+        ));
+    }
     let input = report::Input {
         rig,
         target,

@@ -189,7 +189,8 @@ pub struct Report {
     pub warnings: Vec<String>,
     /// Wall-clock seconds of the whole calibration.
     pub seconds: f64,
-    /// What evaluated the cost batches.
+    /// What evaluated the cost batches and the bundle's residual stencils: the device, and on a
+    /// GPU which stages ran there ([`Backend::describe_stages`](super::Backend::describe_stages)).
     pub backend: String,
     /// Views used.
     pub views: usize,
@@ -580,7 +581,7 @@ pub(super) fn make_report(
         diagnosis: Vec::new(),
         warnings,
         seconds: 0.0,
-        backend: options.backend.describe(),
+        backend: options.backend.describe_stages(),
         views: seen.len(),
         corners: distinct_corners(seen),
         observations: seen.iter().map(SeenView::observations).sum(),

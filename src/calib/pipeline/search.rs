@@ -64,9 +64,12 @@ pub fn search_axis(
     let whole = state;
     let views = &own_views[..];
     // The poses refitted to these images alone under the start port, for every cell to start from.
-    let pose_only = Estimate::NOTHING;
+    let pose_only = Bundle::new(rig, target, views, Estimate::NOTHING, options.huber);
+    // These images' residual stencils on the options' device (a device error falls back to the
+    // CPU, as in the rest of the pipeline).
+    let residuals = options.backend.bundle_residuals(&pose_only);
     let state = fit_briefly(
-        &Bundle::new(rig, target, views, pose_only, options.huber),
+        &pose_only.on(residuals.as_deref()),
         State {
             poses: own_poses,
             ..whole.clone()
@@ -74,7 +77,8 @@ pub fn search_axis(
         POSE_ITERATIONS,
     );
     let bundle = Bundle::new(rig, target, views, distance_only, options.huber)
-        .keeping(|g| g == Parameter::Distance(p));
+        .keeping(|g| g == Parameter::Distance(p))
+        .on(residuals.as_deref());
     let axes = cap_grid(options.max_tilt, SEARCH_SPACING_DEG.to_radians());
     let start_cost = rms(
         &bundle,

@@ -75,8 +75,18 @@ pub static SCENE_REPROJECTION_SAFEGUARDED: KernelSource = KernelSource::new(
 )
 .reading_view_rows();
 
+/// The bundle's stencil batches: evaluations (camera set, pose set) × observed corners →
+/// projected − observed pixels; always f64 (the bundle's central differences need it).
+pub static BUNDLE_RESIDUALS: KernelSource = KernelSource::new(
+    "calib_bundle_residuals",
+    &[include_str!(
+        "../../../../shaders/calib/bundle_residuals.wgsl"
+    )],
+)
+.in_precision(Precision::F64);
+
 /// Every kernel of the catalogue.
-pub static ALL: [&KernelSource; 7] = [
+pub static ALL: [&KernelSource; 8] = [
     &TRIANGULATE,
     &PROJECTED_VOP,
     &AFFINE_GRID,
@@ -84,4 +94,5 @@ pub static ALL: [&KernelSource; 7] = [
     &SCENE_FIT,
     &SCENE_REPROJECTION,
     &SCENE_REPROJECTION_SAFEGUARDED,
+    &BUNDLE_RESIDUALS,
 ];

@@ -17,6 +17,7 @@
 //! CPU.
 
 mod affine_grid;
+mod bundle;
 mod candidates;
 pub mod kernels;
 mod runner;
@@ -40,6 +41,7 @@ use crate::calib::problem::data::{Candidate, StereoData};
 use crate::engine::GpuEngine;
 use crate::gpu::{ResidentRows, Rows};
 use affine_grid::AffineGridInput;
+pub use bundle::GpuResiduals;
 use runner::KernelRunner;
 use scene_fit::{SCENE_ROW, SceneFitInput, SceneSum};
 
