@@ -41,7 +41,7 @@ pub use pipeline::{
     calibrate_with_progress,
 };
 pub use problem::board::{Board, RigidFit, fit_rigid};
-pub use problem::data::{Candidate, StereoData};
+pub use problem::data::{CameraPair, Candidate, StereoData};
 pub use problem::observations::{CameraKey, Image, Observations, SeenView, View};
 pub use problem::target::Target;
 pub use simulate::{Cameras, Scene, SceneSpec, simulate};

@@ -12,8 +12,8 @@ use flatport::calib::solvers::search::{
     MAX_CAP_GRID_AXES, cap_grid_size, min_cap_grid_spacing_deg_text,
 };
 use flatport::calib::{
-    Backend, Board, CalibError, CostBackend, CpuBackend, Estimate, Estimated, GpuBackend, Method,
-    Options, Progress, Report, StereoData, calibrate_with_progress,
+    Backend, Board, CalibError, CameraPair, CostBackend, CpuBackend, Estimate, Estimated,
+    GpuBackend, Method, Options, Progress, Report, StereoData, calibrate_with_progress,
 };
 use flatport::engine::Engine;
 use flatport::io::{
@@ -119,7 +119,7 @@ pub fn stereo_pair(
     rig: &Rig,
     names: Option<(&str, &str)>,
     source: &str,
-) -> anyhow::Result<[usize; 2]> {
+) -> anyhow::Result<CameraPair> {
     if rig.cameras().len() < 2 {
         bail!(
             "the rig has {} camera(s): calibration needs a stereo pair",
@@ -127,7 +127,7 @@ pub fn stereo_pair(
         );
     }
     let Some((a, b)) = names else {
-        return Ok([0, 1]);
+        return Ok(CameraPair::new(0, 1));
     };
     let index = |name: &str| {
         rig.camera_index(name).with_context(|| {
@@ -138,8 +138,8 @@ pub fn stereo_pair(
             )
         })
     };
-    let pair = [index(a)?, index(b)?];
-    if pair[0] == pair[1] {
+    let pair = CameraPair::new(index(a)?, index(b)?);
+    if pair.first == pair.second {
         bail!("{source}: the left and right camera are the same ('{a}')");
     }
     Ok(pair)

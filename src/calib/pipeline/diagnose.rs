@@ -22,7 +22,7 @@ use nalgebra::{Point2, Point3, Unit, Vector3};
 use super::report::Report;
 use super::{MIN_VIEWS, Options};
 use crate::calib::costs::triangulate_corner;
-use crate::calib::problem::data::{Candidate, StereoData};
+use crate::calib::problem::data::{CameraPair, Candidate, StereoData};
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::observations::view_list;
 use crate::calib::problem::target::Target;
@@ -313,14 +313,14 @@ pub(super) fn diagnosis(
             .scene
             .as_ref()
             .and_then(|s| match s.cameras.clone().map(|n| rig.camera_index(&n)) {
-                [Some(a), Some(b)] => Some([a, b]),
+                [Some(a), Some(b)] => Some(CameraPair::new(a, b)),
                 _ => None,
             });
     let n = rig.cameras().len();
     let pair = target.board().and_then(|board| {
         named
             .into_iter()
-            .chain((0..n).flat_map(|a| (a + 1..n).map(move |b| [a, b])))
+            .chain((0..n).flat_map(|a| (a + 1..n).map(move |b| CameraPair::new(a, b))))
             .filter_map(|pair| StereoData::new(rig, pair, board, seen).ok())
             .find(|d| d.views.len() >= MIN_VIEWS)
     });

@@ -9,7 +9,7 @@ use super::{MIN_VIEWS, Method, Options, Progress, consecutive, poses, search};
 use crate::calib::backends::residuals::ResidualBackend;
 use crate::calib::costs::SceneFit;
 use crate::calib::error::CalibError;
-use crate::calib::problem::data::{Candidate, StereoData};
+use crate::calib::problem::data::{CameraPair, Candidate, StereoData};
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::block::BlockNormalEquations;
@@ -32,7 +32,7 @@ pub(super) fn shared_board_pairs(
     let mut pairs = Vec::new();
     for a in 0..n {
         for b in a + 1..n {
-            let data = StereoData::new(rig, [a, b], board, seen)?;
+            let data = StereoData::new(rig, CameraPair::new(a, b), board, seen)?;
             if data.views.len() >= MIN_VIEWS {
                 pairs.push(data);
             }
@@ -72,7 +72,7 @@ pub(super) struct Outcome {
     pub state: State,
     pub fit: Option<Fit>,
     pub strategy: String,
-    pub pair: Option<[usize; 2]>,
+    pub pair: Option<CameraPair>,
 }
 
 /// What the steps share: the problem, the options, and where the stages, warnings and progress
@@ -146,7 +146,7 @@ fn target_poses(steps: &mut Steps) -> Result<(State, State), CalibError> {
 
 /// Named states the maximum-likelihood fit may start from, and the pair of cameras the
 /// consecutive method chose.
-type Starts = (Vec<(String, State)>, Option<[usize; 2]>);
+type Starts = (Vec<(String, State)>, Option<CameraPair>);
 
 /// Step 4: the named starts of the ports. The consecutive method over the pairs behind a shared
 /// port (and for `auto` its pair's reprojection profile minimum and the rig's start too), else
@@ -344,7 +344,7 @@ fn consecutive_start(
     steps: &mut Steps,
     pinhole: &State,
     pairs: &[StereoData],
-) -> Result<(State, [usize; 2], Option<State>), CalibError> {
+) -> Result<(State, CameraPair, Option<State>), CalibError> {
     let (rig, target, views, options) = (steps.rig, steps.target, steps.views, steps.options);
     let pose_only =
         Bundle::new(rig, target, views, Estimate::NOTHING, options.huber).on(steps.residuals);

@@ -15,7 +15,7 @@ use super::{MIN_VIEWS, Method, Options, WEAK_AIR_STD_M, WEAK_TILT_STD_DEG};
 use crate::calib::costs::SceneFit;
 use crate::calib::costs::invariants::plane_basis;
 use crate::calib::error::CalibError;
-use crate::calib::problem::data::{Candidate, StereoData};
+use crate::calib::problem::data::{CameraPair, Candidate, StereoData};
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::screen::Screening;
 use crate::calib::problem::target::Target;
@@ -714,7 +714,7 @@ fn scene_errors(
     target: &Target,
     seen: &[SeenView],
     pairs: &[StereoData],
-    pair: Option<[usize; 2]>,
+    pair: Option<CameraPair>,
 ) -> Option<SceneErrors> {
     let board = target.board()?;
     let pair = pair
@@ -722,9 +722,9 @@ fn scene_errors(
         .or_else(|| {
             let n = calibrated.cameras().len();
             (0..n)
-                .flat_map(|a| (a + 1..n).map(move |b| [a, b]))
-                .find(|&[a, b]| {
-                    StereoData::new(calibrated, [a, b], board, seen)
+                .flat_map(|a| (a + 1..n).map(move |b| CameraPair::new(a, b)))
+                .find(|&pair| {
+                    StereoData::new(calibrated, pair, board, seen)
                         .is_ok_and(|d| d.views.len() >= MIN_VIEWS)
                 })
         })?;

@@ -57,6 +57,52 @@ pub struct Corner {
     pub dir_jacobians: [Matrix3x2<f64>; 2],
 }
 
+/// Two cameras of a rig by their index in it, in order: the pair whose shared corners the pair
+/// costs compare (the first is the reference). `[a, b]` converts into one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct CameraPair {
+    /// The first camera's index.
+    pub first: usize,
+    /// The second camera's index.
+    pub second: usize,
+}
+
+impl CameraPair {
+    /// Cameras `first` and `second`.
+    pub fn new(first: usize, second: usize) -> Self {
+        Self { first, second }
+    }
+
+    /// `[first, second]`, as the pair kernels take them.
+    pub fn indices(self) -> [usize; 2] {
+        [self.first, self.second]
+    }
+
+    /// `f` of each camera index, in order.
+    pub fn map<T>(self, f: impl FnMut(usize) -> T) -> [T; 2] {
+        self.indices().map(f)
+    }
+}
+
+impl From<[usize; 2]> for CameraPair {
+    fn from([first, second]: [usize; 2]) -> Self {
+        Self { first, second }
+    }
+}
+
+/// `pair[0]` is the first camera's index, `pair[1]` the second's.
+impl std::ops::Index<usize> for CameraPair {
+    type Output = usize;
+
+    fn index(&self, side: usize) -> &usize {
+        match side {
+            0 => &self.first,
+            1 => &self.second,
+            _ => panic!("a camera pair has sides 0 and 1, not {side}"),
+        }
+    }
+}
+
 /// The observations of one pair of rig cameras and the rig they were taken with, ready for batch
 /// cost evaluation by the pair costs ([`costs`](crate::calib::costs)): every corner both cameras
 /// saw, with its air rays, which do not depend on the port.
@@ -64,8 +110,8 @@ pub struct Corner {
 pub struct StereoData {
     /// The rig (its ports are the start guess; layers and indices are known values).
     pub rig: Rig,
-    /// Rig indices of the first and the second camera of the pair.
-    pub cameras: [usize; 2],
+    /// The pair's cameras.
+    pub cameras: CameraPair,
     /// The board.
     pub board: Board,
     /// Every corner seen in both images, view by view.
@@ -90,10 +136,11 @@ impl StereoData {
     /// distortion), named by view, camera and corner.
     pub fn new(
         rig: &Rig,
-        cameras: [usize; 2],
+        cameras: impl Into<CameraPair>,
         board: &Board,
         seen: &[SeenView],
     ) -> Result<Self, CalibError> {
+        let cameras = cameras.into();
         let refractive = cameras.map(|k| rig.refractive_camera(k));
         let pairs = pair_views(seen, cameras[0], cameras[1]);
         let mut corners = Vec::with_capacity(pairs.iter().map(|(_, c)| c.len()).sum());
@@ -156,7 +203,7 @@ impl StereoData {
     /// Errors: observations that do not fit `rig` or a target that is not a board.
     pub fn from_observations(
         rig: &Rig,
-        cameras: [usize; 2],
+        cameras: impl Into<CameraPair>,
         observations: &crate::calib::Observations,
     ) -> Result<Self, CalibError> {
         let Some(board) = observations.target.board() else {
