@@ -15,11 +15,14 @@
 //!   chunking arithmetic;
 //! - [`stream`]: row kernels streamed through a ring of buffer sets, f32 or f64 host rows
 //!   ([`HostReal`]);
-//! - [`resident`]: rows kept on the device across calls ([`ResidentRows`]).
+//! - [`resident`]: rows kept on the device across calls ([`ResidentRows`]);
+//! - [`device_rows`]: rows that live on the device ([`DeviceRows`]): uploaded once, made and
+//!   read by chains of kernels, read back once or never; the caller's own `wgpu::Buffer`s.
 
 pub(crate) mod buffers;
 pub mod compose;
 pub mod context;
+pub mod device_rows;
 pub mod dispatch;
 pub mod layout;
 pub mod resident;
@@ -27,6 +30,7 @@ pub mod stream;
 
 pub use compose::{CpuBounds, KernelSource, Precision, Rows};
 pub use context::{AdapterSummary, CPU_BOUNDS, GpuContext, GpuError, adapters, source};
+pub use device_rows::{DeviceRows, RowKind};
 pub use dispatch::{KernelTimer, MAX_CHUNK_ITEMS};
 pub use resident::ResidentRows;
 pub use stream::{HostReal, STREAM_CHUNK_ROWS, default_stream_chunk_rows};
