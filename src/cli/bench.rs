@@ -591,6 +591,24 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
                 Ok(gpu.triangulate(&a, &b, &work.matches, &mut out4, &mut status)?)
             })?;
             record("triangulate", "gpu", p, 0, "end_to_end", t);
+            let chain = super::bench_device::chain(&gpu, &a, &b, &work.matches, args.repeats)?;
+            next_timer.set(chain.timer);
+            record(
+                super::bench_device::LABEL,
+                "gpu",
+                p,
+                0,
+                "kernel",
+                chain.kernel,
+            );
+            record(
+                super::bench_device::LABEL,
+                "gpu",
+                p,
+                0,
+                "end_to_end",
+                chain.end_to_end,
+            );
             // The fused affine-grid kernel runs in f64 whatever the engine's precision: one figure.
             if precision == Precision::F64 {
                 let gpu_backend = GpuBackend::new(&sweep_data, &gpu);

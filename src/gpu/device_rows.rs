@@ -269,6 +269,15 @@ impl<K: RowKind> DeviceRows<K> {
     /// Errors: rows of another device ([`GpuError::Rows`]), or a failure of the device (a kernel
     /// of the chain that made them included).
     pub fn read(&self, context: &GpuContext) -> Result<(Vec<K::Row>, Vec<u32>), GpuError> {
+        let (reals, status) = self.read_reals(context)?;
+        let rows: Vec<K::Row> = bytemuck::try_cast_slice(&reals)
+            .map_err(|e| GpuError::Rows(format!("{} reals per row: {e}", K::WIDTH)))?
+            .to_vec();
+        Ok((rows, status))
+    }
+
+    /// [`read`](Self::read) with the rows flat: `WIDTH` reals per row, row after row.
+    pub fn read_reals(&self, context: &GpuContext) -> Result<(Vec<f64>, Vec<u32>), GpuError> {
         self.check_on(context, self.precision, "the rows")?;
         if self.len == 0 {
             context.check("reading device rows")?;
@@ -324,9 +333,6 @@ impl<K: RowKind> DeviceRows<K> {
                 row.fill(f64::NAN);
             }
         }
-        let rows: Vec<K::Row> = bytemuck::try_cast_slice(&reals)
-            .map_err(|e| GpuError::Rows(format!("{} reals per row: {e}", K::WIDTH)))?
-            .to_vec();
-        Ok((rows, status))
+        Ok((reals, status))
     }
 }

@@ -67,7 +67,7 @@ use super::{GpuEngine, kernels};
 use crate::gpu::compose::{KernelSource, Precision, Rows};
 use crate::gpu::context::GpuError;
 use crate::gpu::device_rows::{DeviceRows, RowKind};
-use crate::gpu::dispatch::{Dispatch, chunk_items};
+use crate::gpu::dispatch::{Dispatch, KernelTimer, chunk_items};
 use crate::gpu::layout::{Params, check_layers};
 use crate::model::RefractiveCamera;
 
@@ -154,6 +154,15 @@ impl GpuEngine {
         rows: &DeviceRows<K>,
     ) -> Result<(Vec<K::Row>, Vec<u32>), GpuError> {
         rows.read(&self.context)
+    }
+
+    /// [`read`](Self::read) with the rows flat, `K::WIDTH` reals per row
+    /// ([`DeviceRows::read_reals`]).
+    pub fn read_reals<K: RowKind>(
+        &self,
+        rows: &DeviceRows<K>,
+    ) -> Result<(Vec<f64>, Vec<u32>), GpuError> {
+        rows.read_reals(&self.context)
     }
 
     /// Rows of kind `K` in the caller's own buffers on this engine's device and precision
@@ -345,6 +354,72 @@ impl GpuEngine {
         )?;
         self.submit(encoder, "pixel grid")?;
         Ok(pixels)
+    }
+
+    /// Seconds the device spends on the kernels `work` submits (a chain of the calls above, its
+    /// rows already on the device): the fastest of `repeats` runs after one warm-up, with the
+    /// clock that measured it. Where the device has TIMESTAMP_QUERY, GPU timestamps written by an
+    /// empty compute pass submitted before `work` and another after it (the queue runs them in
+    /// order: the kernels' own time); else host clocks around `work` and the wait for it (which
+    /// add the driver's latency).
+    pub fn seconds_on_device(
+        &self,
+        repeats: usize,
+        mut work: impl FnMut() -> Result<(), GpuError>,
+    ) -> Result<(f64, KernelTimer), GpuError> {
+        let device = self.context.device();
+        let mut best = f64::INFINITY;
+        if !device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
+            for _ in 0..=repeats {
+                let started = std::time::Instant::now();
+                work()?;
+                self.context.wait()?;
+                best = best.min(started.elapsed().as_secs_f64());
+            }
+            return Ok((best, KernelTimer::Host));
+        }
+        let queries = device.create_query_set(&wgpu::QuerySetDescriptor {
+            label: Some("device rows time"),
+            ty: wgpu::QueryType::Timestamp,
+            count: 2,
+        });
+        let resolve = self.context.buffer(
+            "device rows time",
+            16,
+            wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+        )?;
+        let staging = self.context.buffer(
+            "device rows time staging",
+            16,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        )?;
+        let stamp = |index: u32| {
+            let mut encoder = self.encoder("device rows time");
+            encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("device rows time"),
+                timestamp_writes: Some(wgpu::ComputePassTimestampWrites {
+                    query_set: &queries,
+                    beginning_of_pass_write_index: Some(index),
+                    end_of_pass_write_index: None,
+                }),
+            });
+            encoder
+        };
+        let tick = self.context.queue().get_timestamp_period() as f64 * 1e-9;
+        for _ in 0..=repeats {
+            self.context.submit(stamp(0).finish());
+            work()?;
+            let mut encoder = stamp(1);
+            encoder.resolve_query_set(&queries, 0..2, &resolve, 0);
+            let ticks = self
+                .context
+                .read_back(encoder, &[(&resolve, &staging, 16)], |data| {
+                    let stamps: &[u64] = bytemuck::cast_slice(data[0]);
+                    stamps[1].saturating_sub(stamps[0])
+                })?;
+            best = best.min(ticks as f64 * tick);
+        }
+        Ok((best, KernelTimer::GpuTimestamp))
     }
 
     /// The uniform of a kernel that reads no camera (only `info`).
