@@ -39,6 +39,10 @@ pub trait RowKind: 'static {
 
 /// A batch of rows of kind `K` on one device, in one precision, with a status per row (the
 /// [module](self) documents the layout). Cloning shares the buffers.
+///
+/// The relations that take and give them are [`GpuEngine`](crate::engine::GpuEngine)'s
+/// `*_rows` calls; [`crate::engine::gpu::device`] has the chain back-project → triangulate as a
+/// compiled example.
 pub struct DeviceRows<K: RowKind> {
     rows: wgpu::Buffer,
     status: wgpu::Buffer,
