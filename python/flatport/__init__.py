@@ -26,6 +26,7 @@ import numpy as np
 
 from . import _flatport
 from ._flatport import __version__
+from . import gpu
 
 __all__ = [
     "Rig",
@@ -37,6 +38,7 @@ __all__ = [
     "sweep",
     "SweepResult",
     "STATUS",
+    "gpu",
     "__version__",
 ]
 
@@ -205,7 +207,12 @@ class Rig:
         Returns ``(uv, status)``: uv (N, 2) float64, NaN where status (N,) uint32 is not 0.
 
         >>> uv, status = rig.project([[0.2, -0.1, 1.5]], camera="right")  # doctest: +SKIP
+
+        Given a :class:`flatport.gpu.DeviceArray` of points, returns a device array of pixels
+        (on the GPU, no copy; ``device`` and ``precision`` are the array's own).
         """
+        if isinstance(points, gpu.DeviceArray):
+            return gpu.project(self, points, [camera if camera is not None else 0])[0]
         _check_engine(device, precision)
         return self._rig.project(_rows("points", points, 3), self._camera_index(camera, "camera"), device, precision)
 
@@ -216,7 +223,12 @@ class Rig:
         direction in the water, master frame; NaN where status is not 0.
 
         >>> rays, status = rig.backproject([[640.0, 512.0]])  # doctest: +SKIP
+
+        Given a :class:`flatport.gpu.DeviceArray` of pixels, returns a device array of rays
+        (on the GPU, no copy; ``device`` and ``precision`` are the array's own).
         """
+        if isinstance(pixels, gpu.DeviceArray):
+            return gpu.backproject(self, pixels, camera)
         _check_engine(device, precision)
         return self._rig.backproject(_rows("pixels", pixels, 2), self._camera_index(camera, "camera"), device, precision)
 

@@ -1,10 +1,12 @@
 """Type stubs of the flatport package (see __init__.py for the documentation)."""
 
 import os
-from typing import Any, Iterable, NamedTuple, Optional, Sequence, Tuple, Union
+from typing import Any, Iterable, NamedTuple, Optional, Sequence, Tuple, Union, overload
 
 import numpy as np
 import numpy.typing as npt
+
+from . import gpu as gpu
 
 __version__: str
 STATUS: dict[int, str]
@@ -28,12 +30,22 @@ class Rig:
     def interface(self) -> dict: ...
     def port(self, camera: CameraRef = None) -> dict: ...
     def engine(self, device: Device = "cpu", precision: Precision = "f64") -> str: ...
+    @overload
     def project(
         self, points: FloatRows, camera: CameraRef = None, device: Device = "cpu", precision: Precision = "f64"
     ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.uint32]]: ...
+    @overload
+    def project(
+        self, points: gpu.DeviceArray, camera: CameraRef = None, device: Device = "cpu", precision: Precision = "f64"
+    ) -> gpu.DeviceArray: ...
+    @overload
     def backproject(
         self, pixels: FloatRows, camera: CameraRef = None, device: Device = "cpu", precision: Precision = "f64"
     ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.uint32]]: ...
+    @overload
+    def backproject(
+        self, pixels: gpu.DeviceArray, camera: CameraRef = None, device: Device = "cpu", precision: Precision = "f64"
+    ) -> gpu.DeviceArray: ...
     def triangulate(
         self,
         matches: FloatRows,

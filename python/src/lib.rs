@@ -16,7 +16,9 @@ use flatport::calib::sweep::{Linspace, SweepSpec, sweep as run_sweep};
 use flatport::calib::{Backend, Board, CostBackend, CostKind, CpuBackend, Estimate, GpuBackend, Method, Options, SceneSpec, StereoData, Target, calibrate as run_calibrate, simulate as run_simulate};
 use flatport::engine::raymap::backproject_rows;
 use flatport::engine::{Device, Engine, EngineOptions};
-use flatport::gpu::Precision;
+use flatport::engine::GpuEngine;
+use flatport::engine::gpu::{Pixels, Points, Rays, Triangulated};
+use flatport::gpu::{DeviceRows, GpuError, Precision, RowKind};
 use flatport::io::{ColmapDialect, Truth, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string, stereo_observations_to_json_string};
 use flatport::io::calib_json::truth_to_json_string;
 use flatport::model::Rig;
@@ -136,8 +138,180 @@ fn batch<'py, const N: usize, const M: usize>(
     Ok((PyArray1::from_vec(py, flat).reshape([n, M])?, PyArray1::from_vec(py, status)))
 }
 
+/// Rows on the GPU of one of the engine's kinds.
+enum AnyRows {
+    Pixels(DeviceRows<Pixels>),
+    Points(DeviceRows<Points>),
+    Rays(DeviceRows<Rays>),
+    Triangulated(DeviceRows<Triangulated>),
+}
+
+impl AnyRows {
+    fn kind(&self) -> &'static str {
+        match self {
+            Self::Pixels(_) => "pixels",
+            Self::Points(_) => "points",
+            Self::Rays(_) => "rays",
+            Self::Triangulated(_) => "triangulated",
+        }
+    }
+}
+
+/// Rows that live on the GPU (`flatport.gpu.DeviceArray` wraps it): nothing is copied to the host
+/// until `read` is called. Keeps the engine that made it, whose device holds the rows.
+#[pyclass(name = "_DeviceArray", module = "flatport._flatport", frozen)]
+struct PyDeviceArray {
+    engine: Arc<Engine>,
+    rows: AnyRows,
+}
+
+/// A GPU call's error: rows that do not fit the call are a ValueError, the rest a RuntimeError.
+fn device_error(error: GpuError) -> PyErr {
+    match error {
+        GpuError::Rows(_) => value_error(error),
+        other => runtime_error(other),
+    }
+}
+
+/// The (N, width) float64 rows and (N,) uint32 status of `rows`, read back with the GIL released.
+fn read_device<'py, K: RowKind>(py: Python<'py>, engine: &GpuEngine, rows: &DeviceRows<K>) -> PyResult<Rows<'py>> {
+    let (flat, status) = py.detach(|| engine.read_reals(rows)).map_err(device_error)?;
+    Ok((PyArray1::from_vec(py, flat).reshape([status.len(), K::WIDTH])?, PyArray1::from_vec(py, status)))
+}
+
+impl PyDeviceArray {
+    fn gpu(&self) -> &GpuEngine {
+        match &*self.engine {
+            Engine::Gpu(gpu) => gpu,
+            Engine::Cpu(_) => unreachable!("device arrays are made by GPU engines only"),
+        }
+    }
+
+    fn wrap(&self, rows: AnyRows) -> Self {
+        Self { engine: self.engine.clone(), rows }
+    }
+}
+
+#[pymethods]
+impl PyDeviceArray {
+    /// "pixels", "points", "rays" or "triangulated".
+    #[getter]
+    fn kind(&self) -> &'static str {
+        self.rows.kind()
+    }
+
+    /// Reals per row.
+    #[getter]
+    fn width(&self) -> usize {
+        match &self.rows {
+            AnyRows::Pixels(_) => Pixels::WIDTH,
+            AnyRows::Points(_) => Points::WIDTH,
+            AnyRows::Rays(_) => Rays::WIDTH,
+            AnyRows::Triangulated(_) => Triangulated::WIDTH,
+        }
+    }
+
+    /// "f32" or "f64": the reals on the device.
+    #[getter]
+    fn precision(&self) -> &'static str {
+        self.gpu().precision().name()
+    }
+
+    fn __len__(&self) -> usize {
+        match &self.rows {
+            AnyRows::Pixels(r) => r.len(),
+            AnyRows::Points(r) => r.len(),
+            AnyRows::Rays(r) => r.len(),
+            AnyRows::Triangulated(r) => r.len(),
+        }
+    }
+
+    /// The rows copied to the host: (N, width) float64, NaN where the (N,) uint32 status is not 0.
+    fn read<'py>(&self, py: Python<'py>) -> PyResult<Rows<'py>> {
+        let gpu = self.gpu();
+        match &self.rows {
+            AnyRows::Pixels(r) => read_device(py, gpu, r),
+            AnyRows::Points(r) => read_device(py, gpu, r),
+            AnyRows::Rays(r) => read_device(py, gpu, r),
+            AnyRows::Triangulated(r) => read_device(py, gpu, r),
+        }
+    }
+
+    /// The engine that made the rows (`_Rig.engine_id` of the same engine).
+    fn engine_id(&self) -> usize {
+        Arc::as_ptr(&self.engine) as usize
+    }
+}
+
+impl PyRig {
+    /// The GPU engine of `precision` (device "gpu"), for device arrays.
+    fn device_engine(&self, py: Python<'_>, precision: &str) -> PyResult<Arc<Engine>> {
+        let engine = self.engine(py, "gpu", precision)?;
+        match &*engine {
+            Engine::Gpu(_) => Ok(engine),
+            Engine::Cpu(_) => Err(runtime_error("device arrays need a GPU engine")),
+        }
+    }
+}
+
+/// `array` as the rows of `kind` on the device of `engine`.
+fn upload_any(engine: &GpuEngine, array: &PyReadonlyArray2<'_, f64>, kind: &str) -> PyResult<AnyRows> {
+    let rows = match kind {
+        "pixels" => AnyRows::Pixels(engine.upload::<Pixels>(rows::<2>(array, "pixels")?).map_err(device_error)?),
+        "points" => AnyRows::Points(engine.upload::<Points>(rows::<3>(array, "points")?).map_err(device_error)?),
+        "rays" => AnyRows::Rays(engine.upload::<Rays>(rows::<6>(array, "rays")?).map_err(device_error)?),
+        other => return Err(value_error(format!("kind must be 'pixels', 'points' or 'rays', got {other:?}"))),
+    };
+    Ok(rows)
+}
+
 #[pymethods]
 impl PyRig {
+    /// Uploads (N, width) float64 rows of `kind` to the GPU engine of `precision`.
+    fn upload_rows(&self, py: Python<'_>, array: PyReadonlyArray2<'_, f64>, kind: &str, precision: &str) -> PyResult<PyDeviceArray> {
+        let engine = self.device_engine(py, precision)?;
+        let Engine::Gpu(gpu) = &*engine else { unreachable!("checked by device_engine") };
+        let rows = upload_any(gpu, &array, kind)?;
+        Ok(PyDeviceArray { engine, rows })
+    }
+
+    /// Pixels of a grid made on the GPU (row-major, every `step` pixels).
+    fn pixel_grid_rows(&self, py: Python<'_>, width: u32, height: u32, step: u32, precision: &str) -> PyResult<PyDeviceArray> {
+        let engine = self.device_engine(py, precision)?;
+        let Engine::Gpu(gpu) = &*engine else { unreachable!("checked by device_engine") };
+        let rows = py.detach(|| gpu.pixel_grid(width, height, step)).map_err(device_error)?;
+        Ok(PyDeviceArray { engine, rows: AnyRows::Pixels(rows) })
+    }
+
+    /// Rays in the water of device pixels of `camera`, on the device.
+    fn backproject_rows(&self, py: Python<'_>, pixels: &PyDeviceArray, camera: usize) -> PyResult<PyDeviceArray> {
+        let view = self.camera(camera)?;
+        let AnyRows::Pixels(on_device) = &pixels.rows else {
+            return Err(value_error(format!("backproject takes pixels, got {}", pixels.rows.kind())));
+        };
+        let rays = py.detach(|| pixels.gpu().backproject_rows(&view, on_device)).map_err(device_error)?;
+        Ok(pixels.wrap(AnyRows::Rays(rays)))
+    }
+
+    /// Pixels of device points in each of `cameras`, on the device.
+    fn project_rows(&self, py: Python<'_>, points: &PyDeviceArray, cameras: Vec<usize>) -> PyResult<Vec<PyDeviceArray>> {
+        let views = cameras.iter().map(|&k| self.camera(k)).collect::<PyResult<Vec<_>>>()?;
+        let AnyRows::Points(on_device) = &points.rows else {
+            return Err(value_error(format!("project takes points, got {}", points.rows.kind())));
+        };
+        let all = py.detach(|| points.gpu().project_many(on_device, &views)).map_err(device_error)?;
+        Ok(all.into_iter().map(|p| points.wrap(AnyRows::Pixels(p))).collect())
+    }
+
+    /// Triangulated points (x, y, z, residual) of device rays `a` and `b`, row by row, on the device.
+    fn triangulate_rows(&self, py: Python<'_>, a: &PyDeviceArray, b: &PyDeviceArray) -> PyResult<PyDeviceArray> {
+        let (AnyRows::Rays(rays_a), AnyRows::Rays(rays_b)) = (&a.rows, &b.rows) else {
+            return Err(value_error(format!("triangulate takes two arrays of rays, got {} and {}", a.rows.kind(), b.rows.kind())));
+        };
+        let points = py.detach(|| a.gpu().triangulate_rows(rays_a, rays_b)).map_err(device_error)?;
+        Ok(a.wrap(AnyRows::Triangulated(points)))
+    }
+
     #[staticmethod]
     fn load(path: &str) -> PyResult<Self> {
         Ok(Self::wrap(read_rig(Path::new(path)).map_err(value_error)?))
@@ -424,6 +598,7 @@ fn sweep<'py>(
 #[pymodule]
 fn _flatport(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyRig>()?;
+    m.add_class::<PyDeviceArray>()?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(sweep, m)?)?;

@@ -66,6 +66,10 @@ pub enum GpuError {
     /// The input cannot run on the GPU kernels.
     #[error("{0}")]
     Unsupported(String),
+    /// Device rows that do not fit the call: of another device or precision, of unequal
+    /// lengths, or buffers too short for the rows they should hold.
+    #[error("device rows: {0}")]
+    Rows(String),
     /// A kernel did not compile into a pipeline (a WGSL or layout error the adapter refused).
     #[error("GPU kernel '{kernel}' was refused by the adapter: {reason}")]
     Kernel {
@@ -264,7 +268,12 @@ pub struct GpuContext {
     timeout: std::time::Duration,
     /// Compiled pipelines, shared by every user of the context.
     pipelines: Mutex<HashMap<PipelineKey, Arc<wgpu::ComputePipeline>>>,
+    /// This context's own number ([`id`](GpuContext::id)).
+    id: u64,
 }
+
+/// The number of the next context.
+static NEXT_CONTEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 /// What wgpu's callbacks report, for [`GpuContext::check`].
 #[derive(Debug, Default)]
@@ -358,6 +367,7 @@ impl GpuContext {
             faults,
             timeout: wait_limit(),
             pipelines: Mutex::default(),
+            id: NEXT_CONTEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         })
     }
 
@@ -397,7 +407,15 @@ impl GpuContext {
             faults: Arc::new(Faults::default()),
             timeout: wait_limit(),
             pipelines: Mutex::default(),
+            id: NEXT_CONTEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         }
+    }
+
+    /// A number no other context of this process has: what data kept on a device compare to
+    /// know whose they are. Not `wgpu::Device`'s equality, which compares wgpu-core's ids, and
+    /// those repeat across instances (two contexts opened on one adapter have equal devices).
+    pub fn id(&self) -> u64 {
+        self.id
     }
 
     /// The queue kernels are submitted to (shared with the caller after

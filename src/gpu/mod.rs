@@ -16,6 +16,8 @@
 //! - [`stream`]: row kernels streamed through a ring of buffer sets, f32 or f64 host rows
 //!   ([`HostReal`]);
 //! - [`resident`]: rows kept on the device across calls ([`ResidentRows`]);
+//! - [`device_rows`]: rows that live on the device ([`DeviceRows`]): uploaded once, made and
+//!   read by chains of kernels, read back once or never; the caller's own `wgpu::Buffer`s;
 //! - [`roofs`]: the host link's and the device memory's bandwidths, which GPU figures are read
 //!   against (`flatport bench`).
 //!
@@ -27,6 +29,8 @@ pub(crate) mod buffers;
 pub mod compose;
 #[cfg(feature = "gpu")]
 pub mod context;
+#[cfg(feature = "gpu")]
+pub mod device_rows;
 #[cfg(feature = "gpu")]
 pub mod dispatch;
 #[cfg(feature = "gpu")]
@@ -41,6 +45,8 @@ pub mod stream;
 pub use compose::{CpuBounds, KernelSource, Precision, Rows};
 #[cfg(feature = "gpu")]
 pub use context::{AdapterSummary, CPU_BOUNDS, GpuContext, GpuError, adapters, source};
+#[cfg(feature = "gpu")]
+pub use device_rows::{DeviceRows, RowKind};
 #[cfg(feature = "gpu")]
 pub use dispatch::{KernelTimer, MAX_CHUNK_ITEMS};
 #[cfg(feature = "gpu")]

@@ -25,7 +25,8 @@ pub struct ResidentRows {
 
 /// The device copy of [`ResidentRows`].
 struct DeviceCopy {
-    device: wgpu::Device,
+    /// The [`GpuContext::id`] of the context whose device holds the copy.
+    context: u64,
     precision: Precision,
     buffer: wgpu::Buffer,
 }
@@ -96,9 +97,8 @@ impl ResidentRows {
         precision: Precision,
     ) -> Result<wgpu::Buffer, GpuError> {
         let mut copy = self.device.lock().unwrap_or_else(|p| p.into_inner());
-        let device = context.device();
         if let Some(kept) = copy.as_ref()
-            && kept.device == *device
+            && kept.context == context.id()
             && kept.precision == precision
         {
             return Ok(kept.buffer.clone());
@@ -115,7 +115,7 @@ impl ResidentRows {
         upload_reals(context, precision, &buffer, &self.reals)?;
         self.uploads.fetch_add(1, Ordering::Relaxed);
         *copy = Some(DeviceCopy {
-            device: device.clone(),
+            context: context.id(),
             precision,
             buffer: buffer.clone(),
         });

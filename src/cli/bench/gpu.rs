@@ -129,6 +129,14 @@ fn relation_figures(
         Ok(gpu.triangulate(a, b, &work.matches, &mut out4, &mut status)?)
     })?;
     recorder.record(Measure::gpu("triangulate", p, "end_to_end"), t);
+
+    let chain = super::device::chain(&gpu, a, b, &work.matches, repeats)?;
+    let kernel = Measure::gpu(super::device::LABEL, p, "kernel").over(n, chain.timer);
+    recorder.record(kernel, chain.kernel);
+    recorder.record(
+        Measure::gpu(super::device::LABEL, p, "end_to_end"),
+        chain.end_to_end,
+    );
     Ok(gpu)
 }
 

@@ -7,9 +7,11 @@
 //! - [`record`]: one figure, its printed line and JSON row, its roof;
 //! - [`cpu`]: the CPU figures, the triad, where the vector path's time goes;
 //! - [`gpu`]: the GPU roofs and figures;
+//! - [`device`]: the device-resident chain (matched pixels → 3-D points, rows never on the host);
 //! - [`ratios`]: the ratios printed at the end.
 
 mod cpu;
+mod device;
 mod gpu;
 mod ratios;
 mod record;

@@ -100,14 +100,19 @@ pub(super) struct Roofs {
 }
 
 /// Bytes of rows per item that a relation reads and writes (inputs and outputs in the kernel's
-/// precision, and a status word): over the host link end to end, in device memory in the kernel.
-/// `None` for the costs (sweeps, stencils), which read few rows per cell and are compute-bound.
-fn row_bytes(kernel: &str, precision: &str) -> Option<(f64, f64)> {
+/// precision, and a status word): over the host link end to end, in device memory in the kernel
+/// (`on_device`; for the chain its intermediate rays too). `None` for the costs (sweeps,
+/// stencils), which read few rows per cell and are compute-bound.
+fn row_bytes(kernel: &str, precision: &str, on_device: bool) -> Option<(f64, f64)> {
     let real = if precision == "f64" { 8.0 } else { 4.0 };
     let (inputs, outputs) = match kernel {
         "backproject" | "backproject_pinhole" => (2.0, 6.0),
         "project" => (3.0, 2.0),
         "triangulate" => (4.0, 4.0),
+        // Two pixel rows in and a point row out; on the device also two ray rows written and
+        // read again.
+        "chain_triangulate" if on_device => (4.0 + 12.0, 12.0 + 4.0),
+        "chain_triangulate" => (4.0, 4.0),
         "vop" => (3.0, 6.0),
         _ => return None,
     };
@@ -180,8 +185,9 @@ impl Recorder {
 
 /// The roof a GPU figure is read against, and the share of it the figure uses.
 fn roof_use(measure: &Measure, roofs: Roofs, items_per_s: f64) -> Option<(&'static str, f64)> {
-    let (inputs, outputs) = row_bytes(measure.kernel, measure.precision)?;
-    if measure.stage == "kernel" {
+    let on_device = measure.stage == "kernel";
+    let (inputs, outputs) = row_bytes(measure.kernel, measure.precision, on_device)?;
+    if on_device {
         let bytes = inputs + outputs;
         Some((
             "device_memory",

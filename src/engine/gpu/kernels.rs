@@ -74,8 +74,38 @@ pub static BINOCULAR_VOP: KernelSource = KernelSource::new(
     ],
 );
 
+/// The safeguarded projection of the rows [`PROJECT`] left with
+/// [`STATUS_RETRY`](crate::gpu::compose::STATUS_RETRY), in place (rows on the device).
+pub static PROJECT_RETRY: KernelSource = KernelSource::new(
+    "project_retry",
+    &[
+        MAP_BINDINGS,
+        include_str!("../../../shaders/kernels/project_retry.wgsl"),
+    ],
+);
+
+/// Two water rays of a row (device rows a and b) → x,y,z, residual (its own bindings).
+pub static TRIANGULATE_RAYS: KernelSource = KernelSource::new(
+    "triangulate_rays",
+    &[include_str!(
+        "../../../shaders/kernels/triangulate_rays.wgsl"
+    )],
+);
+
+/// An input row's status carried to its output row (its own bindings).
+pub static MERGE_STATUS: KernelSource = KernelSource::new(
+    "merge_status",
+    &[include_str!("../../../shaders/kernels/merge_status.wgsl")],
+);
+
+/// Pixels of a grid, generated on the device (its own bindings: no input rows).
+pub static PIXEL_GRID: KernelSource = KernelSource::new(
+    "pixel_grid",
+    &[include_str!("../../../shaders/kernels/pixel_grid.wgsl")],
+);
+
 /// Every kernel of the catalogue.
-pub static ALL: [&KernelSource; 7] = [
+pub static ALL: [&KernelSource; 11] = [
     &BACKPROJECT,
     &BACKPROJECT_GRID,
     &PROJECT,
@@ -83,4 +113,8 @@ pub static ALL: [&KernelSource; 7] = [
     &VOP,
     &TRIANGULATE,
     &BINOCULAR_VOP,
+    &PROJECT_RETRY,
+    &TRIANGULATE_RAYS,
+    &MERGE_STATUS,
+    &PIXEL_GRID,
 ];

@@ -12,6 +12,9 @@
 //! buffer sets so that upload, kernel and read-back overlap, and take f64 or f32 host slices
 //! ([`HostReal`]); the other calls take f64 slices and convert for f32 kernels.
 //! Rows with no answer get their status code and NaN.
+//!
+//! [`device`] runs the same relations on rows that live on the device
+//! ([`DeviceRows`](crate::gpu::DeviceRows)): upload once, chain relations, read back once.
 
 use std::sync::{Arc, Mutex, MutexGuard};
 
@@ -25,7 +28,10 @@ use crate::gpu::layout::{Params, check_layers};
 use crate::gpu::stream::{HostReal, Ring, default_stream_chunk_rows};
 use crate::model::RefractiveCamera;
 
+pub mod device;
 pub mod kernels;
+
+pub use device::{Pixels, Points, Rays, Triangulated};
 
 /// Device and staging buffers, reused across chunks and calls.
 #[derive(Default)]
