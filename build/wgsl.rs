@@ -14,7 +14,6 @@ pub const CPU_BOUNDS_COPY: CpuBounds = CpuBounds {
     project_max_iterations: 100,
     min_ray_angle_sin2: 1e-12,
     min_binocular_conditioning: 1e-9,
-    max_vop_tan_incidence: 1e6,
 };
 
 /// The shader capabilities a kernel needs of the adapter, and no more: `FLOAT64` for f64

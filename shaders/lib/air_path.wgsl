@@ -398,10 +398,6 @@ fn vop(cam: View, point: vec3r) -> VirtualPoint {
     if (path.status != STATUS_OK) {
         return VirtualPoint(path.depth, 0.0, vec3r(0.0), 0.0, path.status);
     }
-    // A grazing air ray: r / tan a is not determined (MAX_VOP_TAN_INCIDENCE of the model).
-    if (!(path.tan_a <= MAX_VOP_TAN_INCIDENCE)) {
-        return VirtualPoint(path.depth, 0.0, vec3r(0.0), 0.0, STATUS_MISSES_INTERFACE);
-    }
     var vop_distance: real = 0.0;
     if (path.tan_a > 0.0) {
         vop_distance = path.r / path.tan_a - cam.d_k - cam.thickness;

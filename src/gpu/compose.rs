@@ -211,8 +211,6 @@ pub struct CpuBounds {
     pub min_ray_angle_sin2: f64,
     /// Smallest conditioning of the binocular-VOP system that is solved.
     pub min_binocular_conditioning: f64,
-    /// Largest tan a of an air ray whose VOP is given (beyond, the ray misses the interface).
-    pub max_vop_tan_incidence: f64,
 }
 
 /// The precision prelude: type aliases and the stopping rules of the CPU path. f32 kernels stop
@@ -229,7 +227,6 @@ pub fn prelude(precision: Precision, bounds: &CpuBounds) -> String {
         project_max_iterations,
         min_ray_angle_sin2,
         min_binocular_conditioning,
-        max_vop_tan_incidence,
         ..
     } = bounds;
     format!(
@@ -240,8 +237,7 @@ pub fn prelude(precision: Precision, bounds: &CpuBounds) -> String {
          const PROJECT_TOLERANCE: real = {project_tolerance:e};\n\
          const PROJECT_MAX_ITERATIONS: u32 = {project_max_iterations}u;\n\
          const MIN_RAY_ANGLE_SIN2: real = {min_ray_angle_sin2:e};\n\
-         const MIN_BINOCULAR_CONDITIONING: real = {min_binocular_conditioning:e};\n\
-         const MAX_VOP_TAN_INCIDENCE: real = {max_vop_tan_incidence:e};\n"
+         const MIN_BINOCULAR_CONDITIONING: real = {min_binocular_conditioning:e};\n"
     )
 }
 
@@ -284,7 +280,6 @@ mod tests {
         project_max_iterations: 100,
         min_ray_angle_sin2: 1e-12,
         min_binocular_conditioning: 1e-9,
-        max_vop_tan_incidence: 1e6,
     };
 
     const PLAIN: KernelSource = KernelSource::new("plain", &["// first part", "// second part"]);

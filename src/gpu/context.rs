@@ -11,9 +11,7 @@ use std::sync::{Arc, Mutex};
 
 use super::compose::{CpuBounds, KernelSource, Precision, Rows, WORKGROUP_SIZE, compose};
 use crate::model::camera::UNDISTORT_MAX_ITERATIONS;
-use crate::model::refractive_camera::{
-    MAX_VOP_TAN_INCIDENCE, PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE,
-};
+use crate::model::refractive_camera::{PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE};
 use crate::model::stereo::{MIN_BINOCULAR_CONDITIONING, MIN_RAY_ANGLE_SIN2};
 
 /// The CPU path's stopping rules, as every kernel of the pipeline cache gets them (in its
@@ -24,7 +22,6 @@ pub const CPU_BOUNDS: CpuBounds = CpuBounds {
     project_max_iterations: PROJECT_MAX_ITERATIONS,
     min_ray_angle_sin2: MIN_RAY_ANGLE_SIN2,
     min_binocular_conditioning: MIN_BINOCULAR_CONDITIONING,
-    max_vop_tan_incidence: MAX_VOP_TAN_INCIDENCE,
 };
 
 /// The composed WGSL module of `kernel` at `precision` with the CPU's stopping rules, its view

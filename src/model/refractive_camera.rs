@@ -30,21 +30,6 @@ impl Ray {
 /// if rounding forces bisection steps, each of which halves the bracket.
 pub const PROJECT_MAX_ITERATIONS: u32 = 100;
 
-/// Largest tan a of the air ray for which [`RefractiveCamera::vop`] gives a VOP; beyond it the ray
-/// runs within 1e-6 rad of parallel to the interface, [`NoSolution::MissesInterface`].
-///
-/// Why: x̌ = r / tan a − d_k − Σ tᵢ, and tan a comes out of the root finder through the tangent
-/// v of the angle in the reference medium, tan a = ρv/√(1 − (ρ² − 1)v²), whose relative
-/// condition number in v is (1 + tan²a)·cos²θ ≈ tan²a·(1 − 1/ρ²). Each rounding of v (u = 2⁻⁵³)
-/// moves tan a by tan²a·u relatively and r / tan a by r·tan a·u absolutely; below this bound
-/// that is under 1e6·u·r ≈ 1.1e-10·r, a tenth of the 1e-9·r that the GPU-versus-CPU test allows
-/// for the points' own scale (a few roundings of v and a driver's looser division fit in). At
-/// tan a = 1.4e11 (a point 1e10 m to the side and 1e8 m deep) v cannot resolve tan a at all:
-/// the CPU gave x̌ = 66 m, an H200 113 m, both meaningless. Physically such a ray crosses 1e6
-/// air-layer thicknesses sideways before it reaches the port (45 km behind a 4.5 cm gap): it
-/// misses any real port.
-pub const MAX_VOP_TAN_INCIDENCE: f64 = 1e6;
-
 /// Relative step size |Δτ|/τ at which the forward-projection Newton iteration stops. The
 /// convergence is quadratic, so the error after that last step is far below it.
 pub const PROJECT_TOLERANCE: f64 = 1e-13;
@@ -529,16 +514,9 @@ impl RefractiveCamera {
     /// This equals eq 4.8, x̌ = x/λ1 − Σ tᵢ (1 − λ2,ᵢ) (tested against it), but stays exact where
     /// the water ray grazes the port, where eq 4.8 amplifies the rounding of a; eq 4.8 is used on
     /// the axis line (r = 0), where it is the apparent depth.
-    ///
-    /// Errors: those of [`air_path_to`](Self::air_path_to);
-    /// [`NoSolution::MissesInterface`] when tan a > [`MAX_VOP_TAN_INCIDENCE`] (the air ray grazes
-    /// the interface and r / tan a is not determined by f64).
     pub fn vop(&self, point_in_master: &Point3<f64>) -> Result<Vop, NoSolution> {
         let path = self.air_path_to(point_in_master)?;
         let tau = path.tan_incidence;
-        if !(tau <= MAX_VOP_TAN_INCIDENCE) {
-            return Err(NoSolution::MissesInterface);
-        }
         let vop_distance = if tau > 0.0 {
             path.lateral_distance / tau - self.air_distance - self.layers_thickness
         } else {

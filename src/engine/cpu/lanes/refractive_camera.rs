@@ -11,9 +11,7 @@
 use super::camera::Distortion;
 use super::f64s::{F64s, Mask, Vec3s, scaled};
 use crate::model::refractive_camera::{AIR, Medium, SCALE_ABOVE, WATER};
-use crate::model::refractive_camera::{
-    MAX_VOP_TAN_INCIDENCE, PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE,
-};
+use crate::model::refractive_camera::{PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE};
 use crate::model::{MAX_INPUT, NoSolution, RefractiveCamera};
 
 /// A status code per lane: 0 = an answer, else the [`NoSolution`] code of the first reason found.
@@ -336,10 +334,6 @@ impl<'a> CameraLanes<'a> {
         } = self.air_path(point);
         let tau = k * v / (1.0 + (1.0 - k * k) * v * v).sqrt();
         scalar = scalar | (status.answered() & (on_axis | !tau.gt(zero)));
-        status.fail(
-            !tau.le(F64s::splat(MAX_VOP_TAN_INCIDENCE)),
-            NoSolution::MissesInterface,
-        );
         let vop_distance = r / tau - self.air_distance - self.layers_thickness;
         let shift = vop_distance - depth;
         let vop = point + scaled(self.normal, shift);
