@@ -1,8 +1,13 @@
 // The weighted affine-grid invariant fused per (candidate axis, view): one invocation sums the
 // weighted normal equations of one view's corners under one axis and solves them, writing
-// (χ², degrees of freedom). Twin of `calib::affine_grid` (same names, same loop; the formulation
-// and the taper are documented there). Composed in f64 on every adapter: the one-pass χ² cancels
-// up to ~1e7-fold.
+// (χ², degrees of freedom). Twin of `calib::affine_grid` (same names, same loop; the formulation,
+// the shift and the taper are documented there). Composed in f64 on every adapter. The positions
+// are shifted by the affine map through the view's first three corners (the reference corners)
+// before they are summed, so that the one-pass χ² subtracts numbers of the size of χ², not of
+// the board's positions (unshifted it cancelled up to ~1e6-fold, and adapters that round
+// differently disagreed by 4e-8). Divisions and square roots go through div_exact /
+// recip_exact / sqrt_exact (shaders/lib/exact.wgsl): Vulkan lets a driver approximate them in
+// f64.
 //
 // Items are view-major within a dispatch: item i = view · info.y + candidate, info.y the
 // candidates per view: all of them when they fit one chunk, else a multiple of the workgroup
@@ -21,7 +26,8 @@ const ROW: u32 = 36u;
 const TAPER: real = 2.0;
 const MIN_DENOMINATOR: real = 1e-12;
 const MIN_CORNERS: u32 = 4u;
-const CANCELLATION: real = 1e-6;
+const CANCELLATION: real = 1e-4;
+const MIN_REFERENCE_TAPER: real = 0.5;
 
 // Π(w): w projected along t onto the plane z = 0.
 fn along_axis(w: vec3r, t: vec3r) -> vec2r {
@@ -90,7 +96,7 @@ fn corner_terms(k: u32, t: vec3r) -> CornerTerms {
     let ridge = 1e-12 * trace + 1e-30 * d2 * d2;
     let det_ridged = det + ridge * trace + ridge * ridge;
     let sigma_d2 = ta_u * ta_u + ta_v * ta_v + te_u * te_u + te_v * te_v;
-    let inverse = 1.0 / ((d2 + TAPER * TAPER * sigma_d2) * det_ridged);
+    let inverse = recip_exact((d2 + TAPER * TAPER * sigma_d2) * det_ridged);
     terms.q_prime = numerator * pv;
     terms.d = d;
     terms.adj = vec3r(syy + ridge, -sxy, sxx + ridge);
@@ -98,6 +104,56 @@ fn corner_terms(k: u32, t: vec3r) -> CornerTerms {
     terms.taper = d2 * det_ridged * inverse;
     terms.g = q8.yz;
     return terms;
+}
+
+// The affine map q_ref(g) = origin + M·g through the reference corners (Reference of
+// calib::affine_grid); zero where they cannot give one.
+struct Reference {
+    origin: vec2r,
+    map: vec4r, // M by rows: (m₀₀, m₀₁, m₁₀, m₁₁)
+}
+
+// The map through the corners at vec4 start, start + ROW/4, start + 2·ROW/4 of a view of `count`
+// corners: M = Q·G⁻¹, origin = q₀ − M·g₀.
+fn reference_map(start: u32, count: u32, t: vec3r) -> Reference {
+    var none: Reference;
+    none.origin = vec2r(0.0);
+    none.map = vec4r(0.0);
+    if (count < 3u) {
+        return none;
+    }
+    let c0 = corner_terms(start, t);
+    let c1 = corner_terms(start + ROW / 4u, t);
+    let c2 = corner_terms(start + 2u * (ROW / 4u), t);
+    if (!(c0.ok && c1.ok && c2.ok) || !(c0.taper >= MIN_REFERENCE_TAPER && c1.taper >= MIN_REFERENCE_TAPER && c2.taper >= MIN_REFERENCE_TAPER)) {
+        return none;
+    }
+    let q0 = vec2r(div_exact(c0.q_prime.x, c0.d), div_exact(c0.q_prime.y, c0.d));
+    let q1 = vec2r(div_exact(c1.q_prime.x, c1.d), div_exact(c1.q_prime.y, c1.d)) - q0;
+    let q2 = vec2r(div_exact(c2.q_prime.x, c2.d), div_exact(c2.q_prime.y, c2.d)) - q0;
+    let g1 = c1.g - c0.g;
+    let g2 = c2.g - c0.g;
+    let det = g1.x * g2.y - g2.x * g1.y;
+    if (!(det != 0.0) || !(abs(det) <= REAL_HUGE)) {
+        return none;
+    }
+    let inv_det = recip_exact(det);
+    // G⁻¹ by rows.
+    let gi0 = vec2r(g2.y * inv_det, -g2.x * inv_det);
+    let gi1 = vec2r(-g1.y * inv_det, g1.x * inv_det);
+    let m = vec4r(q1.x * gi0.x + q2.x * gi1.x, q1.x * gi0.y + q2.x * gi1.y,
+                  q1.y * gi0.x + q2.y * gi1.x, q1.y * gi0.y + q2.y * gi1.y);
+    var r: Reference;
+    r.map = m;
+    r.origin = vec2r(q0.x - (m.x * c0.g.x + m.y * c0.g.y), q0.y - (m.z * c0.g.x + m.w * c0.g.y));
+    return r;
+}
+
+// d·(q − q_ref(g)) of a corner, from q′ = d·q: no division.
+fn shifted(reference: Reference, c: CornerTerms) -> vec2r {
+    let at = vec2r(reference.origin.x + (reference.map.x * c.g.x + reference.map.y * c.g.y),
+                   reference.origin.y + (reference.map.z * c.g.x + reference.map.w * c.g.y));
+    return vec2r(c.q_prime.x - c.d * at.x, c.q_prime.y - c.d * at.y);
 }
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -110,10 +166,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let view = i / per_view + params.info.w;
     let candidate = i % per_view;
     let n = candidates[candidate].xyz;
-    let t = vec3r(n.x / n.z, n.y / n.z, 1.0);
+    let t = vec3r(div_exact(n.x, n.z), div_exact(n.y, n.z), 1.0);
     let table = input[view];
     let start = u32(table.x);
     let end = start + (ROW / 4u) * u32(table.y);
+    let reference = reference_map(start, u32(table.y), t);
 
     // W₁₁, W₁₂, W₂₂ times (g_x², g_x g_y, g_x) in *_a and (g_y², g_y, 1) in *_b.
     var s11_a = vec3r(0.0);
@@ -146,8 +203,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         s12_b += w12 * gb;
         s22_a += w22 * ga;
         s22_b += w22 * gb;
-        // Wq = d·d4_inverse·adj·q′, qᵀWq = d4_inverse·q′ᵀ adj q′.
-        let q = c.q_prime;
+        // With q̃′ = d·q̃: Wq̃ = d·d4_inverse·adj·q̃′, q̃ᵀWq̃ = d4_inverse·q̃′ᵀ adj q̃′.
+        let q = shifted(reference, c);
         let adj_q = vec2r(c.adj.x * q.x + c.adj.y * q.y, c.adj.y * q.x + c.adj.z * q.y);
         let wq = (c.d * c.d4_inverse) * adj_q;
         let g3 = vec3r(gx, gy, 1.0);
@@ -169,8 +226,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
-    let l00 = sqrt(d0);
-    let inv0 = 1.0 / l00;
+    let l00 = sqrt_exact(d0);
+    let inv0 = recip_exact(l00);
     let l10 = (s11_a.y) * inv0;
     let l20 = (s11_a.z) * inv0;
     let l30 = (s12_a.x) * inv0;
@@ -181,8 +238,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
-    let l11 = sqrt(d1);
-    let inv1 = 1.0 / l11;
+    let l11 = sqrt_exact(d1);
+    let inv1 = recip_exact(l11);
     let l21 = (s11_b.y - l20 * l10) * inv1;
     let l31 = (s12_a.y - l30 * l10) * inv1;
     let l41 = (s12_b.x - l40 * l10) * inv1;
@@ -192,8 +249,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
-    let l22 = sqrt(d2);
-    let inv2 = 1.0 / l22;
+    let l22 = sqrt_exact(d2);
+    let inv2 = recip_exact(l22);
     let l32 = (s12_a.z - l30 * l20 - l31 * l21) * inv2;
     let l42 = (s12_b.y - l40 * l20 - l41 * l21) * inv2;
     let l52 = (s12_b.z - l50 * l20 - l51 * l21) * inv2;
@@ -202,8 +259,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
-    let l33 = sqrt(d3);
-    let inv3 = 1.0 / l33;
+    let l33 = sqrt_exact(d3);
+    let inv3 = recip_exact(l33);
     let l43 = (s22_a.y - l40 * l30 - l41 * l31 - l42 * l32) * inv3;
     let l53 = (s22_a.z - l50 * l30 - l51 * l31 - l52 * l32) * inv3;
     let d4 = s22_b.x - l40 * l40 - l41 * l41 - l42 * l42 - l43 * l43;
@@ -211,16 +268,16 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
-    let l44 = sqrt(d4);
-    let inv4 = 1.0 / l44;
+    let l44 = sqrt_exact(d4);
+    let inv4 = recip_exact(l44);
     let l54 = (s22_b.y - l50 * l40 - l51 * l41 - l52 * l42 - l53 * l43) * inv4;
     let d5 = s22_b.z - l50 * l50 - l51 * l51 - l52 * l52 - l53 * l53 - l54 * l54;
     if (!(d5 > 0.0)) {
         status[params.info.z + i] = STATUS_DEGENERATE;
         return;
     }
-    let l55 = sqrt(d5);
-    let inv5 = 1.0 / l55;
+    let l55 = sqrt_exact(d5);
+    let inv5 = recip_exact(l55);
     let y0 = (r1.x) * inv0;
     let y1 = (r1.y - l10 * y0) * inv1;
     let y2 = (r1.z - l20 * y0 - l21 * y1) * inv2;
@@ -243,8 +300,9 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             if (!c.ok) {
                 continue;
             }
-            let inv_d = 1.0 / c.d;
-            let r = vec2r(c.q_prime.x * inv_d - (th0 * c.g.x + th1 * c.g.y + th2), c.q_prime.y * inv_d - (th3 * c.g.x + th4 * c.g.y + th5));
+            let inv_d = recip_exact(c.d);
+            let q = shifted(reference, c);
+            let r = vec2r(q.x * inv_d - (th0 * c.g.x + th1 * c.g.y + th2), q.y * inv_d - (th3 * c.g.x + th4 * c.g.y + th5));
             chi2 += c.d * c.d * c.d4_inverse * (c.adj.x * r.x * r.x + 2.0 * c.adj.y * r.x * r.y + c.adj.z * r.y * r.y);
         }
     }

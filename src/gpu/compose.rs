@@ -188,7 +188,8 @@ impl KernelSource {
 
 const COMMON: &str = include_str!("../../shaders/common.wgsl");
 /// The relation files, in dependency order.
-const LIBRARY: [&str; 5] = [
+const LIBRARY: [&str; 6] = [
+    include_str!("../../shaders/lib/exact.wgsl"),
     include_str!("../../shaders/lib/lens.wgsl"),
     include_str!("../../shaders/lib/lambda.wgsl"),
     include_str!("../../shaders/lib/ray.wgsl"),
