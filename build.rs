@@ -19,6 +19,9 @@ mod calibration_kernels;
 #[allow(dead_code)]
 #[path = "src/engine/gpu/kernels.rs"]
 mod relation_kernels;
+#[allow(dead_code)]
+#[path = "src/stereo/gpu/kernels.rs"]
+mod stereo_kernels;
 #[path = "build/wgsl.rs"]
 mod wgsl;
 
@@ -34,6 +37,7 @@ fn main() {
         "src/gpu/compose.rs",
         "src/engine/gpu/kernels.rs",
         "src/calib/backends/gpu/kernels.rs",
+        "src/stereo/gpu/kernels.rs",
         "build/wgsl.rs",
         "build.rs",
     ] {
@@ -42,6 +46,7 @@ fn main() {
     let kernels: Vec<&KernelSource> = relation_kernels::ALL
         .iter()
         .chain(&calibration_kernels::ALL)
+        .chain(&stereo_kernels::ALL)
         .copied()
         .collect();
     let mut errors = Vec::new();
