@@ -396,9 +396,14 @@ fn cli_render_then_stereo_writes_every_output() {
     assert_eq!(shape, vec![128, 160]);
     assert!(depth.iter().filter(|d| d.is_finite()).count() > 15_000);
 
-    let result = dir.path().join("result");
+    // The same outputs from both devices (the GPU's on lavapipe here), in the same format.
+    let mut listings = Vec::new();
+    for device in ["cpu", "gpu"] {
+    let result = dir.path().join(format!("result-{device}"));
     let out = flatport(&[
         "stereo",
+        "--device",
+        device,
         "--rig",
         shots.join("rig.json").to_str().unwrap(),
         "--images",
@@ -413,7 +418,7 @@ fn cli_render_then_stereo_writes_every_output() {
     ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
-    assert!(stderr.contains("device: cpu"), "{stderr}");
+    assert!(stderr.contains(&format!("device: {device}")), "{stderr}");
     for frame in ["frame_000", "frame_001"] {
         let folder = result.join(frame);
         let (shape, points) = read_f32_npy(&folder.join("points.npy"));
@@ -465,9 +470,18 @@ fn cli_render_then_stereo_writes_every_output() {
         assert!(fraction > 0.3 && fraction <= 1.0, "{f}");
         assert!(f["seconds"].as_f64().unwrap() > 0.0);
         assert_eq!(f["hypotheses"], 64);
-        assert!(f["device"].as_str().unwrap().starts_with("cpu"));
+        assert!(f["device"].as_str().unwrap().starts_with(device));
     }
     assert_eq!(summary["reference"], "left");
+    let prefix = result.display().to_string();
+    listings.push(
+        files_under(&result)
+            .iter()
+            .map(|f| f.trim_start_matches(&prefix).to_string())
+            .collect::<Vec<_>>(),
+    );
+    }
+    assert_eq!(listings[0], listings[1], "the devices write the same files");
 }
 
 #[test]
@@ -583,14 +597,17 @@ fn cli_bad_input_names_the_problem_and_writes_nothing() {
     assert!(error.contains("behind the camera"), "{error}");
     let error = stereo_into(&images, &["--depth", "1:x"]);
     assert!(error.contains("'x' is not a finite number"), "{error}");
-    // An unknown reference camera, and the GPU that has no kernels yet.
+    // An unknown reference camera, and an adapter that is not there.
     let error = stereo_into(&images, &["--reference", "middle"]);
     assert!(
         error.contains("--reference middle") && error.contains("left, right"),
         "{error}"
     );
-    let error = stereo_into(&images, &["--device", "gpu"]);
-    assert!(error.contains("no GPU kernels"), "{error}");
+    let error = stereo_into(&images, &["--device", "gpu", "--adapter", "no-such-adapter"]);
+    assert!(
+        error.contains("--device gpu") && error.contains("no-such-adapter"),
+        "{error}"
+    );
 }
 
 #[test]

@@ -563,7 +563,10 @@ struct Timings(Vec<(&'static str, f64)>);
 
 impl Timings {
     fn add(&mut self, stage: &'static str, since: Instant) {
-        let s = since.elapsed().as_secs_f64();
+        self.add_seconds(stage, since.elapsed().as_secs_f64());
+    }
+
+    fn add_seconds(&mut self, stage: &'static str, s: f64) {
         match self.0.iter_mut().find(|(name, _)| *name == stage) {
             Some((_, total)) => *total += s,
             None => self.0.push((stage, s)),
@@ -621,7 +624,6 @@ fn depth_run(
         ),
         #[cfg(feature = "gpu")]
         Backend::Gpu(device) => {
-            let started = Instant::now();
             let job = gpu::Job {
                 cameras,
                 images,
@@ -636,7 +638,7 @@ fn depth_run(
                 gradient: params.gradient,
                 paths: params.paths,
             };
-            let winners = device.winners(&job, &|done, total| {
+            let (winners, [cost, aggregation]) = device.winners(&job, &|done, total| {
                 progress(&StereoProgress {
                     run,
                     runs,
@@ -645,7 +647,8 @@ fn depth_run(
                     total,
                 })
             })?;
-            seconds.add("gpu stages", started);
+            seconds.add_seconds("cost volume", cost);
+            seconds.add_seconds("aggregation", aggregation);
             winners
         }
         #[cfg(not(feature = "gpu"))]

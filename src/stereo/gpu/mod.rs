@@ -198,13 +198,15 @@ impl GpuStereo {
         Ok((buffer, params.layers()))
     }
 
-    /// Stages 1–7 for `job`: the winners of every reference pixel. `report(done, total)` after
-    /// each chunk of hypotheses.
+    /// Stages 1–7 for `job`: the winners of every reference pixel, and the seconds of stages 1–5
+    /// (the cost volume) and 6–7 (aggregation and selection, with the read-back).
+    /// `report(done, total)` after each chunk of hypotheses.
     pub(crate) fn winners(
         &self,
         job: &Job,
         report: &dyn Fn(usize, usize),
-    ) -> Result<Winners, StereoError> {
+    ) -> Result<(Winners, [f64; 2]), StereoError> {
+        let started = std::time::Instant::now();
         let reference = &job.cameras[job.reference];
         let (w, h) = (
             reference.intrinsics().width as usize,
@@ -409,6 +411,8 @@ impl GpuStereo {
             report(c + 1, chunks);
         }
 
+        let cost_seconds = started.elapsed().as_secs_f64();
+        let started = std::time::Instant::now();
         // Stage 6: SGM, one dispatch per direction, then stage 7.
         let mut directions: Vec<(i32, i32)> = vec![(1, 0), (-1, 0), (0, 1), (0, -1)];
         if job.paths >= 8 {
@@ -472,6 +476,6 @@ impl GpuStereo {
             winners.quality.push(v[1]);
             winners.distinctness.push(v[2]);
         }
-        Ok(winners)
+        Ok((winners, [cost_seconds, started.elapsed().as_secs_f64()]))
     }
 }
