@@ -642,6 +642,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         }
     }
 
+    super::bench_stereo::stereo_figures(args.adapter.as_deref(), args.no_gpu, args.repeats)?;
     let floors = where_the_time_goes(&a, &a_pinhole, &work, &results, clock_hz);
     print_ratios(&results, stream, all.threads());
     if let Some(path) = &args.json {

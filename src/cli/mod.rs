@@ -14,6 +14,7 @@ macro_rules! out {
 
 mod batch;
 mod bench;
+mod bench_stereo;
 mod calib;
 mod demo;
 mod detect;
