@@ -156,3 +156,23 @@ fn a_volume_over_the_adapter_limits_is_refused_by_name() {
     assert!(device.refuses(320, 256, 128, 9).unwrap().contains("at most 8"));
     assert!(device.refuses(320, 256, 2000, 1).unwrap().contains("at most 1024"));
 }
+
+/// `Sweep` in src/stereo/gpu/mod.rs mirrors `struct Sweep` in shaders/stereo/sweep.wgsl: the same
+/// size as naga's layouter gives it (no GPU needed).
+#[test]
+fn the_sweep_uniform_matches_its_wgsl_struct() {
+    use flatport::gpu::{Precision, Rows, source};
+    let text = source(&flatport::stereo::gpu::kernels::COST, Precision::F32, Rows::Storage);
+    let module = naga::front::wgsl::parse_str(&text).unwrap_or_else(|e| panic!("{e}"));
+    let mut layouter = naga::proc::Layouter::default();
+    layouter.update(module.to_ctx()).unwrap();
+    let (handle, _) = module
+        .types
+        .iter()
+        .find(|(_, t)| t.name.as_deref() == Some("Sweep"))
+        .expect("struct Sweep");
+    assert_eq!(
+        layouter[handle].size as usize,
+        std::mem::size_of::<flatport::stereo::gpu::Sweep>()
+    );
+}
