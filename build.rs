@@ -27,6 +27,10 @@ mod calibration_kernels;
 #[path = "src/engine/gpu/kernels.rs"]
 mod relation_kernels;
 #[cfg(feature = "gpu")]
+#[allow(dead_code)]
+#[path = "src/stereo/gpu/kernels.rs"]
+mod stereo_kernels;
+#[cfg(feature = "gpu")]
 #[path = "build/wgsl.rs"]
 mod wgsl;
 
@@ -51,6 +55,7 @@ fn validate() {
         "src/gpu/compose.rs",
         "src/engine/gpu/kernels.rs",
         "src/calib/backends/gpu/kernels.rs",
+        "src/stereo/gpu/kernels.rs",
         "build/wgsl.rs",
         "build.rs",
     ] {
@@ -59,6 +64,7 @@ fn validate() {
     let kernels: Vec<&KernelSource> = relation_kernels::ALL
         .iter()
         .chain(&calibration_kernels::ALL)
+        .chain(&stereo_kernels::ALL)
         .copied()
         .collect();
     let mut errors = Vec::new();

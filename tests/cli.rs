@@ -479,6 +479,20 @@ fn demo_runs_end_to_end() {
         );
     }
     assert!(text.contains("triangulation"), "{text}");
+    // It ends with dense stereo: a point cloud and a depth picture of a rendered scene.
+    let stereo = out.join("stereo");
+    for file in ["cloud.ply", "depth.png"] {
+        assert!(stereo.join(file).is_file(), "demo wrote no stereo/{file}");
+    }
+    let ply = std::fs::read(stereo.join("cloud.ply")).unwrap();
+    let header = String::from_utf8_lossy(&ply[..ply.len().min(400)]).to_string();
+    let vertices: usize = header
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .and_then(|n| n.trim().parse().ok())
+        .unwrap_or(0);
+    assert!(vertices > 30_000, "{vertices} points: {header}");
+    assert!(text.contains("dense stereo"), "{text}");
     // The demo's own files feed the other commands.
     let rig = geometry.join("rig.json");
     let tri = run_ok(&[

@@ -396,78 +396,92 @@ fn cli_render_then_stereo_writes_every_output() {
     assert_eq!(shape, vec![128, 160]);
     assert!(depth.iter().filter(|d| d.is_finite()).count() > 15_000);
 
-    let result = dir.path().join("result");
-    let out = flatport(&[
-        "stereo",
-        "--rig",
-        shots.join("rig.json").to_str().unwrap(),
-        "--images",
-        shots.to_str().unwrap(),
-        "--output",
-        result.to_str().unwrap(),
-        "--depth",
-        "0.8:2.5",
-        "--hypotheses",
-        "64",
-        "--quiet",
-    ]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
-    assert!(stderr.contains("device: cpu"), "{stderr}");
-    for frame in ["frame_000", "frame_001"] {
-        let folder = result.join(frame);
-        let (shape, points) = read_f32_npy(&folder.join("points.npy"));
-        assert_eq!(shape, vec![128, 160, 3]);
-        let (shape, depth) = read_f32_npy(&folder.join("depth.npy"));
-        assert_eq!(shape, vec![128, 160]);
-        let (shape, confidence) = read_f32_npy(&folder.join("confidence.npy"));
-        assert_eq!(shape, vec![128, 160]);
-        let valid = depth.iter().filter(|d| d.is_finite()).count();
-        assert!(valid > 5000, "{frame}: {valid} depths");
-        for i in 0..depth.len() {
-            assert_eq!(depth[i].is_finite(), points[3 * i].is_finite(), "pixel {i}");
-            assert!((0.0..=1.0).contains(&confidence[i]));
-            if depth[i].is_finite() {
-                assert!(depth[i] > 0.8 && depth[i] < 2.5);
+    // The same outputs from both devices (the GPU's on lavapipe here), in the same format.
+    let mut listings = Vec::new();
+    for device in ["cpu", "gpu"] {
+        let result = dir.path().join(format!("result-{device}"));
+        let out = flatport(&[
+            "stereo",
+            "--device",
+            device,
+            "--rig",
+            shots.join("rig.json").to_str().unwrap(),
+            "--images",
+            shots.to_str().unwrap(),
+            "--output",
+            result.to_str().unwrap(),
+            "--depth",
+            "0.8:2.5",
+            "--hypotheses",
+            "64",
+            "--quiet",
+        ]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{stderr}");
+        assert!(stderr.contains(&format!("device: {device}")), "{stderr}");
+        for frame in ["frame_000", "frame_001"] {
+            let folder = result.join(frame);
+            let (shape, points) = read_f32_npy(&folder.join("points.npy"));
+            assert_eq!(shape, vec![128, 160, 3]);
+            let (shape, depth) = read_f32_npy(&folder.join("depth.npy"));
+            assert_eq!(shape, vec![128, 160]);
+            let (shape, confidence) = read_f32_npy(&folder.join("confidence.npy"));
+            assert_eq!(shape, vec![128, 160]);
+            let valid = depth.iter().filter(|d| d.is_finite()).count();
+            assert!(valid > 5000, "{frame}: {valid} depths");
+            for i in 0..depth.len() {
+                assert_eq!(depth[i].is_finite(), points[3 * i].is_finite(), "pixel {i}");
+                assert!((0.0..=1.0).contains(&confidence[i]));
+                if depth[i].is_finite() {
+                    assert!(depth[i] > 0.8 && depth[i] < 2.5);
+                }
             }
-        }
-        // The PLY: its header, then one 15-byte vertex per point.
-        let bytes = std::fs::read(folder.join("cloud.ply")).unwrap();
-        let end = b"end_header\n";
-        let at = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
-        let header = std::str::from_utf8(&bytes[..at]).unwrap();
-        assert!(
-            header.starts_with("ply\nformat binary_little_endian 1.0\n"),
-            "{header}"
-        );
-        assert!(
-            header.contains(&format!("element vertex {valid}\n")),
-            "{header}"
-        );
-        assert!(header.contains(
+            // The PLY: its header, then one 15-byte vertex per point.
+            let bytes = std::fs::read(folder.join("cloud.ply")).unwrap();
+            let end = b"end_header\n";
+            let at = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
+            let header = std::str::from_utf8(&bytes[..at]).unwrap();
+            assert!(
+                header.starts_with("ply\nformat binary_little_endian 1.0\n"),
+                "{header}"
+            );
+            assert!(
+                header.contains(&format!("element vertex {valid}\n")),
+                "{header}"
+            );
+            assert!(header.contains(
             "property float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
         ), "{header}");
-        assert_eq!(bytes.len() - at, valid * 15);
-        // The first vertex is the first pixel with a point.
-        let first = depth.iter().position(|d| d.is_finite()).unwrap();
-        let x = f32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
-        assert_eq!(x, points[3 * first]);
-        let (w, h) = image::image_dimensions(folder.join("depth.png")).unwrap();
-        assert!(w > 160 && h >= 128);
+            assert_eq!(bytes.len() - at, valid * 15);
+            // The first vertex is the first pixel with a point.
+            let first = depth.iter().position(|d| d.is_finite()).unwrap();
+            let x = f32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+            assert_eq!(x, points[3 * first]);
+            let (w, h) = image::image_dimensions(folder.join("depth.png")).unwrap();
+            assert!(w > 160 && h >= 128);
+        }
+        let summary: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(result.join("summary.json")).unwrap())
+                .unwrap();
+        let frames = summary["frames"].as_array().unwrap();
+        assert_eq!(frames.len(), 2);
+        for f in frames {
+            let fraction = f["valid_fraction"].as_f64().unwrap();
+            assert!(fraction > 0.3 && fraction <= 1.0, "{f}");
+            assert!(f["seconds"].as_f64().unwrap() > 0.0);
+            assert_eq!(f["hypotheses"], 64);
+            assert!(f["device"].as_str().unwrap().starts_with(device));
+        }
+        assert_eq!(summary["reference"], "left");
+        let prefix = result.display().to_string();
+        listings.push(
+            files_under(&result)
+                .iter()
+                .map(|f| f.trim_start_matches(&prefix).to_string())
+                .collect::<Vec<_>>(),
+        );
     }
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(result.join("summary.json")).unwrap())
-            .unwrap();
-    let frames = summary["frames"].as_array().unwrap();
-    assert_eq!(frames.len(), 2);
-    for f in frames {
-        let fraction = f["valid_fraction"].as_f64().unwrap();
-        assert!(fraction > 0.3 && fraction <= 1.0, "{f}");
-        assert!(f["seconds"].as_f64().unwrap() > 0.0);
-        assert_eq!(f["hypotheses"], 64);
-        assert!(f["device"].as_str().unwrap().starts_with("cpu"));
-    }
-    assert_eq!(summary["reference"], "left");
+    assert_eq!(listings[0], listings[1], "the devices write the same files");
 }
 
 #[test]
@@ -583,14 +597,20 @@ fn cli_bad_input_names_the_problem_and_writes_nothing() {
     assert!(error.contains("behind the camera"), "{error}");
     let error = stereo_into(&images, &["--depth", "1:x"]);
     assert!(error.contains("'x' is not a finite number"), "{error}");
-    // An unknown reference camera, and the GPU that has no kernels yet.
+    // An unknown reference camera, and an adapter that is not there.
     let error = stereo_into(&images, &["--reference", "middle"]);
     assert!(
         error.contains("--reference middle") && error.contains("left, right"),
         "{error}"
     );
-    let error = stereo_into(&images, &["--device", "gpu"]);
-    assert!(error.contains("no GPU kernels"), "{error}");
+    let error = stereo_into(
+        &images,
+        &["--device", "gpu", "--adapter", "no-such-adapter"],
+    );
+    assert!(
+        error.contains("--device gpu") && error.contains("no-such-adapter"),
+        "{error}"
+    );
 }
 
 #[test]

@@ -113,3 +113,20 @@ def sweep(
     device: Device = "cpu",
     precision: Precision = "f64",
 ) -> SweepResult: ...
+
+class StereoResult(NamedTuple):
+    depth: np.ndarray
+    points: np.ndarray
+    confidence: np.ndarray
+    device: str
+
+def stereo(
+    rig: Rig,
+    images: Sequence[Any],
+    reference: CameraRef = ...,
+    depth: Optional[Tuple[float, float]] = ...,
+    hypotheses: int = ...,
+    window: int = ...,
+    min_confidence: float = ...,
+    device: str = ...,
+) -> StereoResult: ...

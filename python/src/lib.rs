@@ -595,8 +595,78 @@ fn sweep<'py>(
     Ok((costs, distances, summary.to_string()))
 }
 
+/// The GPU stereo, opened on first use and kept: every later call (the frames of a sequence)
+/// reuses its pipelines and buffers. `Err` holds why there is none.
+static GPU_STEREO: std::sync::OnceLock<Result<flatport::stereo::gpu::GpuStereo, String>> = std::sync::OnceLock::new();
+
+/// Dense stereo as `flatport stereo` on one grey float32 image (H, W) per rig camera, 0 … 1:
+/// (depth (H, W), points (H, W, 3), confidence (H, W), device). `device` "cpu", "gpu" or "auto"
+/// (a hardware GPU whose storage binding holds the cost volume, else the CPU).
+#[pyfunction]
+#[pyo3(signature = (rig, images, reference, depth, hypotheses, window, min_confidence, device))]
+#[allow(clippy::too_many_arguments)] // the Python signature
+fn stereo<'py>(
+    py: Python<'py>,
+    rig: &PyRig,
+    images: Vec<PyReadonlyArray2<'py, f32>>,
+    reference: usize,
+    depth: Option<(f64, f64)>,
+    hypotheses: usize,
+    window: usize,
+    min_confidence: f64,
+    device: &str,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>, String)> {
+    use flatport::stereo::{Backend as StereoBackend, StereoOptions, stereo_on};
+    let grey: Vec<flatport::render::GreyImage> = images
+        .iter()
+        .map(|a| {
+            let shape = a.shape();
+            Ok(flatport::render::GreyImage {
+                width: shape[1] as u32,
+                height: shape[0] as u32,
+                pixels: a.as_slice().map_err(value_error)?.to_vec(),
+            })
+        })
+        .collect::<PyResult<_>>()?;
+    let options = StereoOptions {
+        reference,
+        depth_range: depth,
+        hypotheses,
+        window_radius: window,
+        min_confidence,
+        ..StereoOptions::default()
+    };
+    let gpu = match device {
+        "cpu" => None,
+        "gpu" | "auto" => match GPU_STEREO.get_or_init(|| flatport::stereo::gpu::GpuStereo::new(None).map_err(|e| e.to_string())) {
+            Ok(gpu) => {
+                let i = &rig.rig.cameras()[reference.min(rig.rig.cameras().len() - 1)].intrinsics;
+                let fits = gpu.refuses(i.width as usize, i.height as usize, hypotheses, rig.rig.cameras().len().saturating_sub(1));
+                match (device, fits) {
+                    ("gpu", Some(reason)) => return Err(runtime_error(reason)),
+                    ("auto", Some(_)) => None,
+                    ("auto", None) if gpu.context().is_software() => None,
+                    _ => Some(gpu),
+                }
+            }
+            Err(reason) if device == "gpu" => return Err(runtime_error(reason)),
+            Err(_) => None,
+        },
+        other => return Err(value_error(format!("device must be 'cpu', 'gpu' or 'auto', got {other:?}"))),
+    };
+    let backend = gpu.map_or(StereoBackend::Cpu, StereoBackend::Gpu);
+    let described = backend.describe();
+    let map = py.detach(|| stereo_on(&rig.rig, &grey, &options, backend, &|_| {})).map_err(value_error)?;
+    let (h, w) = (map.height, map.width);
+    let depth = PyArray1::from_vec(py, map.depth).reshape([h, w])?.into_any();
+    let points = PyArray1::from_vec(py, map.points.into_flattened()).reshape([h, w, 3])?.into_any();
+    let confidence = PyArray1::from_vec(py, map.confidence).reshape([h, w])?.into_any();
+    Ok((depth, points, confidence, described))
+}
+
 #[pymodule]
 fn _flatport(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(stereo, m)?)?;
     m.add_class::<PyRig>()?;
     m.add_class::<PyDeviceArray>()?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;

@@ -16,7 +16,8 @@ use flatport::io::stereo_files::{
 use flatport::io::write_atomic;
 use flatport::model::Rig;
 use flatport::render::GreyImage;
-use flatport::stereo::{StereoOptions, resolve_depth_range, stereo_with_progress};
+use flatport::stereo::gpu::GpuStereo;
+use flatport::stereo::{Backend, StereoOptions, resolve_depth_range, stereo_on};
 
 use super::Device;
 use super::progress::Progress;
@@ -51,10 +52,16 @@ pub struct StereoArgs {
     /// Least confidence (0 to 1) of a returned point
     #[arg(long, value_name = "C", default_value_t = StereoOptions::default().min_confidence)]
     min_confidence: f64,
-    /// Where the stages run. The stereo stages have CPU code only so far (their GPU kernels are a
-    /// later step): auto runs the CPU, gpu is refused
+    /// Where the sweep runs (rays, costs, SGM, selection; the consistency check is on the CPU):
+    /// gpu the WGSL kernels on a Vulkan adapter (f32; lavapipe when there is no GPU), cpu the
+    /// f64 stages on every core, auto a hardware GPU when there is one and the cost volume fits
+    /// it, else the CPU (lavapipe runs these kernels ~30× slower than the CPU path)
     #[arg(long, value_enum, default_value_t = Device::Auto)]
     device: Device,
+    /// GPU adapter: its index or part of its name as `flatport info` lists them (else
+    /// $FLATPORT_ADAPTER, else the best: discrete, integrated, then lavapipe)
+    #[arg(long, value_name = "INDEX|NAME")]
+    adapter: Option<String>,
     /// No progress bar
     #[arg(long, short)]
     quiet: bool,
@@ -152,25 +159,70 @@ pub fn list_frames(rig: &Rig, dir: &Path) -> anyhow::Result<Vec<Vec<PathBuf>>> {
     Ok(cameras)
 }
 
+/// The GPU stereo (opened once: every frame reuses its pipelines and buffers) or `None` for the
+/// CPU, and the device's description; says on stderr which runs and, for auto, why.
+fn choose_device(
+    args: &StereoArgs,
+    rig: &Rig,
+    options: &StereoOptions,
+) -> anyhow::Result<(Option<GpuStereo>, String)> {
+    let cpu = format!(
+        "cpu (vector {}, {} threads)",
+        flatport::engine::cpu::lanes::instruction_set(),
+        rayon::current_num_threads()
+    );
+    let intrinsics = &rig.cameras()[options.reference].intrinsics;
+    let (w, h) = (intrinsics.width as usize, intrinsics.height as usize);
+    // Every camera is a reference once (the consistency check): the largest image decides.
+    let (w, h) = rig
+        .cameras()
+        .iter()
+        .map(|c| (c.intrinsics.width as usize, c.intrinsics.height as usize))
+        .fold((w, h), |a, b| if b.0 * b.1 > a.0 * a.1 { b } else { a });
+    let voters = rig.cameras().len() - 1;
+    match args.device {
+        Device::Cpu => {
+            eprintln!("device: {cpu}");
+            Ok((None, cpu))
+        }
+        Device::Gpu => {
+            let gpu = GpuStereo::new(args.adapter.as_deref()).context("--device gpu")?;
+            if let Some(reason) = gpu.refuses(w, h, options.hypotheses, voters) {
+                bail!("--device gpu: {reason}");
+            }
+            let name = format!("gpu: {}", gpu.context().adapter().name);
+            eprintln!("device: {name}");
+            Ok((Some(gpu), name))
+        }
+        Device::Auto => match GpuStereo::new(args.adapter.as_deref()) {
+            Ok(gpu) if gpu.context().is_software() => {
+                eprintln!(
+                    "device: {cpu} (auto: no hardware GPU; {} runs the stereo kernels ~30× slower than the CPU, --device gpu to use it)",
+                    gpu.context().adapter().name
+                );
+                Ok((None, cpu))
+            }
+            Ok(gpu) => match gpu.refuses(w, h, options.hypotheses, voters) {
+                None => {
+                    let name = format!("gpu: {}", gpu.context().adapter().name);
+                    eprintln!("device: {name} (auto: a Vulkan adapter)");
+                    Ok((Some(gpu), name))
+                }
+                Some(reason) => {
+                    eprintln!("device: {cpu} (auto: {reason})");
+                    Ok((None, cpu))
+                }
+            },
+            Err(error) => {
+                eprintln!("device: {cpu} (auto: {error})");
+                Ok((None, cpu))
+            }
+        },
+    }
+}
+
 pub fn run(args: StereoArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.rig)?;
-    let device = match args.device {
-        Device::Gpu => bail!(
-            "--device gpu: the stereo stages have no GPU kernels yet; run with --device cpu or auto"
-        ),
-        Device::Cpu | Device::Auto => format!(
-            "cpu (vector {}, {} threads)",
-            flatport::engine::cpu::lanes::instruction_set(),
-            rayon::current_num_threads()
-        ),
-    };
-    if args.device == Device::Auto {
-        eprintln!(
-            "device: {device} (auto: the stereo stages run on the CPU; their GPU kernels are a later step)"
-        );
-    } else {
-        eprintln!("device: {device}");
-    }
     let reference = match &args.reference {
         None => 0,
         Some(name) => rig.camera_index(name).with_context(|| {
@@ -197,6 +249,11 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
     let options = StereoOptions {
         depth_range: Some(range),
         ..options
+    };
+    let (gpu, device) = choose_device(&args, &rig, &options)?;
+    let backend = match &gpu {
+        Some(gpu) => Backend::Gpu(gpu),
+        None => Backend::Cpu,
     };
     let frames = list_frames(&rig, &args.images)?;
     // Every image is read and checked before anything is written.
@@ -242,7 +299,7 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
             "hypotheses",
             args.quiet,
         ));
-        let map = stereo_with_progress(&rig, &images, &options, &|p| {
+        let map = stereo_on(&rig, &images, &options, backend, &|p| {
             if let Ok(mut bar) = bar.lock() {
                 bar.update(p.run * p.total + p.done, p.runs * p.total);
             }

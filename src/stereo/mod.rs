@@ -62,6 +62,8 @@
 pub mod check;
 pub mod cost;
 pub mod edges;
+#[cfg(feature = "gpu")]
+pub mod gpu;
 mod image;
 pub mod rays;
 pub mod select;
@@ -203,6 +205,9 @@ pub enum StereoError {
         /// What is wrong.
         reason: String,
     },
+    /// The GPU could not run the stages (no adapter, a volume over its limits, a device fault).
+    #[error("stereo on the GPU: {0}")]
+    Gpu(String),
     /// An option out of range.
     #[error("stereo option {option}: {reason}")]
     Option {
@@ -305,6 +310,33 @@ fn farthest_port(rays: &RayGrid, camera: &str) -> Result<f64, StereoError> {
         })
 }
 
+/// Where stages 1–7 of every depth map run; the consistency check, the depths and points and
+/// the confidence run on the CPU after either (the same code).
+#[derive(Clone, Copy)]
+pub enum Backend<'a> {
+    /// The f64 CPU stages (rayon over the cores).
+    Cpu,
+    /// The WGSL stages on a GPU adapter (f32; the cost volume stays on the device).
+    #[cfg(feature = "gpu")]
+    Gpu(&'a gpu::GpuStereo),
+    #[doc(hidden)]
+    #[cfg(not(feature = "gpu"))]
+    _Unused(std::marker::PhantomData<&'a ()>),
+}
+
+impl Backend<'_> {
+    /// `cpu`, or the GPU adapter's name.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Cpu => "cpu".to_string(),
+            #[cfg(feature = "gpu")]
+            Self::Gpu(g) => format!("gpu: {}", g.context().adapter().name),
+            #[cfg(not(feature = "gpu"))]
+            Self::_Unused(_) => unreachable!(),
+        }
+    }
+}
+
 /// Stereo with the reference `options.reference` on one image per rig camera (rig order, grey
 /// 0 … 1). See the [module docs](self).
 pub fn stereo(
@@ -320,6 +352,17 @@ pub fn stereo_with_progress(
     rig: &Rig,
     images: &[GreyImage],
     options: &StereoOptions,
+    progress: &(dyn Fn(&StereoProgress) + Sync),
+) -> Result<DepthMap, StereoError> {
+    stereo_on(rig, images, options, Backend::Cpu, progress)
+}
+
+/// [`stereo_with_progress`] with stages 1–7 on `backend`.
+pub fn stereo_on(
+    rig: &Rig,
+    images: &[GreyImage],
+    options: &StereoOptions,
+    backend: Backend,
     progress: &(dyn Fn(&StereoProgress) + Sync),
 ) -> Result<DepthMap, StereoError> {
     check_options(options)?;
@@ -398,8 +441,9 @@ pub fn stereo_with_progress(
         options,
         (0, runs, &names[reference]),
         progress,
+        backend,
         &mut seconds,
-    );
+    )?;
     let mut check_maps = Vec::with_capacity(others.len());
     for (run, &c) in others.iter().enumerate() {
         let started = Instant::now();
@@ -417,8 +461,9 @@ pub fn stereo_with_progress(
             options,
             (run + 1, runs, &names[c]),
             progress,
+            backend,
             &mut seconds,
-        );
+        )?;
         check_maps.push((c, map));
     }
 
@@ -520,7 +565,10 @@ struct Timings(Vec<(&'static str, f64)>);
 
 impl Timings {
     fn add(&mut self, stage: &'static str, since: Instant) {
-        let s = since.elapsed().as_secs_f64();
+        self.add_seconds(stage, since.elapsed().as_secs_f64());
+    }
+
+    fn add_seconds(&mut self, stage: &'static str, s: f64) {
         match self.0.iter_mut().find(|(name, _)| *name == stage) {
             Some((_, total)) => *total += s,
             None => self.0.push((stage, s)),
@@ -549,11 +597,108 @@ fn depth_run(
     options: &StereoOptions,
     (run, runs, name): (usize, usize, &str),
     progress: &(dyn Fn(&StereoProgress) + Sync),
+    backend: Backend,
     seconds: &mut Timings,
-) -> RawDepth {
-    let started = Instant::now();
+) -> Result<RawDepth, StereoError> {
     let (w, h) = (rays.width, rays.height);
     let d = options.hypotheses;
+    let q = inverse_depths(min_depth, max_depth, d);
+    let step = (q[d - 1] - q[0]) / (d - 1) as f64;
+    let scale = f64::from(COST_SCALE);
+    let params = SgmParams {
+        p1: (options.penalty_step * scale).round() as u16,
+        p2: (options.penalty_jump * scale).round() as u16,
+        gradient: options.penalty_gradient as f32,
+        paths: options.paths,
+    };
+    let winners = match backend {
+        Backend::Cpu => cpu_winners(
+            cameras,
+            images,
+            reference,
+            rays,
+            &q,
+            &params,
+            options,
+            (run, runs, name),
+            progress,
+            seconds,
+        ),
+        #[cfg(feature = "gpu")]
+        Backend::Gpu(device) => {
+            let job = gpu::Job {
+                cameras,
+                images,
+                reference,
+                q0: q[0],
+                dq: step,
+                hypotheses: d,
+                radius: options.window_radius,
+                min_texture: options.min_texture,
+                p1: params.p1,
+                p2: params.p2,
+                gradient: params.gradient,
+                paths: params.paths,
+            };
+            let (winners, [cost, aggregation]) = device.winners(&job, &|done, total| {
+                progress(&StereoProgress {
+                    run,
+                    runs,
+                    camera: name.to_string(),
+                    done,
+                    total,
+                })
+            })?;
+            seconds.add_seconds("cost volume", cost);
+            seconds.add_seconds("aggregation", aggregation);
+            winners
+        }
+        #[cfg(not(feature = "gpu"))]
+        Backend::_Unused(_) => unreachable!(),
+    };
+    let started = Instant::now();
+    let mut depth = vec![f32::NAN; w * h];
+    let mut points = vec![[f64::NAN; 3]; w * h];
+    let mut confidence = vec![0f32; w * h];
+    for i in 0..w * h {
+        // A rejected winner: NaN (an untextured window has no vote, so no winner, on both paths).
+        let index = winners.index[i];
+        if !index.is_finite() {
+            continue;
+        }
+        let z = 1.0 / (q[0] + f64::from(index) * step);
+        if let Some(point) = rays.point_at_depth(i, z) {
+            depth[i] = z as f32;
+            points[i] = point;
+            confidence[i] = winners.quality[i]
+                * (f64::from(winners.distinctness[i]) / options.full_distinctness).min(1.0) as f32;
+        }
+    }
+    seconds.add("selection", started);
+    Ok(RawDepth {
+        depth,
+        points,
+        confidence,
+    })
+}
+
+/// Stages 2–7 on the CPU: the winners of every reference pixel.
+#[allow(clippy::too_many_arguments)]
+fn cpu_winners(
+    cameras: &[RefractiveCamera],
+    images: &[GreyImage],
+    reference: usize,
+    rays: &RayGrid,
+    q: &[f64],
+    params: &SgmParams,
+    options: &StereoOptions,
+    (run, runs, name): (usize, usize, &str),
+    progress: &(dyn Fn(&StereoProgress) + Sync),
+    seconds: &mut Timings,
+) -> select::Winners {
+    let started = Instant::now();
+    let (w, h) = (rays.width, rays.height);
+    let d = q.len();
     let image = &images[reference];
     let windows = reference_windows(image, options.window_radius, options.min_texture);
     let voters: Vec<Voter> = (0..cameras.len())
@@ -563,7 +708,6 @@ fn depth_run(
             image: &images[k],
         })
         .collect();
-    let q = inverse_depths(min_depth, max_depth, d);
     let total = h.div_ceil(cost::BAND_ROWS) * d;
     let done = AtomicUsize::new(0);
     let report = || {
@@ -582,47 +726,17 @@ fn depth_run(
         &windows,
         options.min_texture,
         &voters,
-        &q,
+        q,
         &report,
     );
     seconds.add("cost volume", started);
     let started = Instant::now();
-    let scale = f64::from(COST_SCALE);
-    let params = SgmParams {
-        p1: (options.penalty_step * scale).round() as u16,
-        p2: (options.penalty_jump * scale).round() as u16,
-        gradient: options.penalty_gradient as f32,
-        paths: options.paths,
-    };
-    let sum = sgm_aggregate(&cost, w, h, d, &image.pixels, &params);
+    let sum = sgm_aggregate(&cost, w, h, d, &image.pixels, params);
     seconds.add("aggregation", started);
     let started = Instant::now();
     let winners = winner_take_all(&sum, &cost, d);
-    drop(sum);
-    drop(cost);
-    let step = (q[d - 1] - q[0]) / (d - 1) as f64;
-    let mut depth = vec![f32::NAN; w * h];
-    let mut points = vec![[f64::NAN; 3]; w * h];
-    let mut confidence = vec![0f32; w * h];
-    for i in 0..w * h {
-        let index = winners.index[i];
-        if !index.is_finite() || !windows.textured(i) {
-            continue;
-        }
-        let z = 1.0 / (q[0] + f64::from(index) * step);
-        if let Some(point) = rays.point_at_depth(i, z) {
-            depth[i] = z as f32;
-            points[i] = point;
-            confidence[i] = winners.quality[i]
-                * (f64::from(winners.distinctness[i]) / options.full_distinctness).min(1.0) as f32;
-        }
-    }
     seconds.add("selection", started);
-    RawDepth {
-        depth,
-        points,
-        confidence,
-    }
+    winners
 }
 
 fn check_options(o: &StereoOptions) -> Result<(), StereoError> {

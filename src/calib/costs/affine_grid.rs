@@ -684,7 +684,8 @@ mod tests {
             let s = approximate_sqrt(x);
             s + (x - s * s) / (2.0 * s)
         };
-        let (mut exact, mut unshifted, mut shifted, mut corrected) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        let (mut exact, mut unshifted, mut shifted, mut corrected) =
+            (0.0f64, 0.0f64, 0.0f64, 0.0f64);
         let (mut least_cancelled, mut most_cancelled, mut most_shifted) =
             (f64::INFINITY, 0.0f64, 0.0f64);
         for (tilt, azimuth) in [(8.05, 45.0), (8.1, 44.0), (7.9, 46.5), (8.0, 45.2)] {
@@ -714,10 +715,16 @@ mod tests {
                 if kappa < 1.0 / CANCELLATION {
                     most_shifted = most_shifted.max(kappa);
                     shifted = shifted.max(relative(chi2));
-                    assert!(relative(chi2) < 1e-9, "{what}, approximate: {chi2} vs {oracle}");
+                    assert!(
+                        relative(chi2) < 1e-9,
+                        "{what}, approximate: {chi2} vs {oracle}"
+                    );
                     let (chi2, _) = one_pass(view, &t, &shift, corrected_recip, corrected_sqrt);
                     corrected = corrected.max(relative(chi2));
-                    assert!(relative(chi2) < 1e-11, "{what}, corrected: {chi2} vs {oracle}");
+                    assert!(
+                        relative(chi2) < 1e-11,
+                        "{what}, corrected: {chi2} vs {oracle}"
+                    );
                 }
             }
         }

@@ -8,6 +8,7 @@
 //! - [`cpu`]: the CPU figures, the triad, where the vector path's time goes;
 //! - [`gpu`]: the GPU roofs and figures;
 //! - [`device`]: the device-resident chain (matched pixels → 3-D points, rows never on the host);
+//! - [`stereo`]: dense stereo's frames per second per device;
 //! - [`ratios`]: the ratios printed at the end.
 
 mod cpu;
@@ -15,6 +16,7 @@ mod device;
 mod gpu;
 mod ratios;
 mod record;
+mod stereo;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -228,6 +230,8 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             &mut recorder,
         )?)
     };
+
+    stereo::figures(args.adapter.as_deref(), args.no_gpu, args.repeats)?;
 
     let threads = flatport::engine::CpuEngine::new(None).threads();
     let results = recorder.results;

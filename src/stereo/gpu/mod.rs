@@ -1,0 +1,524 @@
+//! Stages 1–7 of the sweep on the GPU (`shaders/stereo/`, one WGSL twin per CPU stage): the
+//! reference rays from the pixel grid, the hypothesis points projected into every voter through
+//! its port, the warped samples, the windowed ZNCC combined into the cost volume, SGM along every
+//! path and the winner-take-all with its refinement. The cost volume and the aggregated costs
+//! stay on the device; the images go up once per depth map and only the winners (refined index,
+//! quality, distinctness: 12 bytes a pixel) come back, into the same [`Winners`] the CPU's
+//! [`winner_take_all`](super::select::winner_take_all) returns, so the rest (depths, points,
+//! consistency, confidence) is the CPU path's own code.
+//!
+//! **Precision.** Everything on the device is f32: the rays, the hypothesis points and their
+//! exact projections (f32 Newton, within ~1e-3 px of the f64 reference), the bilinear samples
+//! and the ZNCC sums (direct 7 × 7 sums, shifted by the centre pixel, not running sums). The
+//! costs are then rounded to the same u16 units as on the CPU, and SGM and the selection are
+//! integer arithmetic identical to the CPU's; the host turns the refined index into depth and
+//! point in f64 as on the CPU.
+//!
+//! **Reuse.** The pipelines are compiled once per [`GpuContext`] (its cache); a
+//! [`GpuStereo`] keeps its buffers between depth maps of one size, so the frames of a sequence
+//! stream through without new pipelines or allocations.
+
+pub mod kernels;
+
+use std::sync::Mutex;
+
+use bytemuck::{Pod, Zeroable};
+
+use super::StereoError;
+use super::select::Winners;
+use crate::gpu::compose::{Precision, Rows, WORKGROUP_SIZE};
+use crate::gpu::layout::Params;
+use crate::gpu::{GpuContext, GpuError};
+use crate::model::RefractiveCamera;
+use crate::render::GreyImage;
+
+/// Most voting cameras of one depth map (`MAX_VOTERS` in `shaders/stereo/sweep.wgsl`).
+pub const MAX_VOTERS: usize = 8;
+/// Most hypotheses (`MAX_HYPOTHESES` in `shaders/stereo/sgm.wgsl`).
+pub const MAX_HYPOTHESES: usize = 1024;
+/// Most hypotheses of one warp chunk: bounds the warped samples' buffer.
+const MAX_CHUNK: usize = 32;
+
+/// The stereo kernels' uniform; mirrors `struct Sweep` in `shaders/stereo/sweep.wgsl`, keep in
+/// sync (80 bytes; a test checks with naga's layouter).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, Pod, Zeroable)]
+pub struct Sweep {
+    width: u32,
+    height: u32,
+    hypotheses: u32,
+    first: u32,
+    chunk: u32,
+    voters: u32,
+    radius: u32,
+    voter: u32,
+    voter_width: u32,
+    voter_height: u32,
+    p1: u32,
+    p2: u32,
+    q0: f32,
+    dq: f32,
+    min_texture: f32,
+    gradient: f32,
+    dir: [i32; 2],
+    pad: [u32; 2],
+}
+
+/// What one depth map asks of the device.
+pub(crate) struct Job<'a> {
+    pub cameras: &'a [RefractiveCamera],
+    pub images: &'a [GreyImage],
+    pub reference: usize,
+    /// q₀ and Δq of the hypotheses (1/m).
+    pub q0: f64,
+    pub dq: f64,
+    pub hypotheses: usize,
+    pub radius: usize,
+    pub min_texture: f64,
+    /// SGM's P1 and P2 in cost units, the gradient that halves P2, 8 or 4 paths.
+    pub p1: u16,
+    pub p2: u16,
+    pub gradient: f32,
+    pub paths: usize,
+}
+
+/// Buffers of one image size, hypothesis count and voter count, reused across depth maps.
+struct Buffers {
+    key: (usize, usize, usize, usize),
+    chunk: usize,
+    rays: wgpu::Buffer,
+    image: wgpu::Buffer,
+    warped: wgpu::Buffer,
+    cost: wgpu::Buffer,
+    sum: wgpu::Buffer,
+    winners: wgpu::Buffer,
+    staging: wgpu::Buffer,
+}
+
+/// Dense stereo's GPU stages on one adapter: the context (with its pipeline cache) and the
+/// buffers of the last depth map's size.
+pub struct GpuStereo {
+    context: GpuContext,
+    buffers: Mutex<Option<Buffers>>,
+}
+
+fn gpu_error(error: GpuError) -> StereoError {
+    StereoError::Gpu(error.to_string())
+}
+
+impl GpuStereo {
+    /// Opens the adapter `name` names (as [`GpuContext::new`]).
+    ///
+    /// Errors: [`StereoError::Gpu`] when there is no such adapter.
+    pub fn new(name: Option<&str>) -> Result<Self, StereoError> {
+        Ok(Self::from_context(
+            GpuContext::new(name).map_err(gpu_error)?,
+        ))
+    }
+
+    /// On an open context.
+    pub fn from_context(context: GpuContext) -> Self {
+        Self {
+            context,
+            buffers: Mutex::new(None),
+        }
+    }
+
+    /// The context.
+    pub fn context(&self) -> &GpuContext {
+        &self.context
+    }
+
+    /// Why a depth map of `width` × `height` pixels, `hypotheses` hypotheses and `voters` voting
+    /// cameras does not fit this adapter, if it does not: the cost volume and the aggregated
+    /// costs are each one storage binding of W·H·D u32.
+    pub fn refuses(
+        &self,
+        width: usize,
+        height: usize,
+        hypotheses: usize,
+        voters: usize,
+    ) -> Option<String> {
+        let volume = (width * height * hypotheses * 4) as u64;
+        let cap = self.context.max_storage_binding();
+        if voters > MAX_VOTERS {
+            Some(format!(
+                "{voters} voting cameras: the GPU stereo takes at most {MAX_VOTERS}"
+            ))
+        } else if hypotheses > MAX_HYPOTHESES {
+            Some(format!(
+                "{hypotheses} hypotheses: the GPU stereo takes at most {MAX_HYPOTHESES}"
+            ))
+        } else if volume > cap {
+            Some(format!(
+                "the cost volume of {width} × {height} pixels × {hypotheses} hypotheses is {} MiB, over the adapter's largest storage binding of {} MiB ({}); use fewer hypotheses, smaller images or --device cpu",
+                volume >> 20,
+                cap >> 20,
+                self.context.adapter().name
+            ))
+        } else {
+            None
+        }
+    }
+
+    fn storage(&self, label: &str, bytes: u64, read: bool) -> Result<wgpu::Buffer, StereoError> {
+        let mut usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
+        if read {
+            usage |= wgpu::BufferUsages::COPY_SRC;
+        }
+        self.context
+            .buffer(label, bytes.max(4), usage)
+            .map_err(gpu_error)
+    }
+
+    fn uniform(&self, sweep: &Sweep) -> Result<wgpu::Buffer, StereoError> {
+        let buffer = self
+            .context
+            .buffer(
+                "stereo sweep",
+                std::mem::size_of::<Sweep>() as u64,
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            )
+            .map_err(gpu_error)?;
+        self.context
+            .queue()
+            .write_buffer(&buffer, 0, bytemuck::bytes_of(sweep));
+        Ok(buffer)
+    }
+
+    fn params(
+        &self,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+    ) -> Result<(wgpu::Buffer, u32), StereoError> {
+        let params = Params::new(Precision::F32, a, b, [0; 4]);
+        let buffer = self
+            .context
+            .buffer(
+                "stereo params",
+                params.bytes().len() as u64,
+                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            )
+            .map_err(gpu_error)?;
+        self.context
+            .queue()
+            .write_buffer(&buffer, 0, params.bytes());
+        Ok((buffer, params.layers()))
+    }
+
+    /// Stages 1–7 for `job`: the winners of every reference pixel, and the seconds of stages 1–5
+    /// (the cost volume) and 6–7 (aggregation and selection, with the read-back).
+    /// `report(done, total)` after each chunk of hypotheses.
+    pub(crate) fn winners(
+        &self,
+        job: &Job,
+        report: &dyn Fn(usize, usize),
+    ) -> Result<(Winners, [f64; 2]), StereoError> {
+        let started = std::time::Instant::now();
+        let reference = &job.cameras[job.reference];
+        let (w, h) = (
+            reference.intrinsics().width as usize,
+            reference.intrinsics().height as usize,
+        );
+        let d = job.hypotheses;
+        let voters: Vec<usize> = (0..job.cameras.len())
+            .filter(|&k| k != job.reference)
+            .collect();
+        if let Some(reason) = self.refuses(w, h, d, voters.len()) {
+            return Err(StereoError::Gpu(reason));
+        }
+        let cap = self.context.max_storage_binding() as usize;
+        let plane = w * h * 4;
+        let chunk = (cap / (plane * voters.len())).clamp(1, MAX_CHUNK).min(d);
+        let key = (w, h, d, voters.len());
+        let mut slot = self.buffers.lock().unwrap_or_else(|p| p.into_inner());
+        if slot.as_ref().map(|b| b.key) != Some(key) {
+            *slot = None;
+            let volume = (w * h * d * 4) as u64;
+            let staging = self
+                .context
+                .buffer(
+                    "stereo winners staging",
+                    (w * h * 12) as u64,
+                    wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                )
+                .map_err(gpu_error)?;
+            *slot = Some(Buffers {
+                key,
+                chunk,
+                rays: self.storage("stereo rays", (w * h * 32) as u64, false)?,
+                image: self.storage("stereo reference image", plane as u64, false)?,
+                warped: self.storage(
+                    "stereo warped samples",
+                    (plane * chunk * voters.len()) as u64,
+                    false,
+                )?,
+                cost: self.storage("stereo cost volume", volume, false)?,
+                sum: self.storage("stereo aggregated costs", volume, false)?,
+                winners: self.storage("stereo winners", (w * h * 12) as u64, true)?,
+                staging,
+            });
+        }
+        let buffers = slot.as_ref().expect("allocated above");
+        let chunk = buffers.chunk;
+        let queue = self.context.queue();
+        queue.write_buffer(
+            &buffers.image,
+            0,
+            bytemuck::cast_slice(&job.images[job.reference].pixels),
+        );
+        let mut voter_images = Vec::with_capacity(voters.len());
+        for &k in &voters {
+            let image = &job.images[k];
+            let buffer =
+                self.storage("stereo voter image", (image.pixels.len() * 4) as u64, false)?;
+            queue.write_buffer(&buffer, 0, bytemuck::cast_slice(&image.pixels));
+            voter_images.push(buffer);
+        }
+        let base = Sweep {
+            width: w as u32,
+            height: h as u32,
+            hypotheses: d as u32,
+            first: 0,
+            chunk: chunk as u32,
+            voters: voters.len() as u32,
+            radius: job.radius as u32,
+            p1: u32::from(job.p1),
+            p2: u32::from(job.p2),
+            q0: job.q0 as f32,
+            dq: job.dq as f32,
+            min_texture: job.min_texture as f32,
+            gradient: job.gradient,
+            ..Sweep::default()
+        };
+        let layers = job
+            .cameras
+            .iter()
+            .map(|c| c.layers().len() as u32)
+            .max()
+            .unwrap_or(0);
+        let pipeline = |kernel| {
+            self.context
+                .kernel_pipeline(kernel, Precision::F32, Rows::Storage, layers)
+                .map_err(gpu_error)
+        };
+        let (rays_p, warp_p, cost_p, sgm_p, select_p) = (
+            pipeline(&kernels::RAYS)?,
+            pipeline(&kernels::WARP)?,
+            pipeline(&kernels::COST)?,
+            pipeline(&kernels::SGM)?,
+            pipeline(&kernels::SELECT)?,
+        );
+        let bind = |pipeline: &wgpu::ComputePipeline, entries: &[(u32, &wgpu::Buffer)]| {
+            let entries: Vec<wgpu::BindGroupEntry> = entries
+                .iter()
+                .map(|&(binding, buffer)| wgpu::BindGroupEntry {
+                    binding,
+                    resource: buffer.as_entire_binding(),
+                })
+                .collect();
+            self.context
+                .device()
+                .create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("stereo"),
+                    layout: &pipeline.get_bind_group_layout(0),
+                    entries: &entries,
+                })
+        };
+        let groups_x = (w as u32).div_ceil(WORKGROUP_SIZE);
+        let run = |pipeline: &wgpu::ComputePipeline,
+                   passes: &[(&wgpu::BindGroup, (u32, u32, u32))]|
+         -> wgpu::CommandBuffer {
+            let mut encoder =
+                self.context
+                    .device()
+                    .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                        label: Some("stereo"),
+                    });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("stereo"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(pipeline);
+                for &(group, (x, y, z)) in passes {
+                    pass.set_bind_group(0, group, &[]);
+                    pass.dispatch_workgroups(x, y, z);
+                }
+            }
+            encoder.finish()
+        };
+
+        // Stage 1: the rays.
+        let (reference_params, _) = self.params(reference, reference)?;
+        let general = self.uniform(&base)?;
+        let group = bind(
+            &rays_p,
+            &[(0, &reference_params), (1, &general), (2, &buffers.rays)],
+        );
+        queue.submit([run(&rays_p, &[(&group, (groups_x, h as u32, 1))])]);
+
+        // Stages 2–5, a chunk of hypotheses at a time: warp per voter, then the costs.
+        let mut warp_groups = Vec::with_capacity(voters.len());
+        let mut warp_uniforms = Vec::with_capacity(voters.len());
+        for (v, &k) in voters.iter().enumerate() {
+            let camera = &job.cameras[k];
+            let (params, _) = self.params(reference, camera)?;
+            let sweep = Sweep {
+                voter: v as u32,
+                voter_width: camera.intrinsics().width,
+                voter_height: camera.intrinsics().height,
+                ..base
+            };
+            let uniform = self.uniform(&sweep)?;
+            warp_groups.push(bind(
+                &warp_p,
+                &[
+                    (0, &params),
+                    (1, &uniform),
+                    (2, &buffers.rays),
+                    (4, &voter_images[v]),
+                    (5, &buffers.warped),
+                ],
+            ));
+            warp_uniforms.push((uniform, sweep));
+        }
+        let cost_group = bind(
+            &cost_p,
+            &[
+                (1, &general),
+                (3, &buffers.image),
+                (5, &buffers.warped),
+                (6, &buffers.cost),
+            ],
+        );
+        let chunks = d.div_ceil(chunk);
+        for c in 0..chunks {
+            let first = (c * chunk) as u32;
+            for (uniform, sweep) in &warp_uniforms {
+                queue.write_buffer(uniform, 0, bytemuck::bytes_of(&Sweep { first, ..*sweep }));
+            }
+            queue.write_buffer(&general, 0, bytemuck::bytes_of(&Sweep { first, ..base }));
+            let pairs = (chunk as u32).div_ceil(2);
+            let mut passes: Vec<(&wgpu::BindGroup, (u32, u32, u32))> = warp_groups
+                .iter()
+                .map(|g| (g, (groups_x, h as u32, pairs)))
+                .collect();
+            passes.push((&cost_group, (groups_x, h as u32, chunk as u32)));
+            // The warp and cost kernels in order in one pass (wgpu orders the dispatches that
+            // write and read `warped`).
+            let mut encoder =
+                self.context
+                    .device()
+                    .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                        label: Some("stereo"),
+                    });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("stereo sweep"),
+                    timestamp_writes: None,
+                });
+                for (k, &(group, (x, y, z))) in passes.iter().enumerate() {
+                    pass.set_pipeline(if k < warp_groups.len() {
+                        &warp_p
+                    } else {
+                        &cost_p
+                    });
+                    pass.set_bind_group(0, group, &[]);
+                    pass.dispatch_workgroups(x, y, z);
+                }
+            }
+            let index = queue.submit([encoder.finish()]);
+            self.context.wait_for(Some(index)).map_err(gpu_error)?;
+            self.context
+                .check("the stereo cost volume")
+                .map_err(gpu_error)?;
+            report(c + 1, chunks);
+        }
+
+        let cost_seconds = started.elapsed().as_secs_f64();
+        let started = std::time::Instant::now();
+        // Stage 6: SGM, one dispatch per direction, then stage 7.
+        let mut directions: Vec<(i32, i32)> = vec![(1, 0), (-1, 0), (0, 1), (0, -1)];
+        if job.paths >= 8 {
+            directions.extend([(1, 1), (-1, 1), (1, -1), (-1, -1)]);
+        }
+        let mut sgm_groups = Vec::with_capacity(directions.len());
+        for &(dx, dy) in &directions {
+            let uniform = self.uniform(&Sweep {
+                dir: [dx, dy],
+                ..base
+            })?;
+            let lines = match (dx, dy) {
+                (_, 0) => h,
+                (0, _) => w,
+                _ => w + h - 1,
+            } as u32;
+            let group = bind(
+                &sgm_p,
+                &[
+                    (1, &uniform),
+                    (3, &buffers.image),
+                    (6, &buffers.cost),
+                    (7, &buffers.sum),
+                ],
+            );
+            sgm_groups.push((group, lines, uniform));
+        }
+        let select_group = bind(
+            &select_p,
+            &[
+                (1, &general),
+                (6, &buffers.cost),
+                (7, &buffers.sum),
+                (8, &buffers.winners),
+            ],
+        );
+        let mut encoder =
+            self.context
+                .device()
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("stereo"),
+                });
+        encoder.clear_buffer(&buffers.sum, 0, None);
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("stereo aggregation"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&sgm_p);
+            for (group, lines, _) in &sgm_groups {
+                pass.set_bind_group(0, group, &[]);
+                pass.dispatch_workgroups(*lines, 1, 1);
+            }
+            pass.set_pipeline(&select_p);
+            pass.set_bind_group(0, &select_group, &[]);
+            pass.dispatch_workgroups(groups_x, h as u32, 1);
+        }
+        let bytes = (w * h * 12) as u64;
+        let values: Vec<f32> = self
+            .context
+            .read_back(
+                encoder,
+                &[(&buffers.winners, &buffers.staging, bytes)],
+                |slices| bytemuck::cast_slice::<u8, f32>(slices[0]).to_vec(),
+            )
+            .map_err(gpu_error)?;
+        self.context
+            .check("the stereo aggregation")
+            .map_err(gpu_error)?;
+        let mut winners = Winners {
+            index: Vec::with_capacity(w * h),
+            quality: Vec::with_capacity(w * h),
+            distinctness: Vec::with_capacity(w * h),
+        };
+        for v in values.chunks_exact(3) {
+            winners
+                .index
+                .push(if v[0] >= 0.0 { v[0] } else { f32::NAN });
+            winners.quality.push(v[1]);
+            winners.distinctness.push(v[2]);
+        }
+        Ok((winners, [cost_seconds, started.elapsed().as_secs_f64()]))
+    }
+}
