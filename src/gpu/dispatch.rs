@@ -59,6 +59,77 @@ pub(crate) fn dispatch_grid(items: u32, max_per_dimension: u32) -> (u32, u32) {
     (groups.div_ceil(rows), rows)
 }
 
+/// A pair of GPU timestamps and the buffers that bring them to the host: the clock of every
+/// kernel time (one dispatch's, or a chain's).
+pub(crate) struct Timestamps {
+    queries: wgpu::QuerySet,
+    resolve: wgpu::Buffer,
+    staging: wgpu::Buffer,
+    /// Seconds per tick.
+    tick: f64,
+}
+
+impl Timestamps {
+    /// Timestamps on `context`, labelled `label`; `None` where the device has no TIMESTAMP_QUERY.
+    pub(crate) fn new(context: &GpuContext, label: &str) -> Result<Option<Self>, GpuError> {
+        let device = context.device();
+        if !device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
+            return Ok(None);
+        }
+        let queries = device.create_query_set(&wgpu::QuerySetDescriptor {
+            label: Some(label),
+            ty: wgpu::QueryType::Timestamp,
+            count: 2,
+        });
+        let resolve = context.buffer(
+            label,
+            16,
+            wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+        )?;
+        let staging = context.buffer(
+            label,
+            16,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        )?;
+        let tick = context.queue().get_timestamp_period() as f64 * 1e-9;
+        Ok(Some(Self {
+            queries,
+            resolve,
+            staging,
+            tick,
+        }))
+    }
+
+    /// Writes of timestamp `start` at a compute pass's beginning (where given) and `end` at its
+    /// end (where given).
+    pub(crate) fn writes(
+        &self,
+        start: Option<u32>,
+        end: Option<u32>,
+    ) -> wgpu::ComputePassTimestampWrites<'_> {
+        wgpu::ComputePassTimestampWrites {
+            query_set: &self.queries,
+            beginning_of_pass_write_index: start,
+            end_of_pass_write_index: end,
+        }
+    }
+
+    /// Submits `encoder` (whose passes wrote both timestamps), waits, and returns the seconds
+    /// between them.
+    pub(crate) fn seconds(
+        &self,
+        context: &GpuContext,
+        mut encoder: wgpu::CommandEncoder,
+    ) -> Result<f64, GpuError> {
+        encoder.resolve_query_set(&self.queries, 0..2, &self.resolve, 0);
+        let ticks = context.read_back(encoder, &[(&self.resolve, &self.staging, 16)], |data| {
+            let stamps: &[u64] = bytemuck::cast_slice(data[0]);
+            stamps[1].saturating_sub(stamps[0])
+        })?;
+        Ok(ticks as f64 * self.tick)
+    }
+}
+
 /// Dispatches of one compiled kernel on one context: its bind groups, its compute passes, their
 /// submission and the read-back of their results. `label` names the encoder, the pass and the
 /// bind groups (the kernel's name).
@@ -170,9 +241,8 @@ impl<'a> Dispatch<'a> {
         groups: (u32, u32),
         repeats: usize,
     ) -> Result<(f64, KernelTimer), GpuError> {
-        let device = self.context.device();
         let mut best = f64::INFINITY;
-        if !device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
+        let Some(stamps) = Timestamps::new(self.context, "kernel time")? else {
             for _ in 0..=repeats {
                 let mut encoder = self.encoder();
                 self.record(&mut encoder, &[(bind_group, groups)], None);
@@ -182,39 +252,12 @@ impl<'a> Dispatch<'a> {
                 best = best.min(started.elapsed().as_secs_f64());
             }
             return Ok((best, KernelTimer::Host));
-        }
-        let queries = device.create_query_set(&wgpu::QuerySetDescriptor {
-            label: Some("kernel time"),
-            ty: wgpu::QueryType::Timestamp,
-            count: 2,
-        });
-        let resolve = self.context.buffer(
-            "kernel time",
-            16,
-            wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-        )?;
-        let staging = self.context.buffer(
-            "kernel time staging",
-            16,
-            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        )?;
-        let tick = self.context.queue().get_timestamp_period() as f64 * 1e-9;
+        };
         for _ in 0..=repeats {
-            let writes = wgpu::ComputePassTimestampWrites {
-                query_set: &queries,
-                beginning_of_pass_write_index: Some(0),
-                end_of_pass_write_index: Some(1),
-            };
             let mut encoder = self.encoder();
+            let writes = stamps.writes(Some(0), Some(1));
             self.record(&mut encoder, &[(bind_group, groups)], Some(writes));
-            encoder.resolve_query_set(&queries, 0..2, &resolve, 0);
-            let ticks = self
-                .context
-                .read_back(encoder, &[(&resolve, &staging, 16)], |data| {
-                    let stamps: &[u64] = bytemuck::cast_slice(data[0]);
-                    stamps[1].saturating_sub(stamps[0])
-                })?;
-            best = best.min(ticks as f64 * tick);
+            best = best.min(stamps.seconds(self.context, encoder)?);
         }
         Ok((best, KernelTimer::GpuTimestamp))
     }

@@ -67,7 +67,7 @@ use super::{GpuEngine, kernels};
 use crate::gpu::compose::{KernelSource, Precision, Rows};
 use crate::gpu::context::GpuError;
 use crate::gpu::device_rows::{DeviceRows, RowKind};
-use crate::gpu::dispatch::{Dispatch, KernelTimer, chunk_items};
+use crate::gpu::dispatch::{Dispatch, KernelTimer, Timestamps, chunk_items};
 use crate::gpu::layout::{Params, check_layers};
 use crate::model::RefractiveCamera;
 
@@ -367,9 +367,8 @@ impl GpuEngine {
         repeats: usize,
         mut work: impl FnMut() -> Result<(), GpuError>,
     ) -> Result<(f64, KernelTimer), GpuError> {
-        let device = self.context.device();
         let mut best = f64::INFINITY;
-        if !device.features().contains(wgpu::Features::TIMESTAMP_QUERY) {
+        let Some(stamps) = Timestamps::new(&self.context, "device rows time")? else {
             for _ in 0..=repeats {
                 let started = std::time::Instant::now();
                 work()?;
@@ -377,47 +376,20 @@ impl GpuEngine {
                 best = best.min(started.elapsed().as_secs_f64());
             }
             return Ok((best, KernelTimer::Host));
-        }
-        let queries = device.create_query_set(&wgpu::QuerySetDescriptor {
-            label: Some("device rows time"),
-            ty: wgpu::QueryType::Timestamp,
-            count: 2,
-        });
-        let resolve = self.context.buffer(
-            "device rows time",
-            16,
-            wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
-        )?;
-        let staging = self.context.buffer(
-            "device rows time staging",
-            16,
-            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        )?;
+        };
+        // An empty compute pass that writes timestamp `index` at its beginning.
         let stamp = |index: u32| {
             let mut encoder = self.encoder("device rows time");
             encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("device rows time"),
-                timestamp_writes: Some(wgpu::ComputePassTimestampWrites {
-                    query_set: &queries,
-                    beginning_of_pass_write_index: Some(index),
-                    end_of_pass_write_index: None,
-                }),
+                timestamp_writes: Some(stamps.writes(Some(index), None)),
             });
             encoder
         };
-        let tick = self.context.queue().get_timestamp_period() as f64 * 1e-9;
         for _ in 0..=repeats {
             self.context.submit(stamp(0).finish());
             work()?;
-            let mut encoder = stamp(1);
-            encoder.resolve_query_set(&queries, 0..2, &resolve, 0);
-            let ticks = self
-                .context
-                .read_back(encoder, &[(&resolve, &staging, 16)], |data| {
-                    let stamps: &[u64] = bytemuck::cast_slice(data[0]);
-                    stamps[1].saturating_sub(stamps[0])
-                })?;
-            best = best.min(ticks as f64 * tick);
+            best = best.min(stamps.seconds(&self.context, stamp(1))?);
         }
         Ok((best, KernelTimer::GpuTimestamp))
     }

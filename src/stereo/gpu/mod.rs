@@ -30,7 +30,7 @@ use crate::gpu::compose::{Precision, Rows, WORKGROUP_SIZE};
 use crate::gpu::layout::Params;
 use crate::gpu::{GpuContext, GpuError};
 use crate::model::RefractiveCamera;
-use crate::render::GreyImage;
+use crate::stereo::GreyImage;
 
 /// Most voting cameras of one depth map (`MAX_VOTERS` in `shaders/stereo/sweep.wgsl`).
 pub const MAX_VOTERS: usize = 8;
