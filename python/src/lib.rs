@@ -617,11 +617,11 @@ fn stereo<'py>(
     device: &str,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>, String)> {
     use flatport::stereo::{Backend as StereoBackend, StereoOptions, stereo_on};
-    let grey: Vec<flatport::render::GreyImage> = images
+    let grey: Vec<flatport::stereo::GreyImage> = images
         .iter()
         .map(|a| {
             let shape = a.shape();
-            Ok(flatport::render::GreyImage {
+            Ok(flatport::stereo::GreyImage {
                 width: shape[1] as u32,
                 height: shape[0] as u32,
                 pixels: a.as_slice().map_err(value_error)?.to_vec(),
