@@ -76,32 +76,47 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     stereo_story(&dir.join("stereo"))
 }
 
+/// The small example pair (320 × 256), which the demo's and the bench's stereo run on.
+pub(super) const SMALL_PAIR: &str = include_str!("../../data/rigs/small_stereo.json");
+
+/// The example seabed with a rock (data/scenes/seabed.json) through every camera of `rig`, on the
+/// CPU, with `options` (camera k's noise seeded with k).
+pub(super) fn render_seabed(
+    rig: &Rig,
+    options: &flatport::render::RenderOptions,
+) -> anyhow::Result<Vec<flatport::stereo::GreyImage>> {
+    use flatport::io::scene_json::scene_from_json_str;
+    const SCENE: &str = include_str!("../../data/scenes/seabed.json");
+    let scene = scene_from_json_str(SCENE, Path::new("data/scenes/seabed.json"))?.scene;
+    let engine = flatport::engine::Engine::Cpu(flatport::engine::CpuEngine::new(None));
+    (0..rig.cameras().len())
+        .map(|k| {
+            let options = flatport::render::RenderOptions {
+                seed: k as u64,
+                ..options.clone()
+            };
+            let camera = rig.refractive_camera(k);
+            Ok(flatport::render::render_textured(&engine, &camera, &scene, 0, &options)?.image)
+        })
+        .collect()
+}
+
 /// The last step: the small example pair (320 × 256) renders the example seabed with a rock,
 /// dense stereo turns the pair into depths (64 hypotheses: a second or two on the CPU), and the
 /// point cloud and a depth picture are written.
 fn stereo_story(dir: &Path) -> anyhow::Result<()> {
-    use flatport::io::scene_json::scene_from_json_str;
     use flatport::io::stereo_files::{CloudPoint, write_depth_png, write_point_cloud_ply};
-    use flatport::render::{RenderOptions, render_textured};
+    use flatport::render::RenderOptions;
     use flatport::stereo::{Backend, StereoOptions, stereo_on};
-    const SCENE: &str = include_str!("../../data/scenes/seabed.json");
-    const PAIR: &str = include_str!("../../data/rigs/small_stereo.json");
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let rig = rig_from_json_str(PAIR, Path::new("data/rigs/small_stereo.json"))?;
-    let scene = scene_from_json_str(SCENE, Path::new("data/scenes/seabed.json"))?.scene;
-    let engine = flatport::engine::Engine::Cpu(flatport::engine::CpuEngine::new(None));
+    let rig = rig_from_json_str(SMALL_PAIR, Path::new("data/rigs/small_stereo.json"))?;
     let started = std::time::Instant::now();
-    let mut images = Vec::new();
-    for k in 0..rig.cameras().len() {
-        let options = RenderOptions {
-            supersample: 1,
-            noise: 2.0,
-            seed: k as u64,
-            ..RenderOptions::default()
-        };
-        images
-            .push(render_textured(&engine, &rig.refractive_camera(k), &scene, 0, &options)?.image);
-    }
+    let options = RenderOptions {
+        supersample: 1,
+        noise: 2.0,
+        ..RenderOptions::default()
+    };
+    let images = render_seabed(&rig, &options)?;
     let options = StereoOptions {
         depth_range: Some((1.0, 2.2)),
         hypotheses: 64,

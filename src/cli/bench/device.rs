@@ -4,8 +4,6 @@
 //! (GPU timestamps where the adapter has them); end to end: upload, chain and read-back of the
 //! points.
 
-use std::time::Instant;
-
 use flatport::engine::GpuEngine;
 use flatport::engine::gpu::Pixels;
 use flatport::model::RefractiveCamera;
@@ -40,18 +38,14 @@ pub(super) fn chain(
         let rays_b = gpu.backproject_rows(b, &on_b)?;
         gpu.triangulate_rows(&rays_a, &rays_b).map(drop)
     })?;
-    let mut end_to_end = f64::INFINITY;
-    for round in 0..=repeats {
-        let start = Instant::now();
+    let end_to_end = super::fastest(repeats, || {
         let on_a = gpu.upload::<Pixels>(&pixels_a)?;
         let on_b = gpu.upload::<Pixels>(&pixels_b)?;
         let rays_a = gpu.backproject_rows(a, &on_a)?;
         let rays_b = gpu.backproject_rows(b, &on_b)?;
         gpu.read(&gpu.triangulate_rows(&rays_a, &rays_b)?)?;
-        if round > 0 {
-            end_to_end = end_to_end.min(start.elapsed().as_secs_f64());
-        }
-    }
+        Ok(())
+    })?;
     Ok(ChainSeconds {
         kernel,
         timer: timer.name(),

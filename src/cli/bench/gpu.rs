@@ -36,7 +36,7 @@ pub(super) fn figures(
     let name = format!("{} ({})", summary.name, summary.driver);
     eprintln!("GPU adapter: {name}");
     let roofs = measure_roofs(&context, repeats)?;
-    recorder.gpu = Some((name.clone(), Some(roofs)));
+    recorder.gpu = Some((name.clone(), roofs));
     let has_f64 = summary.f64;
     relation_figures(
         setup,

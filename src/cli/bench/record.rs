@@ -128,7 +128,7 @@ pub(super) struct Recorder {
     clock_hz: Option<f64>,
     cpu_model: String,
     /// The GPU of the figures to come, and its roofs.
-    pub gpu: Option<(String, Option<Roofs>)>,
+    pub gpu: Option<(String, Roofs)>,
 }
 
 impl Recorder {
@@ -157,7 +157,7 @@ impl Recorder {
             .filter(|_| on_cpu && measure.threads == 1)
             .map(|hz| hz / items_per_s);
         let (device, roofs) = match (&self.gpu, on_cpu) {
-            (Some((adapter, roofs)), false) => (adapter.clone(), *roofs),
+            (Some((adapter, roofs)), false) => (adapter.clone(), Some(*roofs)),
             _ => (self.cpu_model.clone(), None),
         };
         let (roof, roof_fraction) = roofs

@@ -9,20 +9,17 @@
 use std::path::Path;
 use std::time::Instant;
 
-use flatport::engine::{CpuEngine, Engine};
 use flatport::io::rig_from_json_str;
-use flatport::io::scene_json::scene_from_json_str;
 use flatport::model::Rig;
-use flatport::render::{RenderOptions, render_textured};
+use flatport::render::RenderOptions;
 use flatport::stereo::gpu::GpuStereo;
 use flatport::stereo::{Backend, GreyImage, StereoOptions, stereo_on};
 
-const SCENE: &str = include_str!("../../../data/scenes/seabed.json");
-const RIG: &str = include_str!("../../../data/rigs/small_stereo.json");
+use crate::cli::demo::{SMALL_PAIR, render_seabed};
 
 /// The example pair with its images `scale` times wider and higher (the same field of view).
 fn scaled_rig(scale: f64) -> anyhow::Result<Rig> {
-    let mut json: serde_json::Value = serde_json::from_str(RIG)?;
+    let mut json: serde_json::Value = serde_json::from_str(SMALL_PAIR)?;
     for camera in json["cameras"].as_array_mut().into_iter().flatten() {
         for key in ["width", "height"] {
             camera[key] = serde_json::json!((camera[key].as_f64().unwrap_or(0.0) * scale) as u64);
@@ -35,22 +32,6 @@ fn scaled_rig(scale: f64) -> anyhow::Result<Rig> {
         &json.to_string(),
         Path::new("data/rigs/small_stereo.json"),
     )?)
-}
-
-/// The seabed scene through `rig`'s cameras, 2 grey levels of noise.
-fn render(rig: &Rig) -> anyhow::Result<Vec<GreyImage>> {
-    let scene = scene_from_json_str(SCENE, Path::new("data/scenes/seabed.json"))?.scene;
-    let engine = Engine::Cpu(CpuEngine::new(None));
-    (0..rig.cameras().len())
-        .map(|k| {
-            let options = RenderOptions {
-                noise: 2.0,
-                seed: k as u64,
-                ..RenderOptions::default()
-            };
-            Ok(render_textured(&engine, &rig.refractive_camera(k), &scene, 0, &options)?.image)
-        })
-        .collect()
 }
 
 /// Times stereo on the CPU at 320 × 256 and, unless `no_gpu`, on the GPU `adapter` when it is a
@@ -86,7 +67,11 @@ pub(super) fn figures(adapter: Option<&str>, no_gpu: bool, repeats: usize) -> an
             continue;
         }
         let rig = scaled_rig(scale)?;
-        let images = render(&rig)?;
+        let noisy = RenderOptions {
+            noise: 2.0,
+            ..RenderOptions::default()
+        };
+        let images = render_seabed(&rig, &noisy)?;
         for backend in backends {
             frame_figure(&rig, &images, backend, repeats)?;
         }
