@@ -4,7 +4,6 @@
 use std::time::Instant;
 
 use super::bundle::{Bundle, Estimate, Parameter, State};
-use super::report::Stage;
 use super::{MIN_VIEWS, Method, Options, Progress, consecutive, poses, search};
 use crate::calib::backends::residuals::ResidualBackend;
 use crate::calib::costs::SceneFit;
@@ -17,6 +16,46 @@ use crate::calib::solvers::lm::{
     LeastSquares, LmOptions, LmReport, levenberg_marquardt, levenberg_marquardt_observed,
 };
 use crate::model::{Ports, Rig};
+
+/// One stage of a calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stage {
+    /// What ran (`target poses`, `global search (affine-grid, 1262 axes)`, `refine axis
+    /// (affine-grid)`, `air layer (linear least squares on the ray gaps)`, `maximum likelihood
+    /// from …`).
+    pub name: String,
+    /// The first port's axis and air distance at its end (its frame), when the stage moves it.
+    pub port: Option<Candidate>,
+    /// The cost it minimised, at its end.
+    pub cost: f64,
+    /// The cost's unit.
+    pub unit: &'static str,
+    /// Iterations (or grid cells).
+    pub iterations: usize,
+    /// Seconds spent.
+    pub seconds: f64,
+}
+
+impl Stage {
+    /// A stage that ended at `port` with `cost`, started at `since`.
+    pub fn at(
+        name: &str,
+        port: Candidate,
+        cost: f64,
+        unit: &'static str,
+        iterations: usize,
+        since: Instant,
+    ) -> Self {
+        Self {
+            name: name.into(),
+            port: Some(port),
+            cost,
+            unit,
+            iterations,
+            seconds: since.elapsed().as_secs_f64(),
+        }
+    }
+}
 
 /// The camera pairs behind the shared port that saw the board together in [`MIN_VIEWS`] or more
 /// views, prepared for the pair costs: none for a 3-D target or a port per camera.

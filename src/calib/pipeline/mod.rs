@@ -38,7 +38,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use self::bundle::{Bundle, Estimate};
-use self::report::{Report, Stage};
+use self::estimate::Stage;
+use self::report::Report;
 #[cfg(feature = "gpu")]
 use crate::calib::backends::gpu::{GpuBackend, GpuResiduals};
 use crate::calib::backends::residuals::ResidualBackend;

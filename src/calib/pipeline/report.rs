@@ -4,18 +4,19 @@
 //! look like.
 
 use std::collections::{BTreeSet, HashSet};
-use std::time::Instant;
 
 use nalgebra::{DMatrix, Isometry3, Matrix3, Vector2, Vector3};
 
 use super::bundle::{Bundle, Estimate, Parameter, State};
 use super::consecutive::no_solution;
+/// The stages are recorded as the estimate runs ([`super::estimate`]) and reported here.
+pub use super::estimate::Stage;
 use super::estimate::{Fit, Outcome};
 use super::{MIN_VIEWS, Method, Options, WEAK_AIR_STD_M, WEAK_TILT_STD_DEG};
 use crate::calib::costs::SceneFit;
 use crate::calib::costs::invariants::plane_basis;
 use crate::calib::error::CalibError;
-use crate::calib::problem::data::{CameraPair, Candidate, StereoData};
+use crate::calib::problem::data::{CameraPair, StereoData};
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::screen::Screening;
 use crate::calib::problem::target::Target;
@@ -87,46 +88,6 @@ pub struct Outlier {
     /// Whether the screening of the images ([`screen`](crate::calib::problem::screen)) found it
     /// before any fit; such corners are left out of the estimate.
     pub screened: bool,
-}
-
-/// One stage of a calibration.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Stage {
-    /// What ran (`target poses`, `global search (affine-grid, 1262 axes)`, `refine axis
-    /// (affine-grid)`, `air layer (linear least squares on the ray gaps)`, `maximum likelihood
-    /// from …`).
-    pub name: String,
-    /// The first port's axis and air distance at its end (its frame), when the stage moves it.
-    pub port: Option<Candidate>,
-    /// The cost it minimised, at its end.
-    pub cost: f64,
-    /// The cost's unit.
-    pub unit: &'static str,
-    /// Iterations (or grid cells).
-    pub iterations: usize,
-    /// Seconds spent.
-    pub seconds: f64,
-}
-
-impl Stage {
-    /// A stage that ended at `port` with `cost`, started at `since`.
-    pub fn at(
-        name: &str,
-        port: Candidate,
-        cost: f64,
-        unit: &'static str,
-        iterations: usize,
-        since: Instant,
-    ) -> Self {
-        Self {
-            name: name.into(),
-            port: Some(port),
-            cost,
-            unit,
-            iterations,
-            seconds: since.elapsed().as_secs_f64(),
-        }
-    }
 }
 
 /// The 3-D errors of one camera pair's triangulated corners under the result.
