@@ -12,6 +12,7 @@ pub const CPU_BOUNDS_COPY: CpuBounds = CpuBounds {
     undistort_max_iterations: 30,
     project_tolerance: 1e-13,
     project_max_iterations: 100,
+    switch_max_q: 100.0,
     min_ray_angle_sin2: 1e-12,
     min_binocular_conditioning: 1e-9,
 };

@@ -87,13 +87,30 @@ struct Newton {
     reference: vec2r,
 }
 
+// Whether the angle of medium `to` can carry the iterate: the map keeps it to SWITCH_MAX_Q·ε
+// (coming back multiplies a rounding by q). Far to the side the water's term has the steepest
+// slope while its angle sits at the critical cap within rounding; there the iteration stays in the
+// air's variable. Twin of PathMedia::resolves.
+fn resolves(s: Newton, to: vec2r) -> bool {
+    let k = s.reference.y / to.y;
+    let q = 1.0 + (1.0 - k * k) * s.v * s.v;
+    return q > 0.0 && q <= SWITCH_MAX_Q;
+}
+
 // Moves the iteration to the angle of medium `to`: v and the bracket map through T(·; ρ_ref/ρ_to),
-// f′ is divided by T′, and the mapped top is capped by `to`'s own bound.
+// f′ is divided by T′, and the mapped top is capped by `to`'s own bound (is that bound where no
+// evaluation has lowered the old top).
 fn reparametrise(cam: View, depth: real, s: Newton, to: vec2r, r: real) -> Newton {
     let k = s.reference.y / to.y;
     let q = 1.0 + (1.0 - k * k) * s.v * s.v;
     let df = s.df / (k / (q * sqrt(q)));
-    let hi = min(map_tangent(s.hi, k), bracket_top(cam, depth, r, to));
+    // A top no evaluation has lowered is the old medium's own bound, often its critical angle
+    // rounded down, whose image falls short of a grazing root: take the new medium's bound.
+    let top = bracket_top(cam, depth, r, to);
+    var hi = top;
+    if (s.hi < bracket_top(cam, depth, r, s.reference)) {
+        hi = min(map_tangent(s.hi, k), top);
+    }
     return Newton(map_tangent(s.v, k), map_tangent(s.lo, k), hi, df, to);
 }
 
@@ -138,7 +155,7 @@ fn solve_tan_incidence(cam: View, depth: real, r: real) -> Maybe {
             return Maybe(0.0, false);
         }
         s.df = e.df;
-        if (e.dominant.y != s.reference.y) {
+        if (e.dominant.y != s.reference.y && resolves(s, e.dominant)) {
             s = reparametrise(cam, depth, s, e.dominant, r);
         }
         var step = e.f / s.df;

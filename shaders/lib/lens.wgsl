@@ -27,12 +27,28 @@ fn distort(cam: View, p: vec2r) -> Distortion {
     return Distortion(d, vec2r(dxx, dxy), vec2r(dxy, dyy));
 }
 
+// A bound on the sum of the magnitudes of the distortion's terms at p: the scale of its rounding
+// (UNDISTORT_FLOOR times it bounds the residual's rounding on any adapter). Far outside the image
+// (8e5 px through a lens with k2 > 0) the f32 residual's rounding comes within a factor two of the
+// tolerance, and an adapter that rounds differently (NVIDIA) ran out of steps where lavapipe
+// converged. Not used in f64 (UNDISTORT_FLOOR = 0).
+fn distortion_magnitude(cam: View, p: vec2r) -> real {
+    if (UNDISTORT_FLOOR == 0.0) {
+        return 0.0;
+    }
+    let r2 = dot(p, p);
+    let radial = 1.0 + r2 * (abs(cam.distortion.x) + r2 * (abs(cam.distortion.y) + r2 * abs(cam.k3)));
+    let tangential = 3.0 * (abs(cam.distortion.z) + abs(cam.distortion.w)) * r2;
+    return (abs(p.x) + abs(p.y)) * radial + tangential;
+}
+
 // Normalised undistorted coordinates of a raw pixel, as `RefractiveCamera::dir_in_air_from_img`
 // undistorts (`PinholeCamera::undistort_normalized_in_fold`): Newton with the analytic Jacobian,
 // first from the inverse radial series x′(1 − r′²(k1 + r′²(k2 − 3k1²))); where that run meets a
 // fold (determinant ≤ 0), does not converge, or converges beyond the fold or at a non-positive
 // determinant, once more from the distorted point. Each run tests the residual after each of at
-// most UNDISTORT_MAX_ITERATIONS steps, as the CPU does. `ok` is false when neither run converges
+// most UNDISTORT_MAX_ITERATIONS steps, as the CPU does (in f32, after the last step, a residual
+// within the evaluation's rounding floor also passes: distortion_magnitude). `ok` is false when neither run converges
 // or the result lies beyond the fold of the radial distortion.
 //
 // One loop with a restart rather than two loops: llvmpipe runs every loop body at least once,
@@ -60,7 +76,12 @@ fn normalized_from_img(cam: View, pixel: vec2r) -> Undistorted {
             let residual = dj.point - distorted;
             let det = dj.dx.x * dj.dy.y - dj.dy.x * dj.dx.y;
             var failed = false;
-            if (length(residual) <= tolerance) {
+            // At the last step, a residual within the evaluation's rounding floor is as converged
+            // as the precision allows (f32 only: distortion_magnitude).
+            let converged = length(residual) <= tolerance
+                || (steps == UNDISTORT_MAX_ITERATIONS
+                    && length(residual) <= UNDISTORT_FLOOR * distortion_magnitude(cam, p));
+            if (converged) {
                 if (second || (det > 0.0 && dot(p, p) < cam.fold2)) {
                     ok = true;
                     break;

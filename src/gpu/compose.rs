@@ -207,6 +207,9 @@ pub struct CpuBounds {
     pub project_tolerance: f64,
     /// Most Newton iterations of the forward projection.
     pub project_max_iterations: u32,
+    /// Largest q at which the forward projection's root finder changes medium
+    /// (`SWITCH_MAX_Q` of the model).
+    pub switch_max_q: f64,
     /// sin² of the smallest angle between two rays that are triangulated.
     pub min_ray_angle_sin2: f64,
     /// Smallest conditioning of the binocular-VOP system that is solved.
@@ -216,15 +219,22 @@ pub struct CpuBounds {
 /// The precision prelude: type aliases and the stopping rules of the CPU path. f32 kernels stop
 /// at tolerances a few ulps above f32 rounding instead of the CPU's f64 ones.
 pub fn prelude(precision: Precision, bounds: &CpuBounds) -> String {
-    let (undistort_tolerance, project_tolerance) = match precision {
-        Precision::F32 => (4e-7, 2.5e-7),
-        Precision::F64 => (1e-14, bounds.project_tolerance),
+    // UNDISTORT_FLOOR: the residual the lens model's evaluation can round to, per unit of the
+    // sum of its terms' magnitudes (γ₁₆ = 16 units of roundoff: the ~12 operations of the
+    // distortion and the residual's subtraction, whatever a driver fuses or reorders). f32
+    // accepts a residual at that floor after its last step; f64 keeps the CPU's rule (its
+    // tolerance is ~90× above the floor there) so that it stops where the CPU does, pixel for
+    // pixel.
+    let (undistort_tolerance, undistort_floor, project_tolerance) = match precision {
+        Precision::F32 => (4e-7, 16.0 * f64::from(f32::EPSILON) / 2.0, 2.5e-7),
+        Precision::F64 => (1e-14, 0.0, bounds.project_tolerance),
     };
     let huge = precision.huge();
     let real = precision.name();
     let CpuBounds {
         undistort_max_iterations,
         project_max_iterations,
+        switch_max_q,
         min_ray_angle_sin2,
         min_binocular_conditioning,
         ..
@@ -233,9 +243,11 @@ pub fn prelude(precision: Precision, bounds: &CpuBounds) -> String {
         "alias real = {real};\nalias vec2r = vec2<{real}>;\nalias vec3r = vec3<{real}>;\nalias vec4r = vec4<{real}>;\n\
          const REAL_HUGE: real = {huge:e};\n\
          const UNDISTORT_TOLERANCE: real = {undistort_tolerance:e};\n\
+         const UNDISTORT_FLOOR: real = {undistort_floor:e};\n\
          const UNDISTORT_MAX_ITERATIONS: u32 = {undistort_max_iterations}u;\n\
          const PROJECT_TOLERANCE: real = {project_tolerance:e};\n\
          const PROJECT_MAX_ITERATIONS: u32 = {project_max_iterations}u;\n\
+         const SWITCH_MAX_Q: real = {switch_max_q:e};\n\
          const MIN_RAY_ANGLE_SIN2: real = {min_ray_angle_sin2:e};\n\
          const MIN_BINOCULAR_CONDITIONING: real = {min_binocular_conditioning:e};\n"
     )
@@ -278,6 +290,7 @@ mod tests {
         undistort_max_iterations: 30,
         project_tolerance: 1e-13,
         project_max_iterations: 100,
+        switch_max_q: 100.0,
         min_ray_angle_sin2: 1e-12,
         min_binocular_conditioning: 1e-9,
     };

@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex};
 
 use super::compose::{CpuBounds, KernelSource, Precision, Rows, WORKGROUP_SIZE, compose};
 use crate::model::camera::UNDISTORT_MAX_ITERATIONS;
-use crate::model::refractive_camera::{PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE};
+use crate::model::refractive_camera::{PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE, SWITCH_MAX_Q};
 use crate::model::stereo::{MIN_BINOCULAR_CONDITIONING, MIN_RAY_ANGLE_SIN2};
 
 /// The CPU path's stopping rules, as every kernel of the pipeline cache gets them (in its
@@ -20,6 +20,7 @@ pub const CPU_BOUNDS: CpuBounds = CpuBounds {
     undistort_max_iterations: UNDISTORT_MAX_ITERATIONS,
     project_tolerance: PROJECT_TOLERANCE,
     project_max_iterations: PROJECT_MAX_ITERATIONS,
+    switch_max_q: SWITCH_MAX_Q,
     min_ray_angle_sin2: MIN_RAY_ANGLE_SIN2,
     min_binocular_conditioning: MIN_BINOCULAR_CONDITIONING,
 };

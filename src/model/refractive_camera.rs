@@ -635,7 +635,9 @@ impl PathMedia<'_> {
                     NoSolution::NoConvergence
                 });
             }
-            if self.media[dominant].rho != self.media[reference].rho {
+            if self.media[dominant].rho != self.media[reference].rho
+                && self.resolves(reference, dominant, v)
+            {
                 self.reparametrise(
                     &mut reference,
                     dominant,
@@ -725,9 +727,23 @@ impl PathMedia<'_> {
         (r / self.length(reference)).min(self.media[reference].critical_top)
     }
 
+    /// Whether the angle of medium `to` can carry the iterate `v` of medium `reference`: the map
+    /// between the two angles keeps it to [`SWITCH_MAX_Q`]·ε relative. Its logarithmic slope is
+    /// 1/q, q = 1 + (1 − k²)v², so coming back multiplies a rounding of the new variable by q.
+    /// Far to the side, in the air's variable, the water's term still has the steepest slope
+    /// while the water's angle is at its critical cap within rounding (q ≈ 1e48): switching
+    /// there went back and forth without moving until the iteration bound.
+    #[inline(always)]
+    fn resolves(&self, reference: usize, to: usize, v: f64) -> bool {
+        let k = self.media[reference].rho / self.media[to].rho;
+        let q = 1.0 + (1.0 - k * k) * v * v;
+        q > 0.0 && q <= SWITCH_MAX_Q
+    }
+
     /// Moves the iteration from the angle of medium `reference` to that of medium `to`: f is the
     /// lateral miss in every variable; v and the bracket map through T(·; ρ_ref/ρ_to), and f′ is
-    /// divided by T′ (chain rule). The mapped bracket top is capped by `to`'s own bound.
+    /// divided by T′ (chain rule). The mapped bracket top is capped by `to`'s own bound, and is
+    /// that bound when no evaluation has lowered the old top yet.
     #[inline(never)]
     fn reparametrise(
         &self,
@@ -749,10 +765,23 @@ impl PathMedia<'_> {
         let q = 1.0 + (1.0 - k * k) * *v * *v;
         *df /= k / (q * q.sqrt());
         (*v, *lo) = (map(*v), map(*lo));
-        *hi = map(*hi).min(self.bracket_top(to, r));
+        // A top that no evaluation has lowered is the old medium's own bound, often its critical
+        // angle rounded down, whose image is a finite tangent short of a grazing root (a point
+        // 1e10 m to the side stopped at tan a = 1.4e8 instead of 1.3e11): take the new medium's
+        // own bound instead. A top some f(v) > 0 lowered maps to a point where f > 0 still.
+        *hi = if *hi >= self.bracket_top(*reference, r) {
+            self.bracket_top(to, r)
+        } else {
+            map(*hi).min(self.bracket_top(to, r))
+        };
         *reference = to;
     }
 }
+
+/// The largest q = 1 + (1 − k²)v² at which the root finder moves from one medium's angle to
+/// another's for a steeper term (`PathMedia::resolves`): coming back, a rounding of the new
+/// variable grows by q, here to 1.1e-14, a tenth of [`PROJECT_TOLERANCE`].
+pub(crate) const SWITCH_MAX_Q: f64 = 100.0;
 
 /// Lengths above this are scaled by their largest component before squaring (three squares of
 /// 1e150 stay far below f64's 1.8e308). Below it the plain Euclidean norm runs, bit for bit.
@@ -921,6 +950,42 @@ mod tests {
                 Err(e) => assert_eq!(e, NoSolution::OutOfRange, "1e{exponent}"),
             }
         }
+    }
+
+    /// A point 1e10 m to the side of a steep port (25°, air index 1.0003): the water ray is at its
+    /// critical angle within far less than an ulp, so the root is found in the air's variable,
+    /// tan a ≈ 1.3e11. The iteration used to carry the water's critical cap, rounded down, into
+    /// that variable as a finite top (tan a = 1.4e8) and stop there: x̌ = 66 m for 0.0285 m.
+    /// Reference: the same equation solved by bisection in mpmath at 60 digits (n normalised
+    /// exactly): x̌ = 0.028540042696398400340, tan a = 128514975477.41727555.
+    /// Bound: x̌ = r/τ − d_k with r/τ = 2.6·x̌, and τ is known to the solver's stopping rule
+    /// (|Δv| ≤ PROJECT_TOLERANCE·v, Newton quadratic: far below) plus rounding: 2.6 × 1e-13
+    /// relative at most, so 1e-12.
+    #[test]
+    fn grazing_roots_beyond_the_water_cap_are_found_in_the_air_variable() {
+        let intrinsics =
+            PinholeCamera::new("left", 1280, 1024, 864.91, 866.2, 641.3, 509.8, [0.0; 5]).unwrap();
+        let master =
+            RigCamera::new("left", intrinsics, Matrix3::identity(), Vector3::zeros()).unwrap();
+        let interface =
+            Interface::new(Vector3::new(0.35, 0.3, 1.0), 0.045, vec![], 1.0003, 1.34).unwrap();
+        let camera = Rig::new(vec![master], interface)
+            .unwrap()
+            .refractive_camera(0);
+        let point = Point3::new(1e10, 0.0, 1e8);
+        let path = camera.air_path_to(&point).unwrap();
+        let tau = 128514975477.41727555;
+        assert!(
+            (path.tan_incidence - tau).abs() <= 1e-12 * tau,
+            "tan a {} vs {tau}",
+            path.tan_incidence
+        );
+        let expected = 0.028540042696398400340;
+        let vop = camera.vop(&point).unwrap().vop_distance;
+        assert!(
+            (vop - expected).abs() <= 1e-12 * expected,
+            "x̌ {vop} vs {expected}"
+        );
     }
 
     #[test]

@@ -11,7 +11,7 @@
 use super::camera::Distortion;
 use super::f64s::{F64s, Mask, Vec3s, scaled};
 use crate::model::refractive_camera::{AIR, Medium, SCALE_ABOVE, WATER};
-use crate::model::refractive_camera::{PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE};
+use crate::model::refractive_camera::{PROJECT_MAX_ITERATIONS, PROJECT_TOLERANCE, SWITCH_MAX_Q};
 use crate::model::{MAX_INPUT, NoSolution, RefractiveCamera};
 
 /// A status code per lane: 0 = an answer, else the [`NoSolution`] code of the first reason found.
@@ -611,7 +611,7 @@ impl PathLanes<'_> {
             scalar = scalar | nan;
             active = active.and_not(exact | nan);
             let rho_dominant = pick(dominant, self.constants(|m| m.rho));
-            let switch = active & !rho_dominant.eq(rho_ref);
+            let switch = active & !rho_dominant.eq(rho_ref) & self.resolves(rho_ref, dominant, v);
             if switch.any() {
                 self.reparametrise(
                     switch,
@@ -694,8 +694,18 @@ impl PathLanes<'_> {
         (f, df, dominant)
     }
 
+    /// `PathMedia::resolves` per lane: the map into medium `to`'s angle keeps the iterate
+    /// (0 < q ≤ `SWITCH_MAX_Q`).
+    #[inline(always)]
+    fn resolves(&self, rho_ref: F64s, to: F64s, v: F64s) -> Mask {
+        let k = rho_ref / pick(to, self.constants(|m| m.rho));
+        let q = 1.0 + (1.0 - k * k) * v * v;
+        q.gt(F64s::splat(0.0)) & q.le(F64s::splat(SWITCH_MAX_Q))
+    }
+
     /// `PathMedia::reparametrise` for the lanes of `mask`: v and the bracket map through
-    /// T(·; ρ_ref/ρ_to), f′ is divided by T′, the top is capped by the new medium's bound.
+    /// T(·; ρ_ref/ρ_to), f′ is divided by T′, the top is capped by the new medium's bound (and is
+    /// that bound where no evaluation has lowered the old top).
     #[inline(always)]
     fn reparametrise(
         &self,
@@ -716,7 +726,11 @@ impl PathLanes<'_> {
         let q = 1.0 + (1.0 - k * k) * *v * *v;
         *df = mask.select(*df / (k / (q * q.sqrt())), *df);
         let (v_to, lo_to) = (map(*v), map(*lo));
-        let hi_to = map(*hi).min(self.bracket_top(to, r));
+        // A top no evaluation has lowered becomes the new medium's own bound (see the scalar code).
+        let top_to = self.bracket_top(to, r);
+        let hi_to = (*hi)
+            .ge(self.bracket_top(*reference, r))
+            .select(top_to, map(*hi).min(top_to));
         (*v, *lo, *hi) = (
             mask.select(v_to, *v),
             mask.select(lo_to, *lo),
