@@ -2,7 +2,10 @@
 //! f64: the chain matched pixels → back-projection → triangulation with the rays never on the
 //! host, against the f64 CPU reference (DESIGN.md §5: f32 rays within 2e-6, pixels within
 //! 1e-3 px, f64 within 1e-9 relative; the f32 triangulation bound of `tests/gpu.rs` derived from
-//! the ray bound) and against the host-row call; projection into many cameras against the CPU;
+//! the ray bound) and against the host-row call; the same chain fused in one kernel
+//! (`triangulate_pixels`) against the CPU on rigs with a shared port and a port per camera (its
+//! points within the bounds that §5's 2e-6 (f32) and 1e-12 (f64) on the rays give them) and
+//! against the three-kernel chain; projection into many cameras against the CPU;
 //! pixel grids against their closed form; the caller's own buffers in and out; and the typed
 //! errors of rows that do not fit a call. Skipped without a Vulkan adapter outside CI, as
 //! `tests/gpu.rs`.
