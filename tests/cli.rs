@@ -744,7 +744,13 @@ fn bench_json_has_every_path() {
         ] {
             assert!(report[key].as_f64().is_some_and(|x| x > 1e7), "{key}");
         }
-        let relations = ["backproject", "project", "triangulate"];
+        let relations = [
+            "backproject",
+            "project",
+            "triangulate",
+            "chain_triangulate",
+            "chain_triangulate_unfused",
+        ];
         for r in results
             .iter()
             .filter(|r| r["path"] == "gpu" && relations.iter().any(|k| r["kernel"] == *k))
@@ -773,6 +779,19 @@ fn bench_json_has_every_path() {
             "{kernel} cpu all threads"
         );
         if gpu {
+            for precision in ["f32", "f64"] {
+                for stage in ["kernel", "end_to_end"] {
+                    assert!(
+                        has(kernel, "gpu", precision, stage, None),
+                        "{kernel} gpu {precision} {stage}"
+                    );
+                }
+            }
+        }
+    }
+    // The device-resident chain, matched pixels → points: one fused kernel and three kernels.
+    if gpu {
+        for kernel in ["chain_triangulate", "chain_triangulate_unfused"] {
             for precision in ["f32", "f64"] {
                 for stage in ["kernel", "end_to_end"] {
                     assert!(

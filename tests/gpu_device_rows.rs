@@ -2,7 +2,10 @@
 //! f64: the chain matched pixels → back-projection → triangulation with the rays never on the
 //! host, against the f64 CPU reference (DESIGN.md §5: f32 rays within 2e-6, pixels within
 //! 1e-3 px, f64 within 1e-9 relative; the f32 triangulation bound of `tests/gpu.rs` derived from
-//! the ray bound) and against the host-row call; projection into many cameras against the CPU;
+//! the ray bound) and against the host-row call; the same chain fused in one kernel
+//! (`triangulate_pixels`) against the CPU on rigs with a shared port and a port per camera (its
+//! points within the bounds that §5's 2e-6 (f32) and 1e-12 (f64) on the rays give them) and
+//! against the three-kernel chain; projection into many cameras against the CPU;
 //! pixel grids against their closed form; the caller's own buffers in and out; and the typed
 //! errors of rows that do not fit a call. Skipped without a Vulkan adapter outside CI, as
 //! `tests/gpu.rs`.
@@ -14,8 +17,8 @@ use common::configurations;
 use flatport::engine::CpuEngine;
 use flatport::engine::gpu::{Pixels, Points, Rays, Triangulated};
 use flatport::gpu::{DeviceRows, GpuContext, GpuError, Precision};
-use flatport::model::{NoSolution, RefractiveCamera};
-use gpu_harness::{Random, engine};
+use flatport::model::{NoSolution, RefractiveCamera, Rig};
+use gpu_harness::{Random, engine, rig_with_layer_stacks};
 use nalgebra::{Point2, Point3};
 
 const N: usize = 3000;
@@ -123,6 +126,22 @@ fn f32_triangulation_error(
     device: &[[f64; 4]],
     rows: &[usize],
 ) -> f64 {
+    triangulation_error(2e-6, a, b, matches, reference, device, rows)
+}
+
+/// The largest triangulation error over the bound its rays' errors give: direction errors ≤ δ
+/// and origin errors ≤ δ·max(1, |origin|) move each ray by δ·range + δ·max(1, |origin|) at the
+/// point, the midpoint by that over sin θ (factor 2: both rays). δ = 2e-6 for f32 rays, 1e-12 for
+/// f64 (DESIGN.md §5).
+fn triangulation_error(
+    delta: f64,
+    a: &RefractiveCamera,
+    b: &RefractiveCamera,
+    matches: &[[f64; 4]],
+    reference: &[[f64; 4]],
+    device: &[[f64; 4]],
+    rows: &[usize],
+) -> f64 {
     let mut worst: f64 = 0.0;
     for &i in rows {
         let m = matches[i];
@@ -131,8 +150,8 @@ fn f32_triangulation_error(
         let c = reference[i];
         let p = Point3::new(c[0], c[1], c[2]);
         let sin = ra.dir.cross(&rb.dir).norm();
-        let bound =
-            2.0 * (2e-6 * ((p - ra.origin).norm() + (p - rb.origin).norm()) + 2.0 * 2e-6) / sin;
+        let origins = ra.origin.coords.norm().max(1.0) + rb.origin.coords.norm().max(1.0);
+        let bound = 2.0 * delta * ((p - ra.origin).norm() + (p - rb.origin).norm() + origins) / sin;
         let error = (0..4)
             .map(|k| (device[i][k] - c[k]).abs())
             .fold(0.0, f64::max);
@@ -254,6 +273,243 @@ fn chain_on_the_device_agrees_with_the_host_row_call() {
             };
             let rel = relative(&hr, &r, &rows);
             assert!(rel < bound, "{what}: rays relative {rel:.1e}");
+        }
+    }
+}
+
+/// The rigs of the fused chain: every configuration of `configurations` (one port shared by both
+/// cameras: a bare water surface, distorted lenses, one to three layers, a tank) and two housings
+/// with a port each (a bare interface and three layers, either camera first).
+fn fused_rigs() -> Vec<(String, Rig)> {
+    let mut rigs: Vec<(String, Rig)> = configurations()
+        .into_iter()
+        .map(|(name, rig)| (format!("shared port, {name}"), rig))
+        .collect();
+    for bare_first in [true, false] {
+        rigs.push((
+            format!("a port per camera, bare first: {bare_first}"),
+            rig_with_layer_stacks(bare_first),
+        ));
+    }
+    rigs
+}
+
+/// A pixel whose back-projection in `camera` fails on the CPU (far outside the image: the lens
+/// folds, or the air ray misses the port or is reflected), searched over directions and radii.
+fn failing_pixel(camera: &RefractiveCamera) -> [f64; 2] {
+    for radius in [1e4, 1e5, 1e6, 1e7] {
+        for k in 0..16 {
+            let angle = k as f64 * std::f64::consts::PI / 8.0;
+            let pixel = [640.0 + radius * angle.cos(), 512.0 + radius * angle.sin()];
+            if camera
+                .backproject(&Point2::new(pixel[0], pixel[1]))
+                .is_err()
+            {
+                return pixel;
+            }
+        }
+    }
+    panic!("no pixel without a back-projection found")
+}
+
+/// `random_matches` with rows whose answer depends on the order of the failures, as the CPU
+/// orders them (an input out of range first, then camera a's back-projection, then b's): a good
+/// pixel a with a pixel b that has no back-projection, a pixel a without one and pixel b NaN
+/// (out of range, not a's failure), both without one (a's failure), a pixel a without one and a
+/// good pixel b. Returns the matches and those rows.
+fn matches_with_failures(
+    random: &mut Random,
+    a: &RefractiveCamera,
+    b: &RefractiveCamera,
+) -> (Vec<[f64; 4]>, [usize; 4]) {
+    let mut matches = random_matches(random, a, b, N, 0.3);
+    let point = a
+        .backproject(&Point2::new(640.0, 512.0))
+        .unwrap()
+        .point_at(1.5);
+    let (good_a, good_b) = (a.project(&point).unwrap(), b.project(&point).unwrap());
+    let (bad_a, bad_b) = (failing_pixel(a), failing_pixel(b));
+    let rows = [11, 13, 17, 19];
+    matches[rows[0]] = [good_a.x, good_a.y, bad_b[0], bad_b[1]];
+    matches[rows[1]] = [bad_a[0], bad_a[1], f64::NAN, 100.0];
+    matches[rows[2]] = [bad_a[0], bad_a[1], bad_b[0], bad_b[1]];
+    matches[rows[3]] = [bad_a[0], bad_a[1], good_b.x, good_b.y];
+    (matches, rows)
+}
+
+/// Issue 31's chain, fused: matched pixels of two cameras → 3-D points in one kernel
+/// (`triangulate_pixels`), the rays never in memory, against the f64 CPU reference on every rig
+/// of `fused_rigs`: statuses equal (f32: but for rounding at boundaries, as above), f64 points
+/// within the bound that DESIGN.md §5's 1e-12 on the rays gives them, f32 within the one its
+/// 2e-6 gives; rows where either pixel has no answer (out of range, missing the port, outside
+/// the lens) get the CPU's status in the CPU's order. With small chunks too, so that the pixels'
+/// statuses are bound at offsets.
+#[test]
+fn fused_chain_on_the_device_matches_the_cpu() {
+    let cpu = CpuEngine::new(None);
+    for precision in [Precision::F32, Precision::F64] {
+        let Some(mut gpu) = engine(precision) else {
+            return;
+        };
+        let mut random = Random(0x6A09_E667_F3BC_C908);
+        for chunk in [usize::MAX, 64 * 7] {
+            gpu.set_max_chunk_items(chunk);
+            for (name, rig) in fused_rigs() {
+                let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
+                let (matches, ordered) = matches_with_failures(&mut random, &a, &b);
+                let (pixels_a, pixels_b) = split(&matches);
+                let on_a = gpu.upload::<Pixels>(&pixels_a).unwrap();
+                let on_b = gpu.upload::<Pixels>(&pixels_b).unwrap();
+                let points = gpu.triangulate_pixels(&a, &b, &on_a, &on_b).unwrap();
+                assert_eq!(points.len(), N);
+                let (g, gs) = gpu.read(&points).unwrap();
+
+                let (mut c, mut cs) = (vec![[0.0; 4]; N], vec![0; N]);
+                cpu.triangulate(&a, &b, &matches, &mut c, &mut cs);
+                let what = format!(
+                    "fused chain {precision} {name}, chunks of {}",
+                    gpu.max_chunk_items()
+                );
+                let out_of_range = NoSolution::OutOfRange.code();
+                assert_eq!(gs[5], out_of_range, "{what}: a NaN pixel a");
+                if precision == Precision::F32 {
+                    assert_eq!(gs[7], out_of_range, "{what}: a pixel b beyond f32");
+                }
+                // The rows of mixed failures: the CPU's statuses, which are failures of the kind
+                // each row was built for.
+                let [b_fails, a_fails_b_nan, both_fail, a_fails] = ordered;
+                assert_eq!(cs[a_fails_b_nan], out_of_range, "{what}: CPU, NaN pixel b");
+                for i in [b_fails, both_fail, a_fails] {
+                    assert!(![0, out_of_range].contains(&cs[i]), "{what}: CPU row {i}");
+                }
+                for i in ordered {
+                    assert_eq!(gs[i], cs[i], "{what}: row {i}, the CPU's order of failures");
+                }
+                let rows = answered_by_both(&what, (&c, &cs), (&g, &gs), allowed(precision, N));
+                let delta = match precision {
+                    Precision::F32 => 2e-6,
+                    Precision::F64 => 1e-12,
+                };
+                let worst = triangulation_error(delta, &a, &b, &matches, &c, &g, &rows);
+                println!("{what:70} max |Δ| / bound {worst:.1e}");
+                assert!(worst < 1.0, "{what}: |Δ| / bound {worst:.2}");
+            }
+        }
+    }
+}
+
+/// Rows both device chains answered whose pixels the f64 CPU back-projects in both cameras (the
+/// rays the bound of `triangulation_error` needs): all but `allowed` of them, the f32 pixels at
+/// the lens's or the port's boundary.
+fn with_cpu_rays(
+    what: &str,
+    a: &RefractiveCamera,
+    b: &RefractiveCamera,
+    matches: &[[f64; 4]],
+    rows: Vec<usize>,
+    allowed: usize,
+) -> Vec<usize> {
+    let count = rows.len();
+    let kept: Vec<usize> = rows
+        .into_iter()
+        .filter(|&i| {
+            let m = matches[i];
+            a.backproject(&Point2::new(m[0], m[1])).is_ok()
+                && b.backproject(&Point2::new(m[2], m[3])).is_ok()
+        })
+        .collect();
+    assert!(
+        count - kept.len() <= allowed,
+        "{what}: {} rows without CPU rays",
+        count - kept.len()
+    );
+    kept
+}
+
+/// The fused chain and the three-kernel chain (`backproject_rows` of both cameras, then
+/// `triangulate_rows`) give the same rows for the same pixels on the device: the same statuses
+/// (f32: but for rounding at boundaries), points within the bounds of the rays' errors. Also
+/// through rows the device made: pixels that `project_many` gives for points in the water, with
+/// the statuses of the points that have none.
+#[test]
+fn fused_and_three_kernel_chains_agree() {
+    for precision in [Precision::F32, Precision::F64] {
+        let Some(gpu) = engine(precision) else { return };
+        let mut random = Random(0xBB67_AE85_84CA_A73B);
+        let delta = match precision {
+            Precision::F32 => 2e-6,
+            Precision::F64 => 1e-12,
+        };
+        for (name, rig) in fused_rigs() {
+            let (a, b) = (rig.refractive_camera(0), rig.refractive_camera(1));
+            let matches = random_matches(&mut random, &a, &b, N, 0.3);
+            let (pixels_a, pixels_b) = split(&matches);
+            let on_a = gpu.upload::<Pixels>(&pixels_a).unwrap();
+            let on_b = gpu.upload::<Pixels>(&pixels_b).unwrap();
+            let (f, fs) = gpu
+                .read(&gpu.triangulate_pixels(&a, &b, &on_a, &on_b).unwrap())
+                .unwrap();
+            let rays_a = gpu.backproject_rows(&a, &on_a).unwrap();
+            let rays_b = gpu.backproject_rows(&b, &on_b).unwrap();
+            let (t, ts) = gpu
+                .read(&gpu.triangulate_rows(&rays_a, &rays_b).unwrap())
+                .unwrap();
+            let what = format!("fused vs three kernels {precision} {name}");
+            let rows = answered_by_both(&what, (&t, &ts), (&f, &fs), allowed(precision, N));
+            let rows = with_cpu_rays(&what, &a, &b, &matches, rows, allowed(precision, N));
+            let worst = triangulation_error(delta, &a, &b, &matches, &t, &f, &rows);
+            assert!(worst < 1.0, "{what}: |Δ| / bound {worst:.2}");
+
+            // Pixels made on the device: points along the rays of random pixels of camera a,
+            // one in 10 in the air (no pixel), projected into both cameras.
+            let points: Vec<[f64; 3]> = (0..N)
+                .map(|k| {
+                    let pixel = Point2::new(random.range(0.0, 1280.0), random.range(0.0, 1024.0));
+                    match a.backproject(&pixel) {
+                        Ok(ray) if k % 10 != 0 => {
+                            ray.point_at(random.range(0.05, 6.0)).coords.into()
+                        }
+                        _ => [0.0, 0.0, 1e-3],
+                    }
+                })
+                .collect();
+            let projected = gpu
+                .project_many(
+                    &gpu.upload::<Points>(&points).unwrap(),
+                    &[a.clone(), b.clone()],
+                )
+                .unwrap();
+            let (on_a, on_b) = (&projected[0], &projected[1]);
+            let (f, fs) = gpu
+                .read(&gpu.triangulate_pixels(&a, &b, on_a, on_b).unwrap())
+                .unwrap();
+            let rays_a = gpu.backproject_rows(&a, on_a).unwrap();
+            let rays_b = gpu.backproject_rows(&b, on_b).unwrap();
+            let (t, ts) = gpu
+                .read(&gpu.triangulate_rows(&rays_a, &rays_b).unwrap())
+                .unwrap();
+            let what = format!("{what}, projected pixels");
+            let (pa, _) = gpu.read(on_a).unwrap();
+            let (pb, _) = gpu.read(on_b).unwrap();
+            let projected_matches: Vec<[f64; 4]> = pa
+                .iter()
+                .zip(&pb)
+                .map(|(p, q)| [p[0], p[1], q[0], q[1]])
+                .collect();
+            let rows = answered_by_both(&what, (&t, &ts), (&f, &fs), allowed(precision, N));
+            let rows = with_cpu_rays(
+                &what,
+                &a,
+                &b,
+                &projected_matches,
+                rows,
+                allowed(precision, N),
+            );
+            let worst = triangulation_error(delta, &a, &b, &projected_matches, &t, &f, &rows);
+            assert!(worst < 1.0, "{what}: |Δ| / bound {worst:.2}");
+            for i in (0..N).filter(|i| i % 10 == 0) {
+                assert_ne!(fs[i], 0, "{what}: row {i}, a point in the air has no pixel");
+            }
         }
     }
 }
@@ -444,6 +700,14 @@ fn rows_that_do_not_fit_are_typed_errors() {
         gpu.triangulate_rows(&three, &four).map(drop),
         "3 rows a, 4 rows b",
     );
+    let second = configurations()[0].1.refractive_camera(1);
+    let two_pixels = gpu.upload::<Pixels>(&[[1.0, 2.0]; 2]).unwrap();
+    let five_pixels = gpu.upload::<Pixels>(&[[1.0, 2.0]; 5]).unwrap();
+    expect_rows_error(
+        gpu.triangulate_pixels(&camera, &second, &two_pixels, &five_pixels)
+            .map(drop),
+        "2 rows a, 5 rows b",
+    );
 
     let other = GpuContext::new(None).unwrap();
     let elsewhere: DeviceRows<Pixels> =
@@ -453,6 +717,12 @@ fn rows_that_do_not_fit_are_typed_errors() {
         "another device",
     );
     expect_rows_error(gpu.read(&elsewhere).map(drop), "another device");
+    let here = gpu.upload::<Pixels>(&[[1.0, 2.0]]).unwrap();
+    expect_rows_error(
+        gpu.triangulate_pixels(&camera, &second, &here, &elsewhere)
+            .map(drop),
+        "the pixels b live on another device",
+    );
 
     if let Some(gpu64) = engine(Precision::F64) {
         let pixels = gpu.upload::<Pixels>(&[[1.0, 2.0]]).unwrap();
@@ -461,6 +731,13 @@ fn rows_that_do_not_fit_are_typed_errors() {
         let f64_rows: DeviceRows<Points> =
             DeviceRows::upload(gpu.context(), Precision::F64, &[[0.0, 0.0, 1.0]]).unwrap();
         expect_rows_error(gpu.project_rows(&camera, &f64_rows).map(drop), "f64 reals");
+        let f64_pixels: DeviceRows<Pixels> =
+            DeviceRows::upload(gpu.context(), Precision::F64, &[[1.0, 2.0]]).unwrap();
+        expect_rows_error(
+            gpu.triangulate_pixels(&camera, &second, &f64_pixels, &pixels)
+                .map(drop),
+            "the pixels a hold f64 reals",
+        );
         expect_rows_error(
             gpu64.backproject_rows(&camera, &pixels).map(drop),
             "another device",
@@ -491,5 +768,9 @@ fn rows_that_do_not_fit_are_typed_errors() {
     let empty = gpu.upload::<Pixels>(&[]).unwrap();
     let rays = gpu.backproject_rows(&camera, &empty).unwrap();
     let points: DeviceRows<Triangulated> = gpu.triangulate_rows(&rays, &rays).unwrap();
+    assert_eq!(gpu.read(&points).unwrap(), (vec![], vec![]));
+    let points = gpu
+        .triangulate_pixels(&camera, &second, &empty, &empty)
+        .unwrap();
     assert_eq!(gpu.read(&points).unwrap(), (vec![], vec![]));
 }

@@ -245,17 +245,21 @@ class Rig:
         >>> xyzr, status = rig.triangulate(np.hstack([uv_left, uv_right]), cameras=("left", "right"))  # doctest: +SKIP
         """
         _check_engine(device, precision)
+        a, b = self._camera_pair(cameras)
+        return self._rig.triangulate(_rows("matches", matches, 4), a, b, device, precision)
+
+    def _camera_pair(self, cameras: Optional[Sequence[CameraRef]]) -> Tuple[int, int]:
+        """The indices (a, b) of a pair of names or indices (default the first two cameras)."""
         if cameras is None:
             if len(self.camera_names) < 2:
                 raise ValueError("triangulate needs two cameras; this rig has one")
-            a, b = 0, 1
-        else:
-            if isinstance(cameras, str) or len(cameras) != 2:
-                raise ValueError(f"cameras must be a pair (a, b) of names or indices, got {cameras!r}")
-            a, b = self._camera_index(cameras[0], "cameras[0]"), self._camera_index(cameras[1], "cameras[1]")
-            if a == b:
-                raise ValueError(f"cameras names camera {a} twice")
-        return self._rig.triangulate(_rows("matches", matches, 4), a, b, device, precision)
+            return 0, 1
+        if isinstance(cameras, str) or len(cameras) != 2:
+            raise ValueError(f"cameras must be a pair (a, b) of names or indices, got {cameras!r}")
+        a, b = self._camera_index(cameras[0], "cameras[0]"), self._camera_index(cameras[1], "cameras[1]")
+        if a == b:
+            raise ValueError(f"cameras names camera {a} twice")
+        return a, b
 
     def vop(self, points: Any, camera: CameraRef = None, device: str = "cpu", precision: str = "f64") -> Tuple[np.ndarray, np.ndarray]:
         """Virtual Object Points of points (N, 3) seen by ``camera``.

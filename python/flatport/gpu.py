@@ -2,15 +2,17 @@
 
 A :class:`DeviceArray` holds rows on the GPU engine of a rig (``device="gpu"``, f32 or f64) and
 copies nothing to the host until :meth:`DeviceArray.numpy` is called. The relations here take and
-give device arrays, so a chain (back-project both cameras' pixels → triangulate) runs without a
-copy between its steps::
+give device arrays, so a chain (matched pixels of two cameras → 3-D points) runs without a copy
+between its steps, in one fused kernel (:func:`triangulate_pixels`) or step by step, the rays kept
+on the device (:func:`backproject` both cameras' pixels, then :func:`triangulate`)::
 
     >>> import flatport, flatport.gpu as fg                                   # doctest: +SKIP
     >>> rig = flatport.load_rig("data/example_rig.json")                      # doctest: +SKIP
     >>> left = fg.upload(rig, uv_left, "pixels")                              # doctest: +SKIP
     >>> right = fg.upload(rig, uv_right, "pixels")                            # doctest: +SKIP
-    >>> points = fg.triangulate(fg.backproject(rig, left, "left"),
-    ...                         fg.backproject(rig, right, "right"))          # doctest: +SKIP
+    >>> points = fg.triangulate_pixels(rig, left, right, ("left", "right"))   # doctest: +SKIP
+    >>> same = fg.triangulate(fg.backproject(rig, left, "left"),
+    ...                       fg.backproject(rig, right, "right"))            # doctest: +SKIP
     >>> xyzr = points.numpy()                                                 # doctest: +SKIP
 
 Kinds and their columns: ``pixels`` (u, v), ``points`` (x, y, z), ``rays`` (ox, oy, oz, dx, dy,
@@ -122,3 +124,16 @@ def triangulate(rays_a: DeviceArray, rays_b: DeviceArray) -> DeviceArray:
     rays_a = _check("rays_a", rays_a, "rays")
     rays_b = _check("rays_b", rays_b, "rays")
     return DeviceArray(rays_a._rig._rig.triangulate_rows(rays_a._array, rays_b._array), rays_a._rig)
+
+
+def triangulate_pixels(rig: Any, pixels_a: DeviceArray, pixels_b: DeviceArray, cameras: Optional[Sequence[Any]] = None) -> DeviceArray:
+    """Device ``triangulated`` rows (x, y, z, residual) of matched device pixels, row i of
+    ``pixels_a`` (raw pixels of camera ``cameras[0]``) with row i of ``pixels_b`` (``cameras[1]``;
+    default the rig's first two cameras), in one fused kernel: both back-projections and the
+    triangulation in one pass, no rays on the device between. The rows of
+    ``triangulate(backproject(rig, pixels_a, a), backproject(rig, pixels_b, b))`` and the statuses
+    of ``rig.triangulate`` on the same matches."""
+    pixels_a = _check("pixels_a", pixels_a, "pixels")
+    pixels_b = _check("pixels_b", pixels_b, "pixels")
+    a, b = rig._camera_pair(cameras)
+    return DeviceArray(rig._rig.triangulate_pixels_rows(pixels_a._array, pixels_b._array, a, b), rig)

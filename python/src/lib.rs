@@ -312,6 +312,17 @@ impl PyRig {
         Ok(a.wrap(AnyRows::Triangulated(points)))
     }
 
+    /// Triangulated points (x, y, z, residual) of matched device pixels `a` (camera `camera_a`)
+    /// and `b` (camera `camera_b`), row by row, in one fused kernel on the device (no rays between).
+    fn triangulate_pixels_rows(&self, py: Python<'_>, a: &PyDeviceArray, b: &PyDeviceArray, camera_a: usize, camera_b: usize) -> PyResult<PyDeviceArray> {
+        let (view_a, view_b) = (self.camera(camera_a)?, self.camera(camera_b)?);
+        let (AnyRows::Pixels(pixels_a), AnyRows::Pixels(pixels_b)) = (&a.rows, &b.rows) else {
+            return Err(value_error(format!("triangulate_pixels takes two arrays of pixels, got {} and {}", a.rows.kind(), b.rows.kind())));
+        };
+        let points = py.detach(|| a.gpu().triangulate_pixels(&view_a, &view_b, pixels_a, pixels_b)).map_err(device_error)?;
+        Ok(a.wrap(AnyRows::Triangulated(points)))
+    }
+
     #[staticmethod]
     fn load(path: &str) -> PyResult<Self> {
         Ok(Self::wrap(read_rig(Path::new(path)).map_err(value_error)?))

@@ -145,6 +145,50 @@ def test_device_chain_backproject_triangulate_matches_the_cpu(rig, precision, bo
         assert close(xyzr, cpu, bound) and close(xyzr, host, bound)
 
 
+@pytest.mark.parametrize("precision", ["f32", "f64"])
+def test_fused_device_chain_matches_the_cpu_and_the_three_kernel_chain(rig, precision):
+    left, right = matches_in_view(rig, 5000, seed=47)
+    # Rows without an answer: pixel a NaN (out of range), pixel b NaN with pixel a far outside the
+    # image (out of range, whatever a's back-projection gives: the CPU's order).
+    left = np.vstack([left, [[np.nan, 1.0], [-3e5, 2e5]]])
+    right = np.vstack([right, [[600.0, 500.0], [np.nan, 500.0]]])
+    try:
+        on_left = flatport.gpu.upload(rig, left, "pixels", precision=precision)
+    except RuntimeError as error:
+        pytest.skip(f"the adapter has no {precision}: {error}")
+    on_right = flatport.gpu.upload(rig, right, "pixels", precision=precision)
+    points = flatport.gpu.triangulate_pixels(rig, on_left, on_right, ("left", "right"))
+    assert isinstance(points, flatport.gpu.DeviceArray) and points.kind == "triangulated"
+    assert points.shape == (len(left), 4) and points.precision == precision
+    xyzr, status = points.read()
+    cpu, cpu_status = rig.triangulate(np.hstack([left, right]), cameras=("left", "right"))
+    chained, chained_status = flatport.gpu.triangulate(
+        flatport.gpu.backproject(rig, on_left, "left"), flatport.gpu.backproject(rig, on_right, "right")
+    ).read()
+    assert status[-2] == status[-1] == cpu_status[-1] == 8 and np.isnan(xyzr[-2:]).all()
+    assert (status == cpu_status).all() and (status[:-1] == chained_status[:-1]).all()
+    ok = status == 0
+    assert ok.sum() > 4000
+    # The rays within 2e-6 (f32) or 1e-12 (f64) rad and relative (DESIGN.md §5) move the midpoint
+    # by at most 2 δ (range + 2) / sin θ: a bound per row from the CPU's own rays.
+    delta = 2e-6 if precision == "f32" else 1e-12
+    rays_l, _ = rig.backproject(left[ok], camera="left")
+    rays_r, _ = rig.backproject(right[ok], camera="right")
+    sin = np.linalg.norm(np.cross(rays_l[:, 3:], rays_r[:, 3:]), axis=1)
+    ranges = np.linalg.norm(cpu[ok, :3] - rays_l[:, :3], axis=1) + np.linalg.norm(cpu[ok, :3] - rays_r[:, :3], axis=1)
+    row_bound = 2 * delta * (ranges + 2) / sin
+    assert (np.abs(xyzr[ok] - cpu[ok]).max(axis=1) < row_bound).all()
+    assert (np.abs(xyzr[ok] - chained[ok]).max(axis=1) < row_bound).all()
+    two = flatport.gpu.upload(rig, [[1.0, 2.0]] * 2, "pixels", precision=precision)
+    one = flatport.gpu.upload(rig, [[1.0, 2.0]], "pixels", precision=precision)
+    with pytest.raises(ValueError, match="2 rows a, 1 rows b"):
+        flatport.gpu.triangulate_pixels(rig, two, one)
+    with pytest.raises(ValueError, match="takes two arrays of pixels, got rays"):
+        flatport.gpu.triangulate_pixels(rig, flatport.gpu.backproject(rig, on_left, "left"), on_right)
+    with pytest.raises(TypeError, match="DeviceArray"):
+        flatport.gpu.triangulate_pixels(rig, left, on_right)
+
+
 def test_device_project_into_many_cameras_matches_the_cpu(rig):
     points = points_in_view(4000, seed=44)
     on_device = flatport.gpu.upload(rig, points, "points")

@@ -12,17 +12,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
     let j = 4u * i;
-    let ray_a = backproject(left, vec2r(input[j], input[j + 1u]));
-    if (ray_a.status != STATUS_OK) {
-        status[i] = ray_a.status;
-        return;
-    }
-    let ray_b = backproject(right, vec2r(input[j + 2u], input[j + 3u]));
-    if (ray_b.status != STATUS_OK) {
-        status[i] = ray_b.status;
-        return;
-    }
-    let t = triangulate_rays(ray_a, ray_b);
+    // Host rows carry no status of their own (the engine marks rows beyond the precision as it
+    // reads the answers back).
+    let t = triangulate_pixels(left, right, vec2r(input[j], input[j + 1u]), STATUS_OK,
+                               vec2r(input[j + 2u], input[j + 3u]), STATUS_OK);
     status[i] = t.status;
     if (t.status == STATUS_OK) {
         output[j] = t.point.x;

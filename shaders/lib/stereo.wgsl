@@ -30,6 +30,32 @@ fn triangulate_rays(a: Ray, b: Ray) -> Triangulation {
     return Triangulation(0.5 * (pa + pb), length(pa - pb), STATUS_OK);
 }
 
+// A matched pixel pair (raw pixels of cameras a and b) → the triangulated point: each pixel
+// back-projected through its own camera and port, then `triangulate_rays`. `carried_a` and
+// `carried_b` are the statuses the pixels already hold (STATUS_OK where they hold an answer, as
+// device rows carry them; an input out of range). A row answers with the first failure in the
+// CPU's order — pixel a's status, pixel b's, a's back-projection, b's back-projection, the
+// triangulation — and skips the work after it. Twin of `triangulate_row`
+// (src/engine/cpu/lanes/mod.rs) behind the CPU's range check of the whole row.
+fn triangulate_pixels(a: View, b: View, pixel_a: vec2r, carried_a: u32, pixel_b: vec2r,
+                      carried_b: u32) -> Triangulation {
+    if (carried_a != STATUS_OK) {
+        return Triangulation(vec3r(0.0), 0.0, carried_a);
+    }
+    if (carried_b != STATUS_OK) {
+        return Triangulation(vec3r(0.0), 0.0, carried_b);
+    }
+    let ray_a = backproject(a, pixel_a);
+    if (ray_a.status != STATUS_OK) {
+        return Triangulation(vec3r(0.0), 0.0, ray_a.status);
+    }
+    let ray_b = backproject(b, pixel_b);
+    if (ray_b.status != STATUS_OK) {
+        return Triangulation(vec3r(0.0), 0.0, ray_b.status);
+    }
+    return triangulate_rays(ray_a, ray_b);
+}
+
 struct BinocularVop {
     vop_left: vec3r,
     vop_right: vec3r,

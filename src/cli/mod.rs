@@ -272,7 +272,11 @@ only with the data on the device, timed by GPU timestamps where the adapter has 
 `end_to_end` = upload, dispatch and results in host memory, host clocks, in the chunks the engine
 chooses for the adapter; forward projection also `end_to_end_streamed` (chunks of 2^19 rows through
 the ring of buffer sets, the choice on a hardware GPU), `end_to_end_one_chunk` (no overlap, the
-choice on lavapipe) and `end_to_end_f32_host` (f32 host data)).
+choice on lavapipe) and `end_to_end_f32_host` (f32 host data)). The device-resident chain, matched
+pixels of two cameras -> 3-D points with the rows never on the host between: `chain_triangulate`
+(one fused kernel) and `chain_triangulate_unfused` (back-projection in each camera, then
+triangulation of the rays: three kernels), `kernel` (pixels already on the device) and
+`end_to_end` (pixels up, points down).
 
 Roofs, measured in the same run: the CPU's memory bandwidth (a STREAM triad); the GPU's host link
 (256 MiB up and down through wgpu) and its device memory (a copy kernel). Each GPU relation figure

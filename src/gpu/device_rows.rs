@@ -41,7 +41,8 @@ pub trait RowKind: 'static {
 /// [module](self) documents the layout). Cloning shares the buffers.
 ///
 /// The relations that take and give them are [`GpuEngine`](crate::engine::GpuEngine)'s
-/// `*_rows` calls; [`crate::engine::gpu::device`] has the chain back-project → triangulate as a
+/// `*_rows` calls and `triangulate_pixels`; [`crate::engine::gpu::device`] has the chain matched
+/// pixels → points (one fused kernel, and back-project → triangulate through the rays) as a
 /// compiled example.
 pub struct DeviceRows<K: RowKind> {
     rows: wgpu::Buffer,

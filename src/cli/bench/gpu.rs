@@ -130,13 +130,15 @@ fn relation_figures(
     })?;
     recorder.record(Measure::gpu("triangulate", p, "end_to_end"), t);
 
-    let chain = super::device::chain(&gpu, a, b, &work.matches, repeats)?;
-    let kernel = Measure::gpu(super::device::LABEL, p, "kernel").over(n, chain.timer);
-    recorder.record(kernel, chain.kernel);
-    recorder.record(
-        Measure::gpu(super::device::LABEL, p, "end_to_end"),
-        chain.end_to_end,
-    );
+    let chains = super::device::chains(&gpu, a, b, &work.matches, repeats)?;
+    for (label, chain) in [
+        (super::device::LABEL, &chains.fused),
+        (super::device::LABEL_UNFUSED, &chains.unfused),
+    ] {
+        let kernel = Measure::gpu(label, p, "kernel").over(n, chain.timer);
+        recorder.record(kernel, chain.kernel);
+        recorder.record(Measure::gpu(label, p, "end_to_end"), chain.end_to_end);
+    }
     Ok(gpu)
 }
 

@@ -111,6 +111,21 @@ pub(super) fn print_ratios(results: &[Figure], stream: f64, threads: usize) {
             rate("project", "gpu", "f32", None, "kernel"),
         ),
     );
+    for precision in ["f32", "f64"] {
+        show(
+            &format!("chain_triangulate GPU {precision} kernel: fused / three kernels (unfused)"),
+            ratio(
+                rate("chain_triangulate", "gpu", precision, None, "kernel"),
+                rate(
+                    "chain_triangulate_unfused",
+                    "gpu",
+                    precision,
+                    None,
+                    "kernel",
+                ),
+            ),
+        );
+    }
     for kernel in ["stencil_reprojection", "stencil_affine_grid"] {
         let resident = rate(kernel, "gpu", "f64", None, "resident");
         let uploaded = rate(kernel, "gpu", "f64", None, "uploaded_each_call");

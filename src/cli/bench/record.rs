@@ -101,22 +101,33 @@ pub(super) struct Roofs {
 
 /// Bytes of rows per item that a relation reads and writes (inputs and outputs in the kernel's
 /// precision, and a status word): over the host link end to end, in device memory in the kernel
-/// (`on_device`; for the chain its intermediate rays too). `None` for the costs (sweeps,
-/// stencils), which read few rows per cell and are compute-bound.
+/// (`on_device`; for the chains the pixels' statuses, and for the three-kernel chain its
+/// intermediate rays too). `None` for the costs (sweeps, stencils), which read few rows per cell
+/// and are compute-bound.
 fn row_bytes(kernel: &str, precision: &str, on_device: bool) -> Option<(f64, f64)> {
     let real = if precision == "f64" { 8.0 } else { 4.0 };
+    // Status words read beyond the reals: the two pixel rows' statuses of the chains.
+    let mut statuses_in = 0.0;
     let (inputs, outputs) = match kernel {
         "backproject" | "backproject_pinhole" => (2.0, 6.0),
         "project" => (3.0, 2.0),
         "triangulate" => (4.0, 4.0),
-        // Two pixel rows in and a point row out; on the device also two ray rows written and
-        // read again.
-        "chain_triangulate" if on_device => (4.0 + 12.0, 12.0 + 4.0),
-        "chain_triangulate" => (4.0, 4.0),
+        // Two pixel rows (and their statuses) in and a point row out, in one kernel.
+        "chain_triangulate" if on_device => {
+            statuses_in = 2.0;
+            (4.0, 4.0)
+        }
+        // The same in three kernels: also two ray rows written and read again (their statuses
+        // merged, not counted).
+        "chain_triangulate_unfused" if on_device => {
+            statuses_in = 2.0;
+            (4.0 + 12.0, 12.0 + 4.0)
+        }
+        "chain_triangulate" | "chain_triangulate_unfused" => (4.0, 4.0),
         "vop" => (3.0, 6.0),
         _ => return None,
     };
-    Some((inputs * real, outputs * real + 4.0))
+    Some((inputs * real + 4.0 * statuses_in, outputs * real + 4.0))
 }
 
 /// Collects the figures of one run and prints each as it comes.
@@ -217,7 +228,7 @@ fn line(figure: &Figure) -> String {
         .map(|(roof, f)| format!("  {:5.1} % of the {}", 100.0 * f, roof.replace('_', " ")))
         .unwrap_or_default();
     format!(
-        "{:20} {:3} {:6} {} {:>3} thr {:20} {}{clock}{cycles}{roof}",
+        "{:25} {:3} {:6} {} {:>3} thr {:20} {}{clock}{cycles}{roof}",
         figure.kernel,
         figure.path,
         figure.cpu_path.unwrap_or(""),

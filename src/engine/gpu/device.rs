@@ -17,7 +17,11 @@
 //! A row with no answer carries its status through the chain: a ray whose pixel missed the
 //! port gives a triangulated row with that ray's status, as the host-row calls and the CPU do.
 //!
-//! The chain back-project → triangulate, rows never on the host between:
+//! Matched pixels → 3-D points, rows never on the host between, in one fused kernel
+//! ([`triangulate_pixels`](GpuEngine::triangulate_pixels): both back-projections and the
+//! triangulation in one pass, no rays in device memory); where the rays themselves are wanted,
+//! [`backproject_rows`](GpuEngine::backproject_rows) of each camera and then
+//! [`triangulate_rows`](GpuEngine::triangulate_rows) give the same rows in three kernels:
 //!
 //! ```
 //! use flatport::engine::gpu::Pixels;
@@ -44,10 +48,13 @@
 //!
 //! let on_l = engine.upload::<Pixels>(&pixels_l)?; // the one copy to the device
 //! let on_r = engine.upload::<Pixels>(&pixels_r)?;
-//! let rays_l = engine.backproject_rows(&left, &on_l)?; // rays stay on the device
-//! let rays_r = engine.backproject_rows(&right, &on_r)?;
-//! let points = engine.triangulate_rows(&rays_l, &rays_r)?;
+//! let points = engine.triangulate_pixels(&left, &right, &on_l, &on_r)?; // one kernel
 //! let (xyzr, status) = engine.read(&points)?; // the one copy back
+//!
+//! // The same points through the rays, which stay on the device.
+//! let rays_l = engine.backproject_rows(&left, &on_l)?;
+//! let rays_r = engine.backproject_rows(&right, &on_r)?;
+//! let (chained, _) = engine.read(&engine.triangulate_rows(&rays_l, &rays_r)?)?;
 //!
 //! // The points again, and as the f64 CPU reference triangulates the same matches.
 //! let mut cpu = vec![[0.0; 4]; matches.len()];
@@ -55,8 +62,9 @@
 //! CpuEngine::new(None).triangulate(&left, &right, &matches, &mut cpu, &mut cpu_status);
 //! assert_eq!(status, [0, 0]);
 //! assert_eq!(cpu_status, [0, 0]);
-//! for ((g, c), p) in xyzr.iter().zip(&cpu).zip(&truth) {
+//! for (((g, h), c), p) in xyzr.iter().zip(&chained).zip(&cpu).zip(&truth) {
 //!     assert!((0..3).all(|k| (g[k] - c[k]).abs() < 1e-4 && (g[k] - p[k]).abs() < 1e-4));
+//!     assert!((0..3).all(|k| (g[k] - h[k]).abs() < 1e-4));
 //! }
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
@@ -315,6 +323,62 @@ impl GpuEngine {
             &[b.status_buffer(), a.status_buffer()],
         )?;
         self.submit(encoder, "triangulate rows")?;
+        Ok(points)
+    }
+
+    /// Triangulates matched pixels on the device, fused: row i of `pixels_a` (raw pixels of
+    /// camera `a`) with row i of `pixels_b` (camera `b`), each back-projected through its own
+    /// camera and port, then the midpoint of the two water rays' closest approach and their
+    /// distance there, in one kernel: no rays in device memory between (the same rows as
+    /// [`backproject_rows`](Self::backproject_rows) of both followed by
+    /// [`triangulate_rows`](Self::triangulate_rows), in one pass over the pixels instead of three
+    /// kernels and their status merges). A row gets the first failure in the CPU's order: pixel a's
+    /// status where it is not 0 (a pixel out of range, say), else pixel b's, else that of a's
+    /// back-projection, else b's, else the triangulation's, as the CPU and
+    /// [`triangulate`](Self::triangulate) give for the same matches (ul, vl, ur, vr). The
+    /// three-kernel chain gives the same statuses except where a's back-projection fails and
+    /// pixel b has a status of its own: there its ray a's status wins.
+    ///
+    /// Errors: rows of unequal lengths, of another device or precision ([`GpuError::Rows`]), a
+    /// camera with more layers than the kernels take.
+    pub fn triangulate_pixels(
+        &self,
+        a: &RefractiveCamera,
+        b: &RefractiveCamera,
+        pixels_a: &DeviceRows<Pixels>,
+        pixels_b: &DeviceRows<Pixels>,
+    ) -> Result<DeviceRows<Triangulated>, GpuError> {
+        pixels_a.check_on(&self.context, self.precision, "the pixels a")?;
+        pixels_b.check_on(&self.context, self.precision, "the pixels b")?;
+        if pixels_a.len() != pixels_b.len() {
+            return Err(GpuError::Rows(format!(
+                "triangulation pairs row i of the pixels a with row i of the pixels b: {} rows a, {} rows b",
+                pixels_a.len(),
+                pixels_b.len()
+            )));
+        }
+        check_layers(a)?;
+        check_layers(b)?;
+        let points = DeviceRows::allocate(&self.context, self.precision, pixels_a.len())?;
+        let params = Params::new(self.precision, a, b, [0; 4]);
+        let mut encoder = self.encoder("triangulate pixels");
+        let bindings = [
+            Bound::rows(1, pixels_a),
+            Bound::rows(2, &points),
+            Bound::status(3, &points),
+            Bound::rows(4, pixels_b),
+            Bound::status(5, pixels_a),
+            Bound::status(6, pixels_b),
+        ];
+        self.encode(
+            &mut encoder,
+            &kernels::TRIANGULATE_PIXELS,
+            params,
+            pixels_a.len(),
+            &bindings,
+            no_info,
+        )?;
+        self.submit(encoder, "triangulate pixels")?;
         Ok(points)
     }
 

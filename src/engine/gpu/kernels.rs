@@ -92,6 +92,16 @@ pub static TRIANGULATE_RAYS: KernelSource = KernelSource::new(
     )],
 );
 
+/// Matched pixels of two cameras (device rows a and b, with their statuses) → x,y,z, residual:
+/// both back-projections and the triangulation fused, the device-resident twin of [`TRIANGULATE`]
+/// (its own bindings).
+pub static TRIANGULATE_PIXELS: KernelSource = KernelSource::new(
+    "triangulate_pixels",
+    &[include_str!(
+        "../../../shaders/kernels/triangulate_pixels.wgsl"
+    )],
+);
+
 /// An input row's status carried to its output row (its own bindings).
 pub static MERGE_STATUS: KernelSource = KernelSource::new(
     "merge_status",
@@ -105,7 +115,7 @@ pub static PIXEL_GRID: KernelSource = KernelSource::new(
 );
 
 /// Every kernel of the catalogue.
-pub static ALL: [&KernelSource; 11] = [
+pub static ALL: [&KernelSource; 12] = [
     &BACKPROJECT,
     &BACKPROJECT_GRID,
     &PROJECT,
@@ -115,6 +125,7 @@ pub static ALL: [&KernelSource; 11] = [
     &BINOCULAR_VOP,
     &PROJECT_RETRY,
     &TRIANGULATE_RAYS,
+    &TRIANGULATE_PIXELS,
     &MERGE_STATUS,
     &PIXEL_GRID,
 ];
