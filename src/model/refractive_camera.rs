@@ -974,13 +974,13 @@ mod tests {
             .refractive_camera(0);
         let point = Point3::new(1e10, 0.0, 1e8);
         let path = camera.air_path_to(&point).unwrap();
-        let tau = 128514975477.41727555;
+        let tau = 128_514_975_477.417_28;
         assert!(
             (path.tan_incidence - tau).abs() <= 1e-12 * tau,
             "tan a {} vs {tau}",
             path.tan_incidence
         );
-        let expected = 0.028540042696398400340;
+        let expected = 0.028_540_042_696_398_4;
         let vop = camera.vop(&point).unwrap().vop_distance;
         assert!(
             (vop - expected).abs() <= 1e-12 * expected,
