@@ -3,9 +3,10 @@
 // (candidate, view). One invocation per candidate of a chunk: it adds the M reals of the items of
 // views 0, 1, 2, … in that order, as the host did (the same f64 sums, bit for bit), and combines
 // their statuses: STATUS_RETRY where any view has it (the candidate runs again, every view), else
-// the first non-zero status in view order, else STATUS_OK. The f32 kernels' items are added with
-// Neumaier's compensation (COMPENSATED, a constant composed in front of this file), since the
-// host added them in f64; the f64 sums are plain, the host's.
+// the first non-zero status in view order, else STATUS_OK. Composed in front of this file: the
+// items' type `item_real` and COMPENSATED. f64 items, and f32 items where the adapter has
+// SHADER_F64, are added plainly in f64 (real = f64), the host's f64 sums bit for bit; on an
+// adapter without f64 the f32 items are added in f32 with Neumaier's compensation.
 //
 // Items (bindings 1 and 2) are view-major, as the per-view kernels write them within one
 // submission's batch of views: item = view · info.y + candidate, view counted within the batch.
@@ -16,7 +17,7 @@
 // batch, z 1 to add to the sums already there (a later batch) or 0 to start them, w the reals per
 // item (M ≤ 4). The cameras of Params are not read.
 @group(0) @binding(0) var<uniform> params: Params;
-@group(0) @binding(1) var<storage, read> items: array<real>;
+@group(0) @binding(1) var<storage, read> items: array<item_real>;
 @group(0) @binding(2) var<storage, read> item_status: array<u32>;
 @group(0) @binding(3) var<storage, read_write> sums: array<real>; // M reals per candidate
 @group(0) @binding(4) var<storage, read_write> codes: array<u32>; // per candidate
@@ -49,7 +50,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             code = s;
         }
         for (var k = 0u; k < m; k++) {
-            let x = items[item * m + k];
+            let x = real(items[item * m + k]);
             if (COMPENSATED) {
                 // Neumaier: the rounding error of each addition, kept aside.
                 let t = sum[k] + x;

@@ -14,8 +14,8 @@ const CANDIDATE_BINDINGS: &str = include_str!("../../../../shaders/calib/candida
 /// that the compiler drops the other modes).
 const SCENE_FIT_WGSL: &str = include_str!("../../../../shaders/calib/scene_fit.wgsl");
 
-/// The sum over views of the per-view kernels' items (two kernels: plain in f64, compensated in
-/// f32).
+/// The sum over views of the per-view kernels' items (three kernels: f64 or f32 items summed in
+/// f64, f32 items summed in f32 with compensation).
 const VIEW_SUM_WGSL: &str = include_str!("../../../../shaders/calib/view_sum.wgsl");
 
 /// Candidate interfaces × corners (two air rays) → x, y, z, gap.
@@ -80,17 +80,36 @@ pub static SCENE_REPROJECTION_SAFEGUARDED: KernelSource = KernelSource::new(
 .reading_view_rows();
 
 /// The per-(candidate, view) kernels' items summed over views per candidate in view order, their
-/// statuses combined (`shaders/calib/view_sum.wgsl`): the f64 items plainly, as the host adds them.
+/// statuses combined (`shaders/calib/view_sum.wgsl`): f64 items plainly in f64, as the host adds
+/// them.
 pub static VIEW_SUM: KernelSource = KernelSource::new(
     "calib_view_sum",
-    &["const COMPENSATED: bool = false;", VIEW_SUM_WGSL],
+    &[
+        "alias item_real = real;\nconst COMPENSATED: bool = false;",
+        VIEW_SUM_WGSL,
+    ],
 )
 .in_precision(Precision::F64);
 
-/// [`VIEW_SUM`] of f32 items, with Neumaier's compensation (the host added them in f64).
+/// [`VIEW_SUM`] of f32 items, added in f64 (the host's sums of them, bit for bit): for adapters
+/// with SHADER_F64.
+pub static VIEW_SUM_F32_ITEMS: KernelSource = KernelSource::new(
+    "calib_view_sum_f32_items",
+    &[
+        "alias item_real = f32;\nconst COMPENSATED: bool = false;",
+        VIEW_SUM_WGSL,
+    ],
+)
+.in_precision(Precision::F64);
+
+/// [`VIEW_SUM`] of f32 items in f32 with Neumaier's compensation: for adapters without
+/// SHADER_F64.
 pub static VIEW_SUM_F32: KernelSource = KernelSource::new(
     "calib_view_sum_f32",
-    &["const COMPENSATED: bool = true;", VIEW_SUM_WGSL],
+    &[
+        "alias item_real = real;\nconst COMPENSATED: bool = true;",
+        VIEW_SUM_WGSL,
+    ],
 )
 .in_precision(Precision::F32);
 
@@ -105,7 +124,7 @@ pub static BUNDLE_RESIDUALS: KernelSource = KernelSource::new(
 .in_precision(Precision::F64);
 
 /// Every kernel of the catalogue.
-pub static ALL: [&KernelSource; 10] = [
+pub static ALL: [&KernelSource; 11] = [
     &TRIANGULATE,
     &PROJECTED_VOP,
     &AFFINE_GRID,
@@ -114,6 +133,7 @@ pub static ALL: [&KernelSource; 10] = [
     &SCENE_REPROJECTION,
     &SCENE_REPROJECTION_SAFEGUARDED,
     &VIEW_SUM,
+    &VIEW_SUM_F32_ITEMS,
     &VIEW_SUM_F32,
     &BUNDLE_RESIDUALS,
 ];

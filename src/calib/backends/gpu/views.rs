@@ -233,8 +233,9 @@ const ROUND_CHUNK_ITEMS: usize = 4;
 
 impl KernelRunner {
     /// Runs `job` over every (candidate, view) and sums over the views on the device:
-    /// `output[c]` gets the sums over views 0, 1, … (in that order, as an f64 fold on the host
-    /// would add them; f32 items with Neumaier's compensation) of the kernel's M reals for
+    /// `output[c]` gets the sums over views 0, 1, … (in that order and in f64, as an f64 fold on
+    /// the host would add them; f32 items in f32 with Neumaier's compensation where the adapter
+    /// has no SHADER_F64) of the kernel's M reals for
     /// candidate c, and `status[c]` combines the views' statuses: 0 where every view's is 0,
     /// [`STATUS_RETRY`](crate::gpu::compose::STATUS_RETRY) where any view's is, else the first
     /// non-zero one in view order; the row NaN where the status is not 0. Without views the sums
@@ -341,19 +342,29 @@ impl KernelRunner {
         let pipeline =
             context.kernel_pipeline(job.kernel, precision, packed.rows, params.layers())?;
         let dispatch = Dispatch::new(context, &pipeline, job.kernel.name);
-        let sum_kernel = match precision {
-            Precision::F64 => &kernels::VIEW_SUM,
-            Precision::F32 => &kernels::VIEW_SUM_F32,
+        // The sums in f64 wherever the adapter has it (f32 items too: the host's f64 sums).
+        let (sum_kernel, sum_precision) = match precision {
+            Precision::F64 => (&kernels::VIEW_SUM, Precision::F64),
+            Precision::F32 if context.adapter().f64 => {
+                (&kernels::VIEW_SUM_F32_ITEMS, Precision::F64)
+            }
+            Precision::F32 => (&kernels::VIEW_SUM_F32, Precision::F32),
         };
+        let sum_real = sum_precision.size();
         let sum_pipeline =
-            context.kernel_pipeline(sum_kernel, precision, Rows::Storage, params.layers())?;
+            context.kernel_pipeline(sum_kernel, sum_precision, Rows::Storage, params.layers())?;
         let summing = Dispatch::new(context, &sum_pipeline, sum_kernel.name);
         let rows_buf = packed.resident.on_device(context, precision)?;
 
         // The uniform: a slot per piece (the kernel's), then one per batch (the view sum's), each
         // at an aligned offset; the same for every chunk.
+        // The view sum's Params are of its own precision (f64 sums of an f32 kernel's items).
+        let mut sum_params = candidate_params(sum_precision, rig, cameras)?;
         let params_bytes = params.bytes().len();
-        let stride = params_bytes.next_multiple_of(UNIFORM_ALIGNMENT);
+        let sum_params_bytes = sum_params.bytes().len();
+        let stride = params_bytes
+            .max(sum_params_bytes)
+            .next_multiple_of(UNIFORM_ALIGNMENT);
         let sum_base = pieces.len() * stride;
         let mut slots = vec![0u8; sum_base + batches.len() * stride];
         for batch in &batches {
@@ -376,9 +387,9 @@ impl KernelRunner {
         for (b, batch) in batches.iter().enumerate() {
             let views: usize = pieces[batch.clone()].iter().map(|p| p.views.len()).sum();
             // The view sum's (calib_view_sum): candidates, views, adding, reals per item.
-            params.set_info([per_view as u32, views as u32, u32::from(b > 0), M as u32]);
+            sum_params.set_info([per_view as u32, views as u32, u32::from(b > 0), M as u32]);
             let at = sum_base + b * stride;
-            slots[at..at + params_bytes].copy_from_slice(params.bytes());
+            slots[at..at + sum_params_bytes].copy_from_slice(sum_params.bytes());
         }
 
         let mut guard = self.buffers();
@@ -408,7 +419,7 @@ impl KernelRunner {
         let (sums_buf, sums_staging) =
             buffers
                 .output
-                .readable(context, "view sums", round_candidates * M * real)?;
+                .readable(context, "view sums", round_candidates * M * sum_real)?;
         let (codes_buf, codes_staging) =
             buffers
                 .status
@@ -444,12 +455,19 @@ impl KernelRunner {
             }
             for b in 0..batches.len() {
                 sum_groups.push(summing.bind_resources([
-                    (0, range(&uniform_buf, sum_base + b * stride, params_bytes)),
+                    (
+                        0,
+                        range(&uniform_buf, sum_base + b * stride, sum_params_bytes),
+                    ),
                     (1, items_buf.as_entire_binding()),
                     (2, item_status_buf.as_entire_binding()),
                     (
                         3,
-                        range(&sums_buf, chunk * per_view * M * real, per_view * M * real),
+                        range(
+                            &sums_buf,
+                            chunk * per_view * M * sum_real,
+                            per_view * M * sum_real,
+                        ),
                     ),
                     (4, range(&codes_buf, chunk * per_view * 4, per_view * 4)),
                 ]));
@@ -496,13 +514,13 @@ impl KernelRunner {
             }
             let n = last - first;
             let copies = [
-                (&sums_buf, &sums_staging, (n * M * real) as u64),
+                (&sums_buf, &sums_staging, (n * M * sum_real) as u64),
                 (&codes_buf, &codes_staging, (n * 4) as u64),
             ];
             let (values, codes) = (&mut values[..n], &mut codes[..n]);
             context.read_back(encoder, &copies, |data| {
                 codes.copy_from_slice(bytemuck::cast_slice(data[1]));
-                rows_from(data[0], precision, codes, values);
+                rows_from(data[0], sum_precision, codes, values);
             })?;
             output[first..last].copy_from_slice(values);
             status[first..last].copy_from_slice(codes);
