@@ -122,9 +122,10 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
 
     /// Fixes where the per-(candidate, view) kernels read their corner rows: `Some(Rows::Uniform)`
     /// in uniform windows wherever every view fits one, `Some(Rows::Storage)` in one storage
-    /// block, `None` (the default) chosen per call (windows for calls large enough to pay for a
-    /// dispatch per window). For tests of the two bindings; a backend [`over`](CostBackend::over)
-    /// other data keeps the choice.
+    /// block, `None` (the default) chosen per call (windows on a software adapter for calls large
+    /// enough to pay for a dispatch per window; one storage block, one dispatch per batch of
+    /// views, on a hardware GPU). For tests of the two bindings; a backend
+    /// [`over`](CostBackend::over) other data keeps the choice.
     pub fn set_rows(&mut self, rows: Option<Rows>) {
         self.kernels.rows = rows;
     }
