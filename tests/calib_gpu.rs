@@ -313,6 +313,120 @@ fn chunked_batches_match_one_dispatch() {
     assert_eq!(chunked_values, whole_values, "chunking changed a value");
 }
 
+/// `data` with view `v` cut to its first three corners (one board row: collinear), so that no
+/// rigid board fit and no affine grid (fewer than 4 corners) exists for that view under any
+/// candidate.
+fn with_a_degenerate_view(data: &StereoData, v: usize) -> StereoData {
+    let mut cut = data.clone();
+    let mut corners = Vec::new();
+    let mut views = Vec::new();
+    for (k, range) in data.views.iter().enumerate() {
+        let keep = if k == v { 3 } else { range.len() };
+        let start = corners.len();
+        corners.extend_from_slice(&data.corners[range.start..range.start + keep]);
+        views.push(start..corners.len());
+    }
+    cut.corners = corners;
+    cut.views = views;
+    cut
+}
+
+/// The per-view kernels' items are added over the views on the device (`calib_view_sum`): with
+/// the items per dispatch lowered to 2 304 (36 workgroups), a call of 300 candidates over 40
+/// views of 54 corners runs 2 batches of views (36 and 4, the second adding to the sums already
+/// on the device), 5 chunks of 64 candidates and 2 submissions (3 and 2 chunks), in one storage
+/// block and in uniform windows. The values are those of one dispatch bit for bit in both
+/// precisions (the views are added in the same order, in f64) and match the CPU. A view cut to three collinear corners, in the last batch, makes every candidate's
+/// affine-grid, scene and reprojection cost +∞ on both devices, however the items are chunked,
+/// while the ray gap and the air layers, which do not fit boards, still match the CPU.
+#[test]
+fn views_are_summed_on_the_device_across_batches_chunks_and_submissions() {
+    let data = stereo_data(40, 3);
+    let batch = candidates(&data, 300, 4);
+    let degenerate = with_a_degenerate_view(&data, 37);
+    for precision in [Precision::F64, Precision::F32] {
+        let (Some(whole), Some(mut chunked)) = (engine(precision), engine(precision)) else {
+            return;
+        };
+        chunked.set_max_chunk_items(2304);
+        let (_, whole_values) = compare(&data, &GpuBackend::new(&data, &whole), &batch);
+        for rows in Rows::ALL {
+            let mut gpu = GpuBackend::new(&data, &chunked);
+            gpu.set_rows(Some(rows));
+            let (deviations, values) = compare(&data, &gpu, &batch);
+            for (name, d) in deviations {
+                let bound = match (precision, name) {
+                    (Precision::F64, _) => F64_RELATIVE,
+                    // F32_AIR_DISTANCE is the f32 gap sums' error over 4 views; 40 views of
+                    // f32 items are beyond it in one dispatch as well (2e-3 relative here).
+                    (_, "air-distance") => continue,
+                    (_, "affine-grid") => F32_RELATIVE_CHI2,
+                    _ => F32_RELATIVE,
+                };
+                assert!(
+                    d.relative <= bound,
+                    "{precision} {rows:?} chunked {name}: {:e}",
+                    d.relative
+                );
+            }
+            // f64 sums on adapters with SHADER_F64, whatever the kernels' precision.
+            if chunked.context().adapter().f64 {
+                assert_eq!(
+                    values, whole_values,
+                    "{precision} {rows:?}: chunking changed a value"
+                );
+            }
+
+            let mut gpu = GpuBackend::new(&degenerate, &chunked);
+            gpu.set_rows(Some(rows));
+            let cpu = CpuBackend::new(&degenerate);
+            for kind in CostKind::ALL {
+                let (c, g) = (
+                    cpu.costs(kind, &batch).unwrap(),
+                    gpu.costs(kind, &batch).unwrap(),
+                );
+                deviation(kind.name(), &c, &g);
+                if matches!(
+                    kind,
+                    CostKind::AffineGrid | CostKind::Scene | CostKind::Reprojection
+                ) {
+                    assert!(
+                        g.iter().chain(&c).all(|&v| v == f64::INFINITY),
+                        "{precision} {rows:?} {}",
+                        kind.name()
+                    );
+                }
+            }
+            let whole_gpu = GpuBackend::new(&degenerate, &whole);
+            for kind in [
+                CostKind::AffineGrid,
+                CostKind::Scene,
+                CostKind::Reprojection,
+            ] {
+                let g = whole_gpu.costs(kind, &batch).unwrap();
+                assert!(
+                    g.iter().all(|&v| v == f64::INFINITY),
+                    "{precision} one dispatch {}",
+                    kind.name()
+                );
+            }
+            let normals: Vec<Unit<Vector3<f64>>> = batch.iter().map(|c| c.normal).collect();
+            let as_costs = |d: Vec<Option<f64>>| -> Vec<f64> {
+                d.into_iter().map(|d| d.unwrap_or(f64::INFINITY)).collect()
+            };
+            let d = deviation(
+                "air-distance",
+                &as_costs(cpu.air_distances(&normals).unwrap()),
+                &as_costs(gpu.air_distances(&normals).unwrap()),
+            );
+            assert_eq!(
+                d.infinite, 0,
+                "{precision} {rows:?}: every axis has an air layer"
+            );
+        }
+    }
+}
+
 /// The staging path (discrete GPUs: storage buffers copied to and from host-mapped staging
 /// buffers) gives the values of the directly mapped path lavapipe uses by default, bit for bit,
 /// for every cost and the air layers (candidate and per-view kernels), in both precisions.

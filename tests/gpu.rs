@@ -97,7 +97,7 @@ fn every_kernel_composes_deterministically_from_its_parts() {
             }
         }
     }
-    assert_eq!(names.len(), 20);
+    assert_eq!(names.len(), 23);
 }
 
 /// The build's validation fails a broken kernel with naga's message naming the kernel: syntax and

@@ -1,6 +1,7 @@
 // The weighted affine-grid invariant fused per (candidate axis, view): one invocation sums the
 // weighted normal equations of one view's corners under one axis and solves them, writing
-// (χ², degrees of freedom). Twin of `calib::affine_grid` (same names, same loop; the formulation,
+// (χ², degrees of freedom), which calib_view_sum (shaders/calib/view_sum.wgsl) then adds over the
+// views on the device. Twin of `calib::affine_grid` (same names, same loop; the formulation,
 // the shift and the taper are documented there). Composed in f64 on every adapter. The positions
 // are shifted by the affine map through the view's first three corners (the reference corners)
 // before they are summed, so that the one-pass χ² subtracts numbers of the size of χ², not of

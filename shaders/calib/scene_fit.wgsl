@@ -1,8 +1,8 @@
 // The triangulating calibration costs reduced on the device, one invocation per (candidate, view):
 // the view's corners are triangulated under the candidate interface, the rigid board model is
 // fitted to them (Kabsch: the rotation as the polar factor of the cross-covariance) and the
-// view's sum of squares comes back, so that only two numbers per (candidate, view) leave the
-// device. Twin of `calib::costs::scene::AxisRays` (gap lines, `cost`) and of
+// view's sum of squares is written, four numbers per (candidate, view), which calib_view_sum
+// (shaders/calib/view_sum.wgsl) then adds over the views on the device. Twin of `calib::costs::scene::AxisRays` (gap lines, `cost`) and of
 // `calib::problem::board::fit_rigid`.
 //
 // Modes (MODE, a constant composed in front of this file per kernel: calib_scene_gap,

@@ -346,7 +346,8 @@ impl std::fmt::Display for Shard {
 /// Sweeps `spec` over `backend` in batches of `chunk` axis cells (all their air layers), at most
 /// [`MAX_BATCH_CELLS`] cells each: candidates are generated batch by batch, never for the whole
 /// grid, so memory is bounded by the batch whatever the grid. Calls `sink` with every batch in
-/// cell order and `progress(done, total)` after each.
+/// cell order and `progress(done, total)` after each, on the calling thread, while the backend
+/// evaluates the next batch on another.
 pub fn sweep(
     backend: &dyn CostBackend,
     spec: &SweepSpec,
@@ -389,15 +390,12 @@ pub fn sweep_cells(
             azimuths.value(a % azimuths.count).to_radians(),
         )
     };
-    let mut minimum: Option<SweepMinimum> = None;
-    let mut finite = 0;
-    let mut first = cells.start;
-    while first < total {
-        let end = first.saturating_add(per_batch).min(total);
+    // One batch's costs and air layers, from the backend.
+    let evaluate = |first: usize, end: usize| -> Result<(Vec<f64>, Vec<f64>), CalibError> {
         // The axis cells this batch touches (a batch may start or end inside an axis's air layers).
         let first_axis = first / depth;
         let normals: Vec<_> = (first_axis..=(end - 1) / depth).map(normal_of).collect();
-        let (costs, distances) = match spec.distance {
+        Ok(match spec.distance {
             None => {
                 let (candidates, costs) = backend.profile(spec.kind, &normals)?;
                 (
@@ -435,31 +433,55 @@ pub fn sweep_cells(
                 let costs = backend.costs(spec.kind, &candidates)?;
                 (costs, candidates.iter().map(|c| c.air_distance).collect())
             }
-        };
-        for (k, &cost) in costs.iter().enumerate() {
-            if cost.is_finite() {
-                finite += 1;
-                if minimum.is_none_or(|m| cost < m.cost) {
-                    let cell = first + k;
-                    let a = cell / depth;
-                    minimum = Some(SweepMinimum {
-                        cell,
-                        tilt_deg: tilts.value(a / azimuths.count),
-                        azimuth_deg: azimuths.value(a % azimuths.count),
-                        distance: distances[k],
-                        cost,
-                    });
+        })
+    };
+    let mut minimum: Option<SweepMinimum> = None;
+    let mut finite = 0;
+    // The backend evaluates the next batch on a thread of its own while this one hands the
+    // last to the sink (the files' rows, the picture's minima): on a GPU the device then never
+    // waits for the host's writing. At most two batches wait between them, so memory stays
+    // bounded by the batch. A failure on either side stops both.
+    std::thread::scope(|scope| -> Result<(), CalibError> {
+        let (sender, batches) = std::sync::mpsc::sync_channel(1);
+        scope.spawn(move || {
+            let mut first = cells.start;
+            while first < total {
+                let end = first.saturating_add(per_batch).min(total);
+                let result = evaluate(first, end).map(|values| (first, values));
+                let failed = result.is_err();
+                if sender.send(result).is_err() || failed {
+                    return;
+                }
+                first = end;
+            }
+        });
+        for batch in batches {
+            let (first, (costs, distances)) = batch?;
+            for (k, &cost) in costs.iter().enumerate() {
+                if cost.is_finite() {
+                    finite += 1;
+                    if minimum.is_none_or(|m| cost < m.cost) {
+                        let cell = first + k;
+                        let a = cell / depth;
+                        minimum = Some(SweepMinimum {
+                            cell,
+                            tilt_deg: tilts.value(a / azimuths.count),
+                            azimuth_deg: azimuths.value(a % azimuths.count),
+                            distance: distances[k],
+                            cost,
+                        });
+                    }
                 }
             }
+            sink(SweepChunk {
+                first,
+                costs: &costs,
+                distances: &distances,
+            })?;
+            progress(first + costs.len() - cells.start, cells.len());
         }
-        sink(SweepChunk {
-            first,
-            costs: &costs,
-            distances: &distances,
-        })?;
-        first = end;
-        progress(first - cells.start, cells.len());
-    }
+        Ok(())
+    })?;
     Ok(SweepSummary {
         minimum,
         cells: cells.len(),

@@ -1,5 +1,6 @@
 //! The fused affine-grid kernel (`shaders/calib/affine_grid.wgsl`): candidate axes ×
-//! views, one (χ², dof) per pair, always in f64. Indexing, chunking and buffers only; the
+//! views, one (χ², dof) per pair, always in f64, added over the views on the device: one
+//! (Σχ², Σdof) per axis comes back. Indexing, chunking and buffers only; the
 //! formulation is in [`crate::calib::costs::affine_grid`].
 
 use super::kernels;
@@ -25,11 +26,6 @@ impl AffineGridInput {
         }
     }
 
-    /// Number of views.
-    pub fn views(&self) -> usize {
-        self.rows.views()
-    }
-
     /// The rows as kept on the device.
     pub fn resident(&self) -> &ViewRows {
         &self.rows
@@ -37,14 +33,14 @@ impl AffineGridInput {
 }
 
 impl KernelRunner {
-    /// The weighted affine-grid χ² and degrees of freedom of every view of `input` under every
-    /// axis (unit, fourth value ignored). `fits[c · views + v]` gets
-    /// (χ², dof) of view v under axis c; `status` is 0, or 6 (degenerate) where the view has
-    /// fewer than 4 weighted corners or a singular fit, the fit NaN where not 0. Runs in f64
-    /// whatever the engine's precision; errors on adapters without SHADER_F64. The input is
+    /// The weighted affine-grid χ² and degrees of freedom of `input` under every axis (unit,
+    /// fourth value ignored), per view on the device and added over the views there in view
+    /// order: `fits[c]` gets (Σχ², Σdof) of axis c; `status[c]` is 0, or 6 (degenerate) where a
+    /// view has fewer than 4 weighted corners or a singular fit, the fit NaN where not 0. Runs in
+    /// f64 whatever the engine's precision; errors on adapters without SHADER_F64. The input is
     /// uploaded at the first call and kept on the device for the later ones.
     ///
-    /// Panics if `fits` and `status` are not `axes.len() · views.len()` long.
+    /// Panics if `fits` and `status` are not `axes.len()` long.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn affine_grid(
         &self,

@@ -14,6 +14,10 @@ const CANDIDATE_BINDINGS: &str = include_str!("../../../../shaders/calib/candida
 /// that the compiler drops the other modes).
 const SCENE_FIT_WGSL: &str = include_str!("../../../../shaders/calib/scene_fit.wgsl");
 
+/// The sum over views of the per-view kernels' items (three kernels: f64 or f32 items summed in
+/// f64, f32 items summed in f32 with compensation).
+const VIEW_SUM_WGSL: &str = include_str!("../../../../shaders/calib/view_sum.wgsl");
+
 /// Candidate interfaces × corners (two air rays) → x, y, z, gap.
 pub static TRIANGULATE: KernelSource = KernelSource::new(
     "calib_triangulate",
@@ -75,6 +79,40 @@ pub static SCENE_REPROJECTION_SAFEGUARDED: KernelSource = KernelSource::new(
 )
 .reading_view_rows();
 
+/// The per-(candidate, view) kernels' items summed over views per candidate in view order, their
+/// statuses combined (`shaders/calib/view_sum.wgsl`): f64 items plainly in f64, as the host adds
+/// them.
+pub static VIEW_SUM: KernelSource = KernelSource::new(
+    "calib_view_sum",
+    &[
+        "alias item_real = real;\nconst COMPENSATED: bool = false;",
+        VIEW_SUM_WGSL,
+    ],
+)
+.in_precision(Precision::F64);
+
+/// [`VIEW_SUM`] of f32 items, added in f64 (the host's sums of them, bit for bit): for adapters
+/// with SHADER_F64.
+pub static VIEW_SUM_F32_ITEMS: KernelSource = KernelSource::new(
+    "calib_view_sum_f32_items",
+    &[
+        "alias item_real = f32;\nconst COMPENSATED: bool = false;",
+        VIEW_SUM_WGSL,
+    ],
+)
+.in_precision(Precision::F64);
+
+/// [`VIEW_SUM`] of f32 items in f32 with Neumaier's compensation: for adapters without
+/// SHADER_F64.
+pub static VIEW_SUM_F32: KernelSource = KernelSource::new(
+    "calib_view_sum_f32",
+    &[
+        "alias item_real = real;\nconst COMPENSATED: bool = true;",
+        VIEW_SUM_WGSL,
+    ],
+)
+.in_precision(Precision::F32);
+
 /// The bundle's stencil batches: evaluations (camera set, pose set) × observed corners →
 /// projected − observed pixels; always f64 (the bundle's central differences need it).
 pub static BUNDLE_RESIDUALS: KernelSource = KernelSource::new(
@@ -86,7 +124,7 @@ pub static BUNDLE_RESIDUALS: KernelSource = KernelSource::new(
 .in_precision(Precision::F64);
 
 /// Every kernel of the catalogue.
-pub static ALL: [&KernelSource; 8] = [
+pub static ALL: [&KernelSource; 11] = [
     &TRIANGULATE,
     &PROJECTED_VOP,
     &AFFINE_GRID,
@@ -94,5 +132,8 @@ pub static ALL: [&KernelSource; 8] = [
     &SCENE_FIT,
     &SCENE_REPROJECTION,
     &SCENE_REPROJECTION_SAFEGUARDED,
+    &VIEW_SUM,
+    &VIEW_SUM_F32_ITEMS,
+    &VIEW_SUM_F32,
     &BUNDLE_RESIDUALS,
 ];

@@ -8,10 +8,12 @@
 //!
 //! Per cost: [`CostKind::Scene`] and [`CostKind::Reprojection`] are reduced on the device per
 //! (candidate, view) (the scene-fit kernel: triangulation, the rigid board fit and the view's sum
-//! of squares), and the host adds the views; the profile's air layers come from the same
-//! kernel's gap-line sums per (axis, view). [`CostKind::RayGap`] triangulates per corner on the
-//! device (`calib_triangulate`) and sums on the host ([`ray_gap_rms`]). The affine-grid invariant
-//! is fused per (axis, view) (`calib_affine_grid`); the plane errors run one dispatch of projected
+//! of squares), and the views are added on the device too (`calib_view_sum`, in view order, so
+//! one row per candidate comes back); the profile's air layers come from the same kernel's
+//! gap-line sums per (axis, view), added alike. [`CostKind::RayGap`] triangulates per corner on
+//! the device (`calib_triangulate`) and sums on the host ([`ray_gap_rms`]). The affine-grid
+//! invariant is fused per (axis, view) (`calib_affine_grid`) and added over the views on the
+//! device; the plane errors run one dispatch of projected
 //! VOPs (`calib_projected_vop`), then the per-view fits on the host ([`plane_cost`]). A candidate
 //! that puts a camera outside the air, or under which a corner has no answer, costs +∞ as on the
 //! CPU.
@@ -120,9 +122,10 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
 
     /// Fixes where the per-(candidate, view) kernels read their corner rows: `Some(Rows::Uniform)`
     /// in uniform windows wherever every view fits one, `Some(Rows::Storage)` in one storage
-    /// block, `None` (the default) chosen per call (windows for calls large enough to pay for a
-    /// dispatch per window). For tests of the two bindings; a backend [`over`](CostBackend::over)
-    /// other data keeps the choice.
+    /// block, `None` (the default) chosen per call (windows on a software adapter for calls large
+    /// enough to pay for a dispatch per window; one storage block, one dispatch per batch of
+    /// views, on a hardware GPU). For tests of the two bindings; a backend
+    /// [`over`](CostBackend::over) other data keeps the choice.
     pub fn set_rows(&mut self, rows: Option<Rows>) {
         self.kernels.rows = rows;
     }
@@ -150,8 +153,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             + self.scene_input.resident().uploads()
     }
 
-    /// Reprojection and scene costs reduced per (candidate, view) on the device; the ray gap
-    /// triangulated per corner on the device and summed on the host.
+    /// Reprojection and scene costs reduced per (candidate, view) and summed over the views on
+    /// the device; the ray gap triangulated per corner on the device and summed on the host.
     fn scene_costs(
         &self,
         kind: CostKind,
@@ -176,8 +179,7 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             } else {
                 SceneSum::Reprojection
             };
-            let views = self.scene_input.views();
-            let mut sums = vec![[0.0; 4]; interfaces.len() * views];
+            let mut sums = vec![[0.0; 4]; interfaces.len()];
             let mut status = vec![0; sums.len()];
             self.kernels.scene_fit(
                 &self.engine,
@@ -192,10 +194,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             // scene_rms: √(Σ/N); reprojection_rms: √(Σ/2N).
             let per_value = if kind == CostKind::Scene { 1 } else { 2 };
             for (c, &i) in valid.iter().enumerate() {
-                let range = c * views..(c + 1) * views;
-                if status[range.clone()].iter().all(|&s| s == 0) {
-                    let sum: f64 = sums[range].iter().map(|s| s[0]).sum();
-                    costs[i] = (sum / (per_value * corners) as f64).sqrt();
+                if status[c] == 0 {
+                    costs[i] = (sums[c][0] / (per_value * corners) as f64).sqrt();
                 }
             }
             return Ok(costs);
@@ -235,8 +235,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
         Ok(costs)
     }
 
-    /// The affine-grid invariant: the fused kernel per (axis, view) in f64 on the device, the
-    /// sum over views on the host; on adapters without SHADER_F64 the CPU twin runs instead.
+    /// The affine-grid invariant: the fused kernel per (axis, view) in f64 on the device, and
+    /// the sum over views there too; on adapters without SHADER_F64 the CPU twin runs instead.
     fn affine_grid_costs(&self, candidates: &[Candidate]) -> Result<Vec<f64>, CalibError> {
         let data: &StereoData = &self.data;
         if !self.engine.context().adapter().f64 {
@@ -246,12 +246,11 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
                 .map(|c| cost_prepared(data, &rows, CostKind::AffineGrid, c))
                 .collect());
         }
-        let views = self.affine_input.views();
         let axes: Vec<[f64; 4]> = candidates
             .iter()
             .map(|c| [c.normal.x, c.normal.y, c.normal.z, 0.0])
             .collect();
-        let mut fits = vec![[0.0; 2]; axes.len() * views];
+        let mut fits = vec![[0.0; 2]; axes.len()];
         let mut status = vec![0; fits.len()];
         self.kernels.affine_grid(
             &self.engine,
@@ -266,12 +265,8 @@ impl<D: Deref<Target = StereoData>, E: Deref<Target = GpuEngine>> GpuBackend<D, 
             .iter()
             .enumerate()
             .map(|(c, candidate)| {
-                let range = c * views..(c + 1) * views;
-                let fitted =
-                    status[range.clone()].iter().all(|&s| s == 0) && candidate.normal.z > 0.0;
-                let (chi2, dof) = fits[range]
-                    .iter()
-                    .fold((0.0, 0.0), |(a, b), f| (a + f[0], b + f[1]));
+                let fitted = status[c] == 0 && candidate.normal.z > 0.0;
+                let [chi2, dof] = fits[c];
                 if fitted && dof > 0.0 {
                     chi2 / dof
                 } else {
@@ -394,9 +389,8 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
         if valid.is_empty() {
             return Ok(distances);
         }
-        // The gap lines' normal equation per (axis, view) on the device, summed here.
-        let views = self.scene_input.views();
-        let mut sums = vec![[0.0; 4]; axes.len() * views];
+        // The gap lines' normal equation per (axis, view) on the device, summed there.
+        let mut sums = vec![[0.0; 4]; axes.len()];
         let mut status = vec![0; sums.len()];
         self.kernels.scene_fit(
             &self.engine,
@@ -410,13 +404,10 @@ impl<D: Deref<Target = StereoData> + Sync, E: Deref<Target = GpuEngine> + Sync> 
         )?;
         let values: Vec<Option<f64>> = (0..valid.len())
             .map(|c| {
-                let range = c * views..(c + 1) * views;
-                if status[range.clone()].iter().any(|&s| s != 0) {
+                if status[c] != 0 {
                     return None;
                 }
-                let (aa, ab) = sums[range]
-                    .iter()
-                    .fold((0.0, 0.0), |(aa, ab), s| (aa + s[0], ab + s[1]));
+                let [aa, ab, ..] = sums[c];
                 // least_squares_air_distance's test and solution, as the first camera's air layer.
                 (aa > 1e-18 * corners as f64).then(|| -ab / aa - offsets[c])
             })

@@ -17,6 +17,9 @@ use crate::model::{Ports, Rig};
 pub(super) struct Buffers {
     pub(super) uniform: Slot,
     pub(super) candidates: Slot,
+    /// The per-(candidate, view) items and their statuses, which stay on the device.
+    pub(super) items: Slot,
+    pub(super) item_status: Slot,
     pub(super) output: SlotPair,
     pub(super) status: SlotPair,
 }

@@ -1,6 +1,8 @@
 //! The triangulating calibration costs reduced on the device
 //! (`shaders/calib/scene_fit.wgsl`): candidate interfaces × views, four numbers per pair
-//! (a view's gap-line sums, or its rigid board fit's sum of squares) instead of a row per corner.
+//! (a view's gap-line sums, or its rigid board fit's sum of squares) instead of a row per corner,
+//! added over the views on the device (`shaders/calib/view_sum.wgsl`): four numbers per candidate
+//! come back.
 //! Indexing, chunking and buffers only; the geometry is in the kernel and its CPU twin
 //! [`crate::calib::costs::scene`].
 
@@ -59,11 +61,6 @@ impl SceneFitInput {
         }
     }
 
-    /// Number of views.
-    pub fn views(&self) -> usize {
-        self.rows.views()
-    }
-
     /// The rows as kept on the device.
     pub fn resident(&self) -> &ViewRows {
         &self.rows
@@ -71,16 +68,16 @@ impl SceneFitInput {
 }
 
 impl KernelRunner {
-    /// The sums `what` of every view of `input` under every candidate interface (n unit, d: the
+    /// The sums `what` over the views of `input` under every candidate interface (n unit, d: the
     /// plane n·x = d of the master frame; behind a port per camera it moves the port of
-    /// `cameras[0]` and `cameras[1]` keeps its own), in the engine's precision: `sums[c · views + v]` gets view v under
-    /// candidate c; `status` is 0 or the [`NoSolution`](crate::model::NoSolution) code of the
-    /// first corner without an answer (2 where the candidate puts a camera outside the air, 6
-    /// for a view whose corners are collinear or a corner whose water rays are parallel), the
-    /// sums NaN where not 0. The input is uploaded at the first call and kept on the device for
-    /// the later ones.
+    /// `cameras[0]` and `cameras[1]` keeps its own), in the engine's precision, added over the
+    /// views on the device in view order: `sums[c]` gets candidate c's; `status[c]` is 0 or the
+    /// [`NoSolution`](crate::model::NoSolution) code of the first view with a corner without an
+    /// answer (2 where the candidate puts a camera outside the air, 6 for a view whose corners
+    /// are collinear or a corner whose water rays are parallel), the sums NaN where not 0. The
+    /// input is uploaded at the first call and kept on the device for the later ones.
     ///
-    /// Panics if `sums` and `status` are not `candidates.len() · views` long.
+    /// Panics if `sums` and `status` are not `candidates.len()` long.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn scene_fit(
         &self,
@@ -102,17 +99,17 @@ impl KernelRunner {
         if what != SceneSum::Reprojection {
             return Ok(());
         }
-        // The candidates with a view the fast kernel left unsettled, summed again by the
-        // safeguarded one (every view of them: a whole candidate is one batch row).
-        let views = input.views();
+        // The candidates with a view the fast kernel left unsettled (their combined status is
+        // STATUS_RETRY whatever their other views gave), summed again by the safeguarded one
+        // (every view of them: a whole candidate is one batch row).
         let unsettled: Vec<usize> = (0..candidates.len())
-            .filter(|&c| status[c * views..(c + 1) * views].contains(&STATUS_RETRY))
+            .filter(|&c| status[c] == STATUS_RETRY)
             .collect();
         if unsettled.is_empty() {
             return Ok(());
         }
         let again: Vec<[f64; 4]> = unsettled.iter().map(|&c| candidates[c]).collect();
-        let mut again_sums = vec![[0.0; 4]; again.len() * views];
+        let mut again_sums = vec![[0.0; 4]; again.len()];
         let mut again_status = vec![0; again_sums.len()];
         let job = ViewKernel {
             kernel: &kernels::SCENE_REPROJECTION_SAFEGUARDED,
@@ -129,9 +126,8 @@ impl KernelRunner {
             &mut again_status,
         )?;
         for (k, &c) in unsettled.iter().enumerate() {
-            let (to, from) = (c * views..(c + 1) * views, k * views..(k + 1) * views);
-            sums[to.clone()].copy_from_slice(&again_sums[from.clone()]);
-            status[to].copy_from_slice(&again_status[from]);
+            sums[c] = again_sums[k];
+            status[c] = again_status[k];
         }
         Ok(())
     }

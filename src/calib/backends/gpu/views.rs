@@ -1,11 +1,14 @@
 //! The skeleton the per-(candidate, view) kernels share (the fused affine grid and the scene
 //! fit): one item per (candidate, view), M reals out each, the corner rows resident on the device
-//! ([`ViewRows`]), chunked over candidates and views. Indexing, chunking and buffers only.
+//! ([`ViewRows`]), chunked over candidates and views, the items summed over views on the device
+//! (`calib_view_sum`) so that one row per candidate comes back. Indexing, chunking and buffers
+//! only.
 
 use std::num::NonZeroU64;
 use std::ops::Range;
 use std::sync::OnceLock;
 
+use super::kernels;
 use super::runner::{KernelRunner, candidate_params};
 use crate::engine::GpuEngine;
 use crate::gpu::ResidentRows;
@@ -195,8 +198,8 @@ impl ViewRows {
     }
 }
 
-/// Fewest items per dispatch, on average over the windows, for which a call reads its rows from
-/// uniform windows: a dispatch costs lavapipe about 50 µs besides its items, and a few workgroups
+/// Fewest items per dispatch, on average over the windows, for which a call on a software adapter
+/// reads its rows from uniform windows: a dispatch costs lavapipe about 50 µs besides its items, and a few workgroups
 /// leave some of its threads idle (7-candidate stencil calls over 185 views ran at 8.6 ms in
 /// windows, 5.4 ms in one storage block; machine A). 64 workgroups of 54-corner views gain far
 /// more than that from the faster loads.
@@ -222,17 +225,33 @@ struct Piece {
     views: Range<usize>,
 }
 
+/// Most (candidate, view) items of one submission, in items of one chunk's binding: the chunks
+/// of a call go to the device in one submission (one read-back) up to this many bindings' worth,
+/// so that a software adapter still answers a huge call well within the context's wait limit
+/// (16 M items of the 185-view scene's affine grid take lavapipe about 10 s).
+const ROUND_CHUNK_ITEMS: usize = 4;
+
 impl KernelRunner {
-    /// Runs `job` over every (candidate, view): `output[c · views + v]` and `status[c · views +
-    /// v]` get the kernel's item for candidate c and view v, the row NaN where the status is not
-    /// 0. A chunk holds `per_view` candidates for each of its views, view-major: every candidate
+    /// Runs `job` over every (candidate, view) and sums over the views on the device:
+    /// `output[c]` gets the sums over views 0, 1, … (in that order and in f64, as an f64 fold on
+    /// the host would add them; f32 items in f32 with Neumaier's compensation where the adapter
+    /// has no SHADER_F64) of the kernel's M reals for
+    /// candidate c, and `status[c]` combines the views' statuses: 0 where every view's is 0,
+    /// [`STATUS_RETRY`](crate::gpu::compose::STATUS_RETRY) where any view's is, else the first
+    /// non-zero one in view order; the row NaN where the status is not 0. Without views the sums
+    /// are 0 and the status 0.
+    ///
+    /// A chunk holds `per_view` candidates for each of its views, view-major: every candidate
     /// where they fit one chunk (a stencil's few candidates cost a few items per view, not a
     /// workgroup), else a multiple of the workgroup size, so that each workgroup's items share
     /// one view, the last chunk padded with its last candidate. The views are dispatched block by
-    /// block of [`ViewRows`] (one dispatch per uniform window), as many dispatches per
-    /// submission and read-back as the output binding holds.
+    /// block of [`ViewRows`] (one dispatch per uniform window), as many views per batch as the
+    /// items' binding holds, each batch followed by the view-sum kernel (`calib_view_sum`),
+    /// which adds the batch to the chunk's sums on the device. Every chunk and batch of a call
+    /// is one submission and one read-back of M reals and a status per candidate (up to
+    /// [`ROUND_CHUNK_ITEMS`] chunks' items a submission).
     ///
-    /// Panics if `output` and `status` are not `candidates.len() · views` long.
+    /// Panics if `output` and `status` are not `candidates.len()` long.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn run_views<const M: usize>(
         &self,
@@ -244,12 +263,18 @@ impl KernelRunner {
         output: &mut [[f64; M]],
         status: &mut [u32],
     ) -> Result<(), GpuError> {
+        assert!(M <= 4, "at most 4 reals per item");
         let view_count = job.input.views();
         assert!(
-            output.len() == candidates.len() * view_count && status.len() == output.len(),
-            "output and status of candidates · views"
+            output.len() == candidates.len() && status.len() == output.len(),
+            "output and status of every candidate"
         );
         if output.is_empty() {
+            return Ok(());
+        }
+        if view_count == 0 {
+            output.fill([0.0; M]);
+            status.fill(0);
             return Ok(());
         }
         let precision = job.precision;
@@ -264,14 +289,17 @@ impl KernelRunner {
         } else {
             fit
         };
+        // Uniform windows are lavapipe's gather (one dispatch each, a barrier between them); a
+        // hardware GPU reads one storage block in one dispatch over every view of a batch.
         let windows = context.adapter().max_uniform_binding >= UNIFORM_WINDOW_BYTES as u64
             && match self.rows {
                 Some(rows) => rows == Rows::Uniform,
-                None => {
+                None if context.is_software() => {
                     let windowed = job.input.packed(precision, true);
                     windowed.rows == Rows::Uniform
                         && large_enough_for_windows(per_view, view_count, windowed.blocks.len())
                 }
+                None => false,
             };
         let packed = job.input.packed(precision, windows);
         let cap = context.max_storage_binding();
@@ -282,7 +310,7 @@ impl KernelRunner {
             )));
         }
         // Each block cut into dispatches of at most `views_per_chunk` views, and the dispatches
-        // into submissions of at most `views_per_chunk` views together.
+        // into batches of at most `views_per_chunk` views together.
         let mut pieces = Vec::new();
         for (k, block) in packed.blocks.iter().enumerate() {
             for start in block.views.clone().step_by(views_per_chunk) {
@@ -307,120 +335,195 @@ impl KernelRunner {
                 }
             }
         }
-        let most_pieces = batches.iter().map(|b| b.len()).max().unwrap_or(1);
+        let chunks = candidates.len().div_ceil(per_view);
+        let round_chunks =
+            (ROUND_CHUNK_ITEMS * capacity / (per_view * view_count)).clamp(1, chunks);
 
         let pipeline =
             context.kernel_pipeline(job.kernel, precision, packed.rows, params.layers())?;
         let dispatch = Dispatch::new(context, &pipeline, job.kernel.name);
+        // The sums in f64 wherever the adapter has it (f32 items too: the host's f64 sums).
+        let (sum_kernel, sum_precision) = match precision {
+            Precision::F64 => (&kernels::VIEW_SUM, Precision::F64),
+            Precision::F32 if context.adapter().f64 => {
+                (&kernels::VIEW_SUM_F32_ITEMS, Precision::F64)
+            }
+            Precision::F32 => (&kernels::VIEW_SUM_F32, Precision::F32),
+        };
+        let sum_real = sum_precision.size();
+        let sum_pipeline =
+            context.kernel_pipeline(sum_kernel, sum_precision, Rows::Storage, params.layers())?;
+        let summing = Dispatch::new(context, &sum_pipeline, sum_kernel.name);
         let rows_buf = packed.resident.on_device(context, precision)?;
-        // One uniform slot per dispatch of a submission, each at an aligned offset.
+
+        // The uniform: a slot per piece (the kernel's), then one per batch (the view sum's), each
+        // at an aligned offset; the same for every chunk.
+        // The view sum's Params are of its own precision (f64 sums of an f32 kernel's items).
+        let mut sum_params = candidate_params(sum_precision, rig, cameras)?;
         let params_bytes = params.bytes().len();
-        let stride = params_bytes.next_multiple_of(UNIFORM_ALIGNMENT);
+        let sum_params_bytes = sum_params.bytes().len();
+        let stride = params_bytes
+            .max(sum_params_bytes)
+            .next_multiple_of(UNIFORM_ALIGNMENT);
+        let sum_base = pieces.len() * stride;
+        let mut slots = vec![0u8; sum_base + batches.len() * stride];
+        for batch in &batches {
+            // Item base of each piece within its batch.
+            let mut count = 0;
+            for k in batch.clone() {
+                let piece = &pieces[k];
+                let block = &packed.blocks[piece.block];
+                let n = per_view * piece.views.len();
+                params.set_info([
+                    n as u32,
+                    per_view as u32,
+                    count as u32,
+                    (piece.views.start - block.views.start) as u32,
+                ]);
+                slots[k * stride..k * stride + params_bytes].copy_from_slice(params.bytes());
+                count += n;
+            }
+        }
+        for (b, batch) in batches.iter().enumerate() {
+            let views: usize = pieces[batch.clone()].iter().map(|p| p.views.len()).sum();
+            // The view sum's (calib_view_sum): candidates, views, adding, reals per item.
+            sum_params.set_info([per_view as u32, views as u32, u32::from(b > 0), M as u32]);
+            let at = sum_base + b * stride;
+            slots[at..at + sum_params_bytes].copy_from_slice(sum_params.bytes());
+        }
+
         let mut guard = self.buffers();
         let buffers = &mut *guard;
-        let uniform_buf = buffers.uniform.uniform(context, most_pieces * stride)?;
+        let uniform_buf = buffers.uniform.uniform(context, slots.len())?;
+        context.queue().write_buffer(&uniform_buf, 0, &slots);
+        let round_candidates = round_chunks * per_view;
         let cand_buf = buffers
             .candidates
             .get(
                 context,
                 "candidates",
-                per_view * 4 * real,
+                round_candidates * 4 * real,
                 input_usage(context),
             )?
             .clone();
         let items = per_view * views_per_chunk;
-        let (out_buf, out_staging) =
+        let storage = wgpu::BufferUsages::STORAGE;
+        let items_buf = buffers
+            .items
+            .get(context, "view items", items * M * real, storage)?
+            .clone();
+        let item_status_buf = buffers
+            .item_status
+            .get(context, "view item status", items * 4, storage)?
+            .clone();
+        let (sums_buf, sums_staging) =
             buffers
                 .output
-                .readable(context, "output", items * M * real)?;
-        let (status_buf, status_staging) = buffers.status.readable(context, "status", items * 4)?;
-        // The pieces in order, each reading the uniform slot of its place in its submission.
-        let slots_in_order = batches.iter().flat_map(|batch| 0..batch.len());
-        let bind_groups: Vec<wgpu::BindGroup> = pieces
-            .iter()
-            .zip(slots_in_order)
-            .map(|(piece, slot)| {
+                .readable(context, "view sums", round_candidates * M * sum_real)?;
+        let (codes_buf, codes_staging) =
+            buffers
+                .status
+                .readable(context, "view sum status", round_candidates * 4)?;
+        let range = |buffer, offset: usize, bytes: usize| {
+            wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer,
+                offset: offset as u64,
+                size: NonZeroU64::new(bytes as u64),
+            })
+        };
+        // Per chunk of a round: the kernel's bind group per piece (its slot, its block, the
+        // chunk's candidates), the view sum's per batch (its slot, the chunk's sums).
+        let mut kernel_groups = Vec::with_capacity(round_chunks * pieces.len());
+        let mut sum_groups = Vec::with_capacity(round_chunks * batches.len());
+        for chunk in 0..round_chunks {
+            let candidate_bytes = per_view * 4 * real;
+            for (k, piece) in pieces.iter().enumerate() {
                 let block = &packed.blocks[piece.block];
-                let range = |buffer, offset: u64, bytes: u64| {
-                    wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                        buffer,
-                        offset,
-                        size: NonZeroU64::new(bytes),
-                    })
-                };
-                dispatch.bind_resources([
+                kernel_groups.push(dispatch.bind_resources([
+                    (0, range(&uniform_buf, k * stride, params_bytes)),
+                    (
+                        1,
+                        range(&rows_buf, block.offset as usize, block.bytes as usize),
+                    ),
+                    (2, items_buf.as_entire_binding()),
+                    (3, item_status_buf.as_entire_binding()),
+                    (
+                        4,
+                        range(&cand_buf, chunk * candidate_bytes, candidate_bytes),
+                    ),
+                ]));
+            }
+            for b in 0..batches.len() {
+                sum_groups.push(summing.bind_resources([
                     (
                         0,
-                        range(&uniform_buf, (slot * stride) as u64, params_bytes as u64),
+                        range(&uniform_buf, sum_base + b * stride, sum_params_bytes),
                     ),
-                    (1, range(&rows_buf, block.offset, block.bytes)),
-                    (2, out_buf.as_entire_binding()),
-                    (3, status_buf.as_entire_binding()),
-                    (4, cand_buf.as_entire_binding()),
-                ])
-            })
-            .collect();
+                    (1, items_buf.as_entire_binding()),
+                    (2, item_status_buf.as_entire_binding()),
+                    (
+                        3,
+                        range(
+                            &sums_buf,
+                            chunk * per_view * M * sum_real,
+                            per_view * M * sum_real,
+                        ),
+                    ),
+                    (4, range(&codes_buf, chunk * per_view * 4, per_view * 4)),
+                ]));
+            }
+        }
 
-        let mut chunk = vec![[0.0; 4]; per_view];
-        let mut values = vec![[0.0; M]; items];
-        let mut codes = vec![0u32; items];
-        let mut slots = vec![0u8; most_pieces * stride];
-        for first in (0..candidates.len()).step_by(per_view) {
-            let last = (first + per_view).min(candidates.len());
-            // Pad the last of several chunks with its last candidate: every workgroup then
-            // shares one view.
-            for (k, slot) in chunk.iter_mut().enumerate() {
+        let mut padded = vec![[0.0; 4]; round_candidates];
+        let mut values = vec![[0.0; M]; round_candidates];
+        let mut codes = vec![0u32; round_candidates];
+        for first in (0..candidates.len()).step_by(round_candidates) {
+            let last = (first + round_candidates).min(candidates.len());
+            let used = (last - first).div_ceil(per_view);
+            // Pad the last chunk with its last candidate: every workgroup then shares one view.
+            for (k, slot) in padded[..used * per_view].iter_mut().enumerate() {
                 *slot = candidates[(first + k).min(last - 1)];
             }
-            upload_reals(context, precision, &cand_buf, chunk.as_flattened())?;
-            for batch in &batches {
-                // Item base of each piece within the submission.
-                let mut bases = Vec::with_capacity(batch.len());
-                let mut count = 0;
-                for (slot, piece) in pieces[batch.clone()].iter().enumerate() {
-                    let block = &packed.blocks[piece.block];
-                    let n = per_view * piece.views.len();
-                    params.set_info([
-                        n as u32,
-                        per_view as u32,
-                        count as u32,
-                        (piece.views.start - block.views.start) as u32,
-                    ]);
-                    slots[slot * stride..slot * stride + params_bytes]
-                        .copy_from_slice(params.bytes());
-                    bases.push(count);
-                    count += n;
-                }
-                context
-                    .queue()
-                    .write_buffer(&uniform_buf, 0, &slots[..batch.len() * stride]);
-                let dispatches: Vec<_> = batch
-                    .clone()
-                    .map(|k| {
-                        let n = per_view * pieces[k].views.len();
-                        (&bind_groups[k], dispatch.grid(n))
-                    })
-                    .collect();
-                let copies = [
-                    (&out_buf, &out_staging, (count * M * real) as u64),
-                    (&status_buf, &status_staging, (count * 4) as u64),
-                ];
-                let (values, codes) = (&mut values[..count], &mut codes[..count]);
-                dispatch.run(&dispatches, &copies, |data| {
-                    codes.copy_from_slice(bytemuck::cast_slice(data[1]));
-                    rows_from(data[0], precision, codes, values);
-                })?;
-                for (piece, base) in pieces[batch.clone()].iter().zip(bases) {
-                    for v in piece.views.clone() {
-                        for c in first..last {
-                            let item = base + (v - piece.views.start) * per_view + (c - first);
-                            let out = c * view_count + v;
-                            status[out] = codes[item];
-                            output[out] = values[item];
+            upload_reals(
+                context,
+                precision,
+                &cand_buf,
+                padded[..used * per_view].as_flattened(),
+            )?;
+            let mut encoder = dispatch.encoder();
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some(job.kernel.name),
+                    timestamp_writes: None,
+                });
+                for chunk in 0..used {
+                    for (b, batch) in batches.iter().enumerate() {
+                        pass.set_pipeline(&pipeline);
+                        for k in batch.clone() {
+                            let n = per_view * pieces[k].views.len();
+                            let (x, y) = dispatch.grid(n);
+                            pass.set_bind_group(0, &kernel_groups[chunk * pieces.len() + k], &[]);
+                            pass.dispatch_workgroups(x, y, 1);
                         }
+                        pass.set_pipeline(&sum_pipeline);
+                        let (x, y) = summing.grid(per_view);
+                        pass.set_bind_group(0, &sum_groups[chunk * batches.len() + b], &[]);
+                        pass.dispatch_workgroups(x, y, 1);
                     }
                 }
             }
+            let n = last - first;
+            let copies = [
+                (&sums_buf, &sums_staging, (n * M * sum_real) as u64),
+                (&codes_buf, &codes_staging, (n * 4) as u64),
+            ];
+            let (values, codes) = (&mut values[..n], &mut codes[..n]);
+            context.read_back(encoder, &copies, |data| {
+                codes.copy_from_slice(bytemuck::cast_slice(data[1]));
+                rows_from(data[0], sum_precision, codes, values);
+            })?;
+            output[first..last].copy_from_slice(values);
+            status[first..last].copy_from_slice(codes);
         }
         Ok(())
     }
