@@ -27,7 +27,7 @@ const ROW: u32 = 36u;
 const TAPER: real = 2.0;
 const MIN_DENOMINATOR: real = 1e-12;
 const MIN_CORNERS: u32 = 4u;
-const CANCELLATION: real = 1e-4;
+const CANCELLATION: real = 1e-5;
 const MIN_REFERENCE_TAPER: real = 0.5;
 
 // Π(w): w projected along t onto the plane z = 0.
@@ -287,8 +287,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     let y5 = (r2.z - l50 * y0 - l51 * y1 - l52 * y2 - l53 * y3 - l54 * y4) * inv5;
     let explained = y0 * y0 + y1 * y1 + y2 * y2 + y3 * y3 + y4 * y4 + y5 * y5;
     var chi2 = max(qwq - explained, 0.0);
-    if (chi2 < CANCELLATION * qwq) {
-        // The subtraction lost over half the digits: sum Σ rᵀWr again with θ = L⁻ᵀ y.
+    // The fit's conditioning: max Aₖₖ / Lₖₖ² over the pivots (Fit::conditioning of the twin).
+    let conditioning = max(max(max(1.0, s11_b.x / d1), max(s11_b.z / d2, s22_a.x / d3)),
+                           max(s22_b.x / d4, s22_b.z / d5));
+    if (chi2 < CANCELLATION * conditioning * qwq) {
+        // The one pass may have lost more than 5e-10 (cancellation κ̃ times the factor's
+        // conditioning): sum Σ rᵀWr again with θ = L⁻ᵀ y.
         let th5 = (y5) * inv5;
         let th4 = (y4 - l54 * th5) * inv4;
         let th3 = (y3 - l43 * th4 - l53 * th5) * inv3;

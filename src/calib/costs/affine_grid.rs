@@ -40,8 +40,10 @@
 //! the error is κ̃·m·u ≈ 1e-12.
 //! What is left is the rounding of q itself, u·|q|, in a residual |q̃|: a relative error of
 //! 2u·|q|/|q̃| ≈ 2u·√κ in χ², the conditioning of the problem, not of the formula. Where the
-//! subtraction still cancels (κ̃ above 1/[`CANCELLATION`]: noise-free data at the truth) χ² is
-//! summed again from the residuals. This runs in f64 on every backend.
+//! subtraction still cancels, or the normal matrix is ill-conditioned (κ̃ times the factor's
+//! conditioning above 1/[`CANCELLATION`]: noise-free data at the truth, or a corner near the
+//! degenerate plane that outweighs the others), χ² is summed again from the residuals. This
+//! runs in f64 on every backend.
 
 // Indexed loops over the small fixed-size sums and the 6×6 factor mirror the kernel's.
 #![allow(clippy::needless_range_loop)]
@@ -164,14 +166,18 @@ fn reference_order(grid: &[[f64; 2]]) -> Vec<usize> {
     vec![0, far, wide]
 }
 
-/// Below this ratio χ²/Σ q̃ᵀWq̃ the view is summed again from its residuals: the one-pass χ²
-/// has then lost more than 4 of its digits to the subtraction. Its relative error is at most
-/// κ̃·m·u with κ̃ = Σ q̃ᵀWq̃/χ² < 1/CANCELLATION = 1e4 and m ≈ 50 roundings, ≈ 6e-11, so the
-/// costs of two adapters that round differently agree to 1e-10 (DESIGN: 1e-9). With the shift
-/// κ̃ is 1e1–1e3 on noisy data and the second pass is rare (noise-free data near the truth);
-/// unshifted, κ reached 3e7 at 0.01 px of noise. (It was 1e-6 without the shift, which let
-/// one-pass errors of κ·m·u ≈ 1e-8 through.)
-pub const CANCELLATION: f64 = 1e-4;
+/// Below this ratio χ²/(c·Σ q̃ᵀWq̃) the view is summed again from its residuals, c the fit's
+/// conditioning (`Fit::conditioning`, ≥ 1). The one-pass χ² has a relative error up to about
+/// κ̃·c·m·u with κ̃ = Σ q̃ᵀWq̃/χ² and m ≈ 50 roundings: below 1/CANCELLATION = 1e5 that is
+/// ≤ 5.5e-10 (DESIGN: 1e-9). κ̃ is the subtraction's cancellation (1e1–1e3 with the shift on
+/// noisy data; 3e7 unshifted at 0.01 px); c is the normal matrix's: a corner near the degenerate
+/// plane can weigh 1e9 times the others (W nearly rank one), c reaches 1e6 and the one pass
+/// missed by up to 6.6e-7 (185-view scene, axes far from the truth) although κ̃ was only ~1e3.
+/// The second pass, Σ rᵀWr at the one-pass map, is stationary in the map and agrees with a
+/// 60-digit solution of the same inputs to ≤ 5e-11 there. About 7 % of the views of a sweep
+/// over tilt 0–20° take it. (It was 1e-4 on κ̃ alone, which let those views through; 1e-6
+/// without the shift.)
+pub const CANCELLATION: f64 = 1e-5;
 
 /// Least taper of a reference corner: one with less (its VOP within κ noise standard deviations
 /// of the degenerate plane, its position unreliable) leaves the shift at zero. Mirrored in
@@ -367,9 +373,23 @@ fn accumulate(sums: &mut ViewSums, c: &CornerTerms, shift: &Reference) {
     sums.used += 1;
 }
 
-/// The one-pass fit of one view: (χ², dof, θ = (a₁₁, a₁₂, b₁, a₂₁, a₂₂, b₂)); `None` with fewer
-/// than 4 weighted corners or a normal matrix that is not positive definite.
-fn solve(sums: &ViewSums) -> Option<(f64, f64, [f64; 6])> {
+/// The one-pass fit of one view.
+struct Fit {
+    /// Σ q̃ᵀWq̃ − |L⁻¹ rhs|².
+    chi2: f64,
+    /// Degrees of freedom: 2 Σ tapers − 6.
+    dof: f64,
+    /// The map θ = (a₁₁, a₁₂, b₁, a₂₁, a₂₂, b₂).
+    theta: [f64; 6],
+    /// max over the factor's pivots of Aₖₖ / Lₖₖ²: how much of a parameter the others before it
+    /// explain; a lower bound on the condition number of the diagonally scaled normal matrix
+    /// (1 for orthogonal parameters), which scales the rounding of |L⁻¹ rhs|².
+    conditioning: f64,
+}
+
+/// The one-pass fit of one view; `None` with fewer than 4 weighted corners or a normal matrix
+/// that is not positive definite.
+fn solve(sums: &ViewSums) -> Option<Fit> {
     solve_with(sums, |x| 1.0 / x, f64::sqrt)
 }
 
@@ -379,7 +399,7 @@ fn solve_with(
     sums: &ViewSums,
     recip: impl Fn(f64) -> f64,
     sqrt: impl Fn(f64) -> f64,
-) -> Option<(f64, f64, [f64; 6])> {
+) -> Option<Fit> {
     if sums.used < MIN_CORNERS {
         return None;
     }
@@ -401,6 +421,7 @@ fn solve_with(
     // Cholesky a = L Lᵀ in place (lower triangle), then y = L⁻¹ rhs; multiplications by 1/Lₖₖ
     // as in the kernel, so the two round alike.
     let mut inverse = [0.0; 6];
+    let mut conditioning: f64 = 1.0;
     for k in 0..6 {
         let mut diagonal = a[k][k];
         for m in 0..k {
@@ -409,6 +430,7 @@ fn solve_with(
         if !(diagonal > 0.0) {
             return None;
         }
+        conditioning = conditioning.max(a[k][k] / diagonal);
         a[k][k] = sqrt(diagonal);
         inverse[k] = recip(a[k][k]);
         for r in k + 1..6 {
@@ -438,11 +460,12 @@ fn solve_with(
         }
         theta[r] = value * inverse[r];
     }
-    Some((
-        (sums.qwq - explained).max(0.0),
-        2.0 * sums.weight - 6.0,
+    Some(Fit {
+        chi2: (sums.qwq - explained).max(0.0),
+        dof: 2.0 * sums.weight - 6.0,
         theta,
-    ))
+        conditioning,
+    })
 }
 
 /// Σ rᵀWr of one corner under the fitted map θ of the shifted positions (the exact second
@@ -485,15 +508,16 @@ fn view_chi2_shifted(
             accumulate(&mut sums, &c, shift);
         }
     }
-    let (mut chi2, dof, theta) = solve(&sums)?;
-    if chi2 < CANCELLATION * sums.qwq {
+    let fit = solve(&sums)?;
+    let mut chi2 = fit.chi2;
+    if chi2 < CANCELLATION * fit.conditioning * sums.qwq {
         chi2 = rows
             .iter()
             .filter_map(|row| corner_terms(row, t, kappa))
-            .map(|c| residual_term(&c, shift, &theta))
+            .map(|c| residual_term(&c, shift, &fit.theta))
             .sum();
     }
-    Some((chi2, dof))
+    Some((chi2, fit.dof))
 }
 
 /// The affine-grid cost Σχ² / Σdof of all views of `data` under `normal`, from the corners' rows
@@ -619,6 +643,69 @@ mod tests {
         sum + compensation
     }
 
+    /// Views whose normal matrix is ill-conditioned (a corner near the degenerate plane weighing
+    /// ~1e9 times the others) lose digits in the one pass although κ̃ is small: over a grid of
+    /// axes of a 185-view scene some miss the refined fit by more than 1e-8 (so the test can
+    /// fail: the former rule, on κ̃ alone, kept them), and `view_chi2` must meet DESIGN's 1e-9 on
+    /// every view. Where κ̃·c exceeds 1e10 the refined fit is itself off by up to ~1e-8 against a
+    /// 60-digit solution of the same inputs (docs/accuracy.md), so those views are left out.
+    #[test]
+    fn ill_conditioned_views_are_summed_from_their_residuals() {
+        let rig = crate::io::rig_from_json_str(
+            include_str!("../../../data/example_rig.json"),
+            "example".as_ref(),
+        )
+        .unwrap();
+        let board = Target::Board(Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        });
+        let scene = simulate(&rig, &SceneSpec::pair(board, 185, 0.3, 7, 0, 1)).unwrap();
+        let data = StereoData::from_observations(&rig, [0, 1], &scene.observations).unwrap();
+        let rows = affine_rows(&data);
+        let (mut one_pass_worst, mut worst, mut checked) = (0.0f64, 0.0f64, 0);
+        for i in 0..16 {
+            for j in 0..16 {
+                let (tilt, azimuth) = (20.0 * i as f64 / 15.0, -180.0 + 360.0 * j as f64 / 15.0);
+                let n = normal_from_tilt_azimuth(f64::to_radians(tilt), f64::to_radians(azimuth));
+                let t = [n.x / n.z, n.y / n.z, 1.0];
+                for range in &data.views {
+                    let view = &rows[range.clone()];
+                    let shift = Reference::through_first_corners(view, &t, TAPER);
+                    let mut sums = ViewSums::default();
+                    for c in view.iter().filter_map(|row| corner_terms(row, &t, TAPER)) {
+                        accumulate(&mut sums, &c, &shift);
+                    }
+                    let Some(fit) = solve(&sums) else { continue };
+                    if !(sums.qwq * fit.conditioning < 1e10 * fit.chi2) {
+                        continue;
+                    }
+                    let oracle = refined_chi2(view, &t, TAPER);
+                    let relative = |x: f64| (x - oracle).abs() / oracle;
+                    if sums.qwq < 1e4 * fit.chi2 {
+                        one_pass_worst = one_pass_worst.max(relative(fit.chi2));
+                    }
+                    let (chi2, _) = view_chi2(view, &[n.x, n.y, n.z]).unwrap();
+                    worst = worst.max(relative(chi2));
+                    checked += 1;
+                    assert!(
+                        relative(chi2) < 1e-9,
+                        "tilt {tilt:.2} azimuth {azimuth:.1} view {range:?}: {chi2} vs {oracle}"
+                    );
+                }
+            }
+        }
+        println!(
+            "{checked} views: one pass where κ̃ < 1e4 up to {one_pass_worst:.1e}, view_chi2 up to \
+             {worst:.1e} against the refined fit"
+        );
+        assert!(
+            one_pass_worst > 1e-8,
+            "no ill-conditioned view found (one pass within {one_pass_worst:.1e})"
+        );
+    }
+
     /// x with the last 9 of its 52 fraction bits cleared: within 2⁻⁴³ ≈ 1.1e-13 relative, an
     /// f64 reciprocal or square root as a driver may approximate it (a hardware estimate and one
     /// Newton step short of the correctly rounded value).
@@ -639,7 +726,7 @@ mod tests {
         for c in view.iter().filter_map(|row| corner_terms(row, t, TAPER)) {
             accumulate(&mut sums, &c, shift);
         }
-        let (chi2, _, _) = solve_with(&sums, recip, sqrt).unwrap();
+        let chi2 = solve_with(&sums, recip, sqrt).unwrap().chi2;
         (chi2, sums.qwq / chi2)
     }
 
@@ -654,10 +741,14 @@ mod tests {
     /// error δ in one of them scales a component of L⁻¹·rhs and so |L⁻¹ rhs|² by up to 2δ·Σ q̃ᵀWq̃,
     /// that is χ² by 2δκ. With δ = 2⁻⁴³ ([`driver_rounded`]) and κ up to 1e6 that is ~1e-7, what
     /// an H200 showed (4.4e-8): this test must see the unshifted one pass miss DESIGN's 1e-9 under
-    /// such a driver (so it can fail), the shifted one meet it where the cost keeps its one pass
-    /// (κ̃ < 1/[`CANCELLATION`]: 2δκ̃ ≤ 2.3e-9 at the limit; measured 7e-10), and, once each
-    /// approximate value gets the kernel's Newton correction (`recip_exact`, `sqrt_exact` in
-    /// shaders/lib/exact.wgsl), within 1e-11. The cost's own path (IEEE) within 1e-11 too.
+    /// such a driver (so it can fail), the shifted one meet it where κ̃ < 1e4 (2δκ̃ ≤ 2.3e-9 at
+    /// that limit; measured 7e-10), and, once each approximate value gets the kernel's Newton
+    /// correction (`recip_exact`, `sqrt_exact` in shaders/lib/exact.wgsl), within 1e-11 wherever
+    /// the cost keeps its one pass (κ̃·c < 1/[`CANCELLATION`]). The cost's own path (IEEE)
+    /// within 1e-11 too.
+    /// κ̃ below which an uncorrected approximate driver keeps the one pass within 1e-9.
+    const APPROXIMATE_ONE_PASS: f64 = 1e4;
+
     #[test]
     fn the_shift_removes_the_one_pass_cancellation() {
         let rig = crate::io::rig_from_json_str(
@@ -714,11 +805,13 @@ mod tests {
                 let (chi2, kappa) = one_pass(view, &t, &shift, approximate_recip, approximate_sqrt);
                 if kappa < 1.0 / CANCELLATION {
                     most_shifted = most_shifted.max(kappa);
-                    shifted = shifted.max(relative(chi2));
-                    assert!(
-                        relative(chi2) < 1e-9,
-                        "{what}, approximate: {chi2} vs {oracle}"
-                    );
+                    if kappa < APPROXIMATE_ONE_PASS {
+                        shifted = shifted.max(relative(chi2));
+                        assert!(
+                            relative(chi2) < 1e-9,
+                            "{what}, approximate: {chi2} vs {oracle}"
+                        );
+                    }
                     let (chi2, _) = one_pass(view, &t, &shift, corrected_recip, corrected_sqrt);
                     corrected = corrected.max(relative(chi2));
                     assert!(
