@@ -20,7 +20,8 @@ struct Sweep {
     dq: f32,           // inverse-depth step
     min_texture: f32,  // least standard deviation of a matched window
     gradient: f32,     // grey change that halves P2
-    dir: vec2<i32>,    // SGM path direction (dx, dy)
+    paths: u32,        // SGM path directions, 4 or 8 (the first of `SGM_DIRECTIONS`)
+    pad0: u32,
     pad: vec2<u32>,
 }
 

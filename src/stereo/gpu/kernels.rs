@@ -29,7 +29,7 @@ pub static COST: KernelSource = KernelSource::new(
 )
 .in_precision(Precision::F32);
 
-/// Stage 6: SGM along one path direction.
+/// Stage 6: SGM along every path direction, in one dispatch.
 pub static SGM: KernelSource = KernelSource::new(
     "stereo_sgm",
     &[SWEEP, include_str!("../../../shaders/stereo/sgm.wgsl")],

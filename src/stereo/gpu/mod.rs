@@ -60,8 +60,8 @@ pub struct Sweep {
     dq: f32,
     min_texture: f32,
     gradient: f32,
-    dir: [i32; 2],
-    pad: [u32; 2],
+    paths: u32,
+    pad: [u32; 3],
 }
 
 /// What one depth map asks of the device.
@@ -438,33 +438,20 @@ impl GpuStereo {
 
         let cost_seconds = started.elapsed().as_secs_f64();
         let started = std::time::Instant::now();
-        // Stage 6: SGM, one dispatch per direction, then stage 7.
-        let mut directions: Vec<(i32, i32)> = vec![(1, 0), (-1, 0), (0, 1), (0, -1)];
-        if job.paths >= 8 {
-            directions.extend([(1, 1), (-1, 1), (1, -1), (-1, -1)]);
-        }
-        let mut sgm_groups = Vec::with_capacity(directions.len());
-        for &(dx, dy) in &directions {
-            let uniform = self.uniform(&Sweep {
-                dir: [dx, dy],
-                ..base
-            })?;
-            let lines = match (dx, dy) {
-                (_, 0) => h,
-                (0, _) => w,
-                _ => w + h - 1,
-            } as u32;
-            let group = bind(
-                &sgm_p,
-                &[
-                    (1, &uniform),
-                    (3, &buffers.image),
-                    (6, &buffers.cost),
-                    (7, &buffers.sum),
-                ],
-            );
-            sgm_groups.push((group, lines, uniform));
-        }
+        // Stage 6: SGM, every path direction in one dispatch (a row of workgroups per
+        // direction, their L added to the sum atomically), then stage 7.
+        let paths: u32 = if job.paths >= 8 { 8 } else { 4 };
+        let sgm_uniform = self.uniform(&Sweep { paths, ..base })?;
+        let lines = if paths == 8 { w + h - 1 } else { w.max(h) } as u32;
+        let sgm_group = bind(
+            &sgm_p,
+            &[
+                (1, &sgm_uniform),
+                (3, &buffers.image),
+                (6, &buffers.cost),
+                (7, &buffers.sum),
+            ],
+        );
         let select_group = bind(
             &select_p,
             &[
@@ -487,10 +474,8 @@ impl GpuStereo {
                 timestamp_writes: None,
             });
             pass.set_pipeline(&sgm_p);
-            for (group, lines, _) in &sgm_groups {
-                pass.set_bind_group(0, group, &[]);
-                pass.dispatch_workgroups(*lines, 1, 1);
-            }
+            pass.set_bind_group(0, &sgm_group, &[]);
+            pass.dispatch_workgroups(lines, paths, 1);
             pass.set_pipeline(&select_p);
             pass.set_bind_group(0, &select_group, &[]);
             pass.dispatch_workgroups(groups_x, h as u32, 1);
