@@ -21,7 +21,7 @@ struct Sweep {
     min_texture: f32,  // least standard deviation of a matched window
     gradient: f32,     // grey change that halves P2
     paths: u32,        // SGM path directions, 4 or 8 (the first of `SGM_DIRECTIONS`)
-    pad0: u32,
+    strip: u32,        // rows one invocation of the ZNCC kernel walks
     pad: vec2<u32>,
 }
 
@@ -38,5 +38,8 @@ const NO_VOTE: u32 = 2048u;
 const NO_SAMPLE: f32 = -1e30;
 // ZNCC without a vote.
 const NO_ZNCC: f32 = 8.0;
+// A warped window's spread ΣW² − (ΣW)²/n below this fraction of ΣW² is within the f32 sums'
+// rounding (about (2·(strip + 2r) + 2r + 1)·u ≤ 4e-6 for r ≤ 15): flat, ZNCC 0.
+const ZNCC_FLAT: f32 = 1e-5;
 // The most voting cameras of one depth map.
 const MAX_VOTERS: u32 = 8u;

@@ -22,7 +22,14 @@ pub static WARP: KernelSource = KernelSource::new(
 )
 .in_precision(Precision::F32);
 
-/// Stages 4b–5: windowed ZNCC per voter, combined into the cost volume.
+/// Stage 4b: windowed ZNCC per voter, from separable running sums down a strip of rows.
+pub static ZNCC: KernelSource = KernelSource::new(
+    "stereo_zncc",
+    &[SWEEP, include_str!("../../../shaders/stereo/zncc.wgsl")],
+)
+.in_precision(Precision::F32);
+
+/// Stage 5: the voters' ZNCC combined into the cost volume.
 pub static COST: KernelSource = KernelSource::new(
     "stereo_cost",
     &[SWEEP, include_str!("../../../shaders/stereo/cost.wgsl")],
@@ -44,4 +51,4 @@ pub static SELECT: KernelSource = KernelSource::new(
 .in_precision(Precision::F32);
 
 /// Every stereo kernel.
-pub static ALL: [&KernelSource; 5] = [&RAYS, &WARP, &COST, &SGM, &SELECT];
+pub static ALL: [&KernelSource; 6] = [&RAYS, &WARP, &ZNCC, &COST, &SGM, &SELECT];

@@ -9,7 +9,8 @@
 //!
 //! **Precision.** Everything on the device is f32: the rays, the hypothesis points and their
 //! exact projections (f32 Newton, within ~1e-3 px of the f64 reference), the bilinear samples
-//! and the ZNCC sums (direct 7 × 7 sums, shifted by the centre pixel, not running sums). The
+//! and the ZNCC sums (separable running sums down strips of 16 rows, shifted by a pixel of the
+//! strip against cancellation: `shaders/stereo/zncc.wgsl`). The
 //! costs are then rounded to the same u16 units as on the CPU, and SGM and the selection are
 //! integer arithmetic identical to the CPU's; the host turns the refined index into depth and
 //! point in f64 as on the CPU.
@@ -38,6 +39,9 @@ pub const MAX_VOTERS: usize = 8;
 pub const MAX_HYPOTHESES: usize = 1024;
 /// Most hypotheses of one warp chunk: bounds the warped samples' buffer.
 const MAX_CHUNK: usize = 32;
+/// Rows one invocation of the ZNCC kernel walks down its column (`Sweep::strip`): its running
+/// sums' rounding grows with the walk, the rows it reads twice (entering and leaving) shrink.
+const ZNCC_STRIP: u32 = 16;
 
 /// The stereo kernels' uniform; mirrors `struct Sweep` in `shaders/stereo/sweep.wgsl`, keep in
 /// sync (80 bytes; a test checks with naga's layouter).
@@ -61,7 +65,8 @@ pub struct Sweep {
     min_texture: f32,
     gradient: f32,
     paths: u32,
-    pad: [u32; 3],
+    strip: u32,
+    pad: [u32; 2],
 }
 
 /// What one depth map asks of the device.
@@ -89,6 +94,7 @@ struct Buffers {
     rays: wgpu::Buffer,
     image: wgpu::Buffer,
     warped: wgpu::Buffer,
+    zncc: wgpu::Buffer,
     cost: wgpu::Buffer,
     sum: wgpu::Buffer,
     winners: wgpu::Buffer,
@@ -253,6 +259,11 @@ impl GpuStereo {
                     (plane * chunk * voters.len()) as u64,
                     false,
                 )?,
+                zncc: self.storage(
+                    "stereo ZNCC per voter",
+                    (plane * chunk * voters.len()) as u64,
+                    false,
+                )?,
                 cost: self.storage("stereo cost volume", volume, false)?,
                 sum: self.storage("stereo aggregated costs", volume, false)?,
                 winners: self.storage("stereo winners", (w * h * 12) as u64, true)?,
@@ -289,6 +300,7 @@ impl GpuStereo {
             dq: job.dq as f32,
             min_texture: job.min_texture as f32,
             gradient: job.gradient,
+            strip: ZNCC_STRIP,
             ..Sweep::default()
         };
         let layers = job
@@ -302,9 +314,10 @@ impl GpuStereo {
                 .kernel_pipeline(kernel, Precision::F32, Rows::Storage, layers)
                 .map_err(gpu_error)
         };
-        let (rays_p, warp_p, cost_p, sgm_p, select_p) = (
+        let (rays_p, warp_p, zncc_p, cost_p, sgm_p, select_p) = (
             pipeline(&kernels::RAYS)?,
             pipeline(&kernels::WARP)?,
+            pipeline(&kernels::ZNCC)?,
             pipeline(&kernels::COST)?,
             pipeline(&kernels::SGM)?,
             pipeline(&kernels::SELECT)?,
@@ -383,15 +396,17 @@ impl GpuStereo {
             ));
             warp_uniforms.push((uniform, sweep));
         }
-        let cost_group = bind(
-            &cost_p,
+        let zncc_group = bind(
+            &zncc_p,
             &[
                 (1, &general),
                 (3, &buffers.image),
                 (5, &buffers.warped),
-                (6, &buffers.cost),
+                (9, &buffers.zncc),
             ],
         );
+        let cost_group = bind(&cost_p, &[(1, &general), (6, &buffers.cost), (9, &buffers.zncc)]);
+        let strips = (h as u32).div_ceil(ZNCC_STRIP);
         let chunks = d.div_ceil(chunk);
         for c in 0..chunks {
             let first = (c * chunk) as u32;
@@ -400,13 +415,16 @@ impl GpuStereo {
             }
             queue.write_buffer(&general, 0, bytemuck::bytes_of(&Sweep { first, ..base }));
             let pairs = (chunk as u32).div_ceil(2);
-            let mut passes: Vec<(&wgpu::BindGroup, (u32, u32, u32))> = warp_groups
-                .iter()
-                .map(|g| (g, (groups_x, h as u32, pairs)))
-                .collect();
-            passes.push((&cost_group, (groups_x, h as u32, chunk as u32)));
-            // The warp and cost kernels in order in one pass (wgpu orders the dispatches that
-            // write and read `warped`).
+            let mut passes: Vec<(&wgpu::ComputePipeline, &wgpu::BindGroup, [u32; 3])> =
+                warp_groups
+                    .iter()
+                    .map(|g| (&*warp_p, g, [groups_x, h as u32, pairs]))
+                    .collect();
+            let votes = (voters.len() * chunk) as u32;
+            passes.push((&*zncc_p, &zncc_group, [groups_x, strips, votes]));
+            passes.push((&*cost_p, &cost_group, [groups_x, h as u32, chunk as u32]));
+            // The warp, ZNCC and cost kernels in order in one pass (wgpu orders the dispatches
+            // that write and read `warped` and `zncc`).
             let mut encoder =
                 self.context
                     .device()
@@ -418,12 +436,8 @@ impl GpuStereo {
                     label: Some("stereo sweep"),
                     timestamp_writes: None,
                 });
-                for (k, &(group, (x, y, z))) in passes.iter().enumerate() {
-                    pass.set_pipeline(if k < warp_groups.len() {
-                        &warp_p
-                    } else {
-                        &cost_p
-                    });
+                for &(pipeline, group, [x, y, z]) in &passes {
+                    pass.set_pipeline(pipeline);
                     pass.set_bind_group(0, group, &[]);
                     pass.dispatch_workgroups(x, y, z);
                 }
