@@ -166,11 +166,40 @@ fn gpu_and_cpu_agree_on_a_shared_port_pair() {
 
 #[test]
 fn gpu_and_cpu_agree_with_three_cameras_above_water() {
-    let Some(device) = device() else { return };
+    // Two SGM lines a workgroup: a hardware GPU's default, run here on lavapipe.
+    let Some(device) = device().map(|d| d.with_sgm_lines(2)) else {
+        return;
+    };
     let rig = rig(ABOVE_WATER_TRIO);
     let scene = scene(vec![seabed(1.5, 5), sphere([0.1, 0.08, 1.3], 0.12, 32)]);
     let (cpu, gpu, _) = both_ways(&rig, &scene, (0.9, 2.2), &device);
     assert_agreement("three cameras", &agreement(&cpu, &gpu));
+}
+
+/// Four paths, a hypothesis count that no lane count divides, one SGM line a workgroup.
+#[test]
+fn gpu_and_cpu_agree_with_four_paths_and_an_odd_hypothesis_count() {
+    let Some(device) = device().map(|d| d.with_sgm_lines(1)) else {
+        return;
+    };
+    let rig = rig(SHARED_PORT_PAIR);
+    let scene = scene(vec![seabed(1.6, 3), sphere([0.12, 0.05, 1.3], 0.15, 12)]);
+    let rendered = render_all(&rig, &scene, 2.0);
+    let options = StereoOptions {
+        hypotheses: 97,
+        paths: 4,
+        ..options((0.8, 2.5))
+    };
+    let cpu = stereo_on(&rig, &rendered.images, &options, Backend::Cpu, &|_| {}).unwrap();
+    let gpu = stereo_on(
+        &rig,
+        &rendered.images,
+        &options,
+        Backend::Gpu(&device),
+        &|_| {},
+    )
+    .unwrap();
+    assert_agreement("four paths, 97 hypotheses", &agreement(&cpu, &gpu));
 }
 
 #[test]

@@ -1,15 +1,16 @@
 // Stage 6, `sgm_aggregate` (twin of src/stereo/sgm.rs) along every path direction at once: the
 // workgroups of row y of the dispatch run direction SGM_DIRECTIONS[y] (the first `sweep.paths`),
-// one workgroup per path line (every line starts where the pixel before it, (x − dx, y − dy), is
-// outside the image), its invocations over the hypotheses; L of the previous pixel is kept in
-// workgroup memory (two rows, padded with PAD at both ends), its minimum by a two-level
-// reduction. Adds L to `sum` (u32 per (pixel, hypothesis)) atomically: the directions run side by
-// side, and integer sums do not depend on their order, so the result is the CPU's. Dispatch
-// (most lines of a direction, paths, 1); a workgroup past its direction's lines returns at once.
+// each `sweep.group_lines` consecutive path lines (every line starts where the pixel before it,
+// (x − dx, y − dy), is outside the image), WORKGROUP_SIZE / group_lines invocations a line over
+// its hypotheses; L of each line's previous pixel is kept in workgroup memory (two rows of D + 2,
+// padded with PAD at both ends), its minimum by a two-level reduction. Adds L to `sum` (u32 per
+// (pixel, hypothesis)) atomically: the directions run side by side, and integer sums do not
+// depend on their order, so the result is the CPU's. The lines of a workgroup step together, as
+// long as its longest. Dispatch (⌈most lines of a direction / group_lines⌉, paths, 1).
 //
 // One dispatch for all directions fills a large GPU (a 1280 × 1024 image has 1 024 to 2 303
-// lines a direction: one direction alone is a quarter of an H200's resident threads), and the
-// minimum reads 2 × 8 values per invocation and step instead of 64.
+// lines a direction), and the lines a workgroup shares split the cost of its barriers, which a
+// software adapter pays for every invocation.
 
 @group(0) @binding(3) var<storage, read> image: array<f32>;
 @group(0) @binding(6) var<storage, read> cost: array<u32>;
@@ -17,7 +18,9 @@
 
 const PAD: u32 = 0x7FFFu;
 const MAX_HYPOTHESES: u32 = 1024u;
-const ROW: u32 = 1026u; // MAX_HYPOTHESES + 2
+// Workgroup memory for the lines' rows of L: group_lines · 2 · (D + 2) ≤ PREVIOUS (with the two
+// arrays of partial minima, 16 KiB: WebGPU's least workgroup storage). `SGM_PREVIOUS` on the host.
+const PREVIOUS: u32 = 3968u;
 // The order of src/stereo/gpu/mod.rs: the four axis directions, then the diagonals.
 const SGM_DIRECTIONS = array<vec2<i32>, 8>(
     vec2<i32>(1, 0), vec2<i32>(-1, 0), vec2<i32>(0, 1), vec2<i32>(0, -1),
@@ -25,9 +28,42 @@ const SGM_DIRECTIONS = array<vec2<i32>, 8>(
 );
 // Invocations whose partial minima one invocation of the first level combines.
 const FAN: u32 = 8u;
-var<workgroup> previous: array<u32, 2052>; // two rows of ROW
+var<workgroup> previous: array<u32, PREVIOUS>;
 var<workgroup> partial: array<u32, WORKGROUP_SIZE>;
 var<workgroup> partial_fan: array<u32, WORKGROUP_SIZE>;
+
+// Path lines of direction (dx, dy) in a w × h image.
+fn line_count(dx: i32, dy: i32, w: i32, h: i32) -> i32 {
+    if (dy == 0) {
+        return h;
+    } else if (dx == 0) {
+        return w;
+    }
+    return w + h - 1;
+}
+
+// The first pixel of path line `line` of direction (dx, dy).
+fn line_start(dx: i32, dy: i32, line: i32, w: i32, h: i32) -> vec2<i32> {
+    if (dy == 0) {
+        return vec2<i32>(select(w - 1, 0, dx > 0), line);
+    } else if (dx == 0 || line < w) {
+        return vec2<i32>(line, select(h - 1, 0, dy > 0));
+    }
+    let row = line - w + 1;
+    return vec2<i32>(select(w - 1, 0, dx > 0), select(h - 1 - row, row, dy > 0));
+}
+
+// Pixels of the path line from `start` in direction (dx, dy) before it leaves the image.
+fn line_length(dx: i32, dy: i32, start: vec2<i32>, w: i32, h: i32) -> i32 {
+    var n = max(w, h);
+    if (dx != 0) {
+        n = min(n, select(start.x + 1, w - start.x, dx > 0));
+    }
+    if (dy != 0) {
+        n = min(n, select(start.y + 1, h - start.y, dy > 0));
+    }
+    return n;
+}
 
 // P2 lowered by the image's change along the path: `SgmParams::p2_at`.
 fn p2_at(a: f32, b: f32) -> u32 {
@@ -46,86 +82,85 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     let dir = SGM_DIRECTIONS[wid.y];
     let dx = dir.x;
     let dy = dir.y;
-    let line = i32(wid.x);
-    var lines = w + h - 1;
-    if (dy == 0) {
-        lines = h;
-    } else if (dx == 0) {
-        lines = w;
+    let lines = line_count(dx, dy, w, h);
+    let group = sweep.group_lines;
+    let lanes = WORKGROUP_SIZE / group;
+    let slot = t / lanes;
+    let lane = t % lanes;
+    let first_line = i32(wid.x * group);
+    // The workgroup's walk: as long as its longest line (the same value in every invocation).
+    var steps = 0;
+    for (var g = 0u; g < group; g++) {
+        let l = first_line + i32(g);
+        if (l < lines) {
+            steps = max(steps, line_length(dx, dy, line_start(dx, dy, l, w, h), w, h));
+        }
     }
-    if (line >= lines) {
+    if (steps == 0) {
         return;
     }
-    var x: i32;
-    var y: i32;
-    if (dy == 0) {
-        x = select(w - 1, 0, dx > 0);
-        y = line;
-    } else if (dx == 0) {
-        x = line;
-        y = select(h - 1, 0, dy > 0);
-    } else if (line < w) {
-        x = line;
-        y = select(h - 1, 0, dy > 0);
-    } else {
-        x = select(w - 1, 0, dx > 0);
-        let row = line - w + 1;
-        y = select(h - 1 - row, row, dy > 0);
-    }
-    for (var j = t; j < 2u * ROW; j += WORKGROUP_SIZE) {
+    let line = first_line + i32(slot);
+    let start = line_start(dx, dy, line, w, h);
+    let length = select(0, line_length(dx, dy, start, w, h), line < lines);
+    let row = d + 2u;
+    let mine = slot * 2u * row;
+    for (var j = t; j < group * 2u * row; j += WORKGROUP_SIZE) {
         previous[j] = PAD;
     }
     workgroupBarrier();
-    let fans = (WORKGROUP_SIZE + FAN - 1u) / FAN;
+    // Partial minima of this line: partial[slot·lanes + lane], then FAN of them at a time.
+    let fans = (lanes + FAN - 1u) / FAN;
+    let at = slot * lanes;
     var parity = 0u;
-    var first = true;
-    var before = 0u;
-    loop {
-        if (x < 0 || x >= w || y < 0 || y >= h) {
-            break;
-        }
-        let p = u32(y) * sweep.width + u32(x);
-        let prev = parity * ROW;
-        let cur = (1u - parity) * ROW;
-        if (first) {
-            for (var k = t; k < d; k += WORKGROUP_SIZE) {
-                let l = cost[p * d + k];
-                previous[cur + k + 1u] = l;
-                atomicAdd(&sum[p * d + k], l);
+    for (var step = 0; step < steps; step++) {
+        let on = step < length;
+        let x = start.x + step * dx;
+        let y = start.y + step * dy;
+        let p = u32(max(y, 0)) * sweep.width + u32(max(x, 0));
+        let prev = mine + parity * row;
+        let cur = mine + (1u - parity) * row;
+        if (step == 0) {
+            if (on) {
+                for (var k = lane; k < d; k += lanes) {
+                    let l = cost[p * d + k];
+                    previous[cur + k + 1u] = l;
+                    atomicAdd(&sum[p * d + k], l);
+                }
             }
         } else {
             var m = PAD;
-            for (var k = t; k < d; k += WORKGROUP_SIZE) {
-                m = min(m, previous[prev + k + 1u]);
+            if (on) {
+                for (var k = lane; k < d; k += lanes) {
+                    m = min(m, previous[prev + k + 1u]);
+                }
             }
             partial[t] = m;
             workgroupBarrier();
-            if (t < fans) {
+            if (lane < fans) {
                 var f = PAD;
-                for (var j = t * FAN; j < min(t * FAN + FAN, WORKGROUP_SIZE); j++) {
-                    f = min(f, partial[j]);
+                for (var j = lane * FAN; j < min(lane * FAN + FAN, lanes); j++) {
+                    f = min(f, partial[at + j]);
                 }
-                partial_fan[t] = f;
+                partial_fan[at + lane] = f;
             }
             workgroupBarrier();
-            var minimum = PAD;
-            for (var j = 0u; j < fans; j++) {
-                minimum = min(minimum, partial_fan[j]);
-            }
-            let p1 = sweep.p1;
-            let cap = minimum + p2_at(image[p], image[before]);
-            for (var k = t; k < d; k += WORKGROUP_SIZE) {
-                let v = min(min(previous[prev + k + 1u], previous[prev + k] + p1), min(previous[prev + k + 2u] + p1, cap));
-                let l = cost[p * d + k] + v - minimum;
-                previous[cur + k + 1u] = l;
-                atomicAdd(&sum[p * d + k], l);
+            if (on) {
+                var minimum = PAD;
+                for (var j = 0u; j < fans; j++) {
+                    minimum = min(minimum, partial_fan[at + j]);
+                }
+                let before = u32(y - dy) * sweep.width + u32(x - dx);
+                let p1 = sweep.p1;
+                let cap = minimum + p2_at(image[p], image[before]);
+                for (var k = lane; k < d; k += lanes) {
+                    let v = min(min(previous[prev + k + 1u], previous[prev + k] + p1), min(previous[prev + k + 2u] + p1, cap));
+                    let l = cost[p * d + k] + v - minimum;
+                    previous[cur + k + 1u] = l;
+                    atomicAdd(&sum[p * d + k], l);
+                }
             }
         }
         workgroupBarrier();
-        first = false;
-        before = p;
         parity = 1u - parity;
-        x += dx;
-        y += dy;
     }
 }

@@ -22,7 +22,8 @@ struct Sweep {
     gradient: f32,     // grey change that halves P2
     paths: u32,        // SGM path directions, 4 or 8 (the first of `SGM_DIRECTIONS`)
     strip: u32,        // rows one invocation of the ZNCC kernel walks
-    pad: vec2<u32>,
+    group_lines: u32,  // SGM path lines a workgroup walks together (1, 2, 4 or 8)
+    pad: u32,
 }
 
 // The cameras (reference 0, voter 1), read by the kernels that project; in the others unused,

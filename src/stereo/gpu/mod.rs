@@ -42,6 +42,20 @@ const MAX_CHUNK: usize = 32;
 /// Rows one invocation of the ZNCC kernel walks down its column (`Sweep::strip`): its running
 /// sums' rounding grows with the walk, the rows it reads twice (entering and leaving) shrink.
 const ZNCC_STRIP: u32 = 16;
+/// Workgroup memory (u32) for the rows of L of the SGM lines a workgroup walks together
+/// (`PREVIOUS` in `shaders/stereo/sgm.wgsl`): 2·(D + 2) a line.
+const SGM_PREVIOUS: usize = 3968;
+
+/// SGM path lines one workgroup walks together (a power of two up to 8, as many as its memory
+/// holds for D hypotheses, at most `most`): they share its barriers, which a software adapter
+/// pays for every invocation; on a hardware GPU `most` is 2 (32 invocations a line, a warp).
+fn sgm_group_lines(hypotheses: usize, most: u32) -> u32 {
+    let mut group = most.min(8);
+    while group > 1 && group as usize * 2 * (hypotheses + 2) > SGM_PREVIOUS {
+        group /= 2;
+    }
+    group
+}
 
 /// The stereo kernels' uniform; mirrors `struct Sweep` in `shaders/stereo/sweep.wgsl`, keep in
 /// sync (80 bytes; a test checks with naga's layouter).
@@ -66,7 +80,8 @@ pub struct Sweep {
     gradient: f32,
     paths: u32,
     strip: u32,
-    pad: [u32; 2],
+    group_lines: u32,
+    pad: u32,
 }
 
 /// What one depth map asks of the device.
@@ -106,6 +121,8 @@ struct Buffers {
 pub struct GpuStereo {
     context: GpuContext,
     buffers: Mutex<Option<Buffers>>,
+    /// SGM path lines a workgroup walks together, where not the adapter's default.
+    sgm_lines: Option<u32>,
 }
 
 fn gpu_error(error: GpuError) -> StereoError {
@@ -127,7 +144,23 @@ impl GpuStereo {
         Self {
             context,
             buffers: Mutex::new(None),
+            sgm_lines: None,
         }
+    }
+
+    /// With SGM walking `lines` path lines per workgroup (1, 2, 4 or 8; fewer where D hypotheses
+    /// do not fit its memory) instead of the adapter's default (8 on a software adapter, 2 on a
+    /// hardware GPU). The depths do not depend on it (integer sums); tests use it to run every
+    /// grouping on one adapter, and it is there to tune a GPU.
+    ///
+    /// Panics when `lines` is not 1, 2, 4 or 8.
+    pub fn with_sgm_lines(mut self, lines: u32) -> Self {
+        assert!(
+            matches!(lines, 1 | 2 | 4 | 8),
+            "SGM lines per workgroup: 1, 2, 4 or 8, got {lines}"
+        );
+        self.sgm_lines = Some(lines);
+        self
     }
 
     /// The context.
@@ -405,7 +438,10 @@ impl GpuStereo {
                 (9, &buffers.zncc),
             ],
         );
-        let cost_group = bind(&cost_p, &[(1, &general), (6, &buffers.cost), (9, &buffers.zncc)]);
+        let cost_group = bind(
+            &cost_p,
+            &[(1, &general), (6, &buffers.cost), (9, &buffers.zncc)],
+        );
         let strips = (h as u32).div_ceil(ZNCC_STRIP);
         let chunks = d.div_ceil(chunk);
         for c in 0..chunks {
@@ -415,11 +451,10 @@ impl GpuStereo {
             }
             queue.write_buffer(&general, 0, bytemuck::bytes_of(&Sweep { first, ..base }));
             let pairs = (chunk as u32).div_ceil(2);
-            let mut passes: Vec<(&wgpu::ComputePipeline, &wgpu::BindGroup, [u32; 3])> =
-                warp_groups
-                    .iter()
-                    .map(|g| (&*warp_p, g, [groups_x, h as u32, pairs]))
-                    .collect();
+            let mut passes: Vec<(&wgpu::ComputePipeline, &wgpu::BindGroup, [u32; 3])> = warp_groups
+                .iter()
+                .map(|g| (&*warp_p, g, [groups_x, h as u32, pairs]))
+                .collect();
             let votes = (voters.len() * chunk) as u32;
             passes.push((&*zncc_p, &zncc_group, [groups_x, strips, votes]));
             passes.push((&*cost_p, &cost_group, [groups_x, h as u32, chunk as u32]));
@@ -455,8 +490,17 @@ impl GpuStereo {
         // Stage 6: SGM, every path direction in one dispatch (a row of workgroups per
         // direction, their L added to the sum atomically), then stage 7.
         let paths: u32 = if job.paths >= 8 { 8 } else { 4 };
-        let sgm_uniform = self.uniform(&Sweep { paths, ..base })?;
-        let lines = if paths == 8 { w + h - 1 } else { w.max(h) } as u32;
+        let group_lines = sgm_group_lines(
+            d,
+            self.sgm_lines
+                .unwrap_or(if self.context.is_software() { 8 } else { 2 }),
+        );
+        let sgm_uniform = self.uniform(&Sweep {
+            paths,
+            group_lines,
+            ..base
+        })?;
+        let lines = (if paths == 8 { w + h - 1 } else { w.max(h) } as u32).div_ceil(group_lines);
         let sgm_group = bind(
             &sgm_p,
             &[
