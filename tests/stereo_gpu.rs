@@ -76,7 +76,7 @@ fn agreement(cpu: &DepthMap, gpu: &DepthMap) -> Agreement {
 }
 
 /// Why these bounds. The GPU computes the costs in f32 (rays, projections to ~1e-3 px, bilinear
-/// samples, direct window sums) and rounds them to the same u16 units as the CPU's f64 path: most
+/// samples, window sums down strips of rows) and rounds them to the same u16 units as the CPU's f64 path: most
 /// costs are equal, a few differ by one unit (1/2047 of the range) where the f64 value lies
 /// within f32's error of a rounding boundary. SGM and the selection are the same integer
 /// arithmetic, so a pixel's winner changes only where two hypotheses' aggregated costs are
@@ -206,9 +206,14 @@ fn gpu_and_cpu_agree_with_four_paths_and_an_odd_hypothesis_count() {
 fn a_volume_over_the_adapter_limits_is_refused_by_name() {
     let Some(device) = device() else { return };
     let cap = device.context().max_storage_binding() as usize;
-    // A volume of W·H·D u32 one hypothesis over the cap.
+    // The volumes are u16 per (pixel, hypothesis), packed two a word: W·H·D·2 bytes for an even
+    // D. One exactly at the cap fits; one word a pixel (two hypotheses) more does not.
     let (w, h) = (1024, 1024);
-    let d = cap / (w * h * 4) + 1;
+    let d = cap / (w * h * 2);
+    if (3..=1024).contains(&d) && d % 2 == 0 {
+        assert!(device.refuses(w, h, d, 1).is_none(), "{d} hypotheses fit");
+    }
+    let d = d + 2;
     let reason = device.refuses(w, h, d.max(3), 1);
     if d <= 1024 {
         let reason = reason.expect("over the cap");

@@ -1,10 +1,10 @@
 // Stage 5, `combine_views` (twin in src/stereo/cost.rs) for a chunk of hypotheses: per reference
 // pixel and hypothesis, the voters' costs min(1 − ZNCC, 1) from `zncc` (stage 4b,
 // shaders/stereo/zncc.wgsl) combined (the mean of all for k ≤ 2 votes, of the best ⌈k/2⌉ of
-// k > 2) into the cost volume, u32 per (pixel, hypothesis), `cost[i·D + h]`. Dispatch
-// (⌈W/64⌉, H, chunk).
+// k > 2) into the cost volume, u16 per (pixel, hypothesis), packed (`volume_word`): OR-ed into
+// its half of a word cleared before the sweep. Dispatch (⌈W/64⌉, H, chunk).
 
-@group(0) @binding(6) var<storage, read_write> cost: array<u32>;
+@group(0) @binding(6) var<storage, read_write> cost: array<atomic<u32>>;
 @group(0) @binding(9) var<storage, read> zncc: array<f32>;
 
 @compute @workgroup_size(WORKGROUP_SIZE)
@@ -45,5 +45,6 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         }
         out = u32(floor(total / f32(used) * f32(COST_SCALE) + 0.5));
     }
-    cost[i * sweep.hypotheses + sweep.first + k] = out;
+    let h_index = sweep.first + k;
+    atomicOr(&cost[volume_word(i, h_index)], out << ((h_index & 1u) * 16u));
 }

@@ -2,9 +2,9 @@
 // workgroups of row y of the dispatch run direction SGM_DIRECTIONS[y] (the first `sweep.paths`),
 // each `sweep.group_lines` consecutive path lines (every line starts where the pixel before it,
 // (x − dx, y − dy), is outside the image), WORKGROUP_SIZE / group_lines invocations a line over
-// its hypotheses; L of each line's previous pixel is kept in workgroup memory (two rows of D + 2,
-// padded with PAD at both ends), its minimum by a two-level reduction. Adds L to `sum` (u32 per
-// (pixel, hypothesis)) atomically: the directions run side by side, and integer sums do not
+// its hypotheses, a word of two at a time; L of each line's previous pixel is kept in workgroup
+// memory (two rows of D + 2, padded with PAD at both ends), its minimum by a two-level reduction.
+// Reads `cost` and adds L to `sum`, both packed two u16 a u32 (`volume_word`), a word atomically: the directions run side by side, and integer sums do not
 // depend on their order, so the result is the CPU's. The lines of a workgroup step together, as
 // long as its longest. Dispatch (⌈most lines of a direction / group_lines⌉, paths, 1).
 //
@@ -103,6 +103,8 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     let start = line_start(dx, dy, line, w, h);
     let length = select(0, line_length(dx, dy, start, w, h), line < lines);
     let row = d + 2u;
+    // Words of the packed volumes a pixel (`volume_word`): two hypotheses each.
+    let pairs = (d + 1u) / 2u;
     let mine = slot * 2u * row;
     for (var j = t; j < group * 2u * row; j += WORKGROUP_SIZE) {
         previous[j] = PAD;
@@ -120,11 +122,17 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         let prev = mine + parity * row;
         let cur = mine + (1u - parity) * row;
         if (step == 0) {
+            // L = C: a word (two hypotheses) at a time; the high half of the last word of an odd
+            // D is no hypothesis (its cost 0, its L never read: that slot is the PAD end).
             if (on) {
-                for (var k = lane; k < d; k += lanes) {
-                    let l = cost[p * d + k];
-                    previous[cur + k + 1u] = l;
-                    atomicAdd(&sum[p * d + k], l);
+                for (var j = lane; j < pairs; j += lanes) {
+                    let k = 2u * j;
+                    let word = cost[p * pairs + j];
+                    previous[cur + k + 1u] = word & 0xFFFFu;
+                    if (k + 1u < d) {
+                        previous[cur + k + 2u] = word >> 16u;
+                    }
+                    atomicAdd(&sum[p * pairs + j], word);
                 }
             }
         } else {
@@ -152,11 +160,19 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
                 let before = u32(y - dy) * sweep.width + u32(x - dx);
                 let p1 = sweep.p1;
                 let cap = minimum + p2_at(image[p], image[before]);
-                for (var k = lane; k < d; k += lanes) {
-                    let v = min(min(previous[prev + k + 1u], previous[prev + k] + p1), min(previous[prev + k + 2u] + p1, cap));
-                    let l = cost[p * d + k] + v - minimum;
-                    previous[cur + k + 1u] = l;
-                    atomicAdd(&sum[p * d + k], l);
+                for (var j = lane; j < pairs; j += lanes) {
+                    let k = 2u * j;
+                    let word = cost[p * pairs + j];
+                    let v0 = min(min(previous[prev + k + 1u], previous[prev + k] + p1), min(previous[prev + k + 2u] + p1, cap));
+                    let l0 = (word & 0xFFFFu) + v0 - minimum;
+                    var l1 = 0u;
+                    if (k + 1u < d) {
+                        let v1 = min(min(previous[prev + k + 2u], previous[prev + k + 1u] + p1), min(previous[prev + k + 3u] + p1, cap));
+                        l1 = (word >> 16u) + v1 - minimum;
+                        previous[cur + k + 2u] = l1;
+                    }
+                    previous[cur + k + 1u] = l0;
+                    atomicAdd(&sum[p * pairs + j], l0 | (l1 << 16u));
                 }
             }
         }

@@ -26,6 +26,19 @@ struct Sweep {
     pad: u32,
 }
 
+// The cost volume and the aggregated costs are packed, two u16 a u32 (every cost ≤ NO_VOTE, every
+// L ≤ NO_VOTE + P2 < 4 096, so the sum of 8 paths < 32 768 never carries into the next half):
+// hypothesis k of pixel p is the low half (k even) or the high half (k odd) of word
+// p·⌈D/2⌉ + k/2. `GpuStereo::volume_bytes` on the host.
+fn volume_word(p: u32, k: u32) -> u32 {
+    return p * ((sweep.hypotheses + 1u) / 2u) + k / 2u;
+}
+
+// Hypothesis k's half of its word.
+fn volume_half(word: u32, k: u32) -> u32 {
+    return (word >> ((k & 1u) * 16u)) & 0xFFFFu;
+}
+
 // The cameras (reference 0, voter 1), read by the kernels that project; in the others unused,
 // so absent from their pipelines' layouts.
 @group(0) @binding(0) var<uniform> params: Params;

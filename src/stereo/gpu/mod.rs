@@ -168,9 +168,16 @@ impl GpuStereo {
         &self.context
     }
 
+    /// Bytes of the cost volume (and of the aggregated costs) of `width` × `height` pixels and
+    /// `hypotheses` hypotheses on the device: two u16 a u32 word, ⌈D/2⌉ words a pixel
+    /// (`volume_word` in `shaders/stereo/sweep.wgsl`).
+    pub fn volume_bytes(width: usize, height: usize, hypotheses: usize) -> u64 {
+        (width * height * hypotheses.div_ceil(2) * 4) as u64
+    }
+
     /// Why a depth map of `width` × `height` pixels, `hypotheses` hypotheses and `voters` voting
     /// cameras does not fit this adapter, if it does not: the cost volume and the aggregated
-    /// costs are each one storage binding of W·H·D u32.
+    /// costs are each one storage binding of W·H·D u16 ([`Self::volume_bytes`]).
     pub fn refuses(
         &self,
         width: usize,
@@ -178,7 +185,7 @@ impl GpuStereo {
         hypotheses: usize,
         voters: usize,
     ) -> Option<String> {
-        let volume = (width * height * hypotheses * 4) as u64;
+        let volume = Self::volume_bytes(width, height, hypotheses);
         let cap = self.context.max_storage_binding();
         if voters > MAX_VOTERS {
             Some(format!(
@@ -273,7 +280,7 @@ impl GpuStereo {
         let mut slot = self.buffers.lock().unwrap_or_else(|p| p.into_inner());
         if slot.as_ref().map(|b| b.key) != Some(key) {
             *slot = None;
-            let volume = (w * h * d * 4) as u64;
+            let volume = Self::volume_bytes(w, h, d);
             let staging = self
                 .context
                 .buffer(
@@ -402,7 +409,18 @@ impl GpuStereo {
             &rays_p,
             &[(0, &reference_params), (1, &general), (2, &buffers.rays)],
         );
-        queue.submit([run(&rays_p, &[(&group, (groups_x, h as u32, 1))])]);
+        // The cost volume cleared: the cost kernel ORs each hypothesis into its half of a word.
+        let mut clear =
+            self.context
+                .device()
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("stereo clear"),
+                });
+        clear.clear_buffer(&buffers.cost, 0, None);
+        queue.submit([
+            clear.finish(),
+            run(&rays_p, &[(&group, (groups_x, h as u32, 1))]),
+        ]);
 
         // Stages 2–5, a chunk of hypotheses at a time: warp per voter, then the costs.
         let mut warp_groups = Vec::with_capacity(voters.len());
