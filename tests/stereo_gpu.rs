@@ -76,15 +76,15 @@ fn agreement(cpu: &DepthMap, gpu: &DepthMap) -> Agreement {
 }
 
 /// Why these bounds. The GPU computes the costs in f32 (rays, projections to ~1e-3 px, bilinear
-/// samples, window sums down strips of rows) and rounds them to the same u16 units as the CPU's f64 path: most
-/// costs are equal, a few differ by one unit (1/2047 of the range) where the f64 value lies
-/// within f32's error of a rounding boundary. SGM and the selection are the same integer
-/// arithmetic, so a pixel's winner changes only where two hypotheses' aggregated costs are
-/// within a few units: then the winner (and the parabola) may move by a step, and the masks may
-/// differ where the confidence, the consistency check or a depth edge sits at its threshold.
-/// Such pixels are rare on a textured scene: at most 1 % with a depth more than a quarter step
-/// apart (the refinement itself differs by < 0.01 step for equal costs) and at most 2 % of the
-/// pixels with one map valid and the other not.
+/// samples, window sums down strips of rows) and rounds them to the same u16 units as the CPU's f64
+/// path: most costs are equal, a few differ by one unit (1/2047 of the range) where the f64 value
+/// lies within f32's error of a rounding boundary. SGM and the selection are the same integer
+/// arithmetic, so a pixel's winner changes only where two hypotheses' aggregated costs are within a
+/// few units: then the winner (and the parabola) may move by a step, and the masks may differ where
+/// the confidence, the consistency check or a depth edge sits at its threshold. Such pixels are
+/// rare on a textured scene: at most 1 % with a depth more than a quarter step apart (the
+/// refinement itself differs by < 0.01 step for equal costs) and at most 2 % of the pixels with one
+/// map valid and the other not.
 fn assert_agreement(name: &str, a: &Agreement) {
     eprintln!("{name}: {a:?}");
     assert!(
