@@ -140,7 +140,7 @@ adapter="$( (grep -m1 -E '^  gpu [0-9]+: .*(DiscreteGpu|IntegratedGpu|VirtualGpu
     echo "roofs and figures (flatport bench; all of it in bench.txt):"
     grep -E '^(host link|device memory|memory streaming)' "$out/bench.txt" | sed 's/^/  /'
     grep -E ' gpu .* (kernel|end_to_end) ' "$out/bench.txt" | sed 's/^/  /'
-    grep -E '^(sweep|stencil|chain|stereo)[a-z_]* +(cpu|gpu) ' "$out/bench.txt" | sed 's/^/  /'
+    grep -E '^((sweep|stencil|chain)[a-z_]* +(cpu|gpu) |stereo )' "$out/bench.txt" | sed 's/^/  /'
     echo
     grep -A100 '^ratios from this run' "$out/bench.txt"
 } >"$out/report.txt"

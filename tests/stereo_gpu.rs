@@ -166,7 +166,7 @@ fn gpu_and_cpu_agree_on_a_shared_port_pair() {
 
 #[test]
 fn gpu_and_cpu_agree_with_three_cameras_above_water() {
-    // Two SGM lines a workgroup: a hardware GPU's default, run here on lavapipe.
+    // Two SGM lines a workgroup (the default is 8).
     let Some(device) = device().map(|d| d.with_sgm_lines(2)) else {
         return;
     };

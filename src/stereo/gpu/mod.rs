@@ -46,9 +46,13 @@ const ZNCC_STRIP: u32 = 16;
 /// (`PREVIOUS` in `shaders/stereo/sgm.wgsl`): 2·(D + 2) a line.
 const SGM_PREVIOUS: usize = 3968;
 
-/// SGM path lines one workgroup walks together (a power of two up to 8, as many as its memory
-/// holds for D hypotheses, at most `most`): they share its barriers, which a software adapter
-/// pays for every invocation; on a hardware GPU `most` is 2 (32 invocations a line, a warp).
+/// SGM path lines one workgroup walks together (a power of two up to `most`, at most 8, as many
+/// as its memory holds for D hypotheses): they share its barriers, which a software adapter pays
+/// for every invocation. The kernel's workgroup memory is a fixed 16 KiB whatever D, which on a
+/// hardware GPU bounds the workgroups resident at once (an NVIDIA SM holds about 14 of them): a
+/// 1280 × 1024 image's 8 directions have about 14 000 lines, in about 1 800 workgroups of 8 lines
+/// (one wave on a 132-SM H200) or 7 300 of 2 (four waves). So 8 there too, by reasoning until a
+/// GPU has measured it: `flatport bench` prints the 1280 × 1024 figure for 8, 2 and 1 lines.
 fn sgm_group_lines(hypotheses: usize, most: u32) -> u32 {
     let mut group = most.min(8);
     while group > 1 && group as usize * 2 * (hypotheses + 2) > SGM_PREVIOUS {
@@ -121,7 +125,7 @@ struct Buffers {
 pub struct GpuStereo {
     context: GpuContext,
     buffers: Mutex<Option<Buffers>>,
-    /// SGM path lines a workgroup walks together, where not the adapter's default.
+    /// SGM path lines a workgroup walks together, where not the default.
     sgm_lines: Option<u32>,
 }
 
@@ -149,8 +153,7 @@ impl GpuStereo {
     }
 
     /// With SGM walking `lines` path lines per workgroup (1, 2, 4 or 8; fewer where D hypotheses
-    /// do not fit its memory) instead of the adapter's default (8 on a software adapter, 2 on a
-    /// hardware GPU). The depths do not depend on it (integer sums); tests use it to run every
+    /// do not fit its memory) instead of the default, 8. The depths do not depend on it (integer sums); tests use it to run every
     /// grouping on one adapter, and it is there to tune a GPU.
     ///
     /// Panics when `lines` is not 1, 2, 4 or 8.
