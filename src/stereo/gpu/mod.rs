@@ -382,28 +382,27 @@ impl GpuStereo {
                 })
         };
         let groups_x = (w as u32).div_ceil(WORKGROUP_SIZE);
-        let run = |pipeline: &wgpu::ComputePipeline,
-                   passes: &[(&wgpu::BindGroup, (u32, u32, u32))]|
-         -> wgpu::CommandBuffer {
-            let mut encoder =
-                self.context
-                    .device()
-                    .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                        label: Some("stereo"),
-                    });
-            {
+        let encoder = |label: &str| {
+            self.context
+                .device()
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
+        };
+        // Dispatches in order in one compute pass (wgpu orders those that write and read one
+        // buffer).
+        let dispatch =
+            |encoder: &mut wgpu::CommandEncoder,
+             label: &str,
+             passes: &[(&wgpu::ComputePipeline, &wgpu::BindGroup, [u32; 3])]| {
                 let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("stereo"),
+                    label: Some(label),
                     timestamp_writes: None,
                 });
-                pass.set_pipeline(pipeline);
-                for &(group, (x, y, z)) in passes {
+                for &(pipeline, group, [x, y, z]) in passes {
+                    pass.set_pipeline(pipeline);
                     pass.set_bind_group(0, group, &[]);
                     pass.dispatch_workgroups(x, y, z);
                 }
-            }
-            encoder.finish()
-        };
+            };
 
         // Stage 1: the rays.
         let (reference_params, _) = self.params(reference, reference)?;
@@ -412,18 +411,16 @@ impl GpuStereo {
             &rays_p,
             &[(0, &reference_params), (1, &general), (2, &buffers.rays)],
         );
-        // The cost volume cleared: the cost kernel ORs each hypothesis into its half of a word.
-        let mut clear =
-            self.context
-                .device()
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("stereo clear"),
-                });
-        clear.clear_buffer(&buffers.cost, 0, None);
-        queue.submit([
-            clear.finish(),
-            run(&rays_p, &[(&group, (groups_x, h as u32, 1))]),
-        ]);
+        // The cost volume cleared (the cost kernel ORs each hypothesis into its half of a word),
+        // then the rays.
+        let mut first = encoder("stereo rays");
+        first.clear_buffer(&buffers.cost, 0, None);
+        dispatch(
+            &mut first,
+            "stereo rays",
+            &[(&rays_p, &group, [groups_x, h as u32, 1])],
+        );
+        queue.submit([first.finish()]);
 
         // Stages 2–5, a chunk of hypotheses at a time: warp per voter, then the costs.
         let mut warp_groups = Vec::with_capacity(voters.len());
@@ -479,25 +476,8 @@ impl GpuStereo {
             let votes = (voters.len() * chunk) as u32;
             passes.push((&*zncc_p, &zncc_group, [groups_x, strips, votes]));
             passes.push((&*cost_p, &cost_group, [groups_x, h as u32, chunk as u32]));
-            // The warp, ZNCC and cost kernels in order in one pass (wgpu orders the dispatches
-            // that write and read `warped` and `zncc`).
-            let mut encoder =
-                self.context
-                    .device()
-                    .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                        label: Some("stereo"),
-                    });
-            {
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("stereo sweep"),
-                    timestamp_writes: None,
-                });
-                for &(pipeline, group, [x, y, z]) in &passes {
-                    pass.set_pipeline(pipeline);
-                    pass.set_bind_group(0, group, &[]);
-                    pass.dispatch_workgroups(x, y, z);
-                }
-            }
+            let mut encoder = encoder("stereo sweep");
+            dispatch(&mut encoder, "stereo sweep", &passes);
             let index = queue.submit([encoder.finish()]);
             self.context.wait_for(Some(index)).map_err(gpu_error)?;
             self.context
@@ -540,25 +520,16 @@ impl GpuStereo {
                 (8, &buffers.winners),
             ],
         );
-        let mut encoder =
-            self.context
-                .device()
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("stereo"),
-                });
+        let mut encoder = encoder("stereo aggregation");
         encoder.clear_buffer(&buffers.sum, 0, None);
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("stereo aggregation"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&sgm_p);
-            pass.set_bind_group(0, &sgm_group, &[]);
-            pass.dispatch_workgroups(lines, paths, 1);
-            pass.set_pipeline(&select_p);
-            pass.set_bind_group(0, &select_group, &[]);
-            pass.dispatch_workgroups(groups_x, h as u32, 1);
-        }
+        dispatch(
+            &mut encoder,
+            "stereo aggregation",
+            &[
+                (&sgm_p, &sgm_group, [lines, paths, 1]),
+                (&select_p, &select_group, [groups_x, h as u32, 1]),
+            ],
+        );
         let bytes = (w * h * 12) as u64;
         let values: Vec<f32> = self
             .context
