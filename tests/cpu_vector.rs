@@ -493,3 +493,73 @@ fn project_near_settles_on_the_scalar_pixel() {
         wrong[..wrong.len().min(20)].join("\n")
     );
 }
+
+/// `lanes::project_near_all` (dense stereo's projection: near air rays, the safeguarded lanes
+/// where it does not settle) answers every row as `lanes::project` does, whatever the start: the
+/// same status, and the same pixel within 1e-12 relative (times the pixel's condition beyond the
+/// image) — on every oracle configuration, hostile points included (behind the port, on the
+/// axis, 1e300 m away, NaN), from the ray of a pixel 3 px away, from 0, from a random tan a, from
+/// a huge one and from NaN, in batches that are not a whole number of blocks.
+#[test]
+fn project_near_all_answers_every_row_as_project() {
+    use flatport::engine::cpu::lanes;
+    let mut wrong = Vec::new();
+    let mut rows = 0;
+    for (f, fixture) in all_fixtures().iter().enumerate() {
+        for k in 0..fixture.cams.len() {
+            let camera = fixture.camera(k);
+            let mut rng = Rng::new(70 + f as u64);
+            let pixels = pixels_for(&camera, &mut rng, 150);
+            let points = points_for(&camera, &pixels, &mut rng);
+            let n = points.len() - 3;
+            let points = &points[..n];
+            let starts: Vec<f64> = (0..n)
+                .map(|i| match i % 5 {
+                    0 => 0.0,
+                    1 => rng.uniform(0.0, 2.0),
+                    2 => 1e6,
+                    3 => f64::NAN,
+                    _ => {
+                        let p = pixels[i % pixels.len()];
+                        camera
+                            .dir_in_air_from_img(&Point2::new(p[0] + 3.0, p[1] - 1.0))
+                            .map_or(0.0, |d| {
+                                let cos = camera.normal().dot(&d);
+                                (1.0 - cos * cos).max(0.0).sqrt() / cos
+                            })
+                    }
+                })
+                .collect();
+            let (mut near, mut near_status) = (vec![[0.0; 2]; n], vec![0u32; n]);
+            let (mut full, mut full_status) = (vec![[0.0; 2]; n], vec![0u32; n]);
+            lanes::project_near_all(&camera, points, &starts, &mut near, &mut near_status);
+            lanes::project(&camera, points, &mut full, &mut full_status);
+            let intrinsics = camera.intrinsics();
+            for i in 0..n {
+                rows += 1;
+                let (a, b) = (near[i], full[i]);
+                let condition = ((b[0] - intrinsics.cx) / intrinsics.fx)
+                    .abs()
+                    .max(((b[1] - intrinsics.cy) / intrinsics.fy).abs())
+                    .max(1.0);
+                let close = (0..2).all(|c| {
+                    (a[c].is_nan() && b[c].is_nan())
+                        || (a[c] - b[c]).abs() <= RELATIVE * condition * b[c].abs().max(1.0)
+                });
+                if near_status[i] != full_status[i] || !close {
+                    wrong.push(format!(
+                        "{} camera {k}: {:?} from {}: {a:?} status {}, project {b:?} status {}",
+                        fixture.name, points[i], starts[i], near_status[i], full_status[i]
+                    ));
+                }
+            }
+        }
+    }
+    assert!(rows > 1000, "{rows} rows");
+    assert!(
+        wrong.is_empty(),
+        "{} of {rows}:\n{}",
+        wrong.len(),
+        wrong[..wrong.len().min(10)].join("\n")
+    );
+}

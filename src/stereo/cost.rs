@@ -127,14 +127,47 @@ pub struct Voter<'a> {
 }
 
 /// Stage 3, `project_hypotheses`: the exact forward projection of `points` into `camera` by the
-/// engine's vector path (Newton in lanes, the scalar model for the rare rows it leaves).
+/// engine's vector path, each from `tan_starts` (the tan a of an air ray near the point's, from
+/// [`air_ray_starts`]): Newton from there settles in two or three steps, and a point it does not
+/// settle takes the safeguarded projection (`lanes::project_near_all`).
 pub fn project_hypotheses(
     camera: &RefractiveCamera,
     points: &[[f64; 3]],
+    tan_starts: &[f64],
     pixels: &mut [[f64; 2]],
     status: &mut [u32],
 ) {
-    lanes::project(camera, points, pixels, status);
+    lanes::project_near_all(camera, points, tan_starts, pixels, status);
+}
+
+/// Where [`project_hypotheses`] starts for the points on the reference rays of rows
+/// `first_row ..` (as many as `starts` holds): the tan a, in `camera`'s air, of a ray that leaves
+/// its port in the direction of the reference ray in the water (Snell across the parallel layers:
+/// sin a = ρ_w·|w × n|). The camera sees a point of that ray from a viewpoint a baseline away, so
+/// its own ray is within the parallax angle of it. 0 where the pixel has no ray or the angle is
+/// past the critical one.
+pub fn air_ray_starts(
+    rays: &RayGrid,
+    first_row: usize,
+    camera: &RefractiveCamera,
+    starts: &mut [f64],
+) {
+    let n = camera.normal().into_inner();
+    let rho = camera.relative_index_water();
+    let first = first_row * rays.width;
+    for (j, start) in starts.iter_mut().enumerate() {
+        let w = rays.dir[first + j];
+        let cos = (w[0] * n.x + w[1] * n.y + w[2] * n.z).abs().min(1.0);
+        let sin = rho * (1.0 - cos * cos).sqrt();
+        *start = if sin < 1.0 {
+            sin / (1.0 - sin * sin).sqrt()
+        } else {
+            0.0
+        };
+        if !start.is_finite() {
+            *start = 0.0;
+        }
+    }
 }
 
 /// Stage 4a, `warp_bilinear`: the image sampled bilinearly at `pixels` ((0, 0) the centre of the
@@ -321,12 +354,26 @@ pub fn cost_volume(
             let mut column = Vec::new();
             let mut zncc = vec![vec![0f32; rows * w]; voters.len()];
             let any_textured = (first * w..(first + rows) * w).any(|i| windows.textured(i));
+            let starts: Vec<Vec<f64>> = voters
+                .iter()
+                .map(|voter| {
+                    let mut starts = vec![0.0; ext];
+                    air_ray_starts(rays, ext_first, &voter.camera, &mut starts);
+                    starts
+                })
+                .collect();
             for (hypothesis, &q) in inverse_depths.iter().enumerate() {
                 if any_textured {
-                    for (voter, zncc) in voters.iter().zip(zncc.iter_mut()) {
+                    for ((voter, zncc), starts) in voters.iter().zip(zncc.iter_mut()).zip(&starts) {
                         let placeholder = voter.camera.centre().coords.into();
                         hypothesis_points(rays, ext_first, q, placeholder, &mut points);
-                        project_hypotheses(&voter.camera, &points, &mut pixels, &mut status);
+                        project_hypotheses(
+                            &voter.camera,
+                            &points,
+                            starts,
+                            &mut pixels,
+                            &mut status,
+                        );
                         warp_bilinear(voter.image, &pixels, &status, &mut warped);
                         window_zncc(
                             reference,

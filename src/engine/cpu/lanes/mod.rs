@@ -214,6 +214,43 @@ dispatched! {
         by_scalar
     }
 
+    /// [`project`] for points seen near known air rays: each lane from the tan a of its air ray
+    /// (`tan_starts`, one a point; a start within a few pixels settles in two or three steps) by
+    /// [`CameraLanes::project_near`], the lanes it leaves by [`CameraLanes::project`] and their
+    /// rare rows by the scalar model, as the calibration's reprojection does. A settled lane's
+    /// pixel is `project`'s up to rounding (the same root, by another path), and its status is
+    /// `project`'s. Dense stereo's hypotheses take it (`stereo::cost::project_hypotheses`).
+    /// Returns how many rows the scalar model answered. Panics if the slices differ in length.
+    pub fn project_near_all(camera: &RefractiveCamera, points: &[[f64; 3]], tan_starts: &[f64], pixels: &mut [[f64; 2]], status: &mut [u32]) -> usize {
+        assert!(
+            points.len() == pixels.len() && points.len() == status.len() && points.len() == tan_starts.len(),
+            "input, starts, output and status of equal length"
+        );
+        let lanes = CameraLanes::new(camera);
+        let mut by_scalar = 0;
+        for (((points, tans), pixels), status) in points.chunks(LANES).zip(tan_starts.chunks(LANES)).zip(pixels.chunks_mut(LANES)).zip(status.chunks_mut(LANES)) {
+            let point = Vec3s { x: column(points, 0), y: column(points, 1), z: column(points, 2) };
+            let mut tan = [0.0; LANES];
+            tan[..tans.len()].copy_from_slice(tans);
+            let (near, settled) = lanes.project_near(point, F64s(tan));
+            let full = (!settled.all()).then(|| lanes.project(point));
+            for l in 0..points.len() {
+                match &full {
+                    Some(full) if !settled.0[l] => {
+                        if full.scalar.0[l] {
+                            (pixels[l], status[l]) = scalar_row(&points[l], |p| project_row(camera, p));
+                            by_scalar += 1;
+                        } else {
+                            store(&mut pixels[l], &mut status[l], full.status.0[l], [full.u.0[l], full.v.0[l]]);
+                        }
+                    }
+                    _ => store(&mut pixels[l], &mut status[l], near.status.0[l], [near.u.0[l], near.v.0[l]]),
+                }
+            }
+        }
+        by_scalar
+    }
+
     /// [`Engine::vop`](crate::engine::Engine::vop) on the vector path, one thread; returns how
     /// many rows the scalar model answered. Panics if the slices differ in length.
     pub fn vop(camera: &RefractiveCamera, points: &[[f64; 3]], vops: &mut [[f64; 6]], status: &mut [u32]) -> usize {
