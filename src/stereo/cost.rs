@@ -183,8 +183,10 @@ pub fn warp_bilinear(image: &GreyImage, pixels: &[[f64; 2]], status: &[u32], war
         }
         // The cell's top-left corner, kept one short of the last row/column so that its
         // neighbours exist (u = w − 1 is then the cell's right edge, fx = 1).
-        let x0 = (u.floor() as usize).min(w.saturating_sub(2));
-        let y0 = (v.floor() as usize).min(h.saturating_sub(2));
+        // u, v ≥ 0 here, so truncation is the floor (an instruction, where `floor` is a libm
+        // call on the baseline x86-64 target).
+        let x0 = (u as usize).min(w.saturating_sub(2));
+        let y0 = (v as usize).min(h.saturating_sub(2));
         let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
         let x1 = (x0 + 1).min(w - 1);
         let y1 = (y0 + 1).min(h - 1);
@@ -316,7 +318,8 @@ pub fn combine_views(zncc: &[Vec<f32>], h: usize, depth_count: usize, volume: &m
                     k.div_ceil(2)
                 };
                 let mean = costs[..used].iter().sum::<f32>() / used as f32;
-                (mean * f32::from(COST_SCALE)).round() as u16
+                // floor(x + ½) for x ≥ 0, as the GPU rounds (and no libm call).
+                (mean * f32::from(COST_SCALE) + 0.5) as u16
             }
         };
     }

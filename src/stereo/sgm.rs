@@ -40,7 +40,8 @@ impl SgmParams {
     #[inline]
     fn p2_at(&self, a: f32, b: f32) -> u16 {
         let p2 = f32::from(self.p2) / (1.0 + (a - b).abs() / self.gradient);
-        (p2.round() as u16).max(self.p1 + 1)
+        // floor(p2 + ½), p2 ≥ 0: as the GPU rounds (and no libm call).
+        ((p2 + 0.5) as u16).max(self.p1 + 1)
     }
 }
 
