@@ -557,3 +557,26 @@ impl GpuStereo {
         Ok((winners, [cost_seconds, started.elapsed().as_secs_f64()]))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every hypothesis count and grouping the host can choose fits the lines' rows of L in the
+    /// kernel's workgroup memory, with every line at least one invocation.
+    #[test]
+    fn every_sgm_grouping_fits_the_kernel() {
+        for d in 3..=MAX_HYPOTHESES {
+            for most in [1, 2, 4, 8] {
+                let lines = sgm_group_lines(d, most) as usize;
+                assert!(lines.is_power_of_two() && lines <= most as usize, "{d} {most}: {lines}");
+                assert!(lines * 2 * (d + 2) <= SGM_PREVIOUS, "{d} {most}: {lines}");
+                assert!(lines <= WORKGROUP_SIZE as usize, "{d} {most}: {lines}");
+            }
+        }
+        // The default fills the memory: 8 lines up to 246 hypotheses, one at 1024.
+        assert_eq!(sgm_group_lines(246, 8), 8);
+        assert_eq!(sgm_group_lines(247, 8), 4);
+        assert_eq!(sgm_group_lines(1024, 8), 1);
+    }
+}
