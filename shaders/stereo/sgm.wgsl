@@ -17,9 +17,9 @@
 @group(0) @binding(7) var<storage, read_write> sum: array<atomic<u32>>;
 
 const PAD: u32 = 0x7FFFu;
-const MAX_HYPOTHESES: u32 = 1024u;
 // Workgroup memory for the lines' rows of L: group_lines · 2 · (D + 2) ≤ PREVIOUS (with the two
-// arrays of partial minima, 16 KiB: WebGPU's least workgroup storage). `SGM_PREVIOUS` on the host.
+// arrays of partial minima, 16 KiB: WebGPU's least workgroup storage), one line of the host's
+// most hypotheses (`MAX_HYPOTHESES`) included. `SGM_PREVIOUS` on the host.
 const PREVIOUS: u32 = 3968u;
 // The order of src/stereo/gpu/mod.rs: the four axis directions, then the diagonals.
 const SGM_DIRECTIONS = array<vec2<i32>, 8>(

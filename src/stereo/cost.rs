@@ -159,14 +159,12 @@ pub fn air_ray_starts(
         let w = rays.dir[first + j];
         let cos = (w[0] * n.x + w[1] * n.y + w[2] * n.z).abs().min(1.0);
         let sin = rho * (1.0 - cos * cos).sqrt();
+        // A NaN direction (no ray) gives cos 1 (`min` drops the NaN): start 0.
         *start = if sin < 1.0 {
             sin / (1.0 - sin * sin).sqrt()
         } else {
             0.0
         };
-        if !start.is_finite() {
-            *start = 0.0;
-        }
     }
 }
 

@@ -543,12 +543,9 @@ mod tests {
     use crate::calib::{Board, SceneSpec, Target, simulate};
     use crate::model::normal_from_tilt_azimuth;
 
-    /// Without the taper the fused χ² equals the explicit weighted fit of
-    /// [`invariants::affine_grid`](crate::calib::costs::invariants::affine_grid) (binocular VOPs solved by
-    /// a 3×3 system, projected orthogonally, fitted by a 6×6 generalised least squares): another
-    /// derivation of the same number.
-    #[test]
-    fn fused_sums_equal_the_explicit_weighted_fit() {
+    /// The example rig's pair (cameras 0 and 1) seeing a 9 × 6 board of 4 cm squares in `views`
+    /// simulated views with `noise_px` of pixel noise (`SceneSpec::pair`).
+    fn example_pair(views: usize, noise_px: f64, seed: u64) -> StereoData {
         let rig = crate::io::rig_from_json_str(
             include_str!("../../../data/example_rig.json"),
             "example".as_ref(),
@@ -559,8 +556,17 @@ mod tests {
             cols: 9,
             square: 0.04,
         });
-        let scene = simulate(&rig, &SceneSpec::pair(board, 6, 0.2, 3, 0, 1)).unwrap();
-        let data = StereoData::from_observations(&rig, [0, 1], &scene.observations).unwrap();
+        let scene = simulate(&rig, &SceneSpec::pair(board, views, noise_px, seed, 0, 1)).unwrap();
+        StereoData::from_observations(&rig, [0, 1], &scene.observations).unwrap()
+    }
+
+    /// Without the taper the fused χ² equals the explicit weighted fit of
+    /// [`invariants::affine_grid`](crate::calib::costs::invariants::affine_grid) (binocular VOPs solved by
+    /// a 3×3 system, projected orthogonally, fitted by a 6×6 generalised least squares): another
+    /// derivation of the same number.
+    #[test]
+    fn fused_sums_equal_the_explicit_weighted_fit() {
+        let data = example_pair(6, 0.2, 3);
         let mut worst: f64 = 0.0;
         for (tilt, azimuth) in [
             (8.05, 45.0),
@@ -651,18 +657,7 @@ mod tests {
     /// 60-digit solution of the same inputs (docs/accuracy.md), so those views are left out.
     #[test]
     fn ill_conditioned_views_are_summed_from_their_residuals() {
-        let rig = crate::io::rig_from_json_str(
-            include_str!("../../../data/example_rig.json"),
-            "example".as_ref(),
-        )
-        .unwrap();
-        let board = Target::Board(Board {
-            rows: 6,
-            cols: 9,
-            square: 0.04,
-        });
-        let scene = simulate(&rig, &SceneSpec::pair(board, 185, 0.3, 7, 0, 1)).unwrap();
-        let data = StereoData::from_observations(&rig, [0, 1], &scene.observations).unwrap();
+        let data = example_pair(185, 0.3, 7);
         let rows = affine_rows(&data);
         let (mut one_pass_worst, mut worst, mut checked) = (0.0f64, 0.0f64, 0);
         for i in 0..16 {
@@ -751,18 +746,7 @@ mod tests {
 
     #[test]
     fn the_shift_removes_the_one_pass_cancellation() {
-        let rig = crate::io::rig_from_json_str(
-            include_str!("../../../data/example_rig.json"),
-            "example".as_ref(),
-        )
-        .unwrap();
-        let board = Target::Board(Board {
-            rows: 6,
-            cols: 9,
-            square: 0.04,
-        });
-        let scene = simulate(&rig, &SceneSpec::pair(board, 12, 0.05, 11, 0, 1)).unwrap();
-        let data = StereoData::from_observations(&rig, [0, 1], &scene.observations).unwrap();
+        let data = example_pair(12, 0.05, 11);
         let rows = affine_rows(&data);
         let approximate_recip = |x: f64| driver_rounded(1.0 / x);
         let approximate_sqrt = |x: f64| driver_rounded(x.sqrt());

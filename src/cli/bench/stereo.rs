@@ -39,7 +39,7 @@ fn scaled_rig(scale: f64) -> anyhow::Result<Rig> {
 /// hardware one, at 320 × 256 and 1280 × 1024 (there also with SGM walking 2 and 1 path lines a
 /// workgroup); the fastest of `repeats` runs each, a line each.
 pub(super) fn figures(adapter: Option<&str>, no_gpu: bool, repeats: usize) -> anyhow::Result<()> {
-    let gpu = if no_gpu {
+    let mut gpu = if no_gpu {
         None
     } else {
         match GpuStereo::new(adapter) {
@@ -79,14 +79,17 @@ pub(super) fn figures(adapter: Option<&str>, no_gpu: bool, repeats: usize) -> an
         }
         // At the full size on a hardware GPU, SGM's other groupings (the default walks 8 path
         // lines a workgroup): which suits the GPU is measured, not guessed.
-        if scale == 4.0 && gpu.is_some() {
+        if scale == 4.0
+            && let Some(mut regrouped) = gpu.take()
+        {
+            // The same device, pipelines and buffers (the last figures: the option is taken).
             for lines in [2, 1] {
-                let gpu = GpuStereo::new(adapter)?.with_sgm_lines(lines);
+                regrouped = regrouped.with_sgm_lines(lines);
                 let label = format!(
                     ", SGM {lines} line{} a workgroup",
                     if lines > 1 { "s" } else { "" }
                 );
-                frame_figure(&rig, &images, Backend::Gpu(&gpu), repeats, &label)?;
+                frame_figure(&rig, &images, Backend::Gpu(&regrouped), repeats, &label)?;
             }
         }
     }

@@ -35,7 +35,8 @@ use crate::stereo::GreyImage;
 
 /// Most voting cameras of one depth map (`MAX_VOTERS` in `shaders/stereo/sweep.wgsl`).
 pub const MAX_VOTERS: usize = 8;
-/// Most hypotheses (`MAX_HYPOTHESES` in `shaders/stereo/sgm.wgsl`).
+/// Most hypotheses: one SGM line's rows of L, 2·(D + 2) u32, fit the kernel's workgroup memory
+/// up to it (`SGM_PREVIOUS`; a test checks every D).
 pub const MAX_HYPOTHESES: usize = 1024;
 /// Most hypotheses of one warp chunk: bounds the warped samples' buffer.
 const MAX_CHUNK: usize = 32;
@@ -569,7 +570,10 @@ mod tests {
         for d in 3..=MAX_HYPOTHESES {
             for most in [1, 2, 4, 8] {
                 let lines = sgm_group_lines(d, most) as usize;
-                assert!(lines.is_power_of_two() && lines <= most as usize, "{d} {most}: {lines}");
+                assert!(
+                    lines.is_power_of_two() && lines <= most as usize,
+                    "{d} {most}: {lines}"
+                );
                 assert!(lines * 2 * (d + 2) <= SGM_PREVIOUS, "{d} {most}: {lines}");
                 assert!(lines <= WORKGROUP_SIZE as usize, "{d} {most}: {lines}");
             }
