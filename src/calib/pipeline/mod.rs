@@ -21,11 +21,13 @@
 //!    fit, what the data look like ([`diagnose`], and [`misfit`]: the usual input mistakes, each
 //!    undone and calibrated again).
 
+pub mod boards;
 pub mod bundle;
 mod checks;
 pub mod consecutive;
 pub mod diagnose;
 mod estimate;
+pub mod extrinsics;
 pub mod misfit;
 pub mod poses;
 pub mod report;

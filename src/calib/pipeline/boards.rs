@@ -1,0 +1,488 @@
+//! A whole rig from board views alone: the cameras calibrated in air (given, or by the in-air
+//! intrinsics stage), their extrinsics started from the board co-observations under water
+//! ([`extrinsics_start`]), then the one calibration ([`calibrate_with_progress`]) over the
+//! ports, the extrinsics and every board pose, under a Huber loss; frames far above the others
+//! dropped and the calibration run again; a share of the frames held out and reported.
+//!
+//! What `flatport calibrate --images DIR --board BOARD.json --port …` runs once the boards are
+//! detected (no I/O here: frames come as corners).
+
+use nalgebra::{Matrix3, Point2, Point3, Vector3};
+
+use super::bundle::{Bundle, Estimate, State};
+use super::extrinsics::{Link, extrinsics_start};
+use super::{Calibration, Options, Progress, calibrate_with_progress, fit_briefly, poses, rms};
+use crate::calib::error::CalibError;
+use crate::calib::problem::board::Board;
+use crate::calib::problem::observations::{
+    CameraKey, Image, MIN_VIEW_CORNERS, Observations, SeenView, View,
+};
+use crate::calib::problem::target::Target;
+use crate::model::{Interface, Layer, PinholeCamera, Ports, Rig, RigCamera};
+
+/// The kind of port in front of the cameras (`--port`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PortKind {
+    /// One bare water surface in front of every camera (no glass): AquaCal's rig.
+    Surface,
+    /// One port, with its glass, in front of every camera.
+    Shared,
+    /// A port per camera (its own housing).
+    Housings,
+}
+
+impl PortKind {
+    /// `surface`, `shared` or `housings`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Surface => "surface",
+            Self::Shared => "shared",
+            Self::Housings => "housings",
+        }
+    }
+
+    /// The kind named `name`.
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Self::Surface, Self::Shared, Self::Housings]
+            .into_iter()
+            .find(|k| k.name() == name)
+    }
+}
+
+/// Air distance of the start ports, metres: the naive guess (the port on each camera's z axis,
+/// 10 mm of air) that the pipeline's global searches start from.
+pub const START_AIR_DISTANCE_M: f64 = 0.01;
+
+/// Share of the frames held out of the fit by default and reported on.
+pub const DEFAULT_HOLDOUT: f64 = 0.2;
+
+/// Huber threshold of the fit by default, pixels: a few times the noise of a sub-pixel corner
+/// detector (0.05–0.3 px), so that good corners keep least squares' efficiency and a misplaced
+/// corner is down-weighted.
+pub const DEFAULT_HUBER_PX: f64 = 1.0;
+
+/// A frame whose RMS reprojection error exceeds this many times the median frame's (and
+/// [`OUTLIER_FLOOR_PX`]) is dropped and the calibration run again.
+pub const OUTLIER_FACTOR: f64 = 4.0;
+/// See [`OUTLIER_FACTOR`], pixels.
+pub const OUTLIER_FLOOR_PX: f64 = 0.5;
+
+/// The rig to calibrate: its cameras (calibrated in air; extrinsics unknown) and its ports.
+#[derive(Debug, Clone)]
+pub struct RigSetup {
+    /// The cameras in rig order, the master first.
+    pub cameras: Vec<PinholeCamera>,
+    /// The kind of port.
+    pub port: PortKind,
+    /// Each camera's glass (for `Shared`, the first entry is the port's; for `Surface`, none).
+    pub glass: Vec<Vec<Layer>>,
+    /// Index of the medium around the cameras.
+    pub index_air: f64,
+    /// Index of the water.
+    pub index_water: f64,
+}
+
+/// One synchronized frame under water: per rig camera, the board corners it saw ((corner
+/// index, raw pixel); empty when it did not see the board).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WaterFrame {
+    /// A name for messages (the frame's index or file).
+    pub label: String,
+    /// Per rig camera, in rig order.
+    pub corners: Vec<Vec<(usize, Point2<f64>)>>,
+}
+
+/// How to calibrate from boards.
+#[derive(Debug, Clone)]
+pub struct BoardsOptions {
+    /// The calibration's options (its `estimate` is set from the rig: axis and distance of every
+    /// port, and the extrinsics where there are several cameras).
+    pub calibration: Options,
+    /// Share of the frames (seen by two or more cameras) held out of the fit and reported on.
+    pub holdout: f64,
+    /// Drop frames far above the others ([`OUTLIER_FACTOR`]) and calibrate again.
+    pub drop_outliers: bool,
+}
+
+impl Default for BoardsOptions {
+    fn default() -> Self {
+        Self {
+            calibration: Options {
+                huber: Some(DEFAULT_HUBER_PX),
+                ..Options::default()
+            },
+            holdout: DEFAULT_HOLDOUT,
+            drop_outliers: true,
+        }
+    }
+}
+
+/// The held-out frames' verdict on a calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Validation {
+    /// Frames held out (their labels).
+    pub frames: Vec<String>,
+    /// RMS reprojection error over their corners, the board poses fitted through the calibrated
+    /// rig, pixels.
+    pub rms_px: f64,
+    /// Neighbouring corner pairs triangulated from two or more cameras.
+    pub distances: usize,
+    /// Median |distance − square| of those pairs, metres.
+    pub median_error_m: f64,
+    /// The same as a share of the square, percent.
+    pub median_error_percent: f64,
+    /// RMS of distance − square, metres.
+    pub rms_error_m: f64,
+}
+
+/// A rig calibrated from boards.
+#[derive(Debug, Clone)]
+pub struct BoardsCalibration {
+    /// The calibrated rig and its report (views numbered as in [`BoardsCalibration::fitted`]).
+    pub calibration: Calibration,
+    /// The rig the calibration started from (extrinsics from the co-observations, naive ports).
+    pub start: Rig,
+    /// How each camera's start was linked to the master.
+    pub links: Vec<Link>,
+    /// The labels of the frames fitted, in the report's view order.
+    pub fitted: Vec<String>,
+    /// Frames dropped as outliers, with why.
+    pub dropped: Vec<(String, String)>,
+    /// Images left out before the fit (too few corners, corners on a line), with why.
+    pub left_out: Vec<String>,
+    /// The held-out frames' verdict (`None` when there were too few frames to hold any out).
+    pub validation: Option<Validation>,
+}
+
+/// The start rig: `setup`'s cameras at the identity (their extrinsics come from the frames) and
+/// the naive ports.
+pub fn start_rig(names: &[String], setup: &RigSetup) -> Result<Rig, CalibError> {
+    let options = |e: crate::model::ModelError| CalibError::Options(e.to_string());
+    let cameras = names
+        .iter()
+        .zip(&setup.cameras)
+        .map(|(name, intrinsics)| {
+            RigCamera::new(
+                name,
+                intrinsics.clone(),
+                Matrix3::identity(),
+                Vector3::zeros(),
+            )
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(options)?;
+    let port = |layers: &[Layer]| {
+        Interface::new(
+            Vector3::z(),
+            START_AIR_DISTANCE_M,
+            layers.to_vec(),
+            setup.index_air,
+            setup.index_water,
+        )
+        .map_err(options)
+    };
+    let none: &[Layer] = &[];
+    let glass = |k: usize| setup.glass.get(k).map_or(none, Vec::as_slice);
+    let ports = match setup.port {
+        PortKind::Surface => Ports::Shared(port(none)?),
+        PortKind::Shared => Ports::Shared(port(glass(0))?),
+        PortKind::Housings => Ports::PerCamera(
+            (0..cameras.len())
+                .map(|k| port(glass(k)))
+                .collect::<Result<_, _>>()?,
+        ),
+    };
+    Rig::with_ports(cameras, ports).map_err(options)
+}
+
+/// Calibrates the rig of `setup` (camera `names` in rig order) from `frames` of `board` under
+/// water, by the steps of the module documentation.
+///
+/// Errors: fewer than three usable frames; a camera that never shares a frame with the others
+/// (directly or through a chain); whatever [`calibrate_with_progress`] refuses.
+pub fn calibrate_from_boards(
+    names: &[String],
+    setup: &RigSetup,
+    board: &Board,
+    frames: &[WaterFrame],
+    options: &BoardsOptions,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<BoardsCalibration, CalibError> {
+    let target = Target::Board(*board);
+    let base = start_rig(names, setup)?;
+    // Every image with enough corners off one line; frames with none left out.
+    let mut left_out = Vec::new();
+    let mut usable: Vec<(String, View)> = Vec::new();
+    for frame in frames {
+        let mut images = Vec::new();
+        for (k, corners) in frame.corners.iter().enumerate() {
+            if corners.is_empty() {
+                continue;
+            }
+            if let Some(why) = unusable_image(board, corners) {
+                left_out.push(format!(
+                    "frame {}, camera '{}': {why}",
+                    frame.label, names[k]
+                ));
+                continue;
+            }
+            let mut full = vec![None; board.corners()];
+            for (i, p) in corners {
+                if let Some(slot) = full.get_mut(*i) {
+                    *slot = Some(*p);
+                }
+            }
+            images.push(Image {
+                camera: CameraKey::Name(names[k].clone()),
+                key: names[k].clone(),
+                corners: full,
+            });
+        }
+        if !images.is_empty() {
+            usable.push((frame.label.clone(), View { images }));
+        }
+    }
+    // Hold out every m-th frame seen by two or more cameras (spread over the sequence).
+    let several = |view: &View| view.images.len() >= 2;
+    let candidates = usable.iter().filter(|(_, v)| several(v)).count();
+    let held = (options.holdout.clamp(0.0, 0.5) * candidates as f64).floor() as usize;
+    let mut held_out = Vec::new();
+    let mut fitted = Vec::new();
+    if held > 0 && candidates - held >= super::MIN_VIEWS {
+        let step = candidates as f64 / held as f64;
+        let mut next = step / 2.0;
+        let mut index = 0.0;
+        for (label, view) in usable {
+            if several(&view) {
+                if index >= next.floor() && held_out.len() < held {
+                    held_out.push((label, view));
+                    next += step;
+                } else {
+                    fitted.push((label, view));
+                }
+                index += 1.0;
+            } else {
+                fitted.push((label, view));
+            }
+        }
+    } else {
+        fitted = usable;
+    }
+    if fitted.len() < super::MIN_VIEWS {
+        return Err(CalibError::TooFewViews {
+            usable: fitted.len(),
+            needed: super::MIN_VIEWS,
+        });
+    }
+    let observations = |views: &[(String, View)]| Observations {
+        target: target.clone(),
+        views: views.iter().map(|(_, v)| v.clone()).collect(),
+        stereo_form: false,
+    };
+    // The extrinsics' start from the fitted frames.
+    let seen = observations(&fitted).resolve(&base)?;
+    let (cam_from_master, links) = extrinsics_start(&base, &target, &seen)?;
+    let mut cameras = base.cameras().to_vec();
+    for (camera, pose) in cameras.iter_mut().zip(&cam_from_master) {
+        camera.cam_from_master = *pose;
+    }
+    let start = Rig::with_ports(cameras, base.ports().clone())
+        .map_err(|e| CalibError::Options(e.to_string()))?;
+    let mut calibration_options = options.calibration.clone();
+    calibration_options.estimate = Estimate {
+        extrinsics: names.len() > 1,
+        ..calibration_options.estimate
+    };
+    let mut calibration = calibrate_with_progress(
+        &start,
+        &observations(&fitted),
+        &calibration_options,
+        progress,
+    )?;
+    // Frames far above the others: dropped, and the calibration run again once.
+    let mut dropped = Vec::new();
+    if options.drop_outliers {
+        let frame_rms = frame_rms(&calibration, fitted.len());
+        let mut sorted: Vec<f64> = frame_rms
+            .iter()
+            .copied()
+            .filter(|r| r.is_finite())
+            .collect();
+        sorted.sort_by(f64::total_cmp);
+        if let Some(&median) = sorted.get(sorted.len() / 2) {
+            let bound = (OUTLIER_FACTOR * median).max(OUTLIER_FLOOR_PX);
+            let keep: Vec<bool> = frame_rms.iter().map(|r| !(*r > bound)).collect();
+            let kept = keep.iter().filter(|k| **k).count();
+            if kept < fitted.len() && kept >= super::MIN_VIEWS {
+                let mut next = Vec::new();
+                for ((label, view), (keep, rms)) in
+                    fitted.into_iter().zip(keep.iter().zip(&frame_rms))
+                {
+                    if *keep {
+                        next.push((label, view));
+                    } else {
+                        dropped.push((
+                            label,
+                            format!("RMS {rms:.2} px, above {OUTLIER_FACTOR} × the median frame's {median:.3} px"),
+                        ));
+                    }
+                }
+                fitted = next;
+                calibration = calibrate_with_progress(
+                    &calibration.rig,
+                    &observations(&fitted),
+                    &calibration_options,
+                    progress,
+                )?;
+            }
+        }
+    }
+    let validation = if held_out.is_empty() {
+        None
+    } else {
+        Some(validate(
+            &calibration.rig,
+            board,
+            &observations(&held_out),
+            &held_out,
+        )?)
+    };
+    Ok(BoardsCalibration {
+        calibration,
+        start,
+        links,
+        fitted: fitted.into_iter().map(|(label, _)| label).collect(),
+        dropped,
+        left_out,
+        validation,
+    })
+}
+
+/// Why an image of `board` cannot take part, if it cannot: too few corners, or corners on one
+/// line of the board (no pose from them).
+pub fn unusable_image(board: &Board, corners: &[(usize, Point2<f64>)]) -> Option<String> {
+    if corners.len() < MIN_VIEW_CORNERS {
+        return Some(format!(
+            "{} corners, fewer than {MIN_VIEW_CORNERS}: left out",
+            corners.len()
+        ));
+    }
+    let spans = |line: &dyn Fn(usize) -> usize| {
+        let first = line(corners[0].0);
+        corners.iter().any(|(i, _)| line(*i) != first)
+    };
+    if !spans(&|i| i / board.cols) || !spans(&|i| i % board.cols) {
+        return Some(
+            "its corners lie on one row or column of the board (no pose from them): left out"
+                .into(),
+        );
+    }
+    None
+}
+
+/// The RMS reprojection error of every view (over all its cameras) of `calibration`'s report.
+fn frame_rms(calibration: &Calibration, views: usize) -> Vec<f64> {
+    let mut sum = vec![0.0; views];
+    let mut count = vec![0usize; views];
+    for camera in &calibration.report.cameras {
+        for (v, rms) in camera.rms_px_per_view.iter().enumerate().take(views) {
+            if rms.is_finite() {
+                sum[v] += rms * rms;
+                count[v] += 1;
+            }
+        }
+    }
+    sum.iter()
+        .zip(&count)
+        .map(|(s, &c)| {
+            if c > 0 {
+                (s / c as f64).sqrt()
+            } else {
+                f64::NAN
+            }
+        })
+        .collect()
+}
+
+/// The held-out frames through the calibrated rig: their board poses fitted (nothing else moves),
+/// the RMS reprojection error, and every pair of neighbouring corners triangulated from all the
+/// cameras that saw both, against the square.
+pub fn validate(
+    rig: &Rig,
+    board: &Board,
+    observations: &Observations,
+    frames: &[(String, View)],
+) -> Result<Validation, CalibError> {
+    let target = Target::Board(*board);
+    let seen = observations.resolve(rig)?;
+    let pinhole = State::of(rig, poses::initial_poses(rig, &target, &seen)?);
+    let pose_only = Bundle::new(rig, &target, &seen, Estimate::NOTHING, None);
+    let fitted = fit_briefly(&pose_only, pinhole, 50);
+    let rms_px = rms(&pose_only, &fitted);
+    let mut errors = Vec::new();
+    for view in &seen {
+        let points = triangulate_view(rig, board, view);
+        for (i, p) in points.iter().enumerate() {
+            let Some(p) = p else { continue };
+            let (r, c) = board.grid_position(i);
+            let right = (c + 1 < board.cols).then(|| i + 1);
+            let below = (r + 1 < board.rows).then(|| i + board.cols);
+            for j in [right, below].into_iter().flatten() {
+                if let Some(q) = points[j] {
+                    errors.push((p - q).norm() - board.square);
+                }
+            }
+        }
+    }
+    let mut absolute: Vec<f64> = errors.iter().map(|e| e.abs()).collect();
+    absolute.sort_by(f64::total_cmp);
+    let median = absolute
+        .get(absolute.len() / 2)
+        .copied()
+        .unwrap_or(f64::NAN);
+    let rms_error = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len().max(1) as f64).sqrt();
+    Ok(Validation {
+        frames: frames.iter().map(|(label, _)| label.clone()).collect(),
+        rms_px,
+        distances: errors.len(),
+        median_error_m: median,
+        median_error_percent: 100.0 * median / board.square,
+        rms_error_m: rms_error,
+    })
+}
+
+/// Each corner of `view` seen by two or more cameras, triangulated as the point nearest all their
+/// water rays (least squares); `None` for the others.
+pub fn triangulate_view(rig: &Rig, board: &Board, view: &SeenView) -> Vec<Option<Point3<f64>>> {
+    let cameras: Vec<_> = view
+        .cameras
+        .iter()
+        .map(|(k, _)| rig.refractive_camera(*k))
+        .collect();
+    let mut normal = vec![Matrix3::zeros(); board.corners()];
+    let mut right = vec![Vector3::zeros(); board.corners()];
+    let mut rays = vec![0usize; board.corners()];
+    for (camera, (_, corners)) in cameras.iter().zip(&view.cameras) {
+        for (i, pixel) in corners {
+            let Ok(ray) = camera.backproject(pixel) else {
+                continue;
+            };
+            let d = ray.dir.into_inner();
+            let m = Matrix3::identity() - d * d.transpose();
+            normal[*i] += m;
+            right[*i] += m * ray.origin.coords;
+            rays[*i] += 1;
+        }
+    }
+    (0..board.corners())
+        .map(|i| {
+            (rays[i] >= 2)
+                .then(|| {
+                    normal[i]
+                        .try_inverse()
+                        .map(|inv| Point3::from(inv * right[i]))
+                })
+                .flatten()
+        })
+        .collect()
+}

@@ -1,0 +1,268 @@
+//! The start of the extrinsics from board co-observations: every camera's pose relative to the
+//! master from the frames in which both saw the board, chained through other cameras where two
+//! never saw a frame together (a pose graph, its spanning tree grown from the master along the
+//! links with the most shared frames).
+//!
+//! Each (camera, frame) gives the board's pose in that camera by the pinhole model
+//! ([`pinhole_pose`]) of its undistorted corners. Through a flat port these are the poses of the
+//! *apparent* board; for cameras behind one port or one water surface the apparent boards nearly
+//! coincide (the virtual image of a flat interface is, to first order, the same axial compression
+//! for every camera behind it), so their relative poses are close to the truth; for cameras in
+//! their own housings each camera's apparent board differs and the start is rougher. Either way it
+//! is only the start of the maximum-likelihood fit, which estimates the extrinsics with the ports.
+//!
+//! A link between two cameras takes, of its frames' relative poses, the one nearest all others
+//! (the medoid, in rotation angle plus translation over the median distance to the board): one
+//! bad frame cannot move it.
+
+use std::collections::VecDeque;
+
+use nalgebra::{Isometry3, Point3, Vector2};
+
+use super::poses::pinhole_pose;
+use crate::calib::error::CalibError;
+use crate::calib::problem::observations::SeenView;
+use crate::calib::problem::target::Target;
+use crate::model::Rig;
+
+/// Fewest corners of an image for its board pose to take part in a link.
+pub const MIN_LINK_CORNERS: usize = 6;
+
+/// How one camera was linked to the master.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Link {
+    /// The camera.
+    pub camera: usize,
+    /// The camera it was linked through (the master links to itself).
+    pub via: usize,
+    /// Frames both saw.
+    pub frames: usize,
+}
+
+/// The start of every camera's `cam_from_master` (the master's the identity) and how each was
+/// linked, from the views' pinhole board poses.
+///
+/// Errors: a camera that shares no frame, directly or through a chain of other cameras, with the
+/// master ([`CalibError::Options`] naming it and the cameras it did share frames with).
+pub fn extrinsics_start(
+    rig: &Rig,
+    target: &Target,
+    views: &[SeenView],
+) -> Result<(Vec<Isometry3<f64>>, Vec<Link>), CalibError> {
+    let n = rig.cameras().len();
+    // cam_from_target of every (view, camera) with a pose.
+    let poses: Vec<Vec<Option<Isometry3<f64>>>> = views
+        .iter()
+        .map(|view| {
+            let mut row = vec![None; n];
+            for (k, corners) in &view.cameras {
+                row[*k] = image_pose(rig, target, *k, corners);
+            }
+            row
+        })
+        .collect();
+    let shared = |a: usize, b: usize| -> Vec<usize> {
+        (0..views.len())
+            .filter(|&v| poses[v][a].is_some() && poses[v][b].is_some())
+            .collect()
+    };
+    // Prim's maximum spanning tree over the shared-frame counts, from the master.
+    let mut linked: Vec<Option<Link>> = vec![None; n];
+    let mut cam_from_master = vec![Isometry3::identity(); n];
+    linked[0] = Some(Link {
+        camera: 0,
+        via: 0,
+        frames: (0..views.len()).filter(|&v| poses[v][0].is_some()).count(),
+    });
+    let mut queue: VecDeque<usize> = VecDeque::from([0]);
+    while !queue.is_empty() {
+        let mut best: Option<(usize, usize, Vec<usize>)> = None;
+        for a in (0..n).filter(|&a| linked[a].is_some()) {
+            for b in (0..n).filter(|&b| linked[b].is_none()) {
+                let frames = shared(a, b);
+                if !frames.is_empty()
+                    && best.as_ref().is_none_or(|(_, _, f)| frames.len() > f.len())
+                {
+                    best = Some((a, b, frames));
+                }
+            }
+        }
+        let Some((a, b, frames)) = best else { break };
+        // cam_b_from_cam_a of each shared frame; the medoid.
+        let candidates: Vec<Isometry3<f64>> = frames
+            .iter()
+            .map(|&v| {
+                let (pa, pb) = (
+                    poses[v][a].unwrap_or_default(),
+                    poses[v][b].unwrap_or_default(),
+                );
+                pb * pa.inverse()
+            })
+            .collect();
+        let depth = median(
+            frames
+                .iter()
+                .map(|&v| poses[v][a].map_or(1.0, |p| p.translation.vector.norm()))
+                .collect(),
+        )
+        .max(1e-6);
+        let b_from_a = medoid(&candidates, depth);
+        cam_from_master[b] = b_from_a * cam_from_master[a];
+        linked[b] = Some(Link {
+            camera: b,
+            via: a,
+            frames: frames.len(),
+        });
+        queue.push_back(b);
+        if linked.iter().all(Option::is_some) {
+            break;
+        }
+    }
+    let missing: Vec<usize> = (0..n).filter(|&k| linked[k].is_none()).collect();
+    if let Some(&k) = missing.first() {
+        let names = |list: &[usize]| {
+            list.iter()
+                .map(|&c| format!("'{}'", rig.cameras()[c].name))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let seen_alone = (0..views.len()).filter(|&v| poses[v][k].is_some()).count();
+        let reached: Vec<usize> = (0..n).filter(|&c| linked[c].is_some()).collect();
+        return Err(CalibError::Options(format!(
+            "camera {} never sees the board in a frame together with {} (directly or through a chain of other cameras): its pose relative to the master cannot be found ({} saw the board in {seen_alone} frame(s) on its own{}); film frames in which it and one of the other cameras both see the board",
+            names(&[k]),
+            names(&reached),
+            names(&[k]),
+            if missing.len() > 1 {
+                format!("; also unlinked: {}", names(&missing[1..]))
+            } else {
+                String::new()
+            }
+        )));
+    }
+    Ok((
+        cam_from_master,
+        linked
+            .into_iter()
+            .map(|l| l.unwrap_or_else(|| unreachable_link()))
+            .collect(),
+    ))
+}
+
+fn unreachable_link() -> Link {
+    Link {
+        camera: 0,
+        via: 0,
+        frames: 0,
+    }
+}
+
+/// The pinhole pose cam_from_target of one image, when it has enough corners off one line.
+fn image_pose(
+    rig: &Rig,
+    target: &Target,
+    k: usize,
+    corners: &[(usize, nalgebra::Point2<f64>)],
+) -> Option<Isometry3<f64>> {
+    if corners.len() < MIN_LINK_CORNERS {
+        return None;
+    }
+    let intrinsics = &rig.cameras()[k].intrinsics;
+    let (object, image): (Vec<Point3<f64>>, Vec<Vector2<f64>>) = corners
+        .iter()
+        .filter_map(|(i, pixel)| Some((target.point(*i), intrinsics.normalized_from_img(pixel)?)))
+        .unzip();
+    let pose = pinhole_pose(&object, &image)?;
+    // In front of the camera, and finite.
+    let finite = pose.translation.vector.iter().all(|x| x.is_finite());
+    let in_front = object.iter().all(|p| (pose * p).z > 0.0);
+    (finite && in_front).then_some(pose)
+}
+
+/// The candidate nearest all others: rotation angle (radians) plus translation over `scale`.
+fn medoid(candidates: &[Isometry3<f64>], scale: f64) -> Isometry3<f64> {
+    let distance = |a: &Isometry3<f64>, b: &Isometry3<f64>| {
+        a.rotation.angle_to(&b.rotation)
+            + (a.translation.vector - b.translation.vector).norm() / scale
+    };
+    candidates
+        .iter()
+        .min_by(|a, b| {
+            let da: f64 = candidates.iter().map(|c| distance(a, c)).sum();
+            let db: f64 = candidates.iter().map(|c| distance(b, c)).sum();
+            da.total_cmp(&db)
+        })
+        .copied()
+        .unwrap_or_else(Isometry3::identity)
+}
+
+fn median(mut values: Vec<f64>) -> f64 {
+    if values.is_empty() {
+        return 1.0;
+    }
+    values.sort_by(f64::total_cmp);
+    values[values.len() / 2]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::problem::board::Board;
+    use crate::calib::simulate::{Cameras, SceneSpec, simulate};
+
+    /// Cameras linked only through a chain of frames (tl–tr in some views, tr–bl–br in others;
+    /// tl never with bl or br) get their extrinsics exactly from noise-free views of a rig in
+    /// air (no refraction: the pinhole poses are exact).
+    #[test]
+    fn a_chain_of_frames_links_cameras_that_never_met() {
+        let rig = crate::io::read_rig("data/rigs/array_2x2.json".as_ref()).unwrap();
+        let dry = rig
+            .with_new_ports(match rig.ports() {
+                crate::model::Ports::Shared(port) => crate::model::Ports::Shared(
+                    crate::model::Interface::new(
+                        port.normal().into_inner(),
+                        port.air_distance(),
+                        vec![],
+                        1.0,
+                        1.0,
+                    )
+                    .unwrap(),
+                ),
+                other => other.clone(),
+            })
+            .unwrap();
+        let board = Target::Board(Board {
+            rows: 6,
+            cols: 8,
+            square: 0.03,
+        });
+        let mut spec = SceneSpec::new(board.clone(), 12, 0.0, 7);
+        spec.cameras = Cameras::Any {
+            required: vec![0, 1, 2, 3],
+            min: 4,
+        };
+        let scene = simulate(&dry, &spec).unwrap();
+        let mut seen = scene.observations.resolve(&dry).unwrap();
+        // Views 0-5: tl and tr; views 6-11: tr, bl and br. tl never meets bl or br.
+        for (v, view) in seen.iter_mut().enumerate() {
+            let keep = |k: usize| if v < 6 { k <= 1 } else { k >= 1 };
+            let (cameras, keys) = view
+                .cameras
+                .drain(..)
+                .zip(view.keys.drain(..))
+                .filter(|((k, _), _)| keep(*k))
+                .unzip();
+            (view.cameras, view.keys) = (cameras, keys);
+        }
+        let (found, links) = extrinsics_start(&dry, &board, &seen).unwrap();
+        assert_eq!(links[2].via, 1, "{links:?}");
+        assert_eq!(links[3].via, 1, "{links:?}");
+        for (k, camera) in dry.cameras().iter().enumerate() {
+            let error = found[k].inverse() * camera.cam_from_master;
+            assert!(
+                error.rotation.angle() < 1e-7 && error.translation.vector.norm() < 1e-7,
+                "camera {k}: {error:?} ({links:?})"
+            );
+        }
+    }
+}
