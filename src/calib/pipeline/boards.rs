@@ -15,7 +15,7 @@ use super::{Calibration, Options, Progress, calibrate_with_progress, fit_briefly
 use crate::calib::error::CalibError;
 use crate::calib::problem::board::Board;
 use crate::calib::problem::observations::{
-    CameraKey, Image, MIN_VIEW_CORNERS, Observations, SeenView, View,
+    CameraKey, Image, Observations, SeenView, View, unusable_image,
 };
 use crate::calib::problem::target::Target;
 use crate::model::{Interface, Layer, PinholeCamera, Ports, Rig, RigCamera};
@@ -219,9 +219,10 @@ pub fn calibrate_from_boards(
             if corners.is_empty() {
                 continue;
             }
-            if let Some(why) = unusable_image(board, corners) {
+            let indices: Vec<usize> = corners.iter().map(|(i, _)| *i).collect();
+            if let Some(why) = unusable_image(&target, &indices) {
                 left_out.push(format!(
-                    "frame {}, camera '{}': {why}",
+                    "frame {}, camera '{}': left out ({why}: no pose of the board from it)",
                     frame.label, names[k]
                 ));
                 continue;
@@ -356,28 +357,6 @@ pub fn calibrate_from_boards(
         left_out,
         validation,
     })
-}
-
-/// Why an image of `board` cannot take part, if it cannot: too few corners, or corners on one
-/// line of the board (no pose from them).
-pub fn unusable_image(board: &Board, corners: &[(usize, Point2<f64>)]) -> Option<String> {
-    if corners.len() < MIN_VIEW_CORNERS {
-        return Some(format!(
-            "{} corners, fewer than {MIN_VIEW_CORNERS}: left out",
-            corners.len()
-        ));
-    }
-    let spans = |line: &dyn Fn(usize) -> usize| {
-        let first = line(corners[0].0);
-        corners.iter().any(|(i, _)| line(*i) != first)
-    };
-    if !spans(&|i| i / board.cols) || !spans(&|i| i % board.cols) {
-        return Some(
-            "its corners lie on one row or column of the board (no pose from them): left out"
-                .into(),
-        );
-    }
-    None
 }
 
 /// The RMS reprojection error of every view (over all its cameras) of `calibration`'s report.

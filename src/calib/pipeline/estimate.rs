@@ -245,7 +245,10 @@ fn port_starts(
             *strategy += "pose per view";
         }
     }
-    if options.method == Method::Auto && use_pairs {
+    // `auto` also starts from the rig's own guess: where the pairs' or the search's start is
+    // poor (a port per camera searched one camera at a time, extrinsics estimated), the guess
+    // itself may lead to the minimum, and the lowest cost wins anyway.
+    if options.method == Method::Auto && (use_pairs || options.estimate.axis) {
         starts.push(("the rig's start guess".into(), rig_start.clone()));
     }
     Ok((starts, chosen))

@@ -68,7 +68,7 @@ pub enum Method {
     /// shares a port).
     Simultaneous,
     /// Maximum likelihood from several starts (the consecutive result, the minimum of the
-    /// reprojection profile, the rig's start guess; or the axis search); the lowest cost wins.
+    /// reprojection profile, the rig's start guess; or the axis search and the rig's start guess); the lowest cost wins.
     Auto,
 }
 
@@ -315,8 +315,10 @@ pub fn calibrate_with_progress(
 ) -> Result<Calibration, CalibError> {
     let started = Instant::now();
     checks::check_options(rig, &observations.target, options)?;
+    let (observations, left_out) = &observations.without_unusable_images();
     let seen = observations.resolve(rig)?;
-    let mut warnings = observations.check(&seen)?;
+    let mut warnings = left_out.clone();
+    warnings.extend(observations.check(&seen)?);
     checks::check_views(&seen, &mut warnings)?;
     let mut calibration = calibrate_views(
         rig,

@@ -200,6 +200,49 @@ impl Observations {
         Ok(seen)
     }
 
+    /// These observations without the images no pose can come from: fewer than
+    /// [`MIN_VIEW_CORNERS`] corners, or (of a board) every corner on one row or one column of the
+    /// board, as partial boards often give. Such an image is left out of its view, and a view
+    /// left with no image is left out (the views after it move up one number); one warning each,
+    /// naming the view as numbered here.
+    pub fn without_unusable_images(&self) -> (Self, Vec<String>) {
+        let mut warnings = Vec::new();
+        let mut views = Vec::with_capacity(self.views.len());
+        for (v, view) in self.views.iter().enumerate() {
+            let mut images = Vec::with_capacity(view.images.len());
+            for image in &view.images {
+                let corners: Vec<usize> = image
+                    .corners
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, c)| c.map(|_| i))
+                    .collect();
+                let why = unusable_image(&self.target, &corners);
+                match why {
+                    Some(why) => warnings.push(format!(
+                        "view {v}: the {} image is left out ({why}: no pose of the target from it)",
+                        image.key
+                    )),
+                    None => images.push(image.clone()),
+                }
+            }
+            if images.is_empty() {
+                warnings.push(format!(
+                    "view {v} is left out: none of its images is usable (the views after it move up one number)"
+                ));
+            } else {
+                views.push(View { images });
+            }
+        }
+        (
+            Self {
+                views,
+                ..self.clone()
+            },
+            warnings,
+        )
+    }
+
     /// The views as a whole, resolved as [`Self::resolve`] gives them: an error for a board seen
     /// edge-on in an image (its corners on a line) and for a view that repeats an earlier one;
     /// warnings for boards seen very obliquely and for views that show one board pose.
@@ -249,6 +292,26 @@ impl Observations {
         }
         Ok(warnings)
     }
+}
+
+/// Why an image holding `corners` (target indices, in order) of `target` gives no pose of it, if
+/// it gives none: fewer than [`MIN_VIEW_CORNERS`] corners, or (of a board) every corner on one
+/// row or one column of the board.
+pub fn unusable_image(target: &Target, corners: &[usize]) -> Option<String> {
+    if corners.len() < MIN_VIEW_CORNERS {
+        return Some(format!(
+            "{} corner(s), fewer than {MIN_VIEW_CORNERS}",
+            corners.len()
+        ));
+    }
+    let board = target.board()?;
+    (on_one_line(corners, |i| i / board.cols) || on_one_line(corners, |i| i % board.cols))
+        .then(|| "its corners lie on one row or column of the board".to_string())
+}
+
+/// Whether every one of `corners` has the same `line` (row or column of the board).
+fn on_one_line(corners: &[usize], line: impl Fn(usize) -> usize) -> bool {
+    corners.windows(2).all(|w| line(w[0]) == line(w[1]))
 }
 
 /// A board of at least 2 × 2 corners and a positive square.
@@ -626,6 +689,63 @@ mod tests {
                 .collect(),
             stereo_form: true,
         }
+    }
+
+    #[test]
+    fn images_no_pose_comes_from_are_left_out_and_said() {
+        // View 0: the right image holds five corners of one row (a partial board at the image's
+        // edge); view 1: both images hold five corners; view 2: whole.
+        let mut one_row = grid(1.0, 0.0);
+        for (i, c) in one_row.iter_mut().enumerate() {
+            if i >= BOARD.cols {
+                *c = None;
+            }
+        }
+        let mut few = grid(1.0, 0.0);
+        for c in few.iter_mut().skip(5) {
+            *c = None;
+        }
+        let mut observations = stereo(vec![
+            [grid(1.0, 0.0), one_row],
+            [few.clone(), few],
+            [grid(1.0, 0.0), grid(1.0, 0.0)],
+        ]);
+        observations.stereo_form = false;
+        let (kept, warnings) = observations.without_unusable_images();
+        assert_eq!(kept.views.len(), 2, "{warnings:?}");
+        assert_eq!(kept.views[0].images.len(), 1);
+        assert_eq!(kept.views[0].images[0].key, "left");
+        assert_eq!(kept.views[1], observations.views[2]);
+        assert!(
+            warnings[0].starts_with("view 0: the right image is left out (5 corner(s)"),
+            "{warnings:?}"
+        );
+        // A partial board's corners along one row, or one column, give no pose.
+        let long = Target::Board(Board {
+            rows: 7,
+            cols: 8,
+            square: 0.04,
+        });
+        let row: Vec<usize> = (8..16).collect();
+        let column: Vec<usize> = (0..7).map(|r| r * 8 + 3).collect();
+        for line in [&row, &column] {
+            let why = unusable_image(&long, line).unwrap();
+            assert!(why.contains("one row or column"), "{why}");
+        }
+        assert!(unusable_image(&long, &[8, 9, 10, 11, 12, 13, 21]).is_none());
+        assert!(
+            warnings.iter().any(|w| w.starts_with("view 1 is left out")),
+            "{warnings:?}"
+        );
+        assert!(kept.resolve(&rig()).is_ok());
+        // A column on a 3-D target is no line of the board: only the count matters.
+        let points = Target::Points(
+            (0..8)
+                .map(|i| nalgebra::Point3::new(i as f64, 0.0, 0.0))
+                .collect(),
+        );
+        assert!(unusable_image(&points, &[0, 1, 2, 3, 4, 5]).is_none());
+        assert!(unusable_image(&points, &[0, 1, 2]).is_some());
     }
 
     #[test]
