@@ -28,6 +28,19 @@ if ! have_vulkan; then
         exit 1
     fi
 fi
+# The ffmpeg tool for the video tests of the frame reader (tests/frames.rs): without it they
+# print a message and pass untested.
+if ! command -v ffmpeg >/dev/null 2>&1 || ! command -v ffprobe >/dev/null 2>&1; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        echo "installing ffmpeg for the video tests..." >&2
+        export DEBIAN_FRONTEND=noninteractive
+        apt-get update -qq
+        apt-get install -y -qq ffmpeg >/dev/null
+    else
+        echo "warning: ffmpeg not found: the video tests will be skipped. Install it, e.g. on Debian/Ubuntu:" >&2
+        echo "  sudo apt-get install ffmpeg" >&2
+    fi
+fi
 # Mesa warns on headless machines unless this is set.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 

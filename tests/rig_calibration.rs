@@ -528,3 +528,74 @@ fn auto_falls_back_to_the_axis_search_when_the_consecutive_start_fails() {
         report.rms_px
     );
 }
+
+#[test]
+fn one_view_of_a_3d_target_calibrates_a_tilted_port() {
+    // The V of two boards at 90° (data/rigs/target_v.json): a 3-D target fixes its pose, and so
+    // the port, from one view, as Agrawal et al.'s tank (one image of a 3-D target) did.
+    let target = flatport::io::read_target(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/rigs/target_v.json"),
+    )
+    .unwrap();
+    assert!(!target.is_planar());
+    let truth = Rig::new(
+        vec![camera("cam", 0.0, 0.0, [0.0; 3])],
+        port(8.0, 45.0, 0.02),
+    )
+    .unwrap();
+    let start = naive(&truth);
+
+    // Noise-free: the truth, to the solver's convergence.
+    let (observations, _) = simulate(&truth, &target, 1, 0.0, 11);
+    assert_eq!(observations.views.len(), 1);
+    let calibration = calibrate(&start, &observations, &Options::default())
+        .unwrap_or_else(|e| panic!("one noise-free view: {e}"));
+    let (axis, air) = port_errors(&truth, &calibration.rig)[0];
+    println!(
+        "one view, no noise: axis {axis:.2e}°, air {:.2e} mm, rms {:.2e} px, {}",
+        air * 1e3,
+        calibration.report.rms_px,
+        calibration.report.strategy
+    );
+    assert!(axis < 1e-6 && air < 1e-9, "axis {axis}° air {air} m");
+
+    // 0.125 px of noise: each estimate within 3 σ of the truth.
+    let (observations, _) = simulate(&truth, &target, 1, 0.125, 11);
+    let calibration = calibrate(&start, &observations, &Options::default())
+        .unwrap_or_else(|e| panic!("one noisy view: {e}"));
+    let report = &calibration.report;
+    let port = &report.ports[0];
+    let checks = [
+        (
+            "tilt °",
+            port.tilt.value.to_degrees(),
+            8.0,
+            port.tilt.std.map(f64::to_degrees),
+        ),
+        (
+            "azimuth °",
+            port.azimuth.value.to_degrees(),
+            45.0,
+            port.azimuth.std.map(f64::to_degrees),
+        ),
+        (
+            "air mm",
+            port.distance.value * 1e3,
+            20.0,
+            port.distance.std.map(|s| s * 1e3),
+        ),
+    ];
+    for (name, value, truth, std) in checks {
+        let std = std.unwrap_or_else(|| panic!("{name}: no σ"));
+        println!("one view, 0.125 px: {name} {value:.4} (truth {truth}, σ {std:.4})");
+        assert!(
+            (value - truth).abs() <= 3.0 * std,
+            "{name}: {value} ± {std}, truth {truth}"
+        );
+    }
+    assert!(
+        report.fits && report.rms_px < RMS_BOUND,
+        "rms {}",
+        report.rms_px
+    );
+}

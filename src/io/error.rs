@@ -67,6 +67,19 @@ pub enum IoError {
         /// What is wrong.
         reason: String,
     },
+    /// An external program that reading the file needs (`ffmpeg` for videos) is not installed or
+    /// cannot be started.
+    #[error("{}: reading it needs the `{program}` command, which cannot be started ({source}): {install}", path.display())]
+    MissingProgram {
+        /// The file that needed it.
+        path: PathBuf,
+        /// The program's name as run (`ffmpeg`, `ffprobe`).
+        program: String,
+        /// How to install it.
+        install: String,
+        /// The operating-system error of starting it.
+        source: std::io::Error,
+    },
 }
 
 /// Longest piece of user input (a key, a header, a line) echoed in an error message, in

@@ -12,6 +12,12 @@ use super::{IoError, write_atomic};
 /// 16-bit values are scaled to 8 bits. A file that does not decode (unknown format, truncated) is
 /// an error naming it.
 pub fn read_grey_image(path: &Path) -> Result<GrayImage, IoError> {
+    Ok(read_image(path)?.to_luma8())
+}
+
+/// Reads and decodes an image file (PNG, JPEG, TIFF; the format from its content). A file that
+/// does not decode (unknown format, truncated) is an error naming it.
+pub(crate) fn read_image(path: &Path) -> Result<DynamicImage, IoError> {
     let bytes = std::fs::read(path).map_err(|source| IoError::Read {
         path: path.to_path_buf(),
         source,
@@ -29,10 +35,9 @@ pub fn read_grey_image(path: &Path) -> Result<GrayImage, IoError> {
             "not an image in a known format (PNG, JPEG, TIFF)".into(),
         ));
     }
-    let image: DynamicImage = reader
+    reader
         .decode()
-        .map_err(|e| invalid(format!("cannot decode the image: {e}")))?;
-    Ok(image.to_luma8())
+        .map_err(|e| invalid(format!("cannot decode the image: {e}")))
 }
 
 /// The size of an image file (width, height) from its header, without decoding it.

@@ -5,6 +5,8 @@ pub mod detections;
 pub mod error;
 pub mod export;
 #[cfg(feature = "images")]
+pub mod frames;
+#[cfg(feature = "images")]
 pub mod image;
 pub mod npy;
 pub mod opencv;

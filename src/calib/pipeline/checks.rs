@@ -4,7 +4,7 @@
 
 use super::bundle::{Estimate, distance_unobservable};
 use super::report::port_names;
-use super::{FEW_VIEWS, MIN_VIEWS, Method, Options};
+use super::{FEW_VIEWS, MIN_VIEWS, MIN_VIEWS_3D, Method, Options};
 use crate::calib::error::{CalibError, degrees};
 use crate::calib::problem::board::Board;
 use crate::calib::problem::observations::{
@@ -96,25 +96,33 @@ pub(super) fn check_options(
 
 /// Enough views and enough distinct target poses (an error otherwise: the answer would look
 /// confident and be wrong, copies shrinking the standard deviations by √copies); few poses are a
-/// warning.
-pub(super) fn check_views(seen: &[SeenView], warnings: &mut Vec<String>) -> Result<(), CalibError> {
-    if seen.len() < MIN_VIEWS {
+/// warning. A planar target needs [`MIN_VIEWS`] distinct poses (within one view its pose and the
+/// port trade off); a 3-D (non-planar) target fixes its pose, and with it the port, from one
+/// view ([`MIN_VIEWS_3D`]; Agrawal et al.'s tank: one image of a 3-D target).
+pub(super) fn check_views(
+    target: &Target,
+    seen: &[SeenView],
+    warnings: &mut Vec<String>,
+) -> Result<(), CalibError> {
+    let planar = target.is_planar();
+    let needed = if planar { MIN_VIEWS } else { MIN_VIEWS_3D };
+    if seen.len() < needed {
         return Err(CalibError::TooFewViews {
             usable: seen.len(),
-            needed: MIN_VIEWS,
+            needed,
         });
     }
     let groups = compare_views(&view_corners(seen));
     groups.check_repeats()?;
-    if groups.distinct < MIN_VIEWS {
+    if groups.distinct < needed {
         return Err(CalibError::TooFewPoses {
             views: seen.len(),
             distinct: groups.distinct,
             groups: describe_pose_groups(&groups),
-            needed: MIN_VIEWS,
+            needed,
         });
     }
-    if groups.distinct < FEW_VIEWS {
+    if planar && groups.distinct < FEW_VIEWS {
         let poses = if groups.distinct == seen.len() {
             format!("only {} views", seen.len())
         } else {

@@ -259,9 +259,12 @@ pub struct Calibration {
     pub report: Report,
 }
 
-/// Fewest views accepted; below [`FEW_VIEWS`] a warning says the result is weak.
+/// Fewest distinct poses of a planar target accepted; below [`FEW_VIEWS`] a warning says the
+/// result is weak.
 pub const MIN_VIEWS: usize = 3;
-/// Views below which a calibration is flagged as weakly determined.
+/// Fewest views of a 3-D (non-planar) target accepted: one fixes its pose and the port.
+pub const MIN_VIEWS_3D: usize = 1;
+/// Views of a planar target below which a calibration is flagged as weakly determined.
 pub const FEW_VIEWS: usize = 8;
 /// RMS reprojection error, pixels, at or below which the noise explains a maximum-likelihood
 /// result: this many times the corner noise seen in the images, plus [`NOISE_MARGIN_PX`] for the
@@ -279,7 +282,8 @@ pub const WEAK_AIR_STD_M: f64 = 5e-3;
 ///
 /// Errors: options out of range or a method that does not apply to the rig
 /// ([`CalibError::Options`]); observations that do not fit the rig or its target (named by view,
-/// image and corner); fewer than [`MIN_VIEWS`] distinct target poses; repeated views; no axis
+/// image and corner); fewer than [`MIN_VIEWS`] distinct poses of a planar target (of a 3-D one,
+/// [`MIN_VIEWS_3D`]); repeated views; no axis
 /// within the tilt bound that explains the corners ([`CalibError::NoSolution`], which says what
 /// the data look like). A result that does not fit is not an error: [`Report::fits`] is false and
 /// [`Report::diagnosis`] names the usual input mistake the misfit looks like.
@@ -319,7 +323,7 @@ pub fn calibrate_with_progress(
     let seen = observations.resolve(rig)?;
     let mut warnings = left_out.clone();
     warnings.extend(observations.check(&seen)?);
-    checks::check_views(&seen, &mut warnings)?;
+    checks::check_views(&observations.target, &seen, &mut warnings)?;
     let mut calibration = calibrate_views(
         rig,
         &observations.target,

@@ -73,7 +73,7 @@ impl CameraPair {
         Self { first, second }
     }
 
-    /// `[first, second]`, as the pair kernels take them.
+    /// `[first, second]`.
     pub fn indices(self) -> [usize; 2] {
         [self.first, self.second]
     }

@@ -6,6 +6,7 @@
 use super::kernels;
 use super::runner::KernelRunner;
 use super::views::{ViewKernel, ViewRows};
+use crate::calib::problem::data::CameraPair;
 use crate::engine::GpuEngine;
 use crate::gpu::compose::Precision;
 use crate::gpu::context::GpuError;
@@ -46,7 +47,7 @@ impl KernelRunner {
         &self,
         engine: &GpuEngine,
         rig: &Rig,
-        cameras: [usize; 2],
+        cameras: CameraPair,
         input: &AffineGridInput,
         axes: &[[f64; 4]],
         fits: &mut [[f64; 2]],

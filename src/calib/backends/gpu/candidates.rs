@@ -5,6 +5,7 @@
 
 use super::kernels;
 use super::runner::{KernelRunner, candidate_params};
+use crate::calib::problem::data::CameraPair;
 use crate::engine::GpuEngine;
 use crate::gpu::ResidentRows;
 use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
@@ -28,7 +29,7 @@ impl KernelRunner {
         &self,
         engine: &GpuEngine,
         rig: &Rig,
-        cameras: [usize; 2],
+        cameras: CameraPair,
         air_rays: &ResidentRows,
         candidates: &[[f64; 4]],
         points: &mut [[f64; 4]],
@@ -60,7 +61,7 @@ impl KernelRunner {
         &self,
         engine: &GpuEngine,
         rig: &Rig,
-        cameras: [usize; 2],
+        cameras: CameraPair,
         corners: &ResidentRows,
         axes: &[[f64; 4]],
         vops: &mut [[f64; 10]],
@@ -87,7 +88,7 @@ impl KernelRunner {
         engine: &GpuEngine,
         kernel: &KernelSource,
         rig: &Rig,
-        cameras: [usize; 2],
+        cameras: CameraPair,
         input: &ResidentRows,
         candidates: &[[f64; 4]],
         output: &mut [[f64; M]],

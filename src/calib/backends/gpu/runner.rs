@@ -4,6 +4,7 @@
 
 use std::sync::{Mutex, MutexGuard};
 
+use crate::calib::problem::data::CameraPair;
 use crate::engine::GpuEngine;
 use crate::gpu::buffers::{Slot, SlotPair};
 use crate::gpu::context::GpuError;
@@ -55,7 +56,7 @@ impl KernelRunner {
 pub(super) fn candidate_params(
     precision: Precision,
     rig: &Rig,
-    cameras: [usize; 2],
+    cameras: CameraPair,
 ) -> Result<Params, GpuError> {
     let [a, b] = cameras.map(|k| rig.refractive_camera(k));
     check_layers(&a)?;

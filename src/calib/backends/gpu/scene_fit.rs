@@ -9,6 +9,7 @@
 use super::kernels;
 use super::runner::KernelRunner;
 use super::views::{ViewKernel, ViewRows};
+use crate::calib::problem::data::CameraPair;
 use crate::engine::GpuEngine;
 use crate::gpu::compose::{KernelSource, STATUS_RETRY};
 use crate::gpu::context::GpuError;
@@ -83,7 +84,7 @@ impl KernelRunner {
         &self,
         engine: &GpuEngine,
         rig: &Rig,
-        cameras: [usize; 2],
+        cameras: CameraPair,
         input: &SceneFitInput,
         what: SceneSum,
         candidates: &[[f64; 4]],

@@ -10,6 +10,7 @@ use std::sync::OnceLock;
 
 use super::kernels;
 use super::runner::{KernelRunner, candidate_params};
+use crate::calib::problem::data::CameraPair;
 use crate::engine::GpuEngine;
 use crate::gpu::ResidentRows;
 use crate::gpu::buffers::{input_usage, rows_from, upload_reals};
@@ -258,7 +259,7 @@ impl KernelRunner {
         engine: &GpuEngine,
         job: ViewKernel<'_>,
         rig: &Rig,
-        cameras: [usize; 2],
+        cameras: CameraPair,
         candidates: &[[f64; 4]],
         output: &mut [[f64; M]],
         status: &mut [u32],
