@@ -20,6 +20,10 @@
 //!    covariance, residuals per camera and view, outlier images, and, when the result does not
 //!    fit, what the data look like ([`diagnose`], and [`misfit`]: the usual input mistakes, each
 //!    undone and calibrated again).
+//!
+//! Before all of it, with images, each camera's in-air intrinsics ([`intrinsics`]: Zhang's
+//! closed form, maximum likelihood over the lens model and the board poses, the lens terms chosen
+//! by held-out views).
 
 pub mod boards;
 pub mod bundle;
@@ -28,6 +32,7 @@ pub mod consecutive;
 pub mod diagnose;
 mod estimate;
 pub mod extrinsics;
+pub mod intrinsics;
 pub mod misfit;
 pub mod poses;
 pub mod report;
