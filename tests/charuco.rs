@@ -132,16 +132,19 @@ fn pose(
     Isometry3::from_parts(Translation3::from(centre), rotation) * Translation3::from(-mid)
 }
 
+/// What the detector gave, and the exact corners (`None` outside the image).
+type Outcome = (
+    Result<Vec<(usize, Point2<f64>)>, Miss>,
+    Vec<Option<Point2<f64>>>,
+);
+
 /// Renders the board and returns (the detection, the exact corners inside the image).
 fn render_and_detect(
     rig: &Rig,
     board: &BoardSpec,
     pose: &Isometry3<f64>,
     options: &RenderOptions,
-) -> (
-    Result<Vec<(usize, Point2<f64>)>, Miss>,
-    Vec<Option<Point2<f64>>>,
-) {
+) -> Outcome {
     let camera = rig.refractive_camera(0);
     let image = grey(&render_board_spec(&cpu(), &camera, board, pose, options).unwrap());
     let grid = board.corner_grid();
@@ -287,4 +290,152 @@ fn too_few_corners_are_a_miss_and_a_chessboard_needs_the_whole_board() {
         Err(Miss::NoBoard)
     );
     assert_eq!(read_board(&data.join("charuco_7x5.json")).unwrap(), board);
+}
+
+fn flatport(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_flatport"))
+        .args(args)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("the flatport binary runs")
+}
+
+/// The corners of camera `name` in view `v` of an observations file (general or stereo form).
+fn corners_in(file: &Path, v: usize, name: &str) -> Vec<Option<Point2<f64>>> {
+    let value: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(file).unwrap()).unwrap();
+    value["views"][v][name]
+        .as_array()
+        .unwrap_or_else(|| panic!("{}: view {v} has no {name}", file.display()))
+        .iter()
+        .map(|p| {
+            p.as_array()
+                .map(|p| Point2::new(p[0].as_f64().unwrap(), p[1].as_f64().unwrap()))
+        })
+        .collect()
+}
+
+#[test]
+fn the_cli_renders_and_detects_charuco_boards_partial_views_included() {
+    // One camera through the tilted port, two poses from a truth file: the board whole, and the
+    // board crossing the image's right edge. render writes the exact corners (null outside the
+    // image), detect the found ones (null where not found), both by OpenCV's ids.
+    let dir = tempfile::tempdir().unwrap();
+    let at = |name: &str| dir.path().join(name);
+    let rig = one_camera(false);
+    flatport::io::write_rig(&at("rig.json"), &rig).unwrap();
+    let board = board_7x5();
+    let spec = charuco(&board);
+    let truth = flatport::io::Truth {
+        interface: rig.port_in_master(0),
+        master_from_board: vec![
+            pose(spec, 0.3, -0.2, 0.1, Vector3::new(0.02, -0.01, 0.45)),
+            pose(spec, 0.2, -0.3, 0.2, Vector3::new(0.22, 0.03, 0.5)),
+        ],
+        noise_px: 0.0,
+        seed: 1,
+        rig: Some(rig.clone()),
+    };
+    flatport::io::write_truth(&at("truth.json"), &truth).unwrap();
+    let board_file = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/boards/charuco_7x5.json");
+    let (board_arg, shots) = (board_file.to_str().unwrap(), at("shots"));
+    let out = flatport(&[
+        "render",
+        "--rig",
+        at("rig.json").to_str().unwrap(),
+        "--truth",
+        at("truth.json").to_str().unwrap(),
+        "--board",
+        board_arg,
+        "--noise",
+        "1",
+        "-q",
+        "--output",
+        shots.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let glob = format!("cam={}/cam/*.png", shots.display());
+    let observations = at("observations.json");
+    let out = flatport(&[
+        "detect",
+        "--board",
+        board_arg,
+        "--images",
+        &glob,
+        "-q",
+        "--output",
+        observations.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let corners_json = shots.join("corners.json");
+    for v in 0..2 {
+        let exact = corners_in(&corners_json, v, "cam");
+        let found = corners_in(&observations, v, "cam");
+        assert_eq!((exact.len(), found.len()), (24, 24));
+        let found: Vec<(usize, Point2<f64>)> = found
+            .iter()
+            .enumerate()
+            .filter_map(|(id, p)| p.map(|p| (id, p)))
+            .collect();
+        let (rms, max) = compare(&found, &exact, &format!("view {v}"));
+        assert!(
+            rms <= 0.1 && max <= 0.3,
+            "view {v}: RMS {rms} px, largest {max} px"
+        );
+        let inside = exact.iter().filter(|p| p.is_some()).count();
+        if v == 0 {
+            assert_eq!((inside, found.len()), (24, 24));
+        } else {
+            assert!(
+                inside < 20 && found.len() + 4 >= inside,
+                "{} of {inside}",
+                found.len()
+            );
+        }
+    }
+    // --charuco DICT points to the board file; a bad board file names file, key and value.
+    let out = flatport(&[
+        "detect",
+        "--board",
+        "9x6@0.04",
+        "--charuco",
+        "DICT_4X4_50",
+        "--images",
+        &glob,
+        "--output",
+        at("x.json").to_str().unwrap(),
+    ]);
+    let text = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && text.contains("--board BOARD.json"),
+        "{text}"
+    );
+    std::fs::write(
+        at("bad.json"),
+        r#"{"type": "charuco", "squares_x": 7, "squares_y": 5, "square_size": 0.04, "marker_size": 0.03, "dictionary": "DICT_4X4_5"}"#,
+    )
+    .unwrap();
+    let out = flatport(&[
+        "detect",
+        "--board",
+        at("bad.json").to_str().unwrap(),
+        "--images",
+        &glob,
+        "--output",
+        at("x.json").to_str().unwrap(),
+    ]);
+    let text = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && text.contains("bad.json: dictionary: dictionary = \"DICT_4X4_5\": unknown dictionary; known: DICT_4X4_50"),
+        "{text}"
+    );
 }

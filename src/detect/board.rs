@@ -191,7 +191,7 @@ impl CharucoSpec {
         // OpenCV's setLegacyPattern: "white box in the upper left corner if there is an even
         // row count of chessboard boxes, otherwise it starts with a black box" — the same board
         // as today's when the rows are odd.
-        if legacy_pattern && squares_y % 2 == 0 {
+        if legacy_pattern && squares_y.is_multiple_of(2) {
             return Err(BoardError::LegacyPattern { squares_y });
         }
         let spec = Self {
@@ -237,7 +237,7 @@ impl CharucoSpec {
     /// The marker in square (a, b) (column a from the left, row b from the top), `None` for a
     /// black square or one outside the board.
     pub fn marker_at_square(&self, a: usize, b: usize) -> Option<usize> {
-        if a >= self.squares_x || b >= self.squares_y || (a + b) % 2 == 0 {
+        if a >= self.squares_x || b >= self.squares_y || (a + b).is_multiple_of(2) {
             return None;
         }
         // White squares before row b: ⌊squares_x / 2⌋ or ⌈squares_x / 2⌉ per row, alternately

@@ -180,15 +180,13 @@ fn region(pattern: &Pattern, border: f64, x: f64, y: f64) -> u8 {
     match pattern {
         Pattern::Chessboard(_) => 1,
         Pattern::Charuco(spec) => match marker_cell(spec, a, b, x - x.floor(), y - y.floor()) {
+            // Inside the marker (cells 1 … bits + 2 along both axes) and black there.
             Some((id, i, j))
                 if (1..=spec.marker_bits() + 2).contains(&i)
-                    && (1..=spec.marker_bits() + 2).contains(&j) =>
+                    && (1..=spec.marker_bits() + 2).contains(&j)
+                    && spec.marker_cell_is_black(id, i - 1, j - 1) =>
             {
-                if spec.marker_cell_is_black(id, i - 1, j - 1) {
-                    0
-                } else {
-                    1
-                }
+                0
             }
             _ => 1,
         },
