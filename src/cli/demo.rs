@@ -188,7 +188,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     let poses = simulate(rig, &spec)?.master_from_target;
     let scene = super::render::Scene {
         rig: rig.clone(),
-        board,
+        board: flatport::detect::BoardSpec::Chessboard(board),
         poses,
     };
     let options = RenderOptions {
@@ -227,7 +227,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
         )
     };
     super::detect::run(super::detect::DetectArgs {
-        board,
+        board: flatport::detect::BoardSpec::Chessboard(board),
         images: vec![glob("left"), glob("right")],
         output: dir.join("observations.json"),
         rig: Some(dir.join("rig.json")),

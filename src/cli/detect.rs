@@ -1,4 +1,5 @@
-//! `flatport detect`: chessboard corners in every camera's images → the observations file.
+//! `flatport detect`: board corners (a chessboard or a ChArUco board) in every camera's images →
+//! the observations file.
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -9,7 +10,10 @@ use clap::Args;
 use rayon::prelude::*;
 
 use flatport::calib::Board;
-use flatport::detect::{Found, Miss, Rule, detect_board, resolve_view};
+use flatport::detect::{
+    BoardSpec, CharucoSpec, Found, Miss, Rule, corners_by_id, detect_board, detect_charuco,
+    resolve_view,
+};
 use flatport::io::overlay::overlay;
 use flatport::io::{DetectedView, read_grey_image, read_rig, write_detections, write_rgb_jpeg};
 use flatport::model::Rig;
@@ -19,10 +23,12 @@ use super::progress::Progress;
 /// `flatport detect`
 #[derive(Debug, Args)]
 pub struct DetectArgs {
-    /// Board as COLSxROWS@SQUARE: inner corners per row × per column (OpenCV's patternSize) and
-    /// the square in metres
-    #[arg(long, value_name = "COLSxROWS@M", value_parser = super::calib::parse_board)]
-    pub board: Board,
+    /// Board: COLSxROWS@SQUARE, a chessboard by its inner corners per row × per column (OpenCV's
+    /// patternSize) and the square in metres, or a BOARD.json (a chessboard or a ChArUco board,
+    /// counted in squares: docs/images.md). A ChArUco board's corners carry OpenCV's ids, so
+    /// partial views are kept (a corner not seen is null)
+    #[arg(long, value_name = "COLSxROWS@M|BOARD.json", value_parser = parse_board_spec)]
+    pub board: BoardSpec,
     /// A camera's images as CAMERA=GLOB (quote the glob), once per camera; the images of each
     /// camera are taken in sorted file-name order and the n-th images of all cameras form view n
     #[arg(long = "images", value_name = "CAMERA=GLOB", required = true, value_parser = parse_images)]
@@ -38,8 +44,8 @@ pub struct DetectArgs {
     /// Folder for overlays: every image with its corners, corner 0 and the row direction drawn
     #[arg(long, value_name = "DIR")]
     pub overlay: Option<PathBuf>,
-    /// ChArUco board with this ArUco dictionary (e.g. DICT_4X4_50): not supported yet
-    #[arg(long, value_name = "DICT")]
+    /// Replaced by --board BOARD.json, which gives the dictionary with the marker size (says so)
+    #[arg(long, value_name = "DICT", hide = true)]
     pub charuco: Option<String>,
     /// No progress bar
     #[arg(long, short)]
@@ -102,10 +108,15 @@ struct ImageResult {
 pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     if let Some(dictionary) = &args.charuco {
         bail!(
-            "--charuco {dictionary}: ChArUco boards are not supported yet; print a plain chessboard (docs/images.md, \"What is left out, and said\")"
+            "--charuco {dictionary}: give the ChArUco board as a file instead, --board BOARD.json with \
+             {{\"type\": \"charuco\", \"squares_x\": 7, \"squares_y\": 5, \"square_size\": 0.04, \"marker_size\": 0.03, \"dictionary\": \"{dictionary}\"}} \
+             (squares, not inner corners; metres; docs/images.md)"
         );
     }
-    let board = args.board;
+    let board = match &args.board {
+        BoardSpec::Chessboard(board) => *board,
+        BoardSpec::Charuco(spec) => return run_charuco(&args, spec),
+    };
     let names: Vec<String> = args.images.iter().map(|(c, _)| c.clone()).collect();
     let rig: Option<Rig> = args.rig.as_deref().map(read_rig).transpose()?;
     let rig_cameras = rig
@@ -116,7 +127,9 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     let views = files[0].len();
     // Sizes first, from the headers: a wrong image fails before any detection runs.
     check_sizes(&files, &names, rig.as_ref().zip(rig_cameras.as_deref()))?;
-    let results = detect_all(&files, &board, args.quiet)?;
+    let results: Vec<ImageResult> = detect_all(&files, args.quiet, |image| ImageResult {
+        found: detect_board(image, &board).map(|d| Found::new(image, &board, d)),
+    })?;
     let pair = rig.as_ref().zip(rig_cameras.as_deref());
     let resolved = resolve_views(&board, &names, &files, pair, &results);
     let left_out = write_detections(&args.output, &board, &names, &resolved.detected)?;
@@ -251,13 +264,13 @@ fn check_sizes(
     Ok(())
 }
 
-/// Detects the board in every image, view by view and camera by camera within a view (the
-/// order of the results), on every core, with progress.
-fn detect_all(
+/// Runs `detect` on every image, view by view and camera by camera within a view (the order of
+/// the results), on every core, with progress.
+fn detect_all<T: Send>(
     files: &[Vec<PathBuf>],
-    board: &Board,
     quiet: bool,
-) -> anyhow::Result<Vec<ImageResult>> {
+    detect: impl Fn(&image::GrayImage) -> T + Sync,
+) -> anyhow::Result<Vec<T>> {
     let (cameras, views) = (files.len(), files[0].len());
     let jobs: Vec<(usize, usize)> = (0..views)
         .flat_map(|v| (0..cameras).map(move |k| (v, k)))
@@ -268,14 +281,114 @@ fn detect_all(
         .map(|&(v, k)| {
             let path = &files[k][v];
             let image = read_grey_image(path)?;
-            let found = detect_board(&image, board).map(|d| Found::new(&image, board, d));
+            let found = detect(&image);
             let n = done.fetch_add(1, Ordering::Relaxed) + 1;
             if let Ok(mut p) = progress.lock() {
                 p.update(n, jobs.len());
             }
-            Ok(ImageResult { found })
+            Ok(found)
         })
         .collect()
+}
+
+/// `--board`: COLSxROWS@SQUARE (a chessboard by its inner corners) or the path of a BOARD.json
+/// (a value ending in `.json`, or an existing file).
+pub fn parse_board_spec(text: &str) -> Result<BoardSpec, String> {
+    let path = Path::new(text);
+    if text.ends_with(".json") || path.is_file() {
+        return flatport::io::read_board(path).map_err(|e| e.to_string());
+    }
+    super::calib::parse_board(text)
+        .map(BoardSpec::Chessboard)
+        .map_err(|e| format!("{e}, or the path of a BOARD.json"))
+}
+
+/// `flatport detect` with a ChArUco board: every corner comes with its id, so there is no corner 0
+/// to resolve and a partial view is kept with `null` for the corners not seen.
+fn run_charuco(args: &DetectArgs, spec: &CharucoSpec) -> anyhow::Result<()> {
+    if args.overlay.is_some() {
+        bail!(
+            "--overlay draws chessboards only for now; run without it (the observations file has the ChArUco corners with their ids)"
+        );
+    }
+    let grid = spec.corner_grid();
+    let names: Vec<String> = args.images.iter().map(|(c, _)| c.clone()).collect();
+    let rig: Option<Rig> = args.rig.as_deref().map(read_rig).transpose()?;
+    let rig_cameras = rig
+        .as_ref()
+        .map(|rig| cameras_in_rig(rig, &names))
+        .transpose()?;
+    let files = list_images(&args.images)?;
+    let views = files[0].len();
+    check_sizes(&files, &names, rig.as_ref().zip(rig_cameras.as_deref()))?;
+    let results = detect_all(&files, args.quiet, |image| detect_charuco(image, spec))?;
+    let count = names.len();
+    let mut detected: Vec<DetectedView> = Vec::new();
+    let mut kept_views = Vec::new();
+    for v in 0..views {
+        for k in 0..count {
+            if let Err(miss) = &results[v * count + k] {
+                eprintln!("no board: {}: {miss}", files[k][v].display());
+            }
+        }
+        let view: DetectedView = (0..count)
+            .map(|k| {
+                results[v * count + k]
+                    .as_ref()
+                    .ok()
+                    .map(|corners| corners_by_id(corners, grid.corners()))
+            })
+            .collect();
+        if view.iter().all(Option::is_none) {
+            eprintln!(
+                "dropped: view {v} ({}): no camera found the board",
+                file_list(&files, v)
+            );
+            continue;
+        }
+        detected.push(view);
+        kept_views.push(v);
+    }
+    let left_out = write_detections(&args.output, &grid, &names, &detected)?;
+    for &i in &left_out {
+        let v = kept_views[i];
+        let saw: Vec<&str> = (0..count)
+            .filter(|&k| detected[i][k].is_some())
+            .map(|k| names[k].as_str())
+            .collect();
+        eprintln!(
+            "left out: view {v} ({}): only {} found the board, and today's stereo observations file holds views both cameras saw",
+            file_list(&files, v),
+            saw.join(", ")
+        );
+    }
+    let per_camera: Vec<String> = names
+        .iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let found: Vec<usize> = (0..views)
+                .filter_map(|v| results[v * count + k].as_ref().ok().map(Vec::len))
+                .collect();
+            format!(
+                "{name} {}/{views} ({} corners)",
+                found.len(),
+                found.iter().sum::<usize>()
+            )
+        })
+        .collect();
+    let written = detected.len() - left_out.len();
+    outln!(
+        "ChArUco boards found: {}; wrote {written} of {views} views to {}",
+        per_camera.join(", "),
+        args.output.display()
+    );
+    if written == 0 {
+        bail!(
+            "no view of the board in any camera could be used: {} holds no views",
+            args.output.display()
+        );
+    }
+    Ok(())
 }
 
 /// The image files of view `v`, comma-separated.
@@ -343,7 +456,11 @@ fn resolve_views(
                     .iter()
                     .zip(&found)
                     .map(|(c, f)| {
-                        c.and_then(|(o, _)| f.as_ref().map(|f| f.detection.orderings[o].clone()))
+                        c.and_then(|(o, _)| {
+                            f.as_ref().map(|f| {
+                                f.detection.orderings[o].iter().copied().map(Some).collect()
+                            })
+                        })
                     })
                     .collect();
                 for (k, c) in chosen.iter().enumerate() {

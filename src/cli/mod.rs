@@ -130,12 +130,20 @@ out and listed on stderr. A camera that found no board is absent from that view;
 the file has the stereo form the calibration reads today, which holds only views both cameras saw,
 so a view one camera saw is left out and listed too.
 
+A ChArUco board is given as a file, --board BOARD.json ({\"type\": \"charuco\", \"squares_x\": 7,
+\"squares_y\": 5, \"square_size\": 0.04, \"marker_size\": 0.03, \"dictionary\": \"DICT_4X4_50\"}:
+squares, metres, OpenCV's dictionary names). Its corners carry OpenCV's ids (row-major over the
+inner corners, row 0 at the board's top edge), so partial views are kept, a corner not seen
+written as null; an image needs 4 corners spanning two rows and two columns.
+
 Examples:
   flatport detect --board 9x6@0.04 --images left='shots/left/*.png' --images right='shots/right/*.png' \\
       --rig rig.json --output observations.json --overlay overlays
+  flatport detect --board data/boards/charuco_7x5.json --images left='shots/left/*.png' \\
+      --images right='shots/right/*.png' --output observations.json
   flatport calibrate --rig rig.json --observations observations.json -o calibrated.json")]
     Detect(detect::DetectArgs),
-    /// Render images of a chessboard seen through the port by every camera (with exact corners)
+    /// Render images of a chessboard or a ChArUco board seen through the port by every camera (with exact corners)
     #[command(after_help = "\
 Every pixel is back-projected through the port (on the GPU the pixel grid is made in the shader),
 its water ray meets the board, and the board's shade there is the pixel's value; pixels on an
@@ -143,7 +151,9 @@ edge of the pattern are supersampled (anti-aliasing). Lens distortion comes from
 and blur are optional. The poses come from a truth file (`flatport simulate`) or are drawn as
 simulate draws them. Writes DIR/CAMERA/view_NNN.png, DIR/rig.json (the rig with the true port),
 DIR/truth.json and DIR/corners.json (the exact corners, the observations file's format: every
-board corner projected through the port by the model).
+board corner projected through the port by the model; for a ChArUco board, --board BOARD.json,
+every corner inside the image and null for the others). A rig whose port has index_water equal to
+index_air and no layers renders in-air images.
 
 With --scene SCENE.json it renders a textured scene instead (planes, height fields, spheres with
 procedural noise or image textures; see data/scenes/ and docs/stereo.md): every sub-sample of every
@@ -155,6 +165,7 @@ Examples:
   flatport render --scene data/scenes/seabed.json --noise 2 --output seabed
   flatport render --rig data/example_rig.json --board 9x6@0.04 --views 15 --seed 1 --noise 2 --output shots
   flatport render --rig rig.json --truth scene/truth.json --board 9x6@0.04 --blur 0.8 --output shots
+  flatport render --rig data/example_rig.json --board data/boards/charuco_7x5.json --views 15 --output shots
   flatport detect --board 9x6@0.04 --images left='shots/left/*.png' --images right='shots/right/*.png' -o obs.json")]
     Render(render::RenderArgs),
     /// Dense refraction-exact multi-view stereo: depth maps, points and point clouds from a rig's images

@@ -1,4 +1,5 @@
-//! `flatport render`: images of a chessboard seen through the port by every camera of a rig.
+//! `flatport render`: images of a board (a chessboard or a ChArUco board) seen through the port by
+//! every camera of a rig.
 
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -8,14 +9,15 @@ use anyhow::Context;
 use clap::Args;
 use nalgebra::{Isometry3, Point2};
 
-use flatport::calib::{Board, SceneSpec, Target, simulate};
+use flatport::calib::{SceneSpec, Target, simulate};
+use flatport::detect::BoardSpec;
 use flatport::engine::Engine;
 use flatport::io::{
     DetectedView, Truth, read_rig, read_truth, write_detections, write_grey_png, write_grey16_png,
     write_rig, write_truth,
 };
 use flatport::model::Rig;
-use flatport::render::{RenderOptions, render_board};
+use flatport::render::{RenderOptions, render_board_spec};
 
 use super::progress::Progress;
 
@@ -33,10 +35,11 @@ pub struct RenderArgs {
     /// Truth file of a simulated scene (`flatport simulate`): its port and board poses
     #[arg(long, value_name = "TRUTH.json", conflicts_with_all = ["views", "seed"])]
     truth: Option<PathBuf>,
-    /// Board as COLSxROWS@SQUARE: inner corners per row × per column (OpenCV's patternSize) and
-    /// the square in metres
-    #[arg(long, value_name = "COLSxROWS@M", default_value = "9x6@0.04", value_parser = super::calib::parse_board)]
-    board: Board,
+    /// Board: COLSxROWS@SQUARE, a chessboard by its inner corners per row × per column (OpenCV's
+    /// patternSize) and the square in metres, or a BOARD.json (a chessboard or a ChArUco board,
+    /// counted in squares: docs/images.md)
+    #[arg(long, value_name = "COLSxROWS@M|BOARD.json", default_value = "9x6@0.04", value_parser = super::detect::parse_board_spec)]
+    board: BoardSpec,
     /// Number of random board poses (as `flatport simulate` draws them), without --truth
     #[arg(long, default_value_t = 15)]
     views: usize,
@@ -63,7 +66,8 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 8, value_parser = parse_bits)]
     bits: u8,
     /// Output folder (created if missing): CAMERA/view_NNN.png per camera, truth.json, rig.json,
-    /// corners.json (the exact corners: the board's corners projected through the port)
+    /// corners.json (the exact corners: the board's corners projected through the port; for a
+    /// ChArUco board every corner inside the image, `null` for the others)
     #[arg(long, short, value_name = "DIR")]
     output: PathBuf,
     /// No progress bar
@@ -84,7 +88,7 @@ fn parse_bits(text: &str) -> Result<u8, String> {
 /// What to render: the rig with the true port, the board, the poses.
 pub struct Scene {
     pub rig: Rig,
-    pub board: Board,
+    pub board: BoardSpec,
     pub poses: Vec<Isometry3<f64>>,
 }
 
@@ -112,7 +116,11 @@ pub fn render_scene(
         rig: Some(scene.rig.clone()),
     };
     write_truth(&dir.join("truth.json"), &truth)?;
-    // The exact corners: every board corner projected through the port by the model.
+    // The exact corners: every board corner projected through the port by the model. A
+    // chessboard's view holds all of them or none (its detector takes whole boards only); a
+    // ChArUco board's holds those inside the image (ids say which).
+    let grid = scene.board.corner_grid();
+    let partial = matches!(scene.board, BoardSpec::Charuco(_));
     let cameras: Vec<_> = (0..names.len())
         .map(|k| scene.rig.refractive_camera(k))
         .collect();
@@ -124,10 +132,10 @@ pub fn render_scene(
                 .iter()
                 .map(|camera| {
                     let i = camera.intrinsics();
-                    (0..scene.board.corners())
+                    let corners: Vec<Option<Point2<f64>>> = (0..grid.corners())
                         .map(|c| {
                             camera
-                                .project(&(pose * scene.board.point_in_board(c)))
+                                .project(&(pose * grid.point_in_board(c)))
                                 .ok()
                                 .filter(|p: &Point2<f64>| {
                                     p.x >= -0.5
@@ -136,12 +144,19 @@ pub fn render_scene(
                                         && p.y < i.height as f64 - 0.5
                                 })
                         })
-                        .collect::<Option<Vec<_>>>()
+                        .collect();
+                    let seen = corners.iter().filter(|c| c.is_some()).count();
+                    let usable = if partial {
+                        seen > 0
+                    } else {
+                        seen == corners.len()
+                    };
+                    usable.then_some(corners)
                 })
                 .collect()
         })
         .collect();
-    write_detections(&dir.join("corners.json"), &scene.board, &names, &exact)?;
+    write_detections(&dir.join("corners.json"), &grid, &names, &exact)?;
 
     let total = scene.poses.len() * names.len();
     let progress = Mutex::new(Progress::new("render", "images", quiet));
@@ -172,7 +187,7 @@ pub fn render_scene(
                     .seed
                     .wrapping_mul(1_000_003)
                     .wrapping_add((v * names.len() + k) as u64);
-                let image = match render_board(
+                let image = match render_board_spec(
                     engine,
                     camera,
                     &scene.board,
@@ -243,7 +258,14 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
                     "poses are drawn as `flatport simulate` draws them, for a stereo pair: the rig has one camera (give --truth)"
                 );
             }
-            let mut spec = SceneSpec::pair(Target::Board(board), args.views, 0.0, args.seed, 0, 1);
+            let mut spec = SceneSpec::pair(
+                Target::Board(board.corner_grid()),
+                args.views,
+                0.0,
+                args.seed,
+                0,
+                1,
+            );
             spec.margin_px = args.margin_px;
             let simulated = simulate(&rig, &spec)?;
             Scene {

@@ -1,6 +1,8 @@
-//! Chessboard corners in images, in the order the calibration needs: row-major as OpenCV's
+//! Board corners in images, in the order the calibration needs: row-major as OpenCV's
 //! `findChessboardCorners` gives them (corner `r·cols + c` at board point (c·s, r·s)), with the
-//! same physical corner 0 in every camera of a view.
+//! same physical corner 0 in every camera of a view. A ChArUco board ([`board`]) names its
+//! corners itself ([`detect_charuco`]: OpenCV's corner ids, partial views included); a plain
+//! chessboard needs the rules below. [`find_corners`] takes either kind.
 //!
 //! The corners come from the `calib-targets` crate (ChESS corners, its chessboard grid, the
 //! saddle-point sub-pixel refiner). Its grid labels say which corner is next to which, not which
@@ -19,6 +21,10 @@
 //! Chirality is fixed: with the rows running right in the image, the next row lies below, so the
 //! board frame's z axis (row direction × column direction) points away from the camera, as in
 //! the calibration's board model.
+
+pub mod board;
+
+pub use board::{BoardError, BoardSpec, CharucoSpec};
 
 use image::GrayImage;
 use nalgebra::Point2;
@@ -41,12 +47,18 @@ pub enum Miss {
         /// Its extent, corners across × down the image.
         extent: (usize, usize),
     },
+    /// A ChArUco board, but too few of its corners to use ([`MIN_CHARUCO_CORNERS`], spanning
+    /// two rows and two columns of the board).
+    Sparse {
+        /// Corners found, with their ids.
+        found: usize,
+    },
 }
 
 impl std::fmt::Display for Miss {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Miss::NoBoard => write!(f, "no chessboard found"),
+            Miss::NoBoard => write!(f, "no board found"),
             Miss::Partial {
                 found,
                 extent: (w, h),
@@ -56,6 +68,10 @@ impl std::fmt::Display for Miss {
                     "found a grid of {found} corners ({w} × {h}), not the whole board"
                 )
             }
+            Miss::Sparse { found } => write!(
+                f,
+                "found {found} ChArUco corners, fewer than {MIN_CHARUCO_CORNERS} spanning two rows and two columns of the board"
+            ),
         }
     }
 }
@@ -496,6 +512,97 @@ pub fn resolve_view(
         }
     }
     Ok(chosen)
+}
+
+/// Fewest ChArUco corners [`detect_charuco`] returns, and they must span at least two rows and
+/// two columns of the board: a view's board pose (6 unknowns) needs at least 4 points off one
+/// line (a line of points leaves the rotation about it free), as OpenCV's
+/// `estimatePoseCharucoBoard` needs 4.
+pub const MIN_CHARUCO_CORNERS: usize = 4;
+
+/// A ChArUco board's corners in a grey image: `(id, pixel)` sorted by id, id =
+/// `row·(squares_x − 1) + col` as OpenCV numbers them (= the index of [`CharucoSpec::corner_grid`]),
+/// sub-pixel. A board crossing the image edge or with markers hidden gives the corners found, with
+/// their ids; fewer than [`MIN_CHARUCO_CORNERS`] (or all on one line of the board) is
+/// [`Miss::Sparse`].
+///
+/// calib-targets finds the chessboard grid (ChESS corners, the saddle-point refiner after a blur
+/// of [`PRE_BLUR_PX`], as for plain chessboards), decodes the markers in its cells and aligns the
+/// grid to the board by them (its three chessboard parameter sets, the richest answer wins).
+pub fn detect_charuco(
+    image: &GrayImage,
+    spec: &CharucoSpec,
+) -> Result<Vec<(usize, Point2<f64>)>, Miss> {
+    let smoothed = calib_targets::detect::preprocess(image, PRE_BLUR_PX);
+    let configs: Vec<_> =
+        calib_targets::charuco::CharucoParams::sweep_for_board(&spec.to_calib_targets())
+            .into_iter()
+            .map(|mut params| {
+                params.chess = chess_config();
+                params
+            })
+            .collect();
+    let detection = calib_targets::detect::detect_charuco_best(&smoothed, &configs)
+        .map_err(|_| Miss::NoBoard)?;
+    let grid = spec.corner_grid();
+    let mut corners: Vec<(usize, Point2<f64>)> = detection
+        .corners
+        .iter()
+        .filter(|c| (c.id as usize) < grid.corners())
+        .map(|c| {
+            (
+                c.id as usize,
+                Point2::new(f64::from(c.position.x), f64::from(c.position.y)),
+            )
+        })
+        .collect();
+    corners.sort_by_key(|&(id, _)| id);
+    // One pixel per id (calib-targets labels without duplicates; keep that true here).
+    corners.dedup_by_key(|&mut (id, _)| id);
+    if corners.is_empty() {
+        return Err(Miss::NoBoard);
+    }
+    let cols = grid.cols;
+    let (row0, col0) = (corners[0].0 / cols, corners[0].0 % cols);
+    let two_rows = corners.iter().any(|&(id, _)| id / cols != row0);
+    let two_cols = corners.iter().any(|&(id, _)| id % cols != col0);
+    if corners.len() < MIN_CHARUCO_CORNERS || !two_rows || !two_cols {
+        return Err(Miss::Sparse {
+            found: corners.len(),
+        });
+    }
+    Ok(corners)
+}
+
+/// The corners of a board of either kind in one image, as [`find_corners`] gives them.
+#[derive(Debug, Clone, PartialEq)]
+pub enum BoardCorners {
+    /// A whole chessboard, its corner 0 still to be chosen ([`Found`], [`resolve_view`]).
+    Chessboard(Detection),
+    /// ChArUco corners with their ids ([`detect_charuco`]).
+    Charuco(Vec<(usize, Point2<f64>)>),
+}
+
+/// Finds the board `spec` describes: [`detect_board`] for a chessboard (whole boards only),
+/// [`detect_charuco`] for a ChArUco board.
+pub fn find_corners(image: &GrayImage, spec: &BoardSpec) -> Result<BoardCorners, Miss> {
+    match spec {
+        BoardSpec::Chessboard(board) => detect_board(image, board).map(BoardCorners::Chessboard),
+        BoardSpec::Charuco(charuco) => detect_charuco(image, charuco).map(BoardCorners::Charuco),
+    }
+}
+
+/// Corners with ids → one entry per corner of a grid of `count`, `None` where the id is absent
+/// (the observations file's per-corner `null`, docs/DESIGN.md §3b). Ids at or past `count` are
+/// ignored.
+pub fn corners_by_id(corners: &[(usize, Point2<f64>)], count: usize) -> Vec<Option<Point2<f64>>> {
+    let mut all = vec![None; count];
+    for &(id, p) in corners {
+        if let Some(slot) = all.get_mut(id) {
+            *slot = Some(p);
+        }
+    }
+    all
 }
 
 #[cfg(test)]

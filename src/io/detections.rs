@@ -20,8 +20,9 @@ use super::{IoError, write_atomic};
 use crate::calib::Board;
 
 /// Corners of one view: per camera (in the order of the camera names), the camera's corners
-/// (row-major, `rows · cols`) or `None` when it did not see the board.
-pub type DetectedView = Vec<Option<Vec<Point2<f64>>>>;
+/// (row-major, `rows · cols`, `None` for a corner it did not see: a ChArUco board's partial view)
+/// or `None` when it did not see the board.
+pub type DetectedView = Vec<Option<Vec<Option<Point2<f64>>>>>;
 
 /// The file's text and the views left out of it (indices into `views`).
 pub fn detections_to_json_string(
@@ -33,9 +34,8 @@ pub fn detections_to_json_string(
         let mut left_out = Vec::new();
         let mut stereo = Vec::new();
         for (v, view) in views.iter().enumerate() {
-            let corners = |c: &Vec<Point2<f64>>| c.iter().map(|p| Some(*p)).collect::<Vec<_>>();
             match (&view[0], &view[1]) {
-                (Some(l), Some(r)) => stereo.push([corners(l), corners(r)]),
+                (Some(l), Some(r)) => stereo.push([l.clone(), r.clone()]),
                 _ => left_out.push(v),
             }
         }
@@ -56,7 +56,12 @@ pub fn detections_to_json_string(
             if let Some(corners) = corners {
                 map.insert(
                     name.clone(),
-                    Value::Array(corners.iter().map(|p| json!([p.x, p.y])).collect()),
+                    Value::Array(
+                        corners
+                            .iter()
+                            .map(|p| p.map_or(Value::Null, |p| json!([p.x, p.y])))
+                            .collect(),
+                    ),
                 );
             }
         }
@@ -94,7 +99,7 @@ mod tests {
         let corners = |x: f64| {
             Some(
                 (0..4)
-                    .map(|i| Point2::new(x + i as f64, 2.0 * i as f64))
+                    .map(|i| Some(Point2::new(x + i as f64, 2.0 * i as f64)))
                     .collect::<Vec<_>>(),
             )
         };
@@ -133,8 +138,12 @@ mod tests {
             cols: 2,
             square: 0.05,
         };
-        let corners = Some(vec![Point2::new(1.0, 2.0); 4]);
-        let views = vec![vec![corners.clone(), None, corners]];
+        let corners = Some(vec![Some(Point2::new(1.0, 2.0)); 4]);
+        let mut partial = corners.clone();
+        if let Some(c) = partial.as_mut() {
+            c[1] = None;
+        }
+        let views = vec![vec![corners, None, partial]];
         let names = ["a".to_string(), "b".to_string(), "c".to_string()];
         let (text, left_out) = detections_to_json_string(&board, &names, &views);
         assert!(left_out.is_empty());
@@ -143,5 +152,7 @@ mod tests {
         let view = value["views"][0].as_object().unwrap();
         assert_eq!(view.keys().collect::<Vec<_>>(), vec!["a", "c"]);
         assert_eq!(view["c"][3], json!([1.0, 2.0]));
+        assert_eq!(view["c"][1], Value::Null, "a corner not seen is null");
+        assert_eq!(view["a"][1], json!([1.0, 2.0]));
     }
 }

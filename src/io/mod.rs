@@ -1,5 +1,7 @@
 //! File formats: rig JSON, OpenCV FileStorage YAML, CSV tables. No geometry here.
 
+#[cfg(feature = "images")]
+pub mod board_json;
 pub mod calib_json;
 pub mod detections;
 pub mod error;
@@ -29,6 +31,8 @@ use std::path::Path;
 pub use self::image::{
     image_size, read_grey_image, write_grey_png, write_grey16_png, write_rgb_jpeg,
 };
+#[cfg(feature = "images")]
+pub use board_json::{board_from_json_str, read_board};
 pub use calib_json::{
     Truth, observations_from_json_str, observations_to_json_string, read_observations, read_target,
     read_truth, report_to_json_string, stereo_observations_to_json_string, target_from_json_str,

@@ -1,4 +1,5 @@
-//! Images of a chessboard in the water as a camera sees it through the port: every pixel is
+//! Images of a board (a chessboard or a ChArUco board, [`BoardSpec`]) in the water as a camera
+//! sees it through the port: every pixel is
 //! back-projected through the interface by the [`Engine`] (on the GPU the pixel grid is made in
 //! the shader, [`backproject_rows`]), the water ray meets the board's plane, and the board's
 //! albedo there is the pixel's value. Anti-aliasing by supersampling, optional Gaussian blur and
@@ -12,6 +13,12 @@
 //! pixel whose centre and four neighbours' centres all see the water is water: the board's outer
 //! edge may clip a corner of such a pixel's footprint (less than an eighth of it), never an edge
 //! of the pattern, so the corners are unaffected.
+//!
+//! ChArUco boards are drawn in OpenCV's layout ([`crate::detect::board`]): the same squares, a
+//! marker centred in every white square from the dictionary's bits (the bits calib-targets decodes),
+//! and the white margin of `border_squares` around them as OpenCV's `generateImage` leaves its
+//! margin (tests/charuco.rs compares the pattern with OpenCV's image pixel for pixel). Every marker
+//! cell and every white strip around a marker is its own uniform cell for the supersampling.
 //!
 //! Textured scenes (planes, height fields and spheres with procedural or image textures) and
 //! their exact depth maps: [`scene`], [`textured`].
@@ -33,6 +40,7 @@ use thiserror::Error;
 
 use crate::calib::Board;
 use crate::calib::simulate::rng::Rng;
+use crate::detect::board::{BoardSpec, CharucoSpec};
 use crate::engine::raymap::{backproject_rows, rows_per_band};
 use crate::engine::{Engine, EngineError};
 use crate::model::RefractiveCamera;
@@ -109,12 +117,56 @@ pub enum RenderError {
 /// Pixels per band of the back-projection: bounds memory (48 bytes a ray) whatever the image.
 const BAND_PIXELS: usize = 1 << 18;
 
+/// The pattern drawn on the board's plane.
+#[derive(Debug, Clone, Copy)]
+enum Pattern<'a> {
+    Chessboard(&'a Board),
+    Charuco(&'a CharucoSpec),
+}
+
+impl Pattern<'_> {
+    /// The inner corner grid: the outer squares span [−1, cols] × [−1, rows] in squares.
+    fn grid(&self) -> Board {
+        match self {
+            Pattern::Chessboard(board) => **board,
+            Pattern::Charuco(spec) => spec.corner_grid(),
+        }
+    }
+}
+
+/// Where (fx, fy) ∈ [0, 1)² of white square (a, b) lies along each axis: 0 before the marker,
+/// 1 … bits + 2 its cells, bits + 3 after it; `None` for a square without a marker.
+fn marker_cell(
+    spec: &CharucoSpec,
+    a: i64,
+    b: i64,
+    fx: f64,
+    fy: f64,
+) -> Option<(usize, usize, usize)> {
+    let id = spec.marker_at_square(usize::try_from(a).ok()?, usize::try_from(b).ok()?)?;
+    let relative = spec.marker_size_m / spec.square_size_m;
+    let start = 0.5 * (1.0 - relative);
+    let cells = spec.marker_bits() + 2;
+    let along = |f: f64| {
+        let t = (f - start) / relative;
+        if t < 0.0 {
+            0
+        } else if t >= 1.0 {
+            cells + 1
+        } else {
+            ((t * cells as f64) as usize).min(cells - 1) + 1
+        }
+    };
+    Some((id, along(fx), along(fy)))
+}
+
 /// What lies at board point (x, y) in squares (corner `(c, r)` at (c, r)): 0 black, 1 white
-/// (squares and border), 2 background. The outer squares span [−1, cols] × [−1, rows]; square
-/// (a, b) = (⌊x⌋ + 1, ⌊y⌋ + 1) is black when a + b is even, so the square at corner 0's outer
-/// diagonal is black.
-fn region(board: &Board, border: f64, x: f64, y: f64) -> u8 {
-    let (cols, rows) = (board.cols as f64, board.rows as f64);
+/// (squares, markers' white bits and the border), 2 background. The outer squares span
+/// [−1, cols] × [−1, rows]; square (a, b) = (⌊x⌋ + 1, ⌊y⌋ + 1) is black when a + b is even, so
+/// the square at corner 0's outer diagonal is black (OpenCV's top-left ChArUco square too).
+fn region(pattern: &Pattern, border: f64, x: f64, y: f64) -> u8 {
+    let grid = pattern.grid();
+    let (cols, rows) = (grid.cols as f64, grid.rows as f64);
     if !(x >= -1.0 - border && x <= cols + border && y >= -1.0 - border && y <= rows + border) {
         return 2; // also NaN: a ray that does not reach the board
     }
@@ -122,21 +174,48 @@ fn region(board: &Board, border: f64, x: f64, y: f64) -> u8 {
         return 1;
     }
     let (a, b) = ((x.floor() as i64) + 1, (y.floor() as i64) + 1);
-    if (a + b) % 2 == 0 { 0 } else { 1 }
-}
-
-/// Which cell of the pattern a board point lies in: equal cells have equal shade and are convex,
-/// so a pixel whose footprint's four corners share a cell is uniform.
-fn cell(board: &Board, border: f64, x: f64, y: f64) -> (u8, i64, i64) {
-    match region(board, border, x, y) {
-        0 | 1 if x >= -1.0 && x < board.cols as f64 && y >= -1.0 && y < board.rows as f64 => {
-            (0, x.floor() as i64, y.floor() as i64)
-        }
-        r => (r + 1, 0, 0),
+    if (a + b) % 2 == 0 {
+        return 0;
+    }
+    match pattern {
+        Pattern::Chessboard(_) => 1,
+        Pattern::Charuco(spec) => match marker_cell(spec, a, b, x - x.floor(), y - y.floor()) {
+            // Inside the marker (cells 1 … bits + 2 along both axes) and black there.
+            Some((id, i, j))
+                if (1..=spec.marker_bits() + 2).contains(&i)
+                    && (1..=spec.marker_bits() + 2).contains(&j)
+                    && spec.marker_cell_is_black(id, i - 1, j - 1) =>
+            {
+                0
+            }
+            _ => 1,
+        },
     }
 }
 
-/// Renders `camera`'s image of `board` at `master_from_board` (X_master = R·X_board + t).
+/// Which cell of the pattern a board point lies in: equal cells have equal shade and are convex
+/// (a square; in a ChArUco white square, a marker cell or one of the rectangles of the white
+/// strip around the marker), so a pixel whose footprint's four corners share a cell is uniform.
+fn cell(pattern: &Pattern, border: f64, x: f64, y: f64) -> (u8, i64, i64, usize, usize) {
+    let grid = pattern.grid();
+    match region(pattern, border, x, y) {
+        0 | 1 if x >= -1.0 && x < grid.cols as f64 && y >= -1.0 && y < grid.rows as f64 => {
+            let (i, j) = (x.floor() as i64, y.floor() as i64);
+            let sub = match pattern {
+                Pattern::Charuco(spec) => {
+                    marker_cell(spec, i + 1, j + 1, x - x.floor(), y - y.floor())
+                        .map_or((0, 0), |(_, u, v)| (u, v))
+                }
+                Pattern::Chessboard(_) => (0, 0),
+            };
+            (0, i, j, sub.0, sub.1)
+        }
+        r => (r + 1, 0, 0, 0, 0),
+    }
+}
+
+/// Renders `camera`'s image of the chessboard `board` at `master_from_board` (X_master =
+/// R·X_board + t).
 pub fn render_board(
     engine: &Engine,
     camera: &RefractiveCamera,
@@ -144,7 +223,42 @@ pub fn render_board(
     master_from_board: &Isometry3<f64>,
     options: &RenderOptions,
 ) -> Result<GreyImage, RenderError> {
+    render_pattern(
+        engine,
+        camera,
+        Pattern::Chessboard(board),
+        master_from_board,
+        options,
+    )
+}
+
+/// Renders `camera`'s image of the board `spec` describes (a chessboard or a ChArUco board) at
+/// `master_from_board` (X_master = R·X_board + t, the board frame of its corner grid: corner 0 at
+/// the origin, [`BoardSpec::corner_grid`]).
+pub fn render_board_spec(
+    engine: &Engine,
+    camera: &RefractiveCamera,
+    spec: &BoardSpec,
+    master_from_board: &Isometry3<f64>,
+    options: &RenderOptions,
+) -> Result<GreyImage, RenderError> {
+    let pattern = match spec {
+        BoardSpec::Chessboard(board) => Pattern::Chessboard(board),
+        BoardSpec::Charuco(charuco) => Pattern::Charuco(charuco),
+    };
+    render_pattern(engine, camera, pattern, master_from_board, options)
+}
+
+fn render_pattern(
+    engine: &Engine,
+    camera: &RefractiveCamera,
+    pattern: Pattern,
+    master_from_board: &Isometry3<f64>,
+    options: &RenderOptions,
+) -> Result<GreyImage, RenderError> {
     check_options(options)?;
+    let board = &pattern.grid();
+    let pattern = &pattern;
     let intrinsics = camera.intrinsics();
     let (width, height) = (intrinsics.width, intrinsics.height);
     let board_points = board_points(engine, camera, board, master_from_board)?;
@@ -169,7 +283,7 @@ pub fn render_board(
             let at = |uu: usize, vv: usize| board_points[vv * w + uu];
             // Water all round: the pixel's centre and its four neighbours' centres see the water
             // (most pixels; the pattern's features are many pixels wide, the white border too).
-            let water = |q: [f64; 2]| region(board, border, q[0], q[1]) == 2;
+            let water = |q: [f64; 2]| region(pattern, border, q[0], q[1]) == 2;
             if water(p)
                 && (u == 0 || water(at(u - 1, v)))
                 && (u + 1 == w || water(at(u + 1, v)))
@@ -197,7 +311,7 @@ pub fn render_board(
                 .or_else(|| diff(Some(p), down, 1.0))
                 .or_else(|| diff(up, Some(p), 1.0));
             let (Some(du), Some(dv)) = (du, dv) else {
-                *out = shade(region(board, border, p[0], p[1])) as f32;
+                *out = shade(region(pattern, border, p[0], p[1])) as f32;
                 continue;
             };
             let sample =
@@ -208,13 +322,13 @@ pub fn render_board(
                 sample(-0.5, 0.5),
                 sample(0.5, 0.5),
             ];
-            let first = cell(board, border, corners[0][0], corners[0][1]);
+            let first = cell(pattern, border, corners[0][0], corners[0][1]);
             if n == 1
                 || corners[1..]
                     .iter()
-                    .all(|c| cell(board, border, c[0], c[1]) == first)
+                    .all(|c| cell(pattern, border, c[0], c[1]) == first)
             {
-                *out = shade(region(board, border, p[0], p[1])) as f32;
+                *out = shade(region(pattern, border, p[0], p[1])) as f32;
                 continue;
             }
             let mut sum = 0.0;
@@ -225,7 +339,7 @@ pub fn render_board(
                         (j as f64 + 0.5) / n as f64 - 0.5,
                     );
                     let q = sample(a, b);
-                    sum += shade(region(board, border, q[0], q[1]));
+                    sum += shade(region(pattern, border, q[0], q[1]));
                 }
             }
             *out = (sum / (n * n) as f64) as f32;
@@ -377,16 +491,76 @@ mod tests {
             square: 0.04,
         };
         assert_eq!(
-            region(&board, 1.0, -0.5, -0.5),
+            region(&Pattern::Chessboard(&board), 1.0, -0.5, -0.5),
             0,
             "the outer square at corner 0 is black"
         );
-        assert_eq!(region(&board, 1.0, 0.5, -0.5), 1);
-        assert_eq!(region(&board, 1.0, 0.5, 0.5), 0);
+        assert_eq!(region(&Pattern::Chessboard(&board), 1.0, 0.5, -0.5), 1);
+        assert_eq!(region(&Pattern::Chessboard(&board), 1.0, 0.5, 0.5), 0);
         // 10 × 7 squares: the opposite corner square has the other colour.
-        assert_eq!(region(&board, 1.0, 8.5, 5.5), 1);
-        assert_eq!(region(&board, 1.0, -1.5, 2.0), 1, "white border");
-        assert_eq!(region(&board, 1.0, -2.5, 2.0), 2, "water beyond the border");
-        assert_eq!(region(&board, 1.0, f64::NAN, 0.0), 2);
+        assert_eq!(region(&Pattern::Chessboard(&board), 1.0, 8.5, 5.5), 1);
+        assert_eq!(
+            region(&Pattern::Chessboard(&board), 1.0, -1.5, 2.0),
+            1,
+            "white border"
+        );
+        assert_eq!(
+            region(&Pattern::Chessboard(&board), 1.0, -2.5, 2.0),
+            2,
+            "water beyond the border"
+        );
+        assert_eq!(region(&Pattern::Chessboard(&board), 1.0, f64::NAN, 0.0), 2);
+    }
+
+    /// The ChArUco pattern equals OpenCV 4.14's `CharucoBoard.generateImage` pixel for pixel
+    /// (scripts/charuco_golden.py: whole pixels per marker cell, so every pixel is one colour):
+    /// the squares' colours, which squares carry markers, the marker ids, their bits and their
+    /// placement, the white margin.
+    #[test]
+    fn the_charuco_pattern_is_opencvs() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden/charuco");
+        let golden: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("charuco.json")).unwrap())
+                .unwrap();
+        let flat = golden["flat"].as_array().unwrap();
+        assert_eq!(flat.len(), 2);
+        for board in flat {
+            let get = |k: &str| board[k].as_u64().unwrap() as usize;
+            let (px, margin) = (get("px_per_square") as f64, get("margin_px") as f64);
+            let spec = CharucoSpec::new(
+                get("squares_x"),
+                get("squares_y"),
+                px,
+                get("marker_px") as f64,
+                board["dictionary"].as_str().unwrap(),
+                false,
+            )
+            .unwrap();
+            let image = image::open(dir.join(board["file"].as_str().unwrap()))
+                .unwrap()
+                .to_luma8();
+            let pattern = Pattern::Charuco(&spec);
+            let mut wrong = Vec::new();
+            for (u, v, p) in image.enumerate_pixels() {
+                // Pixel centre → squares from corner 0 (one square in from the board's top-left).
+                let x = (u as f64 + 0.5 - margin) / px - 1.0;
+                let y = (v as f64 + 0.5 - margin) / px - 1.0;
+                let ours = match region(&pattern, margin / px, x, y) {
+                    0 => 0,
+                    1 => 255,
+                    _ => 128,
+                };
+                if ours != p.0[0] {
+                    wrong.push((u, v, p.0[0], ours));
+                }
+            }
+            assert!(
+                wrong.is_empty(),
+                "{}: {} pixels differ from OpenCV's, first {:?}",
+                board["file"],
+                wrong.len(),
+                &wrong[..wrong.len().min(8)]
+            );
+        }
     }
 }
