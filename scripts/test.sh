@@ -57,6 +57,12 @@ venv=target/python-venv
 CARGO_TARGET_DIR="$PWD/target" FLATPORT_VENV="$venv" VIRTUAL_ENV= scripts/install-python.sh
 # opencv-python-headless: OpenCV itself reads the exported FileStorage YAML.
 "$venv/bin/python" -m pip install -q numpy pytest opencv-python-headless
+# aquacal (PyPI): AquaCal's own loader and projection read `flatport export aquacal` and write what
+# `flatport rig from-aquacal` reads (python/tests/test_aquacal.py). --no-deps: it pins
+# opencv-python, which would clash with the headless OpenCV above (its cv2 calls are the same);
+# the second line is the rest of what `import aquacal` needs. About 30 s on a fresh environment.
+"$venv/bin/python" -m pip install -q --no-deps aquacal==2.1.0
+"$venv/bin/python" -m pip install -q scipy natsort pyyaml pandas matplotlib tqdm requests
 FLATPORT_BIN="$PWD/target/release/flatport" "$venv/bin/python" -m pytest python/tests -q
 
 # The commands of README.md and docs/*.md, run as written (shell and Python blocks; docs/testing.md).

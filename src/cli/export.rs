@@ -1,4 +1,4 @@
-//! `flatport export colmap|opencv|raymap`: a rig in the files other tools read, and per-pixel ray
+//! `flatport export colmap|opencv|aquacal|raymap`: a rig in the files other tools read, and per-pixel ray
 //! maps. The formats are in `flatport::io::export`, the rays in `flatport::engine::raymap`.
 
 use std::collections::BTreeMap;
@@ -10,8 +10,8 @@ use clap::{Args, Subcommand};
 use flatport::engine::raymap::{backproject_rows, rows_per_band};
 use flatport::io::npy::{NpyDtype, NpyWriter};
 use flatport::io::{
-    ColmapDialect, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, opencv_yaml,
-    read_rig, write_atomic,
+    ColmapDialect, aquacal_json, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt,
+    opencv_yaml, read_aquacal_board, read_rig, write_atomic,
 };
 use flatport::model::NoSolution;
 
@@ -49,6 +49,21 @@ Examples:
   flatport export opencv --rig rig.json --cameras right,left --output reversed.yml
   flatport export opencv --rig rig.json --camera left --output left.yml")]
     Opencv(OpencvArgs),
+    /// The rig as AquaCal's calibration.json (one bare water surface; what AquaMVS reads)
+    #[command(after_help = "\
+Writes the file AquaCal's load_calibration reads (version \"1.0\"): every camera, master first,
+with K, dist_coeffs, image_size, R and t (world -> camera) and water_z; interface.normal
+[0, 0, -1], n_air and n_water. AquaCal's world frame has Z down into the water: it is the master's
+frame turned so that Z is the rig's normal (the master's own frame for an untilted rig), with the
+origin at the master's centre, so water_z is the rig's distance. --board fills AquaCal's board
+object from a ChArUco board file; without it the board's values are null. A rig AquaCal cannot
+hold is refused, saying why: glass layers (AquaCal models a bare surface), or ports per camera
+that are not parallel surfaces in the same media.
+
+Examples:
+  flatport export aquacal --rig rig.json --output calibration.json
+  flatport export aquacal --rig rig.json --board board.json -o calibration.json")]
+    Aquacal(AquacalArgs),
     /// The water ray of every pixel of a camera as .npy (H x W x 6: origin on the outer interface, unit direction)
     #[command(after_help = "\
 rays[v, u] is the ray of pixel (u, v) (flatport's convention: (0, 0) is the centre of the top-left
@@ -94,6 +109,20 @@ pub struct OpencvArgs {
     output: Option<PathBuf>,
 }
 
+/// `flatport export aquacal`
+#[derive(Debug, Args)]
+pub struct AquacalArgs {
+    /// Rig file (JSON)
+    #[arg(long, value_name = "RIG.json")]
+    rig: PathBuf,
+    /// ChArUco board file (squares_x, squares_y, square_size, marker_size, dictionary) for AquaCal's board object
+    #[arg(long, value_name = "BOARD.json")]
+    board: Option<PathBuf>,
+    /// Output calibration.json (default: standard output)
+    #[arg(long, short, value_name = "calibration.json")]
+    output: Option<PathBuf>,
+}
+
 /// `flatport export raymap`
 #[derive(Debug, Args)]
 pub struct RaymapArgs {
@@ -121,6 +150,7 @@ pub fn run(command: ExportCommand) -> anyhow::Result<()> {
     match command {
         ExportCommand::Colmap(args) => colmap(args),
         ExportCommand::Opencv(args) => opencv(args),
+        ExportCommand::Aquacal(args) => aquacal(args),
         ExportCommand::Raymap(args) => raymap(args),
     }
 }
@@ -179,6 +209,21 @@ fn opencv(args: OpencvArgs) -> anyhow::Result<()> {
             eprintln!("wrote {}", path.display());
         }
         None => out!("{yaml}"),
+    }
+    Ok(())
+}
+
+fn aquacal(args: AquacalArgs) -> anyhow::Result<()> {
+    let rig = read_rig(&args.rig)?;
+    let board = args.board.as_deref().map(read_aquacal_board).transpose()?;
+    let json = aquacal_json(&rig, board.as_ref())
+        .with_context(|| format!("{}: cannot be written for AquaCal", args.rig.display()))?;
+    match &args.output {
+        Some(path) => {
+            write_atomic(path, json.as_bytes())?;
+            eprintln!("wrote {}", path.display());
+        }
+        None => out!("{json}"),
     }
     Ok(())
 }

@@ -261,10 +261,10 @@ slice I of N into its own folder, `flatport sweep merge` joins the folders into 
   flatport sweep ... --shard 0/4 --output shard-0      (and 1/4, 2/4, 3/4)
   flatport sweep merge shard-0 shard-1 shard-2 shard-3 --output sweep")]
     Sweep(sweep::SweepCommand),
-    /// Rig files: import OpenCV stereoCalibrate output, show a rig
+    /// Rig files: import OpenCV stereoCalibrate output or an AquaCal calibration.json, show a rig
     #[command(subcommand)]
     Rig(rig::RigCommand),
-    /// Export a rig for other tools (colmap_underwater, OpenCV) or a camera's per-pixel ray map (.npy)
+    /// Export a rig for other tools (colmap_underwater, OpenCV, AquaCal) or a camera's per-pixel ray map (.npy)
     #[command(subcommand)]
     Export(export::ExportCommand),
     /// Run the built-in example end to end: render a rig's views of a board, detect the corners, calibrate, sweep the cost, tour the geometry, then dense stereo of a rendered seabed (point cloud, depth picture)

@@ -1,4 +1,4 @@
-//! `flatport rig from-opencv`, `flatport rig show`.
+//! `flatport rig from-opencv`, `flatport rig from-aquacal`, `flatport rig show`.
 
 use std::path::PathBuf;
 
@@ -7,7 +7,7 @@ use clap::{Args, Subcommand};
 use nalgebra::Vector3;
 
 use flatport::io::{
-    MAX_BASELINE_M, read_opencv_stereo, read_rig, rig_to_json_string, write_atomic,
+    MAX_BASELINE_M, read_aquacal, read_opencv_stereo, read_rig, rig_to_json_string, write_atomic,
 };
 use flatport::model::{Interface, Layer, Ports, Rig, interface};
 
@@ -27,6 +27,31 @@ Examples:
   flatport rig from-opencv stereo.yml --normal 0.1,0.1,1 --distance 0.02 --layer 0.014:1.473 \\
       --index-air 1.003 --index-water 1.333 --names left,right --size 1280x1024")]
     FromOpencv(FromOpencvArgs),
+    /// Build a rig from AquaCal's calibration.json (cameras in the air above one water surface)
+    #[command(after_help = "\
+AquaCal (PyPI aquacal, the file its calibration writes and AquaMVS reads): per camera K,
+dist_coeffs, image_size, R and t (world -> camera, world Z down into the water, origin at the
+reference camera) and water_z (the surface's world Z); interface.normal (water -> air), n_air,
+n_water. The master is the first camera in the file unless --master names one; the others keep
+the file's order. The surface becomes the rig's shared interface (normal into the water, distance
+from the master's centre, no layers, index_air = n_air, index_water = n_water); a file whose
+cameras see different surfaces (AquaCal's per-camera water_z) gets a port per camera. Fisheye
+cameras, skewed K and non-zero distortion terms beyond k3 are refused.
+
+Examples:
+  flatport rig from-aquacal calibration.json --output rig.json
+  flatport rig from-aquacal calibration.json --master cam2 -o rig.json")]
+    FromAquacal {
+        /// AquaCal's calibration.json
+        #[arg(value_name = "CALIBRATION.json")]
+        calibration: PathBuf,
+        /// The camera that becomes the rig's master (default: the first in the file)
+        #[arg(long, value_name = "NAME")]
+        master: Option<String>,
+        /// Output rig file (default: standard output)
+        #[arg(long, short, value_name = "RIG.json")]
+        output: Option<PathBuf>,
+    },
     /// Print a rig: cameras, centres, air layers, axis tilt and azimuth
     #[command(after_help = "Example:\n  flatport rig show rig.json")]
     Show {
@@ -119,6 +144,14 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
 pub fn run(command: RigCommand) -> anyhow::Result<()> {
     match command {
         RigCommand::FromOpencv(args) => from_opencv(args),
+        RigCommand::FromAquacal {
+            calibration,
+            master,
+            output,
+        } => {
+            let rig = read_aquacal(&calibration, master.as_deref())?;
+            write_rig_json(&rig, output.as_ref())
+        }
         RigCommand::Show { rig } => {
             out!("{}", describe(&read_rig(&rig)?));
             Ok(())
@@ -157,8 +190,13 @@ fn from_opencv(args: FromOpencvArgs) -> anyhow::Result<()> {
         bail!("--names gives the same name twice ('{first}')");
     }
     let rig = stereo.to_rig([first, second], args.size, interface, &args.yaml)?;
-    let json = rig_to_json_string(&rig);
-    match &args.output {
+    write_rig_json(&rig, args.output.as_ref())
+}
+
+/// Writes a rig file to `output`, or to standard output.
+fn write_rig_json(rig: &Rig, output: Option<&PathBuf>) -> anyhow::Result<()> {
+    let json = rig_to_json_string(rig);
+    match output {
         Some(path) => {
             write_atomic(path, json.as_bytes())?;
             eprintln!("wrote {}", path.display());
