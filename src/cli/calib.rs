@@ -32,56 +32,116 @@ pub enum MethodArg {
     Auto,
 }
 
+/// The port in front of the cameras (`--port`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PortArg {
+    /// One bare water surface in front of every camera (no glass)
+    Surface,
+    /// One port, with its glass (--glass), in front of every camera
+    Shared,
+    /// A port per camera, each in its own housing
+    Housings,
+}
+
 /// `flatport calibrate`
 #[derive(Debug, Args)]
 pub struct CalibrateArgs {
-    /// Rig file: calibrated cameras; its ports are the start guess, what --estimate does not name is known
-    #[arg(long, value_name = "RIG.json")]
-    rig: PathBuf,
+    /// Rig file: calibrated cameras; its ports are the start guess, what --estimate does not name
+    /// is known. With --images: the cameras' in-air calibration instead of DIR/air/
+    #[arg(long, value_name = "RIG.json", required_unless_present = "images")]
+    pub rig: Option<PathBuf>,
     /// Observations: the target's corners in every camera that saw each view (JSON, see below)
-    #[arg(long, value_name = "OBS.json")]
-    observations: PathBuf,
+    #[arg(
+        long,
+        value_name = "OBS.json",
+        required_unless_present = "images",
+        conflicts_with = "images"
+    )]
+    pub observations: Option<PathBuf>,
     /// The calibrated rig: the input rig with everything estimated replaced by its estimate
     #[arg(long, short, value_name = "RIG.json")]
-    output: PathBuf,
+    pub output: PathBuf,
     /// Also write the full report as JSON
     #[arg(long, value_name = "REPORT.json")]
-    report: Option<PathBuf>,
+    pub report: Option<PathBuf>,
+    /// From images or videos alone: DIR holds air/<camera>/ (each camera's in-air views of the
+    /// board) and water/<camera>/ (synchronized frames under water); each folder images
+    /// (PNG/JPEG/TIFF, sorted by name) or one video (MP4/MOV/AVI/MKV). Needs --board and --port
+    #[arg(long, value_name = "DIR", help_heading = "From images")]
+    pub images: Option<PathBuf>,
+    /// The board (BOARD.json: ChArUco or chessboard, see docs/images.md)
+    #[arg(long, value_name = "BOARD.json", help_heading = "From images")]
+    pub board: Option<PathBuf>,
+    /// The port in front of the cameras
+    #[arg(long, value_enum, help_heading = "From images")]
+    pub port: Option<PortArg>,
+    /// Glass of the port(s): THICKNESS:INDEX (metres) for every port, or CAMERA=THICKNESS:INDEX
+    /// for one camera's housing; repeatable
+    #[arg(long, value_name = "[CAMERA=]T:N", value_parser = super::calib_images::parse_glass, help_heading = "From images")]
+    pub glass: Vec<super::calib_images::GlassArg>,
+    /// Refractive index of the water [default: 1.333]
+    #[arg(long, value_name = "N", help_heading = "From images")]
+    pub index_water: Option<f64>,
+    /// Refractive index of the medium around the cameras [default: 1.0]
+    #[arg(long, value_name = "N", help_heading = "From images")]
+    pub index_air: Option<f64>,
+    /// The master camera (its frame is the rig's) [default: the first camera folder by name]
+    #[arg(long, value_name = "NAME", help_heading = "From images")]
+    pub master: Option<String>,
+    /// Read every N-th frame [default: 1, or as many as keep about 4 × --max-frames]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..), help_heading = "From images")]
+    pub frame_step: Option<u64>,
+    /// Most frames used per camera in air and under water, chosen for spread over the image and
+    /// the board's poses [default: 40 in air, 60 under water]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(3..), help_heading = "From images")]
+    pub max_frames: Option<u64>,
+    /// Share of the underwater frames (seen by two or more cameras) held out of the fit and
+    /// reported on
+    #[arg(
+        long,
+        value_name = "SHARE",
+        default_value_t = 0.2,
+        help_heading = "From images"
+    )]
+    pub holdout: f64,
+    /// No progress bars
+    #[arg(long, short, help_heading = "From images")]
+    pub quiet: bool,
     /// Estimator
     #[arg(long, value_enum, default_value_t = MethodArg::Auto)]
-    method: MethodArg,
+    pub method: MethodArg,
     /// What to estimate, comma-separated: axis, distance, layers (every layer thickness; indices
     /// stay known), layer:K (layer K's thickness only, 0-based as in the rig file: `layer:1` for
     /// the water of a glass–water–glass tank), extrinsics (R, t of every camera but the master).
     /// With a port per camera every port is estimated. A port with the same medium on both sides
     /// (a tank with air behind) keeps its distance: it changes no ray
     #[arg(long, value_name = "LIST", default_value = "axis,distance", value_parser = parse_estimate)]
-    estimate: Estimate,
+    pub estimate: Estimate,
     /// Largest axis tilt from the master camera's z axis that the global search covers (degrees)
     #[arg(long, value_name = "DEG", default_value_t = 30.0, value_parser = super::values::tilt_bound, allow_negative_numbers = true)]
-    max_tilt_deg: f64,
+    pub max_tilt_deg: f64,
     /// Spacing of the consecutive method's global search grid over the axis (degrees; the grid
     /// holds at most 100 000 axes) [default: 1.5, or --max-tilt-deg where that is smaller]
     #[arg(long, value_name = "DEG", value_parser = super::values::positive, allow_negative_numbers = true)]
-    grid_step_deg: Option<f64>,
+    pub grid_step_deg: Option<f64>,
     /// Huber loss with this threshold on each corner's residual (pixels); default plain least squares
     #[arg(long, value_name = "PX", value_parser = super::values::positive, allow_negative_numbers = true)]
-    huber: Option<f64>,
+    pub huber: Option<f64>,
     /// Iteration bound of the maximum-likelihood refinement
     #[arg(long, default_value_t = 200, allow_negative_numbers = true)]
-    max_iterations: usize,
+    pub max_iterations: usize,
     /// Largest RMS reprojection error (pixels, any camera, outlier corners left out) accepted as a
     /// fit: above it the report (if asked for) is written with what the data look like, the rig
     /// is not written, and the exit status is 1. Default: 3 px, and a maximum-likelihood fit
     /// within 3 × the corner noise seen in the images + 0.2 px (a fit far above the noise is
     /// plainly wrong); a value given here is the bound, whatever the noise
     #[arg(long, value_name = "PX")]
-    max_rms_px: Option<f64>,
+    pub max_rms_px: Option<f64>,
     /// Truth of a simulated scene (from `flatport simulate`): print the errors of the result
     #[arg(long, value_name = "TRUTH.json")]
-    truth: Option<PathBuf>,
+    pub truth: Option<PathBuf>,
     #[command(flatten)]
-    engine: super::EngineArgs,
+    pub engine: super::EngineArgs,
 }
 
 /// Parses `COLSxROWS@SQUARE`.
@@ -269,8 +329,14 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     {
         bail!("--max-rms-px must be a positive number of pixels, got {bound}");
     }
-    let rig = read_rig(&args.rig)?;
-    let observations = read_observations(&args.observations)?;
+    if let Some(dir) = &args.images {
+        return super::calib_images::run(&args, dir);
+    }
+    let (Some(rig_path), Some(observations_path)) = (&args.rig, &args.observations) else {
+        bail!("calibrate needs --rig and --observations, or --images DIR (see --help)");
+    };
+    let rig = read_rig(rig_path)?;
+    let observations = read_observations(observations_path)?;
     let engine = calibration_engine(&args.engine)?;
     eprintln!("device: {}", engine.describe());
     let options = Options {
@@ -303,7 +369,7 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         calibrate_with_progress(&rig, &observations, &options, &mut |p| status.update(p));
     status.finish();
     // Errors about the data name the observations file.
-    let calibration = calibration.map_err(|e| in_file(&args.observations, e))?;
+    let calibration = calibration.map_err(|e| in_file(observations_path, e))?;
     let report = &calibration.report;
     if let Some(path) = &args.report {
         write_report(path, report)?;
@@ -326,7 +392,7 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         };
         bail!(
             "{}: the calibration does not fit: the reprojection RMS is {worst:.2} px in the worst camera (outlier corners left out), {why}. What the data look like: {}. {} not written{}",
-            args.observations.display(),
+            observations_path.display(),
             report.diagnosis.join("; "),
             args.output.display(),
             args.report.as_ref().map_or(String::new(), |p| format!(
@@ -358,7 +424,7 @@ pub fn backend(engine: Engine) -> Backend {
 /// [`CalibrationStatus::SILENT`] (short runs stay quiet); then on a terminal one line redrawn at
 /// most five times a second; elsewhere (a log) a line when a stage starts and at most one every
 /// [`CalibrationStatus::LOG_EVERY`] within it.
-struct CalibrationStatus {
+pub struct CalibrationStatus {
     started: Instant,
     terminal: bool,
     last: Option<Instant>,
@@ -371,7 +437,7 @@ impl CalibrationStatus {
     const LOG_EVERY: Duration = Duration::from_secs(30);
     const REDRAW_EVERY: Duration = Duration::from_millis(200);
 
-    fn new() -> Self {
+    pub fn new() -> Self {
         Self {
             started: Instant::now(),
             terminal: std::io::stderr().is_terminal(),
@@ -381,7 +447,7 @@ impl CalibrationStatus {
         }
     }
 
-    fn update(&mut self, p: &Progress) {
+    pub fn update(&mut self, p: &Progress) {
         let now = Instant::now();
         let elapsed = now - self.started;
         if elapsed < Self::SILENT {
@@ -424,7 +490,7 @@ impl CalibrationStatus {
     }
 
     /// Ends the redrawn line on a terminal.
-    fn finish(&mut self) {
+    pub fn finish(&mut self) {
         if self.terminal && self.drawn {
             let _ = writeln!(std::io::stderr());
         }

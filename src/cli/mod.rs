@@ -15,6 +15,7 @@ macro_rules! out {
 mod batch;
 mod bench;
 mod calib;
+mod calib_images;
 mod demo;
 mod detect;
 mod export;
@@ -200,9 +201,22 @@ Timing a full-size pair (1280 x 1024, 128 hypotheses):
   flatport render --scene data/scenes/seabed.json --noise 2 -o big
   time flatport stereo --rig big/rig.json --images big --output big-out --depth 0.8:2.5")]
     Stereo(stereo::StereoArgs),
-    /// Calibrate the ports of a rig (axis, air layer; layers and extrinsics when asked) from views of a target
+    /// Calibrate a rig: its ports (axis, air layer; layers and extrinsics when asked) from views of a target, or everything (lenses, extrinsics, ports) from images or videos of a board
     #[command(after_help = "\
-The rig's cameras are calibrated in air (intrinsics, distortion, extrinsics); its ports (the shared
+From images alone (--images DIR --board BOARD.json --port surface|shared|housings): DIR holds
+air/<camera>/ (each camera's own views of the board in air) and water/<camera>/ (synchronized
+frames under water: the n-th frame of every camera is the same instant), each folder images
+(PNG/JPEG/TIFF, sorted by name) or exactly one video (MP4/MOV/AVI/MKV, decoded by the ffmpeg
+tool). The camera names are the folder names; the master is the first by name (--master). Each
+camera's lens is calibrated in air (OpenCV's model, the distortion terms the held-out views ask
+for), the extrinsics are started from the frames two cameras share (chains of frames are fine),
+then the extrinsics, the ports and every board pose by maximum likelihood under a Huber loss;
+frames far above the others are dropped, a fifth of the frames held out and reported. --rig takes
+the cameras' in-air calibration from a rig file instead of air/.
+  flatport calibrate --images footage --board board.json --port housings --glass 0.008:1.49 \\
+      --output rig.json --report report.json
+
+With observations: the rig's cameras are calibrated in air (intrinsics, distortion, extrinsics); its ports (the shared
 interface, or each camera's own) are the start guess, and what --estimate does not name is known.
 The observations hold, per view, the target's corners in every camera that saw it, keyed by rig
 camera name, in target order (for a board row-major as cv::findChessboardCorners returns them),

@@ -40,6 +40,15 @@ pub struct RenderArgs {
     /// counted in squares: docs/images.md)
     #[arg(long, value_name = "COLSxROWS@M|BOARD.json", default_value = "9x6@0.04", value_parser = super::detect::parse_board_spec)]
     board: BoardSpec,
+    /// Render a set for `flatport calibrate --images`: OUTPUT/water/CAMERA/view_NNN.png (the
+    /// rig's cameras under water, synchronized, the board at random places, distances and angles,
+    /// often partly outside an image) and OUTPUT/air/CAMERA/view_NNN.png (each camera alone in
+    /// air, --air-views poses); the truths in OUTPUT/water/ and OUTPUT/air-truth/CAMERA/
+    #[arg(long, conflicts_with_all = ["truth", "scene"])]
+    calibration_set: bool,
+    /// In-air views per camera of --calibration-set
+    #[arg(long, value_name = "N", default_value_t = 15)]
+    air_views: usize,
     /// Number of random board poses (as `flatport simulate` draws them), without --truth
     #[arg(long, default_value_t = 15)]
     views: usize,
@@ -239,7 +248,10 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         anyhow::bail!("--rig RIG.json is needed to render a board (or give --scene)");
     };
     let rig = read_rig(rig_path)?;
-    let board = args.board;
+    let board = args.board.clone();
+    if args.calibration_set {
+        return render_calibration_set(&args, &rig, &board);
+    }
     let scene = match &args.truth {
         Some(path) => {
             let truth = read_truth(path)?;
@@ -307,6 +319,97 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
             .map(|c| c.name.as_str())
             .collect::<Vec<_>>()
             .join("/, ")
+    );
+    Ok(())
+}
+
+/// `render --calibration-set`: the layout `calibrate --images` reads (see [`RenderArgs`]).
+fn render_calibration_set(args: &RenderArgs, rig: &Rig, board: &BoardSpec) -> anyhow::Result<()> {
+    use flatport::calib::simulate::spread::{board_poses, depth_range};
+    let grid = board.corner_grid();
+    let outer = ((grid.cols + 1).max(grid.rows + 1)) as f64 * grid.square;
+    let options = RenderOptions {
+        supersample: args.supersample.unwrap_or(8),
+        blur_px: args.blur,
+        noise: args.noise,
+        seed: args.seed,
+        border_squares: args.border,
+        ..RenderOptions::default()
+    };
+    let engine = args.engine.engine()?;
+    let started = std::time::Instant::now();
+    let inside = |rig: &Rig| {
+        let cameras: Vec<_> = (0..rig.cameras().len())
+            .map(|k| rig.refractive_camera(k))
+            .collect();
+        move |k: usize, point: &nalgebra::Point3<f64>| {
+            let i = cameras[k].intrinsics();
+            cameras[k].project(point).is_ok_and(|p| {
+                p.x >= 0.0
+                    && p.y >= 0.0
+                    && p.x < i.width as f64 - 1.0
+                    && p.y < i.height as f64 - 1.0
+            })
+        }
+    };
+    let index_water = rig.port_in_master(0).index_water();
+    let poses = board_poses(
+        rig,
+        &grid,
+        args.views,
+        depth_range(rig, outer, index_water),
+        args.seed,
+        &inside(rig),
+    );
+    let water = args.output.join("water");
+    let scene = Scene {
+        rig: rig.clone(),
+        board: board.clone(),
+        poses,
+    };
+    render_scene(&scene, &options, args.bits, &engine, &water, args.quiet)?;
+    for (k, camera) in rig.cameras().iter().enumerate() {
+        let dry = Rig::new(
+            vec![flatport::model::RigCamera::new(
+                &camera.name,
+                camera.intrinsics.clone(),
+                nalgebra::Matrix3::identity(),
+                nalgebra::Vector3::zeros(),
+            )?],
+            flatport::model::Interface::new(nalgebra::Vector3::z(), 0.01, vec![], 1.0, 1.0)?,
+        )?;
+        let poses = board_poses(
+            &dry,
+            &grid,
+            args.air_views,
+            depth_range(&dry, outer, 1.0),
+            args.seed.wrapping_add(1 + k as u64),
+            &inside(&dry),
+        );
+        let truth_dir = args.output.join("air-truth").join(&camera.name);
+        let scene = Scene {
+            rig: dry,
+            board: board.clone(),
+            poses,
+        };
+        render_scene(&scene, &options, args.bits, &engine, &truth_dir, args.quiet)?;
+        let air = args.output.join("air");
+        std::fs::create_dir_all(&air)
+            .with_context(|| format!("cannot create {}", air.display()))?;
+        let target = air.join(&camera.name);
+        if target.exists() {
+            std::fs::remove_dir_all(&target)
+                .with_context(|| format!("cannot replace {}", target.display()))?;
+        }
+        std::fs::rename(truth_dir.join(&camera.name), &target)
+            .with_context(|| format!("cannot move the in-air views to {}", target.display()))?;
+    }
+    outln!(
+        "rendered a calibration set in {:.1} s into {}/: water/CAMERA/ ({} synchronized views), air/CAMERA/ ({} views each), the truths in water/ and air-truth/",
+        started.elapsed().as_secs_f64(),
+        args.output.display(),
+        args.views,
+        args.air_views
     );
     Ok(())
 }

@@ -750,6 +750,68 @@ pub fn write_report(path: &Path, report: &Report) -> Result<(), IoError> {
     write_atomic(path, report_to_json_string(report).as_bytes())
 }
 
+/// The report of `flatport calibrate --images`: the calibration's report ([`write_report`]'s
+/// keys), and beside them `intrinsics` (each camera's in-air fit: its values, σ, RMS, views
+/// used and left out, the lens terms chosen and why), `held_out` (the held-out frames'
+/// reprojection RMS and triangulated corner distances), `dropped_frames`, `left_out_images`,
+/// `frames` (the labels of the frames fitted, in the report's view order) and `links` (how each
+/// camera's extrinsics were started).
+pub fn write_boards_report(
+    path: &Path,
+    result: &crate::calib::pipeline::boards::BoardsCalibration,
+    names: &[String],
+    intrinsics: &[(String, crate::calib::pipeline::intrinsics::IntrinsicsFit)],
+) -> Result<(), IoError> {
+    use serde_json::json;
+    let mut value: serde_json::Value =
+        serde_json::from_str(&report_to_json_string(&result.calibration.report))
+            .expect("the report's own JSON parses");
+    let finite = |v: f64| v.is_finite().then_some(v);
+    let fits: Vec<serde_json::Value> = intrinsics
+        .iter()
+        .map(|(name, fit)| {
+            let c = &fit.camera;
+            json!({
+                "camera": name,
+                "width": c.width, "height": c.height,
+                "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
+                "distortion": c.distortion,
+                "std": {"fx": fit.std[0], "fy": fit.std[1], "cx": fit.std[2], "cy": fit.std[3],
+                        "distortion": &fit.std[4..]},
+                "rms_px": finite(fit.rms_px),
+                "view_rms_px": fit.view_rms_px.iter().map(|r| r.and_then(finite)).collect::<Vec<_>>(),
+                "outliers": fit.outliers.iter().map(|(v, why)| json!({"view": v, "why": why})).collect::<Vec<_>>(),
+                "excluded": fit.excluded.iter().map(|(v, why)| json!({"view": v, "why": why})).collect::<Vec<_>>(),
+                "lens_terms": fit.model.terms.describe(),
+                "lens_terms_why": fit.model.reason,
+            })
+        })
+        .collect();
+    let held_out = result.validation.as_ref().map(|v| {
+        json!({
+            "frames": v.frames,
+            "rms_px": finite(v.rms_px),
+            "corner_pairs": v.distances,
+            "median_distance_error_mm": finite(v.median_error_m * 1e3),
+            "median_distance_error_percent_of_square": finite(v.median_error_percent),
+            "rms_distance_error_mm": finite(v.rms_error_m * 1e3),
+        })
+    });
+    let extra = json!({
+        "intrinsics": fits,
+        "held_out": held_out,
+        "dropped_frames": result.dropped.iter().map(|(f, why)| json!({"frame": f, "why": why})).collect::<Vec<_>>(),
+        "left_out_images": result.left_out,
+        "frames": result.fitted,
+        "links": result.links.iter().map(|l| json!({"camera": names[l.camera], "via": names[l.via], "frames": l.frames})).collect::<Vec<_>>(),
+    });
+    if let (Some(object), serde_json::Value::Object(extra)) = (value.as_object_mut(), extra) {
+        object.extend(extra);
+    }
+    let text = serde_json::to_string_pretty(&value).expect("JSON values serialise");
+    write_atomic(path, text.as_bytes())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

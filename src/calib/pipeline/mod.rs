@@ -37,6 +37,7 @@ pub mod misfit;
 pub mod poses;
 pub mod report;
 pub mod search;
+pub mod selection;
 
 pub(crate) use estimate::{fit_briefly, rms};
 

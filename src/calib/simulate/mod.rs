@@ -6,6 +6,7 @@
 //! whole by one pair of cameras ([`Cameras::Pair`], the stereo scenes of the thesis).
 
 pub mod rng;
+pub mod spread;
 
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 
