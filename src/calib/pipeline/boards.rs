@@ -148,6 +148,9 @@ pub struct BoardsCalibration {
     pub fitted: Vec<String>,
     /// Frames dropped as outliers, with why.
     pub dropped: Vec<(String, String)>,
+    /// Corners left out after the first fit for residuals far above the rest (the first fit's
+    /// outliers: misplaced detections), named.
+    pub dropped_corners: Vec<String>,
     /// Images left out before the fit (too few corners, corners on a line), with why.
     pub left_out: Vec<String>,
     /// The held-out frames' verdict (`None` when there were too few frames to hold any out).
@@ -300,43 +303,68 @@ pub fn calibrate_from_boards(
         &calibration_options,
         progress,
     )?;
-    // Frames far above the others: dropped, and the calibration run again once.
+    // Corners far above the rest (the report's outliers: a misplaced detection), and frames far
+    // above the others: left out, and the calibration run again once from the same start (a
+    // gross corner can have spoilt the start, e.g. the consecutive method's invariants).
     let mut dropped = Vec::new();
+    let mut dropped_corners = Vec::new();
+    let mut again = false;
     if options.drop_outliers {
-        let frame_rms = frame_rms(&calibration, fitted.len());
+        // The frames first (their RMS leaves the outlier corners out), then the corners.
+        let frame_rms = frame_rms(&calibration, &fitted);
         let mut sorted: Vec<f64> = frame_rms
             .iter()
             .copied()
             .filter(|r| r.is_finite())
             .collect();
         sorted.sort_by(f64::total_cmp);
-        if let Some(&median) = sorted.get(sorted.len() / 2) {
-            let bound = (OUTLIER_FACTOR * median).max(OUTLIER_FLOOR_PX);
-            let keep: Vec<bool> = frame_rms.iter().map(|r| !(*r > bound)).collect();
-            let kept = keep.iter().filter(|k| **k).count();
-            if kept < fitted.len() && kept >= super::MIN_VIEWS {
-                let mut next = Vec::new();
-                for ((label, view), (keep, rms)) in
-                    fitted.into_iter().zip(keep.iter().zip(&frame_rms))
-                {
-                    if *keep {
-                        next.push((label, view));
-                    } else {
-                        dropped.push((
-                            label,
-                            format!("RMS {rms:.2} px, above {OUTLIER_FACTOR} × the median frame's {median:.3} px"),
-                        ));
-                    }
-                }
-                fitted = next;
-                calibration = calibrate_with_progress(
-                    &calibration.rig,
-                    &observations(&fitted),
-                    &calibration_options,
-                    progress,
-                )?;
+        let median = sorted.get(sorted.len() / 2).copied().unwrap_or(f64::NAN);
+        let bound = (OUTLIER_FACTOR * median).max(OUTLIER_FLOOR_PX);
+        let keep: Vec<bool> = frame_rms.iter().map(|r| !(*r > bound)).collect();
+        let kept = keep.iter().filter(|k| **k).count();
+        let drop_frames = kept < fitted.len() && kept >= super::MIN_VIEWS;
+        for outlier in &calibration.report.outliers {
+            if drop_frames && !keep[outlier.view] {
+                continue;
+            }
+            let (label, view) = &mut fitted[outlier.view];
+            let image = view.images.iter_mut().find(|i| i.key == outlier.image);
+            if let Some(corner) = image.and_then(|i| i.corners.get_mut(outlier.corner))
+                && corner.take().is_some()
+            {
+                again = true;
+                dropped_corners.push(format!(
+                    "frame {label}, camera '{}', corner {}: residual {:.2} px",
+                    outlier.camera, outlier.corner, outlier.residual_px
+                ));
             }
         }
+        if drop_frames {
+            let mut next = Vec::new();
+            for ((label, view), (keep, rms)) in fitted.into_iter().zip(keep.iter().zip(&frame_rms))
+            {
+                if *keep {
+                    next.push((label, view));
+                } else {
+                    dropped.push((
+                        label,
+                        format!(
+                            "RMS {rms:.2} px, above {OUTLIER_FACTOR} × the median frame's {median:.3} px"
+                        ),
+                    ));
+                }
+            }
+            fitted = next;
+            again = true;
+        }
+    }
+    if again {
+        calibration = calibrate_with_progress(
+            &start,
+            &observations(&fitted),
+            &calibration_options,
+            progress,
+        )?;
     }
     let validation = if held_out.is_empty() {
         None
@@ -354,28 +382,45 @@ pub fn calibrate_from_boards(
         links,
         fitted: fitted.into_iter().map(|(label, _)| label).collect(),
         dropped,
+        dropped_corners,
         left_out,
         validation,
     })
 }
 
-/// The RMS reprojection error of every view (over all its cameras) of `calibration`'s report.
-fn frame_rms(calibration: &Calibration, views: usize) -> Vec<f64> {
-    let mut sum = vec![0.0; views];
-    let mut count = vec![0usize; views];
-    for camera in &calibration.report.cameras {
-        for (v, rms) in camera.rms_px_per_view.iter().enumerate().take(views) {
-            if rms.is_finite() {
-                sum[v] += rms * rms;
-                count[v] += 1;
+/// The RMS reprojection error of every view of `views` (over all its cameras) under
+/// `calibration`, without the corners its report names as outliers (one misplaced corner is the
+/// corner's fault, not the frame's; the Huber loss has already down-weighted it).
+fn frame_rms(calibration: &Calibration, views: &[(String, View)]) -> Vec<f64> {
+    let report = &calibration.report;
+    views
+        .iter()
+        .enumerate()
+        .map(|(v, (_, view))| {
+            let (mut sum, mut count) = (0.0, 0usize);
+            for camera in &report.cameras {
+                let Some(rms) = camera.rms_px_per_view.get(v).filter(|r| r.is_finite()) else {
+                    continue;
+                };
+                let Some(image) = view.images.iter().find(|i| i.key == camera.name) else {
+                    continue;
+                };
+                let n = image.corners.iter().filter(|c| c.is_some()).count();
+                let outliers: Vec<f64> = report
+                    .outliers
+                    .iter()
+                    .filter(|o| o.view == v && o.camera == camera.name)
+                    .map(|o| o.residual_px)
+                    .collect();
+                if n > outliers.len() {
+                    let squares =
+                        rms * rms * n as f64 - outliers.iter().map(|r| r * r).sum::<f64>();
+                    sum += squares.max(0.0);
+                    count += n - outliers.len();
+                }
             }
-        }
-    }
-    sum.iter()
-        .zip(&count)
-        .map(|(s, &c)| {
-            if c > 0 {
-                (s / c as f64).sqrt()
+            if count > 0 {
+                (sum / count as f64).sqrt()
             } else {
                 f64::NAN
             }
