@@ -406,6 +406,69 @@ fn a_broken_video_is_named_with_ffmpegs_words() {
     assert!(m.contains("moov atom not found"), "ffmpeg's own words: {m}");
 }
 
+#[test]
+fn a_frame_that_does_not_decode_stops_the_video_with_an_error() {
+    if !have_ffmpeg("a_frame_that_does_not_decode_stops_the_video_with_an_error") {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let frames = grey_frames(7);
+    let raw: Vec<Vec<u8>> = frames.iter().map(|f| f.as_raw().clone()).collect();
+    let dir = folder(tmp.path(), "cam");
+    let path = dir.join("clip.mkv");
+    // FFV1 with a CRC per slice, so that a damaged frame is found.
+    encode(&path, "gray", &raw, &["-c:v", "ffv1", "-slicecrc", "1"]);
+    // Frame 3's packet, where ffprobe says it lies (size,pos per line), overwritten in its middle.
+    let packets = Command::new("ffprobe")
+        .args([
+            "-v",
+            "error",
+            "-select_streams",
+            "v:0",
+            "-show_entries",
+            "packet=size,pos",
+        ])
+        .args(["-of", "csv=p=0"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let line = String::from_utf8_lossy(&packets.stdout)
+        .lines()
+        .nth(3)
+        .expect("a fourth packet")
+        .to_string();
+    let (size, pos) = line.split_once(',').unwrap();
+    let (size, pos): (usize, usize) = (size.parse().unwrap(), pos.parse().unwrap());
+    let mut bytes = std::fs::read(&path).unwrap();
+    for (i, b) in bytes[pos + size / 4..pos + 3 * size / 4]
+        .iter_mut()
+        .enumerate()
+    {
+        *b = (i * 37 % 251) as u8;
+    }
+    std::fs::write(&path, bytes).unwrap();
+    let source = FrameSource::open(&dir).unwrap();
+    assert_eq!(source.len(), 7);
+    // The frames before the damage are read, unshifted; then one error quoting the decoder,
+    // and the end.
+    let read: Vec<_> = source.frames(&FrameSelection::ALL).unwrap().collect();
+    let (good, bad): (Vec<_>, Vec<_>) = read.into_iter().partition(|r| r.is_ok());
+    assert_eq!(bad.len(), 1);
+    assert!(
+        good.len() <= 3,
+        "{} frames before the damaged one",
+        good.len()
+    );
+    for (k, frame) in good.into_iter().enumerate() {
+        assert!(frame.unwrap().1 == frames[k], "frame {k}");
+    }
+    let m = bad.into_iter().next().unwrap().unwrap_err().to_string();
+    assert!(
+        m.contains("clip.mkv") && m.contains("of its 7 frames") && m.contains("[ffv1"),
+        "{m}"
+    );
+}
+
 /// Set in the child run of [`a_missing_ffmpeg_says_how_to_install_it`].
 const CHILD: &str = "FLATPORT_FRAMES_TEST_WITHOUT_FFMPEG";
 

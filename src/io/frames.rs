@@ -7,8 +7,10 @@
 //! never held whole in memory and no temporary file is written. The tool and not a crate:
 //! `ffmpeg-next` needs the libav* development libraries at build time and tracks their versions,
 //! while the tool decodes every codec FFmpeg knows and is one `apt-get install ffmpeg`. The frame
-//! count comes from `ffprobe -count_packets` (the container is read, nothing decoded); a video
-//! that then decodes to fewer frames is an error that says so. FFmpeg 5.1 or newer is needed
+//! count comes from `ffprobe -count_packets` (the container is read, nothing decoded); a frame
+//! that does not decode stops the decoding with an error naming the video and how many frames
+//! were read (a frame left out would shift every later one against the other cameras'), and so
+//! does a video that decodes to fewer frames than it has packets. FFmpeg 5.1 or newer is needed
 //! (`-fps_mode passthrough`: every decoded frame once, none duplicated or dropped to a constant
 //! rate; the older `-vsync` is gone from FFmpeg 9).
 
@@ -831,14 +833,10 @@ impl VideoDecoder {
         expected: usize,
     ) -> Result<Self, IoError> {
         let mut child = Command::new("ffmpeg")
-            .args([
-                "-nostdin",
-                "-hide_banner",
-                "-v",
-                "error",
-                "-noautorotate",
-                "-i",
-            ])
+            // -xerror: a frame that does not decode stops ffmpeg (and is an error here) rather
+            // than being left out, which would shift every later frame against the other cameras'.
+            .args(["-nostdin", "-hide_banner", "-v", "error", "-xerror"])
+            .args(["-noautorotate", "-i"])
             .arg(ffmpeg_input(path))
             .args([
                 "-map",
