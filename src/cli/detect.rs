@@ -483,6 +483,9 @@ fn resolve_views(
     resolved
 }
 
+/// What one image of a ChArUco board gave: its corners with their ids, or why none.
+type CharucoResult = Result<Vec<(usize, nalgebra::Point2<f64>)>, Miss>;
+
 /// One overlay per image of a ChArUco board: DIR/CAMERA/<file stem>.jpg, every corner found
 /// with its id.
 fn write_charuco_overlays(
@@ -490,7 +493,7 @@ fn write_charuco_overlays(
     grid: &Board,
     names: &[String],
     files: &[Vec<PathBuf>],
-    results: &[Result<Vec<(usize, nalgebra::Point2<f64>)>, Miss>],
+    results: &[CharucoResult],
 ) -> anyhow::Result<()> {
     for name in names {
         std::fs::create_dir_all(dir.join(name))

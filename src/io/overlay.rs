@@ -175,6 +175,9 @@ mod tests {
         // The circle of radius 40 / 6 ≈ 6 px round each corner is coloured, as is the row line.
         assert!(!grey(66, 80) && !grey(54, 80) && !grey(80, 80));
         assert!(grey(150, 140) && grey(20, 140), "far from the corners");
-        assert!(drawn.get_pixel(5, 5).0[0] < 100, "the caption bar darkens the top");
+        assert!(
+            drawn.get_pixel(5, 5).0[0] < 100,
+            "the caption bar darkens the top"
+        );
     }
 }
