@@ -360,6 +360,7 @@ fn the_cli_renders_and_detects_charuco_boards_partial_views_included() {
     );
     let glob = format!("cam={}/cam/*.png", shots.display());
     let observations = at("observations.json");
+    let overlays = at("overlays");
     let out = flatport(&[
         "detect",
         "--board",
@@ -367,6 +368,8 @@ fn the_cli_renders_and_detects_charuco_boards_partial_views_included() {
         "--images",
         &glob,
         "-q",
+        "--overlay",
+        overlays.to_str().unwrap(),
         "--output",
         observations.to_str().unwrap(),
     ]);
@@ -375,6 +378,10 @@ fn the_cli_renders_and_detects_charuco_boards_partial_views_included() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    for v in 0..2 {
+        let overlay = overlays.join(format!("cam/view_{v:03}.jpg"));
+        assert_eq!(image::image_dimensions(&overlay).unwrap(), (1024, 768));
+    }
     let corners_json = shots.join("corners.json");
     for v in 0..2 {
         let exact = corners_in(&corners_json, v, "cam");

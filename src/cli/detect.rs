@@ -14,7 +14,7 @@ use flatport::detect::{
     BoardSpec, CharucoSpec, Found, Miss, Rule, corners_by_id, detect_board, detect_charuco,
     resolve_view,
 };
-use flatport::io::overlay::overlay;
+use flatport::io::overlay::{overlay, overlay_ids};
 use flatport::io::{DetectedView, read_grey_image, read_rig, write_detections, write_rgb_jpeg};
 use flatport::model::Rig;
 
@@ -306,11 +306,6 @@ pub fn parse_board_spec(text: &str) -> Result<BoardSpec, String> {
 /// `flatport detect` with a ChArUco board: every corner comes with its id, so there is no corner 0
 /// to resolve and a partial view is kept with `null` for the corners not seen.
 fn run_charuco(args: &DetectArgs, spec: &CharucoSpec) -> anyhow::Result<()> {
-    if args.overlay.is_some() {
-        bail!(
-            "--overlay draws chessboards only for now; run without it (the observations file has the ChArUco corners with their ids)"
-        );
-    }
     let grid = spec.corner_grid();
     let names: Vec<String> = args.images.iter().map(|(c, _)| c.clone()).collect();
     let rig: Option<Rig> = args.rig.as_deref().map(read_rig).transpose()?;
@@ -376,11 +371,19 @@ fn run_charuco(args: &DetectArgs, spec: &CharucoSpec) -> anyhow::Result<()> {
             )
         })
         .collect();
+    if let Some(dir) = &args.overlay {
+        write_charuco_overlays(dir, &grid, &names, &files, &results)?;
+    }
     let written = detected.len() - left_out.len();
     outln!(
-        "ChArUco boards found: {}; wrote {written} of {views} views to {}",
+        "ChArUco boards found: {}; wrote {written} of {views} views to {}{}",
         per_camera.join(", "),
-        args.output.display()
+        args.output.display(),
+        if let Some(dir) = &args.overlay {
+            format!(", overlays in {}", dir.display())
+        } else {
+            String::new()
+        }
     );
     if written == 0 {
         bail!(
@@ -478,6 +481,52 @@ fn resolve_views(
         }
     }
     resolved
+}
+
+/// What one image of a ChArUco board gave: its corners with their ids, or why none.
+type CharucoResult = Result<Vec<(usize, nalgebra::Point2<f64>)>, Miss>;
+
+/// One overlay per image of a ChArUco board: DIR/CAMERA/<file stem>.jpg, every corner found
+/// with its id.
+fn write_charuco_overlays(
+    dir: &Path,
+    grid: &Board,
+    names: &[String],
+    files: &[Vec<PathBuf>],
+    results: &[CharucoResult],
+) -> anyhow::Result<()> {
+    for name in names {
+        std::fs::create_dir_all(dir.join(name))
+            .with_context(|| format!("cannot create {}", dir.join(name).display()))?;
+    }
+    let count = names.len();
+    (0..results.len())
+        .into_par_iter()
+        .try_for_each(|i| -> anyhow::Result<()> {
+            let (v, k) = (i / count, i % count);
+            let path = &files[k][v];
+            let image = read_grey_image(path)?;
+            let stem = path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| format!("view_{v:03}"));
+            let (corners, caption, warning) = match &results[i] {
+                Ok(corners) => (
+                    corners.as_slice(),
+                    format!(
+                        "view {v}, {}: {} of {} ChArUco corners",
+                        names[k],
+                        corners.len(),
+                        grid.corners()
+                    ),
+                    false,
+                ),
+                Err(miss) => (&[][..], format!("view {v}, {}: {miss}", names[k]), true),
+            };
+            let drawn = overlay_ids(&image, corners, grid.cols, &caption, warning);
+            write_rgb_jpeg(&dir.join(&names[k]).join(format!("{stem}.jpg")), &drawn)?;
+            Ok(())
+        })
 }
 
 /// One overlay per image: DIR/CAMERA/<file stem>.jpg.
