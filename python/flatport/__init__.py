@@ -144,6 +144,23 @@ class Rig:
         """The rig file's text."""
         return self._rig.to_json()
 
+    @classmethod
+    def from_aquacal(cls, path: Union[str, os.PathLike], master: Optional[str] = None) -> "Rig":
+        """A rig from AquaCal's ``calibration.json`` (what ``flatport rig from-aquacal`` reads;
+        docs/rigs.md): the first camera in the file (or ``master``) becomes the master, the water
+        surface the shared interface. Errors raise ValueError naming the file, JSON path and value."""
+        return cls(_flatport._Rig.from_aquacal(os.fspath(path), master))
+
+    def to_aquacal(self, path: Optional[Union[str, os.PathLike]] = None) -> str:
+        """The rig as AquaCal's ``calibration.json`` (what ``flatport export aquacal`` writes;
+        docs/export.md), written to ``path`` when given; returns the text. A rig AquaCal cannot hold
+        (glass layers, ports per camera that are not parallel) raises ValueError saying why."""
+        text = self._rig.to_aquacal()
+        if path is not None:
+            with open(path, "w", encoding="utf-8") as file:
+                file.write(text)
+        return text
+
     @property
     def camera_names(self) -> list:
         """Names of the cameras, master first."""

@@ -19,7 +19,7 @@ use flatport::engine::{Device, Engine, EngineOptions};
 use flatport::engine::GpuEngine;
 use flatport::engine::gpu::{Pixels, Points, Rays, Triangulated};
 use flatport::gpu::{DeviceRows, GpuError, Precision, RowKind};
-use flatport::io::{ColmapDialect, Truth, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string, stereo_observations_to_json_string};
+use flatport::io::{ColmapDialect, Truth, aquacal_json, read_aquacal, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string, stereo_observations_to_json_string};
 use flatport::io::calib_json::truth_to_json_string;
 use flatport::model::Rig;
 
@@ -335,6 +335,19 @@ impl PyRig {
 
     fn to_json(&self) -> String {
         rig_to_json_string(&self.rig)
+    }
+
+    /// A rig from AquaCal's calibration.json (`flatport rig from-aquacal`); `master` names the
+    /// camera that becomes the master (default: the first in the file).
+    #[staticmethod]
+    #[pyo3(signature = (path, master=None))]
+    fn from_aquacal(path: &str, master: Option<&str>) -> PyResult<Self> {
+        Ok(Self::wrap(read_aquacal(Path::new(path), master).map_err(value_error)?))
+    }
+
+    /// The rig as AquaCal's calibration.json text (`flatport export aquacal`, no board).
+    fn to_aquacal(&self) -> PyResult<String> {
+        aquacal_json(&self.rig, None).map_err(value_error)
     }
 
     fn camera_names(&self) -> Vec<String> {
