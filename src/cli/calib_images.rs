@@ -3,24 +3,20 @@
 //! ports under water (DESIGN.md §3c).
 
 use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
-use image::GrayImage;
-use nalgebra::Point2;
-use rayon::prelude::*;
 
+use flatport::calib::Board;
+use flatport::calib::Options;
 use flatport::calib::pipeline::boards::{
-    BoardsCalibration, BoardsOptions, PortKind, RigSetup, WaterFrame, calibrate_from_boards,
+    BoardsCalibration, BoardsOptions, PortKind, RigSetup, calibrate_from_boards,
 };
 use flatport::calib::pipeline::intrinsics::{
-    AirView, IntrinsicsFit, IntrinsicsOptions, calibrate_intrinsics,
+    IntrinsicsFit, IntrinsicsOptions, calibrate_intrinsics,
 };
-use flatport::calib::pipeline::selection::{describe_image, spread};
-use flatport::calib::{Board, Options};
-use flatport::detect::board::BoardSpec;
-use flatport::detect::{BoardCorners, Found, find_corners, resolve_view};
-use flatport::io::frames::{FrameSelection, FrameSource, check_synchronized, open_cameras};
+use flatport::io::board_footage::{
+    DEFAULT_MAX_AIR_VIEWS, DEFAULT_MAX_WATER_FRAMES, Footage, FootageOptions, read_board_footage,
+};
 use flatport::io::{read_board, read_rig, write_boards_report, write_rig};
 use flatport::model::{Layer, PinholeCamera};
 
@@ -28,18 +24,6 @@ use super::calib::{
     CalibrateArgs, CalibrationStatus, PortArg, backend, calibration_engine, summary,
 };
 use super::progress::Progress;
-
-/// Largest number of in-air views per camera used by default (`--max-frames`); more add little
-/// to a lens and cost time.
-pub const DEFAULT_MAX_AIR_VIEWS: usize = 40;
-/// Largest number of underwater frames used by default.
-pub const DEFAULT_MAX_WATER_FRAMES: usize = 60;
-/// Without `--frame-step`, the step keeps the frames detected to about this many times the cap.
-const DETECT_PER_KEPT: usize = 4;
-
-/// One camera's corners in one frame, ((corner index, pixel)), empty where the board was not
-/// found.
-type FrameCorners = Vec<(usize, Point2<f64>)>;
 
 /// `--glass`: `T:N` for every port, or `CAMERA=T:N` for one camera's housing.
 #[derive(Debug, Clone, PartialEq)]
@@ -99,35 +83,28 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
             "--images needs --port: surface (one bare water surface in front of every camera), shared (one port with its glass in front of every camera) or housings (a port per camera)"
         ),
     };
-    // The cameras: water/<camera>/ (synchronized), and air/<camera>/ or the rig's.
-    let water_dir = dir.join("water");
-    if !water_dir.is_dir() {
-        bail!(
-            "{}: no water/ folder: --images DIR holds water/<camera>/ (synchronized frames under water, one folder per camera) and air/<camera>/ (in-air views), see docs/calibration.md",
-            dir.display()
-        );
-    }
-    let mut water = open_cameras(&water_dir)?;
-    if let Some(master) = &args.master {
-        let k = water
-            .iter()
-            .position(|(n, _)| n == master)
-            .with_context(|| {
-                format!(
-                    "--master {master}: no camera folder of that name in {} (cameras: {})",
-                    water_dir.display(),
-                    water
-                        .iter()
-                        .map(|(n, _)| n.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )
-            })?;
-        let first = water.remove(k);
-        water.insert(0, first);
-    }
-    let names: Vec<String> = water.iter().map(|(n, _)| n.clone()).collect();
-    let count = check_synchronized(&water_dir, &water)?;
+    let footage_options = FootageOptions {
+        master: args.master.clone(),
+        frame_step: args.frame_step.map(|s| s as usize),
+        max_air_views: args
+            .max_frames
+            .map_or(DEFAULT_MAX_AIR_VIEWS, |m| m as usize),
+        max_water_frames: args
+            .max_frames
+            .map_or(DEFAULT_MAX_WATER_FRAMES, |m| m as usize),
+        air: args.rig.is_none(),
+    };
+    let mut bar: Option<(String, Progress)> = None;
+    let footage = read_board_footage(dir, &spec, &footage_options, &mut |what, done, total| {
+        if bar.as_ref().is_none_or(|(w, _)| w != what) {
+            bar = Some((what.to_string(), Progress::new(what, "images", args.quiet)));
+        }
+        if let Some((_, progress)) = bar.as_mut() {
+            progress.update(done, total);
+        }
+    })?;
+    drop(bar);
+    let names = footage.names();
     let glass = glass_per_camera(&args.glass, &names, port)?;
     let index_water = args.index_water.unwrap_or(1.333);
     let index_air = args.index_air.unwrap_or(1.0);
@@ -141,66 +118,20 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
         board.rows,
         board.square * 1e3
     );
+    for note in &footage.notes {
+        eprintln!("{note}");
+    }
     // In-air intrinsics, or the rig's cameras.
     let (cameras, fits) = match &args.rig {
-        Some(path) => (cameras_from_rig(path, &names)?, Vec::new()),
-        None => air_intrinsics(args, dir, &names, &spec, &board)?,
+        Some(path) => (cameras_from_rig(path, &footage)?, Vec::new()),
+        None => air_intrinsics(&footage, &board)?,
     };
-    for ((name, source), camera) in water.iter().zip(&cameras) {
-        let (w, h) = source.size();
-        if (w, h) != (camera.width, camera.height) {
-            bail!(
-                "{}: frames of {w}x{h} pixels, but camera '{name}' was calibrated at {}x{}",
-                source.folder().display(),
-                camera.width,
-                camera.height
-            );
-        }
-    }
-    // Underwater frames.
-    let cap = args
-        .max_frames
-        .map_or(DEFAULT_MAX_WATER_FRAMES, |m| m as usize);
-    let selection = frame_selection(
-        args.frame_step.map(|s| s as usize),
-        count,
-        cap,
-        "underwater",
-    );
-    let frames = water_frames(&water, &selection, &spec, &board, args.quiet)?;
-    let described: Vec<_> = frames
-        .iter()
-        .map(|f| {
-            let descriptions = f
-                .corners
-                .iter()
-                .zip(&cameras)
-                .map(|(c, cam)| describe_image(&board, c, cam.width, cam.height))
-                .collect();
-            (descriptions, f.corners.iter().map(Vec::len).sum())
-        })
-        .collect();
-    let seen_by_two = frames
-        .iter()
-        .filter(|f| f.corners.iter().filter(|c| !c.is_empty()).count() >= 2)
-        .count();
-    let chosen = spread(&described, cap);
+    let (read, with_board, by_two) = footage.water_read;
     eprintln!(
-        "underwater: the board in {} of {} frames ({} seen by two or more cameras); {} frames used{}",
-        frames
-            .iter()
-            .filter(|f| f.corners.iter().any(|c| !c.is_empty()))
-            .count(),
-        frames.len(),
-        seen_by_two,
-        chosen.len(),
-        if chosen.len() < frames.len() {
-            format!(" (spread over the images and the board's poses, --max-frames {cap})")
-        } else {
-            String::new()
-        }
+        "underwater: the board in {with_board} of {read} frames ({by_two} seen by two or more cameras); {} frames used",
+        footage.water.len()
     );
-    let frames: Vec<WaterFrame> = chosen.into_iter().map(|f| frames[f].clone()).collect();
+    let frames = footage.water;
     let setup = RigSetup {
         cameras,
         port,
@@ -313,239 +244,71 @@ fn glass_per_camera(
     Ok(per_camera)
 }
 
-/// The intrinsics of `names` from the rig file at `path`.
-fn cameras_from_rig(path: &Path, names: &[String]) -> anyhow::Result<Vec<PinholeCamera>> {
+/// The intrinsics of the footage's cameras from the rig file at `path` (by name, of the same size).
+fn cameras_from_rig(path: &Path, footage: &Footage) -> anyhow::Result<Vec<PinholeCamera>> {
     let rig = read_rig(path)?;
-    names
+    footage
+        .cameras
         .iter()
-        .map(|name| {
-            rig.camera_index(name)
-                .map(|k| rig.cameras()[k].intrinsics.clone())
-                .with_context(|| {
-                    format!(
-                        "{}: no camera '{name}' (the camera folders name the cameras; the rig has {})",
-                        path.display(),
-                        rig.cameras().iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ")
-                    )
-                })
+        .map(|camera| {
+            let k = rig.camera_index(&camera.name).with_context(|| {
+                format!(
+                    "{}: no camera '{}' (the camera folders name the cameras; the rig has {})",
+                    path.display(),
+                    camera.name,
+                    rig.cameras()
+                        .iter()
+                        .map(|c| c.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            })?;
+            let intrinsics = rig.cameras()[k].intrinsics.clone();
+            if (intrinsics.width, intrinsics.height) != (camera.width, camera.height) {
+                bail!(
+                    "{}: camera '{}' is {}x{} pixels, its frames {}x{}",
+                    path.display(),
+                    camera.name,
+                    intrinsics.width,
+                    intrinsics.height,
+                    camera.width,
+                    camera.height
+                );
+            }
+            Ok(intrinsics)
         })
         .collect()
 }
 
-/// The step over `count` frames: `--frame-step`, else the smallest that detects at most about
-/// [`DETECT_PER_KEPT`] × `cap` frames.
-fn frame_selection(step: Option<usize>, count: usize, cap: usize, what: &str) -> FrameSelection {
-    let step = step.unwrap_or_else(|| {
-        let step = count.div_ceil(DETECT_PER_KEPT * cap).max(1);
-        if step > 1 {
-            eprintln!("{what}: {count} frames, every {step}th read (--frame-step to choose)");
-        }
-        step
-    });
-    FrameSelection {
-        step,
-        ..FrameSelection::ALL
-    }
-}
-
-/// The corners of `spec` in one grey image: (corner index, pixel), empty where it was not found.
-fn corners_in(image: &GrayImage, spec: &BoardSpec, board: &Board, name: &str) -> FrameCorners {
-    match find_corners(image, spec) {
-        Ok(BoardCorners::Charuco(corners)) => corners,
-        Ok(BoardCorners::Chessboard(detection)) => {
-            let found = Found::new(image, board, detection);
-            let orderings = found.detection.orderings.clone();
-            match resolve_view(board, &[name.to_string()], None, &[Some(found)]) {
-                Ok(chosen) => chosen[0]
-                    .map(|(o, _)| orderings[o].iter().copied().enumerate().collect())
-                    .unwrap_or_default(),
-                Err(_) => Vec::new(),
-            }
-        }
-        Err(_) => Vec::new(),
-    }
-}
-
-/// Reads `source`'s `selection` and finds the board in each frame, in parallel batches.
-fn detect_frames(
-    source: &FrameSource,
-    selection: &FrameSelection,
-    spec: &BoardSpec,
-    board: &Board,
-    name: &str,
-    progress: &mut Progress,
-    done: &AtomicUsize,
-    total: usize,
-) -> anyhow::Result<Vec<(usize, FrameCorners)>> {
-    let batch = 2 * rayon::current_num_threads().max(1);
-    let mut out = Vec::new();
-    let mut pending: Vec<(usize, GrayImage)> = Vec::with_capacity(batch);
-    let mut flush = |pending: &mut Vec<(usize, GrayImage)>,
-                     out: &mut Vec<(usize, FrameCorners)>| {
-        let found: Vec<(usize, FrameCorners)> = pending
-            .par_iter()
-            .map(|(i, image)| (*i, corners_in(image, spec, board, name)))
-            .collect();
-        out.extend(found);
-        done.fetch_add(pending.len(), Ordering::Relaxed);
-        progress.update(done.load(Ordering::Relaxed), total);
-        pending.clear();
-    };
-    for frame in source.frames(selection)? {
-        let (i, image) = frame?;
-        pending.push((i, image));
-        if pending.len() == batch {
-            flush(&mut pending, &mut out);
-        }
-    }
-    flush(&mut pending, &mut out);
-    Ok(out)
-}
-
-/// Every camera's lens from `DIR/air/<camera>/`.
+/// Every camera's lens from its in-air views.
 fn air_intrinsics(
-    args: &CalibrateArgs,
-    dir: &Path,
-    names: &[String],
-    spec: &BoardSpec,
+    footage: &Footage,
     board: &Board,
 ) -> anyhow::Result<(Vec<PinholeCamera>, Vec<(String, IntrinsicsFit)>)> {
-    let air_dir = dir.join("air");
-    if !air_dir.is_dir() {
-        bail!(
-            "{}: no air/ folder: the cameras' in-air views go in air/<camera>/ (or give --rig RIG.json with the cameras calibrated in air)",
-            dir.display()
-        );
-    }
-    let air = open_cameras(&air_dir)?;
-    let missing: Vec<&str> = names
-        .iter()
-        .filter(|n| !air.iter().any(|(a, _)| a == *n))
-        .map(String::as_str)
-        .collect();
-    if !missing.is_empty() {
-        bail!(
-            "{}: no folder for camera(s) {} (water/ has {}; air/ has {})",
-            air_dir.display(),
-            missing.join(", "),
-            names.join(", "),
-            air.iter()
-                .map(|(n, _)| n.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-    }
-    let cap = args
-        .max_frames
-        .map_or(DEFAULT_MAX_AIR_VIEWS, |m| m as usize);
     let mut cameras = Vec::new();
     let mut fits = Vec::new();
-    for name in names {
-        let source = &air
-            .iter()
-            .find(|(a, _)| a == name)
-            .expect("checked above")
-            .1;
-        let (width, height) = source.size();
-        let selection = frame_selection(
-            args.frame_step.map(|s| s as usize),
-            source.len(),
-            cap,
-            &format!("air/{name}"),
-        );
-        let total = selection
-            .indices(source.len())
-            .map(|i| i.count())
-            .unwrap_or(0);
-        let mut progress = Progress::new(&format!("air/{name}: detecting"), "images", args.quiet);
-        let done = AtomicUsize::new(0);
-        let detected = detect_frames(
-            source,
-            &selection,
-            spec,
-            board,
-            name,
-            &mut progress,
-            &done,
-            total,
-        )?;
-        let described: Vec<_> = detected
-            .iter()
-            .map(|(_, c)| (vec![describe_image(board, c, width, height)], c.len()))
-            .collect();
-        let chosen = spread(&described, cap);
-        let views: Vec<AirView> = chosen
-            .iter()
-            .map(|&v| AirView {
-                label: source.frame_name(detected[v].0),
-                corners: detected[v].1.clone(),
-            })
-            .collect();
+    for camera in &footage.cameras {
+        let name = &camera.name;
         eprintln!(
-            "air/{name}: the board in {} of {} images, {} used; {}",
-            described.iter().filter(|d| d.0[0].is_some()).count(),
-            detected.len(),
-            views.len(),
-            source.describe()
+            "air/{name}: the board in {} of {} images, {} used",
+            camera.air_read.1,
+            camera.air_read.0,
+            camera.air.len()
         );
         let fit = calibrate_intrinsics(
             name,
-            width,
-            height,
+            camera.width,
+            camera.height,
             board,
-            &views,
+            &camera.air,
             &IntrinsicsOptions::default(),
         )
-        .with_context(|| {
-            format!(
-                "{}: the in-air calibration of camera '{name}'",
-                source.folder().display()
-            )
-        })?;
+        .with_context(|| format!("the in-air calibration of camera '{name}'"))?;
         print_intrinsics(name, &fit);
         cameras.push(fit.camera.clone());
         fits.push((name.clone(), fit));
     }
     Ok((cameras, fits))
-}
-
-/// Every synchronized frame's corners in every camera.
-fn water_frames(
-    water: &[(String, FrameSource)],
-    selection: &FrameSelection,
-    spec: &BoardSpec,
-    board: &Board,
-    quiet: bool,
-) -> anyhow::Result<Vec<WaterFrame>> {
-    let per_camera = selection
-        .indices(water[0].1.len())
-        .map(|i| i.count())
-        .unwrap_or(0);
-    let total = per_camera * water.len();
-    let mut progress = Progress::new("water: detecting", "images", quiet);
-    let done = AtomicUsize::new(0);
-    let mut detected = Vec::new();
-    for (name, source) in water {
-        detected.push(detect_frames(
-            source,
-            selection,
-            spec,
-            board,
-            name,
-            &mut progress,
-            &done,
-            total,
-        )?);
-    }
-    let frames = detected[0]
-        .iter()
-        .enumerate()
-        .map(|(j, (index, _))| WaterFrame {
-            label: water[0].1.frame_name(*index),
-            corners: detected.iter().map(|d| d[j].1.clone()).collect(),
-        })
-        .collect();
-    Ok(frames)
 }
 
 fn print_intrinsics(name: &str, fit: &IntrinsicsFit) {
@@ -586,6 +349,9 @@ fn print_result(result: &BoardsCalibration, names: &[String]) {
     }
     for line in &result.left_out {
         eprintln!("{line}");
+    }
+    for corner in &result.dropped_corners {
+        outln!("corner left out after the first fit: {corner}");
     }
     for (label, why) in &result.dropped {
         outln!("frame {label} dropped as an outlier: {why}");

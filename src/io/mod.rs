@@ -2,6 +2,8 @@
 
 pub mod aquacal;
 #[cfg(feature = "images")]
+pub mod board_footage;
+#[cfg(feature = "images")]
 pub mod board_json;
 pub mod calib_json;
 pub mod detections;

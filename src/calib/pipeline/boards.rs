@@ -304,8 +304,7 @@ pub fn calibrate_from_boards(
         progress,
     )?;
     // Corners far above the rest (the report's outliers: a misplaced detection), and frames far
-    // above the others: left out, and the calibration run again once from the same start (a
-    // gross corner can have spoilt the start, e.g. the consecutive method's invariants).
+    // above the others: left out, and the calibration run again once.
     let mut dropped = Vec::new();
     let mut dropped_corners = Vec::new();
     let mut again = false;
@@ -359,8 +358,11 @@ pub fn calibrate_from_boards(
         }
     }
     if again {
+        // From the first fit: its extrinsics are far nearer than the co-observations' start, so
+        // the consecutive method (which takes them as given) can run.
+        let first = calibration.rig.clone();
         calibration = calibrate_with_progress(
-            &start,
+            &first,
             &observations(&fitted),
             &calibration_options,
             progress,
