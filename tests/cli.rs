@@ -505,6 +505,21 @@ fn demo_runs_end_to_end() {
     let text = run_ok(&["demo", "--output", out.to_str().unwrap(), "--device", "cpu"]);
     // The calibration story: rendered images, detected corners, calibration from the naive start,
     // two sweeps.
+    // From footage alone: the lenses, the extrinsics and the port, against the rendered truth.
+    assert!(out.join("footage/water/left").is_dir() && out.join("footage/air/right").is_dir());
+    let footage_rig = flatport::io::read_rig(&out.join("footage_rig.json")).unwrap();
+    let truth = flatport::io::read_rig("data/example_rig.json".as_ref()).unwrap();
+    let (found, want) = (
+        footage_rig.shared_interface().unwrap(),
+        truth.shared_interface().unwrap(),
+    );
+    let axis = found.normal().angle(want.normal()).to_degrees();
+    let air = (found.air_distance() - want.air_distance()).abs() * 1e3;
+    assert!(
+        axis < 0.1 && air < 1.5,
+        "from footage: axis {axis}°, air {air} mm"
+    );
+    assert!(out.join("footage_report.json").is_file());
     for file in [
         "rig.json",
         "truth.json",

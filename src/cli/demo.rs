@@ -71,6 +71,7 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     let rig = rig_from_json_str(EXAMPLE_RIG, Path::new("<built-in example rig>"))?;
     outln!("flatport demo: a stereo camera behind a 14 mm glass port, looking into water\n");
     out!("{}", describe(&rig));
+    footage_story(&rig, dir, &args.engine)?;
     calibration_story(&rig, dir, &args.engine)?;
     geometry_tour(&rig, &dir.join("geometry"))?;
     stereo_story(&dir.join("stereo"))
@@ -149,7 +150,7 @@ fn stereo_story(dir: &Path) -> anyhow::Result<()> {
         "flatport demo: depth z in camera 'left'",
     )?;
     outln!(
-        "\ndense stereo: the small pair (320 x 256) renders a seabed with a rock and matches it (64 hypotheses, {:.1} s): {:.1} % of the pixels with a point",
+        "\n7. dense stereo: the small pair (320 x 256) renders a seabed with a rock and matches it (64 hypotheses, {:.1} s): {:.1} % of the pixels with a point",
         started.elapsed().as_secs_f64(),
         100.0 * map.valid as f64 / (map.width * map.height) as f64
     );
@@ -167,6 +168,90 @@ const NOISE_GREY: f64 = 2.0;
 const BLUR_PX: f64 = 0.6;
 
 /// Render, detect, calibrate from the naive start, sweep the invariant around the result.
+/// Footage views of the example rig: under water (synchronized) and per camera in air.
+const FOOTAGE_WATER_VIEWS: usize = 16;
+const FOOTAGE_AIR_VIEWS: usize = 10;
+
+/// The first step: ChArUco footage of the example rig rendered (each camera alone in air, the
+/// rig under water), then the whole rig calibrated from it alone (`calibrate --images`): the
+/// lenses, the extrinsics and the port.
+fn footage_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyhow::Result<()> {
+    use flatport::render::RenderOptions;
+    const BOARD: &str = include_str!("../../data/boards/charuco_7x5.json");
+    let board_path = dir.join("board.json");
+    std::fs::write(&board_path, BOARD)
+        .with_context(|| format!("cannot write {}", board_path.display()))?;
+    let board = flatport::io::read_board(&board_path)?;
+    outln!(
+        "\n1. from footage alone: a 7x5 ChArUco board (40 mm squares) filmed by each camera in air ({FOOTAGE_AIR_VIEWS} views) and by the rig under water ({FOOTAGE_WATER_VIEWS} frames, often partly outside an image), rendered into footage/;\n   \
+         then every camera's lens, the extrinsics and the port from those images alone (flatport calibrate --images):"
+    );
+    let footage = dir.join("footage");
+    let started = Instant::now();
+    let engine = flatport::engine::Engine::Cpu(flatport::engine::CpuEngine::new(None));
+    super::render::render_set(
+        rig,
+        &board,
+        &super::render::CalibrationSet {
+            water_views: FOOTAGE_WATER_VIEWS,
+            air_views: FOOTAGE_AIR_VIEWS,
+            seed: 3,
+        },
+        &RenderOptions {
+            blur_px: BLUR_PX,
+            noise: NOISE_GREY,
+            seed: 3,
+            ..RenderOptions::default()
+        },
+        8,
+        &engine,
+        &footage,
+        true,
+    )?;
+    outln!(
+        "   rendered {} images in {:.1} s",
+        (FOOTAGE_WATER_VIEWS + FOOTAGE_AIR_VIEWS) * rig.cameras().len(),
+        started.elapsed().as_secs_f64()
+    );
+    let glass = rig.port_in_master(0).layers()[0];
+    let args = super::calib::CalibrateArgs {
+        rig: None,
+        observations: None,
+        output: dir.join("footage_rig.json"),
+        report: Some(dir.join("footage_report.json")),
+        images: Some(footage.clone()),
+        board: Some(board_path),
+        port: Some(super::calib::PortArg::Shared),
+        glass: vec![super::calib_images::GlassArg {
+            camera: None,
+            thickness: glass.thickness,
+            index: glass.index,
+        }],
+        index_water: Some(rig.port_in_master(0).index_water()),
+        index_air: Some(rig.port_in_master(0).index_air()),
+        master: None,
+        frame_step: None,
+        max_frames: None,
+        holdout: flatport::calib::pipeline::boards::DEFAULT_HOLDOUT,
+        quiet: true,
+        method: super::calib::MethodArg::Auto,
+        estimate: flatport::calib::Estimate::default(),
+        max_tilt_deg: 30.0,
+        grid_step_deg: None,
+        huber: None,
+        max_iterations: 200,
+        max_rms_px: None,
+        truth: Some(footage.join("water").join("truth.json")),
+        engine: super::EngineArgs {
+            device: engine_args.device,
+            precision: engine_args.precision,
+            adapter: engine_args.adapter.clone(),
+        },
+    };
+    super::calib_images::run(&args, &footage)?;
+    Ok(())
+}
+
 fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyhow::Result<()> {
     use flatport::calib::sweep::Linspace;
     use flatport::calib::{Board, Options, SceneSpec, Target, calibrate, simulate};
@@ -180,7 +265,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
         square: 0.04,
     };
     outln!(
-        "\n1. render: {VIEWS} views of a 9x6 chessboard (40 mm squares) in the water, as both cameras see it through the port\n   \
+        "\n2. the port alone, from a chessboard: render {VIEWS} views of a 9x6 chessboard (40 mm squares) in the water, as both cameras see it through the port\n   \
          (every pixel back-projected, edges supersampled 8×8, lens distortion, blur {BLUR_PX} px, noise {NOISE_GREY} grey levels)"
     );
     let mut spec = SceneSpec::pair(Target::Board(board), VIEWS, 0.0, 1, 0, 1);
@@ -217,7 +302,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     };
 
     outln!(
-        "2. detect the corners (calib-targets, corner 0 by the board's colours), overlays in overlays/:"
+        "3. detect the corners (calib-targets, corner 0 by the board's colours), overlays in overlays/:"
     );
     let started = Instant::now();
     let glob = |camera: &str| {
@@ -252,7 +337,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
 
     let start = super::calib::naive_start(rig)?;
     write_rig(&dir.join("start_rig.json"), &start)?;
-    outln!("3. calibrate from a naive start (axis on the camera's z axis, 10 mm air layer):");
+    outln!("4. calibrate from a naive start (axis on the camera's z axis, 10 mm air layer):");
     let options = Options {
         backend: super::calib::backend(engine),
         ..Options::default()
@@ -269,7 +354,7 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
     }
 
     outln!(
-        "4. sweep the affine-grid cost over the axis (a wide view, and a close one around the result):"
+        "5. sweep the affine-grid cost over the axis (a wide view, and a close one around the result):"
     );
     let found = calibration.report.port();
     let (tilt, azimuth) = (
@@ -384,7 +469,7 @@ fn geometry_tour(rig: &Rig, dir: &Path) -> anyhow::Result<()> {
     let rig = rig.clone();
     write_rig(&dir.join("rig.json"), &rig)?;
     outln!(
-        "\n5. the geometry on its own: project, back-project, triangulate a grid of points, VOPs"
+        "\n6. the geometry on its own: project, back-project, triangulate a grid of points, VOPs"
     );
 
     let points = example_points();

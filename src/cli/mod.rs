@@ -281,7 +281,7 @@ slice I of N into its own folder, `flatport sweep merge` joins the folders into 
     /// Export a rig for other tools (colmap_underwater, OpenCV, AquaCal) or a camera's per-pixel ray map (.npy)
     #[command(subcommand)]
     Export(export::ExportCommand),
-    /// Run the built-in example end to end: render a rig's views of a board, detect the corners, calibrate, sweep the cost, tour the geometry, then dense stereo of a rendered seabed (point cloud, depth picture)
+    /// Run the built-in example end to end: a whole rig calibrated from rendered ChArUco footage alone (lenses, extrinsics, port), then a rig's views of a chessboard rendered, its corners detected, the port calibrated, the cost swept, the geometry toured, and dense stereo of a rendered seabed (point cloud, depth picture)
     #[command(after_help = "\
 Example:
   flatport demo --output flatport-demo")]

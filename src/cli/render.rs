@@ -325,9 +325,6 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
 
 /// `render --calibration-set`: the layout `calibrate --images` reads (see [`RenderArgs`]).
 fn render_calibration_set(args: &RenderArgs, rig: &Rig, board: &BoardSpec) -> anyhow::Result<()> {
-    use flatport::calib::simulate::spread::{board_poses, depth_range};
-    let grid = board.corner_grid();
-    let outer = ((grid.cols + 1).max(grid.rows + 1)) as f64 * grid.square;
     let options = RenderOptions {
         supersample: args.supersample.unwrap_or(8),
         blur_px: args.blur,
@@ -338,6 +335,58 @@ fn render_calibration_set(args: &RenderArgs, rig: &Rig, board: &BoardSpec) -> an
     };
     let engine = args.engine.engine()?;
     let started = std::time::Instant::now();
+    let set = CalibrationSet {
+        water_views: args.views,
+        air_views: args.air_views,
+        seed: args.seed,
+    };
+    render_set(
+        rig,
+        board,
+        &set,
+        &options,
+        args.bits,
+        &engine,
+        &args.output,
+        args.quiet,
+    )?;
+    outln!(
+        "rendered a calibration set in {:.1} s into {}/: water/CAMERA/ ({} synchronized views), air/CAMERA/ ({} views each), the truths in water/ and air-truth/",
+        started.elapsed().as_secs_f64(),
+        args.output.display(),
+        args.views,
+        args.air_views
+    );
+    Ok(())
+}
+
+/// How many views a calibration set has ([`render_set`]).
+pub struct CalibrationSet {
+    /// Synchronized views of the rig under water.
+    pub water_views: usize,
+    /// Views per camera in air.
+    pub air_views: usize,
+    /// Seed of the poses (and the noise).
+    pub seed: u64,
+}
+
+/// Renders the layout `calibrate --images` reads into `dir`: water/CAMERA/view_NNN.png of `rig`
+/// (with rig.json, truth.json, corners.json), and air/CAMERA/view_NNN.png of each camera alone in
+/// air (its truths in air-truth/CAMERA/).
+#[allow(clippy::too_many_arguments)]
+pub fn render_set(
+    rig: &Rig,
+    board: &BoardSpec,
+    set: &CalibrationSet,
+    options: &RenderOptions,
+    bits: u8,
+    engine: &Engine,
+    dir: &Path,
+    quiet: bool,
+) -> anyhow::Result<()> {
+    use flatport::calib::simulate::spread::{board_poses, depth_range};
+    let grid = board.corner_grid();
+    let outer = ((grid.cols + 1).max(grid.rows + 1)) as f64 * grid.square;
     let inside = |rig: &Rig| {
         let cameras: Vec<_> = (0..rig.cameras().len())
             .map(|k| rig.refractive_camera(k))
@@ -356,18 +405,18 @@ fn render_calibration_set(args: &RenderArgs, rig: &Rig, board: &BoardSpec) -> an
     let poses = board_poses(
         rig,
         &grid,
-        args.views,
+        set.water_views,
         depth_range(rig, outer, index_water),
-        args.seed,
+        set.seed,
         &inside(rig),
     );
-    let water = args.output.join("water");
+    let water = dir.join("water");
     let scene = Scene {
         rig: rig.clone(),
         board: board.clone(),
         poses,
     };
-    render_scene(&scene, &options, args.bits, &engine, &water, args.quiet)?;
+    render_scene(&scene, options, bits, engine, &water, quiet)?;
     for (k, camera) in rig.cameras().iter().enumerate() {
         let dry = Rig::new(
             vec![flatport::model::RigCamera::new(
@@ -381,19 +430,19 @@ fn render_calibration_set(args: &RenderArgs, rig: &Rig, board: &BoardSpec) -> an
         let poses = board_poses(
             &dry,
             &grid,
-            args.air_views,
+            set.air_views,
             depth_range(&dry, outer, 1.0),
-            args.seed.wrapping_add(1 + k as u64),
+            set.seed.wrapping_add(1 + k as u64),
             &inside(&dry),
         );
-        let truth_dir = args.output.join("air-truth").join(&camera.name);
+        let truth_dir = dir.join("air-truth").join(&camera.name);
         let scene = Scene {
             rig: dry,
             board: board.clone(),
             poses,
         };
-        render_scene(&scene, &options, args.bits, &engine, &truth_dir, args.quiet)?;
-        let air = args.output.join("air");
+        render_scene(&scene, options, bits, engine, &truth_dir, quiet)?;
+        let air = dir.join("air");
         std::fs::create_dir_all(&air)
             .with_context(|| format!("cannot create {}", air.display()))?;
         let target = air.join(&camera.name);
@@ -404,12 +453,5 @@ fn render_calibration_set(args: &RenderArgs, rig: &Rig, board: &BoardSpec) -> an
         std::fs::rename(truth_dir.join(&camera.name), &target)
             .with_context(|| format!("cannot move the in-air views to {}", target.display()))?;
     }
-    outln!(
-        "rendered a calibration set in {:.1} s into {}/: water/CAMERA/ ({} synchronized views), air/CAMERA/ ({} views each), the truths in water/ and air-truth/",
-        started.elapsed().as_secs_f64(),
-        args.output.display(),
-        args.views,
-        args.air_views
-    );
     Ok(())
 }
