@@ -10,8 +10,8 @@ use clap::{Args, Subcommand};
 use flatport::engine::raymap::{backproject_rows, rows_per_band};
 use flatport::io::npy::{NpyDtype, NpyWriter};
 use flatport::io::{
-    ColmapDialect, aquacal_json, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt,
-    opencv_yaml, read_aquacal_board, read_rig, write_atomic,
+    AquaCalBoard, ColmapDialect, aquacal_json, colmap_cameras_txt_as, colmap_rig_config,
+    colmap_rigs_txt, opencv_yaml, read_board, read_rig, write_atomic,
 };
 use flatport::model::NoSolution;
 
@@ -115,7 +115,7 @@ pub struct AquacalArgs {
     /// Rig file (JSON)
     #[arg(long, value_name = "RIG.json")]
     rig: PathBuf,
-    /// ChArUco board file (squares_x, squares_y, square_size, marker_size, dictionary) for AquaCal's board object
+    /// ChArUco BOARD.json (docs/images.md: squares_x, squares_y, square_size, marker_size, dictionary) for AquaCal's board object
     #[arg(long, value_name = "BOARD.json")]
     board: Option<PathBuf>,
     /// Output calibration.json (default: standard output)
@@ -215,7 +215,11 @@ fn opencv(args: OpencvArgs) -> anyhow::Result<()> {
 
 fn aquacal(args: AquacalArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.rig)?;
-    let board = args.board.as_deref().map(read_aquacal_board).transpose()?;
+    let board = args
+        .board
+        .as_deref()
+        .map(|path| read_board(path).and_then(|board| AquaCalBoard::from_board(&board, path)))
+        .transpose()?;
     let json = aquacal_json(&rig, board.as_ref())
         .with_context(|| format!("{}: cannot be written for AquaCal", args.rig.display()))?;
     match &args.output {

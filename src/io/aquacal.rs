@@ -125,87 +125,44 @@ pub struct AquaCalBoard {
     pub legacy_pattern: bool,
 }
 
-/// DESIGN.md §3c's board file, read for the `board` object of an export: only a ChArUco board
-/// has a place in AquaCal's file.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct BoardFile {
-    #[serde(rename = "type", default)]
-    kind: Option<String>,
-    squares_x: u32,
-    squares_y: u32,
-    square_size: f64,
-    #[serde(default)]
-    marker_size: Option<f64>,
-    #[serde(default)]
-    dictionary: Option<String>,
-    #[serde(default)]
-    legacy_pattern: bool,
-}
-
-/// Parses a board file (DESIGN.md §3c) for an AquaCal export; `path` only labels errors. A
-/// chessboard is refused (AquaCal records ChArUco boards), as are a non-positive size and a missing
-/// marker size or dictionary.
-pub fn aquacal_board_from_json_str(text: &str, path: &Path) -> Result<AquaCalBoard, IoError> {
-    let file: BoardFile = parse_json(text, path)?;
-    let invalid = |field: &str, reason: String| IoError::Invalid {
-        path: path.to_path_buf(),
-        field: field.into(),
-        reason,
-    };
-    let kind = file
-        .kind
-        .as_deref()
-        .unwrap_or(if file.marker_size.is_some() {
-            "charuco"
-        } else {
-            "chessboard"
-        });
-    if kind != "charuco" {
-        return Err(invalid(
-            "type",
-            format!(
-                "'{}': AquaCal's calibration.json records a ChArUco board only",
-                excerpt(kind, EXCERPT_CHARS)
-            ),
-        ));
+impl AquaCalBoard {
+    /// AquaCal's board object for a board read by [`crate::io::read_board`] (the shared
+    /// `BOARD.json` reader, which checks it); `path` only labels errors. A chessboard is refused:
+    /// AquaCal's file records ChArUco boards only. `legacy_pattern` is written `false`: the shared
+    /// reader accepts OpenCV's legacy layout only where it is the same board as today's.
+    #[cfg(feature = "images")]
+    pub fn from_board(
+        board: &crate::detect::board::BoardSpec,
+        path: &Path,
+    ) -> Result<AquaCalBoard, IoError> {
+        use crate::detect::board::BoardSpec;
+        let invalid = |field: &str, reason: String| IoError::Invalid {
+            path: path.to_path_buf(),
+            field: field.into(),
+            reason,
+        };
+        let spec = match board {
+            BoardSpec::Charuco(spec) => spec,
+            BoardSpec::Chessboard(_) => {
+                return Err(invalid(
+                    "type",
+                    "\"chessboard\": AquaCal's calibration.json records a ChArUco board only"
+                        .into(),
+                ));
+            }
+        };
+        let squares = |field: &str, n: usize| {
+            u32::try_from(n).map_err(|_| invalid(field, format!("{n}: too many squares")))
+        };
+        Ok(AquaCalBoard {
+            squares_x: squares("squares_x", spec.squares_x)?,
+            squares_y: squares("squares_y", spec.squares_y)?,
+            square_size: spec.square_size_m,
+            marker_size: spec.marker_size_m,
+            dictionary: spec.dictionary.name().to_string(),
+            legacy_pattern: false,
+        })
     }
-    let marker_size = file
-        .marker_size
-        .ok_or_else(|| invalid("marker_size", "missing: a ChArUco board needs it".into()))?;
-    let dictionary = file
-        .dictionary
-        .ok_or_else(|| invalid("dictionary", "missing: a ChArUco board needs it".into()))?;
-    for (field, value) in [
-        ("square_size", file.square_size),
-        ("marker_size", marker_size),
-    ] {
-        if !(value.is_finite() && value > 0.0) {
-            return Err(invalid(field, format!("{value} m: must be > 0")));
-        }
-    }
-    if marker_size >= file.square_size {
-        return Err(invalid(
-            "marker_size",
-            format!(
-                "{marker_size} m: a marker must be smaller than its square ({} m)",
-                file.square_size
-            ),
-        ));
-    }
-    Ok(AquaCalBoard {
-        squares_x: file.squares_x,
-        squares_y: file.squares_y,
-        square_size: file.square_size,
-        marker_size,
-        dictionary,
-        legacy_pattern: file.legacy_pattern,
-    })
-}
-
-/// Reads a board file (DESIGN.md §3c, `-` = standard input) for an AquaCal export.
-pub fn read_aquacal_board(path: &Path) -> Result<AquaCalBoard, IoError> {
-    aquacal_board_from_json_str(&read_text(path)?, path)
 }
 
 #[derive(Debug, Deserialize)]
@@ -1224,11 +1181,16 @@ mod tests {
         }
     }
 
+    #[cfg(feature = "images")]
     #[test]
     fn board_files_fill_the_board_object() {
-        let board = aquacal_board_from_json_str(
+        let file = Path::new("board.json");
+        let read = |text: &str| {
+            crate::io::board_from_json_str(text, file)
+                .and_then(|board| AquaCalBoard::from_board(&board, file))
+        };
+        let board = read(
             r#"{"type": "charuco", "squares_x": 7, "squares_y": 5, "square_size": 0.04, "marker_size": 0.03, "dictionary": "DICT_4X4_50", "legacy_pattern": false}"#,
-            Path::new("board.json"),
         )
         .unwrap();
         let rig = rig_from_aquacal_str(AQUACAL_LEVEL, path(), None).unwrap();
@@ -1241,12 +1203,10 @@ mod tests {
         let without: serde_json::Value =
             serde_json::from_str(&aquacal_json(&rig, None).unwrap()).unwrap();
         assert_eq!(without["board"]["squares_x"], serde_json::Value::Null);
-        let message = aquacal_board_from_json_str(
-            r#"{"type": "chessboard", "squares_x": 10, "squares_y": 7, "square_size": 0.03}"#,
-            Path::new("board.json"),
-        )
-        .unwrap_err()
-        .to_string();
+        let message =
+            read(r#"{"type": "chessboard", "squares_x": 10, "squares_y": 7, "square_size": 0.03}"#)
+                .unwrap_err()
+                .to_string();
         assert!(
             message.contains("board.json") && message.contains("ChArUco"),
             "{message}"

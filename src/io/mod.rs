@@ -35,8 +35,7 @@ pub use self::image::{
     image_size, read_grey_image, write_grey_png, write_grey16_png, write_rgb_jpeg,
 };
 pub use aquacal::{
-    AquaCalBoard, AquaCalExportError, aquacal_board_from_json_str, aquacal_json, read_aquacal,
-    read_aquacal_board, rig_from_aquacal_str,
+    AquaCalBoard, AquaCalExportError, aquacal_json, read_aquacal, rig_from_aquacal_str,
 };
 #[cfg(feature = "images")]
 pub use board_json::{board_from_json_str, read_board};
