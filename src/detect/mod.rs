@@ -514,6 +514,236 @@ pub fn resolve_view(
     Ok(chosen)
 }
 
+/// Largest gap a ChArUco corner may have from the position the local homography of its grid
+/// neighbours predicts for it ([`inconsistent_charuco_corners`]), as a fraction of the local square
+/// side (pixels per square there, from the same homography): 0.12.
+///
+/// Why 0.12: a board seen through a flat port is not a homography of the image (refraction bends
+/// it, more towards the image edge), and even 2 squares around a corner the homography misses
+/// correct corners by up to 0.08 of a side (measured: 1377 corners of the rendered calibration set
+/// of the example rig, through its 8° port, squares 80–160 px: 99 % below 0.033, largest 0.080 at
+/// a board corner, where the fit extrapolates). The features a ChArUco corner can be mistaken
+/// for lie farther: the white margin's junctions and the marker's corners next to a corner are
+/// (1 − marker/square)/2 of a side along each axis away, 0.18 of a side diagonally on a board
+/// with markers at 0.75 of the square (the misplaced corner that led here was 0.21 of a side
+/// off), and a neighbouring corner is a whole side away. 0.12 is 1.5 × the largest model error
+/// and leaves the nearest false feature 1.5 × beyond the threshold.
+pub const MAX_LOCAL_HOMOGRAPHY_GAP_REL: f64 = 0.12;
+
+/// Floor of the threshold in pixels, whatever the square side: the corners' own noise (a few
+/// hundredths of a pixel on rendered images, ~0.1–0.3 px on real ones) must never flag a corner of
+/// a small board.
+pub const MIN_LOCAL_HOMOGRAPHY_GAP_PX: f64 = 1.0;
+
+/// How far around a corner, in board squares along rows and columns (Chebyshev distance), the
+/// neighbours lie that [`inconsistent_charuco_corners`] fits its local homography to: 2, up to 24
+/// neighbours, enough that one misplaced neighbour barely moves the fit, near enough that the
+/// refraction's departure from a homography stays small (see [`MAX_LOCAL_HOMOGRAPHY_GAP_REL`]).
+pub const LOCAL_HOMOGRAPHY_RADIUS: usize = 2;
+
+/// True when some 4 of the board points have no 3 on one line (else no homography is fixed:
+/// the board points here are whole numbers, so the test is exact).
+fn four_in_general_position(pairs: &[(Point2<f64>, Point2<f64>)]) -> bool {
+    let n = pairs.len();
+    let line = |a: usize, b: usize, c: usize| {
+        let (p, q, r) = (pairs[a].0, pairs[b].0, pairs[c].0);
+        ((q - p).perp(&(r - p))).abs() < 1e-9
+    };
+    for a in 0..n {
+        for b in a + 1..n {
+            for c in b + 1..n {
+                if line(a, b, c) {
+                    continue;
+                }
+                for d in c + 1..n {
+                    if !line(a, b, d) && !line(a, c, d) && !line(b, c, d) {
+                        return true;
+                    }
+                }
+            }
+        }
+    }
+    false
+}
+
+/// Board → image homography through `pairs` (board point, pixel), by the normalised DLT;
+/// `None` when the points do not fix one (fewer than 4, or degenerate: three of four on a line).
+fn fit_homography(pairs: &[(Point2<f64>, Point2<f64>)]) -> Option<nalgebra::Matrix3<f64>> {
+    use nalgebra::{DMatrix, Matrix3};
+    if !four_in_general_position(pairs) {
+        return None;
+    }
+    // Hartley's normalisation: centroid at 0, mean distance √2.
+    let normaliser = |points: &mut dyn Iterator<Item = Point2<f64>>| -> Option<Matrix3<f64>> {
+        let points: Vec<Point2<f64>> = points.collect();
+        let n = points.len() as f64;
+        let centre = points
+            .iter()
+            .fold(nalgebra::Vector2::zeros(), |s, p| s + p.coords)
+            / n;
+        let spread = points
+            .iter()
+            .map(|p| (p.coords - centre).norm())
+            .sum::<f64>()
+            / n;
+        if !(spread > 0.0) {
+            return None;
+        }
+        let s = std::f64::consts::SQRT_2 / spread;
+        Some(Matrix3::new(
+            s,
+            0.0,
+            -s * centre.x,
+            0.0,
+            s,
+            -s * centre.y,
+            0.0,
+            0.0,
+            1.0,
+        ))
+    };
+    let t_board = normaliser(&mut pairs.iter().map(|p| p.0))?;
+    let t_image = normaliser(&mut pairs.iter().map(|p| p.1))?;
+    // At least 10 rows (zeros past the data), so that the thin SVD keeps all 9 right singular
+    // vectors, the null vector of 4 points' 8 equations included.
+    let mut a = DMatrix::<f64>::zeros(2 * pairs.len().max(5), 9);
+    for (k, (b, i)) in pairs.iter().enumerate() {
+        let b = t_board * b.to_homogeneous();
+        let i = t_image * i.to_homogeneous();
+        let (x, y, u, v) = (b.x / b.z, b.y / b.z, i.x / i.z, i.y / i.z);
+        let rows = [
+            [x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y, -u],
+            [0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y, -v],
+        ];
+        for (r, row) in rows.iter().enumerate() {
+            for (c, value) in row.iter().enumerate() {
+                a[(2 * k + r, c)] = *value;
+            }
+        }
+    }
+    let svd = a.svd(false, true);
+    let v_t = svd.v_t?;
+    // The solution is the right singular vector of the smallest singular value; a second one
+    // near zero means the points leave the homography free (degenerate configuration).
+    let mut order: Vec<usize> = (0..9).collect();
+    order.sort_by(|&p, &q| svd.singular_values[p].total_cmp(&svd.singular_values[q]));
+    let (smallest, second, largest) = (
+        order[0],
+        svd.singular_values[order[1]],
+        svd.singular_values[order[8]],
+    );
+    if !(second > 1e-8 * largest) {
+        return None;
+    }
+    let h = v_t.row(smallest);
+    let h_norm = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
+    let inverse = t_image.try_inverse()?;
+    Some(inverse * h_norm * t_board)
+}
+
+/// `h` applied to `p`; `None` at the line the homography sends to infinity.
+fn apply(h: &nalgebra::Matrix3<f64>, p: Point2<f64>) -> Option<Point2<f64>> {
+    let q = h * p.to_homogeneous();
+    (q.z.abs() > f64::EPSILON).then(|| Point2::new(q.x / q.z, q.y / q.z))
+}
+
+/// For corner `corners[index]` (`(id, pixel)`, ids as [`detect_charuco`] gives them on a corner
+/// grid `cols` wide): its distance (pixels) from where the homography fitted to the other corners
+/// within [`LOCAL_HOMOGRAPHY_RADIUS`] squares puts it, and the local square side (pixels, the
+/// shorter of the two board axes there); `None` when those corners do not fix a homography
+/// (fewer than 4, or degenerate) or `index` is out of range.
+pub fn local_homography_gap(
+    corners: &[(usize, Point2<f64>)],
+    cols: usize,
+    index: usize,
+) -> Option<(f64, f64)> {
+    let (id, pixel) = *corners.get(index)?;
+    let (row, col) = ((id / cols) as i64, (id % cols) as i64);
+    let r = LOCAL_HOMOGRAPHY_RADIUS as i64;
+    let pairs: Vec<(Point2<f64>, Point2<f64>)> = corners
+        .iter()
+        .enumerate()
+        .filter(|&(k, &(other, _))| {
+            let (orow, ocol) = ((other / cols) as i64, (other % cols) as i64);
+            k != index && (orow - row).abs() <= r && (ocol - col).abs() <= r
+        })
+        .map(|(_, &(other, p))| (Point2::new((other % cols) as f64, (other / cols) as f64), p))
+        .collect();
+    let h = fit_homography(&pairs)?;
+    let at = Point2::new(col as f64, row as f64);
+    let predicted = apply(&h, at)?;
+    let side_u = (apply(&h, at + nalgebra::Vector2::new(1.0, 0.0))? - predicted).norm();
+    let side_v = (apply(&h, at + nalgebra::Vector2::new(0.0, 1.0))? - predicted).norm();
+    Some(((pixel - predicted).norm(), side_u.min(side_v)))
+}
+
+/// The ids of the ChArUco corners that disagree with their grid neighbours, which
+/// [`detect_charuco`] drops (a corner dropped is harmless; a misplaced corner with a valid id
+/// misleads every calibration downstream).
+///
+/// **The rule.** A corner is kept when its distance from the position the local homography
+/// ([`local_homography_gap`]) of the corners within [`LOCAL_HOMOGRAPHY_RADIUS`] squares predicts
+/// is at most max([`MIN_LOCAL_HOMOGRAPHY_GAP_PX`], [`MAX_LOCAL_HOMOGRAPHY_GAP_REL`] × the local
+/// square side). The corner farthest beyond its threshold is dropped first and the rest are judged
+/// again without it (a misplaced corner also pulls its neighbours' fits), until every corner left
+/// passes. A corner whose neighbours do not fix a homography (fewer than 4 of them, or on one
+/// line) cannot be checked and is dropped too.
+pub fn inconsistent_charuco_corners(corners: &[(usize, Point2<f64>)], cols: usize) -> Vec<usize> {
+    let mut kept: Vec<(usize, Point2<f64>)> = corners.to_vec();
+    let mut dropped = Vec::new();
+    if cols == 0 {
+        return dropped;
+    }
+    loop {
+        // (how far beyond its threshold, as a ratio; index) of the worst corner.
+        let worst = (0..kept.len())
+            .map(|k| {
+                let excess = match local_homography_gap(&kept, cols, k) {
+                    Some((gap, side)) => {
+                        gap / (MAX_LOCAL_HOMOGRAPHY_GAP_REL * side).max(MIN_LOCAL_HOMOGRAPHY_GAP_PX)
+                    }
+                    None => f64::INFINITY,
+                };
+                (
+                    if excess.is_nan() {
+                        f64::INFINITY
+                    } else {
+                        excess
+                    },
+                    k,
+                )
+            })
+            .max_by(|a, b| a.0.total_cmp(&b.0));
+        match worst {
+            Some((excess, k)) if excess > 1.0 => dropped.push(kept.remove(k).0),
+            _ => break,
+        }
+    }
+    dropped.sort_unstable();
+    dropped
+}
+
+/// calib-targets' ChArUco tuning with its grid-smoothness pre-filter and its marker-homography
+/// corner validation switched off (thresholds infinite). Both assume the board is a homography of
+/// the image (no lens distortion, no refraction): the first predicts each grid corner as the
+/// midpoint of its neighbours and moves it when it is more than 3 px off (0.05 × its nominal
+/// 60 px square), the second fits one homography to the decoded markers' corners and moves or
+/// drops each corner more than 4.8 px from it, re-detecting the strongest ChESS response near the
+/// prediction. Through a flat port, with squares of 100–160 px, both fire on correct corners: in
+/// view 18 (left) of the example rig's rendered calibration set the grid was exact (22 corners
+/// within 0.03 px), the first moved corner 3 by 9 px in the marker sampling (4 markers decoded
+/// instead of 6), the second's homography of those 4 markers (all on one side) missed the far
+/// column by 29 px, dropped 6 correct corners and moved corner 6 by 31 px onto the white margin
+/// beside a marker. [`inconsistent_charuco_corners`] checks corners by a local model instead
+/// and drops, never moves.
+fn charuco_tuning(
+    mut tuning: calib_targets::charuco::CharucoAdvancedTuning,
+) -> calib_targets::charuco::CharucoAdvancedTuning {
+    tuning.grid_smoothness_threshold_rel = f32::INFINITY;
+    tuning.corner_validation_threshold_rel = f32::INFINITY;
+    tuning
+}
+
 /// Fewest ChArUco corners [`detect_charuco`] returns, and they must span at least two rows and
 /// two columns of the board: a view's board pose (6 unknowns) needs at least 4 points off one
 /// line (a line of points leaves the rotation about it free), as OpenCV's
@@ -529,6 +759,9 @@ pub const MIN_CHARUCO_CORNERS: usize = 4;
 /// calib-targets finds the chessboard grid (ChESS corners, the saddle-point refiner after a blur
 /// of [`PRE_BLUR_PX`], as for plain chessboards), decodes the markers in its cells and aligns the
 /// grid to the board by them (its three chessboard parameter sets, the richest answer wins).
+/// Its two stages that move corners by a global model are off ([`charuco_tuning`]); instead every
+/// corner must agree with the local homography of its grid neighbours, else it is dropped
+/// ([`inconsistent_charuco_corners`]).
 pub fn detect_charuco(
     image: &GrayImage,
     spec: &CharucoSpec,
@@ -539,7 +772,8 @@ pub fn detect_charuco(
             .into_iter()
             .map(|mut params| {
                 params.chess = chess_config();
-                params
+                let tuning = charuco_tuning(params.effective_tuning().into_owned());
+                params.with_advanced(tuning)
             })
             .collect();
     let detection = calib_targets::detect::detect_charuco_best(&smoothed, &configs)
@@ -563,6 +797,11 @@ pub fn detect_charuco(
         return Err(Miss::NoBoard);
     }
     let cols = grid.cols;
+    let misplaced = inconsistent_charuco_corners(&corners, cols);
+    corners.retain(|(id, _)| misplaced.binary_search(id).is_err());
+    if corners.is_empty() {
+        return Err(Miss::Sparse { found: 0 });
+    }
     let (row0, col0) = (corners[0].0 / cols, corners[0].0 % cols);
     let two_rows = corners.iter().any(|&(id, _)| id / cols != row0);
     let two_cols = corners.iter().any(|&(id, _)| id % cols != col0);
@@ -646,5 +885,59 @@ mod tests {
         let down = vec![p(0.0, 0.0), p(1.0, 10.0), p(-10.0, 0.0), p(-9.0, 10.0)];
         let up: Vec<_> = down.iter().rev().copied().collect();
         assert_eq!(image_rule(&board, &[down, up], &[0, 1]), None);
+    }
+    /// Corners of a 6 × 4 corner grid seen in perspective (an exact homography, squares of
+    /// 24–40 px), ids row-major.
+    fn perspective_grid() -> Vec<(usize, Point2<f64>)> {
+        (0..24)
+            .map(|id| {
+                let (c, r) = ((id % 6) as f64, (id / 6) as f64);
+                let w = 1.0 + 0.05 * c + 0.03 * r;
+                (
+                    id,
+                    Point2::new(
+                        (100.0 + 38.0 * c + 4.0 * r) / w,
+                        (80.0 + 3.0 * c + 35.0 * r) / w,
+                    ),
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_local_homography_guard_drops_a_corner_moved_by_5_px_and_only_it() {
+        let grid = perspective_grid();
+        assert_eq!(inconsistent_charuco_corners(&grid, 6), Vec::<usize>::new());
+        // Every corner sits on the homography: gaps at rounding level.
+        for k in 0..grid.len() {
+            let (gap, side) = local_homography_gap(&grid, 6, k).unwrap();
+            assert!(
+                gap < 1e-6 && side > 25.0 && side < 45.0,
+                "{k}: {gap} {side}"
+            );
+        }
+        for moved in [0, 8, 23] {
+            let mut corners = grid.clone();
+            corners[moved].1 += nalgebra::Vector2::new(3.0, 4.0); // 5 px
+            assert_eq!(inconsistent_charuco_corners(&corners, 6), vec![moved]);
+        }
+        // 1 px on squares of ~35 px is within the threshold (noise, refraction), and stays.
+        let mut corners = grid.clone();
+        corners[8].1.x += 1.0;
+        assert_eq!(
+            inconsistent_charuco_corners(&corners, 6),
+            Vec::<usize>::new()
+        );
+    }
+
+    #[test]
+    fn corners_whose_neighbours_fix_no_homography_are_dropped() {
+        let grid = perspective_grid();
+        // A 2 × 2 block: each corner has 3 neighbours.
+        let block: Vec<_> = [0, 1, 6, 7].iter().map(|&k| grid[k]).collect();
+        assert_eq!(inconsistent_charuco_corners(&block, 6), vec![0, 1, 6, 7]);
+        // One row and one more corner: no 4 of any corner's neighbours are free of 3 on a line.
+        let row: Vec<_> = [0, 1, 2, 3, 4, 9].iter().map(|&k| grid[k]).collect();
+        assert_eq!(inconsistent_charuco_corners(&row, 6).len(), 6);
     }
 }
