@@ -188,10 +188,19 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
     }
     if let Some(path) = &args.truth {
         let truth = flatport::io::read_truth(path)?;
-        outln!(
-            "{}",
-            super::calib::truth_errors(&result.calibration.rig, &truth, path)?
-        );
+        // The truth's cameras may come in another order, with another master: compare camera by
+        // camera, in the truth's master frame.
+        let calibrated = &result.calibration.rig;
+        let in_truth_order = truth.rig.as_ref().and_then(|t| {
+            let order: Option<Vec<usize>> = t
+                .cameras()
+                .iter()
+                .map(|c| calibrated.camera_index(&c.name))
+                .collect();
+            order.and_then(|o| calibrated.reordered(&o))
+        });
+        let calibrated = in_truth_order.as_ref().unwrap_or(calibrated);
+        outln!("{}", super::calib::truth_errors(calibrated, &truth, path)?);
     }
     write_rig(&args.output, &result.calibration.rig)?;
     outln!(

@@ -189,6 +189,39 @@ impl Rig {
         Self::with_ports(self.cameras.clone(), ports)
     }
 
+    /// The same rig with its cameras in the order `order` (indices into this rig's cameras, each
+    /// once), the first of them the master: every camera's `cam_from_master` and a shared port
+    /// re-expressed in the new master's frame (a camera's own port stays in its frame). `None`
+    /// when `order` is not a permutation of the cameras.
+    pub fn reordered(&self, order: &[usize]) -> Option<Self> {
+        let n = self.cameras.len();
+        let mut seen = vec![false; n];
+        if order.len() != n
+            || order
+                .iter()
+                .any(|&k| k >= n || std::mem::replace(&mut seen[k], true))
+        {
+            return None;
+        }
+        // X_new = new_from_old · X_old, new_from_old = cam_from_master of the new master.
+        let new_from_old = self.cameras[order[0]].cam_from_master;
+        let old_from_new = new_from_old.inverse();
+        let cameras = order
+            .iter()
+            .map(|&k| RigCamera {
+                cam_from_master: self.cameras[k].cam_from_master * old_from_new,
+                ..self.cameras[k].clone()
+            })
+            .collect();
+        let ports = match &self.ports {
+            Ports::Shared(port) => Ports::Shared(port.transformed(&new_from_old)),
+            Ports::PerCamera(ports) => {
+                Ports::PerCamera(order.iter().map(|&k| ports[k].clone()).collect())
+            }
+        };
+        Self::with_ports(cameras, ports).ok()
+    }
+
     /// The same rig with camera `index` (not the master) moved to `cam_from_master` (validated:
     /// behind a shared port it must stay in the air).
     ///
