@@ -112,7 +112,9 @@ pub struct CalibrateArgs {
     pub method: MethodArg,
     /// What to estimate, comma-separated: axis, distance, layers (every layer thickness; indices
     /// stay known), layer:K (layer K's thickness only, 0-based as in the rig file: `layer:1` for
-    /// the water of a glass–water–glass tank), extrinsics (R, t of every camera but the master).
+    /// the water of a glass–water–glass tank), extrinsics (R, t of every camera but the master),
+    /// intrinsics (every camera's fx, fy, cx, cy and its lens terms that are not 0 in the rig
+    /// file, refined with the underwater views; `--method simultaneous` or `auto`).
     /// With a port per camera every port is estimated. A port with the same medium on both sides
     /// (a tank with air behind) keeps its distance: it changes no ray
     #[arg(long, value_name = "LIST", default_value = "axis,distance", value_parser = parse_estimate)]

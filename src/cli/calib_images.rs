@@ -377,4 +377,7 @@ fn print_result(result: &BoardsCalibration, names: &[String]) {
             v.rms_error_m * 1e3
         );
     }
+    if let Some(choice) = &result.intrinsics {
+        outln!("intrinsics: {}", choice.reason);
+    }
 }

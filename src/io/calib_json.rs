@@ -425,6 +425,41 @@ struct CameraReportFile<'a> {
     inlier_rms_px: Option<f64>,
     rotation_std_deg: Option<[f64; 3]>,
     translation_std_m: Option<[f64; 3]>,
+    /// σ of fx, fy, cx, cy (px), k1, k2, p1, p2, k3 when the intrinsics were estimated (null for a
+    /// lens term held at 0); absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    intrinsics_std: Option<IntrinsicsStdFile>,
+}
+
+/// σ of a camera's intrinsics in a report file.
+#[derive(Debug, Serialize)]
+struct IntrinsicsStdFile {
+    fx: Option<f64>,
+    fy: Option<f64>,
+    cx: Option<f64>,
+    cy: Option<f64>,
+    k1: Option<f64>,
+    k2: Option<f64>,
+    p1: Option<f64>,
+    p2: Option<f64>,
+    k3: Option<f64>,
+}
+
+impl IntrinsicsStdFile {
+    fn of(std: &[Option<f64>; 9]) -> Self {
+        let [fx, fy, cx, cy, k1, k2, p1, p2, k3] = *std;
+        Self {
+            fx,
+            fy,
+            cx,
+            cy,
+            k1,
+            k2,
+            p1,
+            p2,
+            k3,
+        }
+    }
 }
 
 /// A board pose in a file: X_master = R·X_board + t, R as rows.
@@ -679,6 +714,7 @@ pub fn report_to_json_string(report: &Report) -> String {
                 inlier_rms_px: finite(c.inlier_rms_px),
                 rotation_std_deg: c.extrinsics_std.map(|(r, _)| r.map(f64::to_degrees)),
                 translation_std_m: c.extrinsics_std.map(|(_, t)| t),
+                intrinsics_std: c.intrinsics_std.as_ref().map(IntrinsicsStdFile::of),
             })
             .collect(),
         sigma_px: report.sigma_px,

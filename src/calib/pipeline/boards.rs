@@ -2,7 +2,9 @@
 //! intrinsics stage), their extrinsics started from the board co-observations under water
 //! ([`extrinsics_start`]), then the one calibration ([`calibrate_with_progress`]) over the
 //! ports, the extrinsics and every board pose, under a Huber loss; frames far above the others
-//! dropped and the calibration run again; a share of the frames held out and reported.
+//! dropped and the calibration run again; a share of the frames held out and reported; the
+//! intrinsics refined with the frames where the held-out frames say it helps
+//! ([`RefineIntrinsics`]).
 //!
 //! What `flatport calibrate --images DIR --board BOARD.json --port …` runs once the boards are
 //! detected (no I/O here: frames come as corners).
@@ -67,6 +69,42 @@ pub const OUTLIER_FACTOR: f64 = 4.0;
 /// See [`OUTLIER_FACTOR`], pixels.
 pub const OUTLIER_FLOOR_PX: f64 = 0.5;
 
+/// Whether the bundle also refines the cameras' in-air intrinsics with the underwater frames
+/// ([`BoardsOptions::refine_intrinsics`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum RefineIntrinsics {
+    /// After the fit with the in-air intrinsics fixed, fit again with every camera's intrinsics
+    /// estimated too ([`Estimate::intrinsics`]) and keep them where the held-out frames'
+    /// reprojection RMS falls by more than [`REFINE_MARGIN`] (no frames held out: kept fixed).
+    /// The default: an in-air calibration is never exact (fx ± 0.1 %, k1 ± 0.003 move corners
+    /// at the image's edge by tenths of a pixel, which the port and extrinsics otherwise absorb),
+    /// and the held-out frames, not the fitted ones, tell whether the extra parameters explain
+    /// the water or only the noise.
+    #[default]
+    Auto,
+    /// Keep the in-air intrinsics fixed.
+    Never,
+}
+
+/// Share by which the held-out frames' RMS must fall for [`RefineIntrinsics::Auto`] to keep the
+/// refined intrinsics: eight more parameters per camera fitted to thousands of corners raise a
+/// held-out RMS by well under 1 % when they explain nothing (the overfit of p parameters over
+/// N residuals is ~p/2N), so a 2 % fall is the intrinsics' doing, not the noise's.
+pub const REFINE_MARGIN: f64 = 0.02;
+
+/// What [`RefineIntrinsics::Auto`] found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IntrinsicsChoice {
+    /// Whether the refined intrinsics were kept (the result's rig and report are that fit's).
+    pub refined: bool,
+    /// The held-out frames' RMS with the in-air intrinsics fixed, pixels.
+    pub fixed_rms_px: f64,
+    /// The held-out frames' RMS with the intrinsics refined, pixels (+∞ where that fit failed).
+    pub refined_rms_px: f64,
+    /// Why, in words.
+    pub reason: String,
+}
+
 /// The rig to calibrate: its cameras (calibrated in air; extrinsics unknown) and its ports.
 #[derive(Debug, Clone)]
 pub struct RigSetup {
@@ -102,6 +140,9 @@ pub struct BoardsOptions {
     pub holdout: f64,
     /// Drop frames far above the others ([`OUTLIER_FACTOR`]) and calibrate again.
     pub drop_outliers: bool,
+    /// Whether the in-air intrinsics are refined with the frames (default
+    /// [`RefineIntrinsics::Auto`]: where the held-out frames say it helps).
+    pub refine_intrinsics: RefineIntrinsics,
 }
 
 impl Default for BoardsOptions {
@@ -113,6 +154,7 @@ impl Default for BoardsOptions {
             },
             holdout: DEFAULT_HOLDOUT,
             drop_outliers: true,
+            refine_intrinsics: RefineIntrinsics::Auto,
         }
     }
 }
@@ -155,6 +197,10 @@ pub struct BoardsCalibration {
     pub left_out: Vec<String>,
     /// The held-out frames' verdict (`None` when there were too few frames to hold any out).
     pub validation: Option<Validation>,
+    /// Whether the intrinsics were refined and the held-out RMS of both fits (`None` with
+    /// [`RefineIntrinsics::Never`], with intrinsics estimated in
+    /// [`BoardsOptions::calibration`] already, or without held-out frames).
+    pub intrinsics: Option<IntrinsicsChoice>,
 }
 
 /// The start rig: `setup`'s cameras at the identity (their extrinsics come from the frames) and
@@ -368,7 +414,7 @@ pub fn calibrate_from_boards(
             progress,
         )?;
     }
-    let validation = if held_out.is_empty() {
+    let mut validation = if held_out.is_empty() {
         None
     } else {
         Some(validate(
@@ -378,6 +424,56 @@ pub fn calibrate_from_boards(
             &held_out,
         )?)
     };
+    let mut intrinsics = None;
+    if let Some(fixed) = &validation
+        && options.refine_intrinsics == RefineIntrinsics::Auto
+        && !calibration_options.estimate.intrinsics
+    {
+        // The same frames again, the intrinsics estimated too, from the fixed fit's rig.
+        let refined_options = Options {
+            estimate: Estimate {
+                intrinsics: true,
+                ..calibration_options.estimate
+            },
+            ..calibration_options.clone()
+        };
+        let refined = calibrate_with_progress(
+            &calibration.rig,
+            &observations(&fitted),
+            &refined_options,
+            progress,
+        )
+        .ok()
+        .filter(|c| c.report.fits)
+        .and_then(|c| {
+            let v = validate(&c.rig, board, &observations(&held_out), &held_out).ok()?;
+            Some((c, v))
+        });
+        let refined_rms_px = refined.as_ref().map_or(f64::INFINITY, |(_, v)| v.rms_px);
+        let better = refined_rms_px < (1.0 - REFINE_MARGIN) * fixed.rms_px;
+        let reason = format!(
+            "held-out RMS {:.4} px with the in-air intrinsics fixed, {refined_rms_px:.4} px refined: {}",
+            fixed.rms_px,
+            if better {
+                format!("refined (more than {:.0} % lower)", 100.0 * REFINE_MARGIN)
+            } else {
+                format!(
+                    "kept fixed (refinement lowers it by no more than {:.0} %)",
+                    100.0 * REFINE_MARGIN
+                )
+            }
+        );
+        intrinsics = Some(IntrinsicsChoice {
+            refined: better,
+            fixed_rms_px: fixed.rms_px,
+            refined_rms_px,
+            reason,
+        });
+        if better && let Some((c, v)) = refined {
+            calibration = c;
+            validation = Some(v);
+        }
+    }
     Ok(BoardsCalibration {
         calibration,
         start,
@@ -387,6 +483,7 @@ pub fn calibrate_from_boards(
         dropped_corners,
         left_out,
         validation,
+        intrinsics,
     })
 }
 

@@ -65,13 +65,18 @@ pub(super) fn check_options(
                 "the consecutive method (the thesis' invariants) needs two or more cameras behind one shared port and a board; use --method simultaneous or auto".into(),
             ));
         }
-        if estimate.layers != 0 || estimate.extrinsics {
+        if estimate.layers != 0 || estimate.extrinsics || estimate.intrinsics {
             return Err(CalibError::Options(
-                "the consecutive method estimates the axis and the air distance only; --estimate layers or extrinsics needs --method simultaneous or auto".into(),
+                "the consecutive method estimates the axis and the air distance only; --estimate layers, extrinsics or intrinsics needs --method simultaneous or auto".into(),
             ));
         }
     }
-    if !(estimate.axis || estimate.distance || estimate.layers != 0 || estimate.extrinsics) {
+    if !(estimate.axis
+        || estimate.distance
+        || estimate.layers != 0
+        || estimate.extrinsics
+        || estimate.intrinsics)
+    {
         return Err(CalibError::Options(
             "--estimate names nothing to estimate".into(),
         ));

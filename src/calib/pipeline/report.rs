@@ -69,6 +69,10 @@ pub struct CameraReport {
     /// Standard deviations of its rotation (about the x, y, z axes, radians) and translation (m),
     /// when its extrinsics were estimated.
     pub extrinsics_std: Option<([f64; 3], [f64; 3])>,
+    /// Standard deviations of its intrinsics in the order of
+    /// [`INTRINSICS`](super::bundle::INTRINSICS) (fx, fy, cx, cy in pixels; k1, k2, p1, p2, k3),
+    /// when they were estimated; `None` for a lens term held at 0.
+    pub intrinsics_std: Option<[Option<f64>; 9]>,
 }
 
 /// A corner image whose reprojection residual is far above the rest, or that the screening
@@ -376,7 +380,7 @@ pub fn port_reports(
 }
 
 /// Every camera's share: what it saw in `views`, its RMS values (from [`camera_rms`]) and, when
-/// its extrinsics were estimated, their standard deviations.
+/// its extrinsics or intrinsics were estimated, their standard deviations.
 pub fn camera_reports(
     rig: &Rig,
     views: &[SeenView],
@@ -402,6 +406,7 @@ pub fn camera_reports(
                 inlier_rms_px,
                 rms_px_per_view,
                 extrinsics_std: extrinsics_std(globals, covariance, k, &extrinsics[k]),
+                intrinsics_std: intrinsics_std(globals, covariance, k),
             }
         })
         .collect()
@@ -439,6 +444,19 @@ fn extrinsics_std(
             std(translation[(2, 2)]),
         ],
     ))
+}
+
+/// σ of camera `k`'s intrinsics ([`INTRINSICS`](super::bundle::INTRINSICS) order) from the
+/// covariance, when any were estimated; `None` for a term held fixed.
+fn intrinsics_std(
+    globals: &[Parameter],
+    covariance: Option<&DMatrix<f64>>,
+    k: usize,
+) -> Option<[Option<f64>; 9]> {
+    covariance?;
+    let std: [Option<f64>; 9] =
+        std::array::from_fn(|j| std_of(globals, covariance, Parameter::Intrinsic(k, j)));
+    std.iter().any(Option::is_some).then_some(std)
 }
 
 /// Each port with its name in reports: `shared`, or its camera's name.
