@@ -605,7 +605,7 @@ fn cameras_from_rig(rig: &Rig, label: &str, footage: &Footage) -> PyResult<Vec<P
                     names.join(", ")
                 ))
             })?;
-            let intrinsics = rig.cameras()[k].intrinsics.clone();
+            let intrinsics = rig.cameras()[k].intrinsics;
             if (intrinsics.width, intrinsics.height) != (camera.width, camera.height) {
                 return Err(value_error(format!(
                     "{label}: camera '{}' is {}x{} pixels, its frames {}x{}",
@@ -672,7 +672,7 @@ fn calibrate_images(
                 let fit = py
                     .detach(|| calibrate_intrinsics(name, camera.width, camera.height, &grid, &camera.air, &IntrinsicsOptions::default()))
                     .map_err(|e| value_error(format!("the in-air calibration of camera '{name}': {e}")))?;
-                cameras.push(fit.camera.clone());
+                cameras.push(fit.camera);
                 fits.push((name.clone(), fit));
             }
             (cameras, fits)
