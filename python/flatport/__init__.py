@@ -33,6 +33,9 @@ __all__ = [
     "load_rig",
     "calibrate",
     "CalibrationResult",
+    "calibrate_images",
+    "ImagesCalibration",
+    "CalibrationRefused",
     "simulate",
     "Simulation",
     "sweep",
@@ -395,6 +398,166 @@ def calibrate(
         "sigma_px": report.get("sigma_px"),
     }
     return CalibrationResult(Rig(calibrated) if calibrated is not None else None, report, sigma)
+
+
+class CalibrationRefused(ValueError):
+    """:func:`calibrate_images` fitted a rig that does not fit the images (the reprojection RMS
+    above ``max_rms_px``): no rig is returned, as ``flatport calibrate --images`` writes none. The
+    message says what the data look like; ``report`` is the full report (a dict), as written to
+    ``report=`` when given."""
+
+    def __init__(self, message: str, report: dict) -> None:
+        super().__init__(message)
+        self.report = report
+
+
+class ImagesCalibration(NamedTuple):
+    """What :func:`calibrate_images` found: ``flatport calibrate --images``' rig and report."""
+
+    #: The calibrated rig: the cameras' lenses (fitted in air, or the ``rig`` given), the
+    #: extrinsics (the master camera defines the frame) and the port(s).
+    rig: Rig
+    #: The full report (the CLI's ``--report`` JSON) as a dict.
+    report: dict
+    #: Per camera name, its in-air fit (empty with ``rig=``): ``fx``, ``fy``, ``cx``, ``cy``
+    #: (pixels), ``distortion`` (5,) float64 (k1, k2, p1, p2, k3), ``std`` (the same keys, σ),
+    #: ``rms_px``, ``view_rms_px`` (views,) float64 (NaN for a view left out), ``outliers`` and
+    #: ``excluded`` (views left out and why), ``lens_terms`` and ``lens_terms_why``.
+    intrinsics: dict
+    #: Every port: ``name``, ``normal`` (3,) float64 in the master frame, ``tilt_deg``,
+    #: ``azimuth_deg``, ``distance`` (air layer, metres), each ``{"value", "std"}``, and
+    #: ``thicknesses`` (the glass layers, known: σ None).
+    ports: list
+    #: The held-out frames (None when none were held out): ``frames``, ``rms_px`` (their
+    #: reprojection RMS), ``corner_pairs`` (neighbouring corners triangulated),
+    #: ``median_distance_error_mm``, ``median_distance_error_percent_of_square``,
+    #: ``rms_distance_error_mm``.
+    validation: Optional[dict]
+    #: Underwater frames dropped as outliers: ``{"frame", "why"}`` each.
+    dropped_frames: list
+    #: Corners left out after the first fit, a line each.
+    dropped_corners: list
+
+
+def _intrinsics_arrays(fit: dict) -> dict:
+    """A camera's in-air fit from the report with its lists as float64 arrays (None → NaN)."""
+    fit = dict(fit)
+    fit["distortion"] = np.asarray(fit["distortion"], dtype=np.float64)
+    fit["std"] = dict(fit["std"], distortion=np.asarray(fit["std"]["distortion"], dtype=np.float64))
+    fit["view_rms_px"] = np.array([np.nan if r is None else r for r in fit["view_rms_px"]], dtype=np.float64)
+    return fit
+
+
+def _glass_rows(glass: Any) -> list:
+    """``glass`` as ``(camera or None, thickness, index)`` rows: a pair for every port, or a dict
+    camera name → pair."""
+    def pair(value: Any, where: str) -> Tuple[float, float]:
+        try:
+            thickness, index = value
+            return float(thickness), float(index)
+        except (TypeError, ValueError):
+            raise ValueError(f"{where} must be a pair (thickness in metres, refractive index), e.g. (0.01, 1.49), got {value!r}") from None
+
+    if glass is None:
+        return []
+    if isinstance(glass, dict):
+        rows = []
+        for camera, value in glass.items():
+            if not isinstance(camera, str) or not camera:
+                raise TypeError(f"glass: the keys are camera names, got {camera!r}")
+            rows.append((camera, *pair(value, f"glass[{camera!r}]")))
+        return rows
+    return [(None, *pair(glass, "glass"))]
+
+
+def _optional_count(name: str, value: Optional[int], smallest: int) -> Optional[int]:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < smallest:
+        raise ValueError(f"{name} must be a whole number from {smallest}, got {value!r}")
+    return int(value)
+
+
+def calibrate_images(
+    images: Union[str, os.PathLike],
+    board: Union[str, os.PathLike],
+    port: str,
+    *,
+    glass: Any = None,
+    index_water: float = 1.333,
+    index_air: float = 1.0,
+    master: Optional[str] = None,
+    rig: Optional[Union[Rig, str, os.PathLike]] = None,
+    frame_step: Optional[int] = None,
+    max_frames: Optional[int] = None,
+    holdout: float = 0.2,
+    output: Optional[Union[str, os.PathLike]] = None,
+    report: Optional[Union[str, os.PathLike]] = None,
+    device: str = "cpu",
+    max_tilt_deg: float = 30.0,
+    huber: Optional[float] = None,
+    max_iterations: int = 200,
+    max_rms_px: Optional[float] = None,
+) -> ImagesCalibration:
+    """A whole rig from images or videos of a board alone, as ``flatport calibrate --images DIR
+    --board BOARD.json --port …`` (docs/images.md): every camera's lens from its in-air views,
+    then the extrinsics and the port(s) from the synchronized frames under water.
+
+    ``images`` holds ``air/<camera>/`` (each camera's in-air views) and ``water/<camera>/``
+    (synchronized frames under water), each folder images or one video; ``board`` the board's
+    BOARD.json (ChArUco or chessboard). ``port``: ``"surface"`` (a bare water surface in front of
+    every camera), ``"shared"`` (one port with its glass) or ``"housings"`` (a port per camera).
+    ``glass``: ``(thickness, index)`` (metres) for every port, or a dict camera name → pair for
+    each housing's own. ``rig`` (a :class:`Rig` or a rig file): the cameras' in-air calibration
+    instead of ``air/``. ``master``: the camera whose frame is the rig's (default the first folder
+    by name). ``frame_step``: read every n-th frame; ``max_frames``: most frames used per camera
+    (default 40 in air, 60 under water); ``holdout``: the share of underwater frames held out and
+    reported on. ``output`` and ``report`` write the rig and the report files as the CLI does.
+    ``device``, ``max_tilt_deg``, ``huber``, ``max_iterations`` and ``max_rms_px`` are
+    :func:`calibrate`'s. The detection and the fit release the GIL.
+
+    Bad input (a missing folder, an unreadable image, a camera the board is never seen by, …)
+    raises ValueError with the library's message, naming the folder or file. A rig that does not
+    fit the images raises :class:`CalibrationRefused` (a ValueError) with the report: no rig is
+    returned and ``output`` is not written.
+
+    >>> result = flatport.calibrate_images("set", "board.json", "shared", glass=(0.014, 1.473))  # doctest: +SKIP
+    >>> result.ports[0]["tilt_deg"], result.validation["rms_px"]                                 # doctest: +SKIP
+    """
+    if port not in ("surface", "shared", "housings"):
+        raise ValueError(f"port must be 'surface', 'shared' or 'housings', got {port!r}")
+    if device not in _DEVICES:
+        raise ValueError(f"device must be one of {_DEVICES}, got {device!r}")
+    holdout = float(holdout)
+    if not 0.0 <= holdout < 1.0:
+        raise ValueError(f"holdout is a share of the frames, from 0 to below 1 (at most half are held out), got {holdout}")
+    rig_label = "rig"
+    if rig is not None and not isinstance(rig, Rig):
+        if not isinstance(rig, (str, os.PathLike)):
+            raise TypeError(f"rig must be a flatport.Rig or a path to a rig file, got {type(rig).__name__}")
+        rig_label = os.fspath(rig)
+        rig = load_rig(rig)
+    fspath = lambda p: None if p is None else os.fspath(p)  # noqa: E731
+    calibrated, text, refused = _flatport.calibrate_images(
+        os.fspath(images), os.fspath(board), port, _glass_rows(glass), float(index_water), float(index_air), master,
+        None if rig is None else rig._rig, rig_label, _optional_count("frame_step", frame_step, 1),
+        _optional_count("max_frames", max_frames, 3), holdout, fspath(output), fspath(report), device,
+        float(max_tilt_deg), None if huber is None else float(huber), int(max_iterations),
+        None if max_rms_px is None else float(max_rms_px),
+    )
+    full = json.loads(text)
+    if refused is not None:
+        raise CalibrationRefused(refused, full)
+    ports = [dict(p, normal=np.asarray(p["normal"], dtype=np.float64)) for p in full["ports"]]
+    return ImagesCalibration(
+        rig=Rig(calibrated),
+        report=full,
+        intrinsics={fit["camera"]: _intrinsics_arrays(fit) for fit in full["intrinsics"]},
+        ports=ports,
+        validation=full["held_out"],
+        dropped_frames=full["dropped_frames"],
+        dropped_corners=full["dropped_corners"],
+    )
 
 
 class Simulation(NamedTuple):

@@ -85,6 +85,41 @@ def calibrate(
     max_rms_px: Optional[float] = None,
 ) -> CalibrationResult: ...
 
+class CalibrationRefused(ValueError):
+    report: dict
+    def __init__(self, message: str, report: dict) -> None: ...
+
+class ImagesCalibration(NamedTuple):
+    rig: Rig
+    report: dict
+    intrinsics: dict[str, dict]
+    ports: list[dict]
+    validation: Optional[dict]
+    dropped_frames: list[dict]
+    dropped_corners: list[str]
+
+def calibrate_images(
+    images: Union[str, os.PathLike[str]],
+    board: Union[str, os.PathLike[str]],
+    port: str,
+    *,
+    glass: Union[Tuple[float, float], dict[str, Tuple[float, float]], None] = None,
+    index_water: float = 1.333,
+    index_air: float = 1.0,
+    master: Optional[str] = None,
+    rig: Union[Rig, str, os.PathLike[str], None] = None,
+    frame_step: Optional[int] = None,
+    max_frames: Optional[int] = None,
+    holdout: float = 0.2,
+    output: Union[str, os.PathLike[str], None] = None,
+    report: Union[str, os.PathLike[str], None] = None,
+    device: Device = "cpu",
+    max_tilt_deg: float = 30.0,
+    huber: Optional[float] = None,
+    max_iterations: int = 200,
+    max_rms_px: Optional[float] = None,
+) -> ImagesCalibration: ...
+
 class Simulation(NamedTuple):
     observations: dict
     truth: dict

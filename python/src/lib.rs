@@ -4,7 +4,7 @@
 //! GIL released and hands the results to numpy without a copy (`PyArray::from_vec`).
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use numpy::prelude::*;
@@ -21,6 +21,12 @@ use flatport::engine::gpu::{Pixels, Points, Rays, Triangulated};
 use flatport::gpu::{DeviceRows, GpuError, Precision, RowKind};
 use flatport::io::{ColmapDialect, Truth, aquacal_json, read_aquacal, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string, stereo_observations_to_json_string};
 use flatport::io::calib_json::truth_to_json_string;
+use flatport::calib::pipeline::boards::{BoardsOptions, PortKind, RigSetup, calibrate_from_boards};
+use flatport::calib::pipeline::intrinsics::{IntrinsicsOptions, calibrate_intrinsics};
+use flatport::io::board_footage::{DEFAULT_MAX_AIR_VIEWS, DEFAULT_MAX_WATER_FRAMES, Footage, FootageOptions, read_board_footage};
+use flatport::io::calib_json::boards_report_to_json_string;
+use flatport::io::{read_board, write_boards_report, write_rig};
+use flatport::model::{Layer, PinholeCamera};
 use flatport::model::Rig;
 
 fn value_error(error: impl std::fmt::Display) -> PyErr {
@@ -533,6 +539,195 @@ fn calibrate(
     Ok((calibrated, report))
 }
 
+/// The glass of each camera's port, as `calibrate --images --glass` takes it: `(camera, thickness,
+/// index)` rows, `camera` None for every port (a camera's own row wins over it).
+fn glass_per_camera(glass: &[(Option<String>, f64, f64)], names: &[String], port: PortKind) -> PyResult<Vec<Vec<Layer>>> {
+    check_glass(glass, port)?;
+    let mut per_camera = vec![Vec::new(); names.len()];
+    for (camera, thickness, index) in glass {
+        let layer = Layer { thickness: *thickness, index: *index };
+        match camera {
+            Some(camera) => {
+                let k = names.iter().position(|n| n == camera).ok_or_else(|| {
+                    value_error(format!("glass {{'{camera}': …}}: no camera '{camera}' (cameras: {})", names.join(", ")))
+                })?;
+                per_camera[k] = vec![layer];
+            }
+            None => {
+                for layers in &mut per_camera {
+                    if layers.is_empty() {
+                        *layers = vec![layer];
+                    }
+                }
+            }
+        }
+    }
+    Ok(per_camera)
+}
+
+/// What [`glass_per_camera`] refuses without the camera names, checked before the footage is read.
+fn check_glass(glass: &[(Option<String>, f64, f64)], port: PortKind) -> PyResult<()> {
+    for (camera, thickness, index) in glass {
+        let label = camera.as_ref().map_or(String::new(), |c| format!("{c}: "));
+        if !(*thickness > 0.0 && *thickness < 1.0) {
+            return Err(value_error(format!("glass {label}({thickness}, {index}): a glass thickness between 0 and 1 m (in metres: 10 mm is 0.01)")));
+        }
+        if !(1.0..=4.0).contains(index) {
+            return Err(value_error(format!("glass {label}({thickness}, {index}): a refractive index from 1 to 4")));
+        }
+        match (camera, port) {
+            (_, PortKind::Surface) => {
+                return Err(value_error("glass: port='surface' is a bare water surface, without glass (use port='shared' for a window)"));
+            }
+            (Some(camera), PortKind::Shared) => {
+                return Err(value_error(format!(
+                    "glass {{'{camera}': …}}: with port='shared' one port is in front of every camera; give glass=(thickness, index)"
+                )));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// The intrinsics of the footage's cameras from `rig` (by name, of the same size), as
+/// `calibrate --images --rig` takes them; `label` names the rig in errors.
+fn cameras_from_rig(rig: &Rig, label: &str, footage: &Footage) -> PyResult<Vec<PinholeCamera>> {
+    footage
+        .cameras
+        .iter()
+        .map(|camera| {
+            let k = rig.camera_index(&camera.name).ok_or_else(|| {
+                let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
+                value_error(format!(
+                    "{label}: no camera '{}' (the camera folders name the cameras; the rig has {})",
+                    camera.name,
+                    names.join(", ")
+                ))
+            })?;
+            let intrinsics = rig.cameras()[k].intrinsics;
+            if (intrinsics.width, intrinsics.height) != (camera.width, camera.height) {
+                return Err(value_error(format!(
+                    "{label}: camera '{}' is {}x{} pixels, its frames {}x{}",
+                    camera.name, intrinsics.width, intrinsics.height, camera.width, camera.height
+                )));
+            }
+            Ok(intrinsics)
+        })
+        .collect()
+}
+
+/// A whole rig from images or videos of a board, as `flatport calibrate --images DIR --board
+/// BOARD.json --port …` (src/cli/calib_images.rs composes the same library calls): every
+/// camera's lens in air (or `rig`'s), then the extrinsics and the ports under water. Returns (the
+/// calibrated rig, or None when it does not fit; the report JSON, `--report`'s; why it does not
+/// fit). `report` is written in either case, `output` only with a rig that fits.
+#[pyfunction]
+#[pyo3(signature = (images, board, port, glass, index_water, index_air, master, rig, rig_label, frame_step, max_frames, holdout, output, report, device, max_tilt_deg, huber, max_iterations, max_rms_px))]
+#[allow(clippy::too_many_arguments)] // the Python signature
+fn calibrate_images(
+    py: Python<'_>,
+    images: PathBuf,
+    board: PathBuf,
+    port: &str,
+    glass: Vec<(Option<String>, f64, f64)>,
+    index_water: f64,
+    index_air: f64,
+    master: Option<String>,
+    rig: Option<&PyRig>,
+    rig_label: &str,
+    frame_step: Option<usize>,
+    max_frames: Option<usize>,
+    holdout: f64,
+    output: Option<PathBuf>,
+    report: Option<PathBuf>,
+    device: &str,
+    max_tilt_deg: f64,
+    huber: Option<f64>,
+    max_iterations: usize,
+    max_rms_px: Option<f64>,
+) -> PyResult<(Option<PyRig>, String, Option<String>)> {
+    let port = PortKind::from_name(port)
+        .ok_or_else(|| value_error(format!("port must be 'surface', 'shared' or 'housings', got {port:?}")))?;
+    check_glass(&glass, port)?;
+    let spec = read_board(&board).map_err(value_error)?;
+    let grid = spec.corner_grid();
+    let footage_options = FootageOptions {
+        master,
+        frame_step,
+        max_air_views: max_frames.unwrap_or(DEFAULT_MAX_AIR_VIEWS),
+        max_water_frames: max_frames.unwrap_or(DEFAULT_MAX_WATER_FRAMES),
+        air: rig.is_none(),
+    };
+    let footage = py.detach(|| read_board_footage(&images, &spec, &footage_options, &mut |_, _, _| {})).map_err(value_error)?;
+    let names = footage.names();
+    let glass = glass_per_camera(&glass, &names, port)?;
+    let (cameras, fits) = match rig {
+        Some(rig) => (cameras_from_rig(&rig.rig, rig_label, &footage)?, Vec::new()),
+        None => {
+            let mut cameras = Vec::new();
+            let mut fits = Vec::new();
+            for camera in &footage.cameras {
+                let name = &camera.name;
+                let fit = py
+                    .detach(|| calibrate_intrinsics(name, camera.width, camera.height, &grid, &camera.air, &IntrinsicsOptions::default()))
+                    .map_err(|e| value_error(format!("the in-air calibration of camera '{name}': {e}")))?;
+                cameras.push(fit.camera);
+                fits.push((name.clone(), fit));
+            }
+            (cameras, fits)
+        }
+    };
+    let setup = RigSetup { cameras, port, glass, index_air, index_water };
+    // The finite differences of the refinement are below f32's resolution: f64 kernels.
+    let backend = match device {
+        "cpu" => Backend::Cpu,
+        "gpu" | "auto" => {
+            let engine_options = engine_options(device, "f64")?;
+            let engine = py.detach(|| Engine::new(&engine_options)).map_err(runtime_error)?;
+            match engine {
+                Engine::Gpu(gpu) => Backend::Gpu(Arc::new(gpu)),
+                Engine::Cpu(_) => Backend::Cpu,
+            }
+        }
+        other => return Err(value_error(format!("device must be 'cpu', 'gpu' or 'auto', got {other:?}"))),
+    };
+    let defaults = BoardsOptions::default();
+    let options = BoardsOptions {
+        calibration: Options {
+            huber: huber.or(defaults.calibration.huber),
+            max_iterations,
+            max_rms_px,
+            max_tilt: max_tilt_deg.to_radians(),
+            backend,
+            ..Options::default()
+        },
+        holdout,
+        ..defaults
+    };
+    let frames = footage.water;
+    let result = py.detach(|| calibrate_from_boards(&names, &setup, &grid, &frames, &options, &mut |_| {})).map_err(value_error)?;
+    let report_text = boards_report_to_json_string(&result, &names, &fits);
+    if let Some(path) = &report {
+        write_boards_report(path, &result, &names, &fits).map_err(value_error)?;
+    }
+    let fit = &result.calibration.report;
+    if !fit.fits {
+        let why = format!(
+            "the calibration does not fit: the reprojection RMS is {:.2} px in the worst camera. What the data look like: {}. {}{}",
+            fit.worst_inlier_rms_px(),
+            fit.diagnosis.join("; "),
+            output.as_ref().map_or("No rig returned".to_string(), |p| format!("{} not written", p.display())),
+            report.as_ref().map_or(String::new(), |p| format!("; the report is in {}", p.display()))
+        );
+        return Ok((None, report_text, Some(why)));
+    }
+    if let Some(path) = &output {
+        write_rig(path, &result.calibration.rig).map_err(value_error)?;
+    }
+    Ok((Some(PyRig::wrap(result.calibration.rig)), report_text, None))
+}
+
 /// Simulates stereo views of a chessboard: (observations JSON, truth JSON).
 #[pyfunction]
 #[allow(clippy::too_many_arguments)] // the Python signature
@@ -694,6 +889,7 @@ fn _flatport(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyRig>()?;
     m.add_class::<PyDeviceArray>()?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate_images, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(sweep, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

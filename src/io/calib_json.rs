@@ -789,7 +789,8 @@ pub fn write_report(path: &Path, report: &Report) -> Result<(), IoError> {
 /// The report of `flatport calibrate --images`: the calibration's report ([`write_report`]'s
 /// keys), and beside them `intrinsics` (each camera's in-air fit: its values, σ, RMS, views
 /// used and left out, the lens terms chosen and why), `held_out` (the held-out frames'
-/// reprojection RMS and triangulated corner distances), `dropped_frames`, `left_out_images`,
+/// reprojection RMS and triangulated corner distances), `dropped_frames`, `dropped_corners` (the
+/// corners left out after the first fit, a line each), `left_out_images`,
 /// `frames` (the labels of the frames fitted, in the report's view order) and `links` (how each
 /// camera's extrinsics were started).
 pub fn write_boards_report(
@@ -798,6 +799,18 @@ pub fn write_boards_report(
     names: &[String],
     intrinsics: &[(String, crate::calib::pipeline::intrinsics::IntrinsicsFit)],
 ) -> Result<(), IoError> {
+    write_atomic(
+        path,
+        boards_report_to_json_string(result, names, intrinsics).as_bytes(),
+    )
+}
+
+/// The text [`write_boards_report`] writes (the Python package hands it over as a dict).
+pub fn boards_report_to_json_string(
+    result: &crate::calib::pipeline::boards::BoardsCalibration,
+    names: &[String],
+    intrinsics: &[(String, crate::calib::pipeline::intrinsics::IntrinsicsFit)],
+) -> String {
     use serde_json::json;
     let mut value: serde_json::Value =
         serde_json::from_str(&report_to_json_string(&result.calibration.report))
@@ -837,6 +850,7 @@ pub fn write_boards_report(
         "intrinsics": fits,
         "held_out": held_out,
         "dropped_frames": result.dropped.iter().map(|(f, why)| json!({"frame": f, "why": why})).collect::<Vec<_>>(),
+        "dropped_corners": result.dropped_corners,
         "left_out_images": result.left_out,
         "frames": result.fitted,
         "links": result.links.iter().map(|l| json!({"camera": names[l.camera], "via": names[l.via], "frames": l.frames})).collect::<Vec<_>>(),
@@ -844,8 +858,7 @@ pub fn write_boards_report(
     if let (Some(object), serde_json::Value::Object(extra)) = (value.as_object_mut(), extra) {
         object.extend(extra);
     }
-    let text = serde_json::to_string_pretty(&value).expect("JSON values serialise");
-    write_atomic(path, text.as_bytes())
+    serde_json::to_string_pretty(&value).expect("JSON values serialise")
 }
 
 #[cfg(test)]
