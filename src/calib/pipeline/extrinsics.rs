@@ -15,8 +15,6 @@
 //! (the medoid, in rotation angle plus translation over the median distance to the board): one
 //! bad frame cannot move it.
 
-use std::collections::VecDeque;
-
 use nalgebra::{Isometry3, Point3, Vector2};
 
 use super::poses::pinhole_pose;
@@ -74,8 +72,7 @@ pub fn extrinsics_start(
         via: 0,
         frames: (0..views.len()).filter(|&v| poses[v][0].is_some()).count(),
     });
-    let mut queue: VecDeque<usize> = VecDeque::from([0]);
-    while !queue.is_empty() {
+    while linked.iter().any(Option::is_none) {
         let mut best: Option<(usize, usize, Vec<usize>)> = None;
         for a in (0..n).filter(|&a| linked[a].is_some()) {
             for b in (0..n).filter(|&b| linked[b].is_none()) {
@@ -113,10 +110,6 @@ pub fn extrinsics_start(
             via: a,
             frames: frames.len(),
         });
-        queue.push_back(b);
-        if linked.iter().all(Option::is_some) {
-            break;
-        }
     }
     let missing: Vec<usize> = (0..n).filter(|&k| linked[k].is_none()).collect();
     if let Some(&k) = missing.first() {
@@ -140,21 +133,7 @@ pub fn extrinsics_start(
             }
         )));
     }
-    Ok((
-        cam_from_master,
-        linked
-            .into_iter()
-            .map(|l| l.unwrap_or_else(|| unreachable_link()))
-            .collect(),
-    ))
-}
-
-fn unreachable_link() -> Link {
-    Link {
-        camera: 0,
-        via: 0,
-        frames: 0,
-    }
+    Ok((cam_from_master, linked.into_iter().flatten().collect()))
 }
 
 /// The pinhole pose cam_from_target of one image, when it has enough corners off one line.
