@@ -77,8 +77,8 @@ pub struct CalibrateArgs {
     pub port: Option<PortArg>,
     /// Glass of the port(s): THICKNESS:INDEX (metres) for every port, or CAMERA=THICKNESS:INDEX
     /// for one camera's housing; repeatable
-    #[arg(long, value_name = "[CAMERA=]T:N", value_parser = super::calib_images::parse_glass, help_heading = "From images")]
-    pub glass: Vec<super::calib_images::GlassArg>,
+    #[arg(long, value_name = "[CAMERA=]T:N", value_parser = parse_glass, help_heading = "From images")]
+    pub glass: Vec<GlassArg>,
     /// Refractive index of the water [default: 1.333]
     #[arg(long, value_name = "N", help_heading = "From images")]
     pub index_water: Option<f64>,
@@ -144,6 +144,49 @@ pub struct CalibrateArgs {
     pub truth: Option<PathBuf>,
     #[command(flatten)]
     pub engine: super::EngineArgs,
+}
+
+/// `--glass`: `T:N` for every port, or `CAMERA=T:N` for one camera's housing.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GlassArg {
+    /// The camera it is for; `None`: every port.
+    pub camera: Option<String>,
+    /// Thickness, metres.
+    pub thickness: f64,
+    /// Refractive index.
+    pub index: f64,
+}
+
+/// Parses `T:N` or `CAMERA=T:N`.
+pub fn parse_glass(text: &str) -> Result<GlassArg, String> {
+    let (camera, rest) = match text.split_once('=') {
+        Some((c, r)) => (Some(c.trim().to_string()), r),
+        None => (None, text),
+    };
+    let error = || {
+        format!(
+            "expected THICKNESS:INDEX (metres, e.g. 0.01:1.49) or CAMERA=THICKNESS:INDEX, got '{text}'"
+        )
+    };
+    let (t, n) = rest.split_once(':').ok_or_else(error)?;
+    let thickness: f64 = t.trim().parse().map_err(|_| error())?;
+    let index: f64 = n.trim().parse().map_err(|_| error())?;
+    if !(thickness > 0.0 && thickness < 1.0) {
+        return Err(format!(
+            "'{text}': a glass thickness between 0 and 1 m (in metres: 10 mm is 0.01)"
+        ));
+    }
+    if !(1.0..=4.0).contains(&index) {
+        return Err(format!("'{text}': a refractive index from 1 to 4"));
+    }
+    if camera.as_deref() == Some("") {
+        return Err(error());
+    }
+    Ok(GlassArg {
+        camera,
+        thickness,
+        index,
+    })
 }
 
 /// Parses `COLSxROWS@SQUARE`.
@@ -330,9 +373,6 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         && !(bound > 0.0)
     {
         bail!("--max-rms-px must be a positive number of pixels, got {bound}");
-    }
-    if let Some(dir) = &args.images {
-        return super::calib_images::run(&args, dir);
     }
     let (Some(rig_path), Some(observations_path)) = (&args.rig, &args.observations) else {
         bail!("calibrate needs --rig and --observations, or --images DIR (see --help)");

@@ -21,52 +21,9 @@ use flatport::io::{read_board, read_rig, write_boards_report, write_rig};
 use flatport::model::{Layer, PinholeCamera};
 
 use super::calib::{
-    CalibrateArgs, CalibrationStatus, PortArg, backend, calibration_engine, summary,
+    CalibrateArgs, CalibrationStatus, GlassArg, PortArg, backend, calibration_engine, summary,
 };
 use super::progress::Progress;
-
-/// `--glass`: `T:N` for every port, or `CAMERA=T:N` for one camera's housing.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GlassArg {
-    /// The camera it is for; `None`: every port.
-    pub camera: Option<String>,
-    /// Thickness, metres.
-    pub thickness: f64,
-    /// Refractive index.
-    pub index: f64,
-}
-
-/// Parses `T:N` or `CAMERA=T:N`.
-pub fn parse_glass(text: &str) -> Result<GlassArg, String> {
-    let (camera, rest) = match text.split_once('=') {
-        Some((c, r)) => (Some(c.trim().to_string()), r),
-        None => (None, text),
-    };
-    let error = || {
-        format!(
-            "expected THICKNESS:INDEX (metres, e.g. 0.01:1.49) or CAMERA=THICKNESS:INDEX, got '{text}'"
-        )
-    };
-    let (t, n) = rest.split_once(':').ok_or_else(error)?;
-    let thickness: f64 = t.trim().parse().map_err(|_| error())?;
-    let index: f64 = n.trim().parse().map_err(|_| error())?;
-    if !(thickness > 0.0 && thickness < 1.0) {
-        return Err(format!(
-            "'{text}': a glass thickness between 0 and 1 m (in metres: 10 mm is 0.01)"
-        ));
-    }
-    if !(1.0..=4.0).contains(&index) {
-        return Err(format!("'{text}': a refractive index from 1 to 4"));
-    }
-    if camera.as_deref() == Some("") {
-        return Err(error());
-    }
-    Ok(GlassArg {
-        camera,
-        thickness,
-        index,
-    })
-}
 
 /// The run of `flatport calibrate --images`.
 pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {

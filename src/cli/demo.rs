@@ -222,7 +222,7 @@ fn footage_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyh
         images: Some(footage.clone()),
         board: Some(board_path),
         port: Some(super::calib::PortArg::Shared),
-        glass: vec![super::calib_images::GlassArg {
+        glass: vec![super::calib::GlassArg {
             camera: None,
             thickness: glass.thickness,
             index: glass.index,

@@ -469,7 +469,10 @@ pub fn main() -> ExitCode {
         Command::Rig(command) => rig::run(command),
         Command::Export(command) => export::run(command),
         Command::Simulate(args) => simulate::run_simulate(args),
-        Command::Calibrate(args) => calib::run_calibrate(args),
+        Command::Calibrate(args) => match args.images.clone() {
+            Some(dir) => calib_images::run(&args, &dir),
+            None => calib::run_calibrate(args),
+        },
         Command::Sweep(args) => sweep::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Detect(args) => detect::run(args),
