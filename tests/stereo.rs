@@ -27,7 +27,10 @@ fn options(range: (f64, f64)) -> StereoOptions {
     StereoOptions {
         reference: d.reference,
         depth_range: Some(range),
-        hypotheses: env_f64("FP_HYP", d.hypotheses as f64) as usize,
+        hypotheses: std::env::var("FP_HYP")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .or(d.hypotheses),
         window_radius: env_f64("FP_R", d.window_radius as f64) as usize,
         penalty_step: env_f64("FP_P1", d.penalty_step),
         penalty_jump: env_f64("FP_P2", d.penalty_jump),
@@ -139,7 +142,7 @@ fn a_noise_free_plane_is_recovered_to_a_fraction_of_a_hypothesis_step() {
     let map = stereo(&rig, &rendered.images, &o).unwrap();
     let truth = &rendered.depths[0];
     let seen = seen_by_another(&rig, 0, &rendered);
-    let step_q = (1.0 / range.0 - 1.0 / range.1) / (o.hypotheses - 1) as f64;
+    let step_q = (1.0 / range.0 - 1.0 / range.1) / (map.hypotheses - 1) as f64;
     let mut errors_in_steps: Vec<f64> = (0..truth.len())
         .filter(|&i| seen[i] && map.depth[i].is_finite())
         .map(|i| {

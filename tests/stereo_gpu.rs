@@ -186,7 +186,7 @@ fn gpu_and_cpu_agree_with_four_paths_and_an_odd_hypothesis_count() {
     let scene = scene(vec![seabed(1.6, 3), sphere([0.12, 0.05, 1.3], 0.15, 12)]);
     let rendered = render_all(&rig, &scene, 2.0);
     let options = StereoOptions {
-        hypotheses: 97,
+        hypotheses: Some(97),
         paths: 4,
         ..options((0.8, 2.5))
     };

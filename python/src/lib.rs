@@ -850,7 +850,7 @@ fn stereo<'py>(
     let options = StereoOptions {
         reference,
         depth_range: depth,
-        hypotheses,
+        hypotheses: Some(hypotheses),
         window_radius: window,
         min_confidence,
         ..StereoOptions::default()

@@ -120,7 +120,7 @@ fn stereo_story(dir: &Path) -> anyhow::Result<()> {
     let images = render_seabed(&rig, &options)?;
     let options = StereoOptions {
         depth_range: Some((1.0, 2.2)),
-        hypotheses: 64,
+        hypotheses: Some(64),
         ..StereoOptions::default()
     };
     let map = stereo_on(&rig, &images, &options, Backend::Cpu, &|_| {})?;

@@ -17,7 +17,8 @@ use flatport::io::write_atomic;
 use flatport::model::Rig;
 use flatport::render::GreyImage;
 use flatport::stereo::gpu::GpuStereo;
-use flatport::stereo::{Backend, StereoOptions, resolve_depth_range, stereo_on};
+use flatport::stereo::range::{CountChoice, MAX_HYPOTHESES, RangeChoice, Sampling};
+use flatport::stereo::{Backend, StereoOptions, choose_sampling, resolve_depth_range, stereo_on};
 
 use super::Device;
 use super::progress::Progress;
@@ -39,13 +40,16 @@ pub struct StereoArgs {
     /// The reference camera (name or index; default: the master, the rig's first camera)
     #[arg(long, value_name = "CAMERA")]
     reference: Option<String>,
-    /// Range of depth z in the reference camera's frame, metres (default: 0.3:3, the near end
-    /// moved 5 cm beyond the port when the port is farther than 0.25 m)
+    /// Range of depth z in the reference camera's frame, metres (default: found per frame by a
+    /// coarse sweep of the images at most 320 px wide from the port out to 20 m: the range of
+    /// its confident depths, padded; 0.3:3 with a warning where it finds none)
     #[arg(long, value_name = "MIN:MAX", value_parser = parse_range, allow_hyphen_values = true)]
     depth: Option<(f64, f64)>,
-    /// Depth hypotheses per pixel, uniform in 1/z
-    #[arg(long, value_name = "N", default_value_t = 128)]
-    hypotheses: usize,
+    /// Depth hypotheses per pixel, uniform in 1/z (default: the step rule, the fewest for which
+    /// one step moves a hypothesis by at most 0.8 px in every voting camera over the whole range
+    /// and image, 16 to 512)
+    #[arg(long, value_name = "N")]
+    hypotheses: Option<usize>,
     /// ZNCC window radius in pixels: (2R+1)² windows
     #[arg(long, value_name = "R", default_value_t = 3)]
     window: usize,
@@ -180,6 +184,8 @@ fn choose_device(
         .map(|c| (c.intrinsics.width as usize, c.intrinsics.height as usize))
         .fold((w, h), |a, b| if b.0 * b.1 > a.0 * a.1 { b } else { a });
     let voters = rig.cameras().len() - 1;
+    // Without --hypotheses the step rule's count is known per frame: its maximum decides.
+    let hypotheses = options.hypotheses.unwrap_or(MAX_HYPOTHESES);
     match args.device {
         Device::Cpu => {
             eprintln!("device: {cpu}");
@@ -187,7 +193,7 @@ fn choose_device(
         }
         Device::Gpu => {
             let gpu = GpuStereo::new(args.adapter.as_deref()).context("--device gpu")?;
-            if let Some(reason) = gpu.refuses(w, h, options.hypotheses, voters) {
+            if let Some(reason) = gpu.refuses(w, h, hypotheses, voters) {
                 bail!("--device gpu: {reason}");
             }
             let name = format!("gpu: {}", gpu.context().adapter().name);
@@ -202,7 +208,7 @@ fn choose_device(
                 );
                 Ok((None, cpu))
             }
-            Ok(gpu) => match gpu.refuses(w, h, options.hypotheses, voters) {
+            Ok(gpu) => match gpu.refuses(w, h, hypotheses, voters) {
                 None => {
                     let name = format!("gpu: {}", gpu.context().adapter().name);
                     eprintln!("device: {name} (auto: a Vulkan adapter)");
@@ -245,11 +251,7 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
         min_confidence: args.min_confidence,
         ..StereoOptions::default()
     };
-    let range = resolve_depth_range(&rig, &options).context("--depth")?;
-    let options = StereoOptions {
-        depth_range: Some(range),
-        ..options
-    };
+    resolve_depth_range(&rig, &options).context("--depth")?;
     let (gpu, device) = choose_device(&args, &rig, &options)?;
     let backend = match &gpu {
         Some(gpu) => Backend::Gpu(gpu),
@@ -278,6 +280,7 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
     let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
     let count = frames[0].len();
     let mut summary = Vec::with_capacity(count);
+    let mut samplings: Vec<Sampling> = Vec::with_capacity(count);
     for f in 0..count {
         let started = std::time::Instant::now();
         let reference_file = &frames[reference][f];
@@ -299,7 +302,15 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
             "hypotheses",
             args.quiet,
         ));
-        let map = stereo_on(&rig, &images, &options, backend, &|p| {
+        let sampling = choose_sampling(&rig, &images, &options, backend)?;
+        if options.depth_range.is_none() || options.hypotheses.is_none() {
+            eprintln!("{stem}: {sampling}");
+        }
+        let frame_options = StereoOptions {
+            depth_range: Some(sampling.depth_range),
+            ..options.clone()
+        };
+        let map = stereo_on(&rig, &images, &frame_options, backend, &|p| {
             if let Ok(mut bar) = bar.lock() {
                 bar.update(p.run * p.total + p.done, p.runs * p.total);
             }
@@ -366,15 +377,26 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
             "stage_seconds": stages,
             "device": device,
             "hypotheses": map.hypotheses,
+            "depth_range_m": [sampling.depth_range.0, sampling.depth_range.1],
+            "sampling": sampling_json(&sampling),
             "depth_maps": map.runs,
         }));
+        samplings.push(sampling);
     }
+    // Over the frames: the union of their ranges and the most hypotheses (each frame's own in
+    // "frames").
+    let range = samplings.iter().fold((f64::INFINITY, 0f64), |(a, b), s| {
+        (a.min(s.depth_range.0), b.max(s.depth_range.1))
+    });
+    let hypotheses = samplings.iter().map(|s| s.hypotheses).max().unwrap_or(0);
     let document = json!({
         "rig": args.rig.display().to_string(),
         "images": args.images.display().to_string(),
         "reference": names[reference],
         "depth_range_m": [range.0, range.1],
-        "hypotheses": options.hypotheses,
+        "hypotheses": hypotheses,
+        "depth_range_chosen": if options.depth_range.is_some() { "given" } else { "found from the images (coarse sweep)" },
+        "hypotheses_chosen": if options.hypotheses.is_some() { "given" } else { "step rule" },
         "window": 2 * options.window_radius + 1,
         "min_confidence": options.min_confidence,
         "device": device,
@@ -389,6 +411,42 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
         args.output.display()
     );
     Ok(())
+}
+
+/// How a frame's depth range and hypotheses were chosen, for summary.json.
+fn sampling_json(sampling: &Sampling) -> serde_json::Value {
+    let rule = |r: &flatport::stereo::range::StepRule| {
+        json!({
+            "target_step_px": r.target_px,
+            "largest_step_px": r.step_px,
+            "motion_px_per_inverse_m": r.motion_px_m,
+            "needed": r.needed,
+            "clamped": r.clamped(),
+        })
+    };
+    let coarse = |c: &flatport::stereo::range::CoarseSweep| {
+        json!({
+            "size": [c.width, c.height],
+            "factor": c.factor,
+            "searched_m": [c.searched_m.0, c.searched_m.1],
+            "hypotheses": c.rule.count,
+            "confident_pixels": c.confident,
+            "quantiles_m": [c.quantiles_m.0, c.quantiles_m.1],
+            "seconds": c.seconds,
+        })
+    };
+    let range = match &sampling.range {
+        RangeChoice::Given => json!({"how": "given"}),
+        RangeChoice::Found(c) => json!({"how": "found", "coarse_sweep": coarse(c)}),
+        RangeChoice::Fallback(c) => {
+            json!({"how": "fallback (default range: too few confident depths)", "coarse_sweep": coarse(c)})
+        }
+    };
+    let count = match &sampling.count {
+        CountChoice::Given => json!({"how": "given"}),
+        CountChoice::Rule(r) => json!({"how": "step rule", "rule": rule(r)}),
+    };
+    json!({"depth_range": range, "hypotheses": count})
 }
 
 #[cfg(test)]

@@ -65,6 +65,7 @@ pub mod edges;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 mod image;
+pub mod range;
 pub mod rays;
 pub mod select;
 pub mod sgm;
@@ -80,11 +81,15 @@ use crate::model::{RefractiveCamera, Rig};
 use check::{Check, CheckView, consistency};
 use cost::{COST_SCALE, Voter, cost_volume, reference_windows};
 use edges::{depth_edges, near_mask};
+use range::{
+    CountChoice, RangeChoice, Sampling, StepRule, find_depth_range, largest_motion, step_rule,
+};
 use rays::{RayGrid, inverse_depths, reference_rays};
 use select::winner_take_all;
 use sgm::{SgmParams, sgm_aggregate};
 
-/// Default near end of the depth range, metres (moved out when the port is farther).
+/// Default near end of the depth range, metres (moved out when the port is farther): the
+/// fallback when the coarse sweep finds no range ([`range`]).
 pub const DEFAULT_MIN_DEPTH: f64 = 0.3;
 /// Default far end of the depth range, metres.
 pub const DEFAULT_MAX_DEPTH: f64 = 3.0;
@@ -94,10 +99,12 @@ pub const DEFAULT_MAX_DEPTH: f64 = 3.0;
 pub struct StereoOptions {
     /// The reference camera (index in the rig; 0 = master).
     pub reference: usize,
-    /// z range in the reference camera's frame, metres; `None`: [`default_depth_range`].
+    /// z range in the reference camera's frame, metres; `None`: found from the images by a
+    /// coarse sweep ([`range`]; [`default_depth_range`] where it finds nothing).
     pub depth_range: Option<(f64, f64)>,
-    /// Number of hypotheses D (uniform in 1/z).
-    pub hypotheses: usize,
+    /// Number of hypotheses D (uniform in 1/z); `None`: the step rule's count for each depth
+    /// map ([`range::step_rule`]: one step moves a hypothesis by at most 0.8 px in every voter).
+    pub hypotheses: Option<usize>,
     /// ZNCC window radius r: (2r + 1)² pixels.
     pub window_radius: usize,
     /// SGM's P1 as a fraction of the cost range (1 = ZNCC 0).
@@ -129,14 +136,15 @@ pub struct StereoOptions {
 }
 
 impl Default for StereoOptions {
-    /// 128 hypotheses, 7 × 7 windows, P1 0.03, P2 0.5 halved at a change of 0.05 in grey, 8 paths,
+    /// The depth range found from the images and the hypotheses by the step rule ([`range`]),
+    /// 7 × 7 windows, P1 0.03, P2 0.5 halved at a change of 0.05 in grey, 8 paths,
     /// texture ≥ 0.01, confidence ≥ 0.25 (distinctness 0.05 counting fully), consistency within
     /// 1 px against every other camera, no point within a window radius of a 3 % depth jump.
     fn default() -> Self {
         Self {
             reference: 0,
             depth_range: None,
-            hypotheses: 128,
+            hypotheses: None,
             window_radius: 3,
             penalty_step: 0.03,
             penalty_jump: 0.5,
@@ -253,8 +261,10 @@ pub struct DepthMap {
     pub valid: usize,
     /// The depth range swept, metres.
     pub depth_range: (f64, f64),
-    /// Hypotheses swept.
+    /// Hypotheses swept (the reference's depth map).
     pub hypotheses: usize,
+    /// How the depth range and the hypotheses were chosen.
+    pub sampling: Sampling,
     /// Depth maps computed (1 + the check cameras').
     pub runs: usize,
     /// Seconds per stage, summed over the runs: rays, cost volume, aggregation, selection,
@@ -271,14 +281,17 @@ pub fn default_depth_range(farthest_port: f64) -> (f64, f64) {
     (min, DEFAULT_MAX_DEPTH.max(2.0 * min))
 }
 
-/// The depth range `options` sweep for `rig` (theirs, or [`default_depth_range`]), checked as
-/// [`stereo`] checks it, with the options themselves: for a caller that must refuse bad input
-/// before it writes anything.
+/// The depth range `options` give for `rig`, checked as [`stereo`] checks it, with the options
+/// themselves: for a caller that must refuse bad input before it writes anything. `None` when
+/// the options give no range (it is then found from the images).
 ///
 /// Errors: [`StereoError::Option`] for an option out of range or a reference the rig does not
 /// have, [`StereoError::TooFewCameras`], [`StereoError::DepthRange`] for a range that is not in
 /// the water in front of the reference camera.
-pub fn resolve_depth_range(rig: &Rig, options: &StereoOptions) -> Result<(f64, f64), StereoError> {
+pub fn resolve_depth_range(
+    rig: &Rig,
+    options: &StereoOptions,
+) -> Result<Option<(f64, f64)>, StereoError> {
     check_options(options)?;
     let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
     if names.len() < 2 {
@@ -291,13 +304,13 @@ pub fn resolve_depth_range(rig: &Rig, options: &StereoOptions) -> Result<(f64, f
             reason: format!("camera {reference} asked for, the rig has {}", names.len()),
         });
     }
+    let Some(range) = options.depth_range else {
+        return Ok(None);
+    };
     let rays = reference_rays(&rig.refractive_camera(reference));
     let farthest = farthest_port(&rays, names[reference])?;
-    let range = options
-        .depth_range
-        .unwrap_or_else(|| default_depth_range(farthest));
     check_range(range, farthest, names[reference])?;
-    Ok(range)
+    Ok(Some(range))
 }
 
 fn farthest_port(rays: &RayGrid, camera: &str) -> Result<f64, StereoError> {
@@ -365,6 +378,151 @@ pub fn stereo_on(
     backend: Backend,
     progress: &(dyn Fn(&StereoProgress) + Sync),
 ) -> Result<DepthMap, StereoError> {
+    let names = check_inputs(rig, images, options)?;
+    let cameras: Vec<RefractiveCamera> =
+        (0..names.len()).map(|k| rig.refractive_camera(k)).collect();
+    let reference = options.reference;
+    let mut seconds = Timings::default();
+    let started = Instant::now();
+    let rays = reference_rays(&cameras[reference]);
+    let farthest = farthest_port(&rays, &names[reference])?;
+    seconds.add("rays", started);
+    let started = Instant::now();
+    let sampling = sampling_for(
+        rig, images, options, &cameras, &rays, farthest, &names, backend,
+    )?;
+    if options.depth_range.is_none() {
+        seconds.add("range search", started);
+    }
+    let range = sampling.depth_range;
+
+    // The check cameras: every other camera, the nearest first.
+    let mut others: Vec<usize> = (0..names.len()).filter(|&k| k != reference).collect();
+    let centre = cameras[reference].centre();
+    others.sort_by(|&a, &b| {
+        (cameras[a].centre() - centre)
+            .norm()
+            .total_cmp(&(cameras[b].centre() - centre).norm())
+    });
+    others.truncate(options.check_cameras.unwrap_or(usize::MAX));
+    let runs = 1 + others.len();
+
+    let main = depth_run(
+        &cameras,
+        images,
+        reference,
+        &rays,
+        range,
+        sampling.hypotheses,
+        options,
+        (0, runs, &names[reference]),
+        progress,
+        backend,
+        &mut seconds,
+    )?;
+    let mut check_maps = Vec::with_capacity(others.len());
+    for (run, &c) in others.iter().enumerate() {
+        let started = Instant::now();
+        let rays_c = reference_rays(&cameras[c]);
+        seconds.add("rays", started);
+        let Some(range_c) = check_range_for(&rays, range, &cameras[c], &rays_c) else {
+            continue;
+        };
+        let hypotheses_c = match options.hypotheses {
+            Some(d) => d,
+            None => step_rule(largest_motion(&cameras, c, &rays_c, range_c), range_c).count,
+        };
+        let map = depth_run(
+            &cameras,
+            images,
+            c,
+            &rays_c,
+            range_c,
+            hypotheses_c,
+            options,
+            (run + 1, runs, &names[c]),
+            progress,
+            backend,
+            &mut seconds,
+        )?;
+        check_maps.push((c, map));
+    }
+    finish(
+        &cameras,
+        reference,
+        &rays,
+        &main,
+        &check_maps,
+        options,
+        sampling,
+        runs,
+        seconds,
+    )
+}
+
+/// The depth range and hypothesis count of the reference's depth map that [`stereo`] sweeps
+/// with `options` on `images` (the range found by a coarse sweep on `backend` where the options
+/// give none, the count by the step rule where they give none; see [`range`]), with the inputs
+/// checked as [`stereo`] checks them: for a caller that prints the choice before the sweep.
+/// Passing `options` with the range set to the one returned sweeps the same hypotheses.
+pub fn choose_sampling(
+    rig: &Rig,
+    images: &[GreyImage],
+    options: &StereoOptions,
+    backend: Backend,
+) -> Result<Sampling, StereoError> {
+    let names = check_inputs(rig, images, options)?;
+    let cameras: Vec<RefractiveCamera> =
+        (0..names.len()).map(|k| rig.refractive_camera(k)).collect();
+    let rays = reference_rays(&cameras[options.reference]);
+    let farthest = farthest_port(&rays, &names[options.reference])?;
+    sampling_for(
+        rig, images, options, &cameras, &rays, farthest, &names, backend,
+    )
+}
+
+/// [`choose_sampling`] on checked inputs, with the reference's rays.
+#[allow(clippy::too_many_arguments)]
+fn sampling_for(
+    rig: &Rig,
+    images: &[GreyImage],
+    options: &StereoOptions,
+    cameras: &[RefractiveCamera],
+    rays: &RayGrid,
+    farthest: f64,
+    names: &[String],
+    backend: Backend,
+) -> Result<Sampling, StereoError> {
+    let reference = options.reference;
+    let (depth_range, range) = match options.depth_range {
+        Some(range) => (range, RangeChoice::Given),
+        None => find_depth_range(rig, images, options, cameras, rays, farthest, backend)?,
+    };
+    check_range(depth_range, farthest, &names[reference])?;
+    let (hypotheses, count) = match options.hypotheses {
+        Some(d) => (d, CountChoice::Given),
+        None => {
+            let rule: StepRule = step_rule(
+                largest_motion(cameras, reference, rays, depth_range),
+                depth_range,
+            );
+            (rule.count, CountChoice::Rule(rule))
+        }
+    };
+    Ok(Sampling {
+        depth_range,
+        range,
+        hypotheses,
+        count,
+    })
+}
+
+/// The checks of [`stereo`]'s inputs; the camera names.
+fn check_inputs(
+    rig: &Rig,
+    images: &[GreyImage],
+    options: &StereoOptions,
+) -> Result<Vec<String>, StereoError> {
     check_options(options)?;
     let names: Vec<String> = rig.cameras().iter().map(|c| c.name.clone()).collect();
     if names.len() < 2 {
@@ -408,65 +566,22 @@ pub fn stereo_on(
             });
         }
     }
-    let cameras: Vec<RefractiveCamera> =
-        (0..names.len()).map(|k| rig.refractive_camera(k)).collect();
-    let reference = options.reference;
-    let mut seconds = Timings::default();
-    let started = Instant::now();
-    let rays = reference_rays(&cameras[reference]);
-    let farthest = farthest_port(&rays, &names[reference])?;
-    let range = options
-        .depth_range
-        .unwrap_or_else(|| default_depth_range(farthest));
-    check_range(range, farthest, &names[reference])?;
-    seconds.add("rays", started);
+    Ok(names)
+}
 
-    // The check cameras: every other camera, the nearest first.
-    let mut others: Vec<usize> = (0..names.len()).filter(|&k| k != reference).collect();
-    let centre = cameras[reference].centre();
-    others.sort_by(|&a, &b| {
-        (cameras[a].centre() - centre)
-            .norm()
-            .total_cmp(&(cameras[b].centre() - centre).norm())
-    });
-    others.truncate(options.check_cameras.unwrap_or(usize::MAX));
-    let runs = 1 + others.len();
-
-    let main = depth_run(
-        &cameras,
-        images,
-        reference,
-        &rays,
-        range,
-        options,
-        (0, runs, &names[reference]),
-        progress,
-        backend,
-        &mut seconds,
-    )?;
-    let mut check_maps = Vec::with_capacity(others.len());
-    for (run, &c) in others.iter().enumerate() {
-        let started = Instant::now();
-        let rays_c = reference_rays(&cameras[c]);
-        seconds.add("rays", started);
-        let Some(range_c) = check_range_for(&rays, range, &cameras[c], &rays_c) else {
-            continue;
-        };
-        let map = depth_run(
-            &cameras,
-            images,
-            c,
-            &rays_c,
-            range_c,
-            options,
-            (run + 1, runs, &names[c]),
-            progress,
-            backend,
-            &mut seconds,
-        )?;
-        check_maps.push((c, map));
-    }
-
+/// Stages 9–11 after the depth maps: the consistency check, depth edges, the confidence.
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    cameras: &[RefractiveCamera],
+    reference: usize,
+    rays: &RayGrid,
+    main: &RawDepth,
+    check_maps: &[(usize, RawDepth)],
+    options: &StereoOptions,
+    sampling: Sampling,
+    runs: usize,
+    mut seconds: Timings,
+) -> Result<DepthMap, StereoError> {
     let started = Instant::now();
     let (w, h) = (rays.width, rays.height);
     let checks = if options.check_cameras == Some(0) {
@@ -552,8 +667,9 @@ pub fn stereo_on(
         points,
         confidence,
         valid,
-        depth_range: range,
-        hypotheses: options.hypotheses,
+        depth_range: sampling.depth_range,
+        hypotheses: sampling.hypotheses,
+        sampling,
         runs,
         stage_seconds: seconds.0,
     })
@@ -594,6 +710,7 @@ fn depth_run(
     reference: usize,
     rays: &RayGrid,
     (min_depth, max_depth): (f64, f64),
+    d: usize,
     options: &StereoOptions,
     (run, runs, name): (usize, usize, &str),
     progress: &(dyn Fn(&StereoProgress) + Sync),
@@ -601,7 +718,6 @@ fn depth_run(
     seconds: &mut Timings,
 ) -> Result<RawDepth, StereoError> {
     let (w, h) = (rays.width, rays.height);
-    let d = options.hypotheses;
     let q = inverse_depths(min_depth, max_depth, d);
     let step = (q[d - 1] - q[0]) / (d - 1) as f64;
     let scale = f64::from(COST_SCALE);
@@ -741,11 +857,10 @@ fn cpu_winners(
 
 fn check_options(o: &StereoOptions) -> Result<(), StereoError> {
     let bad = |option, reason: String| Err(StereoError::Option { option, reason });
-    if !(3..=1024).contains(&o.hypotheses) {
-        return bad(
-            "hypotheses",
-            format!("3 to 1024 hypotheses, got {}", o.hypotheses),
-        );
+    if let Some(d) = o.hypotheses
+        && !(3..=1024).contains(&d)
+    {
+        return bad("hypotheses", format!("3 to 1024 hypotheses, got {d}"));
     }
     if !(1..=15).contains(&o.window_radius) {
         return bad(

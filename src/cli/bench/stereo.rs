@@ -104,8 +104,11 @@ fn frame_figure(
     repeats: usize,
     label: &str,
 ) -> anyhow::Result<()> {
+    // The figure: 128 hypotheses, as given (not the step rule's count).
+    let hypotheses = 128;
     let options = StereoOptions {
         depth_range: Some((1.0, 2.2)),
+        hypotheses: Some(hypotheses),
         ..StereoOptions::default()
     };
     let intrinsics = &rig.cameras()[0].intrinsics;
@@ -129,12 +132,12 @@ fn frame_figure(
         .iter()
         .map(|(stage, seconds)| format!("{stage} {:.1} ms", seconds * 1e3))
         .collect();
-    let work = pixels * options.hypotheses as f64 * views * maps as f64;
+    let work = pixels * hypotheses as f64 * views * maps as f64;
     outln!(
         "stereo {}x{}x{} {:36} {:8.3} frames/s  {:8.1} M pixel·hypothesis·view/s  ({:.3} s a frame, {maps} depth maps: {})",
         intrinsics.width,
         intrinsics.height,
-        options.hypotheses,
+        hypotheses,
         format!("{}{label}", backend.describe()),
         1.0 / best,
         work / best / 1e6,
