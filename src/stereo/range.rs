@@ -65,7 +65,7 @@ pub const RULE_DEPTHS: usize = 33;
 /// where backscatter leaves no texture to match.
 pub const FAR_LIMIT_M: f64 = 20.0;
 /// Widest coarse image, pixels.
-pub const COARSE_MAX_WIDTH: u32 = 320;
+pub const COARSE_MAX_WIDTH: u32 = 160;
 /// Fraction of the confident coarse depths trimmed at each end (stray matches).
 pub const TRIM: f64 = 0.005;
 /// Padding of the found range in 1/z at each end, in coarse hypothesis steps.
@@ -527,8 +527,8 @@ mod tests {
         // Block (0, 0): pixels 0, 1, 5, 6.
         assert_eq!(small.pixels, vec![3.0, 5.0, 13.0, 15.0]);
         assert_eq!(downsample(&image, 1), image);
-        assert_eq!(coarse_factor(320), 1);
-        assert_eq!(coarse_factor(321), 2);
-        assert_eq!(coarse_factor(1280), 4);
+        assert_eq!(coarse_factor(160), 1);
+        assert_eq!(coarse_factor(161), 2);
+        assert_eq!(coarse_factor(1280), 8);
     }
 }
