@@ -378,3 +378,19 @@ fn cli_without_options_writes_the_chosen_sampling() {
         .unwrap();
     assert!(step <= STEP_PX && step > 0.5, "{step}");
 }
+
+/// The housings scene at 1280 × 1024 (f = 1000 px) with no options, timed: the step rule's count
+/// at the size of issue 39's scenes. `cargo test --release --test stereo_auto -- --ignored
+/// --nocapture full_size`.
+#[test]
+#[ignore]
+fn full_size_housings_with_no_options() {
+    accept(&Case {
+        name: "housings 1280 x 1024: plane and sphere",
+        rig: scaled(PORT_PER_CAMERA, 4),
+        scene: scene(vec![
+            plane_at(1.5, 0.35, noise(41, 0.03)),
+            sphere([0.1, 0.02, 1.1], 0.22, 42),
+        ]),
+    });
+}

@@ -176,7 +176,11 @@ frames are paired by sorted file name; PNG, JPEG or TIFF, 8 or 16 bit, grey or c
 input is checked before anything is written.
 
 Each reference pixel's water ray (exact back-projection through its port) carries N hypotheses
-uniform in 1/z between MIN and MAX (z in the reference camera's frame, default 0.3:3 m). Each
+uniform in 1/z between MIN and MAX (z in the reference camera's frame). Without --depth the range
+is found per frame by a coarse sweep (images at most 160 px wide, from where the cameras' views
+overlap out to 20 m): its confident depths' 0.5-99.5 % quantiles, padded. Without --hypotheses N
+is the step rule's: the fewest for which one step moves a hypothesis by at most 0.8 px in every
+voting camera over the whole range and image (16 to 512). Both are printed. Each
 hypothesis point is projected exactly into every other camera through that camera's own port
 (not rectified: refraction bends the epipolar lines into curves), the other images are sampled
 there and compared with the reference by windowed ZNCC, which a change of gain and offset between
@@ -191,15 +195,17 @@ Per frame, OUT/FRAME/ (FRAME = the reference image's file name without extension
   confidence.npy  float32 [H,W]: 0 to 1 (0 where none)
   cloud.ply       binary little-endian PLY: float x y z, uchar red green blue (the points only)
   depth.png       the depth, colour-mapped, with a colour bar
-and OUT/summary.json (per frame: valid fraction, seconds per stage, device, hypotheses).
+and OUT/summary.json (hypotheses, depth_range_m and how they were chosen; per frame: valid
+fraction, seconds per stage, device, hypotheses, depth range).
 
 Examples:
   flatport render --scene data/scenes/seabed.json --noise 2 -o seabed
+  flatport stereo --rig seabed/rig.json --images seabed --output seabed-stereo
   flatport stereo --rig seabed/rig.json --images seabed --output seabed-stereo --depth 0.8:2.5
   flatport stereo --rig rig.json --images shots --output out --reference right --hypotheses 96
 Timing a full-size pair (1280 x 1024, 128 hypotheses):
   flatport render --scene data/scenes/seabed.json --noise 2 -o big
-  time flatport stereo --rig big/rig.json --images big --output big-out --depth 0.8:2.5")]
+  time flatport stereo --rig big/rig.json --images big --output big-out --depth 0.8:2.5 --hypotheses 128")]
     Stereo(stereo::StereoArgs),
     /// Calibrate a rig: its ports (axis, air layer; layers and extrinsics when asked) from views of a target, or everything (lenses, extrinsics, ports) from images or videos of a board
     #[command(after_help = "\
