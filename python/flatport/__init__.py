@@ -671,15 +671,17 @@ def stereo(
     images: Sequence[Any],
     reference: CameraRef = None,
     depth: Optional[Tuple[float, float]] = None,
-    hypotheses: int = 128,
+    hypotheses: Optional[int] = None,
     window: int = 3,
     min_confidence: float = 0.25,
     device: str = "auto",
 ) -> StereoResult:
     """Dense refraction-exact stereo, as ``flatport stereo``: one image per rig camera in rig
     order (grey float 0 … 1, uint8 or uint16, or colour), the reference camera (default the
-    master), ``depth = (min, max)`` in metres (z in the reference camera's frame; default 0.3–3 m
-    moved beyond the port), hypotheses uniform in 1/z, (2·window + 1)² ZNCC windows. ``device``
+    master), ``depth = (min, max)`` in metres (z in the reference camera's frame; default: found
+    from the images by a coarse sweep), ``hypotheses`` uniform in 1/z (default: the step rule,
+    one step moves a hypothesis by at most 0.8 px in every voting camera; docs/stereo.md),
+    (2·window + 1)² ZNCC windows. ``device``
     ``"cpu"`` (f64), ``"gpu"`` (WGSL kernels, f32; the same depths within a fraction of a
     hypothesis step) or ``"auto"`` (a hardware GPU when there is one). The GPU's pipelines are
     kept between calls, so the frames of a sequence stream through.
@@ -695,6 +697,6 @@ def stereo(
     index = 0 if reference is None else rig._camera_index(reference, "reference")
     span = None if depth is None else (float(depth[0]), float(depth[1]))
     d, points, confidence, used = _flatport.stereo(
-        rig._rig, grey, index, span, int(hypotheses), int(window), float(min_confidence), device
+        rig._rig, grey, index, span, None if hypotheses is None else int(hypotheses), int(window), float(min_confidence), device
     )
     return StereoResult(d, points, confidence, used)

@@ -163,7 +163,7 @@ def stereo(
     images: Sequence[Any],
     reference: CameraRef = ...,
     depth: Optional[Tuple[float, float]] = ...,
-    hypotheses: int = ...,
+    hypotheses: Optional[int] = ...,
     window: int = ...,
     min_confidence: float = ...,
     device: str = ...,

@@ -830,7 +830,7 @@ fn stereo<'py>(
     images: Vec<PyReadonlyArray2<'py, f32>>,
     reference: usize,
     depth: Option<(f64, f64)>,
-    hypotheses: usize,
+    hypotheses: Option<usize>,
     window: usize,
     min_confidence: f64,
     device: &str,
@@ -850,7 +850,7 @@ fn stereo<'py>(
     let options = StereoOptions {
         reference,
         depth_range: depth,
-        hypotheses: Some(hypotheses),
+        hypotheses,
         window_radius: window,
         min_confidence,
         ..StereoOptions::default()
@@ -860,7 +860,7 @@ fn stereo<'py>(
         "gpu" | "auto" => match GPU_STEREO.get_or_init(|| flatport::stereo::gpu::GpuStereo::new(None).map_err(|e| e.to_string())) {
             Ok(gpu) => {
                 let i = &rig.rig.cameras()[reference.min(rig.rig.cameras().len() - 1)].intrinsics;
-                let fits = gpu.refuses(i.width as usize, i.height as usize, hypotheses, rig.rig.cameras().len().saturating_sub(1));
+                let fits = gpu.refuses(i.width as usize, i.height as usize, hypotheses.unwrap_or(flatport::stereo::range::MAX_HYPOTHESES), rig.rig.cameras().len().saturating_sub(1));
                 match (device, fits) {
                     ("gpu", Some(reason)) => return Err(runtime_error(reason)),
                     ("auto", Some(_)) => None,
