@@ -394,3 +394,54 @@ fn full_size_housings_with_no_options() {
         ]),
     });
 }
+
+/// The old defaults (128 hypotheses over 0.3 … 3 m) against no options (range found, the step
+/// rule), in turns, twice, on two 320 × 256 scenes: accuracy and seconds. `cargo test --release
+/// --test stereo_auto -- --ignored --nocapture old_defaults`.
+#[test]
+#[ignore]
+fn old_defaults_in_turns() {
+    let old = StereoOptions {
+        depth_range: Some((0.3, 3.0)),
+        hypotheses: Some(128),
+        ..StereoOptions::default()
+    };
+    for (name, rig, surfaces) in [
+        (
+            "shared port: seabed and a rock",
+            rig(SHARED_PORT_PAIR),
+            vec![seabed(1.6, 3), sphere([0.12, 0.05, 1.3], 0.15, 12)],
+        ),
+        (
+            "housings: plane and sphere",
+            rig(PORT_PER_CAMERA),
+            vec![
+                plane_at(1.5, 0.35, noise(41, 0.12)),
+                sphere([0.1, 0.02, 1.1], 0.22, 42),
+            ],
+        ),
+    ] {
+        let rendered = render_all(&rig, &scene(surfaces), 2.0);
+        let seen = seen_by_another(&rig, 0, &rendered);
+        for turn in 0..2 {
+            for (label, options) in [
+                ("old defaults", &old),
+                ("no options", &StereoOptions::default()),
+            ] {
+                let started = std::time::Instant::now();
+                let map = stereo(&rig, &rendered.images, options).unwrap();
+                let seconds = started.elapsed().as_secs_f64();
+                let a = accuracy(&map, &rendered.depths[0], &seen);
+                eprintln!(
+                    "{name}, turn {turn}, {label}: {} hypotheses over {:.3}:{:.3} m, {:.1} % with a point, median {:.3} %, {:.1} % within 2 %; {seconds:.2} s",
+                    map.hypotheses,
+                    map.depth_range.0,
+                    map.depth_range.1,
+                    100.0 * a.valid_fraction,
+                    100.0 * a.median,
+                    100.0 * a.within_2
+                );
+            }
+        }
+    }
+}
