@@ -46,6 +46,10 @@ fn options(range: (f64, f64)) -> StereoOptions {
         },
         occlusion_margin: env_f64("FP_MARGIN", d.occlusion_margin as f64) as usize,
         check_cameras: std::env::var("FP_CHECK").ok().and_then(|v| v.parse().ok()),
+        projection: match std::env::var("FP_PROJECTION").as_deref() {
+            Ok("exact") => flatport::stereo::Projection::Exact,
+            _ => d.projection,
+        },
     }
 }
 

@@ -26,6 +26,7 @@
 use rayon::prelude::*;
 
 use super::rays::{RayGrid, hypothesis_points};
+use super::table::{ProjectionTable, TableBand, project_tabulated};
 use crate::engine::cpu::lanes;
 use crate::model::RefractiveCamera;
 use crate::stereo::GreyImage;
@@ -325,7 +326,9 @@ pub fn combine_views(zncc: &[Vec<f32>], h: usize, depth_count: usize, volume: &m
 
 /// The cost volume (stages 2–5 for every hypothesis): `volume[(y·w + x)·D + h]` for the D
 /// inverse depths, in bands of [`BAND_ROWS`] rows in parallel, every hypothesis of a band in
-/// turn. `progress` is called once per band and hypothesis.
+/// turn. The projections are exact with `table` `None`, else tabulated through it
+/// ([`project_tabulated`]; the table of the reference camera whose rays `rays` are).
+/// `progress` is called once per band and hypothesis.
 #[allow(clippy::too_many_arguments)]
 pub fn cost_volume(
     rays: &RayGrid,
@@ -334,6 +337,7 @@ pub fn cost_volume(
     min_texture: f64,
     voters: &[Voter],
     inverse_depths: &[f64],
+    table: Option<&ProjectionTable>,
     progress: &(dyn Fn() + Sync),
 ) -> Vec<u16> {
     let (w, h) = (rays.width, rays.height);
@@ -363,18 +367,47 @@ pub fn cost_volume(
                     starts
                 })
                 .collect();
+            let mut bands: Vec<Option<TableBand>> = voters
+                .iter()
+                .map(|voter| {
+                    table.map(|table| {
+                        TableBand::new(table, rays, ext_first, ext_end - ext_first, &voter.camera)
+                    })
+                })
+                .collect();
             for (hypothesis, &q) in inverse_depths.iter().enumerate() {
                 if any_textured {
-                    for ((voter, zncc), starts) in voters.iter().zip(zncc.iter_mut()).zip(&starts) {
-                        let placeholder = voter.camera.centre().coords.into();
-                        hypothesis_points(rays, ext_first, q, placeholder, &mut points);
-                        project_hypotheses(
-                            &voter.camera,
-                            &points,
-                            starts,
-                            &mut pixels,
-                            &mut status,
-                        );
+                    for (((voter, zncc), starts), band) in voters
+                        .iter()
+                        .zip(zncc.iter_mut())
+                        .zip(&starts)
+                        .zip(bands.iter_mut())
+                    {
+                        match (table, band) {
+                            (Some(table), Some(band)) => {
+                                project_tabulated(
+                                    table,
+                                    band,
+                                    rays,
+                                    &voter.camera,
+                                    starts,
+                                    q,
+                                    &mut pixels,
+                                    &mut status,
+                                );
+                            }
+                            _ => {
+                                let placeholder = voter.camera.centre().coords.into();
+                                hypothesis_points(rays, ext_first, q, placeholder, &mut points);
+                                project_hypotheses(
+                                    &voter.camera,
+                                    &points,
+                                    starts,
+                                    &mut pixels,
+                                    &mut status,
+                                );
+                            }
+                        }
                         warp_bilinear(voter.image, &pixels, &status, &mut warped);
                         window_zncc(
                             reference,

@@ -69,8 +69,10 @@ pub mod range;
 pub mod rays;
 pub mod select;
 pub mod sgm;
+pub mod table;
 
 pub use image::GreyImage;
+pub use table::Projection;
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
@@ -133,6 +135,9 @@ pub struct StereoOptions {
     /// How many other cameras compute their depth maps for the consistency check (the nearest
     /// first; `None`: all). 0 turns the check off (every match is returned unchecked).
     pub check_cameras: Option<usize>,
+    /// How the CPU path projects the hypotheses into the voting cameras: tabulated (exact on a
+    /// grid of nodes, bilinear within 0.02 px in between) or exact at every pixel.
+    pub projection: Projection,
 }
 
 impl Default for StereoOptions {
@@ -157,6 +162,7 @@ impl Default for StereoOptions {
             edge_jump: Some(0.03),
             occlusion_margin: 3,
             check_cameras: None,
+            projection: Projection::Tabulated,
         }
     }
 }
@@ -824,6 +830,8 @@ fn cpu_winners(
             image: &images[k],
         })
         .collect();
+    let table = (options.projection == Projection::Tabulated)
+        .then(|| table::ProjectionTable::new(&cameras[reference], w, h));
     let total = h.div_ceil(cost::BAND_ROWS) * d;
     let done = AtomicUsize::new(0);
     let report = || {
@@ -843,6 +851,7 @@ fn cpu_winners(
         options.min_texture,
         &voters,
         q,
+        table.as_ref(),
         &report,
     );
     seconds.add("cost volume", started);

@@ -61,6 +61,19 @@ pub fn reference_rays(camera: &RefractiveCamera) -> RayGrid {
         camera.intrinsics().width as usize,
         camera.intrinsics().height as usize,
     );
+    rays_on_grid(camera, width, height, 1)
+}
+
+/// The water rays of the pixels (u, v) = (`step`·column, `step`·row) for `width` × `height` grid
+/// points, row-major (step 1: every pixel, [`reference_rays`]; the tabulated projection's nodes
+/// otherwise, which may lie past the image's last pixel). The same back-projection for every
+/// step: a node at a pixel has that pixel's ray, bit for bit.
+pub fn rays_on_grid(
+    camera: &RefractiveCamera,
+    width: usize,
+    height: usize,
+    step: usize,
+) -> RayGrid {
     let count = width * height;
     let mut rays = vec![[0.0; 6]; count];
     let mut status = vec![0u32; count];
@@ -73,7 +86,7 @@ pub fn reference_rays(camera: &RefractiveCamera) -> RayGrid {
             let pixels: Vec<[f64; 2]> = (0..rays.len())
                 .map(|j| {
                     let i = task * TASK_PIXELS + j;
-                    [(i % width) as f64, (i / width) as f64]
+                    [((i % width) * step) as f64, ((i / width) * step) as f64]
                 })
                 .collect();
             lanes::backproject(camera, &pixels, rays, status);
