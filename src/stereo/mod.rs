@@ -62,11 +62,15 @@
 pub mod check;
 pub mod cost;
 pub mod edges;
+#[cfg(feature = "images")]
+pub mod fuse;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 mod image;
 pub mod rays;
 pub mod select;
+#[cfg(feature = "images")]
+pub mod sequence;
 pub mod sgm;
 
 pub use image::GreyImage;
