@@ -908,8 +908,9 @@ impl StereoFrames {
 
     #[allow(clippy::type_complexity)] // the Python tuple
     fn __next__<'py>(&self, py: Python<'py>) -> PyResult<Option<(String, usize, Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>, String)>> {
-        let next = py.detach(|| self.frames.lock().map(|frames| frames.recv()));
-        let Ok(Ok(result)) = next else {
+        // None: the worker is done (every frame sent, or an error sent and it stopped).
+        let next = py.detach(|| self.frames.lock().ok().and_then(|frames| frames.recv().ok()));
+        let Some(result) = next else {
             return Ok(None);
         };
         let (name, index, map, device) = result.map_err(value_error)?;

@@ -1,4 +1,5 @@
-//! `flatport stereo`: dense depth maps and point clouds from a rig's synchronised images.
+//! `flatport stereo`: dense depth maps, point clouds and fused clouds from a rig's synchronised images
+//! or videos, over a sequence of frames (selected, resumed, sharded).
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
