@@ -222,7 +222,7 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
     // With --fuse every camera is the reference once, each with its range (its own default, or
     // --depth as z in its own frame): all checked before anything is read or written.
     let mut references = Vec::new();
-    for k in 0..names.len() {
+    for (k, name) in names.iter().enumerate() {
         if k != reference && !args.fuse {
             continue;
         }
@@ -231,7 +231,7 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
             ..options.clone()
         };
         let range = resolve_depth_range(&rig, &o)
-            .with_context(|| format!("--depth with camera '{}' as the reference", names[k]))?;
+            .with_context(|| format!("--depth with camera '{name}' as the reference"))?;
         references.push(StereoOptions {
             depth_range: Some(range),
             ..o
@@ -579,20 +579,6 @@ fn compute_frame(
     Ok(record)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn ranges_parse() {
-        assert_eq!(parse_range("0.5:3").unwrap(), (0.5, 3.0));
-        assert_eq!(parse_range("-1:2").unwrap(), (-1.0, 2.0));
-        assert!(parse_range("0.5").is_err());
-        assert!(parse_range("a:2").is_err());
-        assert!(parse_range("1:inf").is_err());
-    }
-}
-
 /// Fuses a frame's depth maps (one per camera) into `dir`/fused.ply; the number of points.
 fn fuse_frame(
     rig: &Rig,
@@ -640,4 +626,18 @@ fn fuse_frame(
         ],
     )?;
     Ok(points.len())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranges_parse() {
+        assert_eq!(parse_range("0.5:3").unwrap(), (0.5, 3.0));
+        assert_eq!(parse_range("-1:2").unwrap(), (-1.0, 2.0));
+        assert!(parse_range("0.5").is_err());
+        assert!(parse_range("a:2").is_err());
+        assert!(parse_range("1:inf").is_err());
+    }
 }

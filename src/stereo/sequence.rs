@@ -272,7 +272,8 @@ impl Sequence {
     pub fn reader(&self, wanted: &[usize]) -> SequenceReader<'_> {
         SequenceReader {
             sequence: self,
-            wanted: wanted.to_vec().into_iter(),
+            wanted: wanted.to_vec(),
+            next: 0,
             last: wanted.iter().copied().max(),
             videos: self.cameras.iter().map(|_| None).collect(),
             failed: false,
@@ -283,7 +284,9 @@ impl Sequence {
 /// The frames of [`Sequence::reader`]; after an error it ends.
 pub struct SequenceReader<'a> {
     sequence: &'a Sequence,
-    wanted: std::vec::IntoIter<usize>,
+    wanted: Vec<usize>,
+    /// The place in `wanted` of the next frame.
+    next: usize,
     last: Option<usize>,
     /// Each video camera's decoder, started at its first frame.
     videos: Vec<Option<Frames<'a, Rgb<u8>>>>,
@@ -335,12 +338,13 @@ impl Iterator for SequenceReader<'_> {
         if self.failed {
             return None;
         }
-        let index = self.wanted.next()?;
+        let index = *self.wanted.get(self.next)?;
+        self.next += 1;
         let frame = self.read(index);
         if frame.is_err() {
             self.failed = true;
         }
-        if frame.is_err() || self.wanted.len() == 0 {
+        if frame.is_err() || self.next == self.wanted.len() {
             // Stop the decoders now rather than when the reader is dropped.
             self.videos.iter_mut().for_each(|v| *v = None);
         }
