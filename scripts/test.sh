@@ -63,6 +63,8 @@ CARGO_TARGET_DIR="$PWD/target" FLATPORT_VENV="$venv" VIRTUAL_ENV= scripts/instal
 # the second line is the rest of what `import aquacal` needs. About 30 s on a fresh environment.
 "$venv/bin/python" -m pip install -q --no-deps aquacal==2.1.0
 "$venv/bin/python" -m pip install -q scipy natsort pyyaml pandas matplotlib tqdm requests
+# plyfile reads the fused clouds of `stereo --fuse` back (python/tests/test_stereo.py).
+"$venv/bin/python" -m pip install -q plyfile
 FLATPORT_BIN="$PWD/target/release/flatport" "$venv/bin/python" -m pytest python/tests -q
 
 # The commands of README.md and docs/*.md, run as written (shell and Python blocks; docs/testing.md).

@@ -148,15 +148,22 @@ fn the_readme_links_every_guide() {
 }
 
 #[test]
-fn the_job_files_of_the_sweeps_guide_are_well_formed() {
+fn the_job_files_of_the_guides_are_well_formed() {
     // The YAML is parsed (it cannot be run here); the SLURM files run one task in check-docs.
-    let yaml = read(&root().join("docs/jobs/sweep-job.yaml"));
-    for event in saphyr_parser::Parser::new_from_str(&yaml) {
-        if let Err(error) = event {
-            panic!("docs/jobs/sweep-job.yaml: {error}");
+    for file in ["docs/jobs/sweep-job.yaml", "docs/jobs/stereo-job.yaml"] {
+        let yaml = read(&root().join(file));
+        for event in saphyr_parser::Parser::new_from_str(&yaml) {
+            if let Err(error) = event {
+                panic!("{file}: {error}");
+            }
         }
     }
-    for file in ["docs/jobs/sweep.sbatch", "docs/jobs/merge.sbatch"] {
+    for file in [
+        "docs/jobs/sweep.sbatch",
+        "docs/jobs/merge.sbatch",
+        "docs/jobs/stereo.sbatch",
+        "docs/jobs/stereo-merge.sbatch",
+    ] {
         let text = read(&root().join(file));
         // sbatch reads #SBATCH lines only before the first command.
         let first_command = text

@@ -562,7 +562,7 @@ fn cli_bad_input_names_the_problem_and_writes_nothing() {
     std::fs::remove_file(images.join("right/frame_000.png")).unwrap();
     let error = stereo_into(&images, &["--depth", "0.8:2.5"]);
     assert!(
-        error.contains("frames do not match") && error.contains("'right' has 1"),
+        error.contains("frames do not match") && error.contains("left 2, right 1"),
         "{error}"
     );
     // ... or the same count under other names.
@@ -584,6 +584,15 @@ fn cli_bad_input_names_the_problem_and_writes_nothing() {
     let error = stereo_into(&images, &["--depth", "0.8:2.5"]);
     assert!(
         error.contains("right/frame_001.png")
+            && error.contains("100x128")
+            && error.contains("160x128"),
+        "{error}"
+    );
+    // ... or every image of a camera at a size the rig does not give it.
+    small.save(images.join("right/frame_000.png")).unwrap();
+    let error = stereo_into(&images, &["--depth", "0.8:2.5"]);
+    assert!(
+        error.contains("camera 'right'")
             && error.contains("100 × 128")
             && error.contains("160 × 128"),
         "{error}"

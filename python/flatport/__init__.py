@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Any, Iterable, NamedTuple, Optional, Sequence, Tuple, Union
+from typing import Any, Iterable, Iterator, NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -41,6 +41,8 @@ __all__ = [
     "sweep",
     "SweepResult",
     "stereo",
+    "stereo_frames",
+    "StereoFrame",
     "StereoResult",
     "STATUS",
     "gpu",
@@ -700,3 +702,62 @@ def stereo(
         rig._rig, grey, index, span, None if hypotheses is None else int(hypotheses), int(window), float(min_confidence), device
     )
     return StereoResult(d, points, confidence, used)
+
+
+class StereoFrame(NamedTuple):
+    """One frame of :func:`stereo_frames`: ``name`` (the output folder ``flatport stereo`` gives it:
+    the reference image's file name without extension, or ``frame_NNNNNN`` for a video),
+    ``index`` (0-based, in the sequence), then ``depth``, ``points``, ``confidence`` and ``device``
+    as in :class:`StereoResult`."""
+
+    name: str
+    index: int
+    depth: np.ndarray
+    points: np.ndarray
+    confidence: np.ndarray
+    device: str
+
+
+def stereo_frames(
+    rig: Rig,
+    images: Union[str, "os.PathLike[str]"],
+    frames: Union[str, slice, None] = None,
+    reference: CameraRef = None,
+    depth: Optional[Tuple[float, float]] = None,
+    hypotheses: Optional[int] = None,
+    window: int = 3,
+    min_confidence: float = 0.25,
+    device: str = "auto",
+) -> Iterator[StereoFrame]:
+    """Dense stereo over a sequence, as ``flatport stereo --images DIR --frames FRAMES``: ``images``
+    is a folder with one sub-folder per rig camera holding its images (frames paired by sorted
+    file name) or one video (MP4/MOV/AVI/MKV, frames paired by index, decoded by the ``ffmpeg``
+    tool). ``frames`` selects frames as ``"START:STOP:STEP"`` or a ``slice`` (default every frame).
+    The other arguments are those of :func:`stereo`. The folder, the selection and the options are
+    checked at once (``ValueError``); the frames are computed as the iterator is advanced, the next
+    one while the caller works on the last.
+
+    >>> for frame in flatport.stereo_frames(rig, "footage", frames="0:100:10"):   # doctest: +SKIP
+    ...     np.save(f"{frame.name}.npy", frame.depth)
+    """
+    if not isinstance(rig, Rig):
+        raise TypeError(f"rig must be a flatport.Rig, got {type(rig).__name__}")
+    if device not in _DEVICES:
+        raise ValueError(f"device must be one of {_DEVICES}, got {device!r}")
+    if frames is None:
+        text = ":"
+    elif isinstance(frames, slice):
+        parts = [frames.start, frames.stop, frames.step]
+        if any(p is not None and (not isinstance(p, int) or p < 0) for p in parts):
+            raise ValueError(f"frames must be a slice of non-negative integers, got {frames!r}")
+        text = ":".join("" if p is None else str(p) for p in parts)
+    elif isinstance(frames, str):
+        text = frames
+    else:
+        raise TypeError(f"frames must be 'START:STOP:STEP', a slice or None, got {type(frames).__name__}")
+    index = 0 if reference is None else rig._camera_index(reference, "reference")
+    span = None if depth is None else (float(depth[0]), float(depth[1]))
+    inner = _flatport.stereo_frames(
+        rig._rig, os.fspath(images), text, index, span, None if hypotheses is None else int(hypotheses), int(window), float(min_confidence), device
+    )
+    return (StereoFrame(*item) for item in inner)

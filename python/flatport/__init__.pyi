@@ -1,7 +1,7 @@
 """Type stubs of the flatport package (see __init__.py for the documentation)."""
 
 import os
-from typing import Any, Iterable, NamedTuple, Optional, Sequence, Tuple, Union, overload
+from typing import Any, Iterable, Iterator, NamedTuple, Optional, Sequence, Tuple, Union, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -157,6 +157,26 @@ class StereoResult(NamedTuple):
     points: np.ndarray
     confidence: np.ndarray
     device: str
+
+class StereoFrame(NamedTuple):
+    name: str
+    index: int
+    depth: np.ndarray
+    points: np.ndarray
+    confidence: np.ndarray
+    device: str
+
+def stereo_frames(
+    rig: Rig,
+    images: Union[str, os.PathLike[str]],
+    frames: Union[str, slice, None] = ...,
+    reference: CameraRef = ...,
+    depth: Optional[Tuple[float, float]] = ...,
+    hypotheses: Optional[int] = ...,
+    window: int = ...,
+    min_confidence: float = ...,
+    device: str = ...,
+) -> Iterator[StereoFrame]: ...
 
 def stereo(
     rig: Rig,

@@ -855,12 +855,26 @@ fn stereo<'py>(
         min_confidence,
         ..StereoOptions::default()
     };
-    let gpu = match device {
+    let gpu = stereo_gpu(&rig.rig, reference, hypotheses, device)?;
+    let backend = gpu.map_or(StereoBackend::Cpu, StereoBackend::Gpu);
+    let described = backend.describe();
+    let map = py.detach(|| stereo_on(&rig.rig, &grey, &options, backend, &|_| {})).map_err(value_error)?;
+    let (h, w) = (map.height, map.width);
+    let depth = PyArray1::from_vec(py, map.depth).reshape([h, w])?.into_any();
+    let points = PyArray1::from_vec(py, map.points.into_flattened()).reshape([h, w, 3])?.into_any();
+    let confidence = PyArray1::from_vec(py, map.confidence).reshape([h, w])?.into_any();
+    Ok((depth, points, confidence, described))
+}
+
+/// The GPU stereo for `device` ("cpu": none; "gpu": the GPU or an error; "auto": a hardware GPU
+/// whose storage binding holds the cost volume of `hypotheses`, else none).
+fn stereo_gpu(rig: &Rig, reference: usize, hypotheses: Option<usize>, device: &str) -> PyResult<Option<&'static flatport::stereo::gpu::GpuStereo>> {
+    Ok(match device {
         "cpu" => None,
         "gpu" | "auto" => match GPU_STEREO.get_or_init(|| flatport::stereo::gpu::GpuStereo::new(None).map_err(|e| e.to_string())) {
             Ok(gpu) => {
-                let i = &rig.rig.cameras()[reference.min(rig.rig.cameras().len() - 1)].intrinsics;
-                let fits = gpu.refuses(i.width as usize, i.height as usize, hypotheses.unwrap_or(flatport::stereo::range::MAX_HYPOTHESES), rig.rig.cameras().len().saturating_sub(1));
+                let i = &rig.cameras()[reference.min(rig.cameras().len() - 1)].intrinsics;
+                let fits = gpu.refuses(i.width as usize, i.height as usize, hypotheses.unwrap_or(flatport::stereo::range::MAX_HYPOTHESES), rig.cameras().len().saturating_sub(1));
                 match (device, fits) {
                     ("gpu", Some(reason)) => return Err(runtime_error(reason)),
                     ("auto", Some(_)) => None,
@@ -872,20 +886,101 @@ fn stereo<'py>(
             Err(_) => None,
         },
         other => return Err(value_error(format!("device must be 'cpu', 'gpu' or 'auto', got {other:?}"))),
+    })
+}
+
+/// One frame's depths from [`StereoFrames`]: (frame name, index, depth map, device) or why not.
+type FrameResult = Result<(String, usize, flatport::stereo::DepthMap, String), String>;
+
+/// The frames of a sequence, computed one ahead by a worker thread while Python uses the last
+/// one: iterating yields (name, index, depth (H, W), points (H, W, 3), confidence (H, W),
+/// device). Dropping the iterator stops the worker after the frame it is on.
+#[pyclass]
+struct StereoFrames {
+    frames: Mutex<std::sync::mpsc::Receiver<FrameResult>>,
+}
+
+#[pymethods]
+impl StereoFrames {
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    #[allow(clippy::type_complexity)] // the Python tuple
+    fn __next__<'py>(&self, py: Python<'py>) -> PyResult<Option<(String, usize, Bound<'py, PyAny>, Bound<'py, PyAny>, Bound<'py, PyAny>, String)>> {
+        // None: the worker is done (every frame sent, or an error sent and it stopped).
+        let next = py.detach(|| self.frames.lock().ok().and_then(|frames| frames.recv().ok()));
+        let Some(result) = next else {
+            return Ok(None);
+        };
+        let (name, index, map, device) = result.map_err(value_error)?;
+        let (h, w) = (map.height, map.width);
+        let depth = PyArray1::from_vec(py, map.depth).reshape([h, w])?.into_any();
+        let points = PyArray1::from_vec(py, map.points.into_flattened()).reshape([h, w, 3])?.into_any();
+        let confidence = PyArray1::from_vec(py, map.confidence).reshape([h, w])?.into_any();
+        Ok(Some((name, index, depth, points, confidence, device)))
+    }
+}
+
+/// Dense stereo as `flatport stereo --images DIR --frames FRAMES` over a sequence (a folder per
+/// rig camera of images or one video): an iterator of the frames' depths. The sequence, the
+/// selection and the options are checked here, before any frame is computed.
+#[pyfunction]
+#[pyo3(signature = (rig, images, frames, reference, depth, hypotheses, window, min_confidence, device))]
+#[allow(clippy::too_many_arguments)] // the Python signature
+fn stereo_frames(
+    rig: &PyRig,
+    images: PathBuf,
+    frames: &str,
+    reference: usize,
+    depth: Option<(f64, f64)>,
+    hypotheses: Option<usize>,
+    window: usize,
+    min_confidence: f64,
+    device: &str,
+) -> PyResult<StereoFrames> {
+    use flatport::stereo::sequence::Sequence;
+    use flatport::stereo::{Backend as StereoBackend, StereoOptions, resolve_depth_range, stereo_on};
+    let options = StereoOptions {
+        reference,
+        depth_range: depth,
+        hypotheses,
+        window_radius: window,
+        min_confidence,
+        ..StereoOptions::default()
     };
-    let backend = gpu.map_or(StereoBackend::Cpu, StereoBackend::Gpu);
-    let described = backend.describe();
-    let map = py.detach(|| stereo_on(&rig.rig, &grey, &options, backend, &|_| {})).map_err(value_error)?;
-    let (h, w) = (map.height, map.width);
-    let depth = PyArray1::from_vec(py, map.depth).reshape([h, w])?.into_any();
-    let points = PyArray1::from_vec(py, map.points.into_flattened()).reshape([h, w, 3])?.into_any();
-    let confidence = PyArray1::from_vec(py, map.confidence).reshape([h, w])?.into_any();
-    Ok((depth, points, confidence, described))
+    // Checked here; a range not given is found per frame, from that frame's images.
+    resolve_depth_range(&rig.rig, &options).map_err(value_error)?;
+    let selection: flatport::io::frames::FrameSelection = frames.parse().map_err(value_error)?;
+    let sequence = Sequence::open(&rig.rig, &images).map_err(value_error)?;
+    let wanted = sequence.select(&selection).map_err(value_error)?;
+    let gpu = stereo_gpu(&rig.rig, reference, hypotheses, device)?;
+    let rig = Arc::clone(&rig.rig);
+    // One frame ahead: the worker computes the next frame while Python holds this one.
+    let (sender, receiver) = std::sync::mpsc::sync_channel::<FrameResult>(1);
+    std::thread::spawn(move || {
+        let backend = gpu.map_or(StereoBackend::Cpu, StereoBackend::Gpu);
+        let described = backend.describe();
+        for frame in sequence.reader(&wanted) {
+            let result = frame.map_err(|e| e.to_string()).and_then(|frame| {
+                let images: Vec<_> = frame.images.into_iter().map(|c| c.grey).collect();
+                let map = stereo_on(&rig, &images, &options, backend, &|_| {}).map_err(|e| e.to_string())?;
+                Ok((sequence.frame_name(reference, frame.index), frame.index, map, described.clone()))
+            });
+            let failed = result.is_err();
+            if sender.send(result).is_err() || failed {
+                break;
+            }
+        }
+    });
+    Ok(StereoFrames { frames: Mutex::new(receiver) })
 }
 
 #[pymodule]
 fn _flatport(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(stereo, m)?)?;
+    m.add_function(wrap_pyfunction!(stereo_frames, m)?)?;
+    m.add_class::<StereoFrames>()?;
     m.add_class::<PyRig>()?;
     m.add_class::<PyDeviceArray>()?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;

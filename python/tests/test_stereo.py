@@ -3,6 +3,7 @@ renderer's exact depth maps (an independent oracle), the output shapes, bad inpu
 the GPU (lavapipe without one) against the CPU. Needs the CLI ($FLATPORT_BIN, as scripts/test.sh
 sets it)."""
 
+import json
 import os
 import struct
 import subprocess
@@ -111,3 +112,64 @@ def test_gpu_agrees_with_the_cpu(pair):
     step = (1 / 1.0 - 1 / 2.2) / 31
     steps = np.abs(1 / cpu.depth[both] - 1 / gpu.depth[both]) / step
     assert (steps <= 0.25).mean() >= 0.99
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    """Two frames of the water-surface scene at the small rig's size, rendered by the CLI."""
+    folder = tmp_path_factory.mktemp("surface")
+    subprocess.run(
+        [BIN, "render", "--scene", str(ROOT / "data/scenes/water_surface.json"), "--rig",
+         str(ROOT / "data/rigs/small_stereo.json"), "--noise", "2", "--device", "cpu", "--quiet",
+         "-o", str(folder)],
+        check=True,
+    )
+    return flatport.load_rig(str(folder / "rig.json")), folder
+
+
+def test_frames_of_a_sequence_are_what_stereo_gives_each_frame(sequence):
+    rig, folder = sequence
+    options = dict(depth=(1.0, 2.0), hypotheses=32, device="cpu")
+    frames = list(flatport.stereo_frames(rig, folder, frames="1:", **options))
+    assert [(f.name, f.index) for f in frames] == [("frame_001", 1)]
+    images = [read_grey_png(folder / c / "frame_001.png") for c in ("left", "right")]
+    alone = flatport.stereo(rig, images, **options)
+    assert np.array_equal(frames[0].depth, alone.depth, equal_nan=True)
+    assert np.array_equal(frames[0].points, alone.points, equal_nan=True)
+    assert np.array_equal(frames[0].confidence, alone.confidence)
+    every = [f.name for f in flatport.stereo_frames(rig, str(folder), frames=slice(None, None, 1), **options)]
+    assert every == ["frame_000", "frame_001"]
+
+
+def test_a_bad_sequence_is_refused_before_any_frame(sequence, tmp_path):
+    rig, folder = sequence
+    with pytest.raises(ValueError, match="has 2 frames"):
+        flatport.stereo_frames(rig, folder, frames="5:")
+    with pytest.raises(ValueError, match="missing"):
+        flatport.stereo_frames(rig, tmp_path)
+    with pytest.raises(ValueError, match="frames"):
+        flatport.stereo_frames(rig, folder, frames=slice(-1, None))
+
+
+def test_a_fused_cloud_reads_in_plyfile(sequence, tmp_path):
+    """The CLI's --fuse cloud, read by plyfile (a maintained reader outside the crate)."""
+    plyfile = pytest.importorskip("plyfile", reason="pip install plyfile to read the PLY back")
+    rig, folder = sequence
+    out = tmp_path / "fused"
+    subprocess.run(
+        [BIN, "stereo", "--rig", str(folder / "rig.json"), "--images", str(folder), "--output",
+         str(out), "--depth", "1.0:2.0", "--hypotheses", "32", "--device", "cpu", "--frames", "0",
+         "--fuse", "--quiet"],
+        check=True,
+    )
+    vertex = plyfile.PlyData.read(str(out / "frame_000" / "fused.ply"))["vertex"]
+    assert [p.name for p in vertex.properties] == ["x", "y", "z", "nx", "ny", "nz", "red", "green", "blue"]
+    record = json.loads((out / "frame_000" / "frame.json").read_text())
+    assert len(vertex.data) == record["fused_points"] > 1000
+    xyz = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1)
+    normals = np.stack([vertex["nx"], vertex["ny"], vertex["nz"]], axis=1)
+    assert np.isfinite(xyz).all() and np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-5)
+    # The seabed lies 1.44–1.56 m deep, the sphere from 1.18 m: the points lie between.
+    assert 1.1 < xyz[:, 2].min() and xyz[:, 2].max() < 1.7
+    # Facing the cameras (above the scene, looking down +z): normals point up, −z, mostly.
+    assert (normals[:, 2] < 0).mean() > 0.95

@@ -171,9 +171,10 @@ Examples:
     Render(render::RenderArgs),
     /// Dense refraction-exact multi-view stereo: depth maps, points and point clouds from a rig's images
     #[command(after_help = "\
-DIR holds one folder per rig camera, named as in the rig (the layout `flatport render` writes);
-frames are paired by sorted file name; PNG, JPEG or TIFF, 8 or 16 bit, grey or colour. Every
-input is checked before anything is written.
+DIR holds one folder per rig camera, named as in the rig (the layout `flatport render` writes),
+with its images (PNG, JPEG or TIFF, 8 or 16 bit, grey or colour; frames paired by sorted file
+name) or one video (MP4, MOV, AVI, MKV, decoded by the ffmpeg tool; frames paired by index).
+Every input is checked before anything is written.
 
 Each reference pixel's water ray (exact back-projection through its port) carries N hypotheses
 uniform in 1/z between MIN and MAX (z in the reference camera's frame). Without --depth the range
@@ -189,20 +190,29 @@ semi-global matching (8 paths) aggregates, the best hypothesis is refined by a p
 and every other camera's own depth map must agree within 1 px (left-right consistency).
 Untextured, occluded, inconsistent or unconfident pixels are NaN, never guesses.
 
-Per frame, OUT/FRAME/ (FRAME = the reference image's file name without extension):
+Per frame, OUT/FRAME/ (FRAME = the reference image's file name without extension, or
+frame_NNNNNN, the index, for a video):
   points.npy      float32 [H,W,3]: each reference pixel's surface point, rig master frame, NaN where none
   depth.npy       float32 [H,W]: z in the reference camera's frame, metres, NaN where none
   confidence.npy  float32 [H,W]: 0 to 1 (0 where none)
   cloud.ply       binary little-endian PLY: float x y z, uchar red green blue (the points only)
   depth.png       the depth, colour-mapped, with a colour bar
+  fused.ply       with --fuse: every camera's depth map fused (float x y z nx ny nz, uchar red
+                  green blue): points confirmed by another camera, merged, with normals
+  frame.json      the frame's summary entry, settings and file sizes (written last: --resume
+                  skips a frame whose files are all there and whole)
 and OUT/summary.json (hypotheses, depth_range_m and how they were chosen; per frame: valid
-fraction, seconds per stage, device, hypotheses, depth range).
+fraction, seconds per stage, device, hypotheses, depth range), or a shard's
+OUT/summary-shard-I-of-N.json; after the shards, the same command with --resume and no --shard
+computes nothing again and writes summary.json.
 
 Examples:
   flatport render --scene data/scenes/seabed.json --noise 2 -o seabed
   flatport stereo --rig seabed/rig.json --images seabed --output seabed-stereo
   flatport stereo --rig seabed/rig.json --images seabed --output seabed-stereo --depth 0.8:2.5
   flatport stereo --rig rig.json --images shots --output out --reference right --hypotheses 96
+  flatport stereo --rig rig.json --images videos --output out --frames 0:3000:10 --resume
+  flatport stereo --rig rig.json --images videos --output out --shard 3/8 --resume --fuse
 Timing a full-size pair (1280 x 1024, 128 hypotheses):
   flatport render --scene data/scenes/seabed.json --noise 2 -o big
   time flatport stereo --rig big/rig.json --images big --output big-out --depth 0.8:2.5 --hypotheses 128")]

@@ -1,4 +1,5 @@
-//! `flatport stereo`: dense depth maps and point clouds from a rig's synchronised images.
+//! `flatport stereo`: dense depth maps, point clouds and fused clouds from a rig's synchronised images
+//! or videos, over a sequence of frames (selected, resumed, sharded).
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -8,17 +9,25 @@ use anyhow::{Context, bail};
 use clap::Args;
 use serde_json::json;
 
+use flatport::calib::sweep::Shard;
+use flatport::io::frames::FrameSelection;
 use flatport::io::read_rig;
 use flatport::io::stereo_files::{
-    CloudPoint, read_colour_image, read_grey_f32, write_depth_png, write_npy_f32,
+    CloudPoint, OrientedCloudPoint, write_depth_png, write_npy_f32, write_oriented_point_cloud_ply,
     write_point_cloud_ply,
 };
+use flatport::io::sweep_shard::sha256_file;
 use flatport::io::write_atomic;
 use flatport::model::Rig;
 use flatport::render::GreyImage;
+use flatport::stereo::fuse::{FuseOptions, FuseView, fuse};
 use flatport::stereo::gpu::GpuStereo;
 use flatport::stereo::range::{CountChoice, MAX_HYPOTHESES, RangeChoice, Sampling};
-use flatport::stereo::{Backend, StereoOptions, choose_sampling, resolve_depth_range, stereo_on};
+use flatport::stereo::sequence::{Sequence, SequenceFrame};
+use flatport::stereo::{
+    Backend, DepthMap, StereoOptions, StereoProgress, choose_sampling, resolve_depth_range,
+    stereo_on,
+};
 
 use super::Device;
 use super::progress::Progress;
@@ -29,20 +38,43 @@ pub struct StereoArgs {
     /// Rig file: the cameras and their port(s)
     #[arg(long, value_name = "RIG.json")]
     rig: PathBuf,
-    /// Folder with one sub-folder of images per rig camera, named as in the rig (the layout
-    /// `flatport render` writes); frames are matched by sorted file name
+    /// Folder with one sub-folder per rig camera, named as in the rig, holding its images (PNG,
+    /// JPEG, TIFF; frames paired by sorted file name, the layout `flatport render` writes) or one
+    /// video (MP4, MOV, AVI, MKV; frames paired by index, decoded by the ffmpeg tool)
     #[arg(long, value_name = "DIR")]
     images: PathBuf,
-    /// Output folder: FRAME/{points,depth,confidence}.npy, FRAME/cloud.ply, FRAME/depth.png per
-    /// frame, and summary.json
+    /// Which frames: START:STOP:STEP as Python slices (0-based; each part optional: 0:300:10,
+    /// ::5, 40:, or one frame N)
+    #[arg(long, value_name = "START:STOP:STEP", default_value = ":", value_parser = parse_frames)]
+    frames: FrameSelection,
+    /// Skip the frames whose outputs are complete in the output folder (FRAME/frame.json written
+    /// with the same rig file and settings, every file it lists there with its size); the
+    /// others are computed, and summary.json covers them all
+    #[arg(long)]
+    resume: bool,
+    /// Compute slice INDEX of COUNT (0-based: 0/4 … 3/4) of the selected frames: contiguous
+    /// blocks, frames ⌊I·n/N⌋ up to ⌊(I+1)·n/N⌋ of the n selected, the summary in
+    /// summary-shard-I-of-N.json; afterwards the same command with --resume and no --shard
+    /// writes summary.json for all of them without computing any again
+    #[arg(long, value_name = "INDEX/COUNT", value_parser = Shard::parse)]
+    shard: Option<Shard>,
+    /// Also fuse each frame's depth maps into FRAME/fused.ply: every camera is the reference in
+    /// turn, a point is kept where another camera's map confirms it, points closer than a pixel's
+    /// footprint are merged, with normals (toward the camera that saw them) and colours. Costs one
+    /// stereo run per camera
+    #[arg(long)]
+    fuse: bool,
+    /// Output folder: per frame FRAME/{points,depth,confidence}.npy, cloud.ply, depth.png,
+    /// frame.json (and fused.ply with --fuse); summary.json (a shard's: summary-shard-I-of-N.json)
     #[arg(long, short, value_name = "DIR")]
     output: PathBuf,
     /// The reference camera (name or index; default: the master, the rig's first camera)
     #[arg(long, value_name = "CAMERA")]
     reference: Option<String>,
     /// Range of depth z in the reference camera's frame, metres (default: found per frame by a
-    /// coarse sweep of the images at most 320 px wide from the port out to 20 m: the range of
-    /// its confident depths, padded; 0.3:3 with a warning where it finds none)
+    /// coarse sweep of the images at most 160 px wide from where the cameras' views overlap out
+    /// to 20 m: the range of its confident depths, padded; 0.3:3 with a warning where it finds
+    /// none)
     #[arg(long, value_name = "MIN:MAX", value_parser = parse_range, allow_hyphen_values = true)]
     depth: Option<(f64, f64)>,
     /// Depth hypotheses per pixel, uniform in 1/z (default: the step rule, the fewest for which
@@ -71,6 +103,12 @@ pub struct StereoArgs {
     quiet: bool,
 }
 
+/// `START:STOP:STEP` ([`FrameSelection`]).
+fn parse_frames(text: &str) -> Result<FrameSelection, String> {
+    text.parse()
+        .map_err(|e: flatport::io::frames::FrameSelectionError| e.to_string())
+}
+
 /// `MIN:MAX`, two finite numbers.
 fn parse_range(text: &str) -> Result<(f64, f64), String> {
     let parts: Vec<&str> = text.split(':').collect();
@@ -87,80 +125,6 @@ fn parse_range(text: &str) -> Result<(f64, f64), String> {
             .ok_or_else(|| format!("'{t}' is not a finite number (in '{text}')"))
     };
     Ok((number(a)?, number(b)?))
-}
-
-/// File name extensions read as images.
-const IMAGE_EXTENSIONS: [&str; 5] = ["png", "jpg", "jpeg", "tif", "tiff"];
-
-/// Each camera's image files (rig order), sorted by file name, with the frames checked to match:
-/// the same count everywhere, and a file name that two cameras share at the same place in both.
-pub fn list_frames(rig: &Rig, dir: &Path) -> anyhow::Result<Vec<Vec<PathBuf>>> {
-    if !dir.is_dir() {
-        bail!(
-            "{}: not a folder (--images takes a folder with one sub-folder per rig camera)",
-            dir.display()
-        );
-    }
-    let mut cameras = Vec::new();
-    for camera in rig.cameras() {
-        let folder = dir.join(&camera.name);
-        if !folder.is_dir() {
-            bail!(
-                "{}: missing: the folder of camera '{}' (--images needs one sub-folder per rig camera, named as in the rig)",
-                folder.display(),
-                camera.name
-            );
-        }
-        let mut files: Vec<PathBuf> = std::fs::read_dir(&folder)
-            .with_context(|| format!("{}: cannot list the folder", folder.display()))?
-            .filter_map(|entry| entry.ok().map(|e| e.path()))
-            .filter(|p| {
-                p.is_file()
-                    && p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
-                        IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str())
-                    })
-            })
-            .collect();
-        files.sort_by(|a, b| a.file_name().cmp(&b.file_name()));
-        if files.is_empty() {
-            bail!(
-                "{}: no image (PNG, JPEG or TIFF) of camera '{}'",
-                folder.display(),
-                camera.name
-            );
-        }
-        cameras.push(files);
-    }
-    let first = &rig.cameras()[0].name;
-    for (k, files) in cameras.iter().enumerate().skip(1) {
-        let name = &rig.cameras()[k].name;
-        if files.len() != cameras[0].len() {
-            bail!(
-                "frames do not match: camera '{first}' has {} images and camera '{name}' has {} (frames are paired by sorted file name, so every camera needs one image per frame)",
-                cameras[0].len(),
-                files.len()
-            );
-        }
-        let positions: HashMap<_, usize> = cameras[0]
-            .iter()
-            .enumerate()
-            .map(|(i, p)| (p.file_stem().map(|s| s.to_os_string()), i))
-            .collect();
-        for (i, file) in files.iter().enumerate() {
-            if let Some(&j) = positions.get(&file.file_stem().map(|s| s.to_os_string()))
-                && j != i
-            {
-                bail!(
-                    "frames do not match: {} is frame {} of camera '{name}' but {} is frame {} of camera '{first}' (an image missing in one camera?)",
-                    file.display(),
-                    i,
-                    cameras[0][j].display(),
-                    j
-                );
-            }
-        }
-    }
-    Ok(cameras)
 }
 
 /// The GPU stereo (opened once: every frame reuses its pipelines and buffers) or `None` for the
@@ -227,19 +191,30 @@ fn choose_device(
     }
 }
 
+/// The files of every frame, in the order they are written; [`FRAME_RECORD`] comes last.
+const FRAME_FILES: [&str; 5] = [
+    "points.npy",
+    "depth.npy",
+    "confidence.npy",
+    "cloud.ply",
+    "depth.png",
+];
+/// The fused cloud of `--fuse`.
+const FUSED_FILE: &str = "fused.ply";
+/// A frame's record, written after its other files: its summary entry, the settings it was made
+/// with and the size of every file; a frame is complete when it is there and they all are.
+const FRAME_RECORD: &str = "frame.json";
+
 pub fn run(args: StereoArgs) -> anyhow::Result<()> {
     let rig = read_rig(&args.rig)?;
+    let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
     let reference = match &args.reference {
         None => 0,
         Some(name) => rig.camera_index(name).with_context(|| {
             format!(
                 "--reference {name}: the rig {} has cameras {}",
                 args.rig.display(),
-                rig.cameras()
-                    .iter()
-                    .map(|c| c.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
+                names.join(", ")
             )
         })?,
     };
@@ -251,166 +226,443 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
         min_confidence: args.min_confidence,
         ..StereoOptions::default()
     };
-    resolve_depth_range(&rig, &options).context("--depth")?;
-    let (gpu, device) = choose_device(&args, &rig, &options)?;
+    let range = resolve_depth_range(&rig, &options).context("--depth")?;
+    // With --fuse every camera is the reference once, each with its range (its own default, or
+    // --depth as z in its own frame): all checked before anything is read or written.
+    let mut references = Vec::new();
+    for (k, name) in names.iter().enumerate() {
+        if k != reference && !args.fuse {
+            continue;
+        }
+        let o = StereoOptions {
+            reference: k,
+            ..options.clone()
+        };
+        resolve_depth_range(&rig, &o)
+            .with_context(|| format!("--depth with camera '{name}' as the reference"))?;
+        references.push(o);
+    }
+    let sequence = Sequence::open(&rig, &args.images)?;
+    let selected = sequence.select(&args.frames)?;
+    let frames: &[usize] = match args.shard {
+        Some(shard) => &selected[shard.cells(selected.len())],
+        None => &selected,
+    };
+    let frame_names: Vec<String> = frames
+        .iter()
+        .map(|&i| sequence.frame_name(reference, i))
+        .collect();
+    let mut seen = HashMap::new();
+    for (&index, name) in frames.iter().zip(&frame_names) {
+        if let Some(other) = seen.insert(name.as_str(), index) {
+            bail!(
+                "frames {other} and {index} of camera '{}' are both named '{name}' (images of one name in two formats?): each frame needs its own output folder",
+                names[reference]
+            );
+        }
+    }
+    // The settings as given (a range or count chosen per frame is null here): a frame's choice
+    // depends on its own images only, so shards and resumed runs make the same outputs.
+    let settings = json!({
+        "rig_sha256": sha256_file(&args.rig)?,
+        "reference": names[reference],
+        "depth_range_m": range.map(|(a, b)| [a, b]),
+        "hypotheses": options.hypotheses,
+        "window": 2 * options.window_radius + 1,
+        "min_confidence": options.min_confidence,
+        "fuse": args.fuse,
+    });
+    let mut records: HashMap<usize, serde_json::Value> = HashMap::new();
+    let mut todo = Vec::new();
+    for (&index, name) in frames.iter().zip(&frame_names) {
+        if args.resume {
+            match complete_frame(&args.output.join(name), &settings, args.fuse) {
+                Ok(record) => {
+                    records.insert(index, record);
+                    continue;
+                }
+                Err(Incomplete::Absent) => {}
+                Err(Incomplete::Because(why)) => eprintln!("{name}: computed again: {why}"),
+            }
+        }
+        todo.push(index);
+    }
+    // Every image of the frames to compute decodes (videos are checked as they are read).
+    sequence.check_images(&todo)?;
+    let (gpu, device) = if todo.is_empty() {
+        (None, "none (every frame complete)".to_string())
+    } else {
+        choose_device(&args, &rig, &options)?
+    };
     let backend = match &gpu {
         Some(gpu) => Backend::Gpu(gpu),
         None => Backend::Cpu,
     };
-    let frames = list_frames(&rig, &args.images)?;
-    // Every image is read and checked before anything is written.
-    for (k, files) in frames.iter().enumerate() {
-        let camera = &rig.cameras()[k];
-        for file in files {
-            let image = read_grey_f32(file)?;
-            let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
-            if (image.width, image.height) != (w, h) {
-                bail!(
-                    "{}: the image is {} × {} pixels, camera '{}' of the rig is {w} × {h}",
-                    file.display(),
-                    image.width,
-                    image.height,
-                    camera.name
-                );
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("cannot create {}", args.output.display()))?;
+    let shard_text = args
+        .shard
+        .map(|s| format!(", shard {s}"))
+        .unwrap_or_default();
+    outln!(
+        "{} frame(s) of {} selected{shard_text}: {} to compute, {} complete (--resume)",
+        frames.len(),
+        sequence.len(),
+        todo.len(),
+        frames.len() - todo.len()
+    );
+    let bar = Mutex::new(Progress::new(
+        &format!(
+            "stereo {} frame(s), {} reference camera(s)",
+            todo.len(),
+            references.len()
+        ),
+        "hypotheses",
+        args.quiet,
+    ));
+    let name_of: HashMap<usize, &String> = frames.iter().copied().zip(&frame_names).collect();
+    for (done, frame) in sequence.reader(&todo).enumerate() {
+        let frame = frame?;
+        let name = name_of[&frame.index];
+        let record = compute_frame(
+            &rig,
+            &frame,
+            name,
+            &references,
+            reference,
+            backend,
+            &device,
+            &settings,
+            &args.output.join(name),
+            &|run, p| {
+                // One unit per hypothesis and band of rows of every depth map of every frame.
+                let per_map = p.runs * p.total;
+                let per_frame = per_map * references.len();
+                if let Ok(mut bar) = bar.lock() {
+                    bar.update(
+                        done * per_frame + run * per_map + p.run * p.total + p.done,
+                        todo.len() * per_frame,
+                    );
+                }
+            },
+        )?;
+        records.insert(frame.index, record);
+    }
+    // Over the frames: the union of their ranges and the most hypotheses (each frame's own in
+    // "frames").
+    let mut span = (f64::INFINITY, 0f64);
+    let mut most = 0;
+    for record in records.values() {
+        if let Some([a, b]) = record["depth_range_m"]
+            .as_array()
+            .and_then(|r| Some([r.first()?.as_f64()?, r.get(1)?.as_f64()?]))
+        {
+            span = (span.0.min(a), span.1.max(b));
+        }
+        most = most.max(record["hypotheses"].as_u64().unwrap_or(0));
+    }
+    let entries: Vec<serde_json::Value> = frames
+        .iter()
+        .filter_map(|i| records.remove(i))
+        .map(|mut record| {
+            if let Some(object) = record.as_object_mut() {
+                object.remove("settings");
+                object.remove("files");
+            }
+            record
+        })
+        .collect();
+    let mut document = json!({
+        "rig": args.rig.display().to_string(),
+        "images": args.images.display().to_string(),
+        "frames_selected": args.frames.to_string(),
+        "frames_in_sequence": sequence.len(),
+        "reference": names[reference],
+        "depth_range_m": [span.0, span.1],
+        "hypotheses": most,
+        "depth_range_chosen": if options.depth_range.is_some() { "given" } else { "found from the images (coarse sweep)" },
+        "hypotheses_chosen": if options.hypotheses.is_some() { "given" } else { "step rule" },
+        "window": 2 * options.window_radius + 1,
+        "min_confidence": options.min_confidence,
+        "fuse": args.fuse,
+        "device": device,
+        "computed": todo.len(),
+        "skipped_complete": frames.len() - todo.len(),
+        "frames": entries,
+    });
+    let summary = match args.shard {
+        Some(shard) if shard.count > 1 => {
+            document["shard"] = json!({"index": shard.index, "count": shard.count});
+            format!("summary-shard-{}-of-{}.json", shard.index, shard.count)
+        }
+        _ => "summary.json".to_string(),
+    };
+    let mut text = serde_json::to_string_pretty(&document).expect("plain data");
+    text.push('\n');
+    write_atomic(&args.output.join(&summary), text.as_bytes())?;
+    outln!(
+        "wrote {} frame(s) into {}/: FRAME/points.npy, depth.npy, confidence.npy, cloud.ply, depth.png{}, frame.json; {summary}",
+        todo.len(),
+        args.output.display(),
+        if args.fuse { ", fused.ply" } else { "" }
+    );
+    Ok(())
+}
+
+/// Why a frame's outputs are not taken as complete.
+enum Incomplete {
+    /// It has no record: never computed (or its computation was stopped).
+    Absent,
+    /// A record that does not hold: a file missing or not whole, other settings.
+    Because(String),
+}
+
+/// The record of a complete frame in `dir`: `frame.json` reads, was made with `settings`, lists
+/// every output, and each output it lists is there with the size it records (outputs are
+/// written whole or not at all, the record after them).
+fn complete_frame(
+    dir: &Path,
+    settings: &serde_json::Value,
+    fuse: bool,
+) -> Result<serde_json::Value, Incomplete> {
+    let path = dir.join(FRAME_RECORD);
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Err(Incomplete::Absent);
+    };
+    let because = |why: String| Incomplete::Because(why);
+    let record: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| because(format!("{}: {e}", path.display())))?;
+    let made_with = record
+        .get("settings")
+        .and_then(serde_json::Value::as_object);
+    let now = settings.as_object().into_iter().flatten();
+    let changed: Vec<String> = now
+        .filter(|(key, value)| made_with.and_then(|m| m.get(*key)) != Some(*value))
+        .map(|(key, value)| {
+            let then = made_with.and_then(|m| m.get(key));
+            format!(
+                "{key} {} then, {value} now",
+                then.unwrap_or(&serde_json::Value::Null)
+            )
+        })
+        .collect();
+    if !changed.is_empty() {
+        return Err(because(format!(
+            "it was made with other settings ({})",
+            changed.join("; ")
+        )));
+    }
+    let files = record
+        .get("files")
+        .and_then(serde_json::Value::as_object)
+        .ok_or_else(|| because(format!("{}: no \"files\"", path.display())))?;
+    let wanted = FRAME_FILES.iter().chain(fuse.then_some(&FUSED_FILE));
+    for name in wanted {
+        let size = files.get(*name).and_then(serde_json::Value::as_u64);
+        let actual = std::fs::metadata(dir.join(name)).ok().map(|m| m.len());
+        match (size, actual) {
+            (Some(size), Some(actual)) if size == actual => {}
+            (None, _) => return Err(because(format!("{} does not list {name}", path.display()))),
+            (Some(_), None) => return Err(because(format!("{name} is missing"))),
+            (Some(size), Some(actual)) => {
+                return Err(because(format!(
+                    "{name} has {actual} bytes, {size} were written"
+                )));
             }
         }
     }
-    std::fs::create_dir_all(&args.output)
-        .with_context(|| format!("cannot create {}", args.output.display()))?;
+    Ok(record)
+}
+
+/// The depth maps of one frame (each reference of `references`; the first outputs are those of
+/// `reference`), its files written into `dir`, its record last; returns the record.
+#[allow(clippy::too_many_arguments)]
+fn compute_frame(
+    rig: &Rig,
+    frame: &SequenceFrame,
+    name: &str,
+    references: &[StereoOptions],
+    reference: usize,
+    backend: Backend,
+    device: &str,
+    settings: &serde_json::Value,
+    dir: &Path,
+    progress: &(dyn Fn(usize, &StereoProgress) + Sync),
+) -> anyhow::Result<serde_json::Value> {
+    let started = std::time::Instant::now();
     let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
-    let count = frames[0].len();
-    let mut summary = Vec::with_capacity(count);
-    let mut samplings: Vec<Sampling> = Vec::with_capacity(count);
-    for f in 0..count {
-        let started = std::time::Instant::now();
-        let reference_file = &frames[reference][f];
-        let stem = reference_file
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| format!("frame_{f:03}"));
-        let colour = read_colour_image(reference_file)?;
-        let mut images: Vec<GreyImage> = Vec::with_capacity(names.len());
-        for (k, files) in frames.iter().enumerate() {
-            images.push(if k == reference {
-                colour.grey.clone()
-            } else {
-                read_grey_f32(&files[f])?
-            });
-        }
-        let bar = Mutex::new(Progress::new(
-            &format!("stereo {stem} ({})", names[reference]),
-            "hypotheses",
-            args.quiet,
-        ));
-        let sampling = choose_sampling(&rig, &images, &options, backend)?;
+    let images: Vec<GreyImage> = frame.images.iter().map(|c| c.grey.clone()).collect();
+    let mut maps = Vec::with_capacity(references.len());
+    let mut samplings = Vec::with_capacity(references.len());
+    for (run, options) in references.iter().enumerate() {
+        // The range and count chosen first (and said), so that a long run shows them at its
+        // start; the check cameras' own counts follow the same rule inside the run.
+        let sampling = choose_sampling(rig, &images, options, backend)?;
         if options.depth_range.is_none() || options.hypotheses.is_none() {
-            eprintln!("{stem}: {sampling}");
+            eprintln!("{name}, camera {}: {sampling}", names[options.reference]);
         }
         let frame_options = StereoOptions {
             depth_range: Some(sampling.depth_range),
             ..options.clone()
         };
-        let map = stereo_on(&rig, &images, &frame_options, backend, &|p| {
-            if let Ok(mut bar) = bar.lock() {
-                bar.update(p.run * p.total + p.done, p.runs * p.total);
-            }
-        })?;
-        let dir = args.output.join(&stem);
-        std::fs::create_dir_all(&dir)
-            .with_context(|| format!("cannot create {}", dir.display()))?;
-        let (w, h) = (map.width, map.height);
-        let flat: Vec<f32> = map.points.iter().flatten().copied().collect();
-        write_npy_f32(&dir.join("points.npy"), &[h, w, 3], &flat)?;
-        write_npy_f32(&dir.join("depth.npy"), &[h, w], &map.depth)?;
-        write_npy_f32(&dir.join("confidence.npy"), &[h, w], &map.confidence)?;
-        let cloud: Vec<CloudPoint> = map
-            .points
-            .iter()
-            .zip(&colour.rgb)
-            .filter(|(p, _)| p[0].is_finite())
-            .map(|(p, c)| CloudPoint {
-                position: *p,
-                colour: *c,
-            })
-            .collect();
-        write_point_cloud_ply(
-            &dir.join("cloud.ply"),
-            &cloud,
-            &[
-                format!(
-                    "flatport stereo, frame {stem}, reference camera {}",
-                    names[reference]
-                ),
-                "points in the rig's master frame, metres".into(),
-            ],
-        )?;
-        let fraction = map.valid as f64 / (w * h) as f64;
-        write_depth_png(
-            &dir.join("depth.png"),
-            w as u32,
-            h as u32,
-            &map.depth,
-            &format!(
-                "{stem}: depth z in camera '{}', {:.1} % of pixels",
-                names[reference],
-                100.0 * fraction
-            ),
-        )?;
-        let seconds = started.elapsed().as_secs_f64();
-        outln!(
-            "{stem}: {:.1} % of pixels with a point ({} points), {:.1} s",
-            100.0 * fraction,
-            map.valid,
-            seconds
-        );
-        let stages: serde_json::Map<String, serde_json::Value> = map
-            .stage_seconds
-            .iter()
-            .map(|(stage, s)| (stage.to_string(), json!(s)))
-            .collect();
-        summary.push(json!({
-            "frame": stem,
-            "valid_fraction": fraction,
-            "valid_points": map.valid,
-            "pixels": w * h,
-            "seconds": seconds,
-            "stage_seconds": stages,
-            "device": device,
-            "hypotheses": map.hypotheses,
-            "depth_range_m": [sampling.depth_range.0, sampling.depth_range.1],
-            "sampling": sampling_json(&sampling),
-            "depth_maps": map.runs,
-        }));
+        let map = stereo_on(rig, &images, &frame_options, backend, &|p| progress(run, p))?;
+        maps.push(map);
         samplings.push(sampling);
     }
-    // Over the frames: the union of their ranges and the most hypotheses (each frame's own in
-    // "frames").
-    let range = samplings.iter().fold((f64::INFINITY, 0f64), |(a, b), s| {
-        (a.min(s.depth_range.0), b.max(s.depth_range.1))
-    });
-    let hypotheses = samplings.iter().map(|s| s.hypotheses).max().unwrap_or(0);
-    let document = json!({
-        "rig": args.rig.display().to_string(),
-        "images": args.images.display().to_string(),
-        "reference": names[reference],
-        "depth_range_m": [range.0, range.1],
-        "hypotheses": hypotheses,
-        "depth_range_chosen": if options.depth_range.is_some() { "given" } else { "found from the images (coarse sweep)" },
-        "hypotheses_chosen": if options.hypotheses.is_some() { "given" } else { "step rule" },
-        "window": 2 * options.window_radius + 1,
-        "min_confidence": options.min_confidence,
-        "device": device,
-        "frames": summary,
-    });
-    let mut text = serde_json::to_string_pretty(&document).expect("plain data");
-    text.push('\n');
-    write_atomic(&args.output.join("summary.json"), text.as_bytes())?;
+    let main = maps
+        .iter()
+        .position(|m| m.reference == reference)
+        .expect("the reference is among the references");
+    let map = &maps[main];
+    let sampling = &samplings[main];
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let (w, h) = (map.width, map.height);
+    let flat: Vec<f32> = map.points.iter().flatten().copied().collect();
+    write_npy_f32(&dir.join("points.npy"), &[h, w, 3], &flat)?;
+    write_npy_f32(&dir.join("depth.npy"), &[h, w], &map.depth)?;
+    write_npy_f32(&dir.join("confidence.npy"), &[h, w], &map.confidence)?;
+    let cloud: Vec<CloudPoint> = map
+        .points
+        .iter()
+        .zip(&frame.images[reference].rgb)
+        .filter(|(p, _)| p[0].is_finite())
+        .map(|(p, c)| CloudPoint {
+            position: *p,
+            colour: *c,
+        })
+        .collect();
+    write_point_cloud_ply(
+        &dir.join("cloud.ply"),
+        &cloud,
+        &[
+            format!(
+                "flatport stereo, frame {name}, reference camera {}",
+                names[reference]
+            ),
+            "points in the rig's master frame, metres".into(),
+        ],
+    )?;
+    let fraction = map.valid as f64 / (w * h) as f64;
+    write_depth_png(
+        &dir.join("depth.png"),
+        w as u32,
+        h as u32,
+        &map.depth,
+        &format!(
+            "{name}: depth z in camera '{}', {:.1} % of pixels",
+            names[reference],
+            100.0 * fraction
+        ),
+    )?;
+    let mut fused_points = None;
+    if references.len() > 1 {
+        let fused = fuse_frame(rig, &maps, frame, name, dir)?;
+        fused_points = Some(fused);
+    }
+    let seconds = started.elapsed().as_secs_f64();
     outln!(
-        "wrote {} frame(s) into {}/: FRAME/points.npy, depth.npy, confidence.npy, cloud.ply, depth.png; summary.json",
-        count,
-        args.output.display()
+        "{name}: {:.1} % of pixels with a point ({} points){}, {:.1} s",
+        100.0 * fraction,
+        map.valid,
+        fused_points.map_or(String::new(), |n| format!(", {n} fused points")),
+        seconds
     );
-    Ok(())
+    let mut stages: Vec<(&str, f64)> = Vec::new();
+    for m in &maps {
+        for (stage, s) in &m.stage_seconds {
+            match stages.iter_mut().find(|(n, _)| n == stage) {
+                Some((_, total)) => *total += s,
+                None => stages.push((stage, *s)),
+            }
+        }
+    }
+    let stages: serde_json::Map<String, serde_json::Value> = stages
+        .into_iter()
+        .map(|(stage, s)| (stage.to_string(), json!(s)))
+        .collect();
+    let mut files = serde_json::Map::new();
+    for file in FRAME_FILES
+        .iter()
+        .chain(fused_points.is_some().then_some(&FUSED_FILE))
+    {
+        let path = dir.join(file);
+        let size = std::fs::metadata(&path)
+            .with_context(|| format!("{}: just written, cannot be read", path.display()))?
+            .len();
+        files.insert(file.to_string(), json!(size));
+    }
+    let mut record = json!({
+        "frame": name,
+        "index": frame.index,
+        "valid_fraction": fraction,
+        "valid_points": map.valid,
+        "pixels": w * h,
+        "seconds": seconds,
+        "stage_seconds": stages,
+        "device": device,
+        "hypotheses": map.hypotheses,
+        "depth_range_m": [sampling.depth_range.0, sampling.depth_range.1],
+        "sampling": sampling_json(sampling),
+        "depth_maps": maps.iter().map(|m| m.runs).sum::<usize>(),
+        "settings": settings,
+        "files": files,
+    });
+    if let Some(n) = fused_points {
+        record["fused_points"] = json!(n);
+    }
+    let mut text = serde_json::to_string_pretty(&record).expect("plain data");
+    text.push('\n');
+    write_atomic(&dir.join(FRAME_RECORD), text.as_bytes())?;
+    Ok(record)
+}
+
+/// Fuses a frame's depth maps (one per camera) into `dir`/fused.ply; the number of points.
+fn fuse_frame(
+    rig: &Rig,
+    maps: &[DepthMap],
+    frame: &SequenceFrame,
+    name: &str,
+    dir: &Path,
+) -> anyhow::Result<usize> {
+    let views: Vec<FuseView> = maps
+        .iter()
+        .map(|map| FuseView {
+            map,
+            colours: &frame.images[map.reference].rgb,
+        })
+        .collect();
+    let options = FuseOptions::default();
+    let cloud = fuse(rig, &views, &options)?;
+    let points: Vec<OrientedCloudPoint> = cloud
+        .iter()
+        .map(|p| OrientedCloudPoint {
+            position: p.position.map(|v| v as f32),
+            normal: p.normal.map(|v| v as f32),
+            colour: p.colour,
+        })
+        .collect();
+    write_oriented_point_cloud_ply(
+        &dir.join(FUSED_FILE),
+        &points,
+        &[
+            format!(
+                "flatport stereo --fuse, frame {name}: the depth maps of cameras {} fused",
+                rig.cameras()
+                    .iter()
+                    .map(|c| c.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+            format!(
+                "points confirmed by another camera within {} % of depth, merged within {} pixel footprint(s), normals from {} neighbours toward the camera",
+                100.0 * options.depth_tolerance,
+                options.merge_pixels,
+                options.normal_neighbours
+            ),
+            "points and normals in the rig's master frame, metres".into(),
+        ],
+    )?;
+    Ok(points.len())
 }
 
 /// How a frame's depth range and hypotheses were chosen, for summary.json.

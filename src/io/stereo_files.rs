@@ -174,6 +174,86 @@ pub fn write_point_cloud_ply(
     out.finish()
 }
 
+/// One vertex of an oriented point cloud (a fused cloud).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OrientedCloudPoint {
+    /// x, y, z, metres.
+    pub position: [f32; 3],
+    /// Unit normal nx, ny, nz.
+    pub normal: [f32; 3],
+    /// Red, green, blue.
+    pub colour: [u8; 3],
+}
+
+impl PropertyAccess for OrientedCloudPoint {
+    fn new() -> Self {
+        Self {
+            position: [0.0; 3],
+            normal: [0.0; 3],
+            colour: [0; 3],
+        }
+    }
+
+    fn get_float(&self, name: &str) -> Option<f32> {
+        match name {
+            "x" => Some(self.position[0]),
+            "y" => Some(self.position[1]),
+            "z" => Some(self.position[2]),
+            "nx" => Some(self.normal[0]),
+            "ny" => Some(self.normal[1]),
+            "nz" => Some(self.normal[2]),
+            _ => None,
+        }
+    }
+
+    fn get_uchar(&self, name: &str) -> Option<u8> {
+        match name {
+            "red" => Some(self.colour[0]),
+            "green" => Some(self.colour[1]),
+            "blue" => Some(self.colour[2]),
+            _ => None,
+        }
+    }
+}
+
+/// Writes a binary little-endian PLY point cloud with normals (`element vertex` with
+/// `float x y z nx ny nz`, `uchar red green blue`: the layout Open3D, MeshLab and CloudCompare
+/// read as positions, normals and colours) atomically, through `ply-rs-bw`'s writer; `comments`
+/// go into the header.
+pub fn write_oriented_point_cloud_ply(
+    path: &Path,
+    points: &[OrientedCloudPoint],
+    comments: &[String],
+) -> Result<(), IoError> {
+    let mut header = Header::new();
+    header.encoding = Encoding::BinaryLittleEndian;
+    header.comments = comments.to_vec();
+    let mut vertex = ElementDef::new("vertex".to_string());
+    vertex.count = points.len();
+    for name in ["x", "y", "z", "nx", "ny", "nz"] {
+        vertex.properties.add(PropertyDef::new(
+            name.to_string(),
+            PropertyType::Scalar(ScalarType::Float),
+        ));
+    }
+    for name in ["red", "green", "blue"] {
+        vertex.properties.add(PropertyDef::new(
+            name.to_string(),
+            PropertyType::Scalar(ScalarType::UChar),
+        ));
+    }
+    header.elements.add(vertex.clone());
+    let writer = Writer::<OrientedCloudPoint>::new();
+    let mut out = OutputFile::create(Some(path))?;
+    let points = points.to_vec();
+    writer
+        .write_header(&mut out, &header)
+        .and_then(|_| writer.write_payload_of_element(&mut out, &points, &vertex, &header))
+        .and_then(|_| out.flush().map(|_| 0))
+        .map_err(|source| out.write_error(source))?;
+    out.finish()
+}
+
 /// Turbo-like colour of t ∈ [0, 1] (near = warm): viridis from matplotlib's table, reversed so
 /// that near surfaces are bright.
 fn colour_of(t: f64) -> RGBColor {

@@ -62,12 +62,16 @@
 pub mod check;
 pub mod cost;
 pub mod edges;
+#[cfg(feature = "images")]
+pub mod fuse;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 mod image;
 pub mod range;
 pub mod rays;
 pub mod select;
+#[cfg(feature = "images")]
+pub mod sequence;
 pub mod sgm;
 pub mod table;
 
