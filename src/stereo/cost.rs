@@ -173,26 +173,54 @@ pub fn air_ray_starts(
 /// top-left pixel); NaN where the projection has no answer or falls outside [0, w − 1] × [0, h − 1].
 pub fn warp_bilinear(image: &GreyImage, pixels: &[[f64; 2]], status: &[u32], warped: &mut [f32]) {
     let (w, h) = (image.width as usize, image.height as usize);
-    let (max_u, max_v) = ((w - 1) as f64, (h - 1) as f64);
-    for ((p, s), out) in pixels.iter().zip(status).zip(warped.iter_mut()) {
-        let (u, v) = (p[0], p[1]);
-        if *s != 0 || !(u >= 0.0 && u <= max_u && v >= 0.0 && v <= max_v) {
-            *out = f32::NAN;
-            continue;
+    if w < 2 || h < 2 {
+        // A single row or column: the cell's second corner is its first.
+        for ((p, s), out) in pixels.iter().zip(status).zip(warped.iter_mut()) {
+            let (u, v) = (p[0], p[1]);
+            let inside = *s == 0 && u >= 0.0 && u <= (w - 1) as f64 && v >= 0.0 && v <= (h - 1) as f64;
+            *out = if inside {
+                let (x0, y0) = (u as usize, v as usize);
+                let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
+                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+                let at = |x: usize, y: usize| image.pixels[y * w + x];
+                let top = at(x0, y0) + fx * (at(x1, y0) - at(x0, y0));
+                let bottom = at(x0, y1) + fx * (at(x1, y1) - at(x0, y1));
+                top + fy * (bottom - top)
+            } else {
+                f32::NAN
+            };
         }
-        // The cell's top-left corner, kept one short of the last row/column so that its
-        // neighbours exist (u = w − 1 is then the cell's right edge, fx = 1).
-        // u, v ≥ 0 here, so truncation is the floor (an instruction, where `floor` is a libm
-        // call on the baseline x86-64 target).
-        let x0 = (u as usize).min(w.saturating_sub(2));
-        let y0 = (v as usize).min(h.saturating_sub(2));
-        let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
-        let x1 = (x0 + 1).min(w - 1);
-        let y1 = (y0 + 1).min(h - 1);
-        let at = |x: usize, y: usize| image.pixels[y * w + x];
-        let top = at(x0, y0) + fx * (at(x1, y0) - at(x0, y0));
-        let bottom = at(x0, y1) + fx * (at(x1, y1) - at(x0, y1));
-        *out = top + fy * (bottom - top);
+        return;
+    }
+    warp_cells(&image.pixels, w, h, pixels, status, warped);
+}
+
+crate::engine::cpu::lanes::dispatched! {
+    /// [`warp_bilinear`] on an image of at least 2 × 2 pixels, without branches (so that it
+    /// vectorises, the four samples gathered): a sample without an answer is taken at (0, 0)
+    /// and replaced by NaN.
+    fn warp_cells(image: &[f32], w: usize, h: usize, pixels: &[[f64; 2]], status: &[u32], warped: &mut [f32]) {
+        let (max_u, max_v) = ((w - 1) as f64, (h - 1) as f64);
+        let last = w * h - 1;
+        for ((p, s), out) in pixels.iter().zip(status).zip(warped.iter_mut()) {
+            let (u, v) = (p[0], p[1]);
+            let inside = (*s == 0) & (u >= 0.0) & (u <= max_u) & (v >= 0.0) & (v <= max_v);
+            let (u, v) = if inside { (u, v) } else { (0.0, 0.0) };
+            // The cell's top-left corner, kept one short of the last row/column so that its
+            // neighbours exist (u = w − 1 is then the cell's right edge, fx = 1). u, v ≥ 0
+            // here, so truncation is the floor (an instruction, where `floor` is a libm call on
+            // the baseline x86-64 target).
+            let x0 = (u as usize).min(w - 2);
+            let y0 = (v as usize).min(h - 2);
+            let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
+            let i = (y0 * w + x0).min(last - w - 1);
+            let (a, b) = (image[i], image[i + 1]);
+            let (c, d) = (image[i + w], image[i + w + 1]);
+            let top = a + fx * (b - a);
+            let bottom = c + fx * (d - c);
+            let value = top + fy * (bottom - top);
+            *out = if inside { value } else { f32::NAN };
+        }
     }
 }
 
@@ -201,12 +229,24 @@ pub fn warp_bilinear(image: &GreyImage, pixels: &[[f64; 2]], status: &[u32], war
 /// still has more than half of its window inside.
 pub const MIN_VALID_FRACTION: f64 = 0.5;
 
+/// Reused buffers of [`window_zncc`]: the column sums of one output row, one array per sum,
+/// padded by r zeros each side so that every window's row sum is 2r + 1 plain additions.
+#[derive(Debug, Clone, Default)]
+pub struct ZnccScratch {
+    columns: [Vec<f64>; 6],
+    sums: [Vec<f64>; 6],
+}
+
 /// Stage 4b, `window_zncc`: the ZNCC of the reference against one warped image for the rows
 /// `first_row .. first_row + rows` (`zncc`, rows · w values), from the warped samples of the rows
 /// `ext_first ..` (`warped`, which must cover every window: r rows above and below, clipped to
 /// the image). The sums run over the window's samples that have an answer (Ω′ ⊆ Ω, the
 /// reference's sums over Ω′ too); NaN where fewer than [`MIN_VALID_FRACTION`] of the window has
 /// one, where the reference window is untextured, or where its part Ω′ is.
+///
+/// Column sums run down the rows (a window row added, one removed, f64), each window's sum is
+/// then the 2r + 1 column sums beside it added afresh (no running sum along the row to drift),
+/// every loop over whole rows without branches, so that it vectorises.
 #[allow(clippy::too_many_arguments)]
 pub fn window_zncc(
     reference: &GreyImage,
@@ -216,111 +256,187 @@ pub fn window_zncc(
     ext_first: usize,
     first_row: usize,
     rows: usize,
-    column: &mut Vec<[f64; 6]>,
+    scratch: &mut ZnccScratch,
     zncc: &mut [f32],
 ) {
     let (w, h) = (reference.width as usize, reference.height as usize);
     let r = windows.radius;
-    column.clear();
-    column.resize(w, [0.0; 6]);
-    // Adds (sign +1) or removes (−1) image row `y` from the column sums over the samples with an
-    // answer: (count, ΣW, ΣW², ΣIW, ΣI, ΣI²).
-    let accumulate = |column: &mut [[f64; 6]], y: usize, sign: f64| {
-        let warped_row = &warped[(y - ext_first) * w..(y - ext_first + 1) * w];
-        let image_row = &reference.pixels[y * w..(y + 1) * w];
-        for ((c, &s), &i) in column.iter_mut().zip(warped_row).zip(image_row) {
-            if s.is_finite() {
-                let (s, i) = (f64::from(s), f64::from(i));
-                c[0] += sign;
-                c[1] += sign * s;
-                c[2] += sign * s * s;
-                c[3] += sign * s * i;
-                c[4] += sign * i;
-                c[5] += sign * i * i;
-            }
-        }
-    };
+    for c in scratch.columns.iter_mut() {
+        c.clear();
+        c.resize(w + 2 * r, 0.0);
+    }
     let (lo, hi) = (first_row.saturating_sub(r), (first_row + r).min(h - 1));
     for y in lo..=hi {
-        accumulate(column, y, 1.0);
+        accumulate_row(
+            &mut scratch.columns,
+            r,
+            &warped[(y - ext_first) * w..(y - ext_first + 1) * w],
+            &reference.pixels[y * w..(y + 1) * w],
+            1.0,
+        );
     }
-    let min_spread_per_sample = min_texture * min_texture;
     for k in 0..rows {
         let y = first_row + k;
         if k > 0 {
             if y + r < h {
-                accumulate(column, y + r, 1.0);
+                let e = y + r - ext_first;
+                accumulate_row(
+                    &mut scratch.columns,
+                    r,
+                    &warped[e * w..(e + 1) * w],
+                    &reference.pixels[(y + r) * w..(y + r + 1) * w],
+                    1.0,
+                );
             }
             if y > r {
-                accumulate(column, y - r - 1, -1.0);
+                let gone = y - r - 1;
+                let e = gone - ext_first;
+                accumulate_row(
+                    &mut scratch.columns,
+                    r,
+                    &warped[e * w..(e + 1) * w],
+                    &reference.pixels[gone * w..(gone + 1) * w],
+                    -1.0,
+                );
             }
         }
-        let out = &mut zncc[k * w..(k + 1) * w];
-        let mut acc = [0f64; 6];
-        for c in &column[..r.min(w)] {
-            for q in 0..6 {
-                acc[q] += c[q];
-            }
-        }
+        zncc_row(
+            &scratch.columns,
+            r,
+            &mut scratch.sums,
+            &windows.count[y * w..(y + 1) * w],
+            &windows.inv_spread[y * w..(y + 1) * w],
+            min_texture * min_texture,
+            &mut zncc[k * w..(k + 1) * w],
+        );
+    }
+}
+
+crate::engine::cpu::lanes::dispatched! {
+    /// Adds (`sign` +1) or removes (−1) one image row to the padded column sums over the samples
+    /// with an answer: (count, ΣW, ΣW², ΣIW, ΣI, ΣI²).
+    fn accumulate_row(columns: &mut [Vec<f64>; 6], r: usize, warped: &[f32], image: &[f32], sign: f64) {
+        let w = warped.len();
+        let [c0, c1, c2, c3, c4, c5] = columns;
+        let (c0, c1, c2) = (&mut c0[r..r + w], &mut c1[r..r + w], &mut c2[r..r + w]);
+        let (c3, c4, c5) = (&mut c3[r..r + w], &mut c4[r..r + w], &mut c5[r..r + w]);
         for x in 0..w {
-            if x + r < w {
-                for q in 0..6 {
-                    acc[q] += column[x + r][q];
+            let s = warped[x];
+            let answered = s.is_finite();
+            let m = if answered { sign } else { 0.0 };
+            let s = if answered { f64::from(s) } else { 0.0 };
+            let i = f64::from(image[x]);
+            let ms = sign * s;
+            c0[x] += m;
+            c1[x] += ms;
+            c2[x] += ms * s;
+            c3[x] += ms * i;
+            c4[x] += m * i;
+            c5[x] += m * i * i;
+        }
+    }
+
+    /// The ZNCC of one output row from the padded column sums (see [`window_zncc`]): each
+    /// window's six sums in `sums`, then the correlation, both loops along the row.
+    fn zncc_row(columns: &[Vec<f64>; 6], r: usize, sums: &mut [Vec<f64>; 6], count: &[f32], inv_spread: &[f32], min_spread_per_sample: f64, out: &mut [f32]) {
+        let w = out.len();
+        for (column, sum) in columns.iter().zip(sums.iter_mut()) {
+            sum.clear();
+            sum.extend_from_slice(&column[..w]);
+            for k in 1..=2 * r {
+                for (s, c) in sum.iter_mut().zip(&column[k..k + w]) {
+                    *s += c;
                 }
             }
-            let i = y * w + x;
-            let n_window = f64::from(windows.count[i]);
-            let n = acc[0];
-            out[x] = if windows.inv_spread[i] > 0.0 && n >= MIN_VALID_FRACTION * n_window {
-                let spread_w = acc[2] - acc[1] * acc[1] / n;
-                let spread_i = acc[5] - acc[4] * acc[4] / n;
-                if spread_i < min_spread_per_sample * n {
-                    f32::NAN
-                } else if spread_w > 1e-12 * n {
-                    let covariance = acc[3] - acc[4] * acc[1] / n;
-                    (covariance / (spread_i * spread_w).sqrt()) as f32
-                } else {
-                    0.0
-                }
+        }
+        let [n, sw, sww, siw, si, sii] = sums;
+        let (n, sw, sww, siw, si, sii) = (&n[..w], &sw[..w], &sww[..w], &siw[..w], &si[..w], &sii[..w]);
+        let (count, inv_spread) = (&count[..w], &inv_spread[..w]);
+        // Without branches (`&` on the conditions, selects), so that the loop vectorises; the
+        // spreads are differences of f64 sums, their ratio is taken in f32 (the result's type).
+        for x in 0..w {
+            let voted = (inv_spread[x] > 0.0) & (n[x] >= MIN_VALID_FRACTION * f64::from(count[x]));
+            let n_safe = if voted { n[x] } else { 1.0 };
+            let inv_n = 1.0 / n_safe;
+            let spread_w = sww[x] - sw[x] * sw[x] * inv_n;
+            let spread_i = sii[x] - si[x] * si[x] * inv_n;
+            let covariance = (siw[x] - si[x] * sw[x] * inv_n) as f32;
+            let product = (spread_i * spread_w) as f32;
+            let flat = !(spread_w > 1e-12 * n_safe);
+            let product = if (product > 0.0) & !flat { product } else { 1.0 };
+            let correlation = if flat { 0.0 } else { covariance / product.sqrt() };
+            out[x] = if voted & (spread_i >= min_spread_per_sample * n_safe) {
+                correlation
             } else {
                 f32::NAN
             };
-            if x >= r {
-                for q in 0..6 {
-                    acc[q] -= column[x - r][q];
-                }
+        }
+    }
+}
+
+/// Stage 5, `combine_views`: the cost of one hypothesis for every pixel of a band from the
+/// cameras' ZNCC (see the module docs), u16, written at `costs[i]`.
+pub fn combine_views(zncc: &[Vec<f32>], costs: &mut [u16]) {
+    match zncc {
+        [one] => combine_one(one, costs),
+        _ => {
+            let mut votes = Vec::with_capacity(zncc.len());
+            for (i, cost) in costs.iter_mut().enumerate() {
+                votes.clear();
+                votes.extend(
+                    zncc.iter()
+                        .map(|z| z[i])
+                        .filter(|z| z.is_finite())
+                        .map(|z| (1.0 - z).clamp(0.0, 1.0)),
+                );
+                *cost = match votes.len() {
+                    0 => NO_VOTE,
+                    k => {
+                        let used = if k <= 2 {
+                            k
+                        } else {
+                            votes.sort_by(f32::total_cmp);
+                            k.div_ceil(2)
+                        };
+                        let mean = votes[..used].iter().sum::<f32>() / used as f32;
+                        to_units(mean)
+                    }
+                };
             }
         }
     }
 }
 
-/// Stage 5, `combine_views`: the cost of hypothesis `h` for every pixel of a band from the
-/// cameras' ZNCC (see the module docs), written at `volume[i·D + h]`.
-pub fn combine_views(zncc: &[Vec<f32>], h: usize, depth_count: usize, volume: &mut [u16]) {
-    let pixels = volume.len() / depth_count;
-    let mut costs = Vec::with_capacity(zncc.len());
-    for i in 0..pixels {
-        costs.clear();
-        costs.extend(
-            zncc.iter()
-                .map(|z| z[i])
-                .filter(|z| z.is_finite())
-                .map(|z| (1.0 - z).clamp(0.0, 1.0)),
-        );
-        volume[i * depth_count + h] = match costs.len() {
-            0 => NO_VOTE,
-            k => {
-                let used = if k <= 2 {
-                    k
-                } else {
-                    costs.sort_by(f32::total_cmp);
-                    k.div_ceil(2)
-                };
-                let mean = costs[..used].iter().sum::<f32>() / used as f32;
-                // floor(x + ½) for x ≥ 0, as the GPU rounds (and no libm call).
-                (mean * f32::from(COST_SCALE) + 0.5) as u16
-            }
-        };
+/// A cost 0 … 1 in the volume's units: floor(x·[`COST_SCALE`] + ½) for x ≥ 0, as the GPU rounds
+/// (and no libm call).
+#[inline(always)]
+fn to_units(cost: f32) -> u16 {
+    (cost * f32::from(COST_SCALE) + 0.5) as u16
+}
+
+crate::engine::cpu::lanes::dispatched! {
+    /// [`combine_views`] for one voting camera: its own cost, or [`NO_VOTE`].
+    fn combine_one(zncc: &[f32], costs: &mut [u16]) {
+        for (cost, &z) in costs.iter_mut().zip(zncc) {
+            // A NaN fails the comparison: no vote.
+            *cost = if z >= -f32::MAX { to_units((1.0 - z).clamp(0.0, 1.0)) } else { NO_VOTE };
+        }
+    }
+}
+
+/// Hypotheses of a band whose costs are kept in rows (`[h][pixel]`) before they are written,
+/// transposed, into the volume's `[pixel][h]` layout: a pixel's 16 costs are 32 contiguous bytes
+/// there, where one hypothesis at a time wrote 2 bytes every D·2 bytes.
+const HYPOTHESIS_BLOCK: usize = 16;
+
+/// Writes the rows `costs[k·n .. (k + 1)·n]` of hypotheses `first .. first + k_count` into
+/// `volume[i·D + first + k]`.
+fn store_block(costs: &[u16], pixels: usize, first: usize, depth_count: usize, volume: &mut [u16]) {
+    let count = costs.len() / pixels;
+    for (i, out) in volume.chunks_exact_mut(depth_count).enumerate() {
+        for (k, slot) in out[first..first + count].iter_mut().enumerate() {
+            *slot = costs[k * pixels + i];
+        }
     }
 }
 
@@ -356,8 +472,9 @@ pub fn cost_volume(
             let mut pixels = vec![[0.0; 2]; ext];
             let mut status = vec![0u32; ext];
             let mut warped = vec![0f32; ext];
-            let mut column = Vec::new();
+            let mut scratch = ZnccScratch::default();
             let mut zncc = vec![vec![0f32; rows * w]; voters.len()];
+            let mut costs = vec![NO_VOTE; HYPOTHESIS_BLOCK.min(d) * rows * w];
             let any_textured = (first * w..(first + rows) * w).any(|i| windows.textured(i));
             let starts: Vec<Vec<f64>> = voters
                 .iter()
@@ -417,11 +534,16 @@ pub fn cost_volume(
                             ext_first,
                             first,
                             rows,
-                            &mut column,
+                            &mut scratch,
                             zncc,
                         );
                     }
-                    combine_views(&zncc, hypothesis, d, volume);
+                    let k = hypothesis % HYPOTHESIS_BLOCK;
+                    combine_views(&zncc, &mut costs[k * rows * w..(k + 1) * rows * w]);
+                    if k + 1 == HYPOTHESIS_BLOCK || hypothesis + 1 == d {
+                        let first = hypothesis - k;
+                        store_block(&costs[..(k + 1) * rows * w], rows * w, first, d, volume);
+                    }
                 }
                 progress();
             }
@@ -463,7 +585,7 @@ mod tests {
             0,
             0,
             h,
-            &mut Vec::new(),
+            &mut ZnccScratch::default(),
             &mut zncc,
         );
         // The window around the missing sample is matched over the samples it has.
@@ -487,7 +609,7 @@ mod tests {
             0,
             0,
             h,
-            &mut Vec::new(),
+            &mut ZnccScratch::default(),
             &mut zncc,
         );
         assert!(zncc[5 * w + 9].is_nan(), "{}", zncc[5 * w + 9]);
@@ -507,7 +629,7 @@ mod tests {
             ext_first,
             first,
             rows,
-            &mut Vec::new(),
+            &mut ZnccScratch::default(),
             &mut band,
         );
         for k in 0..rows {
@@ -560,19 +682,25 @@ mod tests {
 
     #[test]
     fn views_combine_as_the_mean_of_the_best_half() {
-        let d = 2;
-        let mut volume = vec![0u16; 3 * d];
+        let mut costs = vec![0u16; 3];
         // Pixel 0: two votes; pixel 1: three votes (best two of three: ⌈3/2⌉ = 2); pixel 2: none.
         let zncc = vec![
             vec![0.9, 0.9, f32::NAN],
             vec![0.5, 0.7, f32::NAN],
             vec![f32::NAN, -0.4, f32::NAN],
         ];
-        combine_views(&zncc, 1, d, &mut volume);
+        combine_views(&zncc, &mut costs);
         let cost = |c: f32| (c * f32::from(COST_SCALE)).round() as u16;
-        assert_eq!(volume[1], cost((0.1 + 0.5) / 2.0));
-        assert_eq!(volume[3], cost((0.1 + 0.3) / 2.0));
-        assert_eq!(volume[5], NO_VOTE);
-        assert_eq!(volume[0], 0, "other hypotheses untouched");
+        assert_eq!(
+            costs,
+            [cost((0.1 + 0.5) / 2.0), cost((0.1 + 0.3) / 2.0), NO_VOTE]
+        );
+        // One camera: its own cost, clamped to 0 … 1, or no vote.
+        combine_views(&[vec![0.9, -0.4, f32::NAN]], &mut costs);
+        assert_eq!(costs, [cost(0.1), COST_SCALE, NO_VOTE]);
+        // Into the volume's [pixel][hypothesis] layout, hypotheses 1 and 2 of 4.
+        let mut volume = vec![7u16; 3 * 4];
+        store_block(&[1, 2, 3, 4, 5, 6], 3, 1, 4, &mut volume);
+        assert_eq!(volume, [7, 1, 4, 7, 7, 2, 5, 7, 7, 3, 6, 7]);
     }
 }
