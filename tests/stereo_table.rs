@@ -9,10 +9,11 @@
 mod stereo_common;
 
 use flatport::model::{RefractiveCamera, Rig};
-use flatport::stereo::cost::{air_ray_starts, project_hypotheses};
+use flatport::stereo::GreyImage;
+use flatport::stereo::cost::{air_ray_starts, project_hypotheses, warp_bilinear};
 use flatport::stereo::rays::{RayGrid, hypothesis_points, reference_rays};
 use flatport::stereo::table::{
-    ProjectionTable, TABLE_STEP, TABLE_TOLERANCE_PX, TableBand, project_tabulated,
+    ProjectionTable, TABLE_STEP, TABLE_TOLERANCE_PX, TableBand, project_tabulated, warp_tabulated,
 };
 use stereo_common::*;
 
@@ -51,6 +52,21 @@ fn compare(rig: &Rig, reference: usize, voter: usize, step: usize, depths: &[f64
     let rays = reference_rays(&ref_camera);
     let (w, h) = (rays.width, rays.height);
     let table = ProjectionTable::with_step(&ref_camera, w, h, step);
+    // A textured image of the voter's size to sample.
+    let (vw, vh) = (
+        voter.intrinsics().width as usize,
+        voter.intrinsics().height as usize,
+    );
+    let image = GreyImage {
+        width: vw as u32,
+        height: vh as u32,
+        pixels: (0..vw * vh)
+            .map(|i| {
+                let (x, y) = ((i % vw) as f32, (i / vw) as f32);
+                0.5 + 0.25 * (0.37 * x).sin() * (0.23 * y + 0.1 * x).cos()
+            })
+            .collect(),
+    };
     let mut found = Found::default();
     for &z in depths {
         let before = (found.pixels, found.interpolated);
@@ -76,6 +92,30 @@ fn compare(rig: &Rig, reference: usize, voter: usize, step: usize, depths: &[f64
                 &mut status,
             );
             assert_eq!(counts.interpolated + counts.exact, n);
+            // Sampled as it projects: the same samples as the stored projections warped.
+            let mut fused = vec![0f32; n];
+            let mut fresh = TableBand::new(&table, &rays, ext_first, ext_end - ext_first, &voter);
+            let fused_counts = warp_tabulated(
+                &table,
+                &mut fresh,
+                &rays,
+                &voter,
+                &starts,
+                1.0 / z,
+                &image,
+                &mut fused,
+            );
+            assert_eq!(fused_counts, counts);
+            let mut warped = vec![0f32; n];
+            warp_bilinear(&image, &pixels, &status, &mut warped);
+            for j in 0..n {
+                assert!(
+                    fused[j].to_bits() == warped[j].to_bits(),
+                    "z {z} m, band pixel {j}: sampled as projected {} against stored {}",
+                    fused[j],
+                    warped[j]
+                );
+            }
             let exact_pixels = band.exact_pixels();
             for j in 0..n {
                 let i = ext_first * w + j;

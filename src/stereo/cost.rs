@@ -26,7 +26,7 @@
 use rayon::prelude::*;
 
 use super::rays::{RayGrid, hypothesis_points};
-use super::table::{ProjectionTable, TableBand, project_tabulated};
+use super::table::{ProjectionTable, TableBand, warp_tabulated};
 use crate::engine::cpu::lanes;
 use crate::model::RefractiveCamera;
 use crate::stereo::GreyImage;
@@ -173,55 +173,39 @@ pub fn air_ray_starts(
 /// top-left pixel); NaN where the projection has no answer or falls outside [0, w − 1] × [0, h − 1].
 pub fn warp_bilinear(image: &GreyImage, pixels: &[[f64; 2]], status: &[u32], warped: &mut [f32]) {
     let (w, h) = (image.width as usize, image.height as usize);
-    if w < 2 || h < 2 {
-        // A single row or column: the cell's second corner is its first.
-        for ((p, s), out) in pixels.iter().zip(status).zip(warped.iter_mut()) {
-            let (u, v) = (p[0], p[1]);
-            let inside = *s == 0 && u >= 0.0 && u <= (w - 1) as f64 && v >= 0.0 && v <= (h - 1) as f64;
-            *out = if inside {
-                let (x0, y0) = (u as usize, v as usize);
-                let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
-                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-                let at = |x: usize, y: usize| image.pixels[y * w + x];
-                let top = at(x0, y0) + fx * (at(x1, y0) - at(x0, y0));
-                let bottom = at(x0, y1) + fx * (at(x1, y1) - at(x0, y1));
-                top + fy * (bottom - top)
-            } else {
-                f32::NAN
-            };
-        }
-        return;
+    for ((p, s), out) in pixels.iter().zip(status).zip(warped.iter_mut()) {
+        *out = if *s == 0 {
+            sample_bilinear(&image.pixels, w, h, p[0], p[1])
+        } else {
+            f32::NAN
+        };
     }
-    warp_cells(&image.pixels, w, h, pixels, status, warped);
 }
 
-crate::engine::cpu::lanes::dispatched! {
-    /// [`warp_bilinear`] on an image of at least 2 × 2 pixels, without branches (so that it
-    /// vectorises, the four samples gathered): a sample without an answer is taken at (0, 0)
-    /// and replaced by NaN.
-    fn warp_cells(image: &[f32], w: usize, h: usize, pixels: &[[f64; 2]], status: &[u32], warped: &mut [f32]) {
-        let (max_u, max_v) = ((w - 1) as f64, (h - 1) as f64);
-        let last = w * h - 1;
-        for ((p, s), out) in pixels.iter().zip(status).zip(warped.iter_mut()) {
-            let (u, v) = (p[0], p[1]);
-            let inside = (*s == 0) & (u >= 0.0) & (u <= max_u) & (v >= 0.0) & (v <= max_v);
-            let (u, v) = if inside { (u, v) } else { (0.0, 0.0) };
-            // The cell's top-left corner, kept one short of the last row/column so that its
-            // neighbours exist (u = w − 1 is then the cell's right edge, fx = 1). u, v ≥ 0
-            // here, so truncation is the floor (an instruction, where `floor` is a libm call on
-            // the baseline x86-64 target).
-            let x0 = (u as usize).min(w - 2);
-            let y0 = (v as usize).min(h - 2);
-            let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
-            let i = (y0 * w + x0).min(last - w - 1);
-            let (a, b) = (image[i], image[i + 1]);
-            let (c, d) = (image[i + w], image[i + w + 1]);
-            let top = a + fx * (b - a);
-            let bottom = c + fx * (d - c);
-            let value = top + fy * (bottom - top);
-            *out = if inside { value } else { f32::NAN };
-        }
+/// One bilinear sample of the `w` × `h` image `pixels` at (u, v), (0, 0) the centre of the
+/// top-left pixel; NaN outside [0, w − 1] × [0, h − 1].
+///
+/// Scalar on purpose: a branch-free version written for the vector units (the four samples
+/// gathered) compiled to scalar code all the same and was no faster; what costs here is the wait
+/// for the image's cache lines, which [`warp_tabulated`] keeps short by sampling where it
+/// interpolates instead of storing the projections first.
+#[inline(always)]
+pub(crate) fn sample_bilinear(pixels: &[f32], w: usize, h: usize, u: f64, v: f64) -> f32 {
+    if !(u >= 0.0 && u <= (w - 1) as f64 && v >= 0.0 && v <= (h - 1) as f64) {
+        return f32::NAN;
     }
+    // The cell's top-left corner, kept one short of the last row/column so that its neighbours
+    // exist (u = w − 1 is then the cell's right edge, fx = 1); a single row or column is its own
+    // neighbour. u, v ≥ 0 here, so truncation is the floor (an instruction, where `floor` is a
+    // libm call on the baseline x86-64 target).
+    let x0 = (u as usize).min(w.saturating_sub(2));
+    let y0 = (v as usize).min(h.saturating_sub(2));
+    let (fx, fy) = ((u - x0 as f64) as f32, (v - y0 as f64) as f32);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let at = |x: usize, y: usize| pixels[y * w + x];
+    let top = at(x0, y0) + fx * (at(x1, y0) - at(x0, y0));
+    let bottom = at(x0, y1) + fx * (at(x1, y1) - at(x0, y1));
+    top + fy * (bottom - top)
 }
 
 /// Least fraction of a window's pixels (inside the reference image) whose warped samples must
@@ -468,9 +452,11 @@ pub fn cost_volume(
             let rows = volume.len() / (w * d);
             let (ext_first, ext_end) = (first.saturating_sub(r), (first + rows + r).min(h));
             let ext = (ext_end - ext_first) * w;
-            let mut points = vec![[0.0; 3]; ext];
-            let mut pixels = vec![[0.0; 2]; ext];
-            let mut status = vec![0u32; ext];
+            // The exact path's buffers (the tabulated one samples as it projects).
+            let exact = if table.is_none() { ext } else { 0 };
+            let mut points = vec![[0.0; 3]; exact];
+            let mut pixels = vec![[0.0; 2]; exact];
+            let mut status = vec![0u32; exact];
             let mut warped = vec![0f32; ext];
             let mut scratch = ZnccScratch::default();
             let mut zncc = vec![vec![0f32; rows * w]; voters.len()];
@@ -502,15 +488,15 @@ pub fn cost_volume(
                     {
                         match (table, band) {
                             (Some(table), Some(band)) => {
-                                project_tabulated(
+                                warp_tabulated(
                                     table,
                                     band,
                                     rays,
                                     &voter.camera,
                                     starts,
                                     q,
-                                    &mut pixels,
-                                    &mut status,
+                                    voter.image,
+                                    &mut warped,
                                 );
                             }
                             _ => {
@@ -523,9 +509,9 @@ pub fn cost_volume(
                                     &mut pixels,
                                     &mut status,
                                 );
+                                warp_bilinear(voter.image, &pixels, &status, &mut warped);
                             }
                         }
-                        warp_bilinear(voter.image, &pixels, &status, &mut warped);
                         window_zncc(
                             reference,
                             windows,

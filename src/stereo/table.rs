@@ -36,9 +36,12 @@
 //! (behind the voter, beyond its lens's fold) lie where the projection runs off to infinity or
 //! folds: second differences there exceed any tolerance, so those cells are projected exactly.
 
-use super::cost::{air_ray_starts, project_hypotheses};
+#[cfg(doc)]
+use super::cost::warp_bilinear;
+use super::cost::{air_ray_starts, project_hypotheses, sample_bilinear};
 use super::rays::{RayGrid, rays_on_grid};
 use crate::model::RefractiveCamera;
+use crate::stereo::GreyImage;
 
 /// Node spacing of the projection table, reference pixels: the exact projection runs on 1/64 of
 /// the pixels (plus a node row above and below each band for the second differences).
@@ -273,6 +276,83 @@ pub fn project_tabulated(
     pixels: &mut [[f64; 2]],
     status: &mut [u32],
 ) -> TableCounts {
+    let rows = pixels.len() / band.width;
+    let counts = tabulate(
+        table,
+        band,
+        rays,
+        camera,
+        starts,
+        inverse_depth,
+        rows,
+        |j, p| {
+            pixels[j] = p;
+            status[j] = 0;
+        },
+    );
+    for (n, &j) in band.exact.iter().enumerate() {
+        pixels[j] = band.exact_pixels[n];
+        status[j] = band.exact_status[n];
+    }
+    counts
+}
+
+/// Stages 3 and 4a fused, `warp_tabulated`: `image` sampled bilinearly at the projections
+/// [`project_tabulated`] gives (`warped`, one value per pixel of the band's rows, as
+/// [`warp_bilinear`] writes them), each interpolated projection sampled where it is computed.
+/// The same values as [`warp_bilinear`] of [`project_tabulated`]'s output, without the band's
+/// projections ever stored: at 1280 pixels a row those were 16 bytes a pixel written and read
+/// back per hypothesis, which pushed the voter's image out of the cache (`docs/performance.md`).
+#[allow(clippy::too_many_arguments)]
+pub fn warp_tabulated(
+    table: &ProjectionTable,
+    band: &mut TableBand,
+    rays: &RayGrid,
+    camera: &RefractiveCamera,
+    starts: &[f64],
+    inverse_depth: f64,
+    image: &GreyImage,
+    warped: &mut [f32],
+) -> TableCounts {
+    let (w, h) = (image.width as usize, image.height as usize);
+    let rows = warped.len() / band.width;
+    let counts = tabulate(
+        table,
+        band,
+        rays,
+        camera,
+        starts,
+        inverse_depth,
+        rows,
+        |j, p| {
+            warped[j] = sample_bilinear(&image.pixels, w, h, p[0], p[1]);
+        },
+    );
+    for (n, &j) in band.exact.iter().enumerate() {
+        warped[j] = if band.exact_status[n] == 0 {
+            let p = band.exact_pixels[n];
+            sample_bilinear(&image.pixels, w, h, p[0], p[1])
+        } else {
+            f32::NAN
+        };
+    }
+    counts
+}
+
+/// The tabulated projection of the band's first `rows` rows: every interpolated pixel handed to
+/// `interpolated(index in the band, pixel)`, the others listed in `band.exact` with their exact
+/// projections in `band.exact_pixels` and `band.exact_status`.
+#[allow(clippy::too_many_arguments)]
+fn tabulate(
+    table: &ProjectionTable,
+    band: &mut TableBand,
+    rays: &RayGrid,
+    camera: &RefractiveCamera,
+    starts: &[f64],
+    inverse_depth: f64,
+    rows: usize,
+    mut interpolated_pixel: impl FnMut(usize, [f64; 2]),
+) -> TableCounts {
     let (w, step) = (band.width, table.step);
     let columns = table.nodes.width;
     let z = 1.0 / inverse_depth;
@@ -297,7 +377,6 @@ pub fn project_tabulated(
     // the point is in the voter's water, else queued for the exact projection.
     band.exact.clear();
     let inv_step = 1.0 / step as f64;
-    let rows = pixels.len() / w;
     let mut interpolated = 0;
     for k in 0..rows {
         let y = band.ext_first + k;
@@ -311,18 +390,18 @@ pub fn project_tabulated(
         }
         let ok = &band.cell_ok[top..top + columns];
         let below = &band.exact_below[k * w..(k + 1) * w];
-        let out = &mut pixels[k * w..(k + 1) * w];
-        let out_status = &mut status[k * w..(k + 1) * w];
         for x in 0..w {
             let i = x / step;
             // `z > NaN` is false: a pixel without a ray takes the exact path.
             if ok[i] && z > below[x] {
                 let fx = (x % step) as f64 * inv_step;
-                out[x] = [
-                    band.row_u[i] + fx * (band.row_u[i + 1] - band.row_u[i]),
-                    band.row_v[i] + fx * (band.row_v[i + 1] - band.row_v[i]),
-                ];
-                out_status[x] = 0;
+                interpolated_pixel(
+                    k * w + x,
+                    [
+                        band.row_u[i] + fx * (band.row_u[i + 1] - band.row_u[i]),
+                        band.row_v[i] + fx * (band.row_v[i + 1] - band.row_v[i]),
+                    ],
+                );
                 interpolated += 1;
             } else {
                 band.exact.push(k * w + x);
@@ -348,10 +427,6 @@ pub fn project_tabulated(
         &mut band.exact_pixels,
         &mut band.exact_status,
     );
-    for (n, &j) in band.exact.iter().enumerate() {
-        pixels[j] = band.exact_pixels[n];
-        status[j] = band.exact_status[n];
-    }
     TableCounts {
         interpolated,
         exact: count,
