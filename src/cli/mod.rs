@@ -16,6 +16,7 @@ mod batch;
 mod bench;
 mod calib;
 mod calib_images;
+mod calib_targetless;
 mod demo;
 mod detect;
 mod export;
@@ -470,6 +471,7 @@ pub fn main() -> ExitCode {
         Command::Export(command) => export::run(command),
         Command::Simulate(args) => simulate::run_simulate(args),
         Command::Calibrate(args) => match args.images.clone() {
+            Some(dir) if args.targetless => calib_targetless::run(&args, &dir),
             Some(dir) => calib_images::run(&args, &dir),
             None => calib::run_calibrate(args),
         },

@@ -13,7 +13,8 @@
 //!    8 → 5 → 3.5; the last fit is plain least squares. Where the fit from the rig's guess ends
 //!    above [`TargetlessOptions::max_rms_px`], more starts are tried (axes over a cap of 20°)
 //!    and the best kept.
-//! 4. σ of every parameter from JᵀJ scaled by the residual variance; a parameter the scene
+//! 4. σ of every parameter from JᵀJ scaled by the residual variance and by the patches' overlap
+//!    (matches whose patches share pixels share their errors); a parameter the scene
 //!    cannot pin (σ above its limit) is reported in [`TargetlessCalibration::unpinned`] with the
 //!    parameter it trades off against, and [`TargetlessCalibration::confident_rig`] refuses it.
 //!
@@ -209,6 +210,9 @@ pub struct TargetlessCalibration {
     pub unpinned: Vec<Unpinned>,
     /// Every track's final point, master frame (for a look at the scene).
     pub points: Vec<Point3<f64>>,
+    /// Mean count of matched patches covering a covered pixel of the master's image: the σ are
+    /// scaled by its square root (overlapping patches share their matching errors).
+    pub overlap: f64,
 }
 
 impl TargetlessCalibration {
@@ -582,11 +586,12 @@ pub fn calibrate_targetless(
     let observations: usize = fitted.tracks.iter().map(|t| t.pixels.len()).sum();
     let dimension = fitted.globals.len() + 3 * fitted.tracks.len();
     let variance = fitted.cost / (2 * observations).saturating_sub(dimension).max(1) as f64;
+    let overlap = patch_overlap(rig, &fitted.tracks, options.matching.patch_radius);
     let covariance = fitted
         .normal
         .as_ref()
         .and_then(|n| n.global_covariance())
-        .map(|c| c * variance);
+        .map(|c| c * (variance * overlap));
     let (ports, unpinned) = uncertainty(&calibrated, &fitted.globals, covariance.as_ref(), options);
     Ok(TargetlessCalibration {
         rig: calibrated,
@@ -600,7 +605,39 @@ pub fn calibrate_targetless(
         termination: fitted.termination,
         unpinned,
         points: fitted.state.points,
+        overlap,
     })
+}
+
+/// How many of the kept tracks' patches cover a pixel of the master's image, on average over the
+/// pixels they cover (≥ 1). Matches whose patches share pixels share their matching errors, so
+/// the residuals are not independent: the fit holds about (tracks / overlap) independent ones, and
+/// σ from JᵀJ is scaled by √overlap.
+fn patch_overlap(rig: &Rig, tracks: &[Track], radius: usize) -> f64 {
+    let i = &rig.cameras()[0].intrinsics;
+    let (w, h) = (i.width as usize, i.height as usize);
+    let mut counts = vec![0u32; w * h];
+    let (mut covered, mut total) = (0usize, 0usize);
+    for t in tracks {
+        let (_, p) = t.pixels[0];
+        let (x, y) = (p.x.round() as isize, p.y.round() as isize);
+        let r = radius as isize;
+        for yy in (y - r).max(0)..=(y + r).min(h as isize - 1) {
+            for xx in (x - r).max(0)..=(x + r).min(w as isize - 1) {
+                let c = &mut counts[yy as usize * w + xx as usize];
+                if *c == 0 {
+                    covered += 1;
+                }
+                *c += 1;
+                total += 1;
+            }
+        }
+    }
+    if covered == 0 {
+        1.0
+    } else {
+        (total as f64 / covered as f64).max(1.0)
+    }
 }
 
 fn parameter_name(names: &[(String, Interface)], parameter: Parameter) -> String {
@@ -660,8 +697,10 @@ fn uncertainty(
             }),
             _ => None,
         };
-        if let Some((sigma, same)) = &axis {
-            if !(*sigma <= options.max_axis_sigma_deg) {
+        if let Some((sigma, same)) = &axis
+            && !(*sigma <= options.max_axis_sigma_deg)
+        {
+            {
                 unpinned.push(Unpinned {
                     parameter: format!("{name} axis"),
                     sigma: *sigma,
@@ -675,8 +714,10 @@ fn uncertainty(
             }
         }
         let distance = index(Parameter::Distance(p)).map(|i| (sd(i).unwrap_or(f64::INFINITY), i));
-        if let Some((sigma, i)) = distance {
-            if !(sigma <= options.max_distance_sigma_m) {
+        if let Some((sigma, i)) = distance
+            && !(sigma <= options.max_distance_sigma_m)
+        {
+            {
                 unpinned.push(Unpinned {
                     parameter: format!("{name} distance"),
                     sigma,

@@ -163,11 +163,11 @@ pub fn search_start(rig: &Rig, tracks: &[Track], estimate: Estimate) -> (Rig, f6
                 .collect();
             evaluated += candidates.len();
             let costs: Vec<f64> = candidates.iter().map(|r| profile(r, &sample)).collect();
-            if let Some((i, c)) = costs.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)) {
-                if *c < best {
-                    best = *c;
-                    best_rig = candidates[i].clone();
-                }
+            if let Some((i, c)) = costs.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1))
+                && *c < best
+            {
+                best = *c;
+                best_rig = candidates[i].clone();
             }
         }
     }
