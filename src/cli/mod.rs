@@ -202,7 +202,7 @@ Timing a full-size pair (1280 x 1024, 128 hypotheses):
   flatport render --scene data/scenes/seabed.json --noise 2 -o big
   time flatport stereo --rig big/rig.json --images big --output big-out --depth 0.8:2.5")]
     Stereo(stereo::StereoArgs),
-    /// Calibrate a rig: its ports (axis, air layer; layers and extrinsics when asked) from views of a target, or everything (lenses, extrinsics, ports) from images or videos of a board
+    /// Calibrate a rig: its ports (axis, air layer; layers and extrinsics when asked) from views of a target, or everything (lenses, extrinsics, ports) from images or videos of a board, or its ports from footage of any textured scene (--targetless)
     #[command(after_help = "\
 From images alone (--images DIR --board BOARD.json --port surface|shared|housings): DIR holds
 air/<camera>/ (each camera's own views of the board in air) and water/<camera>/ (synchronized
