@@ -114,7 +114,7 @@ pub struct CalibrateArgs {
     #[arg(long, requires_all = ["images", "rig"], conflicts_with_all = ["board", "port", "glass"], help_heading = "Targetless")]
     pub targetless: bool,
     /// Frames used by --targetless: START:STOP:STEP, each part optional (0:300:10, ::5)
-    /// [default: every frame]
+    /// [default: at most 8 spread over the footage]
     #[arg(
         long,
         value_name = "START:STOP:STEP",

@@ -5,40 +5,42 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 
-use flatport::calib::targetless::{TargetlessOptions, calibrate_targetless};
-use flatport::io::frames::{FrameSelection, FrameSource, check_synchronized, open_cameras};
+use flatport::calib::targetless::{DEFAULT_FRAMES, TargetlessOptions, calibrate_targetless};
+use flatport::io::frames::{FrameSelection, read_camera_frames};
 use flatport::io::{read_rig, write_rig};
 use flatport::model::Rig;
 use flatport::stereo::GreyImage;
 
 use super::calib::{CalibrateArgs, rig_truth_errors};
 
-/// Frames used when `--frames` is not given: at most this many, spread evenly over the footage.
-const DEFAULT_FRAMES: usize = 8;
-
-/// Each rig camera's frame source from `dir` (a folder per camera, named as in the rig).
-fn sources(rig: &Rig, dir: &Path) -> anyhow::Result<Vec<(String, FrameSource)>> {
-    let mut found = open_cameras(dir)?;
-    let mut ordered = Vec::with_capacity(rig.cameras().len());
-    for camera in rig.cameras() {
-        let Some(i) = found.iter().position(|(name, _)| *name == camera.name) else {
-            bail!(
-                "{}: no folder for camera '{}' (--targetless needs one folder per rig camera, named as in the rig; found: {})",
-                dir.display(),
-                camera.name,
-                found
-                    .iter()
-                    .map(|(n, _)| n.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            );
-        };
-        ordered.push(found.swap_remove(i));
-    }
-    for (name, _) in &found {
+/// The frames of every rig camera from `dir` (a folder per camera, named as in the rig), as
+/// `--frames` picks them or at most [`DEFAULT_FRAMES`] spread over the footage; notes the folders
+/// that name no camera and says on stderr what is read.
+pub fn read_frames(
+    rig: &Rig,
+    dir: &Path,
+    frames: Option<FrameSelection>,
+) -> anyhow::Result<Vec<Vec<GreyImage>>> {
+    let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
+    let read = read_camera_frames(dir, &names, frames, DEFAULT_FRAMES)?;
+    for name in &read.unused {
         eprintln!("note: folder '{name}' is not a camera of the rig: not used");
     }
-    Ok(ordered)
+    eprintln!(
+        "targetless: cameras {} (master {}), {} of {} frame(s) ({})",
+        names.join(", "),
+        names[0],
+        read.indices.len(),
+        read.count,
+        match frames {
+            Some(s) => format!("--frames {s}"),
+            None => format!(
+                "frame step {}: at most {DEFAULT_FRAMES} spread over the footage",
+                read.selection.step
+            ),
+        },
+    );
+    Ok(read.frames)
 }
 
 /// The run of `flatport calibrate --images DIR --rig RIG.json --targetless`.
@@ -52,43 +54,8 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
             "--targetless does not estimate intrinsics: calibrate the lenses in air first (calibrate --images with air/ views of a board)"
         );
     }
-    let sources = sources(&rig, dir)?;
-    let count = check_synchronized(dir, &sources)?;
-    let selection = args.frames.unwrap_or(FrameSelection {
-        start: 0,
-        stop: None,
-        step: count.div_ceil(DEFAULT_FRAMES).max(1),
-    });
-    let indices: Vec<usize> = selection
-        .indices(count)
-        .map_err(|e| anyhow::anyhow!("{e}"))?
-        .collect();
-    let mut frames: Vec<Vec<GreyImage>> = vec![Vec::with_capacity(sources.len()); indices.len()];
-    for (name, source) in &sources {
-        for (slot, item) in frames.iter_mut().zip(source.frames(&selection)?) {
-            let (_, image) = item.with_context(|| format!("camera '{name}'"))?;
-            slot.push(GreyImage {
-                width: image.width(),
-                height: image.height(),
-                pixels: image.pixels().map(|p| f32::from(p.0[0]) / 255.0).collect(),
-            });
-        }
-    }
-    let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
-    eprintln!(
-        "targetless: cameras {} (master {}), {} of {count} frame(s) ({}), estimating {}",
-        names.join(", "),
-        names[0],
-        indices.len(),
-        match args.frames {
-            Some(s) => format!("--frames {s}"),
-            None => format!(
-                "frame step {}: at most {DEFAULT_FRAMES} spread over the footage",
-                selection.step
-            ),
-        },
-        args.estimate.name()
-    );
+    let frames = read_frames(&rig, dir, args.frames)?;
+    eprintln!("estimating {}", args.estimate.name());
     let options = TargetlessOptions {
         estimate: args.estimate,
         max_axis_sigma_deg: args.max_sigma_axis_deg,

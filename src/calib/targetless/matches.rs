@@ -379,7 +379,10 @@ mod tests {
             .collect();
         let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
         let worst = errors.iter().copied().fold(0.0, f64::max);
-        eprintln!("shift: RMS {rms} px, worst {worst} px over {} matches", matches.len());
+        eprintln!(
+            "shift: RMS {rms} px, worst {worst} px over {} matches",
+            matches.len()
+        );
         // The images are point samples of a texture whose finest octave has a 4 px wavelength
         // (2 octaves from 8 px, a soft tanh): bilinear interpolation of such content errs by a
         // few hundredths of a pixel, depending on the sub-pixel phase (the shift's 0.37, 0.39).

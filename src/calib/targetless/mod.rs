@@ -42,6 +42,10 @@ use crate::stereo::GreyImage;
 pub use fit::{PointsProblem, PointsState, Track};
 pub use matches::{MatchOptions, PixelMatch, match_pair};
 
+/// Frames used from footage when no selection is given: at most this many, spread evenly over it
+/// (`calibrate --targetless` without `--frames`, `flatport.calibrate_targetless`).
+pub const DEFAULT_FRAMES: usize = 8;
+
 /// Settings of a targetless calibration.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TargetlessOptions {
@@ -421,19 +425,10 @@ fn screened(rig: &Rig, tracks: &[Track]) -> (Vec<Track>, Vec<Point3<f64>>) {
         .unzip()
 }
 
-/// Calibrates the port(s) of `rig` from `frames` (frame by frame, one image per rig camera in rig
-/// order): the rig's cameras and extrinsics are known, its ports are the start. `progress`
-/// receives one line per stage.
-pub fn calibrate_targetless(
-    rig: &Rig,
-    frames: &[Vec<GreyImage>],
-    options: &TargetlessOptions,
-    progress: &mut dyn FnMut(&str),
-) -> Result<TargetlessCalibration, TargetlessError> {
+/// Checks `frames` against `rig`: at least one frame, each with one image per rig camera (rig
+/// order) of that camera's size.
+pub fn check_frames(rig: &Rig, frames: &[Vec<GreyImage>]) -> Result<(), TargetlessError> {
     let cameras = rig.cameras().len();
-    if cameras < 2 {
-        return Err(TargetlessError::OneCamera);
-    }
     if frames.is_empty() {
         return Err(TargetlessError::NoFrames);
     }
@@ -459,6 +454,23 @@ pub fn calibrate_targetless(
             }
         }
     }
+    Ok(())
+}
+
+/// Calibrates the port(s) of `rig` from `frames` (frame by frame, one image per rig camera in rig
+/// order): the rig's cameras and extrinsics are known, its ports are the start. `progress`
+/// receives one line per stage.
+pub fn calibrate_targetless(
+    rig: &Rig,
+    frames: &[Vec<GreyImage>],
+    options: &TargetlessOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<TargetlessCalibration, TargetlessError> {
+    let cameras = rig.cameras().len();
+    if cameras < 2 {
+        return Err(TargetlessError::OneCamera);
+    }
+    check_frames(rig, frames)?;
     let probe = PointsProblem::new(rig, &[], options.estimate, None);
     if probe.globals().is_empty() {
         return Err(TargetlessError::NothingToEstimate);
