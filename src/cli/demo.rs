@@ -399,6 +399,9 @@ fn calibration_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> 
         let args = super::sweep::SweepArgs {
             rig: Some(dir.join("start_rig.json")),
             observations: Some(dir.join("observations.json")),
+            targetless: false,
+            images: None,
+            frames: None,
             cost: super::sweep::CostArg::Invariant,
             tilt_deg: Some(tilt_deg),
             azimuth_deg: Some(azimuth_deg),

@@ -271,6 +271,12 @@ Examples:
   flatport sweep --rig rig.json --observations obs.json --cost reprojection \\
       --tilt-deg 6:10:21 --azimuth-deg 40:50:21 --distance 0.015:0.025:11 --output sweep3d --device gpu
 
+No board (--targetless, docs/targetless.md): the cost of matches of a textured scene filmed by the
+rig (DIR as calibrate --targetless reads it), each match's point fitted alone under the cell's
+port, as an RMS reprojection error in px; the master's port is moved; --distance is required:
+  flatport sweep --images seabed --rig naive.json --targetless \
+      --tilt-deg 6:10:17 --azimuth-deg 35:55:21 --distance 0.01:0.03:21 --output well
+
 Over many machines (a SLURM array, a Kubernetes Indexed Job; see docs/sweeps.md): --shard I/N writes
 slice I of N into its own folder, `flatport sweep merge` joins the folders into the files above:
   flatport sweep ... --shard 0/4 --output shard-0      (and 1/4, 2/4, 3/4)

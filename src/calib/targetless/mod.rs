@@ -27,6 +27,7 @@
 pub mod fit;
 pub mod matches;
 pub mod start;
+pub mod sweep;
 
 use std::collections::BTreeMap;
 

@@ -92,12 +92,21 @@ fn track_profile(cameras: &[RefractiveCamera], track: &Track) -> f64 {
     cost(&r).min(cap)
 }
 
-/// The profile cost of `rig` over `tracks`; +∞ where `rig` is not valid.
-fn profile(rig: &Rig, tracks: &[Track]) -> f64 {
+/// Every track's least reprojection cost (px²) with its point fitted alone under `rig`,
+/// truncated at 16 px² per observation, in track order.
+pub fn track_costs(rig: &Rig, tracks: &[Track]) -> Vec<f64> {
     let cameras: Vec<RefractiveCamera> = (0..rig.cameras().len())
         .map(|k| rig.refractive_camera(k))
         .collect();
-    tracks.par_iter().map(|t| track_profile(&cameras, t)).sum()
+    tracks
+        .par_iter()
+        .map(|t| track_profile(&cameras, t))
+        .collect()
+}
+
+/// The profile cost of `rig` over `tracks`: the sum of their [`track_costs`] (px²).
+pub fn profile(rig: &Rig, tracks: &[Track]) -> f64 {
+    track_costs(rig, tracks).iter().sum()
 }
 
 fn ports_of(rig: &Rig) -> Vec<Interface> {
@@ -107,7 +116,9 @@ fn ports_of(rig: &Rig) -> Vec<Interface> {
     }
 }
 
-fn with_port(rig: &Rig, p: usize, port: Interface) -> Option<Rig> {
+/// `rig` with port `p` (its shared port, or camera `p`'s own) replaced by `port`; `None` when that
+/// is not a valid rig (a camera outside the air).
+pub fn with_port(rig: &Rig, p: usize, port: Interface) -> Option<Rig> {
     let ports = match rig.ports() {
         Ports::Shared(_) => Ports::Shared(port),
         Ports::PerCamera(ports) => {
@@ -119,11 +130,16 @@ fn with_port(rig: &Rig, p: usize, port: Interface) -> Option<Rig> {
     rig.with_new_ports(ports).ok()
 }
 
+/// At most `count` of `tracks`, spread evenly over them (every ⌈len / count⌉-th).
+pub fn spread(tracks: &[Track], count: usize) -> Vec<Track> {
+    let stride = tracks.len().div_ceil(count.max(1)).max(1);
+    tracks.iter().step_by(stride).cloned().collect()
+}
+
 /// The best start found from `rig` for `tracks`, with its profile cost per track, and the
 /// candidates evaluated.
 pub fn search_start(rig: &Rig, tracks: &[Track], estimate: Estimate) -> (Rig, f64, usize) {
-    let stride = tracks.len().div_ceil(SEARCH_TRACKS).max(1);
-    let sample: Vec<Track> = tracks.iter().step_by(stride).cloned().collect();
+    let sample = spread(tracks, SEARCH_TRACKS);
     let n = sample.len().max(1) as f64;
     let mut best_rig = rig.clone();
     let mut best = profile(rig, &sample);
