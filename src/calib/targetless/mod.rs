@@ -18,6 +18,9 @@
 //!    cannot pin (σ above its limit) is reported in [`TargetlessCalibration::unpinned`] with the
 //!    parameter it trades off against, and [`TargetlessCalibration::confident_rig`] refuses it.
 //!
+//! [`sweep`] evaluates the start's profile cost over a grid of ports (`flatport sweep
+//! --targetless`), to see the well a scene gives before trusting a fit.
+//!
 //! **How many matches.** The Fisher information of the port grows with the matches and their
 //! spread in image and depth: on the rendered scenes of issue 40, 3 000 exact matches at 0.3 px
 //! give σ 0.03–0.09° for the axis and 0.4–1.9 mm for the air layer. The sub-pixel matcher here is
