@@ -36,6 +36,8 @@ __all__ = [
     "calibrate_images",
     "ImagesCalibration",
     "CalibrationRefused",
+    "calibrate_targetless",
+    "TargetlessCalibration",
     "simulate",
     "Simulation",
     "sweep",
@@ -404,8 +406,10 @@ def calibrate(
 
 class CalibrationRefused(ValueError):
     """:func:`calibrate_images` fitted a rig that does not fit the images (the reprojection RMS
-    above ``max_rms_px``): no rig is returned, as ``flatport calibrate --images`` writes none. The
-    message says what the data look like; ``report`` is the full report (a dict), as written to
+    above ``max_rms_px``), or :func:`calibrate_targetless` one whose port the scene does not pin
+    down (a σ above its limit): no rig is returned, as ``flatport calibrate --images`` writes
+    none. The message says what the data look like (for a targetless fit: which parameter, its σ,
+    the limit and what it trades off with); ``report`` is the full report (a dict), as written to
     ``report=`` when given."""
 
     def __init__(self, message: str, report: dict) -> None:
@@ -560,6 +564,102 @@ def calibrate_images(
         dropped_frames=full["dropped_frames"],
         dropped_corners=full["dropped_corners"],
     )
+
+
+class TargetlessCalibration(NamedTuple):
+    """What :func:`calibrate_targetless` found: ``flatport calibrate --targetless``' rig and the
+    fit's report."""
+
+    #: The input rig with its port(s) fitted (cameras and extrinsics as given).
+    rig: Rig
+    #: The report as a dict: ``ports``, ``rms_px``, ``candidates`` (tracks matched), ``tracks``
+    #: (kept in the fit), ``observations``, ``matches_per_camera``, ``starts``, ``termination``,
+    #: ``overlap``, ``unpinned`` and ``pinned``.
+    report: dict
+    #: Every port: ``name``, ``normal`` (3,) float64 (in the frame the rig file gives the port
+    #: in), ``tilt_deg``, ``azimuth_deg``, ``axis_std_deg`` (σ of the axis along its worst
+    #: direction, None when not estimated), ``distance`` ``{"value", "std"}`` (metres; for a water
+    #: surface its height) and ``thicknesses`` (each ``{"value", "std"}``).
+    ports: list
+    #: RMS reprojection error of the final fit, pixels.
+    rms_px: float
+    #: Tracks (a master corner and its matches) kept in the fit.
+    tracks: int
+
+
+def _targetless_frames(images: Any) -> list:
+    """``images`` as frames of grey float32 images: a sequence of frames, each a sequence with one
+    image per rig camera, or one frame (a sequence of images)."""
+    frames = list(images)
+    if not frames:
+        raise ValueError("images holds no frame")
+    if isinstance(frames[0], np.ndarray) and frames[0].ndim in (2, 3) and frames[0].dtype != object:
+        frames = [frames]
+    return [[_grey(image, f"images[{f}][{k}]") for k, image in enumerate(frame)] for f, frame in enumerate(frames)]
+
+
+def calibrate_targetless(
+    rig: Union[Rig, str, os.PathLike],
+    images: Any,
+    *,
+    frames: Optional[Union[str, Tuple[Optional[int], Optional[int], Optional[int]]]] = None,
+    estimate: Union[str, Iterable[str]] = ("axis", "distance"),
+    huber: float = 1.0,
+    max_rms_px: float = 1.0,
+    max_sigma_axis_deg: float = 0.1,
+    max_sigma_distance_mm: float = 2.0,
+    output: Optional[Union[str, os.PathLike]] = None,
+) -> TargetlessCalibration:
+    """The port(s) of a rig whose cameras are calibrated in air, from frames of any textured scene,
+    no board, as ``flatport calibrate --images DIR --rig RIG.json --targetless``
+    (docs/targetless.md): matches of the master's corners in every other camera, outliers
+    rejected by the ray gap, maximum likelihood over the ports and every match's 3-D point, with σ.
+
+    ``rig`` (a :class:`Rig` or a rig file): the cameras and extrinsics (known) and a guess of the
+    port(s), the start (the naive guess is fine: axis on the master's z, 10 mm of air).
+    ``images``: a folder holding one sub-folder per rig camera, named as in the rig, of
+    synchronized frames (images sorted by name, or one video), as ``flatport stereo`` reads it;
+    or the frames themselves: a list of frames, each a list of one image per rig camera in rig
+    order (grey float 0 … 1, uint8 or uint16, or colour), or a single frame (a list of images).
+    ``frames`` (a folder only): ``"START:STOP:STEP"`` or a ``(start, stop, step)`` tuple; by
+    default at most 8 frames spread over the footage. ``estimate`` as :func:`calibrate`'s
+    (``axis``, ``distance``, ``layers``, ``extrinsics``; not intrinsics). ``huber``: the robust
+    fits' threshold (px); ``max_rms_px``: a fit ending above it tries more starts and is refused.
+    The matching and the fit release the GIL.
+
+    Bad input (a missing camera folder, images of the wrong size, too few matches, no fit)
+    raises ValueError with the library's message. A parameter the scene does not pin down (an
+    axis' σ above ``max_sigma_axis_deg``, an air distance's above ``max_sigma_distance_mm``)
+    raises :class:`CalibrationRefused` naming the parameter, its σ and what it trades off with;
+    its ``report`` holds the fit and the σ of every parameter, and ``output`` is not written.
+
+    >>> result = flatport.calibrate_targetless("naive.json", "seabed")        # doctest: +SKIP
+    >>> result.ports[0]["tilt_deg"], result.ports[0]["axis_std_deg"]        # doctest: +SKIP
+    """
+    if not isinstance(rig, Rig):
+        if not isinstance(rig, (str, os.PathLike)):
+            raise TypeError(f"rig must be a flatport.Rig or a path to a rig file, got {type(rig).__name__}")
+        rig = load_rig(rig)
+    words = [part.strip() for part in (estimate.split(",") if isinstance(estimate, str) else estimate)]
+    if isinstance(frames, tuple):
+        if len(frames) != 3:
+            raise ValueError(f"frames must be (start, stop, step) or 'START:STOP:STEP', got {frames!r}")
+        frames = ":".join("" if part is None else str(int(part)) for part in frames)
+    if isinstance(images, (str, os.PathLike)):
+        folder, arrays = os.fspath(images), None
+    else:
+        if frames is not None:
+            raise ValueError("frames selects frames of a folder; with images given as arrays, pass the frames wanted")
+        folder, arrays = None, _targetless_frames(images)
+    calibrated, text, refused = _flatport.calibrate_targetless(
+        rig._rig, folder, arrays, frames, ",".join(words), float(huber), float(max_rms_px),
+        float(max_sigma_axis_deg), float(max_sigma_distance_mm), None if output is None else os.fspath(output),
+    )
+    report = json.loads(text)
+    if refused is not None:
+        raise CalibrationRefused(refused, report)
+    ports = [dict(p, normal=np.asarray(p["normal"], dtype=np.float64)) for p in report["ports"]]
+    return TargetlessCalibration(Rig(calibrated), report, ports, report["rms_px"], report["tracks"])
 
 
 class Simulation(NamedTuple):

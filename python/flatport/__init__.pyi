@@ -120,6 +120,26 @@ def calibrate_images(
     max_rms_px: Optional[float] = None,
 ) -> ImagesCalibration: ...
 
+class TargetlessCalibration(NamedTuple):
+    rig: Rig
+    report: dict
+    ports: list[dict]
+    rms_px: float
+    tracks: int
+
+def calibrate_targetless(
+    rig: Union[Rig, str, os.PathLike[str]],
+    images: Union[str, os.PathLike[str], Sequence[Sequence[Any]], Sequence[Any]],
+    *,
+    frames: Union[str, Tuple[Optional[int], Optional[int], Optional[int]], None] = None,
+    estimate: Union[str, Iterable[str]] = ("axis", "distance"),
+    huber: float = 1.0,
+    max_rms_px: float = 1.0,
+    max_sigma_axis_deg: float = 0.1,
+    max_sigma_distance_mm: float = 2.0,
+    output: Union[str, os.PathLike[str], None] = None,
+) -> TargetlessCalibration: ...
+
 class Simulation(NamedTuple):
     observations: dict
     truth: dict

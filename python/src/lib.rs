@@ -728,6 +728,87 @@ fn calibrate_images(
     Ok((Some(PyRig::wrap(result.calibration.rig)), report_text, None))
 }
 
+/// Frames for a targetless calibration: read from `images` (a folder per rig camera, as `flatport
+/// calibrate --targetless` reads it) with `frames` (START:STOP:STEP, default at most 8 spread
+/// over the footage), or given as `arrays` (one grey float32 image (H, W) per rig camera for
+/// each frame).
+fn targetless_frames(rig: &Rig, images: Option<PathBuf>, arrays: Option<Vec<Vec<PyReadonlyArray2<'_, f32>>>>, frames: Option<&str>) -> PyResult<Vec<Vec<flatport::stereo::GreyImage>>> {
+    use flatport::io::frames::{FrameSelection, read_camera_frames};
+    match (images, arrays) {
+        (Some(dir), None) => {
+            let selection = frames.map(|f| f.parse::<FrameSelection>()).transpose().map_err(value_error)?;
+            let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
+            Ok(read_camera_frames(&dir, &names, selection, flatport::calib::targetless::DEFAULT_FRAMES).map_err(value_error)?.frames)
+        }
+        (None, Some(arrays)) => arrays
+            .iter()
+            .map(|frame| {
+                frame
+                    .iter()
+                    .map(|a| {
+                        let shape = a.shape();
+                        Ok(flatport::stereo::GreyImage { width: shape[1] as u32, height: shape[0] as u32, pixels: a.as_slice().map_err(value_error)?.to_vec() })
+                    })
+                    .collect::<PyResult<Vec<_>>>()
+            })
+            .collect(),
+        _ => Err(value_error("give images as a folder or as arrays, not both")),
+    }
+}
+
+/// The port(s) of `rig` (cameras and extrinsics known, its ports the start) from frames of any
+/// textured scene, as `flatport calibrate --images DIR --rig RIG.json --targetless`: (the
+/// calibrated rig, the report JSON, why it is refused or None). `output` is written only when
+/// every estimated parameter is pinned down.
+#[pyfunction]
+#[pyo3(signature = (rig, images, arrays, frames, estimate, huber, max_rms_px, max_sigma_axis_deg, max_sigma_distance_mm, output))]
+#[allow(clippy::too_many_arguments)] // the Python signature
+fn calibrate_targetless(
+    py: Python<'_>,
+    rig: &PyRig,
+    images: Option<PathBuf>,
+    arrays: Option<Vec<Vec<PyReadonlyArray2<'_, f32>>>>,
+    frames: Option<&str>,
+    estimate: &str,
+    huber: f64,
+    max_rms_px: f64,
+    max_sigma_axis_deg: f64,
+    max_sigma_distance_mm: f64,
+    output: Option<PathBuf>,
+) -> PyResult<(PyRig, String, Option<String>)> {
+    use flatport::calib::targetless::{TargetlessOptions, calibrate_targetless as run_targetless};
+    let estimate = Estimate::parse(estimate).map_err(value_error)?;
+    if estimate.intrinsics {
+        return Err(value_error("a targetless calibration does not estimate intrinsics: calibrate the lenses in air first (calibrate_images)"));
+    }
+    for (name, value) in [("huber", huber), ("max_rms_px", max_rms_px), ("max_sigma_axis_deg", max_sigma_axis_deg), ("max_sigma_distance_mm", max_sigma_distance_mm)] {
+        if !(value > 0.0 && value.is_finite()) {
+            return Err(value_error(format!("{name} must be a positive number, got {value}")));
+        }
+    }
+    let frames = targetless_frames(&rig.rig, images, arrays, frames)?;
+    let options = TargetlessOptions {
+        estimate,
+        huber_px: huber,
+        max_rms_px,
+        max_axis_sigma_deg: max_sigma_axis_deg,
+        max_distance_sigma_m: max_sigma_distance_mm * 1e-3,
+        ..TargetlessOptions::default()
+    };
+    let result = py.detach(|| run_targetless(&rig.rig, &frames, &options, &mut |_| {})).map_err(value_error)?;
+    let report = flatport::io::targetless_report_to_json_string(&result);
+    let refused = match result.confident_rig() {
+        Ok(calibrated) => {
+            if let Some(path) = &output {
+                write_rig(path, calibrated).map_err(value_error)?;
+            }
+            None
+        }
+        Err(why) => Some(format!("{why}{}", output.as_ref().map_or(String::new(), |p| format!(" ({} not written)", p.display())))),
+    };
+    Ok((PyRig::wrap(result.rig), report, refused))
+}
+
 /// Simulates stereo views of a chessboard: (observations JSON, truth JSON).
 #[pyfunction]
 #[allow(clippy::too_many_arguments)] // the Python signature
@@ -985,6 +1066,7 @@ fn _flatport(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyDeviceArray>()?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate_images, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate_targetless, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(sweep, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

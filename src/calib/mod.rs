@@ -16,7 +16,8 @@
 //!   diagnosis of a misfit).
 //!
 //! [`sweep`](mod@sweep) evaluates a cost over grids of candidate ports; [`simulate`](mod@simulate)
-//! makes scenes with known truth; [`error`] is every calibration error. No I/O here.
+//! makes scenes with known truth; [`targetless`] calibrates ports from matches of any textured
+//! scene, no board; [`error`] is every calibration error. No I/O here.
 
 pub mod backends;
 pub mod costs;
@@ -26,6 +27,7 @@ pub mod problem;
 pub mod simulate;
 pub mod solvers;
 pub mod sweep;
+pub mod targetless;
 
 #[cfg(feature = "gpu")]
 pub use backends::gpu::GpuBackend;

@@ -107,6 +107,28 @@ pub struct CalibrateArgs {
     /// No progress bars
     #[arg(long, short, help_heading = "From images")]
     pub quiet: bool,
+    /// No board: calibrate the port(s) of --rig (cameras and extrinsics known, its ports the
+    /// start) from matches of any textured scene. DIR holds one folder per rig camera, named as
+    /// in the rig, of synchronized frames (images sorted by name, or one video), as `stereo`
+    /// reads them (see docs/targetless.md)
+    #[arg(long, requires_all = ["images", "rig"], conflicts_with_all = ["board", "port", "glass"], help_heading = "Targetless")]
+    pub targetless: bool,
+    /// Frames used by --targetless: START:STOP:STEP, each part optional (0:300:10, ::5)
+    /// [default: at most 8 spread over the footage]
+    #[arg(
+        long,
+        value_name = "START:STOP:STEP",
+        requires = "targetless",
+        help_heading = "Targetless"
+    )]
+    pub frames: Option<flatport::io::frames::FrameSelection>,
+    /// With --targetless: refuse (write no rig) when an axis' σ exceeds this (degrees)
+    #[arg(long, value_name = "DEG", default_value_t = 0.1, value_parser = super::values::positive, requires = "targetless", help_heading = "Targetless")]
+    pub max_sigma_axis_deg: f64,
+    /// With --targetless: refuse (write no rig) when an air distance's (or water height's) σ
+    /// exceeds this (millimetres)
+    #[arg(long, value_name = "MM", default_value_t = 2.0, value_parser = super::values::positive, requires = "targetless", help_heading = "Targetless")]
+    pub max_sigma_distance_mm: f64,
     /// Estimator
     #[arg(long, value_enum, default_value_t = MethodArg::Auto)]
     pub method: MethodArg,
@@ -139,7 +161,8 @@ pub struct CalibrateArgs {
     /// plainly wrong); a value given here is the bound, whatever the noise
     #[arg(long, value_name = "PX")]
     pub max_rms_px: Option<f64>,
-    /// Truth of a simulated scene (from `flatport simulate`): print the errors of the result
+    /// Truth of a simulated scene (from `flatport simulate`; with --targetless the true RIG.json):
+    /// print the errors of the result
     #[arg(long, value_name = "TRUTH.json")]
     pub truth: Option<PathBuf>,
     #[command(flatten)]

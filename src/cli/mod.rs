@@ -16,6 +16,7 @@ mod batch;
 mod bench;
 mod calib;
 mod calib_images;
+mod calib_targetless;
 mod demo;
 mod detect;
 mod export;
@@ -217,7 +218,7 @@ Timing a full-size pair (1280 x 1024, 128 hypotheses):
   flatport render --scene data/scenes/seabed.json --noise 2 -o big
   time flatport stereo --rig big/rig.json --images big --output big-out --depth 0.8:2.5 --hypotheses 128")]
     Stereo(stereo::StereoArgs),
-    /// Calibrate a rig: its ports (axis, air layer; layers and extrinsics when asked) from views of a target, or everything (lenses, extrinsics, ports) from images or videos of a board
+    /// Calibrate a rig: its ports (axis, air layer; layers and extrinsics when asked) from views of a target, or everything (lenses, extrinsics, ports) from images or videos of a board, or its ports from footage of any textured scene (--targetless)
     #[command(after_help = "\
 From images alone (--images DIR --board BOARD.json --port surface|shared|housings): DIR holds
 air/<camera>/ (each camera's own views of the board in air) and water/<camera>/ (synchronized
@@ -285,6 +286,12 @@ Examples:
       --tilt-deg 0:20:64 --azimuth-deg -180:180:64 --output sweep
   flatport sweep --rig rig.json --observations obs.json --cost reprojection \\
       --tilt-deg 6:10:21 --azimuth-deg 40:50:21 --distance 0.015:0.025:11 --output sweep3d --device gpu
+
+No board (--targetless, docs/targetless.md): the cost of matches of a textured scene filmed by the
+rig (DIR as calibrate --targetless reads it), each match's point fitted alone under the cell's
+port, as an RMS reprojection error in px; the master's port is moved; --distance is required:
+  flatport sweep --images seabed --rig naive.json --targetless \
+      --tilt-deg 6:10:17 --azimuth-deg 35:55:21 --distance 0.01:0.03:21 --output well
 
 Over many machines (a SLURM array, a Kubernetes Indexed Job; see docs/sweeps.md): --shard I/N writes
 slice I of N into its own folder, `flatport sweep merge` joins the folders into the files above:
@@ -486,6 +493,7 @@ pub fn main() -> ExitCode {
         Command::Export(command) => export::run(command),
         Command::Simulate(args) => simulate::run_simulate(args),
         Command::Calibrate(args) => match args.images.clone() {
+            Some(dir) if args.targetless => calib_targetless::run(&args, &dir),
             Some(dir) => calib_images::run(&args, &dir),
             None => calib::run_calibrate(args),
         },

@@ -55,8 +55,31 @@ pub struct SweepArgs {
     #[arg(long, value_name = "RIG.json", required = true)]
     pub rig: Option<PathBuf>,
     /// Observations (JSON, as for calibrate)
-    #[arg(long, value_name = "OBS.json", required = true)]
+    #[arg(long, value_name = "OBS.json", required_unless_present = "targetless")]
     pub observations: Option<PathBuf>,
+    /// No board: sweep the targetless cost (the RMS reprojection error of matches of a textured
+    /// scene, each match's point fitted alone under the cell's port; docs/targetless.md) over the
+    /// master's port, from the frames in --images; needs --distance
+    #[arg(long, requires_all = ["images", "distance"], conflicts_with_all = ["observations", "cost", "shard"], help_heading = "Targetless")]
+    pub targetless: bool,
+    /// With --targetless: one folder per rig camera, named as in the rig, of synchronized frames
+    /// (images sorted by name, or one video), as `calibrate --targetless` reads them
+    #[arg(
+        long,
+        value_name = "DIR",
+        requires = "targetless",
+        help_heading = "Targetless"
+    )]
+    pub images: Option<PathBuf>,
+    /// With --targetless: frames used, START:STOP:STEP, each part optional [default: at most 8
+    /// spread over the footage]
+    #[arg(
+        long,
+        value_name = "START:STOP:STEP",
+        requires = "targetless",
+        help_heading = "Targetless"
+    )]
+    pub frames: Option<flatport::io::frames::FrameSelection>,
     /// The cost (the older names `invariant` and `3d` are accepted for affine-grid and scene)
     #[arg(long, value_enum, default_value_t = CostArg::Invariant)]
     pub cost: CostArg,
@@ -194,6 +217,9 @@ fn grid_json(l: &Linspace) -> serde_json::Value {
 /// only that slice of the grid is evaluated, into the shard's files (`ShardFiles`); the
 /// summary is then the shard's manifest.
 pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
+    if args.targetless {
+        return run_targetless_sweep(args);
+    }
     let missing =
         |option: &str| anyhow::anyhow!("flatport sweep needs {option} (see flatport sweep --help)");
     let (rig, observations) = (
@@ -307,8 +333,100 @@ pub fn run_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
         &mut |done, total| progress.update(done, total),
     )?;
     let info = SweepInfo {
+        cost: spec.kind.name().into(),
+        unit: spec.kind.unit().into(),
         correspondences: data.corners.len(),
         views: data.views.len(),
+        seconds: summary.seconds,
+        device,
+    };
+    outputs.finish(dir, &spec, &summary, &info, truth.as_ref())
+}
+
+/// `flatport sweep --images DIR --rig RIG.json --targetless`: the targetless cost of the scene's
+/// matches over the master's port (axis × air distance), into the files a sweep writes.
+fn run_targetless_sweep(args: &SweepArgs) -> anyhow::Result<serde_json::Value> {
+    use flatport::calib::targetless::sweep::{SWEEP_TRACKS, sweep_targetless};
+    use flatport::calib::targetless::{MatchOptions, check_frames, start::spread, tracks_of};
+    let missing = |option: &str| {
+        anyhow::anyhow!("flatport sweep --targetless needs {option} (see flatport sweep --help)")
+    };
+    let rig_path = args.rig.as_deref().ok_or_else(|| missing("--rig"))?;
+    let images = args
+        .images
+        .as_deref()
+        .ok_or_else(|| missing("--images DIR"))?;
+    let spec = SweepSpec {
+        // The targetless cost is a reprojection error (px); the summary names it `targetless`.
+        kind: CostKind::Reprojection,
+        tilt_deg: args.tilt_deg.ok_or_else(|| missing("--tilt-deg"))?,
+        azimuth_deg: args.azimuth_deg.ok_or_else(|| missing("--azimuth-deg"))?,
+        distance: Some(args.distance.ok_or_else(|| {
+            missing(
+                "--distance START:STOP:COUNT (the targetless cost has no linear air-layer profile)",
+            )
+        })?),
+    };
+    let dir = args.output.as_deref().ok_or_else(|| missing("--output"))?;
+    check_sizes(args, &spec)?;
+    spec.validate()?;
+    let rig = flatport::io::read_rig(rig_path)?;
+    if rig.cameras().len() < 2 {
+        bail!("the rig has one camera: the targetless cost matches the scene between cameras");
+    }
+    if let flatport::model::Ports::PerCamera(_) = rig.ports() {
+        eprintln!(
+            "a port per camera: the grid moves camera '{}''s own port (tilt from its z axis, in its frame); the other cameras' ports stay as in the rig",
+            rig.cameras()[0].name
+        );
+    }
+    let truth = args.truth.as_deref().map(read_truth).transpose()?;
+    let frames = super::calib_targetless::read_frames(&rig, images, args.frames)?;
+    check_frames(&rig, &frames)?;
+    let quiet = args.quiet;
+    let (tracks, _) = tracks_of(&frames, &MatchOptions::default(), &mut |line| {
+        if !quiet {
+            eprintln!("  {line}");
+        }
+    });
+    let sample = spread(&tracks, SWEEP_TRACKS);
+    if sample.is_empty() {
+        bail!(
+            "{}: no matches between the master and the other cameras: film more texture, or check that the images belong to these cameras",
+            images.display()
+        );
+    }
+    let device = format!(
+        "cpu (f64, {} threads): the targetless profile",
+        rayon::current_num_threads()
+    );
+    eprintln!("device: {device}");
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    eprintln!(
+        "sweeping the targetless cost over {} cells ({}) × {} tracks (of {} matched)...",
+        spec.cells(),
+        spec.shape()
+            .iter()
+            .map(|s| s.to_string())
+            .collect::<Vec<_>>()
+            .join(" × "),
+        sample.len(),
+        tracks.len()
+    );
+    let mut progress = Progress::new("sweep", "cells", args.quiet);
+    let mut outputs = SweepOutputs::create(dir, &spec)?;
+    let summary = sweep_targetless(
+        &rig,
+        &sample,
+        &spec,
+        &mut |chunk| outputs.add(&chunk),
+        &mut |done, total| progress.update(done, total),
+    )?;
+    let info = SweepInfo {
+        cost: "targetless".into(),
+        unit: "px".into(),
+        correspondences: sample.len(),
+        views: frames.len(),
         seconds: summary.seconds,
         device,
     };
@@ -333,6 +451,10 @@ fn linspace(g: &GridAxis) -> Linspace {
 
 /// What the summary says besides the grid's costs.
 struct SweepInfo {
+    /// The cost's name (`CostKind::name`, or `targetless`).
+    cost: String,
+    /// Its unit.
+    unit: String,
     correspondences: usize,
     views: usize,
     /// Wall-clock seconds (summed over the shards of a merge).
@@ -418,7 +540,7 @@ impl SweepOutputs {
         let Some(minimum) = summary.minimum else {
             bail!(
                 "no cell of the grid has a finite {} cost: every candidate leaves corners without an answer",
-                spec.kind.name()
+                info.cost
             );
         };
         let profile_distance = spec.profiles_air_distance();
@@ -431,7 +553,7 @@ impl SweepOutputs {
                  under those candidates some corner has no answer (a camera outside the air, a totally reflected ray, a corner \
                  triangulated behind the port){}",
                 summary.cells,
-                spec.kind.name(),
+                info.cost,
                 if profile_distance {
                     "; without --distance this is often an axis whose least-squares air layer leaves a camera outside the air"
                 } else {
@@ -456,17 +578,18 @@ impl SweepOutputs {
             azimuths_deg: &azimuth_values,
             values: pool.values(),
             title: format!(
-                "{} cost{} over {} axes × {} corners{pooled}",
-                spec.kind.name(),
+                "{} cost{} over {} axes × {} {}{pooled}",
+                info.cost,
                 if spec.distance.is_some() {
                     " (lowest over the air layers)"
                 } else {
                     ""
                 },
                 spec.axes(),
-                info.correspondences
+                info.correspondences,
+                data_name(&info.cost)
             ),
-            cost_label: format!("{} ({})", spec.kind.name(), spec.kind.unit()),
+            cost_label: format!("{} ({})", info.cost, info.unit),
             minimum: Some((minimum.tilt_deg, minimum.azimuth_deg)),
             truth: truth_deg,
         };
@@ -480,8 +603,8 @@ impl SweepOutputs {
             }
         };
         let summary_json = json!({
-            "cost": spec.kind.name(),
-            "unit": spec.kind.unit(),
+            "cost": info.cost,
+            "unit": info.unit,
             "argmin": {"tilt_deg": minimum.tilt_deg, "azimuth_deg": minimum.azimuth_deg, "distance": finite(minimum.distance), "cost": minimum.cost, "cell": minimum.cell},
             "grid": {"tilt_deg": grid_json(&tilts), "azimuth_deg": grid_json(&azimuths), "distance": spec.distance.as_ref().map(grid_json)},
             "shape": spec.shape(),
@@ -619,6 +742,8 @@ pub fn run_merge(args: &MergeArgs) -> anyhow::Result<serde_json::Value> {
         seconds: merged.seconds,
     };
     let info = SweepInfo {
+        cost: spec.kind.name().into(),
+        unit: spec.kind.unit().into(),
         correspondences: first.inputs.correspondences,
         views: first.inputs.views,
         seconds: merged.seconds,
@@ -884,6 +1009,16 @@ pub fn run(command: SweepCommand) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// What a sweep's correspondences are: the targetless cost's are tracks (a master corner and its
+/// matches), the boards' corners.
+fn data_name(cost: &str) -> &'static str {
+    if cost == "targetless" {
+        "tracks"
+    } else {
+        "corners"
+    }
+}
+
 /// The lines printed after a sweep.
 pub fn print_summary(summary: &serde_json::Value, dir: &Path) {
     let m = &summary["argmin"];
@@ -898,8 +1033,9 @@ pub fn print_summary(summary: &serde_json::Value, dir: &Path) {
             .as_f64()
             .map_or(String::new(), |d| format!(", air layer {:.3} mm", d * 1e3))
     );
+    let data = data_name(summary["cost"].as_str().unwrap_or(""));
     outln!(
-        "{} cells × {} corners in {:.2} s ({:.3e} cell·corners/s)",
+        "{} cells × {} {data} in {:.2} s ({:.3e} cell·{data}/s)",
         summary["cells"],
         summary["correspondences"],
         summary["seconds"].as_f64().unwrap_or(f64::NAN),

@@ -861,6 +861,71 @@ pub fn boards_report_to_json_string(
     serde_json::to_string_pretty(&value).expect("JSON values serialise")
 }
 
+/// The report of a targetless calibration (`flatport.calibrate_targetless`' report) as JSON:
+/// - `ports` [{`name`, `normal` (the frame the rig file gives the port in), `tilt_deg`,
+///   `azimuth_deg`, `axis_std_deg` (σ of the axis along its worst direction; null when not
+///   estimated), `distance` {`value`, `std`} (metres; std null when not estimated),
+///   `thicknesses` [{`value`, `std`}]}];
+/// - `rms_px` (the final fit's RMS reprojection error), `candidates` (tracks matched), `tracks`
+///   (tracks kept in the fit), `observations`, `matches_per_camera` (against the master; the
+///   master's own entry 0), `starts`, `termination`, `overlap` (the σ's patch-overlap factor);
+/// - `unpinned` [{`parameter`, `sigma` (degrees for an axis, metres otherwise), `limit`,
+///   `reason`}] and `pinned` (whether that list is empty: the rig may be used).
+pub fn targetless_report_to_json_string(
+    result: &crate::calib::targetless::TargetlessCalibration,
+) -> String {
+    let ports: Vec<serde_json::Value> = result
+        .ports
+        .iter()
+        .map(|p| {
+            let n = p.port.normal();
+            serde_json::json!({
+                "name": p.name,
+                "normal": [n.x, n.y, n.z],
+                "tilt_deg": p.port.tilt().to_degrees(),
+                "azimuth_deg": p.port.azimuth().to_degrees(),
+                "axis_std_deg": p.axis_sigma_deg,
+                "distance": {"value": p.port.air_distance(), "std": p.distance_sigma_m},
+                "thicknesses": p
+                    .port
+                    .layers()
+                    .iter()
+                    .zip(&p.thickness_sigma_m)
+                    .map(|(l, s)| serde_json::json!({"value": l.thickness, "std": s}))
+                    .collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    let unpinned: Vec<serde_json::Value> = result
+        .unpinned
+        .iter()
+        .map(|u| {
+            serde_json::json!({
+                "parameter": u.parameter,
+                "sigma": u.sigma,
+                "limit": u.limit,
+                "reason": u.reason,
+            })
+        })
+        .collect();
+    let report = serde_json::json!({
+        "ports": ports,
+        "rms_px": result.rms_px,
+        "candidates": result.candidates,
+        "tracks": result.inliers,
+        "observations": result.observations,
+        "matches_per_camera": result.matches_per_camera,
+        "starts": result.starts,
+        "termination": result.termination.describe(),
+        "overlap": result.overlap,
+        "unpinned": unpinned,
+        "pinned": result.unpinned.is_empty(),
+    });
+    let mut text = serde_json::to_string_pretty(&report).expect("plain data always serialises");
+    text.push('\n');
+    text
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -425,6 +425,86 @@ pub fn check_synchronized(dir: &Path, cameras: &[(String, FrameSource)]) -> Resu
     Ok(count)
 }
 
+/// Synchronized grey frames of a rig's cameras ([`read_camera_frames`]).
+#[derive(Debug, Clone)]
+pub struct CameraFrames {
+    /// One entry per selected frame: one image per camera, in the order the names were given,
+    /// grey 0 … 1.
+    pub frames: Vec<Vec<crate::stereo::GreyImage>>,
+    /// The selected frames' indices.
+    pub indices: Vec<usize>,
+    /// The footage's frame count (every camera's).
+    pub count: usize,
+    /// The selection used (the one given, or the default spread).
+    pub selection: FrameSelection,
+    /// Sub-folders of the layout that name no camera (not read).
+    pub unused: Vec<String>,
+}
+
+/// The frames of the cameras `names` (in that order) from `dir`, a folder per camera named as
+/// the camera (images sorted by name, or one video), as `flatport stereo` and `calibrate
+/// --targetless` read them: the frames `selection` picks, or without one at most
+/// `default_frames` spread evenly over the footage (every ⌈count / default_frames⌉-th).
+///
+/// Errors: [`open_cameras`]' and [`check_synchronized`]'s, a camera without a folder (naming it
+/// and the folders found), a selection outside the footage, a frame that does not decode.
+pub fn read_camera_frames(
+    dir: &Path,
+    names: &[&str],
+    selection: Option<FrameSelection>,
+    default_frames: usize,
+) -> Result<CameraFrames, IoError> {
+    let mut found = open_cameras(dir)?;
+    let mut ordered = Vec::with_capacity(names.len());
+    for name in names {
+        let Some(i) = found.iter().position(|(n, _)| n == name) else {
+            return Err(invalid(
+                dir,
+                format!(
+                    "no folder for camera '{name}' (one folder per rig camera, named as in the rig; found: {})",
+                    found
+                        .iter()
+                        .map(|(n, _)| n.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ));
+        };
+        ordered.push(found.swap_remove(i));
+    }
+    let count = check_synchronized(dir, &ordered)?;
+    let selection = selection.unwrap_or(FrameSelection {
+        start: 0,
+        stop: None,
+        step: count.div_ceil(default_frames.max(1)).max(1),
+    });
+    let indices: Vec<usize> = selection
+        .indices(count)
+        .map_err(|e| invalid(dir, e.to_string()))?
+        .collect();
+    let mut frames: Vec<Vec<crate::stereo::GreyImage>> =
+        vec![Vec::with_capacity(ordered.len()); indices.len()];
+    for (_, source) in &ordered {
+        for (slot, item) in frames.iter_mut().zip(source.frames(&selection)?) {
+            let (_, image) = item?;
+            slot.push(crate::stereo::GreyImage {
+                width: image.width(),
+                height: image.height(),
+                pixels: image.pixels().map(|p| f32::from(p.0[0]) / 255.0).collect(),
+            });
+        }
+    }
+    let mut unused: Vec<String> = found.into_iter().map(|(n, _)| n).collect();
+    unused.sort();
+    Ok(CameraFrames {
+        frames,
+        indices,
+        count,
+        selection,
+        unused,
+    })
+}
+
 /// Which frames to read, as Python slices them: `START:STOP:STEP`, frames START, START + STEP, …
 /// below STOP. Each part may be left empty (START 0, STOP the end, STEP 1); a single number `N`
 /// is frame N alone. The default is every frame.

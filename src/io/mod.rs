@@ -42,7 +42,8 @@ pub use board_json::{board_from_json_str, read_board};
 pub use calib_json::{
     Truth, observations_from_json_str, observations_to_json_string, read_observations, read_target,
     read_truth, report_to_json_string, stereo_observations_to_json_string, target_from_json_str,
-    write_boards_report, write_observations, write_report, write_stereo_observations, write_truth,
+    targetless_report_to_json_string, write_boards_report, write_observations, write_report,
+    write_stereo_observations, write_truth,
 };
 pub use detections::{DetectedView, detections_to_json_string, write_detections};
 pub use error::IoError;

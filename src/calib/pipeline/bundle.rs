@@ -296,6 +296,48 @@ pub fn difference_step(parameter: Parameter) -> f64 {
     }
 }
 
+/// The global parameters `estimate` names for `base`, in step order: per port its axis (2),
+/// air distance (where observable) and the layers named; then the extrinsics of every camera
+/// but the master; then the intrinsics.
+pub(crate) fn global_parameters(base: &Rig, estimate: Estimate) -> Vec<Parameter> {
+    let mut globals = Vec::new();
+    let ports = match base.ports() {
+        Ports::Shared(interface) => vec![interface],
+        Ports::PerCamera(ports) => ports.iter().collect(),
+    };
+    for (p, port) in ports.into_iter().enumerate() {
+        if estimate.axis {
+            globals.extend([Parameter::Axis(p, 0), Parameter::Axis(p, 1)]);
+        }
+        if estimate.distance && !distance_unobservable(port) {
+            globals.push(Parameter::Distance(p));
+        }
+        let layers = port.layers().len();
+        globals.extend(
+            (0..layers)
+                .filter(|&i| estimate.layer(i))
+                .map(|i| Parameter::Thickness(p, i)),
+        );
+    }
+    if estimate.extrinsics {
+        for k in 1..base.cameras().len() {
+            globals.extend((0..3).map(|a| Parameter::Rotation(k, a)));
+            globals.extend((0..3).map(|a| Parameter::Translation(k, a)));
+        }
+    }
+    if estimate.intrinsics {
+        for (k, camera) in base.cameras().iter().enumerate() {
+            let values = intrinsic_values(&camera.intrinsics);
+            globals.extend(
+                (0..INTRINSICS.len())
+                    .filter(|&j| j < 4 || values[j] != 0.0)
+                    .map(|j| Parameter::Intrinsic(k, j)),
+            );
+        }
+    }
+    globals
+}
+
 /// The reprojection problem of any rig.
 pub struct Bundle<'a> {
     base: &'a Rig,
@@ -318,41 +360,7 @@ impl<'a> Bundle<'a> {
         estimate: Estimate,
         huber: Option<f64>,
     ) -> Self {
-        let mut globals = Vec::new();
-        let ports = match base.ports() {
-            Ports::Shared(interface) => vec![interface],
-            Ports::PerCamera(ports) => ports.iter().collect(),
-        };
-        for (p, port) in ports.into_iter().enumerate() {
-            if estimate.axis {
-                globals.extend([Parameter::Axis(p, 0), Parameter::Axis(p, 1)]);
-            }
-            if estimate.distance && !distance_unobservable(port) {
-                globals.push(Parameter::Distance(p));
-            }
-            let layers = port.layers().len();
-            globals.extend(
-                (0..layers)
-                    .filter(|&i| estimate.layer(i))
-                    .map(|i| Parameter::Thickness(p, i)),
-            );
-        }
-        if estimate.extrinsics {
-            for k in 1..base.cameras().len() {
-                globals.extend((0..3).map(|a| Parameter::Rotation(k, a)));
-                globals.extend((0..3).map(|a| Parameter::Translation(k, a)));
-            }
-        }
-        if estimate.intrinsics {
-            for (k, camera) in base.cameras().iter().enumerate() {
-                let values = intrinsic_values(&camera.intrinsics);
-                globals.extend(
-                    (0..INTRINSICS.len())
-                        .filter(|&j| j < 4 || values[j] != 0.0)
-                        .map(|j| Parameter::Intrinsic(k, j)),
-                );
-            }
-        }
+        let globals = global_parameters(base, estimate);
         let points = (0..target.len())
             .map(|i| target.point(i).coords.into())
             .collect();
@@ -643,28 +651,33 @@ impl<'a> Bundle<'a> {
     }
 
     fn moved(&self, state: &State, parameter: Parameter, delta: f64) -> State {
-        let mut state = state.clone();
-        match parameter {
-            Parameter::Axis(p, a) => {
-                let mut offset = Vector2::zeros();
-                offset[a] = delta;
-                state.ports[p].normal = tangent_step(&state.ports[p].normal, &offset);
-            }
-            Parameter::Distance(p) => state.ports[p].distance += delta,
-            Parameter::Thickness(p, i) => state.ports[p].thicknesses[i] += delta,
-            Parameter::Rotation(k, a) => {
-                let mut w = Vector3::zeros();
-                w[a] = delta;
-                state.extrinsics[k] = Isometry3::from_parts(
-                    Translation3::identity(),
-                    UnitQuaternion::from_scaled_axis(w),
-                ) * state.extrinsics[k];
-            }
-            Parameter::Translation(k, a) => state.extrinsics[k].translation.vector[a] += delta,
-            Parameter::Intrinsic(k, j) => move_intrinsic(&mut state.intrinsics[k], j, delta),
-        }
-        state
+        moved(state, parameter, delta)
     }
+}
+
+/// `state` moved by `delta` along the global parameter `parameter`.
+pub(crate) fn moved(state: &State, parameter: Parameter, delta: f64) -> State {
+    let mut state = state.clone();
+    match parameter {
+        Parameter::Axis(p, a) => {
+            let mut offset = Vector2::zeros();
+            offset[a] = delta;
+            state.ports[p].normal = tangent_step(&state.ports[p].normal, &offset);
+        }
+        Parameter::Distance(p) => state.ports[p].distance += delta,
+        Parameter::Thickness(p, i) => state.ports[p].thicknesses[i] += delta,
+        Parameter::Rotation(k, a) => {
+            let mut w = Vector3::zeros();
+            w[a] = delta;
+            state.extrinsics[k] = Isometry3::from_parts(
+                Translation3::identity(),
+                UnitQuaternion::from_scaled_axis(w),
+            ) * state.extrinsics[k];
+        }
+        Parameter::Translation(k, a) => state.extrinsics[k].translation.vector[a] += delta,
+        Parameter::Intrinsic(k, j) => move_intrinsic(&mut state.intrinsics[k], j, delta),
+    }
+    state
 }
 
 impl LeastSquares for Bundle<'_> {

@@ -1,0 +1,418 @@
+//! The maximum-likelihood fit of a targetless calibration: Levenberg–Marquardt over the port
+//! parameters `--estimate` names (the bundle's [`Parameter`]s) and every scene point's position
+//! (master frame, metres), minimising the reprojection error of every match in every camera that
+//! saw it, by exact forward projection (optionally under a Huber loss).
+//!
+//! Every residual depends on the global parameters and on one point alone, so the normal
+//! equations are the bundle's block form with a 3 × 3 block per point instead of a 6 × 6 pose
+//! ([`PointNormalEquations`]): the points are eliminated one by one (Schur complement), memory and
+//! time are linear in the points. Derivatives are central differences, as in the bundle.
+
+use nalgebra::{
+    Cholesky, DMatrix, DVector, Dyn, Matrix3, OMatrix, Point2, Point3, U3, Vector2, Vector3,
+};
+use rayon::prelude::*;
+
+use crate::calib::pipeline::bundle::{
+    Estimate, Parameter, State, difference_step, global_parameters, moved,
+};
+use crate::calib::solvers::block::view_share;
+use crate::calib::solvers::lm::{LeastSquares, NormalEquations};
+use crate::model::{Ports, RefractiveCamera, Rig};
+
+/// Central-difference step of a point's coordinates, metres: as the bundle's pose steps, it
+/// moves a pixel by ~1e-3 px at a metre (~7 digits kept against rounding, truncation far below).
+const POINT_STEP_M: f64 = 1e-6;
+
+/// ∂pixel/∂parameter from the pixels at +h and −h (central), or from one of them and the pixel
+/// `at` the state (one-sided) where the other step leaves the valid rigs or points (a point
+/// within h of the outer interface or of total reflection); `None` when both do.
+fn difference(
+    plus: Option<Point2<f64>>,
+    minus: Option<Point2<f64>>,
+    at: Vector2<f64>,
+    h: f64,
+) -> Option<Vector2<f64>> {
+    match (plus, minus) {
+        (Some(p), Some(m)) => Some((p - m) / (2.0 * h)),
+        (Some(p), None) => Some((p.coords - at) / h),
+        (None, Some(m)) => Some((at - m.coords) / h),
+        (None, None) => None,
+    }
+}
+
+/// One scene point's observations: (rig camera index, pixel) for every camera that saw it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Track {
+    /// (camera, observed pixel), at least two cameras.
+    pub pixels: Vec<(usize, Point2<f64>)>,
+}
+
+/// The state of the fit: the rig's refined part (ports, extrinsics; no target poses) and every
+/// track's point, master frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointsState {
+    /// Ports and extrinsics (the bundle's state with no poses).
+    pub rig: State,
+    /// One point per track, master frame, metres.
+    pub points: Vec<Point3<f64>>,
+}
+
+/// One point's share of the normal equations.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointBlock {
+    /// J_pᵀWJ_p over the point's three coordinates.
+    pub point: Matrix3<f64>,
+    /// J_gᵀWJ_p: global parameters (rows) × the point's coordinates.
+    pub coupling: OMatrix<f64, Dyn, U3>,
+    /// J_pᵀWr.
+    pub gradient: Vector3<f64>,
+}
+
+/// Normal equations of G global parameters and P points, the points' part block diagonal:
+/// S = U − Σ W_p V_p⁻¹ W_pᵀ, S δg = −(b_g − Σ W_p V_p⁻¹ b_p), δp = −V_p⁻¹ (b_p + W_pᵀ δg)
+/// (the bundle's [`BlockNormalEquations`](crate::calib::solvers::block::BlockNormalEquations)
+/// with 3 × 3 blocks). The step's order is δg, then δp₁ … δp_P.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointNormalEquations {
+    /// U = J_gᵀWJ_g.
+    pub global: DMatrix<f64>,
+    /// b_g = J_gᵀWr.
+    pub global_gradient: DVector<f64>,
+    /// Every point's block, in track order.
+    pub points: Vec<PointBlock>,
+    /// Σ ρ(|r|²).
+    pub cost: f64,
+}
+
+type Reduced = (DMatrix<f64>, DVector<f64>, Vec<Cholesky<f64, U3>>);
+
+impl PointNormalEquations {
+    fn globals(&self) -> usize {
+        self.global.nrows()
+    }
+
+    fn reduce(&self, damping: f64, floor: f64) -> Option<Reduced> {
+        let mut schur = self.global.clone();
+        for i in 0..self.globals() {
+            schur[(i, i)] += damping * self.global[(i, i)].max(floor);
+        }
+        let mut rhs = self.global_gradient.clone();
+        let mut factors = Vec::with_capacity(self.points.len());
+        for block in &self.points {
+            let mut point = block.point;
+            for i in 0..3 {
+                point[(i, i)] += damping * block.point[(i, i)].max(floor);
+            }
+            let factor = point.cholesky()?;
+            let solved = factor.solve(&block.coupling.transpose());
+            schur -= &block.coupling * &solved;
+            rhs -= &block.coupling * factor.solve(&block.gradient);
+            factors.push(factor);
+        }
+        Some((schur, rhs, factors))
+    }
+
+    /// Covariance of the global parameters (unit residual variance): the inverse of the Schur
+    /// complement of the undamped system; `None` when singular.
+    pub fn global_covariance(&self) -> Option<DMatrix<f64>> {
+        let (schur, _, _) = self.reduce(0.0, 0.0)?;
+        Some(schur.cholesky()?.inverse())
+    }
+}
+
+impl NormalEquations for PointNormalEquations {
+    fn cost(&self) -> f64 {
+        self.cost
+    }
+
+    fn gradient_amax(&self) -> f64 {
+        self.points
+            .iter()
+            .map(|b| b.gradient.amax())
+            .fold(self.global_gradient.amax(), f64::max)
+    }
+
+    fn max_diagonal(&self) -> f64 {
+        self.points
+            .iter()
+            .map(|b| b.point.diagonal().max())
+            .fold(self.global.diagonal().max(), f64::max)
+    }
+
+    fn solve_damped(&self, damping: f64, floor: f64) -> Option<DVector<f64>> {
+        let (schur, rhs, factors) = self.reduce(damping, floor)?;
+        let global_step = -schur.cholesky()?.solve(&rhs);
+        let g = self.globals();
+        let mut step = DVector::zeros(g + 3 * self.points.len());
+        step.rows_mut(0, g).copy_from(&global_step);
+        for (p, (block, factor)) in self.points.iter().zip(&factors).enumerate() {
+            let point_step =
+                -factor.solve(&(block.gradient + block.coupling.transpose() * &global_step));
+            step.fixed_rows_mut::<3>(g + 3 * p).copy_from(&point_step);
+        }
+        Some(step)
+    }
+}
+
+/// The targetless problem: `tracks` seen by the cameras of `base`, estimating `globals`.
+pub struct PointsProblem<'a> {
+    base: &'a Rig,
+    tracks: &'a [Track],
+    globals: Vec<Parameter>,
+    huber: Option<f64>,
+}
+
+impl<'a> PointsProblem<'a> {
+    /// The problem of `tracks` under `base` (names, indices, media, what is known), estimating
+    /// `estimate` (intrinsics are not estimated here), with an optional Huber threshold (px).
+    pub fn new(base: &'a Rig, tracks: &'a [Track], estimate: Estimate, huber: Option<f64>) -> Self {
+        let estimate = Estimate {
+            intrinsics: false,
+            ..estimate
+        };
+        Self {
+            base,
+            tracks,
+            globals: global_parameters(base, estimate),
+            huber,
+        }
+    }
+
+    /// The global parameters, in step order.
+    pub fn globals(&self) -> &[Parameter] {
+        &self.globals
+    }
+
+    /// The residual count: two per observation.
+    pub fn residuals(&self) -> usize {
+        2 * self.tracks.iter().map(|t| t.pixels.len()).sum::<usize>()
+    }
+
+    /// The camera a global parameter moves (`None`: every camera, a shared port).
+    fn camera_of(&self, parameter: Parameter) -> Option<usize> {
+        match parameter {
+            Parameter::Axis(p, _) | Parameter::Distance(p) | Parameter::Thickness(p, _) => {
+                match self.base.ports() {
+                    Ports::Shared(_) => None,
+                    Ports::PerCamera(_) => Some(p),
+                }
+            }
+            Parameter::Rotation(k, _)
+            | Parameter::Translation(k, _)
+            | Parameter::Intrinsic(k, _) => Some(k),
+        }
+    }
+
+    /// The refractive cameras of `state`, `None` when it is not a valid rig.
+    pub fn cameras(&self, state: &State) -> Option<Vec<RefractiveCamera>> {
+        let rig = state.rig(self.base)?;
+        Some(
+            (0..rig.cameras().len())
+                .map(|k| rig.refractive_camera(k))
+                .collect(),
+        )
+    }
+
+    /// Residuals (projected − observed, px) of track `t` at `point`, in its camera order.
+    fn track_residuals(
+        &self,
+        cameras: &[RefractiveCamera],
+        t: usize,
+        point: &Point3<f64>,
+    ) -> Option<Vec<Vector2<f64>>> {
+        self.tracks[t]
+            .pixels
+            .iter()
+            .map(|(k, observed)| Some(cameras[*k].project(point).ok()? - observed))
+            .collect()
+    }
+
+    /// Every track's residuals at `state`.
+    pub fn all_residuals(&self, state: &PointsState) -> Option<Vec<Vec<Vector2<f64>>>> {
+        let cameras = self.cameras(&state.rig)?;
+        state
+            .points
+            .par_iter()
+            .enumerate()
+            .map(|(t, point)| self.track_residuals(&cameras, t, point))
+            .collect()
+    }
+}
+
+impl LeastSquares for PointsProblem<'_> {
+    type State = PointsState;
+    type Normal = PointNormalEquations;
+
+    fn dimension(&self, state: &PointsState) -> usize {
+        self.globals.len() + 3 * state.points.len()
+    }
+
+    fn cost(&self, state: &PointsState) -> Option<f64> {
+        let residuals = self.all_residuals(state)?;
+        Some(
+            residuals
+                .iter()
+                .flatten()
+                .map(|r| crate::calib::solvers::block::robust(self.huber, r.norm_squared()).0)
+                .sum(),
+        )
+    }
+
+    fn normal_equations(&self, state: &PointsState) -> Option<PointNormalEquations> {
+        let globals = self.globals.len();
+        let cameras = self.cameras(&state.rig)?;
+        let shifted: Vec<[Vec<RefractiveCamera>; 2]> = self
+            .globals
+            .iter()
+            .map(|&p| {
+                let h = difference_step(p);
+                Some([
+                    self.cameras(&moved(&state.rig, p, h))?,
+                    self.cameras(&moved(&state.rig, p, -h))?,
+                ])
+            })
+            .collect::<Option<_>>()?;
+        let columns = globals + 3;
+        let shares: Vec<(DMatrix<f64>, DVector<f64>, f64)> = state
+            .points
+            .par_iter()
+            .enumerate()
+            .map(|(t, point)| {
+                let base = self.track_residuals(&cameras, t, point)?;
+                let count = base.len();
+                let mut jacobian = vec![Vector2::zeros(); columns * count];
+                for (c, &parameter) in self.globals.iter().enumerate() {
+                    let h = difference_step(parameter);
+                    let only = self.camera_of(parameter);
+                    for (i, (k, _)) in self.tracks[t].pixels.iter().enumerate() {
+                        if only.is_some_and(|o| o != *k) {
+                            continue;
+                        }
+                        jacobian[c * count + i] = difference(
+                            shifted[c][0][*k].project(point).ok(),
+                            shifted[c][1][*k].project(point).ok(),
+                            base[i] + self.tracks[t].pixels[i].1.coords,
+                            h,
+                        )?;
+                    }
+                }
+                for axis in 0..3 {
+                    let mut step = Vector3::zeros();
+                    step[axis] = POINT_STEP_M;
+                    for (i, (k, _)) in self.tracks[t].pixels.iter().enumerate() {
+                        jacobian[(globals + axis) * count + i] = difference(
+                            cameras[*k].project(&(point + step)).ok(),
+                            cameras[*k].project(&(point - step)).ok(),
+                            base[i] + self.tracks[t].pixels[i].1.coords,
+                            POINT_STEP_M,
+                        )?;
+                    }
+                }
+                Some(view_share(&base, &jacobian, columns, self.huber))
+            })
+            .collect::<Option<_>>()?;
+        let mut global = DMatrix::zeros(globals, globals);
+        let mut global_gradient = DVector::zeros(globals);
+        let mut cost = 0.0;
+        let mut points = Vec::with_capacity(shares.len());
+        for (jtj, jtr, share_cost) in shares {
+            global += jtj.view((0, 0), (globals, globals));
+            global_gradient += jtr.rows(0, globals);
+            cost += share_cost;
+            points.push(PointBlock {
+                point: jtj.fixed_view::<3, 3>(globals, globals).into_owned(),
+                coupling: jtj
+                    .generic_view((0, globals), (Dyn(globals), U3))
+                    .into_owned(),
+                gradient: jtr.fixed_rows::<3>(globals).into_owned(),
+            });
+        }
+        Some(PointNormalEquations {
+            global,
+            global_gradient,
+            points,
+            cost,
+        })
+    }
+
+    fn retract(&self, state: &PointsState, delta: &DVector<f64>) -> PointsState {
+        let mut rig = state.rig.clone();
+        for (c, &parameter) in self.globals.iter().enumerate() {
+            rig = moved(&rig, parameter, delta[c]);
+        }
+        let g = self.globals.len();
+        let points = state
+            .points
+            .iter()
+            .enumerate()
+            .map(|(p, x)| x + delta.fixed_rows::<3>(g + 3 * p).into_owned())
+            .collect();
+        PointsState { rig, points }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::simulate::rng::Rng;
+    use crate::calib::solvers::lm::DenseNormalEquations;
+
+    #[test]
+    fn the_point_schur_step_and_covariance_equal_the_dense_solve() {
+        // A random Jacobian with the block pattern: every row on the globals and one point.
+        let (globals, points, rows) = (4, 9, 6);
+        let mut rng = Rng::new(11);
+        let n = globals + 3 * points;
+        let mut j = DMatrix::zeros(points * rows, n);
+        let mut r = DVector::zeros(points * rows);
+        for p in 0..points {
+            for i in 0..rows {
+                let row = p * rows + i;
+                for c in 0..globals {
+                    j[(row, c)] = rng.normal();
+                }
+                for c in 0..3 {
+                    j[(row, globals + 3 * p + c)] = 500.0 * rng.normal();
+                }
+                r[row] = rng.normal();
+            }
+        }
+        let dense = DenseNormalEquations {
+            jtj: j.transpose() * &j,
+            jtr: j.transpose() * &r,
+            cost: r.norm_squared(),
+        };
+        let jg = j.columns(0, globals);
+        let blocks = (0..points)
+            .map(|p| {
+                let rows_p = j.rows(p * rows, rows);
+                let jg = rows_p.columns(0, globals);
+                let jp = rows_p.fixed_columns::<3>(globals + 3 * p);
+                let rp = r.rows(p * rows, rows);
+                PointBlock {
+                    point: jp.transpose() * jp,
+                    coupling: jg.transpose() * jp,
+                    gradient: jp.transpose() * rp,
+                }
+            })
+            .collect();
+        let block = PointNormalEquations {
+            global: jg.transpose() * jg,
+            global_gradient: jg.transpose() * &r,
+            points: blocks,
+            cost: r.norm_squared(),
+        };
+        for (damping, floor) in [(0.0, 0.0), (1e-3, 1e-9), (5.0, 1.0)] {
+            let step = block.solve_damped(damping, floor).unwrap();
+            let reference = dense.solve_damped(damping, floor).unwrap();
+            let error = (&step - &reference).norm() / reference.norm();
+            assert!(error < 1e-9, "damping {damping}: step error {error:e}");
+        }
+        let inverse = dense.jtj.clone().cholesky().unwrap().inverse();
+        let reference = inverse.view((0, 0), (globals, globals)).into_owned();
+        let covariance = block.global_covariance().unwrap();
+        let error = (&covariance - &reference).norm() / reference.norm();
+        assert!(error < 1e-9, "covariance error {error:e}");
+    }
+}

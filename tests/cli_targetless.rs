@@ -1,0 +1,239 @@
+//! `flatport calibrate --images DIR --rig RIG.json --targetless` end to end through the binary:
+//! `flatport render --scene` renders a scene with the TRUE rig, the rig's port is reset to the
+//! naive guess (axis on the master's z, 10 mm of air), and the command must write a rig whose
+//! port is the truth's within 0.1° and 1.5 mm; a scene that cannot pin the port is refused
+//! with nothing written.
+
+mod stereo_common;
+
+use std::path::Path;
+use std::process::Command;
+
+use flatport::io::read_rig;
+use stereo_common::SHARED_PORT_PAIR;
+
+fn flatport(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_flatport"))
+        .args(args)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("flatport runs")
+}
+
+fn scene_file(dir: &Path, surfaces: &str) -> std::path::PathBuf {
+    let text =
+        format!(r#"{{"rig": {SHARED_PORT_PAIR}, "background": 0.35, "surfaces": [{surfaces}]}}"#);
+    let path = dir.join("scene.json");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Renders `surfaces` with the true shared-port pair into DIR/shots and writes the naive rig.
+fn rendered(dir: &Path, surfaces: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    let scene = scene_file(dir, surfaces);
+    let shots = dir.join("shots");
+    let out = flatport(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--device",
+        "cpu",
+        "--supersample",
+        "3",
+        "-o",
+        shots.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let naive = SHARED_PORT_PAIR.replace(
+        "\"normal\": [0.1, 0.1, 1.0], \"distance\": 0.05",
+        "\"normal\": [0, 0, 1], \"distance\": 0.01",
+    );
+    assert_ne!(naive, SHARED_PORT_PAIR);
+    let naive_path = dir.join("naive.json");
+    std::fs::write(&naive_path, naive).unwrap();
+    (shots, naive_path)
+}
+
+const SEABED_AND_ROCK: &str = r#"
+    {"height_field": {"origin": [0, 0, 1.6], "normal": [0, 0, -1],
+       "relief": {"amplitude": 0.05, "wavelength": 0.7, "waves": 6, "seed": 3},
+       "texture": {"noise": {"scale": 0.15, "octaves": 4, "contrast": 3.0, "seed": 103}}}},
+    {"sphere": {"centre": [0.12, 0.05, 1.3], "radius": 0.15,
+       "texture": {"noise": {"scale": 0.06, "octaves": 4, "contrast": 3.0, "seed": 12}}}}"#;
+
+#[test]
+fn the_shared_port_pair_is_calibrated_from_a_seabed_and_a_rock() {
+    let dir = tempfile::tempdir().unwrap();
+    let (shots, naive) = rendered(dir.path(), SEABED_AND_ROCK);
+    let output = dir.path().join("calibrated.json");
+    let out = flatport(&[
+        "calibrate",
+        "--images",
+        shots.to_str().unwrap(),
+        "--rig",
+        naive.to_str().unwrap(),
+        "--targetless",
+        "-o",
+        output.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    eprintln!("{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success());
+    assert!(stdout.contains("σ"), "{stdout}");
+    let fitted = read_rig(&output).unwrap();
+    let truth = stereo_common::rig(SHARED_PORT_PAIR);
+    let (f, t) = (fitted.port_in_master(0), truth.port_in_master(0));
+    let axis = f
+        .normal()
+        .dot(t.normal())
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees();
+    let air = f.air_distance() - t.air_distance();
+    eprintln!("axis off by {axis}°, air off by {} mm", air * 1e3);
+    assert!(axis < 0.1, "axis off by {axis}°");
+    assert!(air.abs() < 1.5e-3, "air off by {air} m");
+    // The cameras are the input's (to the rounding of the written file).
+    for (a, b) in fitted.cameras().iter().zip(truth.cameras()) {
+        assert_eq!((&a.name, a.intrinsics), (&b.name, b.intrinsics));
+        let (ta, tb) = (
+            a.cam_from_master.to_homogeneous(),
+            b.cam_from_master.to_homogeneous(),
+        );
+        assert!((ta - tb).amax() < 1e-12, "{} moved", a.name);
+    }
+}
+
+#[test]
+fn a_scene_that_cannot_pin_the_port_is_refused_and_nothing_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let far_plane = r#"{"plane": {"point": [0, 0, 8], "normal": [0, 0, -1],
+       "texture": {"noise": {"scale": 0.6, "octaves": 4, "contrast": 3.0, "seed": 31}}}}"#;
+    let (shots, naive) = rendered(dir.path(), far_plane);
+    let output = dir.path().join("calibrated.json");
+    let out = flatport(&[
+        "calibrate",
+        "--images",
+        shots.to_str().unwrap(),
+        "--rig",
+        naive.to_str().unwrap(),
+        "--targetless",
+        "-o",
+        output.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    eprintln!("{}{stderr}", String::from_utf8_lossy(&out.stdout));
+    assert!(!out.status.success());
+    assert!(stderr.contains("distance: σ"), "{stderr}");
+    assert!(!output.exists());
+    // Missing camera folder: named.
+    std::fs::remove_dir_all(shots.join("right")).unwrap();
+    let out = flatport(&[
+        "calibrate",
+        "--images",
+        shots.to_str().unwrap(),
+        "--rig",
+        naive.to_str().unwrap(),
+        "--targetless",
+        "-o",
+        output.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("'right'"), "{stderr}");
+    assert!(!output.exists());
+}
+
+/// `flatport sweep --images DIR --rig RIG.json --targetless` over a grid whose nodes include the
+/// true port (tilt 8.0495°, azimuth 45°, 50 mm of air: the rig the scene was rendered with, an
+/// independent truth): the grid's minimum must be that node, the well must rise around it, and
+/// the files must be a sweep's.
+#[test]
+fn the_swept_targetless_cost_is_least_at_the_true_port() {
+    let dir = tempfile::tempdir().unwrap();
+    let (shots, naive) = rendered(dir.path(), SEABED_AND_ROCK);
+    let truth = stereo_common::rig(SHARED_PORT_PAIR).port_in_master(0);
+    let (tilt, azimuth) = (truth.tilt().to_degrees(), truth.azimuth().to_degrees());
+    let tilts = format!("{}:{}:5", tilt - 2.0, tilt + 2.0);
+    let output = dir.path().join("well");
+    let started = std::time::Instant::now();
+    let out = flatport(&[
+        "sweep",
+        "--images",
+        shots.to_str().unwrap(),
+        "--rig",
+        naive.to_str().unwrap(),
+        "--targetless",
+        "--tilt-deg",
+        &tilts,
+        "--azimuth-deg",
+        "35:55:5",
+        "--distance",
+        "0.04:0.06:5",
+        "--quiet",
+        "--output",
+        output.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    eprintln!(
+        "{stdout}{}({:.1} s)",
+        String::from_utf8_lossy(&out.stderr),
+        started.elapsed().as_secs_f64()
+    );
+    assert!(out.status.success());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(output.join("summary.json")).unwrap())
+            .unwrap();
+    assert_eq!(summary["cost"], "targetless");
+    assert_eq!(summary["unit"], "px");
+    assert_eq!(summary["shape"], serde_json::json!([5, 5, 5]));
+    let m = &summary["argmin"];
+    // The middle node of every axis: tilt 2, azimuth 2, distance 2 of 5.
+    assert_eq!(m["cell"], (2 * 5 + 2) * 5 + 2, "{summary}");
+    assert!((m["tilt_deg"].as_f64().unwrap() - tilt).abs() < 1e-9);
+    assert!((m["azimuth_deg"].as_f64().unwrap() - azimuth).abs() < 1e-9);
+    assert!((m["distance"].as_f64().unwrap() - truth.air_distance()).abs() < 1e-12);
+    // The bottom of the well is the matching noise (the fit's RMS is ~0.008 px). One grid step
+    // off the axis (1° of tilt, 5° of azimuth) costs several times more (measured 5.4× and
+    // 3.4×); 5 mm of air, with the axis right, only ~10 % more (measured 0.0066 → 0.0071 and
+    // 0.0073 px): the air layer's valley is shallow, as its σ says (5 mm is 7 σ of the air
+    // layer, 0.7 mm; 1° is 90 σ of the axis, 0.011°).
+    let csv = std::fs::read_to_string(output.join("cost.csv")).unwrap();
+    let rows: Vec<Vec<f64>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), 125);
+    let cost = |t: usize, a: usize, d: usize| rows[(t * 5 + a) * 5 + d][3];
+    let bottom = cost(2, 2, 2);
+    eprintln!(
+        "bottom {bottom:.4} px; one step off: tilt {:.4}/{:.4}, azimuth {:.4}/{:.4}, distance {:.4}/{:.4} px",
+        cost(1, 2, 2),
+        cost(3, 2, 2),
+        cost(2, 1, 2),
+        cost(2, 3, 2),
+        cost(2, 2, 1),
+        cost(2, 2, 3)
+    );
+    assert!(bottom < 0.05, "{bottom} px at the truth");
+    for off in [cost(1, 2, 2), cost(3, 2, 2), cost(2, 1, 2), cost(2, 3, 2)] {
+        assert!(
+            off > 2.5 * bottom,
+            "{off} px one axis step off vs {bottom} px"
+        );
+    }
+    for off in [cost(2, 2, 1), cost(2, 2, 3)] {
+        assert!(
+            off > 1.03 * bottom,
+            "{off} px 5 mm of air off vs {bottom} px"
+        );
+    }
+    for file in ["cost.npy", "heatmap.png", "polar.png"] {
+        assert!(output.join(file).is_file(), "{file}");
+    }
+}
