@@ -193,10 +193,8 @@ fn a_far_plane_seen_head_on_cannot_pin_the_port_and_is_refused() {
 /// shared-port seabed scene with 2 grey levels of noise (tests/stereo.rs' acceptance scene),
 /// calibrated from those same images from the naive port, must meet the levels (≥ 85 %
 /// of the pixels another camera sees with a point, median error ≤ 0.3 % of the distance) as the
-/// true rig does. `StereoOptions::default()` with the scene's depth range (0.8–2.5 m), as
-/// tests/stereo.rs runs it: on this branch the range is not found from the images, and with the
-/// default 0.3–3 m beyond the port the TRUE rig itself gives 55.4 % with a point, median 0.331 %
-/// (measured; main's range found from the images gives 92.3 % on this scene, tests/stereo_auto.rs).
+/// true rig does: with no options (`StereoOptions::default()`: the depth range found from the
+/// images, the hypotheses by the step rule) and with the scene's depth range (0.8–2.5 m).
 #[test]
 fn dense_stereo_with_the_calibrated_rig_meets_the_levels_of_the_true_rig() {
     use flatport::stereo::{StereoOptions, stereo};
@@ -223,13 +221,18 @@ fn dense_stereo_with_the_calibrated_rig_meets_the_levels_of_the_true_rig() {
     );
     assert!(result.unpinned.is_empty(), "{:?}", result.unpinned);
     let seen = seen_by_another(&truth, 0, &rendered);
-    let options = StereoOptions {
+    let given = StereoOptions {
         depth_range: Some((0.8, 2.5)),
         ..StereoOptions::default()
     };
-    for (name, rig) in [("true rig", &truth), ("calibrated rig", &result.rig)] {
+    for (name, rig, options) in [
+        ("true rig, no options", &truth, &StereoOptions::default()),
+        ("calibrated rig, no options", &result.rig, &StereoOptions::default()),
+        ("true rig, --depth 0.8:2.5", &truth, &given),
+        ("calibrated rig, --depth 0.8:2.5", &result.rig, &given),
+    ] {
         let started = std::time::Instant::now();
-        let map = stereo(rig, &rendered.images, &options).unwrap();
+        let map = stereo(rig, &rendered.images, options).unwrap();
         let a = accuracy(&map, &rendered.depths[0], &seen);
         eprintln!(
             "{name}: {} seen, {:.1} % with a point, median {:.3} %, {:.1} % within 2 %, periphery median {:.3} % ({:.1} s)",
