@@ -227,7 +227,11 @@ fn dense_stereo_with_the_calibrated_rig_meets_the_levels_of_the_true_rig() {
     };
     for (name, rig, options) in [
         ("true rig, no options", &truth, &StereoOptions::default()),
-        ("calibrated rig, no options", &result.rig, &StereoOptions::default()),
+        (
+            "calibrated rig, no options",
+            &result.rig,
+            &StereoOptions::default(),
+        ),
         ("true rig, --depth 0.8:2.5", &truth, &given),
         ("calibrated rig, --depth 0.8:2.5", &result.rig, &given),
     ] {

@@ -120,6 +120,10 @@ pub struct TableBand {
     node_starts: Vec<f64>,
     /// Per pixel of the band: the depth at or below which the exact projection runs (NaN: always).
     exact_below: Vec<f64>,
+    /// Per band row and cell (`columns` a row): the largest `exact_below` of the cell's pixels
+    /// in that row (∞ where one has no ray), so that a whole run of a cell's pixels is tested
+    /// at once.
+    cell_below: Vec<f64>,
     node_points: Vec<[f64; 3]>,
     node_pixels: Vec<[f64; 2]>,
     node_status: Vec<u32>,
@@ -174,7 +178,20 @@ impl TableBand {
                 let z = rays.z0[i] + s * rays.dz[i];
                 z + WATER_MARGIN_M + 1e-9 * z.abs()
             })
-            .collect();
+            .collect::<Vec<f64>>();
+        let columns = table.nodes.width;
+        let mut cell_below = vec![f64::NEG_INFINITY; rows * columns];
+        for (k, row) in exact_below.chunks(w).enumerate() {
+            for (x, &below) in row.iter().enumerate() {
+                let cell = &mut cell_below[k * columns + x / step];
+                // `max` would drop a NaN (no ray: always exact).
+                *cell = if below.is_nan() {
+                    f64::INFINITY
+                } else {
+                    cell.max(below)
+                };
+            }
+        }
         Self {
             width: w,
             ext_first,
@@ -182,6 +199,7 @@ impl TableBand {
             node_rows,
             node_starts,
             exact_below,
+            cell_below,
             node_points: vec![[0.0; 3]; node_count],
             node_pixels: vec![[0.0; 2]; node_count],
             node_status: vec![0; node_count],
@@ -390,21 +408,30 @@ fn tabulate(
         }
         let ok = &band.cell_ok[top..top + columns];
         let below = &band.exact_below[k * w..(k + 1) * w];
-        for x in 0..w {
-            let i = x / step;
+        let cell_below = &band.cell_below[k * columns..(k + 1) * columns];
+        for (i, x0) in (0..w).step_by(step).enumerate() {
+            let x1 = (x0 + step).min(w);
+            let (u0, du) = (band.row_u[i], band.row_u[i + 1] - band.row_u[i]);
+            let (v0, dv) = (band.row_v[i], band.row_v[i + 1] - band.row_v[i]);
+            let at = |x: usize| {
+                let fx = (x - x0) as f64 * inv_step;
+                [u0 + fx * du, v0 + fx * dv]
+            };
             // `z > NaN` is false: a pixel without a ray takes the exact path.
-            if ok[i] && z > below[x] {
-                let fx = (x % step) as f64 * inv_step;
-                interpolated_pixel(
-                    k * w + x,
-                    [
-                        band.row_u[i] + fx * (band.row_u[i + 1] - band.row_u[i]),
-                        band.row_v[i] + fx * (band.row_v[i + 1] - band.row_v[i]),
-                    ],
-                );
-                interpolated += 1;
+            if ok[i] && z > cell_below[i] {
+                for x in x0..x1 {
+                    interpolated_pixel(k * w + x, at(x));
+                }
+                interpolated += x1 - x0;
             } else {
-                band.exact.push(k * w + x);
+                for x in x0..x1 {
+                    if ok[i] && z > below[x] {
+                        interpolated_pixel(k * w + x, at(x));
+                        interpolated += 1;
+                    } else {
+                        band.exact.push(k * w + x);
+                    }
+                }
             }
         }
     }
