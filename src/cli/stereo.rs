@@ -13,8 +13,7 @@ use flatport::calib::sweep::Shard;
 use flatport::io::frames::FrameSelection;
 use flatport::io::read_rig;
 use flatport::io::stereo_files::{
-    CloudPoint, OrientedCloudPoint, write_depth_png, write_npy_f32, write_oriented_point_cloud_ply,
-    write_point_cloud_ply,
+    CloudPoint, OrientedCloudPoint, write_depth_png, write_npy_f32, write_point_cloud_ply,
 };
 use flatport::io::sweep_shard::sha256_file;
 use flatport::io::write_atomic;
@@ -641,7 +640,7 @@ fn fuse_frame(
             colour: p.colour,
         })
         .collect();
-    write_oriented_point_cloud_ply(
+    write_point_cloud_ply(
         &dir.join(FUSED_FILE),
         &points,
         &[

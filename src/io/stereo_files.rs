@@ -102,8 +102,23 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], values: &[f32]) -> Result<(),
     write_atomic(path, &bytes)
 }
 
-/// One vertex of the point cloud.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// A vertex of a PLY point cloud: `float` properties ([`CloudVertex::FLOATS`]: a position, then
+/// any normal), then `uchar red green blue`. [`write_point_cloud_ply`] writes the properties in
+/// that order.
+pub trait CloudVertex: Copy + Default {
+    /// The names of the `float` properties, in file order.
+    const FLOATS: &'static [&'static str];
+    /// The value of the `float` property `FLOATS[i]`.
+    fn float(&self, i: usize) -> f32;
+    /// Red, green, blue.
+    fn colour(&self) -> [u8; 3];
+}
+
+/// The names of the `uchar` colour properties, in file order.
+const COLOURS: [&str; 3] = ["red", "green", "blue"];
+
+/// One vertex of the point cloud: `float x y z`, `uchar red green blue`.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct CloudPoint {
     /// x, y, z, metres.
     pub position: [f32; 3],
@@ -111,71 +126,22 @@ pub struct CloudPoint {
     pub colour: [u8; 3],
 }
 
-impl PropertyAccess for CloudPoint {
-    fn new() -> Self {
-        Self {
-            position: [0.0; 3],
-            colour: [0; 3],
-        }
+impl CloudVertex for CloudPoint {
+    const FLOATS: &'static [&'static str] = &["x", "y", "z"];
+
+    fn float(&self, i: usize) -> f32 {
+        self.position[i]
     }
 
-    fn get_float(&self, name: &str) -> Option<f32> {
-        match name {
-            "x" => Some(self.position[0]),
-            "y" => Some(self.position[1]),
-            "z" => Some(self.position[2]),
-            _ => None,
-        }
-    }
-
-    fn get_uchar(&self, name: &str) -> Option<u8> {
-        match name {
-            "red" => Some(self.colour[0]),
-            "green" => Some(self.colour[1]),
-            "blue" => Some(self.colour[2]),
-            _ => None,
-        }
+    fn colour(&self) -> [u8; 3] {
+        self.colour
     }
 }
 
-/// Writes a binary little-endian PLY point cloud (`element vertex` with `float x y z`,
-/// `uchar red green blue`) atomically, through `ply-rs-bw`'s writer; `comments` go into the header.
-pub fn write_point_cloud_ply(
-    path: &Path,
-    points: &[CloudPoint],
-    comments: &[String],
-) -> Result<(), IoError> {
-    let mut header = Header::new();
-    header.encoding = Encoding::BinaryLittleEndian;
-    header.comments = comments.to_vec();
-    let mut vertex = ElementDef::new("vertex".to_string());
-    vertex.count = points.len();
-    for name in ["x", "y", "z"] {
-        vertex.properties.add(PropertyDef::new(
-            name.to_string(),
-            PropertyType::Scalar(ScalarType::Float),
-        ));
-    }
-    for name in ["red", "green", "blue"] {
-        vertex.properties.add(PropertyDef::new(
-            name.to_string(),
-            PropertyType::Scalar(ScalarType::UChar),
-        ));
-    }
-    header.elements.add(vertex.clone());
-    let writer = Writer::<CloudPoint>::new();
-    let mut out = OutputFile::create(Some(path))?;
-    let points = points.to_vec();
-    writer
-        .write_header(&mut out, &header)
-        .and_then(|_| writer.write_payload_of_element(&mut out, &points, &vertex, &header))
-        .and_then(|_| out.flush().map(|_| 0))
-        .map_err(|source| out.write_error(source))?;
-    out.finish()
-}
-
-/// One vertex of an oriented point cloud (a fused cloud).
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// One vertex of an oriented point cloud (a fused cloud): `float x y z nx ny nz`,
+/// `uchar red green blue`, the layout Open3D, MeshLab and CloudCompare read as positions, normals
+/// and colours.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct OrientedCloudPoint {
     /// x, y, z, metres.
     pub position: [f32; 3],
@@ -185,44 +151,49 @@ pub struct OrientedCloudPoint {
     pub colour: [u8; 3],
 }
 
-impl PropertyAccess for OrientedCloudPoint {
-    fn new() -> Self {
-        Self {
-            position: [0.0; 3],
-            normal: [0.0; 3],
-            colour: [0; 3],
+impl CloudVertex for OrientedCloudPoint {
+    const FLOATS: &'static [&'static str] = &["x", "y", "z", "nx", "ny", "nz"];
+
+    fn float(&self, i: usize) -> f32 {
+        if i < 3 {
+            self.position[i]
+        } else {
+            self.normal[i - 3]
         }
     }
 
-    fn get_float(&self, name: &str) -> Option<f32> {
-        match name {
-            "x" => Some(self.position[0]),
-            "y" => Some(self.position[1]),
-            "z" => Some(self.position[2]),
-            "nx" => Some(self.normal[0]),
-            "ny" => Some(self.normal[1]),
-            "nz" => Some(self.normal[2]),
-            _ => None,
-        }
-    }
-
-    fn get_uchar(&self, name: &str) -> Option<u8> {
-        match name {
-            "red" => Some(self.colour[0]),
-            "green" => Some(self.colour[1]),
-            "blue" => Some(self.colour[2]),
-            _ => None,
-        }
+    fn colour(&self) -> [u8; 3] {
+        self.colour
     }
 }
 
-/// Writes a binary little-endian PLY point cloud with normals (`element vertex` with
-/// `float x y z nx ny nz`, `uchar red green blue`: the layout Open3D, MeshLab and CloudCompare
-/// read as positions, normals and colours) atomically, through `ply-rs-bw`'s writer; `comments`
-/// go into the header.
-pub fn write_oriented_point_cloud_ply(
+/// A [`CloudVertex`] as `ply-rs-bw`'s writer reads it: each property by its name.
+#[derive(Clone, Copy)]
+struct PlyVertex<P>(P);
+
+impl<P: CloudVertex> PropertyAccess for PlyVertex<P> {
+    fn new() -> Self {
+        Self(P::default())
+    }
+
+    fn get_float(&self, name: &str) -> Option<f32> {
+        let i = P::FLOATS.iter().position(|f| *f == name)?;
+        Some(self.0.float(i))
+    }
+
+    fn get_uchar(&self, name: &str) -> Option<u8> {
+        let i = COLOURS.iter().position(|c| *c == name)?;
+        Some(self.0.colour()[i])
+    }
+}
+
+/// Writes a binary little-endian PLY point cloud (`element vertex` with the `float`
+/// [`CloudVertex::FLOATS`], then `uchar red green blue`: `float x y z` for [`CloudPoint`],
+/// `float x y z nx ny nz` for [`OrientedCloudPoint`]) atomically, through `ply-rs-bw`'s writer;
+/// `comments` go into the header.
+pub fn write_point_cloud_ply<P: CloudVertex>(
     path: &Path,
-    points: &[OrientedCloudPoint],
+    points: &[P],
     comments: &[String],
 ) -> Result<(), IoError> {
     let mut header = Header::new();
@@ -230,22 +201,22 @@ pub fn write_oriented_point_cloud_ply(
     header.comments = comments.to_vec();
     let mut vertex = ElementDef::new("vertex".to_string());
     vertex.count = points.len();
-    for name in ["x", "y", "z", "nx", "ny", "nz"] {
+    for name in P::FLOATS {
         vertex.properties.add(PropertyDef::new(
             name.to_string(),
             PropertyType::Scalar(ScalarType::Float),
         ));
     }
-    for name in ["red", "green", "blue"] {
+    for name in COLOURS {
         vertex.properties.add(PropertyDef::new(
             name.to_string(),
             PropertyType::Scalar(ScalarType::UChar),
         ));
     }
     header.elements.add(vertex.clone());
-    let writer = Writer::<OrientedCloudPoint>::new();
+    let writer = Writer::<PlyVertex<P>>::new();
     let mut out = OutputFile::create(Some(path))?;
-    let points = points.to_vec();
+    let points: Vec<PlyVertex<P>> = points.iter().copied().map(PlyVertex).collect();
     writer
         .write_header(&mut out, &header)
         .and_then(|_| writer.write_payload_of_element(&mut out, &points, &vertex, &header))
@@ -436,6 +407,32 @@ mod tests {
         assert_eq!(f32::from_le_bytes(body[8..12].try_into().unwrap()), 3.5);
         assert_eq!(&body[12..15], &[10, 20, 30]);
         assert_eq!(f32::from_le_bytes(body[15..19].try_into().unwrap()), 0.25);
+    }
+
+    #[test]
+    fn an_oriented_ply_has_normals_between_positions_and_colours() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("o.ply");
+        let points = [OrientedCloudPoint {
+            position: [1.0, -2.0, 3.5],
+            normal: [0.0, 0.6, -0.8],
+            colour: [10, 20, 30],
+        }];
+        write_point_cloud_ply(&path, &points, &[]).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let end = b"end_header\n";
+        let at = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
+        let header = std::str::from_utf8(&bytes[..at]).unwrap();
+        assert!(
+            header.contains(
+                "property float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+            ),
+            "{header}"
+        );
+        let body = &bytes[at..];
+        assert_eq!(body.len(), 6 * 4 + 3);
+        assert_eq!(f32::from_le_bytes(body[16..20].try_into().unwrap()), 0.6);
+        assert_eq!(&body[24..27], &[10, 20, 30]);
     }
 
     #[test]

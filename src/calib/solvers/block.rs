@@ -1,14 +1,16 @@
 //! The normal equations of a bundle adjustment: G global parameters shared by every residual and
-//! one pose of six parameters per view, which only that view's residuals depend on, solved by the
-//! Schur complement on the poses ([`BlockNormalEquations`]); each view's share from its
-//! residuals and their Jacobian ([`view_share`]), under an optional Huber loss ([`robust`]).
+//! N local parameters per block, which only that block's residuals depend on, solved by the Schur
+//! complement on the blocks ([`BlockNormalEquations`]): one pose of six parameters per view in the
+//! bundle ([`PoseBlock`]), one scene point of three coordinates per track in the targetless fit
+//! ([`PointNormalEquations`]); each block's share from its residuals and their Jacobian
+//! ([`view_share`]), under an optional Huber loss ([`robust`]).
 //!
 //! Pose step parameters: ω (rotation vector, rad) and τ (translation, m), with
 //! target pose ← (τ, exp(ω)) · pose ([`move_pose`]).
 
 use nalgebra::{
-    Cholesky, DMatrix, DVector, Dyn, Isometry3, Matrix6, OMatrix, Translation3, U6, UnitQuaternion,
-    Vector2, Vector3, Vector6,
+    Cholesky, Const, DMatrix, DVector, Dyn, Isometry3, OMatrix, SMatrix, SVector, Translation3,
+    UnitQuaternion, Vector2, Vector3,
 };
 
 use crate::calib::solvers::lm::NormalEquations;
@@ -16,19 +18,29 @@ use crate::calib::solvers::lm::NormalEquations;
 /// Parameters of one target pose in a step: ω (rad), τ (m).
 pub const POSE_PARAMETERS: usize = 6;
 
-/// One view's share of the normal equations: its pose block, its coupling to the global
-/// parameters and its pose gradient.
+/// Parameters of one scene point in a step: x, y, z (m).
+pub const POINT_PARAMETERS: usize = 3;
+
+/// One block's share of the normal equations (a view's pose, a track's point): its N × N block,
+/// its coupling to the global parameters and its gradient.
 #[derive(Debug, Clone, PartialEq)]
-pub struct PoseBlock {
-    /// J_vᵀWJ_v over the view's six pose parameters.
-    pub pose: Matrix6<f64>,
-    /// J_gᵀWJ_v: global parameters (rows) × the view's pose parameters.
-    pub coupling: OMatrix<f64, Dyn, U6>,
-    /// J_vᵀWr over the view's pose parameters.
-    pub gradient: Vector6<f64>,
+pub struct LocalBlock<const N: usize> {
+    /// J_vᵀWJ_v over the block's N local parameters.
+    pub local: SMatrix<f64, N, N>,
+    /// J_gᵀWJ_v: global parameters (rows) × the block's local parameters.
+    pub coupling: OMatrix<f64, Dyn, Const<N>>,
+    /// J_vᵀWr over the block's local parameters.
+    pub gradient: SVector<f64, N>,
 }
 
-/// Normal equations of a bundle with G global parameters g and V poses p_v:
+/// One view's share of the bundle's normal equations: its pose block (6 × 6).
+pub type PoseBlock = LocalBlock<POSE_PARAMETERS>;
+
+/// One scene point's share of the targetless fit's normal equations: its point block (3 × 3).
+pub type PointBlock = LocalBlock<POINT_PARAMETERS>;
+
+/// Normal equations of a bundle with G global parameters g and V blocks p_v of N local
+/// parameters each (poses by default):
 ///
 /// ```text
 /// ⎡ U    W₁  …  W_V ⎤ ⎡δg ⎤     ⎡b_g⎤
@@ -37,53 +49,58 @@ pub struct PoseBlock {
 /// ⎣ W_Vᵀ        V_V ⎦ ⎣δp_V⎦     ⎣b_V⎦
 /// ```
 ///
-/// No residual depends on two poses, so the pose part is block diagonal and is eliminated view by
-/// view (Schur complement on the poses): S = U − Σ W_v V_v⁻¹ W_vᵀ, S δg = −(b_g − Σ W_v V_v⁻¹ b_v),
-/// then δp_v = −V_v⁻¹ (b_v + W_vᵀ δg). Memory and time are linear in V (a dense solve is cubic).
-/// The step's order is δg, then δp₁ … δp_V.
+/// No residual depends on two blocks (two poses, two points), so the local part is block diagonal
+/// and is eliminated block by block (Schur complement on the blocks):
+/// S = U − Σ W_v V_v⁻¹ W_vᵀ, S δg = −(b_g − Σ W_v V_v⁻¹ b_v), then δp_v = −V_v⁻¹ (b_v + W_vᵀ δg).
+/// Memory and time are linear in V (a dense solve is cubic). The step's order is δg, then
+/// δp₁ … δp_V.
 #[derive(Debug, Clone, PartialEq)]
-pub struct BlockNormalEquations {
+pub struct BlockNormalEquations<const N: usize = POSE_PARAMETERS> {
     /// U = J_gᵀWJ_g (G × G, symmetric).
     pub global: DMatrix<f64>,
     /// b_g = J_gᵀWr.
     pub global_gradient: DVector<f64>,
-    /// The poses' blocks, in view order.
-    pub views: Vec<PoseBlock>,
+    /// The local blocks, in step order (views for poses, tracks for points).
+    pub blocks: Vec<LocalBlock<N>>,
     /// Σ ρ(|r|²).
     pub cost: f64,
 }
 
-/// The reduced system: (S, its right-hand side, the factors of the damped pose blocks).
-type Reduced = (DMatrix<f64>, DVector<f64>, Vec<Cholesky<f64, U6>>);
+/// The targetless fit's normal equations: G global parameters and P points, a 3 × 3 block per
+/// point; the step's order is δg, then δp₁ … δp_P.
+pub type PointNormalEquations = BlockNormalEquations<POINT_PARAMETERS>;
 
-impl BlockNormalEquations {
+/// The reduced system: (S, its right-hand side, the factors of the damped local blocks).
+type Reduced<const N: usize> = (DMatrix<f64>, DVector<f64>, Vec<Cholesky<f64, Const<N>>>);
+
+impl<const N: usize> BlockNormalEquations<N> {
     /// Number of global parameters G.
     pub fn globals(&self) -> usize {
         self.global.nrows()
     }
 
-    /// Parameters of a step: G + 6V.
+    /// Parameters of a step: G + N·V.
     pub fn dimension(&self) -> usize {
-        self.globals() + POSE_PARAMETERS * self.views.len()
+        self.globals() + N * self.blocks.len()
     }
 
-    /// The Schur complement on the poses of the damped system (each diagonal entry a grown by
+    /// The Schur complement on the blocks of the damped system (each diagonal entry a grown by
     /// `damping`·max(a, `floor`)): (S, its right-hand side b_g − Σ W_v V_v⁻¹ b_v, the factors of
-    /// the damped V_v). `None` when a pose block is not positive definite.
-    fn reduce(&self, damping: f64, floor: f64) -> Option<Reduced> {
+    /// the damped V_v). `None` when a local block is not positive definite.
+    fn reduce(&self, damping: f64, floor: f64) -> Option<Reduced<N>> {
         let mut schur = self.global.clone();
         for i in 0..self.globals() {
             schur[(i, i)] += damping * self.global[(i, i)].max(floor);
         }
         let mut rhs = self.global_gradient.clone();
-        let mut factors = Vec::with_capacity(self.views.len());
-        for block in &self.views {
-            let mut pose = block.pose;
-            for i in 0..POSE_PARAMETERS {
-                pose[(i, i)] += damping * block.pose[(i, i)].max(floor);
+        let mut factors = Vec::with_capacity(self.blocks.len());
+        for block in &self.blocks {
+            let mut local = block.local;
+            for i in 0..N {
+                local[(i, i)] += damping * block.local[(i, i)].max(floor);
             }
-            let factor = pose.cholesky()?;
-            // V⁻¹ W_vᵀ (6 × G) and V⁻¹ b_v.
+            let factor = local.cholesky()?;
+            // V⁻¹ W_vᵀ (N × G) and V⁻¹ b_v.
             let solved = factor.solve(&block.coupling.transpose());
             schur -= &block.coupling * &solved;
             rhs -= &block.coupling * factor.solve(&block.gradient);
@@ -92,30 +109,31 @@ impl BlockNormalEquations {
         Some((schur, rhs, factors))
     }
 
-    /// Covariance of the global parameters, the G × G block of (JᵀWJ)⁻¹: the inverse of the Schur
-    /// complement of the undamped system. `None` when the system is singular.
+    /// Covariance of the global parameters (unit residual variance), the G × G block of
+    /// (JᵀWJ)⁻¹: the inverse of the Schur complement of the undamped system. `None` when the
+    /// system is singular.
     pub fn global_covariance(&self) -> Option<DMatrix<f64>> {
         let (schur, _, _) = self.reduce(0.0, 0.0)?;
         Some(schur.cholesky()?.inverse())
     }
 }
 
-impl NormalEquations for BlockNormalEquations {
+impl<const N: usize> NormalEquations for BlockNormalEquations<N> {
     fn cost(&self) -> f64 {
         self.cost
     }
 
     fn gradient_amax(&self) -> f64 {
-        self.views
+        self.blocks
             .iter()
             .map(|b| b.gradient.amax())
             .fold(self.global_gradient.amax(), f64::max)
     }
 
     fn max_diagonal(&self) -> f64 {
-        self.views
+        self.blocks
             .iter()
-            .map(|b| b.pose.diagonal().max())
+            .map(|b| b.local.diagonal().max())
             .fold(self.global.diagonal().max(), f64::max)
     }
 
@@ -125,11 +143,10 @@ impl NormalEquations for BlockNormalEquations {
         let g = self.globals();
         let mut step = DVector::zeros(self.dimension());
         step.rows_mut(0, g).copy_from(&global_step);
-        for (v, (block, factor)) in self.views.iter().zip(&factors).enumerate() {
-            let pose_step =
+        for (v, (block, factor)) in self.blocks.iter().zip(&factors).enumerate() {
+            let local_step =
                 -factor.solve(&(block.gradient + block.coupling.transpose() * &global_step));
-            step.fixed_rows_mut::<POSE_PARAMETERS>(g + POSE_PARAMETERS * v)
-                .copy_from(&pose_step);
+            step.fixed_rows_mut::<N>(g + N * v).copy_from(&local_step);
         }
         Some(step)
     }
@@ -179,32 +196,31 @@ pub fn view_share(
     (jtj, jtr, cost)
 }
 
-impl BlockNormalEquations {
-    /// The normal equations of `globals` global parameters from every view's share
-    /// ([`view_share`]): the globals' blocks summed, each view's pose block kept.
+impl<const N: usize> BlockNormalEquations<N> {
+    /// The normal equations of `globals` global parameters from every block's share
+    /// ([`view_share`] over the globals, then the block's N local parameters): the globals'
+    /// blocks summed, each view's pose block (each track's point block) kept.
     pub fn from_shares(globals: usize, shares: Vec<(DMatrix<f64>, DVector<f64>, f64)>) -> Self {
         let mut global = DMatrix::zeros(globals, globals);
         let mut global_gradient = DVector::zeros(globals);
         let mut cost = 0.0;
-        let mut views = Vec::with_capacity(shares.len());
+        let mut blocks = Vec::with_capacity(shares.len());
         for (jtj, jtr, share_cost) in shares {
             global += jtj.view((0, 0), (globals, globals));
             global_gradient += jtr.rows(0, globals);
             cost += share_cost;
-            views.push(PoseBlock {
-                pose: jtj
-                    .fixed_view::<POSE_PARAMETERS, POSE_PARAMETERS>(globals, globals)
-                    .into_owned(),
+            blocks.push(LocalBlock {
+                local: jtj.fixed_view::<N, N>(globals, globals).into_owned(),
                 coupling: jtj
-                    .generic_view((0, globals), (Dyn(globals), U6))
+                    .generic_view((0, globals), (Dyn(globals), Const::<N>))
                     .into_owned(),
-                gradient: jtr.fixed_rows::<POSE_PARAMETERS>(globals).into_owned(),
+                gradient: jtr.fixed_rows::<N>(globals).into_owned(),
             });
         }
         Self {
             global,
             global_gradient,
-            views,
+            blocks,
             cost,
         }
     }
@@ -219,6 +235,8 @@ pub fn move_pose(pose: &Isometry3<f64>, delta: &[f64]) -> Isometry3<f64> {
 
 #[cfg(test)]
 mod tests {
+    use nalgebra::{Matrix6, U6, Vector6};
+
     use super::*;
     use crate::calib::simulate::rng::Rng;
     use crate::calib::solvers::lm::DenseNormalEquations;
@@ -263,7 +281,7 @@ mod tests {
                 let jp = rows.fixed_columns::<POSE_PARAMETERS>(globals + POSE_PARAMETERS * v);
                 let rv = r.rows(v * rows_per_view, rows_per_view);
                 PoseBlock {
-                    pose: jp.transpose() * jp,
+                    local: jp.transpose() * jp,
                     coupling: jg.transpose() * jp,
                     gradient: jp.transpose() * rv,
                 }
@@ -272,7 +290,7 @@ mod tests {
         let block = BlockNormalEquations {
             global: jg.transpose() * jg,
             global_gradient: jg.transpose() * &r,
-            views: blocks,
+            blocks,
             cost: r.norm_squared(),
         };
         (block, dense)
@@ -317,8 +335,8 @@ mod tests {
     #[test]
     fn a_singular_pose_block_is_refused() {
         let (mut block, _) = random_problem(3, 3, 20, 4);
-        block.views[1] = PoseBlock {
-            pose: Matrix6::zeros(),
+        block.blocks[1] = PoseBlock {
+            local: Matrix6::zeros(),
             coupling: OMatrix::<f64, Dyn, U6>::zeros(3),
             gradient: Vector6::zeros(),
         };

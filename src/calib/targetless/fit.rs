@@ -5,19 +5,20 @@
 //!
 //! Every residual depends on the global parameters and on one point alone, so the normal
 //! equations are the bundle's block form with a 3 × 3 block per point instead of a 6 × 6 pose
-//! ([`PointNormalEquations`]): the points are eliminated one by one (Schur complement), memory and
-//! time are linear in the points. Derivatives are central differences, as in the bundle.
+//! ([`PointNormalEquations`], the bundle's
+//! [`BlockNormalEquations`](crate::calib::solvers::block::BlockNormalEquations) with 3 × 3 blocks):
+//! the points are eliminated one by one (Schur complement), memory and time are linear in the
+//! points. Derivatives are central differences, as in the bundle.
 
-use nalgebra::{
-    Cholesky, DMatrix, DVector, Dyn, Matrix3, OMatrix, Point2, Point3, U3, Vector2, Vector3,
-};
+use nalgebra::{DMatrix, DVector, Point2, Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
 use crate::calib::pipeline::bundle::{
     Estimate, Parameter, State, difference_step, global_parameters, moved,
 };
-use crate::calib::solvers::block::view_share;
-use crate::calib::solvers::lm::{LeastSquares, NormalEquations};
+use crate::calib::solvers::block::{POINT_PARAMETERS, view_share};
+pub use crate::calib::solvers::block::{PointBlock, PointNormalEquations};
+use crate::calib::solvers::lm::LeastSquares;
 use crate::model::{Ports, RefractiveCamera, Rig};
 
 /// Central-difference step of a point's coordinates, metres: as the bundle's pose steps, it
@@ -56,103 +57,6 @@ pub struct PointsState {
     pub rig: State,
     /// One point per track, master frame, metres.
     pub points: Vec<Point3<f64>>,
-}
-
-/// One point's share of the normal equations.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PointBlock {
-    /// J_pᵀWJ_p over the point's three coordinates.
-    pub point: Matrix3<f64>,
-    /// J_gᵀWJ_p: global parameters (rows) × the point's coordinates.
-    pub coupling: OMatrix<f64, Dyn, U3>,
-    /// J_pᵀWr.
-    pub gradient: Vector3<f64>,
-}
-
-/// Normal equations of G global parameters and P points, the points' part block diagonal:
-/// S = U − Σ W_p V_p⁻¹ W_pᵀ, S δg = −(b_g − Σ W_p V_p⁻¹ b_p), δp = −V_p⁻¹ (b_p + W_pᵀ δg)
-/// (the bundle's [`BlockNormalEquations`](crate::calib::solvers::block::BlockNormalEquations)
-/// with 3 × 3 blocks). The step's order is δg, then δp₁ … δp_P.
-#[derive(Debug, Clone, PartialEq)]
-pub struct PointNormalEquations {
-    /// U = J_gᵀWJ_g.
-    pub global: DMatrix<f64>,
-    /// b_g = J_gᵀWr.
-    pub global_gradient: DVector<f64>,
-    /// Every point's block, in track order.
-    pub points: Vec<PointBlock>,
-    /// Σ ρ(|r|²).
-    pub cost: f64,
-}
-
-type Reduced = (DMatrix<f64>, DVector<f64>, Vec<Cholesky<f64, U3>>);
-
-impl PointNormalEquations {
-    fn globals(&self) -> usize {
-        self.global.nrows()
-    }
-
-    fn reduce(&self, damping: f64, floor: f64) -> Option<Reduced> {
-        let mut schur = self.global.clone();
-        for i in 0..self.globals() {
-            schur[(i, i)] += damping * self.global[(i, i)].max(floor);
-        }
-        let mut rhs = self.global_gradient.clone();
-        let mut factors = Vec::with_capacity(self.points.len());
-        for block in &self.points {
-            let mut point = block.point;
-            for i in 0..3 {
-                point[(i, i)] += damping * block.point[(i, i)].max(floor);
-            }
-            let factor = point.cholesky()?;
-            let solved = factor.solve(&block.coupling.transpose());
-            schur -= &block.coupling * &solved;
-            rhs -= &block.coupling * factor.solve(&block.gradient);
-            factors.push(factor);
-        }
-        Some((schur, rhs, factors))
-    }
-
-    /// Covariance of the global parameters (unit residual variance): the inverse of the Schur
-    /// complement of the undamped system; `None` when singular.
-    pub fn global_covariance(&self) -> Option<DMatrix<f64>> {
-        let (schur, _, _) = self.reduce(0.0, 0.0)?;
-        Some(schur.cholesky()?.inverse())
-    }
-}
-
-impl NormalEquations for PointNormalEquations {
-    fn cost(&self) -> f64 {
-        self.cost
-    }
-
-    fn gradient_amax(&self) -> f64 {
-        self.points
-            .iter()
-            .map(|b| b.gradient.amax())
-            .fold(self.global_gradient.amax(), f64::max)
-    }
-
-    fn max_diagonal(&self) -> f64 {
-        self.points
-            .iter()
-            .map(|b| b.point.diagonal().max())
-            .fold(self.global.diagonal().max(), f64::max)
-    }
-
-    fn solve_damped(&self, damping: f64, floor: f64) -> Option<DVector<f64>> {
-        let (schur, rhs, factors) = self.reduce(damping, floor)?;
-        let global_step = -schur.cholesky()?.solve(&rhs);
-        let g = self.globals();
-        let mut step = DVector::zeros(g + 3 * self.points.len());
-        step.rows_mut(0, g).copy_from(&global_step);
-        for (p, (block, factor)) in self.points.iter().zip(&factors).enumerate() {
-            let point_step =
-                -factor.solve(&(block.gradient + block.coupling.transpose() * &global_step));
-            step.fixed_rows_mut::<3>(g + 3 * p).copy_from(&point_step);
-        }
-        Some(step)
-    }
 }
 
 /// The targetless problem: `tracks` seen by the cameras of `base`, estimating `globals`.
@@ -245,7 +149,7 @@ impl LeastSquares for PointsProblem<'_> {
     type Normal = PointNormalEquations;
 
     fn dimension(&self, state: &PointsState) -> usize {
-        self.globals.len() + 3 * state.points.len()
+        self.globals.len() + POINT_PARAMETERS * state.points.len()
     }
 
     fn cost(&self, state: &PointsState) -> Option<f64> {
@@ -273,7 +177,7 @@ impl LeastSquares for PointsProblem<'_> {
                 ])
             })
             .collect::<Option<_>>()?;
-        let columns = globals + 3;
+        let columns = globals + POINT_PARAMETERS;
         let shares: Vec<(DMatrix<f64>, DVector<f64>, f64)> = state
             .points
             .par_iter()
@@ -312,28 +216,7 @@ impl LeastSquares for PointsProblem<'_> {
                 Some(view_share(&base, &jacobian, columns, self.huber))
             })
             .collect::<Option<_>>()?;
-        let mut global = DMatrix::zeros(globals, globals);
-        let mut global_gradient = DVector::zeros(globals);
-        let mut cost = 0.0;
-        let mut points = Vec::with_capacity(shares.len());
-        for (jtj, jtr, share_cost) in shares {
-            global += jtj.view((0, 0), (globals, globals));
-            global_gradient += jtr.rows(0, globals);
-            cost += share_cost;
-            points.push(PointBlock {
-                point: jtj.fixed_view::<3, 3>(globals, globals).into_owned(),
-                coupling: jtj
-                    .generic_view((0, globals), (Dyn(globals), U3))
-                    .into_owned(),
-                gradient: jtr.fixed_rows::<3>(globals).into_owned(),
-            });
-        }
-        Some(PointNormalEquations {
-            global,
-            global_gradient,
-            points,
-            cost,
-        })
+        Some(PointNormalEquations::from_shares(globals, shares))
     }
 
     fn retract(&self, state: &PointsState, delta: &DVector<f64>) -> PointsState {
@@ -346,7 +229,11 @@ impl LeastSquares for PointsProblem<'_> {
             .points
             .iter()
             .enumerate()
-            .map(|(p, x)| x + delta.fixed_rows::<3>(g + 3 * p).into_owned())
+            .map(|(p, x)| {
+                x + delta
+                    .fixed_rows::<POINT_PARAMETERS>(g + POINT_PARAMETERS * p)
+                    .into_owned()
+            })
             .collect();
         PointsState { rig, points }
     }
@@ -356,7 +243,7 @@ impl LeastSquares for PointsProblem<'_> {
 mod tests {
     use super::*;
     use crate::calib::simulate::rng::Rng;
-    use crate::calib::solvers::lm::DenseNormalEquations;
+    use crate::calib::solvers::lm::{DenseNormalEquations, NormalEquations};
 
     #[test]
     fn the_point_schur_step_and_covariance_equal_the_dense_solve() {
@@ -391,7 +278,7 @@ mod tests {
                 let jp = rows_p.fixed_columns::<3>(globals + 3 * p);
                 let rp = r.rows(p * rows, rows);
                 PointBlock {
-                    point: jp.transpose() * jp,
+                    local: jp.transpose() * jp,
                     coupling: jg.transpose() * jp,
                     gradient: jp.transpose() * rp,
                 }
@@ -400,7 +287,7 @@ mod tests {
         let block = PointNormalEquations {
             global: jg.transpose() * jg,
             global_gradient: jg.transpose() * &r,
-            points: blocks,
+            blocks,
             cost: r.norm_squared(),
         };
         for (damping, floor) in [(0.0, 0.0), (1e-3, 1e-9), (5.0, 1.0)] {
