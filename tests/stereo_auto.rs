@@ -632,3 +632,67 @@ fn rejections_at_full_size() {
         }
     }
 }
+
+/// The consistency tolerance's rule on two more scenes at 1280 × 1024 that it was not chosen on
+/// (texture detail scaled with the resolution): the defaults (τ = 2 px at f = 1000 px) against
+/// τ = 1 px, on the same images; issue 39's levels asserted for the defaults. Measured: the far
+/// wall 99.0 % -> 99.2 % with a point (median 0.063 % both), the shared-port seabed 95.3 % ->
+/// 97.6 % (median 0.052 -> 0.053 %), all within 2 %, no gross point where no other camera sees.
+/// `cargo test --release --test stereo_auto -- --ignored --nocapture
+/// tolerance_on_other_full_size_scenes`.
+#[test]
+#[ignore]
+fn tolerance_on_other_full_size_scenes() {
+    let mut seabed = seabed(1.6, 3);
+    seabed.texture = noise(103, 0.15 / 4.0);
+    let cases = [
+        (
+            "housings 1280 x 1024: a far tilted wall",
+            scaled(PORT_PER_CAMERA, 4),
+            scene(vec![plane_at(5.5, 0.9, noise(51, 0.075))]),
+        ),
+        (
+            "shared port 1280 x 1024: seabed and a rock",
+            scaled(SHARED_PORT_PAIR, 4),
+            scene(vec![seabed, sphere([0.12, 0.05, 1.3], 0.15, 12)]),
+        ),
+    ];
+    for (name, rig, scene) in cases {
+        let rendered = render_all(&rig, &scene, 2.0);
+        let seen = seen_by_another(&rig, 0, &rendered);
+        let mut range = None;
+        for tau in [None, Some(1.0)] {
+            let map = stereo(
+                &rig,
+                &rendered.images,
+                &StereoOptions {
+                    depth_range: range,
+                    consistency_px: tau,
+                    ..StereoOptions::default()
+                },
+            )
+            .unwrap();
+            range = Some(map.depth_range);
+            let a = accuracy(&map, &rendered.depths[0], &seen);
+            eprintln!(
+                "{name}, τ = {} px: {} seen pixels, {:.1} % with a point, median {:.3} %, {:.1} % within 2 %, periphery median {:.3} %, {:.1} % of {} unseen points gross",
+                map.consistency_px,
+                a.seen,
+                100.0 * a.valid_fraction,
+                100.0 * a.median,
+                100.0 * a.within_2,
+                100.0 * a.periphery_median,
+                100.0 * a.unseen_gross,
+                a.unseen_points
+            );
+            if tau.is_none() {
+                // Issue 39's levels, with the rule's tolerance.
+                assert!(a.valid_fraction >= 0.85, "{name}: {a:?}");
+                assert!(a.median <= 0.003, "{name}: {a:?}");
+                assert!(a.within_2 >= 0.93, "{name}: {a:?}");
+                assert!(a.periphery_median <= 0.005, "{name}: {a:?}");
+                assert!(a.unseen_gross <= 0.05, "{name}: {a:?}");
+            }
+        }
+    }
+}
