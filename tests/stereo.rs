@@ -39,7 +39,10 @@ fn options(range: (f64, f64)) -> StereoOptions {
         min_texture: env_f64("FP_TEX", d.min_texture),
         full_distinctness: env_f64("FP_DIST", d.full_distinctness),
         min_confidence: env_f64("FP_CONF", d.min_confidence),
-        consistency_px: env_f64("FP_LR", d.consistency_px),
+        consistency_px: std::env::var("FP_LR")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .or(d.consistency_px),
         edge_jump: match env_f64("FP_JUMP", d.edge_jump.unwrap_or(0.0)) {
             j if j > 0.0 => Some(j),
             _ => None,

@@ -445,3 +445,254 @@ fn old_defaults_in_turns() {
         }
     }
 }
+
+/// Where the full-size housings scene loses its pixels, for each window radius in `FP_RADII`
+/// (default "3,6"): one run with every filter off (no consistency check, no edge or occlusion
+/// margin, confidence 0) splits the seen pixels into no depth (untextured by the test's own
+/// window statistics, or no vote / end of range), a low confidence, and wrong (> 2 %); runs with
+/// the consistency check alone, then with the depth-edge margin, then the defaults (with the
+/// occlusion margin) give what each of them takes of the rest; then the defaults with each
+/// consistency tolerance in `FP_CONSISTENCY` (pixels, none by default). Measured (docs/stereo.md):
+/// radius 3 with 1 px lost 9.0 % to the occlusion margin (0.1 % wrong), 85.1 % kept a point;
+/// radius 6 kept 91.5 % but 9.4 % gross where unseen; radius 3 with 2 px (now the default at
+/// f = 1000 px) kept 91.6 %. `FP_RADII=3,6 FP_CONSISTENCY=2 cargo test --release --test
+/// stereo_auto -- --ignored --nocapture rejections_at_full_size`.
+#[test]
+#[ignore]
+fn rejections_at_full_size() {
+    let rig = scaled(PORT_PER_CAMERA, 4);
+    let scene = scene(vec![
+        plane_at(1.5, 0.35, noise(41, 0.03)),
+        sphere([0.1, 0.02, 1.1], 0.22, 42),
+    ]);
+    let rendered = render_all(&rig, &scene, 2.0);
+    let seen = seen_by_another(&rig, 0, &rendered);
+    let truth = &rendered.depths[0];
+    let image = &rendered.images[0];
+    let (w, h) = (image.width as usize, image.height as usize);
+    let radii: Vec<usize> = std::env::var("FP_RADII")
+        .unwrap_or_else(|_| "3,6".into())
+        .split(',')
+        .map(|r| r.trim().parse().unwrap())
+        .collect();
+    let mut range = None;
+    for r in radii {
+        // The test's own texture measure: the grey standard deviation of the (2r + 1)² window.
+        let untextured = |i: usize| {
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            let (mut n, mut s, mut s2) = (0f64, 0f64, 0f64);
+            for yy in (y - r as i64).max(0)..=(y + r as i64).min(h as i64 - 1) {
+                for xx in (x - r as i64).max(0)..=(x + r as i64).min(w as i64 - 1) {
+                    let g = f64::from(image.pixels[yy as usize * w + xx as usize]);
+                    n += 1.0;
+                    s += g;
+                    s2 += g * g;
+                }
+            }
+            (s2 / n - (s / n).powi(2)).max(0.0).sqrt() < 0.01
+        };
+        let defaults = StereoOptions {
+            window_radius: r,
+            depth_range: range,
+            ..StereoOptions::default()
+        };
+        let started = std::time::Instant::now();
+        let full = stereo(&rig, &rendered.images, &defaults).unwrap();
+        let full_s = started.elapsed().as_secs_f64();
+        range = Some(full.depth_range);
+        let raw = stereo(
+            &rig,
+            &rendered.images,
+            &StereoOptions {
+                check_cameras: Some(0),
+                edge_jump: None,
+                occlusion_margin: 0,
+                min_confidence: 0.0,
+                ..defaults.clone()
+            },
+        )
+        .unwrap();
+        // The filters one by one: the consistency check alone, then with the depth-edge margin;
+        // the defaults add the occlusion margin.
+        let checked = stereo(
+            &rig,
+            &rendered.images,
+            &StereoOptions {
+                edge_jump: None,
+                occlusion_margin: 0,
+                ..defaults.clone()
+            },
+        )
+        .unwrap();
+        let edged = stereo(
+            &rig,
+            &rendered.images,
+            &StereoOptions {
+                occlusion_margin: 0,
+                ..defaults.clone()
+            },
+        )
+        .unwrap();
+        let (mut seen_n, mut flat, mut none, mut low, mut wrong, mut kept_raw) = (0, 0, 0, 0, 0, 0);
+        let (mut dropped, mut dropped_wrong) = (0, 0);
+        // Of the confident raw points: dropped by the check, by the edge margin, by the
+        // occlusion margin (each with how many of them were wrong).
+        let mut by = [[0usize; 2]; 3];
+        for i in 0..w * h {
+            if !seen[i] {
+                continue;
+            }
+            seen_n += 1;
+            let z = f64::from(raw.depth[i]);
+            if !z.is_finite() {
+                if untextured(i) {
+                    flat += 1;
+                } else {
+                    none += 1;
+                }
+                continue;
+            }
+            let bad = ((z - f64::from(truth[i])) / f64::from(truth[i])).abs() > 0.02;
+            if f64::from(raw.confidence[i]) < 0.25 {
+                low += 1;
+                continue;
+            }
+            if bad {
+                wrong += 1;
+            }
+            kept_raw += 1;
+            if !full.depth[i].is_finite() {
+                dropped += 1;
+                if bad {
+                    dropped_wrong += 1;
+                }
+                let stage = if !checked.depth[i].is_finite() {
+                    0
+                } else if !edged.depth[i].is_finite() {
+                    1
+                } else {
+                    2
+                };
+                by[stage][0] += 1;
+                by[stage][1] += usize::from(bad);
+            }
+        }
+        let pct = |n: usize| 100.0 * n as f64 / seen_n as f64;
+        let a = accuracy(&full, truth, &seen);
+        eprintln!(
+            "r = {r}: {seen_n} seen; no depth: {:.1} % untextured, {:.1} % no vote / end of range; confidence < 0.25: {:.1} %; confident {:.1} % ({:.1} % wrong > 2 %), of which the consistency check and margins drop {:.1} % ({:.1} % wrong); defaults: {:.1} % with a point, median {:.3} %, {:.1} % within 2 %, periphery median {:.3} %, {:.1} % of {} unseen points gross; {full_s:.0} s",
+            pct(flat),
+            pct(none),
+            pct(low),
+            pct(kept_raw),
+            pct(wrong),
+            pct(dropped),
+            pct(dropped_wrong),
+            100.0 * a.valid_fraction,
+            100.0 * a.median,
+            100.0 * a.within_2,
+            100.0 * a.periphery_median,
+            100.0 * a.unseen_gross,
+            a.unseen_points,
+        );
+        eprintln!(
+            "r = {r}: dropped by the consistency check {:.1} % ({:.1} % wrong), the depth-edge margin {:.1} % ({:.1} % wrong), the occlusion margin {:.1} % ({:.1} % wrong)",
+            pct(by[0][0]),
+            pct(by[0][1]),
+            pct(by[1][0]),
+            pct(by[1][1]),
+            pct(by[2][0]),
+            pct(by[2][1]),
+        );
+        // Other consistency tolerances (pixels), the defaults otherwise: FP_CONSISTENCY="1.5,2".
+        for tol in std::env::var("FP_CONSISTENCY")
+            .unwrap_or_default()
+            .split(',')
+            .filter_map(|t| t.trim().parse::<f64>().ok())
+        {
+            let map = stereo(
+                &rig,
+                &rendered.images,
+                &StereoOptions {
+                    consistency_px: Some(tol),
+                    ..defaults.clone()
+                },
+            )
+            .unwrap();
+            let a = accuracy(&map, truth, &seen);
+            eprintln!(
+                "r = {r}, consistency within {tol} px: {:.1} % with a point, median {:.3} %, {:.1} % within 2 %, periphery median {:.3} %, {:.1} % of {} unseen points gross",
+                100.0 * a.valid_fraction,
+                100.0 * a.median,
+                100.0 * a.within_2,
+                100.0 * a.periphery_median,
+                100.0 * a.unseen_gross,
+                a.unseen_points,
+            );
+        }
+    }
+}
+
+/// The consistency tolerance's rule on two more scenes at 1280 × 1024 that it was not chosen on
+/// (texture detail scaled with the resolution): the defaults (τ = 2 px at f = 1000 px) against
+/// τ = 1 px, on the same images; issue 39's levels asserted for the defaults. Measured: the far
+/// wall 99.0 % -> 99.2 % with a point (median 0.063 % both), the shared-port seabed 95.3 % ->
+/// 97.6 % (median 0.052 -> 0.053 %), all within 2 %, no gross point where no other camera sees.
+/// `cargo test --release --test stereo_auto -- --ignored --nocapture
+/// tolerance_on_other_full_size_scenes`.
+#[test]
+#[ignore]
+fn tolerance_on_other_full_size_scenes() {
+    let mut seabed = seabed(1.6, 3);
+    seabed.texture = noise(103, 0.15 / 4.0);
+    let cases = [
+        (
+            "housings 1280 x 1024: a far tilted wall",
+            scaled(PORT_PER_CAMERA, 4),
+            scene(vec![plane_at(5.5, 0.9, noise(51, 0.075))]),
+        ),
+        (
+            "shared port 1280 x 1024: seabed and a rock",
+            scaled(SHARED_PORT_PAIR, 4),
+            scene(vec![seabed, sphere([0.12, 0.05, 1.3], 0.15, 12)]),
+        ),
+    ];
+    for (name, rig, scene) in cases {
+        let rendered = render_all(&rig, &scene, 2.0);
+        let seen = seen_by_another(&rig, 0, &rendered);
+        let mut range = None;
+        for tau in [None, Some(1.0)] {
+            let map = stereo(
+                &rig,
+                &rendered.images,
+                &StereoOptions {
+                    depth_range: range,
+                    consistency_px: tau,
+                    ..StereoOptions::default()
+                },
+            )
+            .unwrap();
+            range = Some(map.depth_range);
+            let a = accuracy(&map, &rendered.depths[0], &seen);
+            eprintln!(
+                "{name}, τ = {} px: {} seen pixels, {:.1} % with a point, median {:.3} %, {:.1} % within 2 %, periphery median {:.3} %, {:.1} % of {} unseen points gross",
+                map.consistency_px,
+                a.seen,
+                100.0 * a.valid_fraction,
+                100.0 * a.median,
+                100.0 * a.within_2,
+                100.0 * a.periphery_median,
+                100.0 * a.unseen_gross,
+                a.unseen_points
+            );
+            if tau.is_none() {
+                // Issue 39's levels, with the rule's tolerance.
+                assert!(a.valid_fraction >= 0.85, "{name}: {a:?}");
+                assert!(a.median <= 0.003, "{name}: {a:?}");
+                assert!(a.within_2 >= 0.93, "{name}: {a:?}");
+                assert!(a.periphery_median <= 0.005, "{name}: {a:?}");
+                assert!(a.unseen_gross <= 0.05, "{name}: {a:?}");
+            }
+        }
+    }
+}

@@ -443,6 +443,7 @@ mod tests {
                 hypotheses: 64,
                 count: crate::stereo::range::CountChoice::Given,
             },
+            consistency_px: 1.0,
             runs: 2,
             stage_seconds: Vec::new(),
         }

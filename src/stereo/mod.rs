@@ -23,8 +23,9 @@
 //!    ([`sgm`]).
 //! 7. `winner_take_all`: the least aggregated cost, refined by a parabola in 1/z ([`select`]).
 //! 8. `consistency`: every other camera computes its own depth map the same way (as reference
-//!    against all the others); a reference pixel's point must reproject within ~1 px through one
-//!    of them ([`check`]).
+//!    against all the others); a reference pixel's point must reproject within τ through one
+//!    of them ([`check`]), τ = max(1, 0.002·f) reference pixels ([`consistency_px_for`]: the
+//!    same angle at any resolution).
 //! 9. `depth_edges`: pixels within a window radius of a depth jump (over 3 %) are dropped: the
 //!    window straddles two surfaces there and follows the nearer (foreground fattening,
 //!    [`edges`]).
@@ -99,6 +100,27 @@ use sgm::{SgmParams, sgm_aggregate};
 pub const DEFAULT_MIN_DEPTH: f64 = 0.3;
 /// Default far end of the depth range, metres.
 pub const DEFAULT_MAX_DEPTH: f64 = 3.0;
+/// The consistency tolerance's angle, radians: τ = CONSISTENCY_RAD · f pixels (1 px at
+/// f = 500 px, the 640 × 512 images the check was tuned on), at least [`MIN_CONSISTENCY_PX`].
+pub const CONSISTENCY_RAD: f64 = 0.002;
+/// The least consistency tolerance chosen, pixels.
+pub const MIN_CONSISTENCY_PX: f64 = 1.0;
+
+/// The consistency tolerance chosen for a reference camera of focal length `focal_px` (pixels,
+/// the mean of fx and fy): τ = max([`MIN_CONSISTENCY_PX`], [`CONSISTENCY_RAD`] · f), the same
+/// angle at any resolution (a fixed 1 px is half the angle at f = 1000 px that it is at
+/// f = 500 px, where it was tuned). Measured at 1280 × 1024 (f = 1000 px) on issue 39's
+/// housings scene: 1 px contradicted right pixels side by side often enough that the occlusion
+/// margin took 9.0 % of the seen pixels (0.1 % of them wrong), 85.1 % kept a point; 2 px kept
+/// 91.6 %, median error 0.029 → 0.031 % (docs/stereo.md, `rejections_at_full_size`).
+pub fn consistency_px_for(focal_px: f64) -> f64 {
+    let tau = CONSISTENCY_RAD * focal_px;
+    if tau.is_finite() {
+        tau.max(MIN_CONSISTENCY_PX)
+    } else {
+        MIN_CONSISTENCY_PX
+    }
+}
 
 /// How to match.
 #[derive(Debug, Clone, PartialEq)]
@@ -127,8 +149,10 @@ pub struct StereoOptions {
     pub full_distinctness: f64,
     /// Least confidence of a returned point.
     pub min_confidence: f64,
-    /// Largest reprojection disagreement with another camera's depth map, pixels.
-    pub consistency_px: f64,
+    /// Largest reprojection disagreement with another camera's depth map, reference pixels;
+    /// `None`: from the reference camera's focal length ([`consistency_px_for`]: 1 px up to
+    /// f = 500 px, 2 px at f = 1000 px).
+    pub consistency_px: Option<f64>,
     /// Relative depth jump within a window radius that marks a depth edge, whose pixels are
     /// returned as NaN (the window straddles two surfaces there); `None`: no such test.
     pub edge_jump: Option<f64>,
@@ -148,7 +172,8 @@ impl Default for StereoOptions {
     /// The depth range found from the images and the hypotheses by the step rule ([`range`]),
     /// 7 × 7 windows, P1 0.03, P2 0.5 halved at a change of 0.05 in grey, 8 paths,
     /// texture ≥ 0.01, confidence ≥ 0.25 (distinctness 0.05 counting fully), consistency within
-    /// 1 px against every other camera, no point within a window radius of a 3 % depth jump.
+    /// max(1, 0.002·f) px against every other camera ([`consistency_px_for`]), no point within
+    /// a window radius of a 3 % depth jump.
     fn default() -> Self {
         Self {
             reference: 0,
@@ -162,7 +187,7 @@ impl Default for StereoOptions {
             min_texture: 0.01,
             full_distinctness: 0.05,
             min_confidence: 0.25,
-            consistency_px: 1.0,
+            consistency_px: None,
             edge_jump: Some(0.03),
             occlusion_margin: 3,
             check_cameras: None,
@@ -275,6 +300,8 @@ pub struct DepthMap {
     pub hypotheses: usize,
     /// How the depth range and the hypotheses were chosen.
     pub sampling: Sampling,
+    /// The consistency tolerance used, reference pixels (given, or [`consistency_px_for`]).
+    pub consistency_px: f64,
     /// Depth maps computed (1 + the check cameras').
     pub runs: usize,
     /// Seconds per stage, summed over the runs: rays, cost volume, aggregation, selection,
@@ -594,6 +621,10 @@ fn finish(
 ) -> Result<DepthMap, StereoError> {
     let started = Instant::now();
     let (w, h) = (rays.width, rays.height);
+    let reference_camera = cameras[reference].intrinsics();
+    let consistency_px = options
+        .consistency_px
+        .unwrap_or_else(|| consistency_px_for(0.5 * (reference_camera.fx + reference_camera.fy)));
     let checks = if options.check_cameras == Some(0) {
         vec![Check::Confirmed; w * h]
     } else {
@@ -606,13 +637,7 @@ fn finish(
                 points: &map.points,
             })
             .collect();
-        consistency(
-            &cameras[reference],
-            w,
-            &main.points,
-            &views,
-            options.consistency_px,
-        )
+        consistency(&cameras[reference], w, &main.points, &views, consistency_px)
     };
     // Depth edges among the confirmed depths, and the pixels next to a depth that the other
     // cameras contradict (an occlusion's border, where the foreground's fattened depth is
@@ -680,6 +705,7 @@ fn finish(
         depth_range: sampling.depth_range,
         hypotheses: sampling.hypotheses,
         sampling,
+        consistency_px,
         runs,
         stage_seconds: seconds.0,
     })
@@ -928,11 +954,10 @@ fn check_options(o: &StereoOptions) -> Result<(), StereoError> {
     {
         return bad("edge_jump", format!("a relative jump > 0, got {jump}"));
     }
-    if !(o.consistency_px > 0.0 && o.consistency_px.is_finite()) {
-        return bad(
-            "consistency_px",
-            format!("> 0 pixels, got {}", o.consistency_px),
-        );
+    if let Some(tau) = o.consistency_px
+        && !(tau > 0.0 && tau.is_finite())
+    {
+        return bad("consistency_px", format!("> 0 pixels, got {tau}"));
     }
     Ok(())
 }
@@ -1005,6 +1030,17 @@ fn check_range_for(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_consistency_tolerance_spans_one_angle_and_never_drops_under_a_pixel() {
+        // 0.002·f: 1 px at f = 500 (the 640 × 512 scenes keep the tolerance they were tuned
+        // with), 2 px at f = 1000, and 1 px for the 320 × 256 scenes and the coarse sweep.
+        assert_eq!(consistency_px_for(500.0), 1.0);
+        assert_eq!(consistency_px_for(1000.0), 2.0);
+        assert_eq!(consistency_px_for(260.0), MIN_CONSISTENCY_PX);
+        assert_eq!(consistency_px_for(f64::NAN), MIN_CONSISTENCY_PX);
+        assert_eq!(consistency_px_for(f64::INFINITY), MIN_CONSISTENCY_PX);
+    }
 
     #[test]
     fn the_default_range_keeps_clear_of_the_port() {
