@@ -24,8 +24,8 @@ use flatport::stereo::gpu::GpuStereo;
 use flatport::stereo::range::{CountChoice, MAX_HYPOTHESES, RangeChoice, Sampling};
 use flatport::stereo::sequence::{Sequence, SequenceFrame};
 use flatport::stereo::{
-    Backend, DepthMap, StereoOptions, StereoProgress, choose_sampling, resolve_depth_range,
-    stereo_on,
+    Backend, DepthMap, StereoOptions, StereoProgress, choose_sampling, consistency_px_for,
+    resolve_depth_range, stereo_on,
 };
 
 use super::Device;
@@ -270,6 +270,16 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
         "hypotheses": options.hypotheses,
         "window": 2 * options.window_radius + 1,
         "min_confidence": options.min_confidence,
+        // The consistency tolerance each reference uses (given, or the focal-length rule), so
+        // that outputs made under another tolerance are not taken as complete.
+        "consistency_px": references
+            .iter()
+            .map(|o| {
+                let c = &rig.cameras()[o.reference].intrinsics;
+                o.consistency_px
+                    .unwrap_or_else(|| consistency_px_for(0.5 * (c.fx + c.fy)))
+            })
+            .collect::<Vec<f64>>(),
         "fuse": args.fuse,
     });
     let mut records: HashMap<usize, serde_json::Value> = HashMap::new();
