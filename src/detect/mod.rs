@@ -759,7 +759,7 @@ pub const MIN_CHARUCO_CORNERS: usize = 4;
 /// calib-targets finds the chessboard grid (ChESS corners, the saddle-point refiner after a blur
 /// of [`PRE_BLUR_PX`], as for plain chessboards), decodes the markers in its cells and aligns the
 /// grid to the board by them (its three chessboard parameter sets, the richest answer wins).
-/// Its two stages that move corners by a global model are off ([`charuco_tuning`]); instead every
+/// Its two stages that move corners by a global model are off (`charuco_tuning`); instead every
 /// corner must agree with the local homography of its grid neighbours, else it is dropped
 /// ([`inconsistent_charuco_corners`]).
 pub fn detect_charuco(

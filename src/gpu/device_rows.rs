@@ -11,7 +11,7 @@
 //!   (`size` 4) or `f64` (`size` 8) as the rows' [`Precision`] says (the engine's);
 //!   [`stride_bytes`](DeviceRows::stride_bytes) is `WIDTH · size`.
 //! - **status** ([`status_buffer`](DeviceRows::status_buffer)): one `u32` per row; 0 where the
-//!   row holds an answer, else the [`NoSolution`](crate::model::NoSolution) code of the CPU path.
+//!   row holds an answer, else the [`NoSolution`] code of the CPU path.
 //!   The reals of a row whose status is not 0 are unspecified (a kernel leaves them as they
 //!   were); [`read`](DeviceRows::read) gives NaN for them.
 //! - Both buffers have the usage `STORAGE | COPY_SRC | COPY_DST` ([`DeviceRows::USAGE`]) and at

@@ -67,7 +67,7 @@ fn pattern(bytes: u64) -> Vec<u8> {
 }
 
 /// Measures the host link on `context`: the fastest of `repeats` uploads and of `repeats`
-/// downloads of [`roof_bytes`] after one warm-up each, host clocks around each.
+/// downloads of `roof_bytes` after one warm-up each, host clocks around each.
 ///
 /// Errors: [`GpuError`] from the allocation or a transfer, and [`GpuError::Readback`] if the
 /// bytes read back differ from those written.
@@ -115,7 +115,7 @@ pub fn link_bandwidth(context: &GpuContext, repeats: usize) -> Result<LinkBandwi
     })
 }
 
-/// Measures the device memory's bandwidth on `context`: a copy kernel over [`roof_bytes`], the
+/// Measures the device memory's bandwidth on `context`: a copy kernel over `roof_bytes`, the
 /// fastest of `repeats` dispatches after one warm-up (GPU timestamps where the adapter has them),
 /// counting each byte read and each byte written. The copy is checked once against its source.
 ///

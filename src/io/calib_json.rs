@@ -658,7 +658,7 @@ struct ReportFile<'a> {
 ///   rotation_std_deg, translation_std_m}];
 /// - `sigma_px` (σ̂ of the fit), `noise_px` (corner noise seen in the images), `rms_px` and
 ///   `inlier_rms_px` per camera (rig order), `rms_px_all` over every corner image,
-///   `rms_px_per_view` [view][camera] (null where a camera did not see a view);
+///   `rms_px_per_view` `[view][camera]` (null where a camera did not see a view);
 /// - `scene_cameras`, `scene_rms_m`, `square_deviation_rms_m`: the 3-D errors of one pair's
 ///   triangulated corners (null without a pair and a board);
 /// - `views`, `corners`, `observations`, `iterations`, `termination`, `seconds`, `fits`,

@@ -425,9 +425,10 @@ fn store_block(costs: &[u16], pixels: usize, first: usize, depth_count: usize, v
 }
 
 /// The cost volume (stages 2–5 for every hypothesis): `volume[(y·w + x)·D + h]` for the D
-/// inverse depths, in bands of [`BAND_ROWS`] rows in parallel, every hypothesis of a band in
-/// turn. The projections are exact with `table` `None`, else tabulated through it
-/// ([`project_tabulated`]; the table of the reference camera whose rays `rays` are).
+/// inverse depths, in bands of `BAND_ROWS` (32) rows in parallel, every hypothesis of a band in
+/// turn. The projections are exact with `table` `None`, else tabulated through it and sampled
+/// as they are interpolated ([`warp_tabulated`]; the table of the reference camera whose rays
+/// `rays` are).
 /// `progress` is called once per band and hypothesis.
 #[allow(clippy::too_many_arguments)]
 pub fn cost_volume(

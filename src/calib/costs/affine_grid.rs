@@ -79,7 +79,7 @@ fn dot(a: &[f64; 3], b: &[f64]) -> f64 {
 /// The per-corner rows of `data`, view by view as `data.corners`, grid positions centred on each
 /// view's mean. Within a view the three reference corners of the shift come first (the
 /// view's first corner, the one farthest from it on the grid, the one spanning the largest
-/// triangle with those two: [`reference_order`]); the other corners keep their order.
+/// triangle with those two: `reference_order`); the other corners keep their order.
 pub fn affine_rows(data: &StereoData) -> Vec<[f64; ROW]> {
     let [centre_l, centre_r] = data.centres();
     let b = (centre_r - centre_l).into();

@@ -87,7 +87,7 @@ const HYPOTHESES: [(Undo, &str); 10] = [
 /// Findings on what the misfit of `rig` (ports and extrinsics: the start) to `views` of `target`
 /// looks like: `Ok` with one line per mistake whose undoing explains it (the calibration then
 /// fits within the options' RMS bound, far below the RMS as given), the best first, or `Err` with
-/// one line saying that none does and what to check. Each hypothesis is a whole calibration ([`calibrate_views`] with
+/// one line saying that none does and what to check. Each hypothesis is a whole calibration (`calibrate_views` with
 /// `options`, from `rig`'s start), since a start fitted to the wrong data can be far from where
 /// the right data lead; the hypotheses run in parallel.
 pub fn explain_misfit(

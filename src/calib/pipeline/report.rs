@@ -9,7 +9,7 @@ use nalgebra::{DMatrix, Isometry3, Matrix3, Vector2, Vector3};
 
 use super::bundle::{Bundle, Estimate, Parameter, State};
 use super::consecutive::no_solution;
-/// The stages are recorded as the estimate runs ([`super::estimate`]) and reported here.
+/// The stages are recorded as the estimate runs (`calib::pipeline::estimate`) and reported here.
 pub use super::estimate::Stage;
 use super::estimate::{Fit, Outcome};
 use super::{MIN_VIEWS, Method, Options, WEAK_AIR_STD_M, WEAK_TILT_STD_DEG};

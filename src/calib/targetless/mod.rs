@@ -1,7 +1,7 @@
 //! Targetless port calibration (issue 40): a rig calibrated in air (lenses, extrinsics) and a
 //! guess of its port(s) calibrated from synchronized frames of any textured scene, no board.
 //!
-//! 1. [`matches`]: corners of the master's image matched in every other camera's image by a rule
+//! 1. [`matches`](mod@matches): corners of the master's image matched in every other camera's image by a rule
 //!    that reads no rig (mutual-best ZNCC over the whole image, ratio test, sub-pixel
 //!    Gauss–Newton); a corner matched in several cameras is one [`Track`]. Frames are pooled.
 //! 2. Outliers: each track triangulated under the guessed port; tracks without a triangulation
