@@ -424,8 +424,8 @@ fn tabulate(
                 }
                 interpolated += x1 - x0;
             } else {
-                for x in x0..x1 {
-                    if ok[i] && z > below[x] {
+                for (x, &limit) in (x0..x1).zip(&below[x0..x1]) {
+                    if ok[i] && z > limit {
                         interpolated_pixel(k * w + x, at(x));
                         interpolated += 1;
                     } else {
