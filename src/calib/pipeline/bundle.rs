@@ -223,6 +223,17 @@ impl State {
         }
         Rig::with_ports(cameras, ports).ok()
     }
+
+    /// The refractive cameras of the rig this state describes ([`State::rig`]), `None` when it
+    /// is not a valid rig.
+    pub fn cameras(&self, base: &Rig) -> Option<Vec<RefractiveCamera>> {
+        let rig = self.rig(base)?;
+        Some(
+            (0..rig.cameras().len())
+                .map(|k| rig.refractive_camera(k))
+                .collect(),
+        )
+    }
 }
 
 /// Whether a port's air distance changes no ray: with the same medium on both sides of its
@@ -248,6 +259,23 @@ pub enum Parameter {
     /// Camera k's calibration value j of [`INTRINSICS`] (fx, fy, cx, cy in pixels; k1, k2, p1,
     /// p2, k3 dimensionless).
     Intrinsic(usize, usize),
+}
+
+impl Parameter {
+    /// The camera this parameter moves in rig `base` (`None`: every camera, a shared port).
+    pub fn camera(self, base: &Rig) -> Option<usize> {
+        match self {
+            Parameter::Axis(p, _) | Parameter::Distance(p) | Parameter::Thickness(p, _) => {
+                match base.ports() {
+                    Ports::Shared(_) => None,
+                    Ports::PerCamera(_) => Some(p),
+                }
+            }
+            Parameter::Rotation(k, _)
+            | Parameter::Translation(k, _)
+            | Parameter::Intrinsic(k, _) => Some(k),
+        }
+    }
 }
 
 /// The intrinsics [`Parameter::Intrinsic`] indexes, in order: the pinhole's and OpenCV's
@@ -427,27 +455,12 @@ impl<'a> Bundle<'a> {
 
     /// The camera parameter `parameter` moves (`None`: every camera, a shared port).
     fn camera_of(&self, parameter: Parameter) -> Option<usize> {
-        match parameter {
-            Parameter::Axis(p, _) | Parameter::Distance(p) | Parameter::Thickness(p, _) => {
-                match self.base.ports() {
-                    Ports::Shared(_) => None,
-                    Ports::PerCamera(_) => Some(p),
-                }
-            }
-            Parameter::Rotation(k, _)
-            | Parameter::Translation(k, _)
-            | Parameter::Intrinsic(k, _) => Some(k),
-        }
+        parameter.camera(self.base)
     }
 
     /// The refractive cameras of `state`, `None` when it is not a valid rig.
     pub fn cameras(&self, state: &State) -> Option<Vec<RefractiveCamera>> {
-        let rig = state.rig(self.base)?;
-        Some(
-            (0..rig.cameras().len())
-                .map(|k| rig.refractive_camera(k))
-                .collect(),
-        )
+        state.cameras(self.base)
     }
 
     /// Residuals (projected − observed, px) of view `v` under target pose `pose`, camera by

@@ -19,7 +19,7 @@ use crate::calib::pipeline::bundle::{
 use crate::calib::solvers::block::{POINT_PARAMETERS, view_share};
 pub use crate::calib::solvers::block::{PointBlock, PointNormalEquations};
 use crate::calib::solvers::lm::LeastSquares;
-use crate::model::{Ports, RefractiveCamera, Rig};
+use crate::model::{RefractiveCamera, Rig};
 
 /// Central-difference step of a point's coordinates, metres: as the bundle's pose steps, it
 /// moves a pixel by ~1e-3 px at a metre (~7 digits kept against rounding, truncation far below).
@@ -93,31 +93,6 @@ impl<'a> PointsProblem<'a> {
         2 * self.tracks.iter().map(|t| t.pixels.len()).sum::<usize>()
     }
 
-    /// The camera a global parameter moves (`None`: every camera, a shared port).
-    fn camera_of(&self, parameter: Parameter) -> Option<usize> {
-        match parameter {
-            Parameter::Axis(p, _) | Parameter::Distance(p) | Parameter::Thickness(p, _) => {
-                match self.base.ports() {
-                    Ports::Shared(_) => None,
-                    Ports::PerCamera(_) => Some(p),
-                }
-            }
-            Parameter::Rotation(k, _)
-            | Parameter::Translation(k, _)
-            | Parameter::Intrinsic(k, _) => Some(k),
-        }
-    }
-
-    /// The refractive cameras of `state`, `None` when it is not a valid rig.
-    pub fn cameras(&self, state: &State) -> Option<Vec<RefractiveCamera>> {
-        let rig = state.rig(self.base)?;
-        Some(
-            (0..rig.cameras().len())
-                .map(|k| rig.refractive_camera(k))
-                .collect(),
-        )
-    }
-
     /// Residuals (projected − observed, px) of track `t` at `point`, in its camera order.
     fn track_residuals(
         &self,
@@ -134,7 +109,7 @@ impl<'a> PointsProblem<'a> {
 
     /// Every track's residuals at `state`.
     pub fn all_residuals(&self, state: &PointsState) -> Option<Vec<Vec<Vector2<f64>>>> {
-        let cameras = self.cameras(&state.rig)?;
+        let cameras = state.rig.cameras(self.base)?;
         state
             .points
             .par_iter()
@@ -165,15 +140,15 @@ impl LeastSquares for PointsProblem<'_> {
 
     fn normal_equations(&self, state: &PointsState) -> Option<PointNormalEquations> {
         let globals = self.globals.len();
-        let cameras = self.cameras(&state.rig)?;
+        let cameras = state.rig.cameras(self.base)?;
         let shifted: Vec<[Vec<RefractiveCamera>; 2]> = self
             .globals
             .iter()
             .map(|&p| {
                 let h = difference_step(p);
                 Some([
-                    self.cameras(&moved(&state.rig, p, h))?,
-                    self.cameras(&moved(&state.rig, p, -h))?,
+                    moved(&state.rig, p, h).cameras(self.base)?,
+                    moved(&state.rig, p, -h).cameras(self.base)?,
                 ])
             })
             .collect::<Option<_>>()?;
@@ -188,7 +163,7 @@ impl LeastSquares for PointsProblem<'_> {
                 let mut jacobian = vec![Vector2::zeros(); columns * count];
                 for (c, &parameter) in self.globals.iter().enumerate() {
                     let h = difference_step(parameter);
-                    let only = self.camera_of(parameter);
+                    let only = parameter.camera(self.base);
                     for (i, (k, _)) in self.tracks[t].pixels.iter().enumerate() {
                         if only.is_some_and(|o| o != *k) {
                             continue;
