@@ -68,6 +68,7 @@ pub mod fuse;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 mod image;
+pub mod project;
 pub mod range;
 pub mod rays;
 pub mod select;

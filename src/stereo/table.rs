@@ -37,8 +37,8 @@
 //! folds: second differences there exceed any tolerance, so those cells are projected exactly.
 
 #[cfg(doc)]
-use super::cost::warp_bilinear;
-use super::cost::{air_ray_starts, project_hypotheses, sample_bilinear};
+use super::project::warp_bilinear;
+use super::project::{air_ray_starts, project_hypotheses, sample_bilinear};
 use super::rays::{RayGrid, rays_on_grid};
 use crate::model::RefractiveCamera;
 use crate::stereo::GreyImage;
