@@ -360,10 +360,38 @@ pub fn cost_volume(
     table: Option<&ProjectionTable>,
     progress: &(dyn Fn() + Sync),
 ) -> Vec<u16> {
+    let mut volume = Vec::new();
+    cost_volume_into(
+        rays,
+        reference,
+        windows,
+        min_texture,
+        voters,
+        inverse_depths,
+        table,
+        progress,
+        &mut volume,
+    );
+    volume
+}
+
+/// [`cost_volume`] into `volume`, whose memory is reused where it has room.
+#[allow(clippy::too_many_arguments)]
+pub fn cost_volume_into(
+    rays: &RayGrid,
+    reference: &GreyImage,
+    windows: &ReferenceWindows,
+    min_texture: f64,
+    voters: &[Voter],
+    inverse_depths: &[f64],
+    table: Option<&ProjectionTable>,
+    progress: &(dyn Fn() + Sync),
+    volume: &mut Vec<u16>,
+) {
     let (w, h) = (rays.width, rays.height);
     let d = inverse_depths.len();
     let r = windows.radius;
-    let mut volume = vec![NO_VOTE; w * h * d];
+    super::volume::refill(volume, w * h * d, NO_VOTE);
     volume
         .par_chunks_mut(BAND_ROWS * w * d)
         .enumerate()
@@ -454,7 +482,6 @@ pub fn cost_volume(
                 progress();
             }
         });
-    volume
 }
 
 #[cfg(test)]

@@ -76,6 +76,7 @@ pub mod select;
 pub mod sequence;
 pub mod sgm;
 pub mod table;
+mod volume;
 
 pub use image::GreyImage;
 pub use table::Projection;
@@ -87,14 +88,15 @@ use thiserror::Error;
 
 use crate::model::{RefractiveCamera, Rig};
 use check::{Check, CheckView, consistency};
-use cost::{COST_SCALE, Voter, cost_volume, reference_windows};
+use cost::{COST_SCALE, Voter, cost_volume_into, reference_windows};
 use edges::{depth_edges, near_mask};
 use range::{
     CountChoice, RangeChoice, Sampling, StepRule, find_depth_range, largest_motion, step_rule,
 };
 use rays::{RayGrid, inverse_depths, reference_rays};
 use select::winner_take_all;
-use sgm::{SgmParams, sgm_aggregate};
+use sgm::{SgmParams, sgm_aggregate_into};
+use volume::Volumes;
 
 /// Default near end of the depth range, metres (moved out when the port is farther): the
 /// fallback when the coarse sweep finds no range ([`range`]).
@@ -445,6 +447,7 @@ pub fn stereo_on(
     others.truncate(options.check_cameras.unwrap_or(usize::MAX));
     let runs = 1 + others.len();
 
+    let mut volumes = Volumes::default();
     let main = depth_run(
         &cameras,
         images,
@@ -456,6 +459,7 @@ pub fn stereo_on(
         (0, runs, &names[reference]),
         progress,
         backend,
+        &mut volumes,
         &mut seconds,
     )?;
     let mut check_maps = Vec::with_capacity(others.len());
@@ -481,6 +485,7 @@ pub fn stereo_on(
             (run + 1, runs, &names[c]),
             progress,
             backend,
+            &mut volumes,
             &mut seconds,
         )?;
         check_maps.push((c, map));
@@ -752,6 +757,7 @@ fn depth_run(
     (run, runs, name): (usize, usize, &str),
     progress: &(dyn Fn(&StereoProgress) + Sync),
     backend: Backend,
+    volumes: &mut Volumes,
     seconds: &mut Timings,
 ) -> Result<RawDepth, StereoError> {
     let (w, h) = (rays.width, rays.height);
@@ -775,6 +781,7 @@ fn depth_run(
             options,
             (run, runs, name),
             progress,
+            volumes,
             seconds,
         ),
         #[cfg(feature = "gpu")]
@@ -847,6 +854,7 @@ fn cpu_winners(
     options: &StereoOptions,
     (run, runs, name): (usize, usize, &str),
     progress: &(dyn Fn(&StereoProgress) + Sync),
+    volumes: &mut Volumes,
     seconds: &mut Timings,
 ) -> select::Winners {
     let started = Instant::now();
@@ -875,7 +883,7 @@ fn cpu_winners(
             total,
         });
     };
-    let cost = cost_volume(
+    cost_volume_into(
         rays,
         image,
         &windows,
@@ -884,13 +892,22 @@ fn cpu_winners(
         q,
         table.as_ref(),
         &report,
+        &mut volumes.cost,
     );
     seconds.add("cost volume", started);
     let started = Instant::now();
-    let sum = sgm_aggregate(&cost, w, h, d, &image.pixels, params);
+    sgm_aggregate_into(
+        &volumes.cost,
+        w,
+        h,
+        d,
+        &image.pixels,
+        params,
+        &mut volumes.sum,
+    );
     seconds.add("aggregation", started);
     let started = Instant::now();
-    let winners = winner_take_all(&sum, &cost, d);
+    let winners = winner_take_all(&volumes.sum, &volumes.cost, d);
     seconds.add("selection", started);
     winners
 }

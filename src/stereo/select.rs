@@ -37,61 +37,76 @@ pub fn winner_take_all(sum: &[u16], cost: &[u16], depth_count: usize) -> Winners
     let mut quality = vec![0f32; pixels];
     let mut distinctness = vec![0f32; pixels];
     index
-        .par_chunks_mut(1024)
-        .zip(quality.par_chunks_mut(1024))
-        .zip(distinctness.par_chunks_mut(1024))
+        .par_chunks_mut(TASK_PIXELS)
+        .zip(quality.par_chunks_mut(TASK_PIXELS))
+        .zip(distinctness.par_chunks_mut(TASK_PIXELS))
         .enumerate()
         .for_each(|(task, ((index, quality), distinctness))| {
-            for j in 0..index.len() {
-                let p = task * 1024 + j;
-                let s = &sum[p * d..(p + 1) * d];
-                let c = &cost[p * d..(p + 1) * d];
-                let mut best = 0;
-                for k in 1..d {
-                    if s[k] < s[best] {
-                        best = k;
-                    }
-                }
-                if c[best] >= NO_VOTE || best == 0 || best == d - 1 {
-                    continue;
-                }
-                // The parabola through the matching costs where both neighbours have votes (the
-                // aggregated costs carry SGM's penalties, which pull the vertex toward the
-                // hypotheses: 0.33 of a step on a noise-free plane against 0.06), else through
-                // the aggregated costs.
-                let raw = c[best - 1] < NO_VOTE && c[best + 1] < NO_VOTE;
-                let through = if raw { c } else { s };
-                let (minus, centre, plus) = (
-                    f32::from(through[best - 1]),
-                    f32::from(through[best]),
-                    f32::from(through[best + 1]),
-                );
-                let curvature = minus - 2.0 * centre + plus;
-                let delta = if curvature > 0.0 {
-                    ((minus - plus) / (2.0 * curvature)).clamp(-0.5, 0.5)
-                } else {
-                    0.0
-                };
-                index[j] = best as f32 + delta;
-                quality[j] = 1.0 - f32::from(c[best]) / f32::from(COST_SCALE);
-                let second = s
-                    .iter()
-                    .enumerate()
-                    .filter(|(k, _)| k.abs_diff(best) >= 2)
-                    .map(|(_, &v)| v)
-                    .min()
-                    .unwrap_or(u16::MAX);
-                distinctness[j] = if second > 0 {
-                    (f32::from(second) - f32::from(s[best])) / f32::from(second)
-                } else {
-                    0.0
-                };
-            }
+            let pixels = task * TASK_PIXELS * d..(task * TASK_PIXELS + index.len()) * d;
+            select_pixels(
+                &sum[pixels.clone()],
+                &cost[pixels],
+                d,
+                index,
+                quality,
+                distinctness,
+            );
         });
     Winners {
         index,
         quality,
         distinctness,
+    }
+}
+
+/// Pixels per task of [`winner_take_all`].
+const TASK_PIXELS: usize = 1024;
+
+/// The least of `values` (`u16::MAX` for none), a loop that vectorises.
+#[inline(always)]
+fn least(values: &[u16]) -> u16 {
+    values.iter().fold(u16::MAX, |m, &v| m.min(v))
+}
+
+crate::engine::cpu::lanes::dispatched! {
+    /// [`winner_take_all`] for the pixels of `index` (their `sum` and `cost`, D a pixel).
+    fn select_pixels(sum: &[u16], cost: &[u16], d: usize, index: &mut [f32], quality: &mut [f32], distinctness: &mut [f32]) {
+        for j in 0..index.len() {
+            let s = &sum[j * d..(j + 1) * d];
+            let c = &cost[j * d..(j + 1) * d];
+            // The first hypothesis of the least aggregated cost.
+            let lowest = least(s);
+            let best = s.iter().position(|&v| v == lowest).unwrap_or(0);
+            if c[best] >= NO_VOTE || best == 0 || best == d - 1 {
+                continue;
+            }
+            // The parabola through the matching costs where both neighbours have votes (the
+            // aggregated costs carry SGM's penalties, which pull the vertex toward the
+            // hypotheses: 0.33 of a step on a noise-free plane against 0.06), else through
+            // the aggregated costs.
+            let raw = c[best - 1] < NO_VOTE && c[best + 1] < NO_VOTE;
+            let through = if raw { c } else { s };
+            let (minus, centre, plus) = (
+                f32::from(through[best - 1]),
+                f32::from(through[best]),
+                f32::from(through[best + 1]),
+            );
+            let curvature = minus - 2.0 * centre + plus;
+            let delta = if curvature > 0.0 {
+                ((minus - plus) / (2.0 * curvature)).clamp(-0.5, 0.5)
+            } else {
+                0.0
+            };
+            index[j] = best as f32 + delta;
+            quality[j] = 1.0 - f32::from(c[best]) / f32::from(COST_SCALE);
+            // The least aggregated cost two or more hypotheses from the winner.
+            let second = least(&s[..best - 1]).min(least(&s[best + 2..]));
+            distinctness[j] = if second > 0 {
+                (f32::from(second) - f32::from(s[best])) / f32::from(second)
+            } else {
+                0.0
+            };
+        }
     }
 }
 

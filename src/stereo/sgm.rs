@@ -46,42 +46,50 @@ impl SgmParams {
 }
 
 /// One step of a path: L(p, ·) from L(p − r, ·) (`previous`, padded with [`PAD`] at both ends,
-/// D + 2 values) and C(p, ·); written into `current` (padded likewise), added to `sum`.
-#[inline]
+/// D + 2 values, whose least value is `minimum`) and C(p, ·); written into `current` (padded
+/// likewise), added to `sum`. Returns the least L(p, ·), the next step's `minimum`.
+#[inline(always)]
 fn path_step(
     previous: &[u16],
+    minimum: u16,
     cost: &[u16],
     p1: u16,
     p2: u16,
     current: &mut [u16],
     sum: &mut [u16],
-) {
+) -> u16 {
     let d = cost.len();
     assert!(previous.len() == d + 2 && current.len() == d + 2 && sum.len() == d);
-    let minimum = previous[1..=d].iter().copied().min().unwrap_or(0);
     let cap = minimum + p2;
     let (below, same, above) = (&previous[..d], &previous[1..d + 1], &previous[2..]);
     let out = &mut current[1..d + 1];
+    // Without branches over slices of one length, so that it vectorises (u16 lanes).
+    let mut least = u16::MAX;
     for i in 0..d {
         let v = same[i].min(below[i] + p1).min(above[i] + p1).min(cap);
         let l = cost[i] + v - minimum;
         out[i] = l;
         sum[i] = sum[i].saturating_add(l);
+        least = least.min(l);
     }
     current[0] = PAD;
     current[d + 1] = PAD;
+    least
 }
 
-/// The first pixel of a path: L = C.
-#[inline]
-fn path_start(cost: &[u16], current: &mut [u16], sum: &mut [u16]) {
+/// The first pixel of a path: L = C. Returns the least L.
+#[inline(always)]
+fn path_start(cost: &[u16], current: &mut [u16], sum: &mut [u16]) -> u16 {
     let d = cost.len();
     current[0] = PAD;
     current[d + 1] = PAD;
     current[1..=d].copy_from_slice(cost);
+    let mut least = u16::MAX;
     for (s, &c) in sum.iter_mut().zip(cost) {
         *s = s.saturating_add(c);
+        least = least.min(c);
     }
+    least
 }
 
 /// `sgm_aggregate`: S = Σ_r L_r over the cost volume `cost` (`[(y·w + x)·D + h]`), with the
@@ -94,30 +102,31 @@ pub fn sgm_aggregate(
     image: &[f32],
     params: &SgmParams,
 ) -> Vec<u16> {
+    let mut sum = Vec::new();
+    sgm_aggregate_into(cost, width, height, depth_count, image, params, &mut sum);
+    sum
+}
+
+/// [`sgm_aggregate`] into `sum`, whose memory is reused where it has room.
+pub fn sgm_aggregate_into(
+    cost: &[u16],
+    width: usize,
+    height: usize,
+    depth_count: usize,
+    image: &[f32],
+    params: &SgmParams,
+    sum: &mut Vec<u16>,
+) {
     let (w, d) = (width, depth_count);
     debug_assert!(cost.iter().all(|&c| c <= NO_VOTE));
-    let mut sum = vec![0u16; w * height * d];
+    super::volume::refill(sum, w * height * d, 0u16);
     // Left to right and right to left, every row on its own.
     sum.par_chunks_mut(w * d)
         .zip(cost.par_chunks(w * d))
         .enumerate()
         .for_each(|(y, (sum, cost))| {
-            let row = &image[y * w..(y + 1) * w];
-            let (mut previous, mut current) = (vec![PAD; d + 2], vec![PAD; d + 2]);
-            for forward in [true, false] {
-                for k in 0..w {
-                    let x = if forward { k } else { w - 1 - k };
-                    let (c, s) = (&cost[x * d..(x + 1) * d], &mut sum[x * d..(x + 1) * d]);
-                    if k == 0 {
-                        path_start(c, &mut current, s);
-                    } else {
-                        let before = if forward { x - 1 } else { x + 1 };
-                        let p2 = params.p2_at(row[x], row[before]);
-                        path_step(&previous, c, params.p1, p2, &mut current, s);
-                    }
-                    std::mem::swap(&mut previous, &mut current);
-                }
-            }
+            let mut buffers = [vec![PAD; d + 2], vec![PAD; d + 2]];
+            horizontal_paths(cost, sum, &image[y * w..(y + 1) * w], params, &mut buffers);
         });
     // Down and up the image: the vertical path and, with 8 paths, the two diagonals.
     let columns: &[isize] = if params.paths >= 8 { &[0, 1, -1] } else { &[0] };
@@ -125,44 +134,104 @@ pub fn sgm_aggregate(
     for down in [true, false] {
         let mut previous = vec![PAD; w * n * (d + 2)];
         let mut current = vec![PAD; w * n * (d + 2)];
+        let mut previous_least = vec![0u16; w * n];
+        let mut current_least = vec![0u16; w * n];
         for k in 0..height {
             let y = if down { k } else { height - 1 - k };
             let before_row = if down { y.wrapping_sub(1) } else { y + 1 };
-            let row = &image[y * w..(y + 1) * w];
             let cost_row = &cost[y * w * d..(y + 1) * w * d];
             let sum_row = &mut sum[y * w * d..(y + 1) * w * d];
-            let previous_ref = &previous;
+            let line = Line {
+                row: &image[y * w..(y + 1) * w],
+                before: (k > 0).then(|| &image[before_row * w..(before_row + 1) * w]),
+                cost: cost_row,
+                previous: &previous,
+                previous_least: &previous_least,
+                columns,
+                depth_count: d,
+            };
             const CHUNK: usize = 64;
             sum_row
                 .par_chunks_mut(CHUNK * d)
                 .zip(current.par_chunks_mut(CHUNK * n * (d + 2)))
+                .zip(current_least.par_chunks_mut(CHUNK * n))
                 .enumerate()
-                .for_each(|(chunk, (sum, current))| {
-                    for j in 0..sum.len() / d {
-                        let x = chunk * CHUNK + j;
-                        let c = &cost_row[x * d..(x + 1) * d];
-                        let s = &mut sum[j * d..(j + 1) * d];
-                        for (m, &dx) in columns.iter().enumerate() {
-                            let out =
-                                &mut current[(j * n + m) * (d + 2)..(j * n + m + 1) * (d + 2)];
-                            // The path comes from (x − dx, y ∓ 1).
-                            let from = x as isize - dx;
-                            if k == 0 || from < 0 || from >= w as isize {
-                                path_start(c, out, s);
-                            } else {
-                                let from = from as usize;
-                                let p2 = params.p2_at(row[x], image[before_row * w + from]);
-                                let prev = &previous_ref
-                                    [(from * n + m) * (d + 2)..(from * n + m + 1) * (d + 2)];
-                                path_step(prev, c, params.p1, p2, out, s);
-                            }
-                        }
-                    }
+                .for_each(|(chunk, ((sum, current), least))| {
+                    vertical_paths(&line, chunk * CHUNK, params, sum, current, least);
                 });
             std::mem::swap(&mut previous, &mut current);
+            std::mem::swap(&mut previous_least, &mut current_least);
         }
     }
-    sum
+}
+
+/// One image row of a sweep down or up the image and what its paths come from.
+struct Line<'a> {
+    /// The reference image's row.
+    row: &'a [f32],
+    /// The image's row the paths come from; `None` on the sweep's first row.
+    before: Option<&'a [f32]>,
+    /// The row's costs.
+    cost: &'a [u16],
+    /// L of the row before, `[(x·n + m)·(D + 2) + 1 + h]` for the n path directions.
+    previous: &'a [u16],
+    /// The least L of each of those.
+    previous_least: &'a [u16],
+    /// The directions' column offsets.
+    columns: &'a [isize],
+    depth_count: usize,
+}
+
+crate::engine::cpu::lanes::dispatched! {
+    /// Both horizontal paths of one row: `cost` and `sum` the row's `[x·D + h]`, `row` its image
+    /// row, `buffers` two padded path buffers of D + 2.
+    fn horizontal_paths(cost: &[u16], sum: &mut [u16], row: &[f32], params: &SgmParams, buffers: &mut [Vec<u16>; 2]) {
+        let w = row.len();
+        let d = cost.len() / w;
+        let [previous, current] = buffers;
+        for forward in [true, false] {
+            let mut least = 0;
+            for k in 0..w {
+                let x = if forward { k } else { w - 1 - k };
+                let (c, s) = (&cost[x * d..(x + 1) * d], &mut sum[x * d..(x + 1) * d]);
+                least = if k == 0 {
+                    path_start(c, current, s)
+                } else {
+                    let before = if forward { x - 1 } else { x + 1 };
+                    let p2 = params.p2_at(row[x], row[before]);
+                    path_step(previous, least, c, params.p1, p2, current, s)
+                };
+                std::mem::swap(previous, current);
+            }
+        }
+    }
+
+    /// The vertical and diagonal paths of the pixels `first ..` of one line (`sum`, `current`
+    /// and `least` those pixels' parts of the line's sums, paths and least values).
+    fn vertical_paths(line: &Line, first: usize, params: &SgmParams, sum: &mut [u16], current: &mut [u16], least: &mut [u16]) {
+        let d = line.depth_count;
+        let (w, n) = (line.row.len(), line.columns.len());
+        for j in 0..sum.len() / d {
+            let x = first + j;
+            let c = &line.cost[x * d..(x + 1) * d];
+            let s = &mut sum[j * d..(j + 1) * d];
+            for (m, &dx) in line.columns.iter().enumerate() {
+                let out = &mut current[(j * n + m) * (d + 2)..(j * n + m + 1) * (d + 2)];
+                // The path comes from (x − dx, y ∓ 1).
+                let from = x as isize - dx;
+                least[j * n + m] = match line.before {
+                    Some(before) if from >= 0 && from < w as isize => {
+                        let from = from as usize;
+                        let p2 = params.p2_at(line.row[x], before[from]);
+                        let k = from * n + m;
+                        let previous = &line.previous[k * (d + 2)..(k + 1) * (d + 2)];
+                        path_step(previous, line.previous_least[k], c, params.p1, p2, out, s)
+                    }
+                    _ => path_start(c, out, s),
+                };
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -175,11 +244,12 @@ mod tests {
         let cost = [5, 5, 5, 5];
         let mut current = [0u16; 6];
         let mut sum = [1u16; 4];
-        path_step(&previous, &cost, 2, 7, &mut current, &mut sum);
+        let least = path_step(&previous, 4, &cost, 2, 7, &mut current, &mut sum);
         // min = 4; h0: min(10, 4+2, 11) = 6 → 5 + 6 − 4 = 7; h1: 4 → 5; h2: min(9, 6) = 6 → 7;
         // h3: min(30, 9+2, 11) = 11 → 12.
         assert_eq!(current, [PAD, 7, 5, 7, 12, PAD]);
         assert_eq!(sum, [8, 6, 8, 13]);
+        assert_eq!(least, 5);
     }
 
     #[test]
