@@ -71,6 +71,7 @@ mod image;
 pub mod project;
 pub mod range;
 pub mod rays;
+mod sample;
 pub mod select;
 #[cfg(feature = "images")]
 pub mod sequence;

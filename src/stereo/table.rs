@@ -40,6 +40,7 @@
 use super::project::warp_bilinear;
 use super::project::{air_ray_starts, project_hypotheses, sample_bilinear};
 use super::rays::{RayGrid, rays_on_grid};
+use super::sample::sample_row;
 use crate::model::RefractiveCamera;
 use crate::stereo::GreyImage;
 
@@ -133,6 +134,9 @@ pub struct TableBand {
     cell_ok: Vec<bool>,
     row_u: Vec<f64>,
     row_v: Vec<f64>,
+    /// One band row's interpolated projections (NaN where the pixel is projected exactly).
+    pixel_u: Vec<f64>,
+    pixel_v: Vec<f64>,
     exact: Vec<usize>,
     exact_points: Vec<[f64; 3]>,
     exact_starts: Vec<f64>,
@@ -207,6 +211,8 @@ impl TableBand {
             cell_ok: vec![false; node_count],
             row_u: vec![0.0; table.nodes.width],
             row_v: vec![0.0; table.nodes.width],
+            pixel_u: vec![0.0; w],
+            pixel_v: vec![0.0; w],
             exact: Vec::new(),
             exact_points: Vec::new(),
             exact_starts: Vec::new(),
@@ -303,9 +309,14 @@ pub fn project_tabulated(
         starts,
         inverse_depth,
         rows,
-        |j, p| {
-            pixels[j] = p;
-            status[j] = 0;
+        |k, u, v| {
+            let row = k * u.len();
+            for (x, (&u, &v)) in u.iter().zip(v).enumerate() {
+                if !u.is_nan() {
+                    pixels[row + x] = [u, v];
+                    status[row + x] = 0;
+                }
+            }
         },
     );
     for (n, &j) in band.exact.iter().enumerate() {
@@ -317,8 +328,9 @@ pub fn project_tabulated(
 
 /// Stages 3 and 4a fused, `warp_tabulated`: `image` sampled bilinearly at the projections
 /// [`project_tabulated`] gives (`warped`, one value per pixel of the band's rows, as
-/// [`warp_bilinear`] writes them), each interpolated projection sampled where it is computed.
-/// The same values as [`warp_bilinear`] of [`project_tabulated`]'s output, without the band's
+/// [`warp_bilinear`] writes them), each row's interpolated projections sampled as soon as the
+/// row is made, 8 at a time where the processor gathers (`stereo/sample.rs`). The same values
+/// as [`warp_bilinear`] of [`project_tabulated`]'s output, bit for bit, without the band's
 /// projections ever stored: at 1280 pixels a row those were 16 bytes a pixel written and read
 /// back per hypothesis, which pushed the voter's image out of the cache (`docs/performance.md`).
 #[allow(clippy::too_many_arguments)]
@@ -342,8 +354,9 @@ pub fn warp_tabulated(
         starts,
         inverse_depth,
         rows,
-        |j, p| {
-            warped[j] = sample_bilinear(&image.pixels, w, h, p[0], p[1]);
+        |k, u, v| {
+            let row = &mut warped[k * u.len()..(k + 1) * u.len()];
+            sample_row(&image.pixels, w, h, u, v, row);
         },
     );
     for (n, &j) in band.exact.iter().enumerate() {
@@ -357,9 +370,10 @@ pub fn warp_tabulated(
     counts
 }
 
-/// The tabulated projection of the band's first `rows` rows: every interpolated pixel handed to
-/// `interpolated(index in the band, pixel)`, the others listed in `band.exact` with their exact
-/// projections in `band.exact_pixels` and `band.exact_status`.
+/// The tabulated projection of the band's first `rows` rows: each row's interpolated pixels
+/// handed to `interpolated_row(row in the band, u, v)` (a row's w values each, NaN where the
+/// pixel is not interpolated), the others listed in `band.exact` with their exact projections in
+/// `band.exact_pixels` and `band.exact_status`.
 #[allow(clippy::too_many_arguments)]
 fn tabulate(
     table: &ProjectionTable,
@@ -369,7 +383,7 @@ fn tabulate(
     starts: &[f64],
     inverse_depth: f64,
     rows: usize,
-    mut interpolated_pixel: impl FnMut(usize, [f64; 2]),
+    mut interpolated_row: impl FnMut(usize, &[f64], &[f64]),
 ) -> TableCounts {
     let (w, step) = (band.width, table.step);
     let columns = table.nodes.width;
@@ -395,6 +409,8 @@ fn tabulate(
     // the point is in the voter's water, else queued for the exact projection.
     band.exact.clear();
     let inv_step = 1.0 / step as f64;
+    // (x − x0)/step within a cell, as the interpolation's weight.
+    let fractions: Vec<f64> = (0..step).map(|j| j as f64 * inv_step).collect();
     let mut interpolated = 0;
     for k in 0..rows {
         let y = band.ext_first + k;
@@ -409,31 +425,37 @@ fn tabulate(
         let ok = &band.cell_ok[top..top + columns];
         let below = &band.exact_below[k * w..(k + 1) * w];
         let cell_below = &band.cell_below[k * columns..(k + 1) * columns];
+        let (pixel_u, pixel_v) = (&mut band.pixel_u, &mut band.pixel_v);
         for (i, x0) in (0..w).step_by(step).enumerate() {
             let x1 = (x0 + step).min(w);
             let (u0, du) = (band.row_u[i], band.row_u[i + 1] - band.row_u[i]);
             let (v0, dv) = (band.row_v[i], band.row_v[i + 1] - band.row_v[i]);
-            let at = |x: usize| {
-                let fx = (x - x0) as f64 * inv_step;
-                [u0 + fx * du, v0 + fx * dv]
-            };
+            let (u, v) = (&mut pixel_u[x0..x1], &mut pixel_v[x0..x1]);
             // `z > NaN` is false: a pixel without a ray takes the exact path.
             if ok[i] && z > cell_below[i] {
-                for x in x0..x1 {
-                    interpolated_pixel(k * w + x, at(x));
+                for ((u, v), &fx) in u.iter_mut().zip(v.iter_mut()).zip(&fractions) {
+                    *u = u0 + fx * du;
+                    *v = v0 + fx * dv;
                 }
                 interpolated += x1 - x0;
             } else {
-                for (x, &limit) in (x0..x1).zip(&below[x0..x1]) {
+                for (((u, v), &fx), (x, &limit)) in u
+                    .iter_mut()
+                    .zip(v.iter_mut())
+                    .zip(&fractions)
+                    .zip((x0..x1).zip(&below[x0..x1]))
+                {
                     if ok[i] && z > limit {
-                        interpolated_pixel(k * w + x, at(x));
+                        (*u, *v) = (u0 + fx * du, v0 + fx * dv);
                         interpolated += 1;
                     } else {
+                        (*u, *v) = (f64::NAN, f64::NAN);
                         band.exact.push(k * w + x);
                     }
                 }
             }
         }
+        interpolated_row(k, &band.pixel_u, &band.pixel_v);
     }
     // The rest, exact: the same points and starts as `project_hypotheses` on every pixel.
     let first = band.ext_first * w;
