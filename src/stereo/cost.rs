@@ -150,6 +150,12 @@ pub struct ZnccScratch {
 /// Column sums run down the rows (a window row added, one removed, f64), each window's sum is
 /// then the 2r + 1 column sums beside it added afresh (no running sum along the row to drift),
 /// every loop over whole rows without branches, so that it vectorises.
+///
+/// The order of every f64 addition is fixed, so that the result does not depend on how the work
+/// is laid out: a column sum adds the window's rows top to bottom, then removes the row that
+/// leaves after adding the one that enters; a window's sum adds its 2r + 1 column sums left to
+/// right. Within that order the passes are few: the rows that enter and leave are applied in one
+/// pass over the columns (the column sums held in registers between the two).
 #[allow(clippy::too_many_arguments)]
 pub fn window_zncc(
     reference: &GreyImage,
@@ -168,43 +174,39 @@ pub fn window_zncc(
         c.clear();
         c.resize(w + 2 * r, 0.0);
     }
-    let (lo, hi) = (first_row.saturating_sub(r), (first_row + r).min(h - 1));
-    for y in lo..=hi {
-        accumulate_row(
-            &mut scratch.columns,
-            r,
-            &warped[(y - ext_first) * w..(y - ext_first + 1) * w],
+    // Image row y: its warped samples and the reference's pixels.
+    let row = |y: usize| {
+        let e = y - ext_first;
+        (
+            &warped[e * w..(e + 1) * w],
             &reference.pixels[y * w..(y + 1) * w],
-            1.0,
-        );
+        )
+    };
+    let columns = &mut scratch.columns;
+    // The first window's rows, two per pass, top to bottom.
+    let (lo, hi) = (first_row.saturating_sub(r), (first_row + r).min(h - 1));
+    let mut y = lo;
+    while y < hi {
+        accumulate_rows(columns, r, row(y), 1.0, row(y + 1), 1.0);
+        y += 2;
+    }
+    if y == hi {
+        accumulate_row(columns, r, row(y), 1.0);
     }
     for k in 0..rows {
         let y = first_row + k;
         if k > 0 {
-            if y + r < h {
-                let e = y + r - ext_first;
-                accumulate_row(
-                    &mut scratch.columns,
-                    r,
-                    &warped[e * w..(e + 1) * w],
-                    &reference.pixels[(y + r) * w..(y + r + 1) * w],
-                    1.0,
-                );
-            }
-            if y > r {
-                let gone = y - r - 1;
-                let e = gone - ext_first;
-                accumulate_row(
-                    &mut scratch.columns,
-                    r,
-                    &warped[e * w..(e + 1) * w],
-                    &reference.pixels[gone * w..(gone + 1) * w],
-                    -1.0,
-                );
+            let entering = (y + r < h).then(|| row(y + r));
+            let leaving = (y > r).then(|| row(y - r - 1));
+            match (entering, leaving) {
+                (Some(new), Some(gone)) => accumulate_rows(columns, r, new, 1.0, gone, -1.0),
+                (Some(new), None) => accumulate_row(columns, r, new, 1.0),
+                (None, Some(gone)) => accumulate_row(columns, r, gone, -1.0),
+                (None, None) => {}
             }
         }
         zncc_row(
-            &scratch.columns,
+            columns,
             r,
             &mut scratch.sums,
             &windows.count[y * w..(y + 1) * w],
@@ -215,27 +217,53 @@ pub fn window_zncc(
     }
 }
 
+/// Adds (`sign` +1) or removes (−1) one sample, warped `s` over reference `i`, to the six sums
+/// (count, ΣW, ΣW², ΣIW, ΣI, ΣI²) when it has an answer.
+#[inline(always)]
+fn add_sample(sums: &mut [f64; 6], s: f32, i: f32, sign: f64) {
+    let answered = s.is_finite();
+    let m = if answered { sign } else { 0.0 };
+    let s = if answered { f64::from(s) } else { 0.0 };
+    let i = f64::from(i);
+    let ms = sign * s;
+    sums[0] += m;
+    sums[1] += ms;
+    sums[2] += ms * s;
+    sums[3] += ms * i;
+    sums[4] += m * i;
+    sums[5] += m * i * i;
+}
+
 crate::engine::cpu::lanes::dispatched! {
-    /// Adds (`sign` +1) or removes (−1) one image row to the padded column sums over the samples
-    /// with an answer: (count, ΣW, ΣW², ΣIW, ΣI, ΣI²).
-    fn accumulate_row(columns: &mut [Vec<f64>; 6], r: usize, warped: &[f32], image: &[f32], sign: f64) {
+    /// Adds (`sign` +1) or removes (−1) one image row, its warped samples and the reference's
+    /// pixels, to the padded column sums over the samples with an answer: (count, ΣW, ΣW², ΣIW,
+    /// ΣI, ΣI²).
+    fn accumulate_row(columns: &mut [Vec<f64>; 6], r: usize, (warped, image): (&[f32], &[f32]), sign: f64) {
         let w = warped.len();
+        let image = &image[..w];
         let [c0, c1, c2, c3, c4, c5] = columns;
         let (c0, c1, c2) = (&mut c0[r..r + w], &mut c1[r..r + w], &mut c2[r..r + w]);
         let (c3, c4, c5) = (&mut c3[r..r + w], &mut c4[r..r + w], &mut c5[r..r + w]);
         for x in 0..w {
-            let s = warped[x];
-            let answered = s.is_finite();
-            let m = if answered { sign } else { 0.0 };
-            let s = if answered { f64::from(s) } else { 0.0 };
-            let i = f64::from(image[x]);
-            let ms = sign * s;
-            c0[x] += m;
-            c1[x] += ms;
-            c2[x] += ms * s;
-            c3[x] += ms * i;
-            c4[x] += m * i;
-            c5[x] += m * i * i;
+            let mut sums = [c0[x], c1[x], c2[x], c3[x], c4[x], c5[x]];
+            add_sample(&mut sums, warped[x], image[x], sign);
+            [c0[x], c1[x], c2[x], c3[x], c4[x], c5[x]] = sums;
+        }
+    }
+
+    /// [`accumulate_row`] of row a then row b in one pass, the column sums held in registers
+    /// between the two (the six arrays are read and written once, not twice).
+    fn accumulate_rows(columns: &mut [Vec<f64>; 6], r: usize, (warped, image): (&[f32], &[f32]), sign: f64, (warped_b, image_b): (&[f32], &[f32]), sign_b: f64) {
+        let w = warped.len();
+        let (image, warped_b, image_b) = (&image[..w], &warped_b[..w], &image_b[..w]);
+        let [c0, c1, c2, c3, c4, c5] = columns;
+        let (c0, c1, c2) = (&mut c0[r..r + w], &mut c1[r..r + w], &mut c2[r..r + w]);
+        let (c3, c4, c5) = (&mut c3[r..r + w], &mut c4[r..r + w], &mut c5[r..r + w]);
+        for x in 0..w {
+            let mut sums = [c0[x], c1[x], c2[x], c3[x], c4[x], c5[x]];
+            add_sample(&mut sums, warped[x], image[x], sign);
+            add_sample(&mut sums, warped_b[x], image_b[x], sign_b);
+            [c0[x], c1[x], c2[x], c3[x], c4[x], c5[x]] = sums;
         }
     }
 
