@@ -133,7 +133,8 @@ pub struct Voter<'a> {
 pub const MIN_VALID_FRACTION: f64 = 0.5;
 
 /// Reused buffers of [`window_zncc`]: the column sums of one output row, one array per sum,
-/// padded by r zeros each side so that every window's row sum is 2r + 1 plain additions.
+/// padded by r zeros each side so that every window's row sum is 2r + 1 plain additions; and,
+/// for a radius above 7 only, the window sums of the row.
 #[derive(Debug, Clone, Default)]
 pub struct ZnccScratch {
     columns: [Vec<f64>; 6],
@@ -150,6 +151,14 @@ pub struct ZnccScratch {
 /// Column sums run down the rows (a window row added, one removed, f64), each window's sum is
 /// then the 2r + 1 column sums beside it added afresh (no running sum along the row to drift),
 /// every loop over whole rows without branches, so that it vectorises.
+///
+/// The order of every f64 addition is fixed, so that the result does not depend on how the work
+/// is laid out: a column sum adds the window's rows top to bottom, then removes the row that
+/// leaves after adding the one that enters; a window's sum adds its 2r + 1 column sums left to
+/// right. Within that order the passes are few: the rows that enter and leave are applied in one
+/// pass over the columns (the column sums held in registers between the two), and for r ≤ 7 the
+/// six window sums are formed in registers in the loop that computes the correlation, rather
+/// than by adding whole shifted rows into memory 2r times per sum.
 #[allow(clippy::too_many_arguments)]
 pub fn window_zncc(
     reference: &GreyImage,
@@ -168,43 +177,39 @@ pub fn window_zncc(
         c.clear();
         c.resize(w + 2 * r, 0.0);
     }
-    let (lo, hi) = (first_row.saturating_sub(r), (first_row + r).min(h - 1));
-    for y in lo..=hi {
-        accumulate_row(
-            &mut scratch.columns,
-            r,
-            &warped[(y - ext_first) * w..(y - ext_first + 1) * w],
+    // Image row y: its warped samples and the reference's pixels.
+    let row = |y: usize| {
+        let e = y - ext_first;
+        (
+            &warped[e * w..(e + 1) * w],
             &reference.pixels[y * w..(y + 1) * w],
-            1.0,
-        );
+        )
+    };
+    let columns = &mut scratch.columns;
+    // The first window's rows, two per pass, top to bottom.
+    let (lo, hi) = (first_row.saturating_sub(r), (first_row + r).min(h - 1));
+    let mut y = lo;
+    while y < hi {
+        accumulate_rows(columns, r, row(y), 1.0, row(y + 1), 1.0);
+        y += 2;
+    }
+    if y == hi {
+        accumulate_row(columns, r, row(y), 1.0);
     }
     for k in 0..rows {
         let y = first_row + k;
         if k > 0 {
-            if y + r < h {
-                let e = y + r - ext_first;
-                accumulate_row(
-                    &mut scratch.columns,
-                    r,
-                    &warped[e * w..(e + 1) * w],
-                    &reference.pixels[(y + r) * w..(y + r + 1) * w],
-                    1.0,
-                );
-            }
-            if y > r {
-                let gone = y - r - 1;
-                let e = gone - ext_first;
-                accumulate_row(
-                    &mut scratch.columns,
-                    r,
-                    &warped[e * w..(e + 1) * w],
-                    &reference.pixels[gone * w..(gone + 1) * w],
-                    -1.0,
-                );
+            let entering = (y + r < h).then(|| row(y + r));
+            let leaving = (y > r).then(|| row(y - r - 1));
+            match (entering, leaving) {
+                (Some(new), Some(gone)) => accumulate_rows(columns, r, new, 1.0, gone, -1.0),
+                (Some(new), None) => accumulate_row(columns, r, new, 1.0),
+                (None, Some(gone)) => accumulate_row(columns, r, gone, -1.0),
+                (None, None) => {}
             }
         }
         zncc_row(
-            &scratch.columns,
+            columns,
             r,
             &mut scratch.sums,
             &windows.count[y * w..(y + 1) * w],
@@ -215,65 +220,193 @@ pub fn window_zncc(
     }
 }
 
+/// Adds (`sign` +1) or removes (−1) one sample, warped `s` over reference `i`, to the six sums
+/// (count, ΣW, ΣW², ΣIW, ΣI, ΣI²) when it has an answer.
+#[inline(always)]
+fn add_sample(sums: &mut [f64; 6], s: f32, i: f32, sign: f64) {
+    let answered = s.is_finite();
+    let m = if answered { sign } else { 0.0 };
+    let s = if answered { f64::from(s) } else { 0.0 };
+    let i = f64::from(i);
+    let ms = sign * s;
+    sums[0] += m;
+    sums[1] += ms;
+    sums[2] += ms * s;
+    sums[3] += ms * i;
+    sums[4] += m * i;
+    sums[5] += m * i * i;
+}
+
 crate::engine::cpu::lanes::dispatched! {
-    /// Adds (`sign` +1) or removes (−1) one image row to the padded column sums over the samples
-    /// with an answer: (count, ΣW, ΣW², ΣIW, ΣI, ΣI²).
-    fn accumulate_row(columns: &mut [Vec<f64>; 6], r: usize, warped: &[f32], image: &[f32], sign: f64) {
+    /// Adds (`sign` +1) or removes (−1) one image row, its warped samples and the reference's
+    /// pixels, to the padded column sums over the samples with an answer: (count, ΣW, ΣW², ΣIW,
+    /// ΣI, ΣI²).
+    fn accumulate_row(columns: &mut [Vec<f64>; 6], r: usize, (warped, image): (&[f32], &[f32]), sign: f64) {
         let w = warped.len();
+        let image = &image[..w];
         let [c0, c1, c2, c3, c4, c5] = columns;
         let (c0, c1, c2) = (&mut c0[r..r + w], &mut c1[r..r + w], &mut c2[r..r + w]);
         let (c3, c4, c5) = (&mut c3[r..r + w], &mut c4[r..r + w], &mut c5[r..r + w]);
         for x in 0..w {
-            let s = warped[x];
-            let answered = s.is_finite();
-            let m = if answered { sign } else { 0.0 };
-            let s = if answered { f64::from(s) } else { 0.0 };
-            let i = f64::from(image[x]);
-            let ms = sign * s;
-            c0[x] += m;
-            c1[x] += ms;
-            c2[x] += ms * s;
-            c3[x] += ms * i;
-            c4[x] += m * i;
-            c5[x] += m * i * i;
+            let mut sums = [c0[x], c1[x], c2[x], c3[x], c4[x], c5[x]];
+            add_sample(&mut sums, warped[x], image[x], sign);
+            [c0[x], c1[x], c2[x], c3[x], c4[x], c5[x]] = sums;
         }
     }
 
-    /// The ZNCC of one output row from the padded column sums (see [`window_zncc`]): each
-    /// window's six sums in `sums`, then the correlation, both loops along the row.
+    /// [`accumulate_row`] of row a then row b in one pass, the column sums held in registers
+    /// between the two (the six arrays are read and written once, not twice).
+    fn accumulate_rows(columns: &mut [Vec<f64>; 6], r: usize, (warped, image): (&[f32], &[f32]), sign: f64, (warped_b, image_b): (&[f32], &[f32]), sign_b: f64) {
+        let w = warped.len();
+        let (image, warped_b, image_b) = (&image[..w], &warped_b[..w], &image_b[..w]);
+        let [c0, c1, c2, c3, c4, c5] = columns;
+        let (c0, c1, c2) = (&mut c0[r..r + w], &mut c1[r..r + w], &mut c2[r..r + w]);
+        let (c3, c4, c5) = (&mut c3[r..r + w], &mut c4[r..r + w], &mut c5[r..r + w]);
+        for x in 0..w {
+            let mut sums = [c0[x], c1[x], c2[x], c3[x], c4[x], c5[x]];
+            add_sample(&mut sums, warped[x], image[x], sign);
+            add_sample(&mut sums, warped_b[x], image_b[x], sign_b);
+            [c0[x], c1[x], c2[x], c3[x], c4[x], c5[x]] = sums;
+        }
+    }
+
+    /// The ZNCC of one output row from the padded column sums (see [`window_zncc`]). For r ≤ 7,
+    /// one loop along the row forms each window's six sums and its correlation
+    /// ([`zncc_row_unrolled`]); above, each sum is formed in `sums` by 2r passes along the row
+    /// that add a shifted column row, then a second loop correlates ([`zncc_row_shifted`]).
     fn zncc_row(columns: &[Vec<f64>; 6], r: usize, sums: &mut [Vec<f64>; 6], count: &[f32], inv_spread: &[f32], min_spread_per_sample: f64, out: &mut [f32]) {
-        let w = out.len();
-        for (column, sum) in columns.iter().zip(sums.iter_mut()) {
-            sum.clear();
-            sum.extend_from_slice(&column[..w]);
-            for k in 1..=2 * r {
-                for (s, c) in sum.iter_mut().zip(&column[k..k + w]) {
-                    *s += c;
-                }
+        let row = (count, inv_spread, min_spread_per_sample, out);
+        match r {
+            0 => zncc_row_unrolled::<1>(columns, row),
+            1 => zncc_row_unrolled::<3>(columns, row),
+            2 => zncc_row_unrolled::<5>(columns, row),
+            3 => zncc_row_unrolled::<7>(columns, row),
+            4 => zncc_row_unrolled::<9>(columns, row),
+            5 => zncc_row_unrolled::<11>(columns, row),
+            6 => zncc_row_unrolled::<13>(columns, row),
+            7 => zncc_row_unrolled::<15>(columns, row),
+            _ => zncc_row_shifted(columns, r, sums, row),
+        }
+    }
+}
+
+/// [`zncc_row`] for any r: each window sum formed in `sums` by adding the shifted column rows
+/// `column[k .. k + w]`, k = 1 … 2r, to `column[.. w]` in turn, then the correlations.
+#[inline(always)]
+fn zncc_row_shifted(
+    columns: &[Vec<f64>; 6],
+    r: usize,
+    sums: &mut [Vec<f64>; 6],
+    (count, inv_spread, min_spread_per_sample, out): (&[f32], &[f32], f64, &mut [f32]),
+) {
+    let w = out.len();
+    for (column, sum) in columns.iter().zip(sums.iter_mut()) {
+        sum.clear();
+        sum.extend_from_slice(&column[..w]);
+        for k in 1..=2 * r {
+            for (s, c) in sum.iter_mut().zip(&column[k..k + w]) {
+                *s += c;
             }
         }
-        let [n, sw, sww, siw, si, sii] = sums;
-        let (n, sw, sww, siw, si, sii) = (&n[..w], &sw[..w], &sww[..w], &siw[..w], &si[..w], &sii[..w]);
-        let (count, inv_spread) = (&count[..w], &inv_spread[..w]);
-        // Without branches (`&` on the conditions, selects), so that the loop vectorises; the
-        // spreads are differences of f64 sums, their ratio is taken in f32 (the result's type).
-        for x in 0..w {
-            let voted = (inv_spread[x] > 0.0) & (n[x] >= MIN_VALID_FRACTION * f64::from(count[x]));
-            let n_safe = if voted { n[x] } else { 1.0 };
-            let inv_n = 1.0 / n_safe;
-            let spread_w = sww[x] - sw[x] * sw[x] * inv_n;
-            let spread_i = sii[x] - si[x] * si[x] * inv_n;
-            let covariance = (siw[x] - si[x] * sw[x] * inv_n) as f32;
-            let product = (spread_i * spread_w) as f32;
-            let flat = !(spread_w > 1e-12 * n_safe);
-            let product = if (product > 0.0) & !flat { product } else { 1.0 };
-            let correlation = if flat { 0.0 } else { covariance / product.sqrt() };
-            out[x] = if voted & (spread_i >= min_spread_per_sample * n_safe) {
-                correlation
-            } else {
-                f32::NAN
-            };
-        }
+    }
+    let [n, sw, sww, siw, si, sii] = sums;
+    let (n, sw, sww) = (&n[..w], &sw[..w], &sww[..w]);
+    let (siw, si, sii) = (&siw[..w], &si[..w], &sii[..w]);
+    let (count, inv_spread) = (&count[..w], &inv_spread[..w]);
+    for x in 0..w {
+        let sums = [n[x], sw[x], sww[x], siw[x], si[x], sii[x]];
+        out[x] = correlation(sums, count[x], inv_spread[x], min_spread_per_sample);
+    }
+}
+
+/// One output row of [`zncc_row`] for the window width `D` = 2r + 1: each window's six sums
+/// added in registers, column x + 0 first, and its correlation, in one loop along the row. With
+/// `D` a constant the additions unroll and the loop vectorises over x.
+#[inline(always)]
+fn zncc_row_unrolled<const D: usize>(
+    columns: &[Vec<f64>; 6],
+    (count, inv_spread, min_spread_per_sample, out): (&[f32], &[f32], f64, &mut [f32]),
+) {
+    let w = out.len();
+    let [n, sw, sww, siw, si, sii] = columns;
+    let (n, sw, sww) = (
+        shifted::<D>(n, w),
+        shifted::<D>(sw, w),
+        shifted::<D>(sww, w),
+    );
+    let (siw, si, sii) = (
+        shifted::<D>(siw, w),
+        shifted::<D>(si, w),
+        shifted::<D>(sii, w),
+    );
+    let (count, inv_spread) = (&count[..w], &inv_spread[..w]);
+    for x in 0..w {
+        let sums = [
+            window_sum(&n, x),
+            window_sum(&sw, x),
+            window_sum(&sww, x),
+            window_sum(&siw, x),
+            window_sum(&si, x),
+            window_sum(&sii, x),
+        ];
+        out[x] = correlation(sums, count[x], inv_spread[x], min_spread_per_sample);
+    }
+}
+
+/// The `D` rows `column[k .. k + w]`, k = 0 … D − 1: each of length w, so that indexing them with
+/// x < w needs no bounds check in the loop.
+#[inline(always)]
+fn shifted<const D: usize>(column: &[f64], w: usize) -> [&[f64]; D] {
+    let mut rows: [&[f64]; D] = [&[]; D];
+    for (k, row) in rows.iter_mut().enumerate() {
+        *row = &column[k..k + w];
+    }
+    rows
+}
+
+/// The window sum at x of [`shifted`] rows: their values at x added in order, k = 0 first.
+#[inline(always)]
+fn window_sum<const D: usize>(rows: &[&[f64]; D], x: usize) -> f64 {
+    let mut sum = rows[0][x];
+    for row in &rows[1..] {
+        sum += row[x];
+    }
+    sum
+}
+
+/// One window's ZNCC from its six sums (count, ΣW, ΣW², ΣIW, ΣI, ΣI²), NaN where it does not
+/// vote (see [`window_zncc`]). Without branches (`&` on the conditions, selects), so that the
+/// loops that call it vectorise; the spreads are differences of f64 sums, their ratio is taken
+/// in f32 (the result's type).
+#[inline(always)]
+fn correlation(
+    [n, sw, sww, siw, si, sii]: [f64; 6],
+    count: f32,
+    inv_spread: f32,
+    min_spread_per_sample: f64,
+) -> f32 {
+    let voted = (inv_spread > 0.0) & (n >= MIN_VALID_FRACTION * f64::from(count));
+    let n_safe = if voted { n } else { 1.0 };
+    let inv_n = 1.0 / n_safe;
+    let spread_w = sww - sw * sw * inv_n;
+    let spread_i = sii - si * si * inv_n;
+    let covariance = (siw - si * sw * inv_n) as f32;
+    let product = (spread_i * spread_w) as f32;
+    let flat = !(spread_w > 1e-12 * n_safe);
+    let product = if (product > 0.0) & !flat {
+        product
+    } else {
+        1.0
+    };
+    let correlation = if flat {
+        0.0
+    } else {
+        covariance / product.sqrt()
+    };
+    if voted & (spread_i >= min_spread_per_sample * n_safe) {
+        correlation
+    } else {
+        f32::NAN
     }
 }
 
@@ -591,6 +724,57 @@ mod tests {
                     "({x}, {y}): {} against {expected}",
                     band[k * w + x]
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn unrolled_window_sums_equal_the_shifted_rows_bit_for_bit() {
+        // Column sums of 2r + 1 rows of pseudo-random samples, about one in eight without an
+        // answer; the unrolled sums must round as the shifted rows' sums do, for every radius.
+        let w = 41;
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for r in 0..=9 {
+            let mut columns: [Vec<f64>; 6] = Default::default();
+            for c in columns.iter_mut() {
+                c.resize(w + 2 * r, 0.0);
+            }
+            for _ in 0..=2 * r {
+                let warped: Vec<f32> = (0..w)
+                    .map(|_| if next() < 0.125 { f32::NAN } else { next() })
+                    .collect();
+                let image: Vec<f32> = (0..w).map(|_| next()).collect();
+                accumulate_row(&mut columns, r, (&warped, &image), 1.0);
+            }
+            let count = vec![((2 * r + 1) * (2 * r + 1)) as f32; w];
+            let inv_spread: Vec<f32> = (0..w)
+                .map(|_| if next() < 0.1 { 0.0 } else { 1.0 })
+                .collect();
+            let mut unrolled = vec![0f32; w];
+            let mut shifted = vec![0f32; w];
+            let mut sums = Default::default();
+            zncc_row(
+                &columns,
+                r,
+                &mut sums,
+                &count,
+                &inv_spread,
+                1e-4,
+                &mut unrolled,
+            );
+            let row = (&count[..], &inv_spread[..], 1e-4, &mut shifted[..]);
+            zncc_row_shifted(&columns, r, &mut sums, row);
+            let bits = |z: &[f32]| z.iter().map(|z| z.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&unrolled), bits(&shifted), "r = {r}");
+            if r > 0 {
+                let matched = unrolled.iter().filter(|z| z.is_finite()).count();
+                assert!(matched > w / 2, "r = {r}: {matched} of {w} matched");
             }
         }
     }
