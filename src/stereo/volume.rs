@@ -19,12 +19,16 @@ pub fn filled<T: Copy + Send + Sync>(len: usize, value: T) -> Vec<T> {
     volume
 }
 
-/// `volume` as `len` copies of `value`, written in parallel into its capacity.
+/// `volume` as `len` copies of `value`, written in parallel into its capacity, a chunk at a
+/// time (rayon's `collect_into_vec` writes element by element: 5 % of a 1280 × 1024 pair).
 fn fill<T: Copy + Send + Sync>(volume: &mut Vec<T>, len: usize, value: T) {
-    (0..len)
-        .into_par_iter()
-        .map(|_| value)
-        .collect_into_vec(volume);
+    volume.clear();
+    volume.reserve(len);
+    volume.spare_capacity_mut()[..len]
+        .par_chunks_mut(1 << 16)
+        .for_each(|chunk| chunk.fill(std::mem::MaybeUninit::new(value)));
+    // SAFETY: the first `len` elements of the capacity were all written just above.
+    unsafe { volume.set_len(len) };
 }
 
 /// `volume` as `len` copies of `value`, reusing its memory where it has room (no page is faulted
