@@ -447,9 +447,13 @@ pub fn combine_views(zncc: &[Vec<f32>], costs: &mut [u16]) {
 /// (and no libm call).
 #[inline(always)]
 fn to_units(cost: f32) -> u16 {
-    // Through i32: the same truncation for 0.5 … 2047.5, and a conversion that vectorises
-    // (`as u16` from f32 stayed one scalar conversion a value).
-    (cost * f32::from(COST_SCALE) + 0.5) as i32 as u16
+    let units = cost * f32::from(COST_SCALE) + 0.5;
+    debug_assert!((0.5..=2047.5).contains(&units), "{cost}");
+    // SAFETY: every caller passes a cost within 0 … 1 (clamped, or a mean of clamped costs), so
+    // `units` is a number within 0.5 … 2047.5, which i32 holds. The unchecked conversion is one
+    // vector instruction; `as` adds NaN and range fix-ups that LLVM left scalar (6 % of a
+    // 1280 × 1024 pair's samples).
+    unsafe { units.to_int_unchecked::<i32>() as u16 }
 }
 
 crate::engine::cpu::lanes::dispatched! {

@@ -433,9 +433,21 @@ fn tabulate(
             let (u, v) = (&mut pixel_u[x0..x1], &mut pixel_v[x0..x1]);
             // `z > NaN` is false: a pixel without a ray takes the exact path.
             if ok[i] && z > cell_below[i] {
-                for ((u, v), &fx) in u.iter_mut().zip(v.iter_mut()).zip(&fractions) {
-                    *u = u0 + fx * du;
-                    *v = v0 + fx * dv;
+                if let (Ok(u), Ok(v), Ok(f)) = (
+                    <&mut [f64; TABLE_STEP]>::try_from(&mut *u),
+                    <&mut [f64; TABLE_STEP]>::try_from(&mut *v),
+                    <&[f64; TABLE_STEP]>::try_from(&fractions[..]),
+                ) {
+                    // A whole cell of the default step: fixed lengths, one vector operation each.
+                    for j in 0..TABLE_STEP {
+                        u[j] = u0 + f[j] * du;
+                        v[j] = v0 + f[j] * dv;
+                    }
+                } else {
+                    for ((u, v), &fx) in u.iter_mut().zip(v.iter_mut()).zip(&fractions) {
+                        *u = u0 + fx * du;
+                        *v = v0 + fx * dv;
+                    }
                 }
                 interpolated += x1 - x0;
             } else {
