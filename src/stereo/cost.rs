@@ -38,7 +38,7 @@ pub const NO_VOTE: u16 = 2048;
 
 /// Image rows per task of the cost volume: each task sweeps every hypothesis over its rows (and
 /// r rows of halo above and below for the windows).
-pub(crate) const BAND_ROWS: usize = 32;
+pub(crate) const BAND_ROWS: usize = 64;
 
 /// Statistics of the reference image's windows.
 #[derive(Debug, Clone)]
@@ -565,7 +565,7 @@ mod transpose_sse2 {
 }
 
 /// The cost volume (stages 2–5 for every hypothesis): `volume[(y·w + x)·D + h]` for the D
-/// inverse depths, in bands of `BAND_ROWS` (32) rows in parallel, every hypothesis of a band in
+/// inverse depths, in bands of `BAND_ROWS` (64) rows in parallel, every hypothesis of a band in
 /// turn. The projections are exact with `table` `None`, else tabulated through it and sampled
 /// as they are interpolated ([`warp_tabulated`]; the table of the reference camera whose rays
 /// `rays` are).
