@@ -95,8 +95,7 @@ use range::{
     CountChoice, RangeChoice, Sampling, StepRule, find_depth_range, largest_motion, step_rule,
 };
 use rays::{RayGrid, inverse_depths, reference_rays};
-use select::winner_take_all;
-use sgm::{SgmParams, sgm_aggregate_into};
+use sgm::{SgmParams, sgm_winners};
 use volume::Volumes;
 
 /// Default near end of the depth range, metres (moved out when the port is farther): the
@@ -897,7 +896,8 @@ fn cpu_winners(
     );
     seconds.add("cost volume", started);
     let started = Instant::now();
-    sgm_aggregate_into(
+    // The selection runs inside the aggregation, row by row (its time counted there).
+    let winners = sgm_winners(
         &volumes.cost,
         w,
         h,
@@ -907,9 +907,6 @@ fn cpu_winners(
         &mut volumes.sum,
     );
     seconds.add("aggregation", started);
-    let started = Instant::now();
-    let winners = winner_take_all(&volumes.sum, &volumes.cost, d);
-    seconds.add("selection", started);
     winners
 }
 

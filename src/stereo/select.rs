@@ -70,7 +70,7 @@ fn least(values: &[u16]) -> u16 {
 
 crate::engine::cpu::lanes::dispatched! {
     /// [`winner_take_all`] for the pixels of `index` (their `sum` and `cost`, D a pixel).
-    fn select_pixels(sum: &[u16], cost: &[u16], d: usize, index: &mut [f32], quality: &mut [f32], distinctness: &mut [f32]) {
+    pub(crate) fn select_pixels(sum: &[u16], cost: &[u16], d: usize, index: &mut [f32], quality: &mut [f32], distinctness: &mut [f32]) {
         for j in 0..index.len() {
             let s = &sum[j * d..(j + 1) * d];
             let c = &cost[j * d..(j + 1) * d];

@@ -18,6 +18,9 @@
 use rayon::prelude::*;
 
 use super::cost::NO_VOTE;
+#[cfg(doc)]
+use super::select::winner_take_all;
+use super::select::{Winners, select_pixels};
 
 /// Padding of a path's previous costs at both ends of the hypotheses: large, and far from overflow
 /// when P1 is added.
@@ -47,9 +50,10 @@ impl SgmParams {
 
 /// One step of a path: L(p, ·) from L(p − r, ·) (`previous`, padded with [`PAD`] at both ends,
 /// D + 2 values, whose least value is `minimum`) and C(p, ·); written into `current` (padded
-/// likewise), added to `sum`. Returns the least L(p, ·), the next step's `minimum`.
+/// likewise), added to `sum` (`ADD`) or written there (the first path to reach `sum`). Returns
+/// the least L(p, ·), the next step's `minimum`.
 #[inline(always)]
-fn path_step(
+fn path_step<const ADD: bool>(
     previous: &[u16],
     minimum: u16,
     cost: &[u16],
@@ -69,7 +73,7 @@ fn path_step(
         let v = same[i].min(below[i] + p1).min(above[i] + p1).min(cap);
         let l = cost[i] + v - minimum;
         out[i] = l;
-        sum[i] = sum[i].saturating_add(l);
+        sum[i] = if ADD { sum[i].saturating_add(l) } else { l };
         least = least.min(l);
     }
     current[0] = PAD;
@@ -77,16 +81,16 @@ fn path_step(
     least
 }
 
-/// The first pixel of a path: L = C. Returns the least L.
+/// The first pixel of a path: L = C, added to `sum` (`ADD`) or written there. Returns the least L.
 #[inline(always)]
-fn path_start(cost: &[u16], current: &mut [u16], sum: &mut [u16]) -> u16 {
+fn path_start<const ADD: bool>(cost: &[u16], current: &mut [u16], sum: &mut [u16]) -> u16 {
     let d = cost.len();
     current[0] = PAD;
     current[d + 1] = PAD;
     current[1..=d].copy_from_slice(cost);
     let mut least = u16::MAX;
     for (s, &c) in sum.iter_mut().zip(cost) {
-        *s = s.saturating_add(c);
+        *s = if ADD { s.saturating_add(c) } else { c };
         least = least.min(c);
     }
     least
@@ -117,9 +121,56 @@ pub fn sgm_aggregate_into(
     params: &SgmParams,
     sum: &mut Vec<u16>,
 ) {
+    aggregate(cost, width, height, depth_count, image, params, sum, None);
+}
+
+/// [`sgm_aggregate_into`] and then [`winner_take_all`] of `sum` and `cost`, the same winners,
+/// with each row's winners selected as soon as its last path has been added: its sums and
+/// costs are then still in the cache, where a pass of its own read both volumes (640 MiB at
+/// 1280 × 1024 × 128) once more.
+pub fn sgm_winners(
+    cost: &[u16],
+    width: usize,
+    height: usize,
+    depth_count: usize,
+    image: &[f32],
+    params: &SgmParams,
+    sum: &mut Vec<u16>,
+) -> Winners {
+    let mut winners = Winners {
+        index: vec![f32::NAN; width * height],
+        quality: vec![0.0; width * height],
+        distinctness: vec![0.0; width * height],
+    };
+    aggregate(
+        cost,
+        width,
+        height,
+        depth_count,
+        image,
+        params,
+        sum,
+        Some(&mut winners),
+    );
+    winners
+}
+
+/// The aggregation, and with `winners` the selection of every row after its last path.
+#[allow(clippy::too_many_arguments)]
+fn aggregate(
+    cost: &[u16],
+    width: usize,
+    height: usize,
+    depth_count: usize,
+    image: &[f32],
+    params: &SgmParams,
+    sum: &mut Vec<u16>,
+    mut winners: Option<&mut Winners>,
+) {
     let (w, d) = (width, depth_count);
     debug_assert!(cost.iter().all(|&c| c <= NO_VOTE));
-    super::volume::refill(sum, w * height * d, 0u16);
+    // No fill: the first path along each row writes its sums.
+    super::volume::resize_for_writing(sum, w * height * d);
     let row_len = w * d;
     // Left to right and right to left along row y, added to its sums.
     let horizontal = |y: usize, sum_row: &mut [u16]| {
@@ -140,6 +191,8 @@ pub fn sgm_aggregate_into(
     // saturating additions of costs ≥ 0, the same in any order.
     let columns: &[isize] = if params.paths >= 8 { &[0, 1, -1] } else { &[0] };
     let n = columns.len();
+    // Pixels per task along a row.
+    const CHUNK: usize = 64;
     if height > 0 {
         horizontal(0, &mut sum[..row_len]);
     }
@@ -164,7 +217,6 @@ pub fn sgm_aggregate_into(
                 columns,
                 depth_count: d,
             };
-            const CHUNK: usize = 64;
             rayon::join(
                 || {
                     if let Some(next) = next {
@@ -182,6 +234,26 @@ pub fn sgm_aggregate_into(
                         });
                 },
             );
+            // On the way up a row's sums are complete once its own paths are added.
+            if let (false, Some(winners)) = (down, winners.as_deref_mut()) {
+                let pixels = y * w..(y + 1) * w;
+                winners.index[pixels.clone()]
+                    .par_chunks_mut(CHUNK)
+                    .zip(winners.quality[pixels.clone()].par_chunks_mut(CHUNK))
+                    .zip(winners.distinctness[pixels].par_chunks_mut(CHUNK))
+                    .enumerate()
+                    .for_each(|(chunk, ((index, quality), distinctness))| {
+                        let at = chunk * CHUNK * d..(chunk * CHUNK + index.len()) * d;
+                        select_pixels(
+                            &sum[y * row_len..(y + 1) * row_len][at.clone()],
+                            &cost_row[at],
+                            d,
+                            index,
+                            quality,
+                            distinctness,
+                        );
+                    });
+            }
             std::mem::swap(&mut previous, &mut current);
             std::mem::swap(&mut previous_least, &mut current_least);
         }
@@ -217,12 +289,19 @@ crate::engine::cpu::lanes::dispatched! {
             for k in 0..w {
                 let x = if forward { k } else { w - 1 - k };
                 let (c, s) = (&cost[x * d..(x + 1) * d], &mut sum[x * d..(x + 1) * d]);
-                least = if k == 0 {
-                    path_start(c, current, s)
-                } else {
-                    let before = if forward { x - 1 } else { x + 1 };
-                    let p2 = params.p2_at(row[x], row[before]);
-                    path_step(previous, least, c, params.p1, p2, current, s)
+                // Left to right is the first path to reach the row's sums: it writes them.
+                least = match (k, forward) {
+                    (0, true) => path_start::<false>(c, current, s),
+                    (0, false) => path_start::<true>(c, current, s),
+                    _ => {
+                        let before = if forward { x - 1 } else { x + 1 };
+                        let p2 = params.p2_at(row[x], row[before]);
+                        if forward {
+                            path_step::<false>(previous, least, c, params.p1, p2, current, s)
+                        } else {
+                            path_step::<true>(previous, least, c, params.p1, p2, current, s)
+                        }
+                    }
                 };
                 std::mem::swap(previous, current);
             }
@@ -248,9 +327,9 @@ crate::engine::cpu::lanes::dispatched! {
                         let p2 = params.p2_at(line.row[x], before[from]);
                         let k = from * n + m;
                         let previous = &line.previous[k * (d + 2)..(k + 1) * (d + 2)];
-                        path_step(previous, line.previous_least[k], c, params.p1, p2, out, s)
+                        path_step::<true>(previous, line.previous_least[k], c, params.p1, p2, out, s)
                     }
-                    _ => path_start(c, out, s),
+                    _ => path_start::<true>(c, out, s),
                 };
             }
         }
@@ -267,7 +346,7 @@ mod tests {
         let cost = [5, 5, 5, 5];
         let mut current = [0u16; 6];
         let mut sum = [1u16; 4];
-        let least = path_step(&previous, 4, &cost, 2, 7, &mut current, &mut sum);
+        let least = path_step::<true>(&previous, 4, &cost, 2, 7, &mut current, &mut sum);
         // min = 4; h0: min(10, 4+2, 11) = 6 → 5 + 6 − 4 = 7; h1: 4 → 5; h2: min(9, 6) = 6 → 7;
         // h3: min(30, 9+2, 11) = 11 → 12.
         assert_eq!(current, [PAD, 7, 5, 7, 12, PAD]);
@@ -385,6 +464,19 @@ mod tests {
                 expected,
                 "{paths} paths"
             );
+            // Into a reused volume holding anything: every sum is written before it is read.
+            let mut reused = vec![54321u16; w * h * d + 5];
+            sgm_aggregate_into(&cost, w, h, d, &image, &params, &mut reused);
+            assert_eq!(reused, expected, "{paths} paths, reused");
+            // The fused selection picks what the selection of the whole volume picks.
+            let mut sum = vec![7u16; 3];
+            let fused = sgm_winners(&cost, w, h, d, &image, &params, &mut sum);
+            let apart = crate::stereo::select::winner_take_all(&expected, &cost, d);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&fused.index), bits(&apart.index), "{paths} paths");
+            assert_eq!(bits(&fused.quality), bits(&apart.quality));
+            assert_eq!(bits(&fused.distinctness), bits(&apart.distinctness));
+            assert!(apart.index.iter().any(|i| i.is_finite()));
         }
     }
 }

@@ -35,6 +35,19 @@ pub fn refill<T: Copy + Send + Sync>(volume: &mut Vec<T>, len: usize, value: T) 
     fill(volume, len, value);
 }
 
+/// `volume` at `len` elements of any value, for a caller that writes every one before it reads
+/// it: its memory reused where it has room, else fresh zeroed pages that the writes fault in.
+pub fn resize_for_writing<T: Copy + Default>(volume: &mut Vec<T>, len: usize) {
+    if volume.capacity() < len {
+        *volume = Vec::new();
+        // Zeroed by the kernel as the writes touch them; nothing reads a page first.
+        *volume = vec![T::default(); len];
+    } else {
+        volume.resize(len, T::default());
+        volume.truncate(len);
+    }
+}
+
 /// The two volumes of a depth map, kept from one depth map to the next (the consistency check's
 /// maps, the frames of a sequence) so that their pages are faulted in once.
 #[derive(Debug, Default)]
