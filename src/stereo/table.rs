@@ -370,6 +370,35 @@ pub fn warp_tabulated(
     counts
 }
 
+crate::engine::cpu::lanes::dispatched! {
+    /// One row's projections (`u`, `v`, a value per pixel) interpolated along x within every
+    /// cell of `fractions.len()` pixels from the row's values at the node columns (`row_u`,
+    /// `row_v`): u₀ + f·(u₁ − u₀) with f = (x − x₀)/step, the weights `fractions`.
+    fn interpolate_row(row_u: &[f64], row_v: &[f64], fractions: &[f64], u: &mut [f64], v: &mut [f64]) {
+        let step = fractions.len();
+        for (i, (u, v)) in u.chunks_mut(step).zip(v.chunks_mut(step)).enumerate() {
+            let (u0, du) = (row_u[i], row_u[i + 1] - row_u[i]);
+            let (v0, dv) = (row_v[i], row_v[i + 1] - row_v[i]);
+            if let (Ok(u), Ok(v), Ok(f)) = (
+                <&mut [f64; TABLE_STEP]>::try_from(&mut *u),
+                <&mut [f64; TABLE_STEP]>::try_from(&mut *v),
+                <&[f64; TABLE_STEP]>::try_from(fractions),
+            ) {
+                // A whole cell of the default step: fixed lengths, one vector operation each.
+                for j in 0..TABLE_STEP {
+                    u[j] = u0 + f[j] * du;
+                    v[j] = v0 + f[j] * dv;
+                }
+            } else {
+                for ((u, v), &f) in u.iter_mut().zip(v.iter_mut()).zip(fractions) {
+                    *u = u0 + f * du;
+                    *v = v0 + f * dv;
+                }
+            }
+        }
+    }
+}
+
 /// The tabulated projection of the band's first `rows` rows: each row's interpolated pixels
 /// handed to `interpolated_row(row in the band, u, v)` (a row's w values each, NaN where the
 /// pixel is not interpolated), the others listed in `band.exact` with their exact projections in
@@ -425,45 +454,27 @@ fn tabulate(
         let ok = &band.cell_ok[top..top + columns];
         let below = &band.exact_below[k * w..(k + 1) * w];
         let cell_below = &band.cell_below[k * columns..(k + 1) * columns];
-        let (pixel_u, pixel_v) = (&mut band.pixel_u, &mut band.pixel_v);
+        // Every cell interpolated at once (vectorised), then the cells that may not be
+        // interpolated everywhere: their pixels that may not are marked and queued.
+        interpolate_row(
+            &band.row_u,
+            &band.row_v,
+            &fractions,
+            &mut band.pixel_u,
+            &mut band.pixel_v,
+        );
+        interpolated += w;
         for (i, x0) in (0..w).step_by(step).enumerate() {
-            let x1 = (x0 + step).min(w);
-            let (u0, du) = (band.row_u[i], band.row_u[i + 1] - band.row_u[i]);
-            let (v0, dv) = (band.row_v[i], band.row_v[i + 1] - band.row_v[i]);
-            let (u, v) = (&mut pixel_u[x0..x1], &mut pixel_v[x0..x1]);
             // `z > NaN` is false: a pixel without a ray takes the exact path.
             if ok[i] && z > cell_below[i] {
-                if let (Ok(u), Ok(v), Ok(f)) = (
-                    <&mut [f64; TABLE_STEP]>::try_from(&mut *u),
-                    <&mut [f64; TABLE_STEP]>::try_from(&mut *v),
-                    <&[f64; TABLE_STEP]>::try_from(&fractions[..]),
-                ) {
-                    // A whole cell of the default step: fixed lengths, one vector operation each.
-                    for j in 0..TABLE_STEP {
-                        u[j] = u0 + f[j] * du;
-                        v[j] = v0 + f[j] * dv;
-                    }
-                } else {
-                    for ((u, v), &fx) in u.iter_mut().zip(v.iter_mut()).zip(&fractions) {
-                        *u = u0 + fx * du;
-                        *v = v0 + fx * dv;
-                    }
-                }
-                interpolated += x1 - x0;
-            } else {
-                for (((u, v), &fx), (x, &limit)) in u
-                    .iter_mut()
-                    .zip(v.iter_mut())
-                    .zip(&fractions)
-                    .zip((x0..x1).zip(&below[x0..x1]))
-                {
-                    if ok[i] && z > limit {
-                        (*u, *v) = (u0 + fx * du, v0 + fx * dv);
-                        interpolated += 1;
-                    } else {
-                        (*u, *v) = (f64::NAN, f64::NAN);
-                        band.exact.push(k * w + x);
-                    }
+                continue;
+            }
+            let x1 = (x0 + step).min(w);
+            for (x, &limit) in (x0..x1).zip(&below[x0..x1]) {
+                if !(ok[i] && z > limit) {
+                    (band.pixel_u[x], band.pixel_v[x]) = (f64::NAN, f64::NAN);
+                    band.exact.push(k * w + x);
+                    interpolated -= 1;
                 }
             }
         }
