@@ -612,7 +612,8 @@ pub fn cost_volume_into(
     let (w, h) = (rays.width, rays.height);
     let d = inverse_depths.len();
     let r = windows.radius;
-    super::volume::refill(volume, w * h * d, NO_VOTE);
+    // No fill: a band writes every hypothesis of every pixel, or fills itself when untextured.
+    super::volume::resize_for_writing(volume, w * h * d);
     volume
         .par_chunks_mut(BAND_ROWS * w * d)
         .enumerate()
@@ -631,6 +632,9 @@ pub fn cost_volume_into(
             let mut zncc = vec![vec![0f32; rows * w]; voters.len()];
             let mut costs = vec![NO_VOTE; HYPOTHESIS_BLOCK.min(d) * rows * w];
             let any_textured = (first * w..(first + rows) * w).any(|i| windows.textured(i));
+            if !any_textured {
+                volume.fill(NO_VOTE);
+            }
             let starts: Vec<Vec<f64>> = voters
                 .iter()
                 .map(|voter| {
