@@ -460,8 +460,9 @@ crate::engine::cpu::lanes::dispatched! {
     /// [`combine_views`] for one voting camera: its own cost, or [`NO_VOTE`].
     fn combine_one(zncc: &[f32], costs: &mut [u16]) {
         for (cost, &z) in costs.iter_mut().zip(zncc) {
-            // A NaN fails the comparison: no vote. max/min rather than `clamp`, whose NaN
-            // handling kept the loop scalar; they agree on every number.
+            // A NaN fails the comparison: no vote. max/min rather than `clamp`: they agree on
+            // every number, and take a NaN to 0, a value `to_units` may convert unchecked.
+            #[allow(clippy::manual_clamp)]
             let units = to_units((1.0 - z).max(0.0).min(1.0));
             *cost = if z >= -f32::MAX { units } else { NO_VOTE };
         }
