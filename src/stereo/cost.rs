@@ -11,7 +11,8 @@
 //! invariant to a gain and an offset of W against I, which is what changes between the
 //! viewpoints of an underwater rig: attenuation along paths of different length (a gain) and
 //! backscatter (an offset). The sums are box sums, separable: a running sum down the columns
-//! then along the row, O(1) per pixel whatever r, in f64 (no drift). The sums run over the
+//! (O(1) per pixel whatever r), then each window's 2r + 1 column sums added along the row, in
+//! f64 (no drift). The sums run over the
 //! window's samples that have an answer (a projection without an answer or outside the other
 //! image has none); a camera votes for (p, h) when at least half of the window has one, so a
 //! correspondence up to the other image's very border is matched. A reference window whose
