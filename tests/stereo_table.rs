@@ -245,3 +245,85 @@ fn full_size_image() {
     let found = compare(&rig(&json), 0, 1, 16, &[1.1]);
     assert!(found.interpolated > 0, "{found:?}");
 }
+
+/// The cost volume written into a reused buffer full of garbage equals one written into fresh
+/// memory (every value is written: the volume is never filled first), and a band of rows with
+/// no texture at all holds no vote anywhere.
+#[test]
+fn a_reused_cost_volume_is_written_whole_and_an_untextured_band_has_no_vote() {
+    use flatport::stereo::cost::{
+        NO_VOTE, Voter, cost_volume, cost_volume_into, reference_windows,
+    };
+    let rig = rig(SHARED_PORT_PAIR);
+    let (reference, voter) = (rig.refractive_camera(0), rig.refractive_camera(1));
+    let rays = reference_rays(&reference);
+    let (w, h) = (rays.width, rays.height);
+    // Texture above row 160, flat grey below: the rows from 192 on (a whole band of 32 or 64
+    // rows) have no window with texture.
+    let (flat_from, untextured_from) = (160, 192);
+    let texture = |x: f32, y: f32| 0.5 + 0.25 * (0.37 * x).sin() * (0.23 * y + 0.1 * x).cos();
+    let image = |flat: bool| GreyImage {
+        width: w as u32,
+        height: h as u32,
+        pixels: (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                if flat && y >= flat_from {
+                    0.5
+                } else {
+                    texture(x as f32, y as f32)
+                }
+            })
+            .collect(),
+    };
+    let (left, right) = (image(true), image(false));
+    let windows = reference_windows(&left, HALO, 0.01);
+    let voters = [Voter {
+        camera: voter,
+        image: &right,
+    }];
+    let d = 24;
+    let q: Vec<f64> = (0..d)
+        .map(|k| 1.0 / 2.2 + k as f64 * (1.0 - 1.0 / 2.2) / (d - 1) as f64)
+        .collect();
+    let table = ProjectionTable::new(&reference, w, h);
+    let fresh = cost_volume(
+        &rays,
+        &left,
+        &windows,
+        0.01,
+        &voters,
+        &q,
+        Some(&table),
+        &|| {},
+    );
+    let mut reused = vec![12345u16; w * h * d + 77];
+    cost_volume_into(
+        &rays,
+        &left,
+        &windows,
+        0.01,
+        &voters,
+        &q,
+        Some(&table),
+        &|| {},
+        &mut reused,
+    );
+    assert!(
+        reused == fresh,
+        "the reused volume differs from a fresh one"
+    );
+    assert!(
+        fresh[untextured_from * w * d..]
+            .iter()
+            .all(|&c| c == NO_VOTE)
+    );
+    let voted = fresh[..flat_from * w * d]
+        .iter()
+        .filter(|&&c| c < NO_VOTE)
+        .count();
+    assert!(
+        voted > flat_from * w * d / 2,
+        "{voted} votes above the flat rows"
+    );
+}
