@@ -448,12 +448,13 @@ pub fn combine_views(zncc: &[Vec<f32>], costs: &mut [u16]) {
 /// (and no libm call).
 #[inline(always)]
 fn to_units(cost: f32) -> u16 {
-    let units = cost * f32::from(COST_SCALE) + 0.5;
-    debug_assert!((0.5..=2047.5).contains(&units), "{cost}");
-    // SAFETY: every caller passes a cost within 0 … 1 (clamped, or a mean of clamped costs), so
-    // `units` is a number within 0.5 … 2047.5, which i32 holds. The unchecked conversion is one
-    // vector instruction; `as` adds NaN and range fix-ups that LLVM left scalar (6 % of a
-    // 1280 × 1024 pair's samples).
+    // max/min first (a NaN becomes 0.5; the callers' costs are within 0 … 1 already, so no
+    // value changes): the conversion below is then sound for any input.
+    #[allow(clippy::manual_clamp)]
+    let units = (cost * f32::from(COST_SCALE) + 0.5).max(0.5).min(2047.5);
+    // SAFETY: `units` is a number within 0.5 … 2047.5, which i32 holds. The unchecked
+    // conversion is one vector instruction; `as` adds NaN and range fix-ups that LLVM left
+    // scalar (6 % of a 1280 × 1024 pair's samples).
     unsafe { units.to_int_unchecked::<i32>() as u16 }
 }
 
@@ -461,8 +462,8 @@ crate::engine::cpu::lanes::dispatched! {
     /// [`combine_views`] for one voting camera: its own cost, or [`NO_VOTE`].
     fn combine_one(zncc: &[f32], costs: &mut [u16]) {
         for (cost, &z) in costs.iter_mut().zip(zncc) {
-            // A NaN fails the comparison: no vote. max/min rather than `clamp`: they agree on
-            // every number, and take a NaN to 0, a value `to_units` may convert unchecked.
+            // A NaN fails the comparison: no vote. max/min rather than `clamp`, whose NaN
+            // handling kept the loop scalar; they agree on every number.
             #[allow(clippy::manual_clamp)]
             let units = to_units((1.0 - z).max(0.0).min(1.0));
             *cost = if z >= -f32::MAX { units } else { NO_VOTE };

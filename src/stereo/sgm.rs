@@ -172,7 +172,8 @@ fn aggregate(
     // No fill: the first path along each row writes its sums.
     super::volume::resize_for_writing(sum, w * height * d);
     let row_len = w * d;
-    // Left to right and right to left along row y, added to its sums.
+    // Left to right and right to left along row y: the first writes the row's sums, the
+    // second adds to them.
     let horizontal = |y: usize, sum_row: &mut [u16]| {
         let mut buffers = [vec![PAD; d + 2], vec![PAD; d + 2]];
         let cost_row = &cost[y * row_len..(y + 1) * row_len];

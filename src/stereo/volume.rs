@@ -23,7 +23,6 @@ pub fn resize_for_writing<T: Copy + Default>(volume: &mut Vec<T>, len: usize) {
         *volume = vec![T::default(); len];
     } else {
         volume.resize(len, T::default());
-        volume.truncate(len);
     }
 }
 
