@@ -11,7 +11,7 @@
 
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 
-use super::bundle::{Bundle, Estimate, State};
+use super::bundle::{Bundle, Estimate, MIN_START_AIR_M, State, shared_distance_floor};
 use super::extrinsics::{Link, extrinsics_start};
 use super::{Calibration, Options, Progress, calibrate_with_progress, fit_briefly, poses, rms};
 use crate::calib::error::CalibError;
@@ -336,8 +336,22 @@ pub fn calibrate_from_boards(
     for (camera, pose) in cameras.iter_mut().zip(&cam_from_master) {
         camera.cam_from_master = *pose;
     }
-    let start = Rig::with_ports(cameras, base.ports().clone())
-        .map_err(|e| CalibError::Options(e.to_string()))?;
+    // The naive port on the master's axis 10 mm away may leave a lower camera under the water
+    // (cameras at different heights above a surface): the port moves out past the lowest one.
+    let ports = match base.ports() {
+        Ports::Shared(port) => {
+            let floor = shared_distance_floor(port.normal(), &cam_from_master)
+                - MIN_START_AIR_M
+                + START_AIR_DISTANCE_M;
+            Ports::Shared(
+                port.with_pose(port.normal().into_inner(), floor)
+                    .map_err(|e| CalibError::Options(e.to_string()))?,
+            )
+        }
+        per_camera => per_camera.clone(),
+    };
+    let start =
+        Rig::with_ports(cameras, ports).map_err(|e| CalibError::Options(e.to_string()))?;
     let mut calibration_options = options.calibration.clone();
     calibration_options.estimate = Estimate {
         extrinsics: names.len() > 1,

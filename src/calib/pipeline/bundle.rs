@@ -224,6 +224,32 @@ impl State {
         Rig::with_ports(cameras, ports).ok()
     }
 
+    /// This state with every port's air distance raised where a camera has less than
+    /// [`MIN_START_AIR_M`] of air in front of it (a shared port: to [`MIN_START_AIR_M`] past the
+    /// camera farthest along its axis; a port per camera: to [`MIN_START_AIR_M`]), and whether
+    /// anything moved. A start made of guesses (naive ports, pose-graph extrinsics, an axis
+    /// search cell, a consecutive pair's air layer) may place a camera under the water; the
+    /// maximum-likelihood fit must begin where its cost and its central differences are defined.
+    pub fn feasible(mut self) -> (Self, bool) {
+        let mut moved = false;
+        // One port for every camera (with one camera, the two rules agree).
+        if self.ports.len() == 1 {
+            let floor = shared_distance_floor(&self.ports[0].normal, &self.extrinsics);
+            if !(self.ports[0].distance >= floor) {
+                self.ports[0].distance = floor;
+                moved = true;
+            }
+        } else {
+            for port in &mut self.ports {
+                if !(port.distance >= MIN_START_AIR_M) {
+                    port.distance = MIN_START_AIR_M;
+                    moved = true;
+                }
+            }
+        }
+        (self, moved)
+    }
+
     /// The refractive cameras of the rig this state describes ([`State::rig`]), `None` when it
     /// is not a valid rig.
     pub fn cameras(&self, base: &Rig) -> Option<Vec<RefractiveCamera>> {
@@ -234,6 +260,22 @@ impl State {
                 .collect(),
         )
     }
+}
+
+/// Fewest metres of air that a start leaves between a camera and its port
+/// ([`State::feasible`]): far above the central-difference step of the distance (1 µm), so that
+/// both sides of every difference are rigs, and below any real port's air (2 mm and more).
+pub const MIN_START_AIR_M: f64 = 1e-3;
+
+/// The least air distance of one port with unit axis `normal` (in the master frame) shared by
+/// cameras at `cam_from_master` that leaves each of them at least [`MIN_START_AIR_M`] of air:
+/// d ≥ n·C_k + [`MIN_START_AIR_M`] for every centre C_k = −R_kᵀ t_k (DESIGN.md §1: d_k = d − n·C_k).
+pub fn shared_distance_floor(normal: &Vector3<f64>, cam_from_master: &[Isometry3<f64>]) -> f64 {
+    cam_from_master
+        .iter()
+        .map(|pose| normal.dot(&pose.inverse().translation.vector))
+        .fold(0.0, f64::max)
+        + MIN_START_AIR_M
 }
 
 /// Whether a port's air distance changes no ray: with the same medium on both sides of its

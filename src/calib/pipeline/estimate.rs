@@ -301,6 +301,17 @@ fn maximum_likelihood(
     let mut best: Option<(State, LmReport, Option<BlockNormalEquations>)> = None;
     let mut finals = Vec::new();
     for (name, start) in starts {
+        // A start is a guess: where it leaves a camera without air, the port moves out to it.
+        let (start, raised) = start.clone().feasible();
+        let name = if raised {
+            format!(
+                "{name} (its port moved out to {:.1} mm of air, to leave every camera in the air)",
+                first_port(&start).air_distance * 1e3
+            )
+        } else {
+            name.clone()
+        };
+        let start = &start;
         if full.cost(start).is_none_or(|c| !c.is_finite()) {
             let port = first_port(start);
             steps.warnings.push(format!(
