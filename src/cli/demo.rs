@@ -196,6 +196,7 @@ fn footage_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyh
             water_views: FOOTAGE_WATER_VIEWS,
             air_views: FOOTAGE_AIR_VIEWS,
             seed: 3,
+            water_distance: None,
         },
         &RenderOptions {
             blur_px: BLUR_PX,

@@ -340,8 +340,7 @@ pub fn calibrate_from_boards(
     // (cameras at different heights above a surface): the port moves out past the lowest one.
     let ports = match base.ports() {
         Ports::Shared(port) => {
-            let floor = shared_distance_floor(port.normal(), &cam_from_master)
-                - MIN_START_AIR_M
+            let floor = shared_distance_floor(port.normal(), &cam_from_master) - MIN_START_AIR_M
                 + START_AIR_DISTANCE_M;
             Ports::Shared(
                 port.with_pose(port.normal().into_inner(), floor)
@@ -350,8 +349,7 @@ pub fn calibrate_from_boards(
         }
         per_camera => per_camera.clone(),
     };
-    let start =
-        Rig::with_ports(cameras, ports).map_err(|e| CalibError::Options(e.to_string()))?;
+    let start = Rig::with_ports(cameras, ports).map_err(|e| CalibError::Options(e.to_string()))?;
     let mut calibration_options = options.calibration.clone();
     calibration_options.estimate = Estimate {
         extrinsics: names.len() > 1,

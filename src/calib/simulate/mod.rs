@@ -7,6 +7,7 @@
 
 pub mod rng;
 pub mod spread;
+pub mod zoo;
 
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 
