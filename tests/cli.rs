@@ -502,7 +502,20 @@ T: !!opencv-matrix
 fn demo_runs_end_to_end() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
-    let text = run_ok(&["demo", "--output", out.to_str().unwrap(), "--device", "cpu"]);
+    // Run from a folder outside the checkout, as after `cargo install`: the demo's data are in
+    // the binary (the seabed scene named its rig by a path of the checkout once).
+    let o = Command::new(env!("CARGO_BIN_EXE_flatport"))
+        .args(["demo", "--output", "demo", "--device", "cpu"])
+        .current_dir(dir.path())
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "demo outside the checkout failed: {}",
+        stderr(&o)
+    );
+    let text = stdout(&o);
     // The calibration story: rendered images, detected corners, calibration from the naive start,
     // two sweeps.
     // From footage alone: the lenses, the extrinsics and the port, against the rendered truth.

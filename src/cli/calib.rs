@@ -605,11 +605,35 @@ pub fn truth_errors(result: &Rig, truth: &Truth, path: &Path) -> anyhow::Result<
 
 /// Errors of a calibrated rig against the whole true rig of a simulated scene, one line per port
 /// and per camera whose extrinsics differ: each port's axis (in its own frame) and air distance,
-/// its layer thicknesses where they differ, each camera's rotation and translation. Ports are
-/// compared in their own frames (a camera's port in that camera's frame).
+/// its layer thicknesses where they differ, each camera's rotation and translation. Cameras are
+/// paired by name (the truth re-expressed with the calibrated rig's master first, so a
+/// calibration that chose another master or order is compared camera to camera), by position
+/// only when the names differ (and then it says so). Ports are compared in their own frames (a
+/// camera's port in that camera's frame).
 pub fn rig_truth_errors(result: &Rig, truth: &Rig) -> String {
     use flatport::calib::pipeline::report::port_names;
     let mut lines = Vec::new();
+    let by_name: Option<Vec<usize>> = result
+        .cameras()
+        .iter()
+        .map(|c| truth.cameras().iter().position(|t| t.name == c.name))
+        .collect();
+    let truth = match by_name.and_then(|order| truth.reordered(&order)) {
+        Some(reordered) => reordered,
+        None => {
+            lines.push(format!(
+                "(the truth's cameras are named {}: paired with the calibrated ones by position)",
+                truth
+                    .cameras()
+                    .iter()
+                    .map(|c| format!("'{}'", c.name))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+            truth.clone()
+        }
+    };
+    let truth = &truth;
     for ((name, got), (_, want)) in port_names(result).iter().zip(port_names(truth)) {
         let mut line = format!(
             "port {name}: axis off by {:.5}°, air layer off by {:+.4} mm",
@@ -776,4 +800,34 @@ pub fn summary(report: &Report) -> String {
         text += &format!("diagnosis: {finding}\n");
     }
     text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A calibration that chose the other camera as its master is compared camera to camera:
+    /// the true rig itself, reordered, is off by nothing (paired by position it was off by the
+    /// whole baseline).
+    #[test]
+    fn truth_is_paired_by_name() {
+        let truth = flatport::io::rig_from_json_str(
+            super::super::demo::EXAMPLE_RIG,
+            Path::new("data/example_rig.json"),
+        )
+        .unwrap();
+        let swapped = truth.reordered(&[1, 0]).unwrap();
+        let text = rig_truth_errors(&swapped, &truth);
+        assert!(!text.contains("by position"), "{text}");
+        for number in text
+            .split(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-' || c == '+'))
+            .filter_map(|w| w.parse::<f64>().ok())
+        {
+            assert!(number.abs() < 1e-9, "{text}");
+        }
+        let mut renamed = swapped.cameras().to_vec();
+        renamed[0].name = "other".into();
+        let renamed = Rig::with_ports(renamed, swapped.ports().clone()).unwrap();
+        assert!(rig_truth_errors(&renamed, &truth).contains("by position"));
+    }
 }

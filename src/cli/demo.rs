@@ -86,9 +86,11 @@ pub(super) fn render_seabed(
     rig: &Rig,
     options: &flatport::render::RenderOptions,
 ) -> anyhow::Result<Vec<flatport::stereo::GreyImage>> {
-    use flatport::io::scene_json::scene_from_json_str;
+    use flatport::io::scene_json::scene_without_rig_from_json_str;
+    // Built into the binary, so the demo runs from any folder: the scene's own `rig` key names a
+    // file of the checkout, and `rig` is given here instead.
     const SCENE: &str = include_str!("../../data/scenes/seabed.json");
-    let scene = scene_from_json_str(SCENE, Path::new("data/scenes/seabed.json"))?.scene;
+    let scene = scene_without_rig_from_json_str(SCENE, Path::new("data/scenes/seabed.json"))?;
     let engine = flatport::engine::Engine::Cpu(flatport::engine::CpuEngine::new(None));
     (0..rig.cameras().len())
         .map(|k| {

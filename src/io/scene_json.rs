@@ -209,6 +209,12 @@ pub fn scene_from_json_str(text: &str, path: &Path) -> Result<SceneFileContents,
     parse_scene(text, path, true)
 }
 
+/// [`scene_from_json_str`] without the rig the text names (its `rig` key is parsed, no file is
+/// read): for a scene built into the binary, whose rig is given by the caller.
+pub fn scene_without_rig_from_json_str(text: &str, path: &Path) -> Result<TexturedScene, IoError> {
+    Ok(parse_scene(text, path, false)?.scene)
+}
+
 fn parse_scene(text: &str, path: &Path, with_rig: bool) -> Result<SceneFileContents, IoError> {
     let file: SceneFile = parse_json(text, path)?;
     let folder = path.parent().unwrap_or(Path::new("")).to_path_buf();
