@@ -701,6 +701,26 @@ pub fn h264_round_trip(frames: &[GreyImage], crf: u8) -> Result<Vec<GreyImage>, 
         .collect())
 }
 
+/// Checks that the `ffmpeg` tool runs and has the libx264 encoder ([`h264_round_trip`]'s
+/// needs), so that a missing tool is reported before the images are rendered.
+pub fn check_h264_tool() -> Result<(), RenderError> {
+    let output = Command::new("ffmpeg")
+        .args(["-hide_banner", "-h", "encoder=libx264"])
+        .stdin(Stdio::null())
+        .output()
+        .map_err(|e| RenderError::Imaging {
+            effect: "h264",
+            reason: format!("the `ffmpeg` command cannot be started ({e}): {INSTALL_FFMPEG_X264}"),
+        })?;
+    if !String::from_utf8_lossy(&output.stdout).contains("Encoder libx264") {
+        return Err(RenderError::Imaging {
+            effect: "h264",
+            reason: format!("this ffmpeg has no libx264 encoder: {INSTALL_FFMPEG_X264}"),
+        });
+    }
+    Ok(())
+}
+
 /// Runs `ffmpeg [before] -i file:INPUT [after] file:OUTPUT`, quiet but for errors.
 fn run_ffmpeg(
     before: &[&str],
