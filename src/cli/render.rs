@@ -623,7 +623,20 @@ pub fn render_set(
             board: board.clone(),
             poses,
         };
-        render_scene(&scene, options, bits, engine, &truth_dir, quiet)?;
+        // The imaging effects' own draws for each camera's in-air views (their image indices
+        // repeat the water views' and the other cameras'); nothing changes without them.
+        let air_options = RenderOptions {
+            imaging: Imaging {
+                seed: options
+                    .imaging
+                    .seed
+                    .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                    .wrapping_add(1 + k as u64),
+                ..options.imaging
+            },
+            ..options.clone()
+        };
+        render_scene(&scene, &air_options, bits, engine, &truth_dir, quiet)?;
         let air = dir.join("air");
         std::fs::create_dir_all(&air)
             .with_context(|| format!("cannot create {}", air.display()))?;
