@@ -157,6 +157,15 @@ board corner projected through the port by the model; for a ChArUco board, --boa
 every corner inside the image and null for the others). A rig whose port has index_water equal to
 index_air and no layers renders in-air images.
 
+--imaging SEVERITY adds what real cameras add (src/render/imaging.rs): defocus (a disc blur that
+varies from image to image and grows to the corners), motion blur, vignetting, a light gradient,
+lost contrast, backscatter (specks and a veil), shot and read noise, JPEG; 0 is none, 1 as real
+underwater cameras give it, 2 harsher. --defocus, --motion-blur, --vignetting, --gradient,
+--contrast, --backscatter, --veil, --shot-noise, --read-noise, --jpeg replace the preset's values;
+--h264 CRF encodes each camera's sequence with libx264 (the ffmpeg tool) and writes the decoded
+frames back as PNG. Everything is seeded by --seed and the image; the corners and truth files
+stay the exact geometry.
+
 With --scene SCENE.json it renders a textured scene instead (planes, height fields, spheres with
 procedural noise or image textures; see data/scenes/ and docs/stereo.md): every sub-sample of every
 pixel is back-projected exactly and meets the nearest surface; writes DIR/CAMERA/frame_NNN.png,
@@ -168,6 +177,8 @@ Examples:
   flatport render --rig data/example_rig.json --board 9x6@0.04 --views 15 --seed 1 --noise 2 --output shots
   flatport render --rig rig.json --truth scene/truth.json --board 9x6@0.04 --blur 0.8 --output shots
   flatport render --rig data/example_rig.json --board data/boards/charuco_7x5.json --views 15 --output shots
+  flatport render --rig data/example_rig.json --calibration-set --imaging 1 --output set
+  flatport render --rig data/example_rig.json --calibration-set --imaging 2 --jpeg 0 --h264 28 --output harsh
   flatport detect --board 9x6@0.04 --images left='shots/left/*.png' --images right='shots/right/*.png' -o obs.json")]
     Render(render::RenderArgs),
     /// Dense refraction-exact multi-view stereo: depth maps, points and point clouds from a rig's images

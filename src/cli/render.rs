@@ -12,12 +12,14 @@ use nalgebra::{Isometry3, Point2};
 use flatport::calib::{SceneSpec, Target, simulate};
 use flatport::detect::BoardSpec;
 use flatport::engine::Engine;
+use flatport::io::stereo_files::read_grey_f32;
 use flatport::io::{
     DetectedView, Truth, read_rig, read_truth, write_detections, write_grey_png, write_grey16_png,
     write_rig, write_truth,
 };
 use flatport::model::Rig;
-use flatport::render::{RenderOptions, render_board_spec};
+use flatport::render::imaging::h264_round_trip;
+use flatport::render::{Imaging, RenderOptions, render_board_spec};
 
 use super::progress::Progress;
 
@@ -88,6 +90,150 @@ pub struct RenderArgs {
     quiet: bool,
     #[command(flatten)]
     engine: super::EngineArgs,
+    #[command(flatten)]
+    imaging: ImagingArgs,
+}
+
+/// What a real camera adds to the images (`flatport::render::imaging`): a preset by severity,
+/// and each effect's size (which replaces the preset's).
+#[derive(Debug, Args)]
+#[command(next_help_heading = "Imaging (what real cameras add; the corners files stay exact)")]
+pub struct ImagingArgs {
+    /// Every effect at this severity: 0 none, 1 as real underwater cameras give it (defocus
+    /// 0.6-1.6 px, vignetting 35 %, light gradient ±20 %, contrast -40 %, backscatter, noise,
+    /// JPEG 75), 2 harsher (defocus 1.0-2.4 px, motion blur 2 px, JPEG 50, stronger noise);
+    /// linear in between. The options below replace single values
+    #[arg(long, value_name = "SEVERITY", value_parser = parse_severity)]
+    imaging: Option<f64>,
+    /// Defocus: radius of the blur disc at the image centre, pixels (mean over the images)
+    #[arg(long, value_name = "PX", value_parser = super::values::non_negative)]
+    defocus: Option<f64>,
+    /// Defocus: the centre's radius varies by ± this much from image to image, pixels
+    #[arg(long, value_name = "PX", value_parser = super::values::non_negative)]
+    defocus_variation: Option<f64>,
+    /// Defocus: radius added at the image corners (field curvature), pixels
+    #[arg(long, value_name = "PX", value_parser = super::values::non_negative)]
+    defocus_corner: Option<f64>,
+    /// Motion blur: length of the streak, pixels, at a random angle per image
+    #[arg(long, value_name = "PX", value_parser = super::values::non_negative)]
+    motion_blur: Option<f64>,
+    /// Vignetting: fraction of the centre's light lost at the corners (0.35: corners at 65 %)
+    #[arg(long, value_name = "F", value_parser = fraction)]
+    vignetting: Option<f64>,
+    /// Light gradient: ± this fraction of the light across the image, at a random direction
+    #[arg(long, value_name = "F", value_parser = fraction)]
+    gradient: Option<f64>,
+    /// Contrast lost: grey levels scaled by 1 - F about mid-grey (0.4: black 0.2, white 0.8)
+    #[arg(long, value_name = "F", value_parser = fraction)]
+    contrast: Option<f64>,
+    /// Backscatter: mean number of bright specks per megapixel (Gaussian blobs of 0.5-3 px)
+    #[arg(long, value_name = "PER_MPX", value_parser = super::values::non_negative)]
+    backscatter: Option<f64>,
+    /// Backscatter: peak brightness of the brightest specks, grey 0-1 (default 0.5)
+    #[arg(long, value_name = "GREY", value_parser = fraction)]
+    speck_brightness: Option<f64>,
+    /// Backscatter: veil (haze) added everywhere, grey 0-1
+    #[arg(long, value_name = "GREY", value_parser = fraction)]
+    veil: Option<f64>,
+    /// Shot noise: the sensor's full well, electrons at white (noise variance = grey / E; 0 = none)
+    #[arg(long, value_name = "ELECTRONS", value_parser = super::values::non_negative)]
+    shot_noise: Option<f64>,
+    /// Read noise: standard deviation, grey levels of 255
+    #[arg(long, value_name = "GREY", value_parser = super::values::non_negative)]
+    read_noise: Option<f64>,
+    /// JPEG compression at this quality, 1-100 (0 = none)
+    #[arg(long, value_name = "Q", value_parser = clap::value_parser!(u8).range(0..=100))]
+    jpeg: Option<u8>,
+    /// H.264 compression of each camera's sequence (libx264 through the ffmpeg tool) at this
+    /// constant rate factor, 0-51 (23 is x264's default; higher is worse); the PNG files hold
+    /// the decoded frames
+    #[arg(long, value_name = "CRF", value_parser = clap::value_parser!(u8).range(0..=51))]
+    h264: Option<u8>,
+}
+
+impl ImagingArgs {
+    /// The preset (or nothing) with the options given replacing its values, seeded by `seed`.
+    fn imaging(&self, seed: u64) -> anyhow::Result<Imaging> {
+        let mut imaging = Imaging::preset(self.imaging.unwrap_or(0.0), seed)?;
+        let set = |field: &mut f64, value: Option<f64>| {
+            if let Some(value) = value {
+                *field = value;
+            }
+        };
+        set(&mut imaging.defocus.radius_px, self.defocus);
+        set(&mut imaging.defocus.variation_px, self.defocus_variation);
+        set(&mut imaging.defocus.corner_px, self.defocus_corner);
+        set(&mut imaging.motion_blur_px, self.motion_blur);
+        set(&mut imaging.vignetting, self.vignetting);
+        set(&mut imaging.gradient, self.gradient);
+        set(&mut imaging.contrast, self.contrast);
+        set(&mut imaging.backscatter.specks_per_mpx, self.backscatter);
+        set(
+            &mut imaging.backscatter.speck_brightness,
+            self.speck_brightness,
+        );
+        if self.backscatter.is_some_and(|b| b > 0.0) && imaging.backscatter.speck_brightness == 0.0
+        {
+            imaging.backscatter.speck_brightness = 0.5;
+        }
+        set(&mut imaging.backscatter.veil, self.veil);
+        set(&mut imaging.noise.full_well_e, self.shot_noise);
+        set(&mut imaging.noise.read_noise, self.read_noise);
+        if let Some(q) = self.jpeg {
+            imaging.jpeg_quality = (q > 0).then_some(q);
+        }
+        if self.h264.is_some() {
+            imaging.h264_crf = self.h264;
+            flatport::render::imaging::check_h264_tool()?;
+        }
+        imaging.check()?;
+        Ok(imaging)
+    }
+}
+
+/// A severity from 0 to 2.
+fn parse_severity(text: &str) -> Result<f64, String> {
+    let value = super::values::non_negative(text)?;
+    if value <= 2.0 {
+        Ok(value)
+    } else {
+        Err(format!(
+            "a severity from 0 (none) to 2 (harsh), got {value}"
+        ))
+    }
+}
+
+/// A fraction from 0 to 1 (below 1 where the effect needs it: the range check says).
+fn fraction(text: &str) -> Result<f64, String> {
+    let value = super::values::non_negative(text)?;
+    if value <= 1.0 {
+        Ok(value)
+    } else {
+        Err(format!("a fraction from 0 to 1, got {value}"))
+    }
+}
+
+/// Replaces the PNG files of one camera's sequence, in order, by their H.264 round trip at
+/// `crf` ([`flatport::render::imaging::h264_round_trip`]), written back with `bits` per pixel.
+pub fn h264_sequence(paths: &[PathBuf], crf: u8, bits: u8) -> anyhow::Result<()> {
+    let frames = paths
+        .iter()
+        .map(|path| read_grey_f32(path).map_err(anyhow::Error::from))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let folder = paths
+        .first()
+        .and_then(|p| p.parent())
+        .map_or_else(String::new, |p| p.display().to_string());
+    let decoded = h264_round_trip(&frames, crf)
+        .with_context(|| format!("{folder}: H.264 of the camera's {} frames", frames.len()))?;
+    for (path, image) in paths.iter().zip(&decoded) {
+        if bits == 16 {
+            write_grey16_png(path, &image.to_u16(), image.width, image.height)?;
+        } else {
+            write_grey_png(path, &image.to_u8(), image.width, image.height)?;
+        }
+    }
+    Ok(())
 }
 
 /// `NEAR:FAR` in metres, 0 < NEAR < FAR.
@@ -123,7 +269,9 @@ pub struct Scene {
 }
 
 /// Renders every camera's image of every pose into `dir`/CAMERA/view_NNN.png, writes rig.json,
-/// truth.json and corners.json (the exact corners). Returns the image paths per camera.
+/// truth.json and corners.json (the exact corners, whatever the imaging effects). With H.264
+/// (`options.imaging.h264_crf`) each camera's sequence is then encoded and decoded and its PNG
+/// files rewritten. Returns the image paths per camera.
 pub fn render_scene(
     scene: &Scene,
     options: &RenderOptions,
@@ -244,6 +392,11 @@ pub fn render_scene(
         writer.join().expect("the PNG writer does not panic")?;
         result
     })?;
+    if let Some(crf) = options.imaging.h264_crf {
+        for camera in &paths {
+            h264_sequence(camera, crf, bits)?;
+        }
+    }
     Ok(paths)
 }
 
@@ -257,6 +410,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
                 blur_px: args.blur,
                 noise: args.noise,
                 seed: args.seed,
+                imaging: args.imaging.imaging(args.seed)?,
                 ..RenderOptions::default()
             },
             bits: args.bits,
@@ -314,6 +468,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
         noise: args.noise,
         seed: args.seed,
         border_squares: args.border,
+        imaging: args.imaging.imaging(args.seed)?,
         ..RenderOptions::default()
     };
     let engine = args.engine.engine()?;
@@ -352,6 +507,7 @@ fn render_calibration_set(args: &RenderArgs, rig: &Rig, board: &BoardSpec) -> an
         noise: args.noise,
         seed: args.seed,
         border_squares: args.border,
+        imaging: args.imaging.imaging(args.seed)?,
         ..RenderOptions::default()
     };
     let engine = args.engine.engine()?;
@@ -467,7 +623,20 @@ pub fn render_set(
             board: board.clone(),
             poses,
         };
-        render_scene(&scene, options, bits, engine, &truth_dir, quiet)?;
+        // The imaging effects' own draws for each camera's in-air views (their image indices
+        // repeat the water views' and the other cameras'); nothing changes without them.
+        let air_options = RenderOptions {
+            imaging: Imaging {
+                seed: options
+                    .imaging
+                    .seed
+                    .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                    .wrapping_add(1 + k as u64),
+                ..options.imaging
+            },
+            ..options.clone()
+        };
+        render_scene(&scene, &air_options, bits, engine, &truth_dir, quiet)?;
         let air = dir.join("air");
         std::fs::create_dir_all(&air)
             .with_context(|| format!("cannot create {}", air.display()))?;

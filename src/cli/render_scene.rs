@@ -17,7 +17,8 @@ pub struct SceneRun<'a> {
     pub scene: &'a Path,
     /// --rig, which replaces the scene file's rig.
     pub rig: Option<&'a Path>,
-    /// Supersampling (every pixel), blur, noise, seed.
+    /// Supersampling (every pixel), blur, noise, seed, imaging effects (H.264 on each camera's
+    /// frames once all are written).
     pub options: RenderOptions,
     /// 8 or 16 bits per pixel.
     pub bits: u8,
@@ -53,6 +54,7 @@ pub fn run(run: SceneRun) -> anyhow::Result<()> {
     let mut progress = Progress::new("render", "images", run.quiet);
     let started = std::time::Instant::now();
     let mut done = 0;
+    let mut pngs = vec![Vec::new(); names.len()];
     for frame in 0..scene.frames.len() {
         for (k, camera) in cameras.iter().enumerate() {
             let seed = run
@@ -92,8 +94,14 @@ pub fn run(run: SceneRun) -> anyhow::Result<()> {
                 &[image.height as usize, image.width as usize],
                 &view.depth,
             )?;
+            pngs[k].push(png);
             done += 1;
             progress.update(done, total);
+        }
+    }
+    if let Some(crf) = run.options.imaging.h264_crf {
+        for camera in &pngs {
+            super::render::h264_sequence(camera, crf, run.bits)?;
         }
     }
     outln!(

@@ -20,15 +20,20 @@
 //! margin (tests/charuco.rs compares the pattern with OpenCV's image pixel for pixel). Every marker
 //! cell and every white strip around a marker is its own uniform cell for the supersampling.
 //!
+//! What real cameras add (defocus, motion blur, vignetting, uneven light, low contrast,
+//! backscatter, sensor noise, JPEG and H.264): [`imaging`], applied after the blur and noise.
+//!
 //! Textured scenes (planes, height fields and spheres with procedural or image textures) and
 //! their exact depth maps: [`scene`], [`textured`].
 
+pub mod imaging;
 pub mod noise;
 pub mod scene;
 pub mod textured;
 
 /// The images rendered here are the stereo matcher's input.
 pub use crate::stereo::GreyImage;
+pub use imaging::Imaging;
 pub use scene::{
     Extent, Hit, ImageTexture, Relief, Shape, Sphere, Surface, SurfaceFrame, Texture,
     TexturedScene, Wave,
@@ -82,10 +87,14 @@ pub struct RenderOptions {
     pub border_squares: f64,
     /// Grey levels.
     pub shades: Shades,
+    /// What a real camera adds, after the blur and the noise ([`Imaging::apply`] with the seed
+    /// above as the image's index; H.264 is a sequence's, not applied here). Default: nothing.
+    pub imaging: Imaging,
 }
 
 impl Default for RenderOptions {
-    /// 8 × 8 sub-samples on edges, no blur, no noise, a white border of one square.
+    /// 8 × 8 sub-samples on edges, no blur, no noise, a white border of one square, no imaging
+    /// effects.
     fn default() -> Self {
         Self {
             supersample: 8,
@@ -94,6 +103,7 @@ impl Default for RenderOptions {
             seed: 1,
             border_squares: 1.0,
             shades: Shades::default(),
+            imaging: Imaging::default(),
         }
     }
 }
@@ -110,6 +120,14 @@ pub enum RenderError {
         /// The option.
         option: &'static str,
         /// What is wrong.
+        reason: String,
+    },
+    /// An imaging effect failed (JPEG, H.264: `ffmpeg` missing or failing).
+    #[error("{effect}: {reason}")]
+    Imaging {
+        /// The effect.
+        effect: &'static str,
+        /// What went wrong, and what to install where a tool is missing.
         reason: String,
     },
 }
@@ -350,12 +368,16 @@ fn render_pattern(
         height,
         pixels,
     };
-    Ok(finish_image(image, options))
+    finish_image(image, options)
 }
 
 /// The options' Gaussian blur, then their Gaussian noise (one generator per image row, seeded
-/// from the seed and the row: the same image whatever the number of threads).
-pub(crate) fn finish_image(mut image: GreyImage, options: &RenderOptions) -> GreyImage {
+/// from the seed and the row: the same image whatever the number of threads), then their imaging
+/// effects (the seed as the image's index).
+pub(crate) fn finish_image(
+    mut image: GreyImage,
+    options: &RenderOptions,
+) -> Result<GreyImage, RenderError> {
     use rayon::prelude::*;
     let w = image.width as usize;
     if options.blur_px > 0.0 {
@@ -390,7 +412,8 @@ pub(crate) fn finish_image(mut image: GreyImage, options: &RenderOptions) -> Gre
                 }
             });
     }
-    image
+    options.imaging.apply(&mut image, options.seed)?;
+    Ok(image)
 }
 
 fn check_options(options: &RenderOptions) -> Result<(), RenderError> {
@@ -416,7 +439,7 @@ fn check_options(options: &RenderOptions) -> Result<(), RenderError> {
             format!("0 to 100 squares, got {}", options.border_squares),
         );
     }
-    Ok(())
+    options.imaging.check()
 }
 
 /// The board point (in squares) each pixel centre sees, NaN where its ray has no answer or does

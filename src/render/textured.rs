@@ -136,7 +136,7 @@ pub fn render_textured(
         pixels,
     };
     Ok(RenderedView {
-        image: finish_image(image, options),
+        image: finish_image(image, options)?,
         depth,
     })
 }
