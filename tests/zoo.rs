@@ -235,7 +235,7 @@ fn score(truth: &Rig, found: &Rig, report: &Value, row: &mut Row) {
         row.air = worst(row.air, (air * 1e3, air / sd));
     }
     let cameras = report["cameras"].as_array().cloned().unwrap_or_default();
-    for (k, t) in truth.cameras().iter().enumerate().skip(1) {
+    for t in truth.cameras().iter().skip(1) {
         let Some(j) = found.camera_index(&t.name) else {
             continue;
         };
@@ -246,8 +246,10 @@ fn score(truth: &Rig, found: &Rig, report: &Value, row: &mut Row) {
             .angle_to(&f.cam_from_master.rotation)
             .to_degrees();
         let centre = (t.centre_in_master() - f.centre_in_master()).norm() * 1e3;
+        // The report's camera by name (the calibrated rig's order need not be the truth's).
         let sr = cameras
-            .get(k)
+            .iter()
+            .find(|c| c["name"].as_str() == Some(t.name.as_str()))
             .and_then(|c| c["rotation_std_deg"].as_array())
             .map_or(f64::NAN, |s| {
                 s.iter()
