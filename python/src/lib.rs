@@ -714,8 +714,8 @@ fn calibrate_images(
     let fit = &result.calibration.report;
     if !fit.fits {
         let why = format!(
-            "the calibration does not fit: the reprojection RMS is {:.2} px in the worst camera. What the data look like: {}. {}{}",
-            fit.worst_inlier_rms_px(),
+            "the calibration does not fit: {}. What the data look like: {}. {}{}",
+            result.verdict.why.join("; "),
             fit.diagnosis.join("; "),
             output.as_ref().map_or("No rig returned".to_string(), |p| format!("{} not written", p.display())),
             report.as_ref().map_or(String::new(), |p| format!("; the report is in {}", p.display()))

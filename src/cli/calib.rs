@@ -95,8 +95,8 @@ pub struct CalibrateArgs {
     /// the board's poses [default: 40 in air, 60 under water]
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(3..), help_heading = "From images")]
     pub max_frames: Option<u64>,
-    /// Share of the underwater frames (seen by two or more cameras) held out of the fit and
-    /// reported on
+    /// Share of the underwater frames (seen by two or more cameras; with one camera, any) held
+    /// out of the fit: the verdict (good / usable / poor) rests on how well the rig explains them
     #[arg(
         long,
         value_name = "SHARE",
@@ -104,6 +104,10 @@ pub struct CalibrateArgs {
         help_heading = "From images"
     )]
     pub holdout: f64,
+    /// Refine every camera's lens with the underwater frames: auto (kept where the held-out
+    /// frames' RMS falls by more than 2 %), never, or always
+    #[arg(long, value_name = "WHEN", default_value = "auto", value_parser = ["auto", "never", "always"], help_heading = "From images")]
+    pub refine_intrinsics: String,
     /// No progress bars
     #[arg(long, short, help_heading = "From images")]
     pub quiet: bool,
@@ -158,7 +162,8 @@ pub struct CalibrateArgs {
     /// fit: above it the report (if asked for) is written with what the data look like, the rig
     /// is not written, and the exit status is 1. Default: 3 px, and a maximum-likelihood fit
     /// within 3 × the corner noise seen in the images + 0.2 px (a fit far above the noise is
-    /// plainly wrong); a value given here is the bound, whatever the noise
+    /// plainly wrong); a value given here is the bound, whatever the noise. With --images:
+    /// 2 px, and the held-out frames judge the rest (docs/calibration.md, "From images alone")
     #[arg(long, value_name = "PX")]
     pub max_rms_px: Option<f64>,
     /// Truth of a simulated scene (from `flatport simulate`; with --targetless the true RIG.json):

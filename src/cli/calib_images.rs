@@ -9,7 +9,7 @@ use anyhow::{Context, bail};
 use flatport::calib::Board;
 use flatport::calib::Options;
 use flatport::calib::pipeline::boards::{
-    BoardsCalibration, BoardsOptions, PortKind, RigSetup, calibrate_from_boards,
+    BoardsCalibration, BoardsOptions, PortKind, RefineIntrinsics, RigSetup, calibrate_from_boards,
 };
 use flatport::calib::pipeline::intrinsics::{
     IntrinsicsFit, IntrinsicsOptions, calibrate_intrinsics,
@@ -108,6 +108,11 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
             ..Options::default()
         },
         holdout: args.holdout,
+        refine_intrinsics: match args.refine_intrinsics.as_str() {
+            "never" => RefineIntrinsics::Never,
+            "always" => RefineIntrinsics::Always,
+            _ => RefineIntrinsics::Auto,
+        },
         ..BoardsOptions::default()
     };
     eprintln!(
@@ -133,8 +138,8 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
     let report = &result.calibration.report;
     if !report.fits {
         bail!(
-            "the calibration does not fit: the reprojection RMS is {:.2} px in the worst camera. What the data look like: {}. {} not written{}",
-            report.worst_inlier_rms_px(),
+            "the calibration does not fit: {}. What the data look like: {}. {} not written{}",
+            result.verdict.why.join("; "),
             report.diagnosis.join("; "),
             args.output.display(),
             args.report.as_ref().map_or(String::new(), |p| format!(
@@ -337,4 +342,5 @@ fn print_result(result: &BoardsCalibration, names: &[String]) {
     if let Some(choice) = &result.intrinsics {
         outln!("intrinsics: {}", choice.reason);
     }
+    outln!("verdict: {}", result.verdict.line());
 }

@@ -236,6 +236,7 @@ fn footage_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyh
         frame_step: None,
         max_frames: None,
         holdout: flatport::calib::pipeline::boards::DEFAULT_HOLDOUT,
+        refine_intrinsics: "auto".into(),
         quiet: true,
         targetless: false,
         frames: None,

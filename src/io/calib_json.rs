@@ -847,6 +847,8 @@ pub fn boards_report_to_json_string(
         })
     });
     let extra = json!({
+        "verdict": {"grade": result.verdict.grade.name(), "why": result.verdict.why},
+        "fitted_squares_median_error_percent": result.fitted_squares_percent.and_then(finite),
         "intrinsics": fits,
         "held_out": held_out,
         "dropped_frames": result.dropped.iter().map(|(f, why)| json!({"frame": f, "why": why})).collect::<Vec<_>>(),

@@ -1,19 +1,23 @@
 //! A whole rig from board views alone: the cameras calibrated in air (given, or by the in-air
 //! intrinsics stage), their extrinsics started from the board co-observations under water
-//! ([`extrinsics_start`]), then the one calibration ([`calibrate_with_progress`]) over the
+//! ([`extrinsics_start`]), then the one calibration ([`calibrate_unjudged`]) over the
 //! ports, the extrinsics and every board pose, under a Huber loss; frames far above the others
 //! dropped and the calibration run again; a share of the frames held out and reported; the
 //! intrinsics refined with the frames where the held-out frames say it helps
-//! ([`RefineIntrinsics`]).
+//! ([`RefineIntrinsics`]); and the verdict, from what the held-out frames say of the fit
+//! ([`acceptance`](super::acceptance)).
 //!
 //! What `flatport calibrate --images DIR --board BOARD.json --port …` runs once the boards are
 //! detected (no I/O here: frames come as corners).
 
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 
+use super::acceptance::{PLAIN_RMS_PX, Residuals, Verdict, verdict};
 use super::bundle::{Bundle, Estimate, MIN_START_AIR_M, State, shared_distance_floor};
 use super::extrinsics::{Link, extrinsics_start};
-use super::{Calibration, Options, Progress, calibrate_with_progress, fit_briefly, poses, rms};
+use super::{
+    Calibration, Options, Progress, calibrate_unjudged, diagnose_misfit, fit_briefly, poses, rms,
+};
 use crate::calib::error::CalibError;
 use crate::calib::problem::board::Board;
 use crate::calib::problem::observations::{
@@ -84,6 +88,20 @@ pub enum RefineIntrinsics {
     Auto,
     /// Keep the in-air intrinsics fixed.
     Never,
+    /// Refine them whenever the refined fit fits, whatever the held-out frames say (they are
+    /// still reported).
+    Always,
+}
+
+impl RefineIntrinsics {
+    /// `auto`, `never` or `always`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Never => "never",
+            Self::Always => "always",
+        }
+    }
 }
 
 /// Share by which the held-out frames' RMS must fall for [`RefineIntrinsics::Auto`] to keep the
@@ -201,6 +219,12 @@ pub struct BoardsCalibration {
     /// [`RefineIntrinsics::Never`], with intrinsics estimated in
     /// [`BoardsOptions::calibration`] already, or without held-out frames).
     pub intrinsics: Option<IntrinsicsChoice>,
+    /// Good, usable or poor, and why ([`acceptance`](super::acceptance)); the report's
+    /// [`fits`](super::report::Report::fits) is whether it is accepted.
+    pub verdict: Verdict,
+    /// The median error of the fitted frames' squares triangulated through the rig, percent of
+    /// the square (`None` when no corner pair was seen by two cameras).
+    pub fitted_squares_percent: Option<f64>,
 }
 
 /// The start rig: `setup`'s cameras at the identity (their extrinsics come from the frames) and
@@ -248,7 +272,8 @@ pub fn start_rig(names: &[String], setup: &RigSetup) -> Result<Rig, CalibError> 
 /// water, by the steps of the module documentation.
 ///
 /// Errors: fewer than three usable frames; a camera that never shares a frame with the others
-/// (directly or through a chain); whatever [`calibrate_with_progress`] refuses.
+/// (directly or through a chain); whatever [`calibrate_unjudged`] refuses. A fit that is plainly
+/// wrong is not an error: its [`BoardsCalibration::verdict`] is poor and the report's `fits` false.
 pub fn calibrate_from_boards(
     names: &[String],
     setup: &RigSetup,
@@ -292,8 +317,10 @@ pub fn calibrate_from_boards(
             usable.push((frame.label.clone(), View { images }));
         }
     }
-    // Hold out every m-th frame seen by two or more cameras (spread over the sequence).
-    let several = |view: &View| view.images.len() >= 2;
+    // Hold out every m-th frame seen by two or more cameras (spread over the sequence; with one
+    // camera, every m-th frame).
+    let needed = names.len().min(2);
+    let several = |view: &View| view.images.len() >= needed;
     let candidates = usable.iter().filter(|(_, v)| several(v)).count();
     let held = (options.holdout.clamp(0.0, 0.5) * candidates as f64).floor() as usize;
     let mut held_out = Vec::new();
@@ -355,7 +382,10 @@ pub fn calibrate_from_boards(
         extrinsics: names.len() > 1,
         ..calibration_options.estimate
     };
-    let mut calibration = calibrate_with_progress(
+    // The fits are held to the plain bound only: the held-out frames judge them below.
+    let rms_bound = options.calibration.max_rms_px.unwrap_or(PLAIN_RMS_PX);
+    calibration_options.max_rms_px = Some(rms_bound);
+    let mut calibration = calibrate_unjudged(
         &start,
         &observations(&fitted),
         &calibration_options,
@@ -419,7 +449,7 @@ pub fn calibrate_from_boards(
         // From the first fit: its extrinsics are far nearer than the co-observations' start, so
         // the consecutive method (which takes them as given) can run.
         let first = calibration.rig.clone();
-        calibration = calibrate_with_progress(
+        calibration = calibrate_unjudged(
             &first,
             &observations(&fitted),
             &calibration_options,
@@ -437,10 +467,12 @@ pub fn calibrate_from_boards(
         )?)
     };
     let mut intrinsics = None;
-    if let Some(fixed) = &validation
-        && options.refine_intrinsics == RefineIntrinsics::Auto
-        && !calibration_options.estimate.intrinsics
-    {
+    let refine = match options.refine_intrinsics {
+        RefineIntrinsics::Auto => validation.is_some(),
+        RefineIntrinsics::Always => true,
+        RefineIntrinsics::Never => false,
+    };
+    if refine && !calibration_options.estimate.intrinsics {
         // The same frames again, the intrinsics estimated too, from the fixed fit's rig.
         let refined_options = Options {
             estimate: Estimate {
@@ -449,42 +481,98 @@ pub fn calibrate_from_boards(
             },
             ..calibration_options.clone()
         };
-        let refined = calibrate_with_progress(
+        let refined = calibrate_unjudged(
             &calibration.rig,
             &observations(&fitted),
             &refined_options,
             progress,
-        )
-        .ok()
-        .filter(|c| c.report.fits)
-        .and_then(|c| {
-            let v = validate(&c.rig, board, &observations(&held_out), &held_out).ok()?;
-            Some((c, v))
+        );
+        let refined = match refined {
+            Ok(c) if c.report.fits => Ok(c),
+            Ok(c) => Err(format!(
+                "its RMS is {:.2} px in the worst camera",
+                c.report.worst_inlier_rms_px()
+            )),
+            Err(e) => Err(e.to_string()),
+        };
+        let checked = refined.and_then(|c| {
+            if held_out.is_empty() {
+                return Ok((c, None));
+            }
+            validate(&c.rig, board, &observations(&held_out), &held_out)
+                .map(|v| (c, Some(v)))
+                .map_err(|e| format!("its held-out frames do not fit: {e}"))
         });
-        let refined_rms_px = refined.as_ref().map_or(f64::INFINITY, |(_, v)| v.rms_px);
-        let better = refined_rms_px < (1.0 - REFINE_MARGIN) * fixed.rms_px;
-        let reason = format!(
-            "held-out RMS {:.4} px with the in-air intrinsics fixed, {refined_rms_px:.4} px refined: {}",
-            fixed.rms_px,
-            if better {
-                format!("refined (more than {:.0} % lower)", 100.0 * REFINE_MARGIN)
-            } else {
+        let fixed_rms_px = validation.as_ref().map_or(f64::NAN, |v| v.rms_px);
+        let refined_rms_px = match &checked {
+            Ok((_, Some(v))) => v.rms_px,
+            _ => f64::INFINITY,
+        };
+        let (keep, reason) = match (&checked, options.refine_intrinsics) {
+            (Err(why), _) => (
+                false,
+                format!("kept fixed: the fit with the intrinsics refined failed ({why})"),
+            ),
+            (Ok(_), RefineIntrinsics::Always) => (
+                true,
                 format!(
-                    "kept fixed (refinement lowers it by no more than {:.0} %)",
-                    100.0 * REFINE_MARGIN
+                    "refined (--refine-intrinsics always; held-out RMS {fixed_rms_px:.4} px fixed, {refined_rms_px:.4} px refined)"
+                ),
+            ),
+            (Ok(_), _) => {
+                let better = refined_rms_px < (1.0 - REFINE_MARGIN) * fixed_rms_px;
+                (
+                    better,
+                    format!(
+                        "held-out RMS {fixed_rms_px:.4} px with the in-air intrinsics fixed, {refined_rms_px:.4} px refined: {}",
+                        if better {
+                            format!("refined (more than {:.0} % lower)", 100.0 * REFINE_MARGIN)
+                        } else {
+                            format!(
+                                "kept fixed (refinement lowers it by no more than {:.0} %)",
+                                100.0 * REFINE_MARGIN
+                            )
+                        }
+                    ),
                 )
             }
-        );
+        };
         intrinsics = Some(IntrinsicsChoice {
-            refined: better,
-            fixed_rms_px: fixed.rms_px,
+            refined: keep,
+            fixed_rms_px,
             refined_rms_px,
             reason,
         });
-        if better && let Some((c, v)) = refined {
+        if keep && let Ok((c, v)) = checked {
             calibration = c;
-            validation = Some(v);
+            validation = v;
         }
+    }
+    // The verdict: the fit's residuals against what the held-out frames say.
+    let fitted_squares_percent = {
+        let seen = observations(&fitted).resolve(&calibration.rig)?;
+        let mut errors: Vec<f64> = seen
+            .iter()
+            .flat_map(|view| square_errors(&calibration.rig, board, view))
+            .map(f64::abs)
+            .collect();
+        median(&mut errors).map(|m| 100.0 * m / board.square)
+    };
+    let verdict = verdict(
+        Residuals::of(&calibration.report),
+        fitted_squares_percent,
+        validation.as_ref(),
+        rms_bound,
+    );
+    let report = &mut calibration.report;
+    report.fits = verdict.accepted();
+    if !report.fits {
+        diagnose_misfit(&start, &observations(&fitted), report, &calibration_options)?;
+        report.warnings.push(format!(
+            "the calibration is plainly wrong ({}). What the data look like: {}",
+            verdict.why.join("; "),
+            report.diagnosis.join("; ")
+        ));
     }
     Ok(BoardsCalibration {
         calibration,
@@ -496,6 +584,8 @@ pub fn calibrate_from_boards(
         left_out,
         validation,
         intrinsics,
+        verdict,
+        fitted_squares_percent,
     })
 }
 
@@ -554,27 +644,12 @@ pub fn validate(
     let pose_only = Bundle::new(rig, &target, &seen, Estimate::NOTHING, None);
     let fitted = fit_briefly(&pose_only, pinhole, 50);
     let rms_px = rms(&pose_only, &fitted);
-    let mut errors = Vec::new();
-    for view in &seen {
-        let points = triangulate_view(rig, board, view);
-        for (i, p) in points.iter().enumerate() {
-            let Some(p) = p else { continue };
-            let (r, c) = board.grid_position(i);
-            let right = (c + 1 < board.cols).then(|| i + 1);
-            let below = (r + 1 < board.rows).then(|| i + board.cols);
-            for j in [right, below].into_iter().flatten() {
-                if let Some(q) = points[j] {
-                    errors.push((p - q).norm() - board.square);
-                }
-            }
-        }
-    }
+    let errors: Vec<f64> = seen
+        .iter()
+        .flat_map(|view| square_errors(rig, board, view))
+        .collect();
     let mut absolute: Vec<f64> = errors.iter().map(|e| e.abs()).collect();
-    absolute.sort_by(f64::total_cmp);
-    let median = absolute
-        .get(absolute.len() / 2)
-        .copied()
-        .unwrap_or(f64::NAN);
+    let median = median(&mut absolute).unwrap_or(f64::NAN);
     let rms_error = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len().max(1) as f64).sqrt();
     Ok(Validation {
         frames: frames.iter().map(|(label, _)| label.clone()).collect(),
@@ -584,6 +659,31 @@ pub fn validate(
         median_error_percent: 100.0 * median / board.square,
         rms_error_m: rms_error,
     })
+}
+
+/// Every pair of neighbouring corners of `view` that two or more cameras saw, triangulated
+/// through `rig` ([`triangulate_view`]): their distance minus the board's square, metres.
+pub fn square_errors(rig: &Rig, board: &Board, view: &SeenView) -> Vec<f64> {
+    let points = triangulate_view(rig, board, view);
+    let mut errors = Vec::new();
+    for (i, p) in points.iter().enumerate() {
+        let Some(p) = p else { continue };
+        let (r, c) = board.grid_position(i);
+        let right = (c + 1 < board.cols).then(|| i + 1);
+        let below = (r + 1 < board.rows).then(|| i + board.cols);
+        for j in [right, below].into_iter().flatten() {
+            if let Some(q) = points[j] {
+                errors.push((p - q).norm() - board.square);
+            }
+        }
+    }
+    errors
+}
+
+/// The median of `values` (sorted in place), `None` when empty.
+fn median(values: &mut [f64]) -> Option<f64> {
+    values.sort_by(f64::total_cmp);
+    values.get(values.len() / 2).copied()
 }
 
 /// Each corner of `view` seen by two or more cameras, triangulated as the point nearest all their

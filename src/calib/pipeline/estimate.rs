@@ -227,9 +227,17 @@ fn port_starts(
                     && options.estimate.axis
                     && options.estimate.extrinsics =>
             {
-                steps.warnings.push(format!(
-                    "the consecutive start failed ({e}); the global axis search replaced it"
-                ));
+                // A fallback, not a finding: a stage of the report, not a warning.
+                steps.stages.push(Stage {
+                    name: format!(
+                        "consecutive start: failed ({e}); the global axis search replaces it"
+                    ),
+                    port: None,
+                    cost: f64::NAN,
+                    unit: "px",
+                    iterations: 0,
+                    seconds: 0.0,
+                });
             }
             Err(e) => return Err(e),
         }
@@ -313,12 +321,18 @@ fn maximum_likelihood(
         };
         let start = &start;
         if full.cost(start).is_none_or(|c| !c.is_finite()) {
+            // Other starts follow (and no start at all is an error below): a stage, not a warning.
             let port = first_port(start);
-            steps.warnings.push(format!(
-                "{name} (tilt {:.2}°, air layer {:.1} mm) does not explain every corner (a target behind the port, or a camera outside the air): not used as a start",
-                port.tilt().to_degrees(),
-                port.air_distance * 1e3
-            ));
+            steps.stages.push(Stage {
+                name: format!(
+                    "{name}: does not explain every corner (a target behind the port, or a camera outside the air), not used as a start"
+                ),
+                port: Some(port),
+                cost: f64::NAN,
+                unit: "px",
+                iterations: 0,
+                seconds: 0.0,
+            });
             continue;
         }
         let clock = Instant::now();

@@ -25,6 +25,7 @@
 //! closed form, maximum likelihood over the lens model and the board poses, the lens terms chosen
 //! by held-out views).
 
+pub mod acceptance;
 pub mod boards;
 pub mod bundle;
 mod checks;
@@ -324,6 +325,45 @@ pub fn calibrate_with_progress(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<Calibration, CalibError> {
     let started = Instant::now();
+    let mut calibration = calibrate_unjudged(rig, observations, options, progress)?;
+    let report = &mut calibration.report;
+    let worst = report.worst_inlier_rms_px();
+    // Only a maximum-likelihood fit is expected to come down to the noise; the consecutive result
+    // (no fit of the images) is held to the bound alone.
+    let noise_bound = report
+        .noise_px
+        .filter(|_| report.sigma_px.is_some())
+        .map(|s| NOISE_FACTOR * s + NOISE_MARGIN_PX);
+    let above_noise = noise_bound.is_some_and(|b| worst > b);
+    if above_noise && options.max_rms_px.is_none() {
+        report.fits = false;
+    }
+    if !report.fits || above_noise {
+        diagnose_misfit(rig, observations, report, options)?;
+        report.warnings.push(format!(
+            "the reprojection RMS ({worst:.2} px in the worst camera, without the outliers) is {}: the model does not explain the data. What the data look like: {}",
+            match (report.noise_px, above_noise) {
+                (Some(s), true) => format!("far above the corner noise seen in the images (σ ≈ {s:.3} px; a fit comes within {NOISE_FACTOR} σ + {NOISE_MARGIN_PX} px)"),
+                (Some(s), false) => format!("above the accepted {} px (the corner noise seen in the images is σ ≈ {s:.3} px)", options.rms_bound()),
+                (None, _) => format!("above the accepted {} px", options.rms_bound()),
+            },
+            report.diagnosis.join("; ")
+        ));
+    }
+    report.seconds = started.elapsed().as_secs_f64();
+    Ok(calibration)
+}
+
+/// [`calibrate_with_progress`] without its judgement: [`Report::fits`] holds the RMS to
+/// [`Options::rms_bound`] alone, whatever the noise, and no diagnosis runs. For callers that
+/// judge the fit by other data (held-out frames: [`acceptance`]).
+pub fn calibrate_unjudged(
+    rig: &Rig,
+    observations: &Observations,
+    options: &Options,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<Calibration, CalibError> {
+    let started = Instant::now();
     checks::check_options(rig, &observations.target, options)?;
     let (observations, left_out) = &observations.without_unusable_images();
     let seen = observations.resolve(rig)?;
@@ -338,32 +378,22 @@ pub fn calibrate_with_progress(
         warnings,
         progress,
     )?;
-    let report = &mut calibration.report;
-    let worst = report.worst_inlier_rms_px();
-    // Only a maximum-likelihood fit is expected to come down to the noise; the consecutive result
-    // (no fit of the images) is held to the bound alone.
-    let noise_bound = report
-        .noise_px
-        .filter(|_| report.sigma_px.is_some())
-        .map(|s| NOISE_FACTOR * s + NOISE_MARGIN_PX);
-    let above_noise = noise_bound.is_some_and(|b| worst > b);
-    if above_noise && options.max_rms_px.is_none() {
-        report.fits = false;
-    }
-    if !report.fits || above_noise {
-        report.diagnosis = diagnose::diagnosis(rig, &observations.target, &seen, report, options);
-        report.warnings.push(format!(
-            "the reprojection RMS ({worst:.2} px in the worst camera, without the outliers) is {}: the model does not explain the data. What the data look like: {}",
-            match (report.noise_px, above_noise) {
-                (Some(s), true) => format!("far above the corner noise seen in the images (σ ≈ {s:.3} px; a fit comes within {NOISE_FACTOR} σ + {NOISE_MARGIN_PX} px)"),
-                (Some(s), false) => format!("above the accepted {} px (the corner noise seen in the images is σ ≈ {s:.3} px)", options.rms_bound()),
-                (None, _) => format!("above the accepted {} px", options.rms_bound()),
-            },
-            report.diagnosis.join("; ")
-        ));
-    }
-    report.seconds = started.elapsed().as_secs_f64();
+    calibration.report.seconds = started.elapsed().as_secs_f64();
     Ok(calibration)
+}
+
+/// Fills `report.diagnosis` (a calibration of `rig` from `observations` that does not fit): what
+/// the data look like, each cause checked by calibrating again ([`diagnose::diagnosis`]).
+pub fn diagnose_misfit(
+    rig: &Rig,
+    observations: &Observations,
+    report: &mut Report,
+    options: &Options,
+) -> Result<(), CalibError> {
+    let (observations, _) = &observations.without_unusable_images();
+    let seen = observations.resolve(rig)?;
+    report.diagnosis = diagnose::diagnosis(rig, &observations.target, &seen, report, options);
+    Ok(())
 }
 
 /// The pipeline on views already resolved and checked, without the diagnosis of a misfit (which
