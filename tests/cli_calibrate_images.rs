@@ -561,6 +561,49 @@ fn four_cameras_above_a_bare_water_surface() {
     check_bounds("water surface", &f, true);
 }
 
+/// Issue 45's route without lenses: no air/ folder and no --rig. Every lens (fx, fy, cx, cy and
+/// the terms the held-out frames choose) comes from the underwater frames with the port and the
+/// extrinsics, and the rig meets issue 38's bounds against the truth (the left camera's lens has
+/// a small decentring, p1 4e-4, p2 -3e-4: left out, its principal point moved by 1 px and the
+/// right camera's rotation by 0.09°).
+#[test]
+fn lenses_from_the_underwater_frames_alone() {
+    let calibrated = shared_pair();
+    let dir = tempfile::tempdir().unwrap();
+    let set = dir.path().join("set");
+    copy_tree(&calibrated.set, &set, &|p| {
+        p.ends_with("air") || p.ends_with("air-truth")
+    });
+    assert!(!set.join("air").exists() && set.join("water").is_dir());
+    let (rig, report) = (dir.path().join("rig.json"), dir.path().join("report.json"));
+    let out = calibrate(
+        &set,
+        &rig,
+        &report,
+        &[
+            "--port",
+            "shared",
+            "--glass",
+            "0.014:1.473",
+            "--index-air",
+            "1.003",
+        ],
+    );
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", text(&out.stderr));
+    assert!(
+        stdout.contains("lenses: lens terms k1, k2, p1, p2 chosen by the held-out frames"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("verdict: good"), "{stdout}");
+    let truth = read_rig(&calibrated.set.join("water/rig.json")).unwrap();
+    check_bounds(
+        "lenses from the underwater frames",
+        &figures(&read_rig(&rig).unwrap(), &truth),
+        false,
+    );
+}
+
 /// Every file under `from` hard-linked (or copied) to `to`, except those `skip` names.
 fn copy_tree(from: &Path, to: &Path, skip: &dyn Fn(&Path) -> bool) {
     std::fs::create_dir_all(to).unwrap();

@@ -23,6 +23,7 @@ use flatport::io::{ColmapDialect, Truth, aquacal_json, read_aquacal, colmap_came
 use flatport::io::calib_json::truth_to_json_string;
 use flatport::calib::pipeline::boards::{BoardsOptions, PortKind, RigSetup, calibrate_from_boards};
 use flatport::calib::pipeline::intrinsics::{IntrinsicsOptions, calibrate_intrinsics};
+use flatport::calib::pipeline::water_lenses::{calibrate_lenses_under_water, water_lens_start};
 use flatport::io::board_footage::{DEFAULT_MAX_AIR_VIEWS, DEFAULT_MAX_WATER_FRAMES, Footage, FootageOptions, read_board_footage};
 use flatport::io::calib_json::boards_report_to_json_string;
 use flatport::io::{read_board, write_boards_report, write_rig};
@@ -657,13 +658,25 @@ fn calibrate_images(
         frame_step,
         max_air_views: max_frames.unwrap_or(DEFAULT_MAX_AIR_VIEWS),
         max_water_frames: max_frames.unwrap_or(DEFAULT_MAX_WATER_FRAMES),
-        air: rig.is_none(),
+        // Without a rig: air/, or where there is none, the lenses from the underwater frames.
+        air: rig.is_none() && images.join("air").is_dir(),
     };
+    let water_lenses = rig.is_none() && !footage_options.air;
     let footage = py.detach(|| read_board_footage(&images, &spec, &footage_options, &mut |_, _, _| {})).map_err(value_error)?;
     let names = footage.names();
     let glass = glass_per_camera(&glass, &names, port)?;
     let (cameras, fits) = match rig {
         Some(rig) => (cameras_from_rig(&rig.rig, rig_label, &footage)?, Vec::new()),
+        None if water_lenses => {
+            let starts = footage
+                .cameras
+                .iter()
+                .enumerate()
+                .map(|(k, c)| water_lens_start(&c.name, (c.width, c.height), &grid, &footage.water, k, index_air, index_water))
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(value_error)?;
+            (starts, Vec::new())
+        }
         None => {
             let mut cameras = Vec::new();
             let mut fits = Vec::new();
@@ -706,7 +719,15 @@ fn calibrate_images(
         ..defaults
     };
     let frames = footage.water;
-    let result = py.detach(|| calibrate_from_boards(&names, &setup, &grid, &frames, &options, &mut |_| {})).map_err(value_error)?;
+    let result = py
+        .detach(|| {
+            if water_lenses {
+                calibrate_lenses_under_water(&names, &setup, &grid, &frames, &options, &mut |_| {}).map(|w| w.calibration)
+            } else {
+                calibrate_from_boards(&names, &setup, &grid, &frames, &options, &mut |_| {})
+            }
+        })
+        .map_err(value_error)?;
     let report_text = boards_report_to_json_string(&result, &names, &fits);
     if let Some(path) = &report {
         write_boards_report(path, &result, &names, &fits).map_err(value_error)?;

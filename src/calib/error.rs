@@ -128,6 +128,10 @@ pub enum CalibError {
     /// An option out of range.
     #[error("{0}")]
     Options(String),
+    /// Something the data do not determine (a lens from underwater frames alone), named, with
+    /// what would determine it.
+    #[error("{0}")]
+    NotDetermined(String),
     /// The GPU backend failed (a kernel it cannot run, a failed read-back): the
     /// [`GpuError`](crate::gpu::GpuError)'s message.
     #[error("GPU backend: {0}")]
@@ -215,7 +219,9 @@ impl CalibError {
             Self::TooFewPoses { .. } => "views".into(),
             Self::Cameras(_) => "cameras".into(),
             Self::Observation { field, .. } => field.clone(),
-            Self::NoSolution { .. } | Self::Options(_) | Self::Gpu(_) => String::new(),
+            Self::NoSolution { .. } | Self::Options(_) | Self::NotDetermined(_) | Self::Gpu(_) => {
+                String::new()
+            }
         }
     }
 }

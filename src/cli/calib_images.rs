@@ -14,6 +14,7 @@ use flatport::calib::pipeline::boards::{
 use flatport::calib::pipeline::intrinsics::{
     IntrinsicsFit, IntrinsicsOptions, calibrate_intrinsics,
 };
+use flatport::calib::pipeline::water_lenses::{calibrate_lenses_under_water, water_lens_start};
 use flatport::io::board_footage::{
     DEFAULT_MAX_AIR_VIEWS, DEFAULT_MAX_WATER_FRAMES, Footage, FootageOptions, read_board_footage,
 };
@@ -49,8 +50,11 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
         max_water_frames: args
             .max_frames
             .map_or(DEFAULT_MAX_WATER_FRAMES, |m| m as usize),
-        air: args.rig.is_none(),
+        // Without --rig the lenses come from air/, or, where there is no air/ folder, from the
+        // underwater frames themselves.
+        air: args.rig.is_none() && dir.join("air").is_dir(),
     };
+    let water_lenses = args.rig.is_none() && !footage_options.air;
     let mut bar: Option<(String, Progress)> = None;
     let footage = read_board_footage(dir, &spec, &footage_options, &mut |what, done, total| {
         if bar.as_ref().is_none_or(|(w, _)| w != what) {
@@ -78,9 +82,18 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
     for note in &footage.notes {
         eprintln!("{note}");
     }
-    // In-air intrinsics, or the rig's cameras.
+    // In-air intrinsics, the rig's cameras, or the starts from the underwater frames.
     let (cameras, fits) = match &args.rig {
         Some(path) => (cameras_from_rig(path, &footage)?, Vec::new()),
+        None if water_lenses => {
+            eprintln!(
+                "no air/ folder and no --rig: every lens from the underwater frames, with the ports and the extrinsics (docs/calibration.md, \"Lenses from underwater frames alone\")"
+            );
+            (
+                water_lens_starts(&footage, &board, index_air, index_water)?,
+                Vec::new(),
+            )
+        }
         None => air_intrinsics(&footage, &board)?,
     };
     let (read, with_board, by_two) = footage.water_read;
@@ -126,12 +139,54 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
         (100.0 * args.holdout).round()
     );
     let mut status = CalibrationStatus::new();
-    let result = calibrate_from_boards(&names, &setup, &board, &frames, &options, &mut |p| {
-        status.update(p)
-    });
+    let mut lens_choice = None;
+    let result = if water_lenses {
+        calibrate_lenses_under_water(&names, &setup, &board, &frames, &options, &mut |p| {
+            status.update(p)
+        })
+        .map(|w| {
+            lens_choice = Some(w.reason);
+            w.calibration
+        })
+    } else {
+        calibrate_from_boards(&names, &setup, &board, &frames, &options, &mut |p| {
+            status.update(p)
+        })
+    };
     status.finish();
     let result = result?;
     print_result(&result, &names);
+    if let Some(reason) = &lens_choice {
+        outln!("lenses: {reason}");
+        for camera in result.calibration.rig.cameras() {
+            let std = result
+                .calibration
+                .report
+                .cameras
+                .iter()
+                .find(|c| c.name == camera.name)
+                .and_then(|c| c.intrinsics_std);
+            let s = |j: usize| std.and_then(|s| s[j]).unwrap_or(f64::NAN);
+            let c = &camera.intrinsics;
+            outln!(
+                "{}: fx {:.2} ± {:.2}, fy {:.2} ± {:.2}, cx {:.2} ± {:.2}, cy {:.2} ± {:.2} px; distortion [{}] (from the underwater frames)",
+                camera.name,
+                c.fx,
+                s(0),
+                c.fy,
+                s(1),
+                c.cx,
+                s(2),
+                c.cy,
+                s(3),
+                c.distortion
+                    .iter()
+                    .map(|d| format!("{d:.5}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+    }
     if let Some(path) = &args.report {
         write_boards_report(path, &result, &names, &fits)?;
     }
@@ -247,6 +302,36 @@ fn cameras_from_rig(path: &Path, footage: &Footage) -> anyhow::Result<Vec<Pinhol
                 );
             }
             Ok(intrinsics)
+        })
+        .collect()
+}
+
+/// Every camera's start lens from its underwater frames (their magnification divided out).
+fn water_lens_starts(
+    footage: &Footage,
+    board: &Board,
+    index_air: f64,
+    index_water: f64,
+) -> anyhow::Result<Vec<PinholeCamera>> {
+    footage
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(k, camera)| {
+            let start = water_lens_start(
+                &camera.name,
+                (camera.width, camera.height),
+                board,
+                &footage.water,
+                k,
+                index_air,
+                index_water,
+            )?;
+            eprintln!(
+                "water/{}: lens start fx {:.1}, fy {:.1}, cx {:.1}, cy {:.1} px (the underwater views' pinhole, its focal length over n_water/n_air)",
+                camera.name, start.fx, start.fy, start.cx, start.cy
+            );
+            Ok(start)
         })
         .collect()
 }
