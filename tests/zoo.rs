@@ -9,8 +9,10 @@
 //! FP_ZOO_SEEDS=1-100 FP_ZOO_IMAGING=0 cargo test --release --test zoo -- --ignored --nocapture sweep
 //! ```
 //!
-//! writes `target/tmp/zoo/table.md` (one row a rig: what it is, the outcome or the refusal's reason,
-//! each error against its σ).
+//! writes `target/tmp/zoo/table.md` (one row a rig: what it is, the outcome and the verdict or the
+//! refusal's reason, each error against its σ). `FP_ZOO_IMAGING=SEVERITY` renders with real-camera
+//! degradations (`render --imaging`); `FP_ZOO_WATER_ONLY=1` removes the in-air views, so every lens
+//! comes from the underwater frames.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -48,6 +50,8 @@ struct Row {
     centre_mm: f64,
     /// Whether the kind is a surface (its air bound is 0.3 mm, else 1.5 mm).
     surface: bool,
+    /// The report's verdict (`good`, `usable`), where written.
+    verdict: String,
     seconds: f64,
 }
 
@@ -74,7 +78,7 @@ impl Row {
                 self.rig, why, self.seconds
             ),
             None => format!(
-                "| {} | {} | {:.4}° ({:.1}σ) | {:.3} mm ({:.1}σ) | {:.4}° ({:.1}σ) | {:.3} mm | {:.0} |",
+                "| {} | {} ({}) | {:.4}° ({:.1}σ) | {:.3} mm ({:.1}σ) | {:.4}° ({:.1}σ) | {:.3} mm | {:.0} |",
                 self.rig,
                 match (self.within_3_sigma(), self.within_bounds()) {
                     (true, true) => "ok",
@@ -82,6 +86,7 @@ impl Row {
                     (false, true) => "within bounds, over 3σ",
                     (false, false) => "OFF",
                 },
+                self.verdict,
                 self.axis.0,
                 self.axis.1,
                 self.air.0,
@@ -106,8 +111,9 @@ fn axis_std_deg(port: &Value) -> f64 {
     (st * st + (tilt.sin() * sa).powi(2)).sqrt()
 }
 
-/// Renders `zoo`'s calibration set into `dir` and calibrates it with default options.
-fn run(zoo: &ZooRig, imaging: f64, dir: &Path) -> Row {
+/// Renders `zoo`'s calibration set into `dir` and calibrates it with default options (with
+/// `water_only`, the in-air views removed first: every lens from the underwater frames).
+fn run(zoo: &ZooRig, imaging: f64, water_only: bool, dir: &Path) -> Row {
     std::fs::create_dir_all(dir).unwrap();
     let rig_path = dir.join("truth_rig.json");
     let board_path = dir.join("board.json");
@@ -151,6 +157,10 @@ fn run(zoo: &ZooRig, imaging: f64, dir: &Path) -> Row {
         zoo.describe(),
         text(&out.stderr)
     );
+    if water_only {
+        std::fs::remove_dir_all(set.join("air")).unwrap();
+        std::fs::remove_dir_all(set.join("air-truth")).unwrap();
+    }
     let found_path = dir.join("rig.json");
     let report_path = dir.join("report.json");
     let _ = std::fs::remove_file(&found_path);
@@ -189,6 +199,7 @@ fn run(zoo: &ZooRig, imaging: f64, dir: &Path) -> Row {
         centre_mm: 0.0,
         surface: zoo.port == ZooPort::Surface,
         seconds,
+        verdict: String::new(),
     };
     if !out.status.success() {
         let stderr = text(&out.stderr);
@@ -213,6 +224,10 @@ fn run(zoo: &ZooRig, imaging: f64, dir: &Path) -> Row {
     let report: Value =
         serde_json::from_str(&std::fs::read_to_string(&report_path).unwrap()).unwrap();
     score(&zoo.rig, &found, &report, &mut row);
+    row.verdict = report["verdict"]["grade"]
+        .as_str()
+        .unwrap_or("no verdict")
+        .into();
     row
 }
 
@@ -315,7 +330,7 @@ fn seeded_subset() {
     let mut rows = Vec::new();
     for seed in chosen {
         let zoo = zoo_rig(seed).unwrap();
-        let row = run(&zoo, 0.0, &out_dir(&format!("seed_{seed}")));
+        let row = run(&zoo, 0.0, false, &out_dir(&format!("seed_{seed}")));
         eprintln!("{}", row.markdown());
         rows.push(row);
     }
@@ -343,10 +358,16 @@ fn sweep() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(0.0);
+    let water_only = std::env::var("FP_ZOO_WATER_ONLY").is_ok_and(|v| v == "1");
     let mut rows = Vec::new();
     for seed in seeds(&spec) {
         let zoo = zoo_rig(seed).unwrap();
-        let row = run(&zoo, imaging, &out_dir(&format!("sweep_{seed}")));
+        let row = run(
+            &zoo,
+            imaging,
+            water_only,
+            &out_dir(&format!("sweep_{seed}")),
+        );
         eprintln!("{}", row.markdown());
         rows.push(row);
     }
