@@ -180,7 +180,9 @@ pub fn verdict(
                 ));
             }
             match (v.distances, fitted_squares_percent) {
-                (0, _) => usable.push(
+                // One camera (or cameras that never share a corner): nothing to triangulate.
+                (0, None) => good.push("no corner seen by two cameras: no squares to measure".into()),
+                (0, Some(_)) => usable.push(
                     "no corner of the held-out frames seen by two cameras: their squares are not measured".into(),
                 ),
                 (_, fitted) => {
@@ -296,6 +298,22 @@ mod tests {
             assert!(!v.accepted());
             assert!(v.line().contains(named), "{}", v.line());
         }
+    }
+
+    #[test]
+    fn one_camera_has_no_squares_to_measure_and_is_not_marked_down_for_it() {
+        let mut alone = held_out(0.03, f64::NAN);
+        alone.distances = 0;
+        let v = verdict(report(0.03, Some(0.03)), None, Some(&alone), PLAIN_RMS_PX);
+        assert_eq!(v.grade, Grade::Good, "{v:?}");
+        // Cameras that see corners together in the fitted frames but not in the held-out ones.
+        let v = verdict(
+            report(0.03, Some(0.03)),
+            Some(0.02),
+            Some(&alone),
+            PLAIN_RMS_PX,
+        );
+        assert_eq!(v.grade, Grade::Usable, "{v:?}");
     }
 
     #[test]
