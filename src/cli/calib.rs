@@ -64,8 +64,9 @@ pub struct CalibrateArgs {
     /// Also write the full report as JSON
     #[arg(long, value_name = "REPORT.json")]
     pub report: Option<PathBuf>,
-    /// From images or videos alone: DIR holds air/<camera>/ (each camera's in-air views of the
-    /// board) and water/<camera>/ (synchronized frames under water); each folder images
+    /// From images or videos alone: DIR holds water/<camera>/ (synchronized frames under water)
+    /// and, where there are any, air/<camera>/ (each camera's in-air views of the board; without
+    /// air/ and --rig the lenses come from the underwater frames); each folder images
     /// (PNG/JPEG/TIFF, sorted by name) or one video (MP4/MOV/AVI/MKV). Needs --board and --port
     #[arg(long, value_name = "DIR", help_heading = "From images")]
     pub images: Option<PathBuf>,

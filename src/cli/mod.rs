@@ -246,8 +246,12 @@ tool). The camera names are the folder names; the master is the first by name (-
 camera's lens is calibrated in air (OpenCV's model, the distortion terms the held-out views ask
 for), the extrinsics are started from the frames two cameras share (chains of frames are fine),
 then the extrinsics, the ports and every board pose by maximum likelihood under a Huber loss;
-frames far above the others are dropped, a fifth of the frames held out and reported. --rig takes
-the cameras' in-air calibration from a rig file instead of air/.
+frames far above the others are dropped, a fifth of the frames held out; the lenses refined under
+water where the held-out frames say it helps (--refine-intrinsics). --rig takes the cameras'
+in-air calibration from a rig file instead of air/; with neither air/ nor --rig, every lens comes
+from the underwater frames with the ports. The result carries a verdict from the held-out frames
+(good, usable or poor, and why); a poor one (RMS over 2 px, held-out frames or squares far off
+the fit's) writes no rig and exits 1.
   flatport calibrate --images footage --board board.json --port housings --glass 0.008:1.49 \\
       --output rig.json --report report.json
 
