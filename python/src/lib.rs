@@ -716,6 +716,7 @@ fn calibrate_images(
             ..Options::default()
         },
         holdout,
+        lens_std: fits.iter().map(|(_, fit)| fit.std).collect(),
         ..defaults
     };
     let frames = footage.water;

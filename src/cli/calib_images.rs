@@ -121,6 +121,7 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
             ..Options::default()
         },
         holdout: args.holdout,
+        lens_std: fits.iter().map(|(_, fit)| fit.std).collect(),
         refine_intrinsics: match args.refine_intrinsics.as_str() {
             "never" => RefineIntrinsics::Never,
             "always" => RefineIntrinsics::Always,
@@ -423,6 +424,13 @@ fn print_result(result: &BoardsCalibration, names: &[String]) {
             v.median_error_percent,
             v.rms_error_m * 1e3
         );
+        if v.views_left_out + v.corners_left_out > 0 {
+            outln!(
+                "  of the held-out frames, {} left out (no board pose that projects every corner) and {} corner images (misdetections, far off the board's shape)",
+                v.views_left_out,
+                v.corners_left_out
+            );
+        }
     }
     if let Some(choice) = &result.intrinsics {
         outln!("intrinsics: {}", choice.reason);

@@ -844,6 +844,8 @@ pub fn boards_report_to_json_string(
             "median_distance_error_mm": finite(v.median_error_m * 1e3),
             "median_distance_error_percent_of_square": finite(v.median_error_percent),
             "rms_distance_error_mm": finite(v.rms_error_m * 1e3),
+            "frames_left_out": v.views_left_out,
+            "corners_left_out": v.corners_left_out,
         })
     });
     let extra = json!({

@@ -242,6 +242,8 @@ mod tests {
             median_error_m: squares * 4e-4,
             median_error_percent: squares,
             rms_error_m: squares * 5e-4,
+            views_left_out: 0,
+            corners_left_out: 0,
         }
     }
 

@@ -15,8 +15,9 @@ use nalgebra::{Matrix3, Point2, Point3, Vector3};
 use super::acceptance::{PLAIN_RMS_PX, Residuals, Verdict, verdict};
 use super::bundle::{Bundle, Estimate, MIN_START_AIR_M, State, shared_distance_floor};
 use super::extrinsics::{Link, extrinsics_start};
+use super::report::add_lens_uncertainty;
 use super::{
-    Calibration, Options, Progress, calibrate_unjudged, diagnose_misfit, fit_briefly, poses, rms,
+    Calibration, Options, Progress, calibrate_unjudged, diagnose_misfit, fit_briefly, poses,
 };
 use crate::calib::error::CalibError;
 use crate::calib::problem::board::Board;
@@ -24,6 +25,7 @@ use crate::calib::problem::observations::{
     CameraKey, Image, Observations, SeenView, View, unusable_image,
 };
 use crate::calib::problem::target::Target;
+use crate::calib::solvers::lm::LeastSquares;
 use crate::model::{Interface, Layer, PinholeCamera, Ports, Rig, RigCamera};
 
 /// The kind of port in front of the cameras (`--port`).
@@ -161,6 +163,11 @@ pub struct BoardsOptions {
     /// Whether the in-air intrinsics are refined with the frames (default
     /// [`RefineIntrinsics::Auto`]: where the held-out frames say it helps).
     pub refine_intrinsics: RefineIntrinsics,
+    /// Per camera, the σ of its lens ([`INTRINSICS`](super::bundle::INTRINSICS) order) from its
+    /// in-air calibration; empty when unknown. Where the lenses stay fixed, the ports' and
+    /// extrinsics' σ then carry the lenses' uncertainty ([`add_lens_uncertainty`]) instead of
+    /// taking the lenses as exact.
+    pub lens_std: Vec<[f64; 9]>,
 }
 
 impl Default for BoardsOptions {
@@ -173,6 +180,7 @@ impl Default for BoardsOptions {
             holdout: DEFAULT_HOLDOUT,
             drop_outliers: true,
             refine_intrinsics: RefineIntrinsics::Auto,
+            lens_std: Vec::new(),
         }
     }
 }
@@ -193,6 +201,11 @@ pub struct Validation {
     pub median_error_percent: f64,
     /// RMS of distance − square, metres.
     pub rms_error_m: f64,
+    /// Frames left out of the figures: no board pose from their corners, or corners that do not
+    /// project from it.
+    pub views_left_out: usize,
+    /// Corner images left out: far off the board's smooth shape in their image (misdetections).
+    pub corners_left_out: usize,
 }
 
 /// A rig calibrated from boards.
@@ -548,6 +561,22 @@ pub fn calibrate_from_boards(
             validation = v;
         }
     }
+    // Lenses held fixed: their in-air uncertainty into the ports' and extrinsics' σ.
+    let lenses_fixed =
+        !calibration_options.estimate.intrinsics && intrinsics.as_ref().is_none_or(|c| !c.refined);
+    if lenses_fixed && options.lens_std.len() == names.len() {
+        let (fitted_observations, _) = observations(&fitted).without_unusable_images();
+        let seen = fitted_observations.resolve(&calibration.rig)?;
+        add_lens_uncertainty(
+            &mut calibration.report,
+            &calibration.rig,
+            &target,
+            &seen,
+            calibration_options.estimate,
+            calibration_options.huber,
+            &options.lens_std,
+        );
+    }
     // The verdict: the fit's residuals against what the held-out frames say.
     let fitted_squares_percent = {
         let seen = observations(&fitted).resolve(&calibration.rig)?;
@@ -640,11 +669,43 @@ pub fn validate(
 ) -> Result<Validation, CalibError> {
     let target = Target::Board(*board);
     let seen = observations.resolve(rig)?;
-    let pinhole = State::of(rig, poses::initial_poses(rig, &target, &seen)?);
-    let pose_only = Bundle::new(rig, &target, &seen, Estimate::NOTHING, None);
-    let fitted = fit_briefly(&pose_only, pinhole, 50);
-    let rms_px = rms(&pose_only, &fitted);
-    let errors: Vec<f64> = seen
+    // The corners the fit would leave out (far off the board's smooth shape in their image: a
+    // misdetection) are left out here too, or one of them decides the held-out RMS.
+    let mut notes = Vec::new();
+    let screening = super::checks::screen_gross_errors(rig, board, &seen, &mut notes);
+    let clean = screening.without_suspects(&seen).unwrap_or(seen);
+    // Each frame's board pose alone (its pinhole start, then fitted through the rig); a frame
+    // whose corners do not all project from its start is left out, not an infinite RMS.
+    let (mut squares, mut corners, mut views_left_out) = (0.0, 0usize, 0usize);
+    let mut used = Vec::new();
+    for view in &clean {
+        let one = std::slice::from_ref(view);
+        let Ok(start) = poses::initial_poses(rig, &target, one) else {
+            views_left_out += 1;
+            continue;
+        };
+        let pose_only = Bundle::new(rig, &target, one, Estimate::NOTHING, None);
+        let start = State::of(rig, start);
+        if pose_only.cost(&start).is_none() {
+            views_left_out += 1;
+            continue;
+        }
+        let fitted = fit_briefly(&pose_only, start, 50);
+        match pose_only.cost(&fitted) {
+            Some(cost) if cost.is_finite() => {
+                squares += 2.0 * cost;
+                corners += pose_only.residuals();
+                used.push(view.clone());
+            }
+            _ => views_left_out += 1,
+        }
+    }
+    let rms_px = if corners > 0 {
+        (squares / corners as f64).sqrt()
+    } else {
+        f64::INFINITY
+    };
+    let errors: Vec<f64> = used
         .iter()
         .flat_map(|view| square_errors(rig, board, view))
         .collect();
@@ -658,6 +719,8 @@ pub fn validate(
         median_error_m: median,
         median_error_percent: 100.0 * median / board.square,
         rms_error_m: rms_error,
+        views_left_out,
+        corners_left_out: screening.suspects.len(),
     })
 }
 

@@ -21,7 +21,7 @@ use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::screen::Screening;
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::block::{BlockNormalEquations, POSE_PARAMETERS};
-use crate::calib::solvers::lm::{LmReport, Termination};
+use crate::calib::solvers::lm::{LeastSquares, LmReport, Termination};
 use crate::model::{Interface, Ports, Rig};
 
 /// A calibrated quantity with its standard deviation (`None` when known, not estimated, not
@@ -410,6 +410,74 @@ pub fn camera_reports(
             }
         })
         .collect()
+}
+
+/// The report's port and extrinsic σ with every camera's lens as uncertain as `lens_std` says
+/// (per camera, σ of [`INTRINSICS`](super::bundle::INTRINSICS): its in-air calibration's) instead
+/// of exact. A fit with the lenses held fixed reports σ conditional on them: a principal point
+/// known to 0.06 px turns a camera by 0.004°, ten times such a rotation σ. So the intrinsics join
+/// the normal equations at the result (`rig`, the report's poses over `seen`), each with a prior
+/// of its in-air σ, and the ports' and extrinsics' covariance is read from the whole:
+/// Σ = σ̂² (S + σ̂² P)⁻¹ with S the Schur complement over the globals and P = diag(1/σ_lens²).
+/// Returns false, the report unchanged, where that system cannot be formed (no σ̂, views that
+/// are not the report's, a singular system).
+pub fn add_lens_uncertainty(
+    report: &mut Report,
+    rig: &Rig,
+    target: &Target,
+    seen: &[SeenView],
+    estimate: Estimate,
+    huber: Option<f64>,
+    lens_std: &[[f64; 9]],
+) -> bool {
+    let Some(sigma) = report.sigma_px.filter(|s| *s > 0.0 && s.is_finite()) else {
+        return false;
+    };
+    if lens_std.len() != rig.cameras().len() || report.poses.len() != seen.len() {
+        return false;
+    }
+    let estimate = Estimate {
+        intrinsics: true,
+        ..estimate
+    };
+    let bundle = Bundle::new(rig, target, seen, estimate, huber);
+    let state = State::of(rig, report.poses.clone());
+    let Some(mut information) = bundle
+        .normal_equations(&state)
+        .and_then(|n| n.global_information())
+    else {
+        return false;
+    };
+    let globals = bundle.globals().to_vec();
+    let sigma2 = sigma * sigma;
+    for (i, parameter) in globals.iter().enumerate() {
+        if let Parameter::Intrinsic(k, j) = *parameter {
+            let prior = lens_std[k][j];
+            if !(prior > 0.0 && prior.is_finite()) {
+                return false;
+            }
+            information[(i, i)] += sigma2 / (prior * prior);
+        }
+    }
+    let Some(covariance) = information.cholesky().map(|c| c.inverse() * sigma2) else {
+        return false;
+    };
+    let ports = port_reports(rig, &state, &globals, Some(&covariance));
+    for (old, new) in report.ports.iter_mut().zip(ports) {
+        old.tilt.std = new.tilt.std;
+        old.azimuth.std = new.azimuth.std;
+        old.distance.std = new.distance.std;
+        for (t, n) in old.thicknesses.iter_mut().zip(new.thicknesses) {
+            t.std = n.std;
+        }
+    }
+    for (k, camera) in report.cameras.iter_mut().enumerate() {
+        if camera.extrinsics_std.is_some() {
+            camera.extrinsics_std =
+                extrinsics_std(&globals, Some(&covariance), k, &state.extrinsics[k]);
+        }
+    }
+    true
 }
 
 /// σ of camera `k`'s rotation (about the master's axes) and of the translation t of its

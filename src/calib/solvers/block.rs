@@ -109,6 +109,13 @@ impl<const N: usize> BlockNormalEquations<N> {
         Some((schur, rhs, factors))
     }
 
+    /// Information of the global parameters (unit residual variance): the Schur complement of
+    /// the undamped system, whose inverse is [`global_covariance`](Self::global_covariance).
+    /// `None` when a local block is singular.
+    pub fn global_information(&self) -> Option<DMatrix<f64>> {
+        Some(self.reduce(0.0, 0.0)?.0)
+    }
+
     /// Covariance of the global parameters (unit residual variance), the G × G block of
     /// (JᵀWJ)⁻¹: the inverse of the Schur complement of the undamped system. `None` when the
     /// system is singular.
