@@ -129,7 +129,11 @@ pub fn search_axis(
             // Camera p's own board poses (master_from_target through its start extrinsics).
             let cam_from_master = found.extrinsics[p];
             for ((&v, pose), view) in own_index.iter().zip(&found.poses).zip(views) {
-                if view.cameras.iter().all(|(_, c)| c.len() >= MIN_LINK_CORNERS) {
+                if view
+                    .cameras
+                    .iter()
+                    .all(|(_, c)| c.len() >= MIN_LINK_CORNERS)
+                {
                     own_poses_found[v] = Some(cam_from_master * pose);
                 }
             }
