@@ -59,58 +59,7 @@ pub fn extrinsics_start(
             row
         })
         .collect();
-    let shared = |a: usize, b: usize| -> Vec<usize> {
-        (0..views.len())
-            .filter(|&v| poses[v][a].is_some() && poses[v][b].is_some())
-            .collect()
-    };
-    // Prim's maximum spanning tree over the shared-frame counts, from the master.
-    let mut linked: Vec<Option<Link>> = vec![None; n];
-    let mut cam_from_master = vec![Isometry3::identity(); n];
-    linked[0] = Some(Link {
-        camera: 0,
-        via: 0,
-        frames: (0..views.len()).filter(|&v| poses[v][0].is_some()).count(),
-    });
-    while linked.iter().any(Option::is_none) {
-        let mut best: Option<(usize, usize, Vec<usize>)> = None;
-        for a in (0..n).filter(|&a| linked[a].is_some()) {
-            for b in (0..n).filter(|&b| linked[b].is_none()) {
-                let frames = shared(a, b);
-                if !frames.is_empty()
-                    && best.as_ref().is_none_or(|(_, _, f)| frames.len() > f.len())
-                {
-                    best = Some((a, b, frames));
-                }
-            }
-        }
-        let Some((a, b, frames)) = best else { break };
-        // cam_b_from_cam_a of each shared frame; the medoid.
-        let candidates: Vec<Isometry3<f64>> = frames
-            .iter()
-            .map(|&v| {
-                let (pa, pb) = (
-                    poses[v][a].unwrap_or_default(),
-                    poses[v][b].unwrap_or_default(),
-                );
-                pb * pa.inverse()
-            })
-            .collect();
-        let depth = median(
-            frames
-                .iter()
-                .map(|&v| poses[v][a].map_or(1.0, |p| p.translation.vector.norm()))
-                .collect(),
-        )
-        .max(1e-6);
-        let b_from_a = medoid(&candidates, depth);
-        cam_from_master[b] = b_from_a * cam_from_master[a];
-        linked[b] = Some(Link {
-            camera: b,
-            via: a,
-            frames: frames.len(),
-        });
-    }
+    let (cam_from_master, linked) = link_poses(&poses, n);
     let missing: Vec<usize> = (0..n).filter(|&k| linked[k].is_none()).collect();
     if let Some(&k) = missing.first() {
         let names = |list: &[usize]| {
@@ -134,6 +83,76 @@ pub fn extrinsics_start(
         )));
     }
     Ok((cam_from_master, linked.into_iter().flatten().collect()))
+}
+
+/// Every camera's `cam_from_master` from board poses `cam_from_target[view][camera]` (`None`
+/// where that camera has no pose in that view) over `n` cameras: Prim's maximum spanning tree over
+/// the shared-frame counts grown from the master (camera 0), each link the medoid of its frames'
+/// relative poses cam_b_from_cam_a = cam_b_from_target · (cam_a_from_target)⁻¹.
+///
+/// Returns the poses (the identity for the master and for any camera left unlinked) and each
+/// camera's link (`None`: it shares no frame, directly or through a chain, with the master).
+pub fn link_poses(
+    cam_from_target: &[Vec<Option<Isometry3<f64>>>],
+    n: usize,
+) -> (Vec<Isometry3<f64>>, Vec<Option<Link>>) {
+    let poses = cam_from_target;
+    let pose = |v: usize, k: usize| poses[v].get(k).copied().flatten();
+    let shared = |a: usize, b: usize| -> Vec<usize> {
+        (0..poses.len())
+            .filter(|&v| pose(v, a).is_some() && pose(v, b).is_some())
+            .collect()
+    };
+    let mut linked: Vec<Option<Link>> = vec![None; n];
+    let mut cam_from_master = vec![Isometry3::identity(); n];
+    if n == 0 {
+        return (cam_from_master, linked);
+    }
+    linked[0] = Some(Link {
+        camera: 0,
+        via: 0,
+        frames: (0..poses.len()).filter(|&v| pose(v, 0).is_some()).count(),
+    });
+    while linked.iter().any(Option::is_none) {
+        let mut best: Option<(usize, usize, Vec<usize>)> = None;
+        for a in (0..n).filter(|&a| linked[a].is_some()) {
+            for b in (0..n).filter(|&b| linked[b].is_none()) {
+                let frames = shared(a, b);
+                if !frames.is_empty()
+                    && best.as_ref().is_none_or(|(_, _, f)| frames.len() > f.len())
+                {
+                    best = Some((a, b, frames));
+                }
+            }
+        }
+        let Some((a, b, frames)) = best else { break };
+        // cam_b_from_cam_a of each shared frame; the medoid.
+        let candidates: Vec<Isometry3<f64>> = frames
+            .iter()
+            .map(|&v| {
+                let (pa, pb) = (
+                    pose(v, a).unwrap_or_default(),
+                    pose(v, b).unwrap_or_default(),
+                );
+                pb * pa.inverse()
+            })
+            .collect();
+        let depth = median(
+            frames
+                .iter()
+                .map(|&v| pose(v, a).map_or(1.0, |p| p.translation.vector.norm()))
+                .collect(),
+        )
+        .max(1e-6);
+        let b_from_a = medoid(&candidates, depth);
+        cam_from_master[b] = b_from_a * cam_from_master[a];
+        linked[b] = Some(Link {
+            camera: b,
+            via: a,
+            frames: frames.len(),
+        });
+    }
+    (cam_from_master, linked)
 }
 
 /// The pinhole pose cam_from_target of one image, when it has enough corners off one line.

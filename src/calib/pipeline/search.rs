@@ -5,10 +5,13 @@
 use nalgebra::Isometry3;
 
 use super::bundle::{Bundle, Estimate, Parameter, State};
+use super::extrinsics::MIN_LINK_CORNERS;
+use super::poses::pinhole_pose;
 use super::{Options, fit_briefly, rms};
 use crate::calib::error::CalibError;
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::target::Target;
+use crate::calib::solvers::lm::LeastSquares;
 use crate::calib::solvers::search::cap_grid;
 use crate::model::{Ports, Rig};
 
@@ -23,6 +26,13 @@ pub(super) const POSE_ITERATIONS: usize = 30;
 /// better) is kept.
 /// With a port per camera only that camera's images take part (the other ports are still at
 /// their start and would pull the search their way).
+///
+/// Returns the state with port `p` replaced and, with a port per camera, camera `p`'s board pose
+/// cam_from_target in every view where it saw [`MIN_LINK_CORNERS`] or more corners, fitted to its
+/// images alone through the port found (`None` elsewhere, and for a shared port): poses through
+/// the real port, from which the extrinsics can be linked again ([`link_poses`]).
+///
+/// [`link_poses`]: super::extrinsics::link_poses
 pub fn search_axis(
     rig: &Rig,
     target: &Target,
@@ -30,17 +40,22 @@ pub fn search_axis(
     state: State,
     p: usize,
     options: &Options,
-) -> Result<State, CalibError> {
+) -> Result<(State, Vec<Option<Isometry3<f64>>>), CalibError> {
+    let mut own_poses_found = vec![None; views.len()];
     let distance_only = Estimate {
         distance: options.estimate.distance,
         ..Estimate::NOTHING
     };
+    let per_camera = matches!(rig.ports(), Ports::PerCamera(_));
+    // The views of these images, by their index in `views`.
+    let mut own_index = Vec::new();
     let (own_views, own_poses): (Vec<SeenView>, Vec<Isometry3<f64>>) = match rig.ports() {
         Ports::Shared(_) => (views.to_vec(), state.poses.clone()),
         Ports::PerCamera(_) => views
             .iter()
             .zip(&state.poses)
-            .filter_map(|(view, pose)| {
+            .enumerate()
+            .filter_map(|(v, (view, pose))| {
                 let own: Vec<_> = view
                     .cameras
                     .iter()
@@ -54,12 +69,18 @@ pub fn search_axis(
                     .filter(|((k, _), _)| *k == p)
                     .map(|(_, key)| key.clone())
                     .collect();
-                (!own.is_empty()).then_some((SeenView { cameras: own, keys }, *pose))
+                if own.is_empty() {
+                    return None;
+                }
+                own_index.push(v);
+                let own = SeenView { cameras: own, keys };
+                let pose = own_start_pose(rig, target, &own, &state, p).unwrap_or(*pose);
+                Some((own, pose))
             })
             .unzip(),
     };
     if own_views.is_empty() {
-        return Ok(state);
+        return Ok((state, own_poses_found));
     }
     let whole = state;
     let views = &own_views[..];
@@ -80,10 +101,8 @@ pub fn search_axis(
         .keeping(|g| g == Parameter::Distance(p))
         .on(residuals.as_deref());
     let axes = cap_grid(options.max_tilt, SEARCH_SPACING_DEG.to_radians());
-    let start_cost = rms(
-        &bundle,
-        &fit_briefly(&bundle, state.clone(), CELL_ITERATIONS),
-    );
+    let start_fit = fit_briefly(&bundle, state.clone(), CELL_ITERATIONS);
+    let start_cost = rms(&bundle, &start_fit);
     let cells: Vec<(f64, State)> = axes
         .iter()
         .map(|axis| {
@@ -100,14 +119,94 @@ pub fn search_axis(
     if cost.is_finite() || start_cost.is_finite() {
         // The port found; the poses are refitted over every camera afterwards.
         let mut result = whole;
-        if cost <= start_cost {
+        let found = if cost <= start_cost {
             result.ports[p] = best.ports[p].clone();
+            best
+        } else {
+            start_fit
+        };
+        if per_camera {
+            // Camera p's own board poses (master_from_target through its start extrinsics).
+            let cam_from_master = found.extrinsics[p];
+            for ((&v, pose), view) in own_index.iter().zip(&found.poses).zip(views) {
+                if view
+                    .cameras
+                    .iter()
+                    .all(|(_, c)| c.len() >= MIN_LINK_CORNERS)
+                {
+                    own_poses_found[v] = Some(cam_from_master * pose);
+                }
+            }
         }
-        Ok(result)
+        Ok((result, own_poses_found))
     } else {
         Err(CalibError::Options(format!(
             "no axis within a tilt of {:.1}° explains the corners of port {p}",
             options.max_tilt.to_degrees()
         )))
     }
+}
+
+/// The start of the target pose (master frame) of camera `p`'s image `own` (a view of that
+/// camera alone) for its port's search: the pinhole pose of its corners' directions in the
+/// water, else of their directions in air, whichever camera `p`'s start port first projects
+/// every corner of.
+///
+/// The view's pose otherwise comes from the camera that saw most of it, carried over by the
+/// start's extrinsics, which behind housings can be centimetres off and leave the board where
+/// camera p's port cannot see it. The pinhole pose of the pixels is that of the *apparent*
+/// board: a corner a wide lens sees 45° off its axis lies, so placed, 45° off in the water,
+/// where only a ray 70° off in air would reach it, outside the lens (or beyond 90°). Each
+/// corner's direction bent into the water instead (Snell's law at a port across the camera's
+/// z axis, sin θ_water = sin θ_air · n_air / n_water; the layers between change no direction)
+/// places the board where the port's rays go, up to their offset of a few millimetres.
+fn own_start_pose(
+    rig: &Rig,
+    target: &Target,
+    own: &SeenView,
+    state: &State,
+    p: usize,
+) -> Option<Isometry3<f64>> {
+    let (_, corners) = own.cameras.first()?;
+    let intrinsics = &rig.cameras()[p].intrinsics;
+    let port = match rig.ports() {
+        Ports::PerCamera(ports) => ports.get(p)?,
+        Ports::Shared(port) => port,
+    };
+    let ratio = port.index_air() / port.index_water();
+    let (object, in_air): (Vec<_>, Vec<_>) = corners
+        .iter()
+        .filter_map(|(i, pixel)| Some((target.point(*i), intrinsics.normalized_from_img(pixel)?)))
+        .unzip();
+    let in_water: Vec<_> = in_air
+        .iter()
+        .map(|x| {
+            // tan θ_air = |x|; the direction in water keeps the azimuth.
+            let tan_air = x.norm();
+            let sin_water = ratio * tan_air / (1.0 + tan_air * tan_air).sqrt();
+            let tan_water = sin_water / (1.0 - sin_water * sin_water).sqrt();
+            if tan_air > 0.0 {
+                x * (tan_water / tan_air)
+            } else {
+                *x
+            }
+        })
+        .collect();
+    let views = std::slice::from_ref(own);
+    let bundle = Bundle::new(rig, target, views, Estimate::NOTHING, None);
+    [in_water, in_air]
+        .iter()
+        .filter_map(|image| pinhole_pose(&object, image))
+        .filter(|pose| {
+            object.iter().all(|x| (pose * x).z > 0.0)
+                && pose.translation.vector.iter().all(|x| x.is_finite())
+        })
+        .map(|cam_from_target| state.extrinsics[p].inverse() * cam_from_target)
+        .find(|pose| {
+            let one = State {
+                poses: vec![*pose],
+                ..state.clone()
+            };
+            bundle.cost(&one).is_some_and(f64::is_finite)
+        })
 }
