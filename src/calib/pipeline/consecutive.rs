@@ -23,7 +23,6 @@ pub fn consecutive_estimate(
     backend: &dyn CostBackend,
     options: &Options,
     stages: &mut Vec<Stage>,
-    warnings: &mut Vec<String>,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<Candidate, CalibError> {
     let data = backend.data();
@@ -55,14 +54,13 @@ pub fn consecutive_estimate(
         let t = Instant::now();
         let (d, cost) = fit_air_distance(backend, CostKind::Reprojection, &consecutive.normal)?
             .ok_or_else(|| no_solution(options, "no air layer lets both cameras triangulate every corner under the invariant's axis"))?;
-        warnings.push(format!(
-            "the linear air layer ({:.2} mm) leaves corners without a triangulation: took the air layer with the least reprojection error along the same axis ({:.2} mm)",
-            air_distance * 1e3,
-            d * 1e3
-        ));
+        // A fallback with its reason, not a finding: a stage, not a warning.
         consecutive.air_distance = d;
         stages.push(Stage::at(
-            "air layer (1-D search on the reprojection error)",
+            &format!(
+                "air layer (1-D search on the reprojection error: the linear one, {:.2} mm, left corners without a triangulation)",
+                air_distance * 1e3
+            ),
             consecutive,
             cost,
             "px",

@@ -511,7 +511,6 @@ fn consecutive_start(
             backend.as_ref(),
             options,
             &mut pair_stages,
-            steps.warnings,
             steps.progress,
         ) {
             Ok(c) => c,
