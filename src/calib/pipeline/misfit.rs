@@ -157,6 +157,16 @@ pub fn explain_misfit(
         .filter(|(r, _)| *r < EXPLAINS * now && *r <= options.rms_bound())
         .collect();
     explained.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // Estimating the extrinsics undoes every mistake in them (a baseline in millimetres too, now
+    // that the housings' extrinsics are linked again through their ports): where a specific
+    // mistake explains the misfit, it is the finding, not the general remedy.
+    let general = HYPOTHESES
+        .iter()
+        .find(|(undo, _)| matches!(undo, Undo::EstimateExtrinsics))
+        .map(|(_, what)| *what);
+    if explained.iter().any(|(_, what)| Some(*what) != general) {
+        explained.retain(|(_, what)| Some(*what) != general);
+    }
     if explained.is_empty() {
         return Err(format!(
             "the RMS of {now:.2} px is not explained by a scaled target, half- or double-resolution pixels, corners undistorted twice, a baseline in millimetres or in-air extrinsics off; check that the corners are raw (distorted) pixels in target order in every camera, and the rig's intrinsics and extrinsics"
