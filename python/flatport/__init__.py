@@ -504,6 +504,7 @@ def calibrate_images(
     huber: Optional[float] = None,
     max_iterations: int = 200,
     max_rms_px: Optional[float] = None,
+    refine_intrinsics: str = "auto",
 ) -> ImagesCalibration:
     """A whole rig from images or videos of a board alone, as ``flatport calibrate --images DIR
     --board BOARD.json --port …`` (docs/images.md): every camera's lens from its in-air views,
@@ -515,7 +516,10 @@ def calibrate_images(
     every camera), ``"shared"`` (one port with its glass) or ``"housings"`` (a port per camera).
     ``glass``: ``(thickness, index)`` (metres) for every port, or a dict camera name → pair for
     each housing's own. ``rig`` (a :class:`Rig` or a rig file): the cameras' in-air calibration
-    instead of ``air/``. ``master``: the camera whose frame is the rig's (default the first folder
+    instead of ``air/``; with neither ``air/`` nor ``rig``, every lens comes from the underwater
+    frames with the port(s). The report's ``verdict`` says good, usable or poor and why (a poor
+    one raises :class:`CalibrationRefused`). ``refine_intrinsics``: ``"auto"`` (refine the lenses
+    under water where the held-out frames say it helps), ``"never"`` or ``"always"``. ``master``: the camera whose frame is the rig's (default the first folder
     by name). ``frame_step``: read every n-th frame; ``max_frames``: most frames used per camera
     (default 40 in air, 60 under water); ``holdout``: the share of underwater frames held out and
     reported on. ``output`` and ``report`` write the rig and the report files as the CLI does.
@@ -537,6 +541,8 @@ def calibrate_images(
     holdout = float(holdout)
     if not 0.0 <= holdout < 1.0:
         raise ValueError(f"holdout is a share of the frames, from 0 to below 1 (at most half are held out), got {holdout}")
+    if refine_intrinsics not in ("auto", "never", "always"):
+        raise ValueError(f"refine_intrinsics must be 'auto', 'never' or 'always', got {refine_intrinsics!r}")
     rig_label = "rig"
     if rig is not None and not isinstance(rig, Rig):
         if not isinstance(rig, (str, os.PathLike)):
@@ -549,7 +555,7 @@ def calibrate_images(
         None if rig is None else rig._rig, rig_label, _optional_count("frame_step", frame_step, 1),
         _optional_count("max_frames", max_frames, 3), holdout, fspath(output), fspath(report), device,
         float(max_tilt_deg), None if huber is None else float(huber), int(max_iterations),
-        None if max_rms_px is None else float(max_rms_px),
+        None if max_rms_px is None else float(max_rms_px), refine_intrinsics,
     )
     full = json.loads(text)
     if refused is not None:

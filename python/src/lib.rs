@@ -21,7 +21,7 @@ use flatport::engine::gpu::{Pixels, Points, Rays, Triangulated};
 use flatport::gpu::{DeviceRows, GpuError, Precision, RowKind};
 use flatport::io::{ColmapDialect, Truth, aquacal_json, read_aquacal, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string, stereo_observations_to_json_string};
 use flatport::io::calib_json::truth_to_json_string;
-use flatport::calib::pipeline::boards::{BoardsOptions, PortKind, RigSetup, calibrate_from_boards};
+use flatport::calib::pipeline::boards::{BoardsOptions, PortKind, RefineIntrinsics, RigSetup, calibrate_from_boards};
 use flatport::calib::pipeline::intrinsics::{IntrinsicsOptions, calibrate_intrinsics};
 use flatport::calib::pipeline::water_lenses::{calibrate_lenses_under_water, water_lens_start};
 use flatport::io::board_footage::{DEFAULT_MAX_AIR_VIEWS, DEFAULT_MAX_WATER_FRAMES, Footage, FootageOptions, read_board_footage};
@@ -624,7 +624,7 @@ fn cameras_from_rig(rig: &Rig, label: &str, footage: &Footage) -> PyResult<Vec<P
 /// calibrated rig, or None when it does not fit; the report JSON, `--report`'s; why it does not
 /// fit). `report` is written in either case, `output` only with a rig that fits.
 #[pyfunction]
-#[pyo3(signature = (images, board, port, glass, index_water, index_air, master, rig, rig_label, frame_step, max_frames, holdout, output, report, device, max_tilt_deg, huber, max_iterations, max_rms_px))]
+#[pyo3(signature = (images, board, port, glass, index_water, index_air, master, rig, rig_label, frame_step, max_frames, holdout, output, report, device, max_tilt_deg, huber, max_iterations, max_rms_px, refine_intrinsics))]
 #[allow(clippy::too_many_arguments)] // the Python signature
 fn calibrate_images(
     py: Python<'_>,
@@ -647,6 +647,7 @@ fn calibrate_images(
     huber: Option<f64>,
     max_iterations: usize,
     max_rms_px: Option<f64>,
+    refine_intrinsics: &str,
 ) -> PyResult<(Option<PyRig>, String, Option<String>)> {
     let port = PortKind::from_name(port)
         .ok_or_else(|| value_error(format!("port must be 'surface', 'shared' or 'housings', got {port:?}")))?;
@@ -717,6 +718,12 @@ fn calibrate_images(
         },
         holdout,
         lens_std: fits.iter().map(|(_, fit)| fit.std).collect(),
+        refine_intrinsics: match refine_intrinsics {
+            "never" => RefineIntrinsics::Never,
+            "always" => RefineIntrinsics::Always,
+            "auto" => RefineIntrinsics::Auto,
+            other => return Err(value_error(format!("refine_intrinsics must be 'auto', 'never' or 'always', got {other:?}"))),
+        },
         ..defaults
     };
     let frames = footage.water;

@@ -130,6 +130,8 @@ def test_bad_input_is_refused_with_the_folder_named(rendered, tmp_path):
         flatport.calibrate_images(root / "set", BOARD, "shared", max_frames=2)
     with pytest.raises(ValueError, match="holdout"):
         flatport.calibrate_images(root / "set", BOARD, "shared", holdout=1.5)
+    with pytest.raises(ValueError, match="refine_intrinsics must be"):
+        flatport.calibrate_images(root / "set", BOARD, "shared", refine_intrinsics="sometimes")
 
 
 def test_a_rig_that_does_not_fit_is_refused(rendered, tmp_path):
