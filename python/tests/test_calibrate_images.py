@@ -103,9 +103,12 @@ def test_the_cameras_of_a_rig_instead_of_air(rendered, tmp_path):
     lens = ("width", "height", "fx", "fy", "cx", "cy", "distortion")
     for got, want in zip(by_rig.rig.cameras, truth.cameras):
         assert {k: got[k] for k in lens} == {k: want[k] for k in lens}
-    # Without air/ and without a rig, the library names the folder.
-    with pytest.raises(ValueError, match="air"):
-        flatport.calibrate_images(tmp_path / "set", BOARD, "shared", glass=GLASS)
+    # Without air/ and without a rig, every lens comes from the underwater frames.
+    alone = flatport.calibrate_images(tmp_path / "set", BOARD, "shared", glass=GLASS, index_air=INDEX_AIR)
+    assert alone.intrinsics == {} and alone.report["verdict"]["grade"] in ("good", "usable")
+    for got, want in zip(alone.rig.cameras, truth.cameras):
+        assert abs(got["fx"] - want["fx"]) < 0.005 * want["fx"], (got, want)
+        assert abs(got["cx"] - want["cx"]) < 3.0 and abs(got["cy"] - want["cy"]) < 3.0, (got, want)
 
 
 def test_bad_input_is_refused_with_the_folder_named(rendered, tmp_path):
