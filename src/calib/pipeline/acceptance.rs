@@ -20,9 +20,10 @@
 //!   frames confirm is the lens or the board, not the port).
 //!
 //! Without held-out frames (one camera, too few frames) nothing checks the fit beyond its own
-//! residuals, and the verdict says so.
+//! residuals, and the verdict says so. A good fit whose views leave a port loose is usable
+//! ([`loose_ports`]).
 
-use super::boards::Validation;
+use super::boards::{PortKind, Validation};
 use super::report::Report;
 
 /// A good fit's worst camera RMS is within this many times the corner noise seen in the images...
@@ -220,6 +221,42 @@ pub fn verdict(
         (Grade::Good, good)
     };
     Verdict { grade, why }
+}
+
+/// A good verdict on ports the views leave loose becomes usable, naming them: an air layer or
+/// an axis whose σ is over a third of issue 38's bound for it (air 1.5 mm, a surface's height
+/// 0.3 mm, the axis 0.1°), so that 3σ would not meet the bound. Boards closer to the port, at
+/// more distances and tilts, pin them.
+pub fn loose_ports(verdict: &mut Verdict, report: &Report, port: PortKind) {
+    let air_bound_m = if port == PortKind::Surface {
+        0.3e-3
+    } else {
+        1.5e-3
+    };
+    let axis_bound = 0.1f64.to_radians();
+    let loose: Vec<String> = report
+        .ports
+        .iter()
+        .filter_map(|p| {
+            let air = p.distance.std.unwrap_or(0.0);
+            let axis = p.tilt.std.unwrap_or(0.0);
+            (air > air_bound_m / 3.0 || axis > axis_bound / 3.0).then(|| {
+                format!(
+                    "port {}: air layer σ {:.2} mm, tilt σ {:.3}°",
+                    p.name,
+                    air * 1e3,
+                    axis.to_degrees()
+                )
+            })
+        })
+        .collect();
+    if verdict.grade == Grade::Good && !loose.is_empty() {
+        verdict.grade = Grade::Usable;
+        verdict.why = vec![format!(
+            "the views leave {} loose (3σ over 1.5 mm of air, 0.3 mm for a surface, or 0.1° of axis): film the board closer to the port, at more distances and tilts",
+            loose.join("; ")
+        )];
+    }
 }
 
 #[cfg(test)]

@@ -12,7 +12,7 @@
 
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 
-use super::acceptance::{Grade, PLAIN_RMS_PX, Residuals, Verdict, verdict};
+use super::acceptance::{PLAIN_RMS_PX, Residuals, Verdict, loose_ports, verdict};
 use super::bundle::{Bundle, Estimate, MIN_START_AIR_M, State, shared_distance_floor};
 use super::extrinsics::{Link, extrinsics_start};
 use super::report::add_lens_uncertainty;
@@ -617,42 +617,6 @@ pub fn calibrate_from_boards(
         verdict,
         fitted_squares_percent,
     })
-}
-
-/// A good verdict on ports the views leave loose becomes usable, naming them: an air layer or
-/// an axis whose σ is over a third of issue 38's bound for it (air 1.5 mm, a surface's height
-/// 0.3 mm, the axis 0.1°), so that 3σ would not meet the bound. Boards closer to the port, at
-/// more distances and tilts, pin them.
-fn loose_ports(verdict: &mut Verdict, report: &super::report::Report, port: PortKind) {
-    let air_bound_m = if port == PortKind::Surface {
-        0.3e-3
-    } else {
-        1.5e-3
-    };
-    let axis_bound = 0.1f64.to_radians();
-    let loose: Vec<String> = report
-        .ports
-        .iter()
-        .filter_map(|p| {
-            let air = p.distance.std.unwrap_or(0.0);
-            let axis = p.tilt.std.unwrap_or(0.0);
-            (air > air_bound_m / 3.0 || axis > axis_bound / 3.0).then(|| {
-                format!(
-                    "port {}: air layer σ {:.2} mm, tilt σ {:.3}°",
-                    p.name,
-                    air * 1e3,
-                    axis.to_degrees()
-                )
-            })
-        })
-        .collect();
-    if verdict.grade == Grade::Good && !loose.is_empty() {
-        verdict.grade = Grade::Usable;
-        verdict.why = vec![format!(
-            "the views leave {} loose (3σ over 1.5 mm of air, 0.3 mm for a surface, or 0.1° of axis): film the board closer to the port, at more distances and tilts",
-            loose.join("; ")
-        )];
-    }
 }
 
 /// The RMS reprojection error of every view of `views` (over all its cameras) under
