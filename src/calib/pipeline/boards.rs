@@ -248,12 +248,7 @@ pub fn start_rig(names: &[String], setup: &RigSetup) -> Result<Rig, CalibError> 
         .iter()
         .zip(&setup.cameras)
         .map(|(name, intrinsics)| {
-            RigCamera::new(
-                name,
-                intrinsics.clone(),
-                Matrix3::identity(),
-                Vector3::zeros(),
-            )
+            RigCamera::new(name, *intrinsics, Matrix3::identity(), Vector3::zeros())
         })
         .collect::<Result<Vec<_>, _>>()
         .map_err(options)?;

@@ -319,7 +319,7 @@ pub fn zoo_rig(seed: u64) -> Result<ZooRig, ModelError> {
     let dictionary = if rng.uniform() < 0.75 {
         let fitting: Vec<_> = DICTIONARIES
             .iter()
-            .filter(|(_, markers)| *markers >= squares_x * squares_y / 2 + 1)
+            .filter(|(_, markers)| *markers > squares_x * squares_y / 2)
             .collect();
         Some(fitting[(rng.uniform() * fitting.len() as f64) as usize % fitting.len()].0)
     } else {
