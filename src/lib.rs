@@ -73,6 +73,7 @@ pub mod guides {
     guide!(Testing, "../docs/testing.md");
 }
 
+pub mod base;
 pub mod calib;
 #[cfg(feature = "images")]
 pub mod detect;
@@ -82,4 +83,6 @@ pub mod io;
 pub mod model;
 #[cfg(feature = "images")]
 pub mod render;
+#[cfg(feature = "images")]
+pub mod runs;
 pub mod stereo;

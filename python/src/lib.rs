@@ -21,13 +21,14 @@ use flatport::engine::gpu::{Pixels, Points, Rays, Triangulated};
 use flatport::gpu::{DeviceRows, GpuError, Precision, RowKind};
 use flatport::io::{ColmapDialect, Truth, aquacal_json, read_aquacal, colmap_cameras_txt_as, colmap_rig_config, colmap_rigs_txt, observations_from_json_str, opencv_yaml, read_rig, report_to_json_string, rig_from_json_str, rig_to_json_string, stereo_observations_to_json_string};
 use flatport::io::calib_json::truth_to_json_string;
-use flatport::calib::pipeline::boards::{BoardsOptions, PortKind, RefineIntrinsics, RigSetup, calibrate_from_boards};
-use flatport::calib::pipeline::intrinsics::{IntrinsicsOptions, calibrate_intrinsics};
-use flatport::calib::pipeline::water_lenses::{calibrate_lenses_under_water, water_lens_start};
-use flatport::io::board_footage::{DEFAULT_MAX_AIR_VIEWS, DEFAULT_MAX_WATER_FRAMES, Footage, FootageOptions, read_board_footage};
+use flatport::calib::pipeline::boards::{PortKind, RefineIntrinsics, RigSetup};
+use flatport::runs::board_footage::{DEFAULT_MAX_AIR_VIEWS, DEFAULT_MAX_WATER_FRAMES, FootageOptions, read_board_footage};
+use flatport::runs::images::{
+    FitSettings, Glass, LensSource, air_lens, boards_options, calibrate as run_calibration, cameras_from_rig, check_glass,
+    glass_per_camera, refusal, water_lens_starts,
+};
 use flatport::io::calib_json::boards_report_to_json_string;
 use flatport::io::{read_board, write_boards_report, write_rig};
-use flatport::model::{Layer, PinholeCamera};
 use flatport::model::Rig;
 
 fn value_error(error: impl std::fmt::Display) -> PyErr {
@@ -542,84 +543,12 @@ fn calibrate(
 
 /// The glass of each camera's port, as `calibrate --images --glass` takes it: `(camera, thickness,
 /// index)` rows, `camera` None for every port (a camera's own row wins over it).
-fn glass_per_camera(glass: &[(Option<String>, f64, f64)], names: &[String], port: PortKind) -> PyResult<Vec<Vec<Layer>>> {
-    check_glass(glass, port)?;
-    let mut per_camera = vec![Vec::new(); names.len()];
-    for (camera, thickness, index) in glass {
-        let layer = Layer { thickness: *thickness, index: *index };
-        match camera {
-            Some(camera) => {
-                let k = names.iter().position(|n| n == camera).ok_or_else(|| {
-                    value_error(format!("glass {{'{camera}': …}}: no camera '{camera}' (cameras: {})", names.join(", ")))
-                })?;
-                per_camera[k] = vec![layer];
-            }
-            None => {
-                for layers in &mut per_camera {
-                    if layers.is_empty() {
-                        *layers = vec![layer];
-                    }
-                }
-            }
-        }
-    }
-    Ok(per_camera)
-}
-
-/// What [`glass_per_camera`] refuses without the camera names, checked before the footage is read.
-fn check_glass(glass: &[(Option<String>, f64, f64)], port: PortKind) -> PyResult<()> {
-    for (camera, thickness, index) in glass {
-        let label = camera.as_ref().map_or(String::new(), |c| format!("{c}: "));
-        if !(*thickness > 0.0 && *thickness < 1.0) {
-            return Err(value_error(format!("glass {label}({thickness}, {index}): a glass thickness between 0 and 1 m (in metres: 10 mm is 0.01)")));
-        }
-        if !(1.0..=4.0).contains(index) {
-            return Err(value_error(format!("glass {label}({thickness}, {index}): a refractive index from 1 to 4")));
-        }
-        match (camera, port) {
-            (_, PortKind::Surface) => {
-                return Err(value_error("glass: port='surface' is a bare water surface, without glass (use port='shared' for a window)"));
-            }
-            (Some(camera), PortKind::Shared) => {
-                return Err(value_error(format!(
-                    "glass {{'{camera}': …}}: with port='shared' one port is in front of every camera; give glass=(thickness, index)"
-                )));
-            }
-            _ => {}
-        }
-    }
-    Ok(())
-}
-
-/// The intrinsics of the footage's cameras from `rig` (by name, of the same size), as
-/// `calibrate --images --rig` takes them; `label` names the rig in errors.
-fn cameras_from_rig(rig: &Rig, label: &str, footage: &Footage) -> PyResult<Vec<PinholeCamera>> {
-    footage
-        .cameras
-        .iter()
-        .map(|camera| {
-            let k = rig.camera_index(&camera.name).ok_or_else(|| {
-                let names: Vec<&str> = rig.cameras().iter().map(|c| c.name.as_str()).collect();
-                value_error(format!(
-                    "{label}: no camera '{}' (the camera folders name the cameras; the rig has {})",
-                    camera.name,
-                    names.join(", ")
-                ))
-            })?;
-            let intrinsics = rig.cameras()[k].intrinsics;
-            if (intrinsics.width, intrinsics.height) != (camera.width, camera.height) {
-                return Err(value_error(format!(
-                    "{label}: camera '{}' is {}x{} pixels, its frames {}x{}",
-                    camera.name, intrinsics.width, intrinsics.height, camera.width, camera.height
-                )));
-            }
-            Ok(intrinsics)
-        })
-        .collect()
+fn glass_rows(glass: Vec<(Option<String>, f64, f64)>) -> Vec<Glass> {
+    glass.into_iter().map(|(camera, thickness, index)| Glass { camera, thickness, index }).collect()
 }
 
 /// A whole rig from images or videos of a board, as `flatport calibrate --images DIR --board
-/// BOARD.json --port …` (src/cli/calib_images.rs composes the same library calls): every
+/// BOARD.json --port …` (the same steps, `flatport::runs::images`, as the command line): every
 /// camera's lens in air (or `rig`'s), then the extrinsics and the ports under water. Returns (the
 /// calibrated rig, or None when it does not fit; the report JSON, `--report`'s; why it does not
 /// fit). `report` is written in either case, `output` only with a rig that fits.
@@ -651,45 +580,39 @@ fn calibrate_images(
 ) -> PyResult<(Option<PyRig>, String, Option<String>)> {
     let port = PortKind::from_name(port)
         .ok_or_else(|| value_error(format!("port must be 'surface', 'shared' or 'housings', got {port:?}")))?;
-    check_glass(&glass, port)?;
+    let glass = glass_rows(glass);
+    check_glass(&glass, port).map_err(value_error)?;
+    let refine_intrinsics = match refine_intrinsics {
+        "never" => RefineIntrinsics::Never,
+        "always" => RefineIntrinsics::Always,
+        "auto" => RefineIntrinsics::Auto,
+        other => return Err(value_error(format!("refine_intrinsics must be 'auto', 'never' or 'always', got {other:?}"))),
+    };
     let spec = read_board(&board).map_err(value_error)?;
     let grid = spec.corner_grid();
+    let source = LensSource::choose(&images, rig.is_some());
     let footage_options = FootageOptions {
         master,
         frame_step,
         max_air_views: max_frames.unwrap_or(DEFAULT_MAX_AIR_VIEWS),
         max_water_frames: max_frames.unwrap_or(DEFAULT_MAX_WATER_FRAMES),
-        // Without a rig: air/, or where there is none, the lenses from the underwater frames.
-        air: rig.is_none() && images.join("air").is_dir(),
+        air: source == LensSource::Air,
     };
-    let water_lenses = rig.is_none() && !footage_options.air;
     let footage = py.detach(|| read_board_footage(&images, &spec, &footage_options, &mut |_, _, _| {})).map_err(value_error)?;
     let names = footage.names();
-    let glass = glass_per_camera(&glass, &names, port)?;
-    let (cameras, fits) = match rig {
-        Some(rig) => (cameras_from_rig(&rig.rig, rig_label, &footage)?, Vec::new()),
-        None if water_lenses => {
-            let starts = footage
-                .cameras
-                .iter()
-                .enumerate()
-                .map(|(k, c)| water_lens_start(&c.name, (c.width, c.height), &grid, &footage.water, k, index_air, index_water))
-                .collect::<Result<Vec<_>, _>>()
-                .map_err(value_error)?;
-            (starts, Vec::new())
-        }
+    let glass = glass_per_camera(&glass, &names, port).map_err(value_error)?;
+    let mut fits = Vec::new();
+    let cameras = match rig {
+        Some(rig) => cameras_from_rig(&rig.rig, rig_label, &footage).map_err(value_error)?,
+        None if source == LensSource::Water => water_lens_starts(&footage, &grid, index_air, index_water).map_err(value_error)?,
         None => {
             let mut cameras = Vec::new();
-            let mut fits = Vec::new();
-            for camera in &footage.cameras {
-                let name = &camera.name;
-                let fit = py
-                    .detach(|| calibrate_intrinsics(name, camera.width, camera.height, &grid, &camera.air, &IntrinsicsOptions::default()))
-                    .map_err(|e| value_error(format!("the in-air calibration of camera '{name}': {e}")))?;
-                cameras.push(fit.camera);
-                fits.push((name.clone(), fit));
+            for (k, camera) in footage.cameras.iter().enumerate() {
+                let fit = py.detach(|| air_lens(&footage, k, &grid)).map_err(value_error)?;
+                cameras.push(fit.camera.clone());
+                fits.push((camera.name.clone(), fit));
             }
-            (cameras, fits)
+            cameras
         }
     };
     let setup = RigSetup { cameras, port, glass, index_air, index_water };
@@ -706,46 +629,19 @@ fn calibrate_images(
         }
         other => return Err(value_error(format!("device must be 'cpu', 'gpu' or 'auto', got {other:?}"))),
     };
-    let defaults = BoardsOptions::default();
-    let options = BoardsOptions {
-        calibration: Options {
-            huber: huber.or(defaults.calibration.huber),
-            max_iterations,
-            max_rms_px,
-            max_tilt: max_tilt_deg.to_radians(),
-            backend,
-            ..Options::default()
-        },
-        holdout,
-        lens_std: fits.iter().map(|(_, fit)| fit.std).collect(),
-        refine_intrinsics: match refine_intrinsics {
-            "never" => RefineIntrinsics::Never,
-            "always" => RefineIntrinsics::Always,
-            "auto" => RefineIntrinsics::Auto,
-            other => return Err(value_error(format!("refine_intrinsics must be 'auto', 'never' or 'always', got {other:?}"))),
-        },
-        ..defaults
-    };
-    let frames = footage.water;
-    let result = py
-        .detach(|| {
-            if water_lenses {
-                calibrate_lenses_under_water(&names, &setup, &grid, &frames, &options, &mut |_| {}).map(|w| w.calibration)
-            } else {
-                calibrate_from_boards(&names, &setup, &grid, &frames, &options, &mut |_| {})
-            }
-        })
+    let settings = FitSettings { huber, max_iterations, max_rms_px, max_tilt_deg, holdout, refine_intrinsics };
+    let options = boards_options(&settings, backend, &fits);
+    let (result, _) = py
+        .detach(|| run_calibration(source, &names, &setup, &grid, &footage, &options, &mut |_| {}))
         .map_err(value_error)?;
     let report_text = boards_report_to_json_string(&result, &names, &fits);
     if let Some(path) = &report {
         write_boards_report(path, &result, &names, &fits).map_err(value_error)?;
     }
-    let fit = &result.calibration.report;
-    if !fit.fits {
+    if !result.calibration.report.fits {
         let why = format!(
-            "the calibration does not fit: {}. What the data look like: {}. {}{}",
-            result.verdict.why.join("; "),
-            fit.diagnosis.join("; "),
+            "{} {}{}",
+            refusal(&result),
             output.as_ref().map_or("No rig returned".to_string(), |p| format!("{} not written", p.display())),
             report.as_ref().map_or(String::new(), |p| format!("; the report is in {}", p.display()))
         );
@@ -1049,7 +945,7 @@ fn stereo_frames(
     min_confidence: f64,
     device: &str,
 ) -> PyResult<StereoFrames> {
-    use flatport::stereo::sequence::Sequence;
+    use flatport::runs::sequence::Sequence;
     use flatport::stereo::{Backend as StereoBackend, StereoOptions, resolve_depth_range, stereo_on};
     let options = StereoOptions {
         reference,

@@ -29,6 +29,7 @@ pub mod solvers;
 pub mod sweep;
 pub mod targetless;
 
+pub use crate::base::Board;
 #[cfg(feature = "gpu")]
 pub use backends::gpu::GpuBackend;
 pub use backends::{CostBackend, CpuBackend};
@@ -42,7 +43,7 @@ pub use pipeline::{
     Backend, Calibration, DEFAULT_MAX_RMS_PX, Method, Options, Progress, calibrate,
     calibrate_with_progress,
 };
-pub use problem::board::{Board, RigidFit, fit_rigid};
+pub use problem::board::{RigidFit, fit_rigid};
 pub use problem::data::{CameraPair, Candidate, StereoData};
 pub use problem::observations::{CameraKey, Image, Observations, SeenView, View};
 pub use problem::target::Target;

@@ -20,6 +20,7 @@ use flatport::io::{
     IoError, Truth, read_observations, read_rig, read_truth, write_report, write_rig,
 };
 use flatport::model::{Interface, Ports, Rig};
+use flatport::runs::images::Glass;
 
 /// How to estimate (`--method`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -79,7 +80,7 @@ pub struct CalibrateArgs {
     /// Glass of the port(s): THICKNESS:INDEX (metres) for every port, or CAMERA=THICKNESS:INDEX
     /// for one camera's housing; repeatable
     #[arg(long, value_name = "[CAMERA=]T:N", value_parser = parse_glass, help_heading = "From images")]
-    pub glass: Vec<GlassArg>,
+    pub glass: Vec<Glass>,
     /// Refractive index of the water [default: 1.333]
     #[arg(long, value_name = "N", help_heading = "From images")]
     pub index_water: Option<f64>,
@@ -175,19 +176,8 @@ pub struct CalibrateArgs {
     pub engine: super::EngineArgs,
 }
 
-/// `--glass`: `T:N` for every port, or `CAMERA=T:N` for one camera's housing.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GlassArg {
-    /// The camera it is for; `None`: every port.
-    pub camera: Option<String>,
-    /// Thickness, metres.
-    pub thickness: f64,
-    /// Refractive index.
-    pub index: f64,
-}
-
 /// Parses `T:N` or `CAMERA=T:N`.
-pub fn parse_glass(text: &str) -> Result<GlassArg, String> {
+pub fn parse_glass(text: &str) -> Result<Glass, String> {
     let (camera, rest) = match text.split_once('=') {
         Some((c, r)) => (Some(c.trim().to_string()), r),
         None => (None, text),
@@ -211,7 +201,7 @@ pub fn parse_glass(text: &str) -> Result<GlassArg, String> {
     if camera.as_deref() == Some("") {
         return Err(error());
     }
-    Ok(GlassArg {
+    Ok(Glass {
         camera,
         thickness,
         index,

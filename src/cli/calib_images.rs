@@ -6,23 +6,19 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 
-use flatport::calib::Board;
-use flatport::calib::Options;
-use flatport::calib::pipeline::boards::{
-    BoardsCalibration, BoardsOptions, PortKind, RefineIntrinsics, RigSetup, calibrate_from_boards,
-};
-use flatport::calib::pipeline::intrinsics::{
-    IntrinsicsFit, IntrinsicsOptions, calibrate_intrinsics,
-};
-use flatport::calib::pipeline::water_lenses::{calibrate_lenses_under_water, water_lens_start};
-use flatport::io::board_footage::{
-    DEFAULT_MAX_AIR_VIEWS, DEFAULT_MAX_WATER_FRAMES, Footage, FootageOptions, read_board_footage,
-};
+use flatport::calib::pipeline::boards::{BoardsCalibration, PortKind, RefineIntrinsics, RigSetup};
+use flatport::calib::pipeline::intrinsics::IntrinsicsFit;
 use flatport::io::{read_board, read_rig, write_boards_report, write_rig};
-use flatport::model::{Layer, PinholeCamera};
+use flatport::runs::board_footage::{
+    DEFAULT_MAX_AIR_VIEWS, DEFAULT_MAX_WATER_FRAMES, FootageOptions, read_board_footage,
+};
+use flatport::runs::images::{
+    FitSettings, LensSource, air_lens, boards_options, calibrate, cameras_from_rig, check_glass,
+    glass_per_camera, refusal, water_lens_starts,
+};
 
 use super::calib::{
-    CalibrateArgs, CalibrationStatus, GlassArg, PortArg, backend, calibration_engine, summary,
+    CalibrateArgs, CalibrationStatus, PortArg, backend, calibration_engine, summary,
 };
 use super::progress::Progress;
 
@@ -41,6 +37,8 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
             "--images needs --port: surface (one bare water surface in front of every camera), shared (one port with its glass in front of every camera) or housings (a port per camera)"
         ),
     };
+    check_glass(&args.glass, port)?;
+    let source = LensSource::choose(dir, args.rig.is_some());
     let footage_options = FootageOptions {
         master: args.master.clone(),
         frame_step: args.frame_step.map(|s| s as usize),
@@ -50,11 +48,8 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
         max_water_frames: args
             .max_frames
             .map_or(DEFAULT_MAX_WATER_FRAMES, |m| m as usize),
-        // Without --rig the lenses come from air/, or, where there is no air/ folder, from the
-        // underwater frames themselves.
-        air: args.rig.is_none() && dir.join("air").is_dir(),
+        air: source == LensSource::Air,
     };
-    let water_lenses = args.rig.is_none() && !footage_options.air;
     let mut bar: Option<(String, Progress)> = None;
     let footage = read_board_footage(dir, &spec, &footage_options, &mut |what, done, total| {
         if bar.as_ref().is_none_or(|(w, _)| w != what) {
@@ -83,25 +78,48 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
         eprintln!("{note}");
     }
     // In-air intrinsics, the rig's cameras, or the starts from the underwater frames.
-    let (cameras, fits) = match &args.rig {
-        Some(path) => (cameras_from_rig(path, &footage)?, Vec::new()),
-        None if water_lenses => {
+    let mut fits = Vec::new();
+    let cameras = match source {
+        LensSource::Rig => {
+            let path = args.rig.as_ref().expect("a rig file with LensSource::Rig");
+            cameras_from_rig(&read_rig(path)?, &path.display().to_string(), &footage)?
+        }
+        LensSource::Water => {
             eprintln!(
                 "no air/ folder and no --rig: every lens from the underwater frames, with the ports and the extrinsics (docs/calibration.md, \"Lenses from underwater frames alone\")"
             );
-            (
-                water_lens_starts(&footage, &board, index_air, index_water)?,
-                Vec::new(),
-            )
+            let starts = water_lens_starts(&footage, &board, index_air, index_water)?;
+            for (camera, start) in names.iter().zip(&starts) {
+                eprintln!(
+                    "water/{camera}: lens start fx {:.1}, fy {:.1}, cx {:.1}, cy {:.1} px (the underwater views' pinhole, its focal length over n_water/n_air)",
+                    start.fx, start.fy, start.cx, start.cy
+                );
+            }
+            starts
         }
-        None => air_intrinsics(&footage, &board)?,
+        LensSource::Air => {
+            let mut cameras = Vec::new();
+            for (k, camera) in footage.cameras.iter().enumerate() {
+                let name = &camera.name;
+                eprintln!(
+                    "air/{name}: the board in {} of {} images, {} used",
+                    camera.air_read.1,
+                    camera.air_read.0,
+                    camera.air.len()
+                );
+                let fit = air_lens(&footage, k, &board)?;
+                print_intrinsics(name, &fit);
+                cameras.push(fit.camera.clone());
+                fits.push((name.clone(), fit));
+            }
+            cameras
+        }
     };
     let (read, with_board, by_two) = footage.water_read;
     eprintln!(
         "underwater: the board in {with_board} of {read} frames ({by_two} seen by two or more cameras); {} frames used",
         footage.water.len()
     );
-    let frames = footage.water;
     let setup = RigSetup {
         cameras,
         port,
@@ -111,24 +129,19 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
     };
     let engine = calibration_engine(&args.engine)?;
     eprintln!("device: {}", engine.describe());
-    let options = BoardsOptions {
-        calibration: Options {
-            huber: args.huber.or(BoardsOptions::default().calibration.huber),
-            max_iterations: args.max_iterations,
-            max_rms_px: args.max_rms_px,
-            max_tilt: args.max_tilt_deg.to_radians(),
-            backend: backend(engine),
-            ..Options::default()
-        },
+    let settings = FitSettings {
+        huber: args.huber,
+        max_iterations: args.max_iterations,
+        max_rms_px: args.max_rms_px,
+        max_tilt_deg: args.max_tilt_deg,
         holdout: args.holdout,
-        lens_std: fits.iter().map(|(_, fit)| fit.std).collect(),
         refine_intrinsics: match args.refine_intrinsics.as_str() {
             "never" => RefineIntrinsics::Never,
             "always" => RefineIntrinsics::Always,
             _ => RefineIntrinsics::Auto,
         },
-        ..BoardsOptions::default()
     };
+    let options = boards_options(&settings, backend(engine), &fits);
     eprintln!(
         "calibrating the extrinsics and {} from {} frames ({} % held out)...",
         match port {
@@ -136,26 +149,21 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
             PortKind::Shared => "the shared port".to_string(),
             PortKind::Housings => format!("{} housings' ports", names.len()),
         },
-        frames.len(),
+        footage.water.len(),
         (100.0 * args.holdout).round()
     );
     let mut status = CalibrationStatus::new();
-    let mut lens_choice = None;
-    let result = if water_lenses {
-        calibrate_lenses_under_water(&names, &setup, &board, &frames, &options, &mut |p| {
-            status.update(p)
-        })
-        .map(|w| {
-            lens_choice = Some(w.reason);
-            w.calibration
-        })
-    } else {
-        calibrate_from_boards(&names, &setup, &board, &frames, &options, &mut |p| {
-            status.update(p)
-        })
-    };
+    let result = calibrate(
+        source,
+        &names,
+        &setup,
+        &board,
+        &footage,
+        &options,
+        &mut |p| status.update(p),
+    );
     status.finish();
-    let result = result?;
+    let (result, lens_choice) = result?;
     print_result(&result, &names);
     if let Some(reason) = &lens_choice {
         outln!("lenses: {reason}");
@@ -194,9 +202,8 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
     let report = &result.calibration.report;
     if !report.fits {
         bail!(
-            "the calibration does not fit: {}. What the data look like: {}. {} not written{}",
-            result.verdict.why.join("; "),
-            report.diagnosis.join("; "),
+            "{} {} not written{}",
+            refusal(&result),
             args.output.display(),
             args.report.as_ref().map_or(String::new(), |p| format!(
                 "; the report is in {}",
@@ -229,143 +236,6 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
             .map_or(String::new(), |p| format!(", {}", p.display()))
     );
     Ok(())
-}
-
-/// The glass of each camera's port from `--glass` (`T:N` for all, `CAMERA=T:N` for one).
-fn glass_per_camera(
-    glass: &[GlassArg],
-    names: &[String],
-    port: PortKind,
-) -> anyhow::Result<Vec<Vec<Layer>>> {
-    let mut per_camera = vec![Vec::new(); names.len()];
-    for g in glass {
-        let layer = Layer {
-            thickness: g.thickness,
-            index: g.index,
-        };
-        match (&g.camera, port) {
-            (_, PortKind::Surface) => bail!(
-                "--glass: --port surface is a bare water surface, without glass (use --port shared for a window)"
-            ),
-            (Some(camera), PortKind::Shared) => bail!(
-                "--glass {camera}=...: with --port shared one port is in front of every camera; give --glass THICKNESS:INDEX"
-            ),
-            (Some(camera), PortKind::Housings) => {
-                let k = names.iter().position(|n| n == camera).with_context(|| {
-                    format!(
-                        "--glass {camera}=...: no camera '{camera}' (cameras: {})",
-                        names.join(", ")
-                    )
-                })?;
-                per_camera[k] = vec![layer];
-            }
-            (None, _) => {
-                for layers in &mut per_camera {
-                    if layers.is_empty() {
-                        *layers = vec![layer];
-                    }
-                }
-            }
-        }
-    }
-    Ok(per_camera)
-}
-
-/// The intrinsics of the footage's cameras from the rig file at `path` (by name, of the same size).
-fn cameras_from_rig(path: &Path, footage: &Footage) -> anyhow::Result<Vec<PinholeCamera>> {
-    let rig = read_rig(path)?;
-    footage
-        .cameras
-        .iter()
-        .map(|camera| {
-            let k = rig.camera_index(&camera.name).with_context(|| {
-                format!(
-                    "{}: no camera '{}' (the camera folders name the cameras; the rig has {})",
-                    path.display(),
-                    camera.name,
-                    rig.cameras()
-                        .iter()
-                        .map(|c| c.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )
-            })?;
-            let intrinsics = rig.cameras()[k].intrinsics.clone();
-            if (intrinsics.width, intrinsics.height) != (camera.width, camera.height) {
-                bail!(
-                    "{}: camera '{}' is {}x{} pixels, its frames {}x{}",
-                    path.display(),
-                    camera.name,
-                    intrinsics.width,
-                    intrinsics.height,
-                    camera.width,
-                    camera.height
-                );
-            }
-            Ok(intrinsics)
-        })
-        .collect()
-}
-
-/// Every camera's start lens from its underwater frames (their magnification divided out).
-fn water_lens_starts(
-    footage: &Footage,
-    board: &Board,
-    index_air: f64,
-    index_water: f64,
-) -> anyhow::Result<Vec<PinholeCamera>> {
-    footage
-        .cameras
-        .iter()
-        .enumerate()
-        .map(|(k, camera)| {
-            let start = water_lens_start(
-                &camera.name,
-                (camera.width, camera.height),
-                board,
-                &footage.water,
-                k,
-                index_air,
-                index_water,
-            )?;
-            eprintln!(
-                "water/{}: lens start fx {:.1}, fy {:.1}, cx {:.1}, cy {:.1} px (the underwater views' pinhole, its focal length over n_water/n_air)",
-                camera.name, start.fx, start.fy, start.cx, start.cy
-            );
-            Ok(start)
-        })
-        .collect()
-}
-
-/// Every camera's lens from its in-air views.
-fn air_intrinsics(
-    footage: &Footage,
-    board: &Board,
-) -> anyhow::Result<(Vec<PinholeCamera>, Vec<(String, IntrinsicsFit)>)> {
-    let mut cameras = Vec::new();
-    let mut fits = Vec::new();
-    for camera in &footage.cameras {
-        let name = &camera.name;
-        eprintln!(
-            "air/{name}: the board in {} of {} images, {} used",
-            camera.air_read.1,
-            camera.air_read.0,
-            camera.air.len()
-        );
-        let fit = calibrate_intrinsics(
-            name,
-            camera.width,
-            camera.height,
-            board,
-            &camera.air,
-            &IntrinsicsOptions::default(),
-        )
-        .with_context(|| format!("the in-air calibration of camera '{name}'"))?;
-        print_intrinsics(name, &fit);
-        cameras.push(fit.camera.clone());
-        fits.push((name.clone(), fit));
-    }
-    Ok((cameras, fits))
 }
 
 fn print_intrinsics(name: &str, fit: &IntrinsicsFit) {

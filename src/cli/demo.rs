@@ -225,7 +225,7 @@ fn footage_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyh
         images: Some(footage.clone()),
         board: Some(board_path),
         port: Some(super::calib::PortArg::Shared),
-        glass: vec![super::calib::GlassArg {
+        glass: vec![flatport::runs::images::Glass {
             camera: None,
             thickness: glass.thickness,
             index: glass.index,

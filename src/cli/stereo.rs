@@ -19,10 +19,10 @@ use flatport::io::sweep_shard::sha256_file;
 use flatport::io::write_atomic;
 use flatport::model::Rig;
 use flatport::render::GreyImage;
+use flatport::runs::sequence::{Sequence, SequenceFrame};
 use flatport::stereo::fuse::{FuseOptions, FuseView, fuse};
 use flatport::stereo::gpu::GpuStereo;
 use flatport::stereo::range::{CountChoice, MAX_HYPOTHESES, RangeChoice, Sampling};
-use flatport::stereo::sequence::{Sequence, SequenceFrame};
 use flatport::stereo::{
     Backend, DepthMap, StereoOptions, StereoProgress, choose_sampling, consistency_px_for,
     resolve_depth_range, stereo_on,

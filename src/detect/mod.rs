@@ -22,14 +22,12 @@
 //! board frame's z axis (row direction × column direction) points away from the camera, as in
 //! the calibration's board model.
 
-pub mod board;
-
-pub use board::{BoardError, BoardSpec, CharucoSpec};
+pub use crate::base::{BoardError, BoardSpec, CharucoSpec};
 
 use image::GrayImage;
 use nalgebra::Point2;
 
-use crate::calib::Board;
+use crate::base::Board;
 use crate::model::{Rig, triangulate_rays};
 
 use calib_targets::chessboard::ChessboardParams;

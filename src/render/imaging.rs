@@ -23,7 +23,7 @@ use std::process::{Command, Stdio};
 use rayon::prelude::*;
 
 use super::{GreyImage, RenderError};
-use crate::calib::simulate::rng::Rng;
+use crate::base::Rng;
 
 /// Defocus: a disc (pillbox) point spread of radius R pixels,
 /// R(r) = max(0, R₀ + `corner_px` · r²/r_c²) at distance r from the image centre (r_c: the

@@ -27,12 +27,12 @@
 //! their exact depth maps: [`scene`], [`textured`].
 
 pub mod imaging;
-pub mod noise;
+pub use crate::base::noise;
 pub mod scene;
 pub mod textured;
 
 /// The images rendered here are the stereo matcher's input.
-pub use crate::stereo::GreyImage;
+pub use crate::base::GreyImage;
 pub use imaging::Imaging;
 pub use scene::{
     Extent, Hit, ImageTexture, Relief, Shape, Sphere, Surface, SurfaceFrame, Texture,
@@ -43,9 +43,9 @@ pub use textured::{RenderedView, render_textured};
 use nalgebra::{Isometry3, Point3, Vector3};
 use thiserror::Error;
 
-use crate::calib::Board;
-use crate::calib::simulate::rng::Rng;
-use crate::detect::board::{BoardSpec, CharucoSpec};
+use crate::base::Board;
+use crate::base::Rng;
+use crate::base::board_spec::{BoardSpec, CharucoSpec};
 use crate::engine::raymap::{backproject_rows, rows_per_band};
 use crate::engine::{Engine, EngineError};
 use crate::model::RefractiveCamera;

@@ -16,14 +16,14 @@
 //!   the first sign change is narrowed to 1e-9 m (regula falsi, Illinois variant).
 //! - **Sphere** |X − c| = r: λ = −b ∓ √(b² − (|o − c|² − r²)), b = d·(o − c) (closed form).
 //!
-//! Textures: procedural ([`noise::texture_grey`](super::noise::texture_grey), a solid texture in
+//! Textures: procedural ([`noise::texture_grey`](crate::base::noise::texture_grey), a solid texture in
 //! the surface's local coordinates X − O, so it moves with the surface) or an image mapped onto a
 //! plane or height field at (s, t): texture pixel (s/m + (w − 1)/2, t/m + (h − 1)/2) for m metres
 //! per pixel, bilinear, repeated beyond its edges.
 
 use nalgebra::{Point3, Unit, Vector3};
 
-use super::noise::texture_grey;
+use crate::base::noise::texture_grey;
 
 /// Precision of the height-field intersection along the ray, metres.
 pub const HEIGHT_FIELD_TOLERANCE: f64 = 1e-9;

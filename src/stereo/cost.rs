@@ -29,8 +29,8 @@ use rayon::prelude::*;
 pub use super::project::{air_ray_starts, project_hypotheses, warp_bilinear};
 use super::rays::{RayGrid, hypothesis_points};
 use super::table::{ProjectionTable, TableBand, warp_tabulated};
+use crate::base::GreyImage;
 use crate::model::RefractiveCamera;
-use crate::stereo::GreyImage;
 
 /// A cost of 1 (ZNCC ≤ 0) in the volume's u16 units.
 pub const COST_SCALE: u16 = 2047;

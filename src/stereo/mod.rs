@@ -67,19 +67,16 @@ pub mod edges;
 pub mod fuse;
 #[cfg(feature = "gpu")]
 pub mod gpu;
-mod image;
 pub mod project;
 pub mod range;
 pub mod rays;
 mod sample;
 pub mod select;
-#[cfg(feature = "images")]
-pub mod sequence;
 pub mod sgm;
 pub mod table;
 mod volume;
 
-pub use image::GreyImage;
+pub use crate::base::GreyImage;
 pub use table::Projection;
 
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -3,9 +3,9 @@
 //! camera, where its Newton iterations start, and the bilinear samples of the voter's image.
 
 use super::rays::RayGrid;
+use crate::base::GreyImage;
 use crate::engine::cpu::lanes;
 use crate::model::RefractiveCamera;
-use crate::stereo::GreyImage;
 
 /// Stage 3, `project_hypotheses`: the exact forward projection of `points` into `camera` by the
 /// engine's vector path, each from `tan_starts` (the tan a of an air ray near the point's, from

@@ -41,8 +41,8 @@ use super::project::warp_bilinear;
 use super::project::{air_ray_starts, project_hypotheses, sample_bilinear};
 use super::rays::{RayGrid, rays_on_grid};
 use super::sample::sample_row;
+use crate::base::GreyImage;
 use crate::model::RefractiveCamera;
-use crate::stereo::GreyImage;
 
 /// Node spacing of the projection table, reference pixels: the exact projection runs on 1/64 of
 /// the pixels (plus a node row above and below each band for the second differences).

@@ -274,8 +274,8 @@ pub fn axis_costs(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::base::Board;
     use crate::calib::costs::cost;
-    use crate::calib::problem::board::Board;
     use crate::calib::simulate::{SceneSpec, simulate};
     use crate::model::normal_from_tilt_azimuth;
 

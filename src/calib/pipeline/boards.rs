@@ -19,8 +19,8 @@ use super::report::add_lens_uncertainty;
 use super::{
     Calibration, Options, Progress, calibrate_unjudged, diagnose_misfit, fit_briefly, poses,
 };
+use crate::base::Board;
 use crate::calib::error::CalibError;
-use crate::calib::problem::board::Board;
 use crate::calib::problem::observations::{
     CameraKey, Image, Observations, SeenView, View, unusable_image,
 };

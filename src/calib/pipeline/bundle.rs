@@ -874,8 +874,8 @@ impl LeastSquares for Bundle<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::base::Board;
     use crate::calib::pipeline::rms;
-    use crate::calib::problem::board::Board;
     use crate::model::{Layer, PinholeCamera, RigCamera};
     use nalgebra::{Matrix3, Point2};
 

@@ -5,8 +5,8 @@
 use super::bundle::{Estimate, distance_unobservable};
 use super::report::port_names;
 use super::{FEW_VIEWS, MIN_VIEWS, MIN_VIEWS_3D, Method, Options};
+use crate::base::Board;
 use crate::calib::error::{CalibError, degrees};
-use crate::calib::problem::board::Board;
 use crate::calib::problem::observations::{
     SeenView, compare_views, describe_pose_groups, view_corners,
 };

@@ -205,7 +205,7 @@ fn median(mut values: Vec<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::problem::board::Board;
+    use crate::base::Board;
     use crate::calib::simulate::{Cameras, SceneSpec, simulate};
 
     /// Cameras linked only through a chain of frames (tl–tr in some views, tr–bl–br in others;

@@ -41,9 +41,9 @@
 
 use nalgebra::{DVector, Isometry3, Matrix2x3, Matrix3, Point2, Point3, Vector2, Vector3};
 
+use crate::base::Board;
 use crate::calib::error::{CalibError, number};
 use crate::calib::pipeline::poses::pinhole_pose;
-use crate::calib::problem::board::Board;
 use crate::calib::solvers::block::{
     BlockNormalEquations, POSE_PARAMETERS, move_pose, robust, view_share,
 };
@@ -1191,7 +1191,7 @@ fn finish(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::simulate::rng::Rng;
+    use crate::base::Rng;
     use nalgebra::{Translation3, UnitQuaternion};
 
     fn board() -> Board {

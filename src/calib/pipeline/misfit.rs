@@ -16,7 +16,7 @@ use rayon::prelude::*;
 
 use super::bundle::Estimate;
 use super::{Options, calibrate_views};
-use crate::calib::problem::board::Board;
+use crate::base::Board;
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::target::Target;
 use crate::model::Rig;

@@ -474,7 +474,7 @@ pub(crate) fn calibrate_views(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::problem::board::Board;
+    use crate::base::Board;
     use crate::calib::simulate::{SceneSpec, simulate};
     use crate::model::{Interface, Layer, PinholeCamera, RigCamera, normal_from_tilt_azimuth};
     use nalgebra::{Matrix3, Vector3};

@@ -16,7 +16,7 @@
 
 use nalgebra::{Matrix2, Point2, Vector2};
 
-use crate::calib::problem::board::Board;
+use crate::base::Board;
 
 /// Distance bonus of a frame per camera that saw it (in units of the description).
 const LINK_BONUS: f64 = 0.25;

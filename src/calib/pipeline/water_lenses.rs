@@ -21,8 +21,8 @@ use super::boards::{
 };
 use super::intrinsics::{AirView, IntrinsicsOptions, LensTerms, ModelChoice, calibrate_intrinsics};
 use super::{Progress, bundle::Estimate};
+use crate::base::Board;
 use crate::calib::error::CalibError;
-use crate::calib::problem::board::Board;
 use crate::model::PinholeCamera;
 
 /// The lens terms compared, simplest first: none, k1, k1 and k2, k1 k2 p1 p2. A lens's small

@@ -6,8 +6,8 @@ use std::ops::Range;
 
 use nalgebra::{Matrix3x2, Point2, Unit, Vector3};
 
+use crate::base::Board;
 use crate::calib::error::CalibError;
-use crate::calib::problem::board::Board;
 use crate::calib::problem::observations::{MIN_VIEW_CORNERS, SeenView, pair_views};
 use crate::model::{Interface, Ports, RefractiveCamera, Rig};
 

@@ -8,8 +8,8 @@
 
 use nalgebra::{Matrix2, Point2, Vector2};
 
+use crate::base::Board;
 use crate::calib::error::CalibError;
-use crate::calib::problem::board::Board;
 use crate::calib::problem::target::Target;
 use crate::model::Rig;
 

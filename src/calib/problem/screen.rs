@@ -29,7 +29,7 @@
 use nalgebra::{Matrix3, Point2, SMatrix, SVector, Vector2, Vector3};
 use rayon::prelude::*;
 
-use crate::calib::problem::board::Board;
+use crate::base::Board;
 use crate::calib::problem::observations::{MIN_VIEW_CORNERS, SeenView};
 use crate::model::Rig;
 

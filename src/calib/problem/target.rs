@@ -3,7 +3,7 @@
 
 use nalgebra::Point3;
 
-use crate::calib::problem::board::Board;
+use crate::base::Board;
 
 /// A calibration target: its corners in its own frame, metres.
 #[derive(Debug, Clone, PartialEq)]

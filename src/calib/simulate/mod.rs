@@ -5,17 +5,17 @@
 //! whole target in a view is left out of that view ([`Cameras::Any`]), or every view is seen
 //! whole by one pair of cameras ([`Cameras::Pair`], the stereo scenes of the thesis).
 
-pub mod rng;
+pub use crate::base::rng;
 pub mod spread;
 pub mod zoo;
 
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 
+use crate::base::Rng;
 use crate::calib::error::{CalibError, number};
 use crate::calib::problem::observations::{CameraKey, Image, Observations, View};
 use crate::calib::problem::target::Target;
 use crate::model::{RefractiveCamera, Rig};
-use rng::Rng;
 
 /// Which cameras image a view.
 #[derive(Debug, Clone, PartialEq, Eq)]

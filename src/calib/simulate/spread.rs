@@ -5,7 +5,7 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 use super::rng::Rng;
-use crate::calib::problem::board::Board;
+use crate::base::Board;
 use crate::model::Rig;
 
 /// Largest tilt of the board from facing the master camera, radians (40°).

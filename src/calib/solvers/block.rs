@@ -245,7 +245,7 @@ mod tests {
     use nalgebra::{Matrix6, U6, Vector6};
 
     use super::*;
-    use crate::calib::simulate::rng::Rng;
+    use crate::base::Rng;
     use crate::calib::solvers::lm::DenseNormalEquations;
 
     /// A random block-sparse Jacobian (each residual row depends on the G globals and one view's

@@ -217,7 +217,7 @@ impl LeastSquares for PointsProblem<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::simulate::rng::Rng;
+    use crate::base::Rng;
     use crate::calib::solvers::lm::{DenseNormalEquations, NormalEquations};
 
     #[test]

@@ -11,7 +11,7 @@
 use nalgebra::{Point2, SMatrix, SVector};
 use rayon::prelude::*;
 
-use crate::stereo::GreyImage;
+use crate::base::GreyImage;
 
 /// How corners are found and matched.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -341,7 +341,7 @@ pub fn match_pair(a: &GreyImage, b: &GreyImage, options: &MatchOptions) -> Vec<P
 #[cfg(all(test, feature = "images"))]
 mod tests {
     use super::*;
-    use crate::render::noise::texture_grey;
+    use crate::base::noise::texture_grey;
 
     /// A smooth random texture sampled at (x + dx, y + dy): the same scene moved by a known
     /// sub-pixel shift, the oracle of the refinement.

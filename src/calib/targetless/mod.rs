@@ -36,12 +36,12 @@ use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, Point3, SymmetricEigen, Unit, Vector3};
 
+use crate::base::GreyImage;
 use crate::calib::pipeline::bundle::{Estimate, Parameter, State};
 use crate::calib::pipeline::report::port_names;
 use crate::calib::solvers::lm::{LmOptions, Termination, levenberg_marquardt};
 use crate::calib::solvers::search::tangent_step;
 use crate::model::{Interface, Ports, Rig, triangulate_rays};
-use crate::stereo::GreyImage;
 
 pub use fit::{PointsProblem, PointsState, Track};
 pub use matches::{MatchOptions, PixelMatch, match_pair};

@@ -27,11 +27,11 @@ use bytemuck::{Pod, Zeroable};
 
 use super::StereoError;
 use super::select::Winners;
+use crate::base::GreyImage;
 use crate::gpu::compose::{Precision, Rows, WORKGROUP_SIZE};
 use crate::gpu::layout::Params;
 use crate::gpu::{GpuContext, GpuError};
 use crate::model::RefractiveCamera;
-use crate::stereo::GreyImage;
 
 /// Most voting cameras of one depth map (`MAX_VOTERS` in `shaders/stereo/sweep.wgsl`).
 pub const MAX_VOTERS: usize = 8;

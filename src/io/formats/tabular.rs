@@ -16,8 +16,8 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 
-use super::error::{EXCERPT_CHARS, head, quoted};
-use super::{IoError, OutputFile};
+use crate::io::error::{EXCERPT_CHARS, head, quoted};
+use crate::io::{IoError, OutputFile};
 
 /// Buffer size of the readers and writers opened here: large enough that system calls cost
 /// nothing next to parsing and formatting.
@@ -401,7 +401,7 @@ pub struct TableWriteSummary {
 }
 
 /// Writes the header and one line per row, `None` as `NaN` in every column, to `path` atomically
-/// (a temporary file renamed into place, as [`write_atomic`](super::write_atomic) does), or to
+/// (a temporary file renamed into place, as [`write_atomic`](crate::io::write_atomic) does), or to
 /// standard output when `path` is `None` or `-`. Numbers are written with Rust's `{}` for f64: the
 /// shortest text that reads back to the same f64.
 ///

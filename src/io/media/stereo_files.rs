@@ -14,8 +14,8 @@ use ply_rs_bw::ply::{
 use ply_rs_bw::writer::Writer;
 
 use super::npy::{NpyDtype, npy_header_of};
-use super::{IoError, OutputFile, write_atomic};
-use crate::render::GreyImage;
+use crate::base::GreyImage;
+use crate::io::{IoError, OutputFile, write_atomic};
 
 /// An image read for stereo: grey levels 0 … 1 (colour as luma with Rec. 709 weights, 16-bit
 /// scaled to 0 … 1) and its colours as 8-bit RGB (grey repeated for a grey image).
@@ -286,7 +286,7 @@ pub fn write_depth_png(
     };
     let draw_error =
         |e: &dyn std::fmt::Display| std::io::Error::other(format!("drawing failed: {e}"));
-    super::plot::register_font();
+    crate::io::plots::plot::register_font();
     {
         let root = BitMapBackend::with_buffer(&mut buffer, size).into_drawing_area();
         root.fill(&WHITE).map_err(|e| err(draw_error(&e)))?;

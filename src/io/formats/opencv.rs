@@ -27,8 +27,8 @@ use std::path::Path;
 use nalgebra::{Matrix3, Vector3};
 use saphyr_parser::{Event, Marker, Parser, ScanError, Span, StrInput, Tag};
 
-use super::error::{EXCERPT_CHARS, excerpt};
-use super::{IoError, read_text};
+use crate::io::error::{EXCERPT_CHARS, excerpt};
+use crate::io::{IoError, read_text};
 use crate::model::{Interface, PinholeCamera, Rig, RigCamera};
 
 /// The two cameras of an OpenCV stereo calibration.

@@ -26,8 +26,8 @@ use std::thread::JoinHandle;
 
 use image::{DynamicImage, GrayImage, ImageBuffer, Luma, Pixel, Rgb, RgbImage};
 
-use super::IoError;
 use super::image::read_image;
+use crate::io::IoError;
 
 /// File name extensions (any case) read as images.
 pub const IMAGE_EXTENSIONS: [&str; 5] = ["png", "jpg", "jpeg", "tif", "tiff"];
@@ -430,7 +430,7 @@ pub fn check_synchronized(dir: &Path, cameras: &[(String, FrameSource)]) -> Resu
 pub struct CameraFrames {
     /// One entry per selected frame: one image per camera, in the order the names were given,
     /// grey 0 … 1.
-    pub frames: Vec<Vec<crate::stereo::GreyImage>>,
+    pub frames: Vec<Vec<crate::base::GreyImage>>,
     /// The selected frames' indices.
     pub indices: Vec<usize>,
     /// The footage's frame count (every camera's).
@@ -482,12 +482,12 @@ pub fn read_camera_frames(
         .indices(count)
         .map_err(|e| invalid(dir, e.to_string()))?
         .collect();
-    let mut frames: Vec<Vec<crate::stereo::GreyImage>> =
+    let mut frames: Vec<Vec<crate::base::GreyImage>> =
         vec![Vec::with_capacity(ordered.len()); indices.len()];
     for (_, source) in &ordered {
         for (slot, item) in frames.iter_mut().zip(source.frames(&selection)?) {
             let (_, image) = item?;
-            slot.push(crate::stereo::GreyImage {
+            slot.push(crate::base::GreyImage {
                 width: image.width(),
                 height: image.height(),
                 pixels: image.pixels().map(|p| f32::from(p.0[0]) / 255.0).collect(),

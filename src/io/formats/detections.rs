@@ -16,8 +16,8 @@ use nalgebra::Point2;
 use serde_json::{Map, Value, json};
 
 use super::calib_json::stereo_form_text;
-use super::{IoError, write_atomic};
 use crate::calib::Board;
+use crate::io::{IoError, write_atomic};
 
 /// Corners of one view: per camera (in the order of the camera names), the camera's corners
 /// (row-major, `rows · cols`, `None` for a corner it did not see: a ChArUco board's partial view)

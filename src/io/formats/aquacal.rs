@@ -48,9 +48,9 @@ use serde::de::{IgnoredAny, MapAccess, Visitor};
 use serde::ser::SerializeMap;
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use super::error::{EXCERPT_CHARS, excerpt};
 use super::rig_json::{MAX_CAMERA_NAME_BYTES, parse_json};
-use super::{IoError, read_text};
+use crate::io::error::{EXCERPT_CHARS, excerpt};
+use crate::io::{IoError, read_text};
 use crate::model::{Interface, ModelError, PinholeCamera, Ports, Rig, RigCamera};
 
 /// The only `version` AquaCal's `load_calibration` accepts (`SERIALIZATION_VERSION`).
@@ -132,10 +132,10 @@ impl AquaCalBoard {
     /// reader accepts OpenCV's legacy layout only where it is the same board as today's.
     #[cfg(feature = "images")]
     pub fn from_board(
-        board: &crate::detect::board::BoardSpec,
+        board: &crate::base::board_spec::BoardSpec,
         path: &Path,
     ) -> Result<AquaCalBoard, IoError> {
-        use crate::detect::board::BoardSpec;
+        use crate::base::board_spec::BoardSpec;
         let invalid = |field: &str, reason: String| IoError::Invalid {
             path: path.to_path_buf(),
             field: field.into(),

@@ -15,8 +15,8 @@ use std::path::Path;
 use serde::Deserialize;
 
 use super::rig_json::parse_json;
-use super::{IoError, read_text};
-use crate::detect::board::{BoardError, BoardSpec, CharucoSpec, chessboard};
+use crate::base::board_spec::{BoardError, BoardSpec, CharucoSpec, chessboard};
+use crate::io::{IoError, read_text};
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -60,7 +60,7 @@ pub fn board_from_json_str(text: &str, path: &Path) -> Result<BoardSpec, IoError
                 "type",
                 format!(
                     "\"{}\": a board is \"charuco\" or \"chessboard\"",
-                    super::error::excerpt(other, 40)
+                    crate::io::error::excerpt(other, 40)
                 ),
             ));
         }

@@ -37,7 +37,7 @@ use serde::Deserialize;
 use serde::de::{self, MapAccess, Visitor};
 
 use super::rig_json::{RigFile, parse_json, present, rig_from_file};
-use super::{IoError, read_rig, read_text};
+use crate::io::{IoError, read_rig, read_text};
 use crate::model::Rig;
 use crate::render::{
     Extent, ImageTexture, Relief, Shape, Sphere, Surface, SurfaceFrame, Texture, TexturedScene,
@@ -300,7 +300,7 @@ fn parse_scene(text: &str, path: &Path, with_rig: bool) -> Result<SceneFileConte
                 image.metres_per_pixel,
             )?;
             let texture_path: PathBuf = folder.join(&image.path);
-            let grey = super::stereo_files::read_grey_f32(&texture_path)?;
+            let grey = crate::io::media::stereo_files::read_grey_f32(&texture_path)?;
             Ok(Texture::Image(ImageTexture {
                 width: grey.width,
                 height: grey.height,

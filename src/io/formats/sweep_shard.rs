@@ -16,9 +16,9 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::error::{EXCERPT_CHARS, excerpt};
 use super::rig_json::parse_json;
-use super::{IoError, read_text, write_atomic};
+use crate::io::error::{EXCERPT_CHARS, excerpt};
+use crate::io::{IoError, read_text, write_atomic};
 
 /// `format` of every manifest.
 pub const SHARD_FORMAT: &str = "flatport sweep shard";

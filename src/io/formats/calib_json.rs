@@ -6,10 +6,10 @@ use std::path::Path;
 use nalgebra::{Isometry3, Matrix3, Point2, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::error::{EXCERPT_CHARS, excerpt};
 use super::rig_json::{MAX_CAMERA_NAME_BYTES, interface_to_file};
-use super::{IoError, read_text, write_atomic};
 use crate::calib::{Board, CameraKey, Estimated, Image, Observations, Report, Target, View};
+use crate::io::error::{EXCERPT_CHARS, excerpt};
+use crate::io::{IoError, read_text, write_atomic};
 use crate::model::{Interface, Rig};
 
 #[derive(Debug, Serialize, Deserialize)]

@@ -1,6 +1,6 @@
 //! Footage of a board for `calibrate --images` (DESIGN.md §3c): `DIR/air/<camera>/` (each camera's
 //! own views in air) and `DIR/water/<camera>/` (synchronized frames under water), each folder
-//! images or one video ([`frames`](super::frames)); the board found in every frame read
+//! images or one video ([`frames`](crate::io::frames)); the board found in every frame read
 //! ([`find_corners`]), in parallel batches, and the frames to use chosen for spread over the image
 //! and the board's poses ([`spread`]).
 
@@ -10,14 +10,14 @@ use image::GrayImage;
 use nalgebra::Point2;
 use rayon::prelude::*;
 
-use super::error::IoError;
-use super::frames::{FrameSelection, FrameSource, check_synchronized, open_cameras};
+use crate::base::board_spec::BoardSpec;
 use crate::calib::Board;
 use crate::calib::pipeline::boards::WaterFrame;
 use crate::calib::pipeline::intrinsics::AirView;
 use crate::calib::pipeline::selection::{describe_image, spread};
-use crate::detect::board::BoardSpec;
 use crate::detect::{BoardCorners, Found, find_corners, resolve_view};
+use crate::io::IoError;
+use crate::io::frames::{FrameSelection, FrameSource, check_synchronized, open_cameras};
 
 /// Largest number of in-air views per camera used by default; more add little to a lens and
 /// cost time.

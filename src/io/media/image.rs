@@ -6,7 +6,7 @@ use std::path::Path;
 
 use image::{DynamicImage, GrayImage, ImageEncoder, RgbImage};
 
-use super::{IoError, write_atomic};
+use crate::io::{IoError, write_atomic};
 
 /// Reads an image file as 8-bit grey: colour becomes luma (Rec. 709 weights, the `image` crate's),
 /// 16-bit values are scaled to 8 bits. A file that does not decode (unknown format, truncated) is

@@ -1,4 +1,4 @@
-//! The calibration boards flatport reads, detects and renders: a plain chessboard or a ChArUco
+//! The calibration boards flatport reads, detects, renders and calibrates with: a plain chessboard or a ChArUco
 //! board (a chessboard with ArUco markers in its white squares), as a `BOARD.json` describes
 //! them (docs/DESIGN.md §3c; the file is read by [`crate::io::read_board`]).
 //!
@@ -18,7 +18,8 @@
 use calib_targets::aruco::{Dictionary, builtins};
 use calib_targets::charuco::{CharucoBoardSpec, MarkerLayout};
 
-use crate::calib::Board;
+use super::board::Board;
+use super::text::excerpt;
 
 /// A board that a `BOARD.json` describes.
 #[derive(Debug, Clone, PartialEq)]
@@ -184,7 +185,7 @@ impl CharucoSpec {
         }
         let dictionary = builtins::builtin_dictionary(dictionary).ok_or_else(|| {
             BoardError::UnknownDictionary {
-                name: crate::io::error::excerpt(dictionary, 40),
+                name: excerpt(dictionary, 40),
                 known: dictionary_names().join(", "),
             }
         })?;

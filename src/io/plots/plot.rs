@@ -19,7 +19,7 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::{IoError, write_atomic};
+use crate::io::{IoError, write_atomic};
 
 /// One surface over tilt × azimuth.
 #[derive(Debug, Clone)]
@@ -40,7 +40,7 @@ pub struct CostMap<'a> {
     pub truth: Option<(f64, f64)>,
 }
 
-const FONT: &[u8] = include_bytes!("../../data/fonts/DejaVuSans.ttf");
+const FONT: &[u8] = include_bytes!("../../../data/fonts/DejaVuSans.ttf");
 
 pub(crate) fn register_font() {
     static ONCE: std::sync::Once = std::sync::Once::new();

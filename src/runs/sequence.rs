@@ -9,7 +9,7 @@
 //!
 //! ```no_run
 //! use flatport::io::frames::FrameSelection;
-//! use flatport::stereo::sequence::Sequence;
+//! use flatport::runs::sequence::Sequence;
 //! # let rig: flatport::model::Rig = unimplemented!();
 //! let sequence = Sequence::open(&rig, std::path::Path::new("footage"))?;
 //! let wanted = sequence.select(&"0:100:10".parse()?)?;
@@ -370,7 +370,7 @@ pub fn colour_from_rgb(rgb: RgbImage) -> ColourImage {
     };
     let luma = image.to_luma32f();
     ColourImage {
-        grey: crate::render::GreyImage {
+        grey: crate::base::GreyImage {
             width,
             height,
             pixels: luma.into_raw(),

@@ -19,8 +19,8 @@
 use std::io::Write;
 use std::path::Path;
 
-use super::error::{EXCERPT_CHARS, excerpt};
-use super::{IoError, OutputFile};
+use crate::io::error::{EXCERPT_CHARS, excerpt};
+use crate::io::{IoError, OutputFile};
 
 /// The 10-byte preamble and the header dict, padded with spaces and a newline so the data starts
 /// on a 64-byte boundary, as numpy writes it.

@@ -2,7 +2,7 @@
 //! `FLATPORT` refractive model and a rig configuration, and OpenCV FileStorage YAML.
 //!
 //! Each writer returns the file's text; the caller writes it through
-//! [`write_atomic`](super::write_atomic).
+//! [`write_atomic`](crate::io::write_atomic).
 //!
 //! ## colmap_underwater's format (read from its source, not guessed)
 //!

@@ -7,9 +7,9 @@ use std::path::Path;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::error::{EXCERPT_CHARS, excerpt, shorten_quoted};
 use super::opencv::MAX_BASELINE_M;
-use super::{IoError, read_text, write_atomic};
+use crate::io::error::{EXCERPT_CHARS, excerpt, shorten_quoted};
+use crate::io::{IoError, read_text, write_atomic};
 use crate::model::interface::{DEFAULT_INDEX_AIR, DEFAULT_INDEX_WATER};
 use crate::model::{Interface, Layer, ModelError, PinholeCamera, Ports, Rig, RigCamera};
 
