@@ -94,15 +94,19 @@ fn side(board: &Board, exact: &[Point2<f64>]) -> f64 {
 /// The ordering corner 0's rules choose for one image alone ([`resolve_view`]).
 fn chosen(image: &GrayImage, board: &Board, detection: Detection) -> Vec<Point2<f64>> {
     let found = Found::new(image, board, detection);
-    let choice = resolve_view(board, &["cam".to_string()], None, &[Some(found.clone())])
-        .unwrap()[0]
-        .unwrap()
-        .0;
+    let choice = resolve_view(board, &["cam".to_string()], None, &[Some(found.clone())]).unwrap()
+        [0]
+    .unwrap()
+    .0;
     found.detection.orderings[choice].clone()
 }
 
 fn errors(found: &[Point2<f64>], exact: &[Point2<f64>]) -> Vec<f64> {
-    found.iter().zip(exact).map(|(a, b)| (a - b).norm()).collect()
+    found
+        .iter()
+        .zip(exact)
+        .map(|(a, b)| (a - b).norm())
+        .collect()
 }
 
 #[test]
@@ -118,7 +122,8 @@ fn specks_on_inner_corners_are_filled_in_at_the_exact_corners() {
         (&[20, 32], (0.7, -0.5), 1.5, 220.0),
         (&[39], (-1.0, 0.8), 2.5, 150.0),
     ];
-    let (mut filled, mut sum, mut count) = (0, 0.0, 0);
+    let (mut filled, mut sum, mut count, mut largest_filled, mut largest) =
+        (0, 0.0, 0, 0.0f64, 0.0f64);
     for (view, pose) in poses(&BOARD, specks.len(), 21).iter().enumerate() {
         let (corners, offset, sigma, peak) = specks[view];
         for camera in 0..2 {
@@ -138,6 +143,7 @@ fn specks_on_inner_corners_are_filled_in_at_the_exact_corners() {
                     .iter()
                     .map(|e| (corner.pixel - e).norm())
                     .fold(f64::INFINITY, f64::min);
+                largest_filled = largest_filled.max(nearest);
                 assert!(
                     nearest <= 0.25,
                     "view {view} camera {camera}: filled corner {corner:?} is {nearest} px from the nearest exact corner"
@@ -146,11 +152,12 @@ fn specks_on_inner_corners_are_filled_in_at_the_exact_corners() {
             filled += detection.filled.len();
             let found = chosen(&image, &BOARD, detection);
             let e = errors(&found, &exact);
-            let largest = e.iter().copied().fold(0.0, f64::max);
+            let worst = e.iter().copied().fold(0.0, f64::max);
             assert!(
-                largest <= 0.25,
-                "view {view} camera {camera}: largest corner error {largest} px (corner 0 at the wrong end?)"
+                worst <= 0.25,
+                "view {view} camera {camera}: largest corner error {worst} px (corner 0 at the wrong end?)"
             );
+            largest = largest.max(worst);
             sum += e.iter().map(|e| e * e).sum::<f64>();
             count += e.len();
         }
@@ -159,6 +166,9 @@ fn specks_on_inner_corners_are_filled_in_at_the_exact_corners() {
     let specked: usize = specks.iter().map(|s| s.0.len()).sum();
     assert_eq!(filled, 2 * specked, "corners filled in");
     let rms = (sum / count as f64).sqrt();
+    println!(
+        "{filled} corners filled in, largest error {largest_filled:.3} px; all corners RMS {rms:.3} px, largest {largest:.3} px"
+    );
     assert!(rms <= 0.1, "corner RMS {rms} px");
 }
 
@@ -177,14 +187,17 @@ fn a_blotch_over_the_refinement_window_leaves_the_prediction_and_says_so() {
     assert_eq!(detection.filled.len(), 1, "{:?}", detection.filled);
     let filled = &detection.filled[0];
     assert!(
-        matches!(filled.unrefined, Some(Unrefined::FewEdges)),
+        matches!(filled.unrefined, Some(Unrefined::Weak { .. })),
         "{filled:?}"
     );
     assert_eq!(filled.pixel, filled.predicted);
     let gap = (filled.pixel - corner).norm();
     assert!(gap <= 0.5, "predicted corner {gap} px from the exact one");
     let found = chosen(&image, &BOARD, detection);
-    assert!((found[22] - corner).norm() <= 0.5, "corner 22 is where it was filled in");
+    assert!(
+        (found[22] - corner).norm() <= 0.5,
+        "corner 22 is where it was filled in"
+    );
 }
 
 fn assert_partial(result: Result<Detection, Miss>, what: &str) {
@@ -244,7 +257,10 @@ fn a_board_missing_a_border_row_or_a_half_is_not_the_whole_board() {
     let corner = exact[22];
     let mut occluded = image.clone();
     paint(&mut occluded, 128, |p| (p - corner).norm() <= 0.85 * s);
-    assert_partial(detect_board(&occluded, &BOARD), "corner 22 and its squares occluded");
+    assert_partial(
+        detect_board(&occluded, &BOARD),
+        "corner 22 and its squares occluded",
+    );
 }
 
 #[test]
@@ -405,7 +421,10 @@ fn leave_one_out() {
     }
     let stats = |e: &[f64]| {
         let rms = (e.iter().map(|e| e * e).sum::<f64>() / e.len() as f64).sqrt();
-        format!("RMS {rms:.3} px, largest {:.3} px", e.iter().copied().fold(0.0, f64::max))
+        format!(
+            "RMS {rms:.3} px, largest {:.3} px",
+            e.iter().copied().fold(0.0, f64::max)
+        )
     };
     println!("{} corners left out in turn", chess.len());
     println!("ChESS corner: {}", stats(&chess));
