@@ -117,7 +117,8 @@ fn specks_on_inner_corners_are_filled_in_at_the_exact_corners() {
     // issue's goal).
     let rig = example_rig();
     // (corners specked, offset of the speck from the corner in px, σ px, peak grey levels)
-    let specks: [(&[usize], (f64, f64), f64, f64); 3] = [
+    type Specks<'a> = (&'a [usize], (f64, f64), f64, f64);
+    let specks: [Specks; 3] = [
         (&[13], (0.0, 0.0), 2.0, 180.0),
         (&[20, 32], (0.7, -0.5), 1.5, 220.0),
         (&[39], (-1.0, 0.8), 2.5, 150.0),
