@@ -546,3 +546,152 @@ pub fn refine_corner(
     }
     Ok(q)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_corner_models_derivatives_match_central_differences() {
+        let params =
+            Params::from_column_slice(&[10.3, -4.2, 0.3, 1.9, 120.0, -45.0, 1.7, 0.8, -0.5]);
+        let origin = Point2::new(10.0, -4.0);
+        for p in [
+            Point2::new(12.0, -1.0),
+            Point2::new(7.5, -6.0),
+            Point2::new(10.0, -4.0),
+            Point2::new(14.0, -9.0),
+        ] {
+            let (_, analytic) = corner_model(&params, origin, p);
+            for k in 0..9 {
+                let h = 1e-6 * params[k].abs().max(1.0);
+                let mut up = params;
+                let mut down = params;
+                up[k] += h;
+                down[k] -= h;
+                let numeric =
+                    (corner_model(&up, origin, p).0 - corner_model(&down, origin, p).0) / (2.0 * h);
+                assert!(
+                    (numeric - analytic[k]).abs() <= 1e-5 * numeric.abs().max(1.0),
+                    "parameter {k} at {p}: analytic {} numeric {numeric}",
+                    analytic[k]
+                );
+            }
+        }
+    }
+
+    /// The pixel of grid label (i, j) under an exact homography (squares of 30–40 px).
+    fn homography_pixel(i: f64, j: f64) -> Point2<f64> {
+        let w = 1.0 + 0.02 * i + 0.01 * j;
+        Point2::new(
+            (200.0 + 38.0 * i + 4.0 * j) / w,
+            (150.0 + 3.0 * i + 35.0 * j) / w,
+        )
+    }
+
+    #[test]
+    fn a_corner_on_an_exact_homography_is_predicted_exactly() {
+        for (ci, cj) in [(3.0, 2.0), (0.0, 0.0), (8.0, 5.0)] {
+            let pairs: Vec<_> = (0..6)
+                .flat_map(|j| (0..9).map(move |i| (f64::from(i), f64::from(j))))
+                .filter(|&(i, j)| {
+                    (i, j) != (ci, cj) && (i - ci).abs() <= 2.0 && (j - cj).abs() <= 2.0
+                })
+                .map(|(i, j)| (Point2::new(i, j), homography_pixel(i, j)))
+                .collect();
+            let (predicted, along_i, along_j) = predict(&pairs, Point2::new(ci, cj)).unwrap();
+            assert!(
+                (predicted - homography_pixel(ci, cj)).norm() < 1e-6,
+                "{ci}, {cj}"
+            );
+            let expected_i = homography_pixel(ci + 0.5, cj) - homography_pixel(ci - 0.5, cj);
+            let expected_j = homography_pixel(ci, cj + 0.5) - homography_pixel(ci, cj - 0.5);
+            assert!((along_i - expected_i).norm() < 1e-6 && (along_j - expected_j).norm() < 1e-6);
+        }
+    }
+
+    /// A corner drawn by the model itself (edges along (1, 0.1) and (−0.15, 1), blur 1.2 px,
+    /// greys 60 and 180) at `corner`, 61 × 61 pixels, with a bright speck (σ 2 px, +150 grey)
+    /// `speck` px from the corner.
+    fn drawn_corner(
+        corner: Point2<f64>,
+        speck: Vector2<f64>,
+    ) -> (GrayImage, Vector2<f64>, Vector2<f64>) {
+        let (along_i, along_j): (Vector2<f64>, Vector2<f64>) =
+            (Vector2::new(30.0, 3.0), Vector2::new(-4.5, 30.0));
+        let params = Params::from_column_slice(&[
+            corner.x,
+            corner.y,
+            along_i.y.atan2(along_i.x),
+            along_j.y.atan2(along_j.x),
+            120.0,
+            60.0,
+            1.2,
+            0.0,
+            0.0,
+        ]);
+        let image = GrayImage::from_fn(61, 61, |x, y| {
+            let p = Point2::new(f64::from(x), f64::from(y));
+            let grey = corner_model(&params, corner, p).0
+                + 150.0 * (-(p - (corner + speck)).norm_squared() / 8.0).exp();
+            image::Luma([grey.round().clamp(0.0, 255.0) as u8])
+        });
+        (image, along_i, along_j)
+    }
+
+    #[test]
+    fn a_speck_on_the_corner_does_not_move_the_refined_corner() {
+        // The image is the model itself on 8-bit pixels plus the speck: the bound 0.02 px is
+        // the rounding's share.
+        let corner = Point2::new(30.37, 29.81);
+        for speck in [
+            Vector2::zeros(),
+            Vector2::new(1.5, -1.0),
+            Vector2::new(-3.0, 2.0),
+        ] {
+            let (image, along_i, along_j) = drawn_corner(corner, speck);
+            let predicted = corner + Vector2::new(0.4, -0.3);
+            let pattern = corner_pattern(&image, predicted, along_i, along_j).unwrap();
+            let refined = refine_corner(&image, &image, predicted, along_i, along_j, pattern)
+                .unwrap_or_else(|why| panic!("speck at {speck}: {why}"));
+            assert!(
+                (refined - corner).norm() < 0.02,
+                "speck at {speck}: refined {refined}, {} px off",
+                (refined - corner).norm()
+            );
+        }
+    }
+
+    #[test]
+    fn a_flat_window_is_not_refined() {
+        let image = GrayImage::from_pixel(61, 61, image::Luma([128]));
+        let pattern = Pattern {
+            light: 1.0,
+            contrast: 100.0,
+        };
+        let result = refine_corner(
+            &image,
+            &image,
+            Point2::new(30.0, 30.0),
+            Vector2::new(30.0, 0.0),
+            Vector2::new(0.0, 30.0),
+            pattern,
+        );
+        assert!(
+            matches!(
+                result,
+                Err(Unrefined::Weak { .. }) | Err(Unrefined::NoConvergence)
+            ),
+            "{result:?}"
+        );
+        assert_eq!(
+            corner_pattern(
+                &image,
+                Point2::new(30.0, 30.0),
+                Vector2::new(30.0, 0.0),
+                Vector2::new(0.0, 30.0)
+            ),
+            None
+        );
+    }
+}
