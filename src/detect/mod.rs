@@ -5,9 +5,10 @@
 //! chessboard needs the rules below. [`find_corners`] takes either kind.
 //!
 //! The corners come from the `calib-targets` crate (ChESS corners, its chessboard grid, the
-//! saddle-point sub-pixel refiner). Its grid labels say which corner is next to which, not which
-//! end of the board is corner 0: a chessboard looks the same turned by 180° (and by 90° when it
-//! is square), up to the colours of its squares. [`Detection::orderings`] holds every ordering the
+//! saddle-point sub-pixel refiner); the few inner corners a grid of the board's shape misses
+//! (a backscatter speck on a corner) are filled in by [`fill`]. The grid's labels say which
+//! corner is next to which, not which end of the board is corner 0: a chessboard looks the same
+//! turned by 180° (and by 90° when it is square), up to the colours of its squares. [`Detection::orderings`] holds every ordering the
 //! image allows; [`colour_rule`], [`image_rule`] and [`pair_by_rays`] choose among them.
 //!
 //! **Corner 0 (the documented rule).** Corner 0 is the inner corner at the board's black corner
@@ -108,9 +109,10 @@ type Turn = fn(usize, usize, usize, usize) -> (usize, usize);
 
 /// Finds `board` in a grey image: all its `rows · cols` inner corners, or why not. A grid with
 /// the board's shape that misses a few inner corners (at most a tenth, every border line holding
-/// at least half of its corners) has them filled in ([`fill`]: predicted by the homography of
-/// their neighbours, checked to be a chessboard corner on the image, refined robustly to a
-/// speck); any other grid, or one whose gap is not a chessboard corner, is [`Miss::Partial`].
+/// at least half of its corners) has them filled in ([`fill`]: predicted from their
+/// neighbours, checked to be a chessboard corner on the image, refined robustly to a speck, and
+/// listed in [`Detection::filled`]); any other grid, or one whose gap is not a chessboard
+/// corner, is [`Miss::Partial`].
 pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss> {
     let params = ChessboardParams::sweep_default();
     let smoothed = calib_targets::detect::preprocess(image, PRE_BLUR_PX);
