@@ -191,26 +191,13 @@ CHARUCO = ROOT / "data" / "boards" / "charuco_7x5.json"
 CHESSBOARD = ROOT / "data" / "boards" / "chessboard_10x7.json"
 
 
-# Where flatport loses, measured (seed 7, 12 views, OpenCV 5.1.0): a backscatter speck on a
-# chessboard corner hides that corner from the ChESS front end (no response within 6 px in 4 of
-# the 5 misses; in the fifth it moved 1.8 px and the grid dropped it), so calib-targets labels a
-# 9 x 6 grid of 53 or 52 corners and detect_board rejects it as "not the whole board", while
-# findChessboardCornersSB, which fits the whole board, still finds it. ChArUco boards keep the
-# other corners of such an image by id, so they do not lose the board. The fix is to fill a
-# whole-extent grid's missing corners (predicted from their neighbours, refined robustly to a
-# speck) in src/detect/mod.rs; until then these cases fail and are marked so.
-SPECK_ON_CORNER = pytest.mark.xfail(strict=True, reason=(
-    "a backscatter speck on a chessboard corner hides it from ChESS; the 53-of-54 grid is rejected as not the "
-    "whole board: boards found flatport 11 vs OpenCV 12 (imaging 1, right), 11/10 vs 12/12 (imaging 2, left/right); "
-    "corner RMS flatport 0.048-0.187 px vs OpenCV 0.085-0.446 px"))
-
-
 @pytest.mark.parametrize("board_file,severity", [
     pytest.param(CHARUCO, 0, id="charuco-0"),
     pytest.param(CHARUCO, 1, id="charuco-1"),
     pytest.param(CHARUCO, 2, id="charuco-2"),
-    pytest.param(CHESSBOARD, 1, id="chessboard-1", marks=SPECK_ON_CORNER),
-    pytest.param(CHESSBOARD, 2, id="chessboard-2", marks=SPECK_ON_CORNER),
+    pytest.param(CHESSBOARD, 0, id="chessboard-0"),
+    pytest.param(CHESSBOARD, 1, id="chessboard-1"),
+    pytest.param(CHESSBOARD, 2, id="chessboard-2"),
 ])
 def test_detector_vs_opencv(tmp_path, board_file, severity):
     check(compare(tmp_path, board_file, severity), f"{board_file.name} --imaging {severity}")

@@ -5,9 +5,10 @@
 //! chessboard needs the rules below. [`find_corners`] takes either kind.
 //!
 //! The corners come from the `calib-targets` crate (ChESS corners, its chessboard grid, the
-//! saddle-point sub-pixel refiner). Its grid labels say which corner is next to which, not which
-//! end of the board is corner 0: a chessboard looks the same turned by 180° (and by 90° when it
-//! is square), up to the colours of its squares. [`Detection::orderings`] holds every ordering the
+//! saddle-point sub-pixel refiner); the few inner corners a grid of the board's shape misses
+//! (a backscatter speck on a corner) are filled in by [`fill`]. The grid's labels say which
+//! corner is next to which, not which end of the board is corner 0: a chessboard looks the same
+//! turned by 180° (and by 90° when it is square), up to the colours of its squares. [`Detection::orderings`] holds every ordering the
 //! image allows; [`colour_rule`], [`image_rule`] and [`pair_by_rays`] choose among them.
 //!
 //! **Corner 0 (the documented rule).** Corner 0 is the inner corner at the board's black corner
@@ -22,7 +23,10 @@
 //! board frame's z axis (row direction × column direction) points away from the camera, as in
 //! the calibration's board model.
 
+pub mod fill;
+
 pub use crate::base::{BoardError, BoardSpec, CharucoSpec};
+pub use fill::{FilledCorner, Unrefined};
 
 use image::GrayImage;
 use nalgebra::Point2;
@@ -80,6 +84,10 @@ pub struct Detection {
     /// Every row-major ordering of the corners the image allows (2, or 4 for a square board),
     /// each `rows · cols` pixels; they differ by turns of the board in its plane.
     pub orderings: Vec<Vec<Point2<f64>>>,
+    /// The inner corners the grid missed (a speck on a corner hides it), filled in by
+    /// [`fill`]; empty when the grid was whole. Those with [`FilledCorner::unrefined`] set sit
+    /// where their neighbours put them, not where the image does.
+    pub filled: Vec<FilledCorner>,
 }
 
 /// The ChESS front end: the workspace defaults of calib-targets with the saddle-point refiner,
@@ -98,13 +106,18 @@ pub const PRE_BLUR_PX: f32 = 1.0;
 /// Board corner (column, row) → grid label (i, j), given the grid's width and height.
 type Turn = fn(usize, usize, usize, usize) -> (usize, usize);
 
-/// Finds `board` in a grey image: all its `rows · cols` inner corners, or why not.
+/// Finds `board` in a grey image: all its `rows · cols` inner corners, or why not. A grid with
+/// the board's shape that misses a few inner corners (at most a tenth, every border line holding
+/// at least half of its corners) has them filled in ([`fill`]: predicted from their
+/// neighbours, checked to be a chessboard corner on the image, refined robustly to a speck, and
+/// listed in [`Detection::filled`]); any other grid, or one whose gap is not a chessboard
+/// corner, is [`Miss::Partial`].
 pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss> {
     let params = ChessboardParams::sweep_default();
     let smoothed = calib_targets::detect::preprocess(image, PRE_BLUR_PX);
-    let image = &smoothed;
-    let detection = calib_targets::detect::detect_chessboard_best(image, &chess_config(), &params)
-        .map_err(|_| Miss::NoBoard)?;
+    let detection =
+        calib_targets::detect::detect_chessboard_best(&smoothed, &chess_config(), &params)
+            .map_err(|_| Miss::NoBoard)?;
     let corners = &detection.corners;
     if corners.is_empty() {
         return Err(Miss::NoBoard);
@@ -113,14 +126,13 @@ pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss>
     let min_v = corners.iter().map(|c| c.grid.v).min().unwrap_or(0);
     let w = (corners.iter().map(|c| c.grid.u).max().unwrap_or(0) - min_u + 1) as usize;
     let h = (corners.iter().map(|c| c.grid.v).max().unwrap_or(0) - min_v + 1) as usize;
-    let whole = corners.len() == board.corners()
-        && w * h == board.corners()
-        && (w == board.cols || w == board.rows);
-    if !whole {
-        return Err(Miss::Partial {
-            found: corners.len(),
-            extent: (w, h),
-        });
+    let partial = Miss::Partial {
+        found: corners.len(),
+        extent: (w, h),
+    };
+    let shape = w * h == board.corners() && (w == board.cols || w == board.rows);
+    if !shape || corners.len() > board.corners() {
+        return Err(partial);
     }
     // grid[j][i], i across the image (right), j down.
     let mut grid = vec![None; w * h];
@@ -131,14 +143,13 @@ pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss>
             f64::from(c.position.y),
         ));
     }
+    let filled =
+        fill::fill_missing(&mut grid, w, h, image, &smoothed).ok_or_else(|| partial.clone())?;
     // The labels should run right and down in the image (i × j = +z, image y down); mirror them
     // if they do not, so that the orderings below keep the board's chirality.
     let (Some(origin), Some(along_i), Some(along_j)) = (grid[0], grid[w - 1], grid[(h - 1) * w])
     else {
-        return Err(Miss::Partial {
-            found: corners.len(),
-            extent: (w, h),
-        });
+        return Err(partial);
     };
     let (di, dj) = (along_i - origin, along_j - origin);
     if di.x * dj.y - di.y * dj.x < 0.0 {
@@ -175,12 +186,9 @@ pub fn detect_board(image: &GrayImage, board: &Board) -> Result<Detection, Miss>
         orderings.extend(ordering);
     }
     if orderings.is_empty() {
-        return Err(Miss::Partial {
-            found: corners.len(),
-            extent: (w, h),
-        });
+        return Err(partial);
     }
-    Ok(Detection { orderings })
+    Ok(Detection { orderings, filled })
 }
 
 /// True when the two ends of the board have corner squares of opposite colours, so that the
