@@ -82,4 +82,6 @@ pub mod io;
 pub mod model;
 #[cfg(feature = "images")]
 pub mod render;
+#[cfg(feature = "images")]
+pub mod report;
 pub mod stereo;
