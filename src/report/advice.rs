@@ -17,6 +17,7 @@ use nalgebra::{DMatrix, Isometry3, Point2, Point3, Rotation3, Translation3, Unit
 use crate::calib::pipeline::bundle::{Bundle, Estimate, INTRINSICS, Parameter, State};
 use crate::calib::pipeline::report::port_names;
 use crate::calib::problem::observations::SeenView;
+use crate::calib::problem::screen::screen;
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::lm::LeastSquares;
 use crate::model::Rig;
@@ -320,7 +321,7 @@ pub fn candidate_views(rig: &Rig, target: &Target, poses: &[Isometry3<f64>]) -> 
                             master_from_cam * UnitQuaternion::from_rotation_matrix(&turn);
                         let translation = at.coords - rotation * centroid;
                         let pose = Isometry3::from_parts(Translation3::from(translation), rotation);
-                        let view = exact_view(rig, &cameras, &points, &pose);
+                        let view = as_fitted(rig, target, exact_view(rig, &cameras, &points, &pose));
                         if view.corners_of(k).is_none() {
                             continue;
                         }
@@ -374,13 +375,34 @@ fn exact_view(
     view
 }
 
+/// `seen` as the calibration fits it: for a board, without the corner images the screening of
+/// gross errors leaves out of every estimate ([`screen`]: a strongly tilted board seen through the
+/// port can stray from the board's smooth shape by more than its threshold).
+pub fn as_fitted_views(rig: &Rig, target: &Target, seen: &[SeenView]) -> Vec<SeenView> {
+    match target.board() {
+        Some(board) => screen(rig, board, seen)
+            .without_suspects(seen)
+            .unwrap_or_else(|| seen.to_vec()),
+        None => seen.to_vec(),
+    }
+}
+
+fn as_fitted(rig: &Rig, target: &Target, view: SeenView) -> SeenView {
+    if view.cameras.is_empty() {
+        return view;
+    }
+    as_fitted_views(rig, target, std::slice::from_ref(&view))
+        .pop()
+        .unwrap_or(view)
+}
+
 /// σ of parameter `j` (σ̂ = `sigma_px`) from the information `info`, `None` when singular.
 fn sigma_of(info: &DMatrix<f64>, j: usize, sigma_px: f64) -> Option<f64> {
     let covariance = info.clone().cholesky()?.inverse();
     Some(sigma_px * covariance[(j, j)].max(0.0).sqrt())
 }
 
-/// The advice for the fit of `seen` (board poses `poses`) under the calibrated `rig`, estimating
+/// The advice for the fit of `seen` (screened as the calibration screens them: [`as_fitted_views`]) (board poses `poses`) under the calibrated `rig`, estimating
 /// `estimate` with noise σ̂ = `sigma_px`: see the module documentation.
 pub fn advise(
     rig: &Rig,
@@ -398,7 +420,8 @@ pub fn advise(
         candidates: 0,
         text: Vec::new(),
     };
-    let Some((globals, info)) = information(rig, target, seen, poses, estimate, huber) else {
+    let fitted = as_fitted_views(rig, target, seen);
+    let Some((globals, info)) = information(rig, target, &fitted, poses, estimate, huber) else {
         advice.text.push(
             "No information matrix: the fitted views and their board poses are not at hand for this route."
                 .into(),
