@@ -444,3 +444,59 @@ fn held_out(rig: &Rig, target: &Target, frames: &[(String, View)]) -> Vec<HeldOu
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::{Options, SceneSpec, calibrate, simulate};
+
+    fn example_rig() -> Rig {
+        crate::io::read_rig(Path::new("data/example_rig.json")).unwrap()
+    }
+
+    #[test]
+    fn a_rig_alone_gives_a_page_that_says_what_is_missing() {
+        let rig = example_rig();
+        let dir = tempfile::tempdir().unwrap();
+        let written = write_report(dir.path(), &Input::new("t", "", &rig)).unwrap();
+        let page = std::fs::read_to_string(&written.index).unwrap();
+        assert!(page.contains("this route holds no frames out"), "{page}");
+        assert!(page.contains("has no corner"));
+        assert!(written.advice.is_none());
+        assert!(dir.path().join("rig_top.png").is_file());
+    }
+
+    #[test]
+    fn a_camera_that_saw_nothing_is_named_not_a_panic() {
+        let rig = example_rig();
+        let target = Target::Board(Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        });
+        let scene = simulate(&rig, &SceneSpec::new(target, 8, 0.1, 3)).unwrap();
+        let mut observations = scene.observations.clone();
+        for view in &mut observations.views {
+            view.images.retain(|i| i.key == "left");
+        }
+        let start = rig
+            .with_interface(rig.port_in_master(0).with_pose(Vector3::z(), 0.01).unwrap())
+            .unwrap();
+        let calibration = calibrate(&start, &observations, &Options::default()).unwrap();
+        let input = Input::from_observations(
+            "t",
+            &calibration.rig,
+            &calibration.report,
+            &observations,
+            None,
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let written = write_report(dir.path(), &input).unwrap();
+        let page = std::fs::read_to_string(&written.index).unwrap();
+        assert!(page.contains("<h3>right</h3>\n<p>This camera has no corner"), "{page}");
+        assert!(page.contains("no frames were held out"));
+        let advice = written.advice.unwrap();
+        assert!(advice.worst.is_some(), "{:?}", advice.text);
+        assert!(dir.path().join("quiver_1_right.png").is_file());
+    }
+}

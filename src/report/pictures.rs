@@ -271,6 +271,24 @@ fn image_chart<'a, 'b>(
     Ok(chart)
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_line_is_clipped_to_the_chart_without_turning() {
+        let ((ax, ay), (bx, by)) = clip((-10.0, -1.0), (10.0, 1.0), (-1.0, 1.0, -1.0, 1.0)).unwrap();
+        assert!((ax + 1.0).abs() < 1e-12 && (ay + 0.1).abs() < 1e-12);
+        assert!((bx - 1.0).abs() < 1e-12 && (by - 0.1).abs() < 1e-12);
+        assert!(clip((-10.0, 5.0), (10.0, 5.0), (-1.0, 1.0, -1.0, 1.0)).is_none());
+    }
+
+    #[test]
+    fn camera_names_become_file_names() {
+        assert_eq!(file_safe("cam 1/ü"), "cam_1__");
+    }
+}
+
 fn no_data(area: &Area) -> Result<(), String> {
     area.draw(&Text::new(
         "no corners",
@@ -589,6 +607,37 @@ fn held_out(area: &Area, facts: &Facts) -> Result<(), String> {
     Ok(())
 }
 
+/// The part of the segment a–b inside the rectangle (x0, x1, y0, y1) (Liang–Barsky), `None`
+/// when it misses it.
+fn clip(
+    a: (f64, f64),
+    b: (f64, f64),
+    (x0, x1, y0, y1): (f64, f64, f64, f64),
+) -> Option<((f64, f64), (f64, f64))> {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for (p, q) in [(-dx, a.0 - x0), (dx, x1 - a.0), (-dy, a.1 - y0), (dy, y1 - a.1)] {
+        if p == 0.0 {
+            if q < 0.0 {
+                return None;
+            }
+        } else {
+            let r = q / p;
+            if p < 0.0 {
+                t0 = t0.max(r);
+            } else {
+                t1 = t1.min(r);
+            }
+        }
+    }
+    (t0 <= t1).then(|| {
+        (
+            (a.0 + t0 * dx, a.1 + t0 * dy),
+            (a.0 + t1 * dx, a.1 + t1 * dy),
+        )
+    })
+}
+
 /// The rig projected on two master axes (`axes.0` across, `axes.1` up, times `axes.2`).
 fn rig_view(area: &Area, facts: &Facts, axes: (usize, usize, f64)) -> Result<(), String> {
     let rig = facts.input.rig;
@@ -675,14 +724,16 @@ fn rig_view(area: &Area, facts: &Facts, axes: (usize, usize, f64)) -> Result<(),
             (port.outer_distance(), RGBColor(0, 60, 160).stroke_width(1)),
         ] {
             let at = project(&(origin + n * distance));
+            // Clipped here: plotters would clamp each end into the chart, turning the line.
+            let Some(segment) = clip(
+                (at.0 - span * along.0, at.1 - span * along.1),
+                (at.0 + span * along.0, at.1 + span * along.1),
+                (x0, x1, y0, y1),
+            ) else {
+                continue;
+            };
             chart
-                .draw_series([PathElement::new(
-                    vec![
-                        (at.0 - span * along.0, at.1 - span * along.1),
-                        (at.0 + span * along.0, at.1 + span * along.1),
-                    ],
-                    style,
-                )])
+                .draw_series([PathElement::new(vec![segment.0, segment.1], style)])
                 .map_err(text)?;
         }
     }
