@@ -440,6 +440,8 @@ fn depth_tilt(area: &Area, facts: &Facts, k: usize) -> Result<(), String> {
         .filter(|(c, _, _)| c.camera == k)
         .map(|(c, _, _)| (c.distance_m, c.tilt_deg.abs()));
     let (x0, x1) = padded(points.iter().map(|p| p.0).chain(advised.map(|a| a.0)).chain([0.0]));
+    // Room for the advised view's label at the right.
+    let x1 = x1 + 0.12 * (x1 - x0);
     let mut chart = ChartBuilder::on(area)
         .caption(format!("{name}: frames by distance and tilt"), ("sans-serif", 18))
         .margin(10)
@@ -449,6 +451,8 @@ fn depth_tilt(area: &Area, facts: &Facts, k: usize) -> Result<(), String> {
         .map_err(text)?;
     chart
         .configure_mesh()
+        .max_light_lines(0)
+        .bold_line_style(RGBColor(225, 225, 225))
         .x_desc("distance from the camera (m)")
         .y_desc("board tilt (°)")
         .label_style(("sans-serif", 12))
@@ -498,6 +502,8 @@ fn frames_rms(area: &Area, facts: &Facts) -> Result<(), String> {
         .map_err(text)?;
     chart
         .configure_mesh()
+        .max_light_lines(0)
+        .bold_line_style(RGBColor(225, 225, 225))
         .x_desc("frame (report order)")
         .y_desc("RMS (px)")
         .label_style(("sans-serif", 12))
@@ -552,6 +558,8 @@ fn histogram(area: &Area, facts: &Facts) -> Result<(), String> {
         .map_err(text)?;
     chart
         .configure_mesh()
+        .max_light_lines(0)
+        .bold_line_style(RGBColor(225, 225, 225))
         .x_desc("|residual| (px; the last bin holds everything beyond)")
         .y_desc("corners")
         .label_style(("sans-serif", 12))
@@ -596,6 +604,8 @@ fn held_out(area: &Area, facts: &Facts) -> Result<(), String> {
         .map_err(text)?;
     chart
         .configure_mesh()
+        .max_light_lines(0)
+        .bold_line_style(RGBColor(225, 225, 225))
         .x_desc("distance from the master camera (m)")
         .y_desc("RMS square error (mm)")
         .label_style(("sans-serif", 12))
@@ -690,6 +700,8 @@ fn rig_view(area: &Area, facts: &Facts, axes: (usize, usize, f64)) -> Result<(),
         .map_err(text)?;
     chart
         .configure_mesh()
+        .max_light_lines(0)
+        .bold_line_style(RGBColor(225, 225, 225))
         .x_desc(format!("{} (m)", names[a]))
         .y_desc(format!("{}{} (m)", if sign < 0.0 { "−" } else { "" }, names[b]))
         .label_style(("sans-serif", 12))
