@@ -10,9 +10,9 @@
 //! design step gives only 2.0–2.4×, too close to the bound to test on.
 
 use flatport::calib::pipeline::report::Report;
+use flatport::calib::problem::board::Board;
 use flatport::calib::simulate::rng::Rng;
 use flatport::calib::{CameraKey, Image, Observations, Options, Target, View, calibrate};
-use flatport::calib::problem::board::Board;
 use flatport::model::{Ports, Rig};
 use flatport::report::{Input, advice::Advice, write_report};
 use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
@@ -113,7 +113,12 @@ fn calibrate_and_advise(truth: &Rig, target: &Target, views: &[View]) -> (Report
     let advice = written.advice.expect("an observations route gives advice");
     for line in &advice.text {
         assert!(
-            index.contains(&line.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")),
+            index.contains(
+                &line
+                    .replace('&', "&amp;")
+                    .replace('<', "&lt;")
+                    .replace('>', "&gt;")
+            ),
             "the page shows the advice: {line}"
         );
     }
@@ -164,7 +169,11 @@ fn the_advised_view_halves_the_sigma_of_the_parameter_it_names() {
         advice.text[0]
     );
     let (view, predicted, _) = advice.best.clone().expect("a view advised");
-    assert!(advice.text[1].contains(" m from camera cam"), "{}", advice.text[1]);
+    assert!(
+        advice.text[1].contains(" m from camera cam"),
+        "{}",
+        advice.text[1]
+    );
     assert!(advice.text[1].contains(&view.place()), "{}", advice.text[1]);
     eprintln!(
         "advised: {:.2} m, {}, {} (predicted σ after one view {:.4} mm)",
@@ -202,7 +211,10 @@ fn the_advised_view_halves_the_sigma_of_the_parameter_it_names() {
         worst.sigma,
         sigma_after
     );
-    assert!(reported_after <= 0.5 * reported, "report σ {reported} → {reported_after}");
+    assert!(
+        reported_after <= 0.5 * reported,
+        "report σ {reported} → {reported_after}"
+    );
     // The prediction from the fit's information matrix holds to within 10 % (the re-fit moves
     // the rig and σ̂ a little; 0.2 % at this seed, 1 % at seeds 1 and 2).
     assert!(

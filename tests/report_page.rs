@@ -44,15 +44,20 @@ fn chromium() -> Option<PathBuf> {
         .map(PathBuf::from)
         .into_iter()
         .chain(
-            ["chromium", "chromium-browser", "google-chrome", "google-chrome-stable"]
-                .iter()
-                .filter_map(|name| {
-                    std::env::var_os("PATH").and_then(|paths| {
-                        std::env::split_paths(&paths)
-                            .map(|d| d.join(name))
-                            .find(|f| f.is_file())
-                    })
-                }),
+            [
+                "chromium",
+                "chromium-browser",
+                "google-chrome",
+                "google-chrome-stable",
+            ]
+            .iter()
+            .filter_map(|name| {
+                std::env::var_os("PATH").and_then(|paths| {
+                    std::env::split_paths(&paths)
+                        .map(|d| d.join(name))
+                        .find(|f| f.is_file())
+                })
+            }),
         )
         .collect();
     let found = candidates.into_iter().find(|c| c.is_file());
@@ -131,7 +136,10 @@ fn check_page(browser: &Path, dir: &Path, name: &str) -> String {
         "{name}: no screenshot at {}",
         shot.display()
     );
-    eprintln!("{name}: {images} pictures decoded; screenshot {}", shot.display());
+    eprintln!(
+        "{name}: {images} pictures decoded; screenshot {}",
+        shot.display()
+    );
     dom
 }
 
@@ -199,7 +207,12 @@ fn the_images_route_writes_a_page_chromium_opens() {
         assert!(report.join(file).is_file(), "{file} written");
     }
     let dom = check_page(&browser, &report, "images");
-    for section in ["Verdict", "What footage to add", "Held-out frames", "trades off with"] {
+    for section in [
+        "Verdict",
+        "What footage to add",
+        "Held-out frames",
+        "trades off with",
+    ] {
         assert!(dom.contains(section), "{section} on the page");
     }
     let json: serde_json::Value =

@@ -404,7 +404,10 @@ pub fn command_line() -> String {
 }
 
 /// Writes the report page of `input` into `dir` and says where it is.
-pub fn written_report(dir: &std::path::Path, input: &flatport::report::Input) -> anyhow::Result<()> {
+pub fn written_report(
+    dir: &std::path::Path,
+    input: &flatport::report::Input,
+) -> anyhow::Result<()> {
     let written = flatport::report::write_report(dir, input)?;
     eprintln!(
         "report: {} ({} files)",

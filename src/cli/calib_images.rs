@@ -106,7 +106,12 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
     let air_corners: Vec<Vec<nalgebra::Point2<f64>>> = footage
         .cameras
         .iter()
-        .map(|c| c.air.iter().flat_map(|v| v.corners.iter().map(|(_, p)| *p)).collect())
+        .map(|c| {
+            c.air
+                .iter()
+                .flat_map(|v| v.corners.iter().map(|(_, p)| *p))
+                .collect()
+        })
         .collect();
     let setup = RigSetup {
         cameras,

@@ -360,7 +360,11 @@ fn cell_of(edges: &[f64], v: f64) -> Option<usize> {
     Some(k.saturating_sub(1).min(n - 1))
 }
 
-pub(crate) fn encode(path: &Path, buffer: &[u8], (width, height): (u32, u32)) -> Result<(), IoError> {
+pub(crate) fn encode(
+    path: &Path,
+    buffer: &[u8],
+    (width, height): (u32, u32),
+) -> Result<(), IoError> {
     let err = |source| IoError::Write {
         path: path.to_path_buf(),
         source,

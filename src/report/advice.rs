@@ -12,7 +12,11 @@
 //! places in each camera's image, posed from the rig just calibrated) the one that shrinks σ_j*
 //! most is advised: an A-optimal design step on the worst-determined parameter.
 
-use nalgebra::{DMatrix, Isometry3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    DMatrix, Isometry3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
+};
+
+use rayon::prelude::*;
 
 use crate::calib::pipeline::bundle::{Bundle, Estimate, INTRINSICS, Parameter, State};
 use crate::calib::pipeline::report::port_names;
@@ -34,7 +38,8 @@ pub const ROTATION_TOLERANCE_RAD: f64 = 0.02 * std::f64::consts::PI / 180.0;
 pub const TRANSLATION_TOLERANCE_M: f64 = 0.5e-3;
 /// The board distances tried, as multiples of the nearest and farthest fitted board distance of
 /// a camera: closer than any, the near end, the middle, the far end, farther than any.
-const DISTANCE_FACTORS: [(f64, f64); 5] = [(0.6, 0.0), (1.0, 0.0), (0.5, 0.5), (0.0, 1.0), (0.0, 1.5)];
+const DISTANCE_FACTORS: [(f64, f64); 5] =
+    [(0.6, 0.0), (1.0, 0.0), (0.5, 0.5), (0.0, 1.0), (0.0, 1.5)];
 /// The tilts tried (degrees) about the camera's x and y axes.
 const TILTS_DEG: [f64; 3] = [0.0, 35.0, -35.0];
 /// Places in the image tried: the centres of a 3 × 3 grid.
@@ -295,10 +300,12 @@ pub fn candidate_views(rig: &Rig, target: &Target, poses: &[Isometry3<f64>]) -> 
         );
         for &(a, b) in &DISTANCE_FACTORS {
             let distance = a * near + b * far;
-            for (axis, tilt) in [('x', 0.0)]
-                .into_iter()
-                .chain(TILTS_DEG.iter().filter(|t| **t != 0.0).flat_map(|&t| [('x', t), ('y', t)]))
-            {
+            for (axis, tilt) in [('x', 0.0)].into_iter().chain(
+                TILTS_DEG
+                    .iter()
+                    .filter(|t| **t != 0.0)
+                    .flat_map(|&t| [('x', t), ('y', t)]),
+            ) {
                 for row in 0..REGIONS {
                     for column in 0..REGIONS {
                         let pixel = Point2::new(
@@ -314,14 +321,17 @@ pub fn candidate_views(rig: &Rig, target: &Target, poses: &[Isometry3<f64>]) -> 
                         }
                         let at = ray.origin + ray.dir.into_inner() * along;
                         let turn = match axis {
-                            'x' => Rotation3::from_axis_angle(&Vector3::x_axis(), tilt.to_radians()),
+                            'x' => {
+                                Rotation3::from_axis_angle(&Vector3::x_axis(), tilt.to_radians())
+                            }
                             _ => Rotation3::from_axis_angle(&Vector3::y_axis(), tilt.to_radians()),
                         };
                         let rotation =
                             master_from_cam * UnitQuaternion::from_rotation_matrix(&turn);
                         let translation = at.coords - rotation * centroid;
                         let pose = Isometry3::from_parts(Translation3::from(translation), rotation);
-                        let view = as_fitted(rig, target, exact_view(rig, &cameras, &points, &pose));
+                        let view =
+                            as_fitted(rig, target, exact_view(rig, &cameras, &points, &pose));
                         if view.corners_of(k).is_none() {
                             continue;
                         }
@@ -398,8 +408,11 @@ fn as_fitted(rig: &Rig, target: &Target, view: SeenView) -> SeenView {
 
 /// σ of parameter `j` (σ̂ = `sigma_px`) from the information `info`, `None` when singular.
 fn sigma_of(info: &DMatrix<f64>, j: usize, sigma_px: f64) -> Option<f64> {
-    let covariance = info.clone().cholesky()?.inverse();
-    Some(sigma_px * covariance[(j, j)].max(0.0).sqrt())
+    // (I⁻¹)_jj = e_jᵀ I⁻¹ e_j: one solve, not the whole inverse.
+    let mut unit = nalgebra::DVector::zeros(info.nrows());
+    unit[j] = 1.0;
+    let column = info.clone().cholesky()?.solve(&unit);
+    Some(sigma_px * column[j].max(0.0).sqrt())
 }
 
 /// The advice for the fit of `seen` (screened as the calibration screens them: [`as_fitted_views`]) (board poses `poses`) under the calibrated `rig`, estimating
@@ -458,27 +471,37 @@ pub fn advise(
     ));
     let candidates = candidate_views(rig, target, poses);
     advice.candidates = candidates.len();
-    let mut best: Option<(CandidateView, f64, f64)> = None;
-    for candidate in candidates {
-        let Some((_, extra)) = information(
-            rig,
-            target,
-            std::slice::from_ref(&candidate.view),
-            std::slice::from_ref(&candidate.master_from_target),
-            estimate,
-            None,
-        ) else {
-            continue;
-        };
-        let Some(after) = sigma_of(&(&info + &extra), worst, sigma_px) else {
-            continue;
-        };
-        if best.as_ref().is_none_or(|b| after < b.1) {
-            let repeated = sigma_of(&(&info + &extra * REPEATS as f64), worst, sigma_px)
-                .unwrap_or(after);
-            best = Some((candidate, after, repeated));
-        }
-    }
+    // Each candidate's σ after it is added, on every core; the first of the smallest wins.
+    let scored: Vec<Option<(f64, DMatrix<f64>)>> = candidates
+        .par_iter()
+        .map(|candidate| {
+            let (_, extra) = information(
+                rig,
+                target,
+                std::slice::from_ref(&candidate.view),
+                std::slice::from_ref(&candidate.master_from_target),
+                estimate,
+                None,
+            )?;
+            Some((sigma_of(&(&info + &extra), worst, sigma_px)?, extra))
+        })
+        .collect();
+    let best = candidates
+        .into_iter()
+        .zip(scored)
+        .filter_map(|(c, s)| s.map(|(after, extra)| (c, after, extra)))
+        .fold(
+            None::<(CandidateView, f64, DMatrix<f64>)>,
+            |best, next| match best {
+                Some(b) if b.1 <= next.1 => Some(b),
+                _ => Some(next),
+            },
+        )
+        .map(|(candidate, after, extra)| {
+            let repeated =
+                sigma_of(&(&info + &extra * REPEATS as f64), worst, sigma_px).unwrap_or(after);
+            (candidate, after, repeated)
+        });
     match &best {
         Some((c, after, repeated)) => {
             let name = &rig.cameras()[c.camera].name;

@@ -102,7 +102,9 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
                 a.candidates
             );
         }
-        None => out.push_str("<p>No advice: this route keeps no information matrix of board views here.</p>\n"),
+        None => out.push_str(
+            "<p>No advice: this route keeps no information matrix of board views here.</p>\n",
+        ),
     }
     out.push_str("</div>\n");
     // The rig.
@@ -120,7 +122,11 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
                 let _ = writeln!(
                     out,
                     "<tr{}><td class=\"l\">{}</td><td>{} {}</td><td>{} {}</td><td>{}</td><td class=\"l\">{}</td></tr>",
-                    if worst { " style=\"background:#fff3cd\"" } else { "" },
+                    if worst {
+                        " style=\"background:#fff3cd\""
+                    } else {
+                        ""
+                    },
                     escape(&p.name),
                     number(p.sigma * p.scale, 4),
                     p.unit,
@@ -137,7 +143,9 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
             out.push_str("</table>\n<p><small>σ from the fit's information matrix (board poses eliminated) times σ̂²; an axis is moved in its tangent plane (two directions); “needed”: a third of issue 38's bounds for the ports (0.1° of axis, 1.5 mm of air, 0.3 mm for a surface), 0.02° and 0.5 mm for the extrinsics.</small></p>\n");
         }
         None if !input.sigma_rows.is_empty() => {
-            out.push_str("<table><tr><th class=\"l\">parameter</th><th>value</th><th>σ</th></tr>\n");
+            out.push_str(
+                "<table><tr><th class=\"l\">parameter</th><th>value</th><th>σ</th></tr>\n",
+            );
             for (n, v, s) in &input.sigma_rows {
                 let _ = writeln!(
                     out,
@@ -158,7 +166,8 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
                 format!(
                     "{}{}",
                     number(e.value * scale, 3),
-                    e.std.map_or(String::new(), |s| format!(" ± {}", number(s * scale, 3)))
+                    e.std
+                        .map_or(String::new(), |s| format!(" ± {}", number(s * scale, 3)))
                 )
             };
             let _ = writeln!(
@@ -237,7 +246,11 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
                 .filter(|c| c.frame == f && c.outlier)
                 .map(|c| format!("{} #{}", rig.cameras()[c.camera].name, c.corner))
                 .collect::<Vec<_>>();
-            let _ = writeln!(out, "<td class=\"l\">{}</td></tr>", escape(&outliers.join(", ")));
+            let _ = writeln!(
+                out,
+                "<td class=\"l\">{}</td></tr>",
+                escape(&outliers.join(", "))
+            );
         }
         out.push_str("</table>\n");
     }
@@ -314,13 +327,18 @@ pub(crate) fn write_numbers(
         files.push(path);
         Ok(())
     };
-    let mut residuals = String::from("camera,frame,corner,u_px,v_px,du_px,dv_px,distance_m,tilt_deg,outlier\n");
+    let mut residuals =
+        String::from("camera,frame,corner,u_px,v_px,du_px,dv_px,distance_m,tilt_deg,outlier\n");
     for c in &facts.corners {
         let _ = writeln!(
             residuals,
             "{},{},{},{:.4},{:.4},{:.5},{:.5},{:.4},{:.2},{}",
             rig.cameras()[c.camera].name,
-            input.fitted.get(c.frame).map_or("?", |(l, _)| l.as_str()).replace(',', ";"),
+            input
+                .fitted
+                .get(c.frame)
+                .map_or("?", |(l, _)| l.as_str())
+                .replace(',', ";"),
             c.corner,
             c.observed.x,
             c.observed.y,
@@ -358,7 +376,11 @@ pub(crate) fn write_numbers(
                 let _ = writeln!(
                     frames,
                     "{},{},{r:.5}",
-                    input.fitted.get(f).map_or("?", |(l, _)| l.as_str()).replace(',', ";"),
+                    input
+                        .fitted
+                        .get(f)
+                        .map_or("?", |(l, _)| l.as_str())
+                        .replace(',', ";"),
                     rig.cameras()[k].name
                 );
             }

@@ -22,7 +22,9 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Isometry3, Point2, Point3, Vector2, Vector3};
 
 use crate::calib::pipeline::acceptance::Verdict;
-use crate::calib::pipeline::boards::{BoardsCalibration, WaterFrame, square_errors, triangulate_view, validate};
+use crate::calib::pipeline::boards::{
+    BoardsCalibration, WaterFrame, square_errors, triangulate_view, validate,
+};
 use crate::calib::pipeline::report::Report;
 use crate::calib::problem::board::Board;
 use crate::calib::problem::observations::{CameraKey, Image, Observations, View};
@@ -139,12 +141,12 @@ impl<'a> Input<'a> {
             .iter()
             .map(|(f, why)| (format!("frame {f}"), why.clone()))
             .chain(result.left_out.iter().map(|l| (l.clone(), String::new())))
-            .chain(
-                result
-                    .dropped_corners
-                    .iter()
-                    .map(|c| (c.clone(), "corner far above the rest after the first fit".into())),
-            )
+            .chain(result.dropped_corners.iter().map(|c| {
+                (
+                    c.clone(),
+                    "corner far above the rest after the first fit".into(),
+                )
+            }))
             .collect();
         input.notes = result.calibration.report.warnings.clone();
         input.huber = huber;
@@ -184,7 +186,11 @@ impl<'a> Input<'a> {
             let p = &port.port;
             input.sigma_rows.push((
                 format!("{} tilt (°) / azimuth (°)", port.name),
-                format!("{:.3} / {:.2}", p.tilt().to_degrees(), p.azimuth().to_degrees()),
+                format!(
+                    "{:.3} / {:.2}",
+                    p.tilt().to_degrees(),
+                    p.azimuth().to_degrees()
+                ),
                 port.axis_sigma_deg
                     .map_or("known".into(), |s| format!("{s:.4}° (worst direction)")),
             ));
@@ -421,11 +427,16 @@ fn held_out(rig: &Rig, target: &Target, frames: &[(String, View)]) -> Vec<HeldOu
             };
             let one = [(label.clone(), view.clone())];
             let validation = validate(rig, board, &observations, &one).ok();
-            let seen = observations.resolve(rig).ok().and_then(|s| s.into_iter().next());
+            let seen = observations
+                .resolve(rig)
+                .ok()
+                .and_then(|s| s.into_iter().next());
             let (depth_m, square_errors) = match &seen {
                 Some(seen) => {
-                    let points: Vec<Point3<f64>> =
-                        triangulate_view(rig, board, seen).into_iter().flatten().collect();
+                    let points: Vec<Point3<f64>> = triangulate_view(rig, board, seen)
+                        .into_iter()
+                        .flatten()
+                        .collect();
                     let depth = (!points.is_empty()).then(|| {
                         points.iter().map(|p| p.coords.norm()).sum::<f64>() / points.len() as f64
                     });
@@ -436,9 +447,7 @@ fn held_out(rig: &Rig, target: &Target, frames: &[(String, View)]) -> Vec<HeldOu
             HeldOutFrame {
                 label: label.clone(),
                 depth_m,
-                rms_px: validation
-                    .map(|v| v.rms_px)
-                    .filter(|r| r.is_finite()),
+                rms_px: validation.map(|v| v.rms_px).filter(|r| r.is_finite()),
                 square_errors,
             }
         })
@@ -493,7 +502,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let written = write_report(dir.path(), &input).unwrap();
         let page = std::fs::read_to_string(&written.index).unwrap();
-        assert!(page.contains("<h3>right</h3>\n<p>This camera has no corner"), "{page}");
+        assert!(
+            page.contains("<h3>right</h3>\n<p>This camera has no corner"),
+            "{page}"
+        );
         assert!(page.contains("no frames were held out"));
         let advice = written.advice.unwrap();
         assert!(advice.worst.is_some(), "{:?}", advice.text);

@@ -49,7 +49,13 @@ fn colour(k: usize) -> RGBColor {
 /// A camera's name made safe for a file name.
 pub(crate) fn file_safe(name: &str) -> String {
     name.chars()
-        .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect()
 }
 
@@ -121,7 +127,9 @@ pub(crate) fn draw_all(
             (2, 1, -1.0),
         ),
     ] {
-        picture(dir, file, (800, 640), files, |area| rig_view(area, facts, axes))?;
+        picture(dir, file, (800, 640), files, |area| {
+            rig_view(area, facts, axes)
+        })?;
         pictures.rig.push(Picture {
             file: file.into(),
             caption: caption.into(),
@@ -139,7 +147,12 @@ pub(crate) fn draw_all(
         let quiver = format!("quiver_{k}_{name}.png");
         let scale = arrow_scale(&corners, w);
         picture(dir, &quiver, size, files, |area| {
-            let mut chart = image_chart(area, &format!("{}: residuals ×{scale:.0}", camera.name), w, h)?;
+            let mut chart = image_chart(
+                area,
+                &format!("{}: residuals ×{scale:.0}", camera.name),
+                w,
+                h,
+            )?;
             chart
                 .draw_series(corners.iter().map(|c| {
                     let end = c.observed + c.residual * scale;
@@ -148,9 +161,11 @@ pub(crate) fn draw_all(
                 }))
                 .map_err(text)?;
             chart
-                .draw_series(corners.iter().map(|c| {
-                    Circle::new((c.observed.x, c.observed.y), 1, BLACK.filled())
-                }))
+                .draw_series(
+                    corners
+                        .iter()
+                        .map(|c| Circle::new((c.observed.x, c.observed.y), 1, BLACK.filled())),
+                )
                 .map_err(text)?;
             if corners.is_empty() {
                 no_data(area)?;
@@ -165,7 +180,9 @@ pub(crate) fn draw_all(
             ),
         });
         let errors = format!("errors_{k}_{name}.png");
-        picture(dir, &errors, size, files, |area| error_map(area, &camera.name, &corners, w, h))?;
+        picture(dir, &errors, size, files, |area| {
+            error_map(area, &camera.name, &corners, w, h)
+        })?;
         own.push(Picture {
             file: errors,
             caption: format!(
@@ -174,7 +191,9 @@ pub(crate) fn draw_all(
             ),
         });
         let coverage = format!("coverage_{k}_{name}.png");
-        picture(dir, &coverage, size, files, |area| coverage_map(area, facts, k, w, h))?;
+        picture(dir, &coverage, size, files, |area| {
+            coverage_map(area, facts, k, w, h)
+        })?;
         own.push(Picture {
             file: coverage,
             caption: format!(
@@ -183,7 +202,9 @@ pub(crate) fn draw_all(
             ),
         });
         let depth = format!("depth_tilt_{k}_{name}.png");
-        picture(dir, &depth, (640, 480), files, |area| depth_tilt(area, facts, k))?;
+        picture(dir, &depth, (640, 480), files, |area| {
+            depth_tilt(area, facts, k)
+        })?;
         own.push(Picture {
             file: depth,
             caption: format!(
@@ -194,21 +215,27 @@ pub(crate) fn draw_all(
         pictures.cameras.push(own);
     }
     if !facts.frame_rms.is_empty() {
-        picture(dir, "frames_rms.png", (960, 420), files, |area| frames_rms(area, facts))?;
+        picture(dir, "frames_rms.png", (960, 420), files, |area| {
+            frames_rms(area, facts)
+        })?;
         pictures.overall.push(Picture {
             file: "frames_rms.png".into(),
             caption: "RMS reprojection error per fitted frame and camera.".into(),
         });
     }
     if !facts.corners.is_empty() {
-        picture(dir, "histogram.png", (640, 420), files, |area| histogram(area, facts))?;
+        picture(dir, "histogram.png", (640, 420), files, |area| {
+            histogram(area, facts)
+        })?;
         pictures.overall.push(Picture {
             file: "histogram.png".into(),
             caption: "The residuals' lengths over every corner of every camera.".into(),
         });
     }
     if facts.held_out.iter().any(|f| f.depth_m.is_some()) {
-        picture(dir, "held_out.png", (640, 420), files, |area| held_out(area, facts))?;
+        picture(dir, "held_out.png", (640, 420), files, |area| {
+            held_out(area, facts)
+        })?;
         pictures.overall.push(Picture {
             file: "held_out.png".into(),
             caption: "Held-out frames: the triangulated squares' error against the board's distance from the master camera.".into(),
@@ -277,7 +304,8 @@ mod tests {
 
     #[test]
     fn a_line_is_clipped_to_the_chart_without_turning() {
-        let ((ax, ay), (bx, by)) = clip((-10.0, -1.0), (10.0, 1.0), (-1.0, 1.0, -1.0, 1.0)).unwrap();
+        let ((ax, ay), (bx, by)) =
+            clip((-10.0, -1.0), (10.0, 1.0), (-1.0, 1.0, -1.0, 1.0)).unwrap();
         assert!((ax + 1.0).abs() < 1e-12 && (ay + 0.1).abs() < 1e-12);
         assert!((bx - 1.0).abs() < 1e-12 && (by - 0.1).abs() < 1e-12);
         assert!(clip((-10.0, 5.0), (10.0, 5.0), (-1.0, 1.0, -1.0, 1.0)).is_none());
@@ -323,12 +351,21 @@ fn error_map(
                 .collect()
         })
         .collect();
-    let high = rms.iter().flatten().flatten().copied().fold(0.0, f64::max).max(1e-6);
+    let high = rms
+        .iter()
+        .flatten()
+        .flatten()
+        .copied()
+        .fold(0.0, f64::max)
+        .max(1e-6);
     let (main, bar) = area.split_horizontally(area.dim_in_pixel().0 - 90);
     let mut chart = image_chart(&main, &format!("{name}: RMS per cell (px)"), w, h)?;
     for (j, row) in rms.iter().enumerate() {
         for (i, value) in row.iter().enumerate() {
-            let (x0, x1) = (i as f64 * w / COLUMNS as f64, (i + 1) as f64 * w / COLUMNS as f64);
+            let (x0, x1) = (
+                i as f64 * w / COLUMNS as f64,
+                (i + 1) as f64 * w / COLUMNS as f64,
+            );
             let (y0, y1) = (j as f64 * h / ROWS as f64, (j + 1) as f64 * h / ROWS as f64);
             let fill = value.map_or(RGBColor(200, 200, 200), |v| viridis(v / high));
             chart
@@ -358,8 +395,12 @@ fn error_map(
             .map_err(text)?;
     }
     let font = ("sans-serif", 12).into_font();
-    bar.draw(&Text::new(format!("{high:.2} px"), (5, top - 18), font.clone()))
-        .map_err(text)?;
+    bar.draw(&Text::new(
+        format!("{high:.2} px"),
+        (5, top - 18),
+        font.clone(),
+    ))
+    .map_err(text)?;
     bar.draw(&Text::new("0", (35, bottom - 8), font))
         .map_err(text)?;
     let _ = bw;
@@ -372,7 +413,10 @@ fn coverage_map(area: &Area, facts: &Facts, k: usize, w: f64, h: f64) -> Result<
     let mut chart = image_chart(area, &format!("{name}: coverage"), w, h)?;
     if let Some(air) = facts.input.air.get(k) {
         chart
-            .draw_series(air.iter().map(|p| Circle::new((p.x, p.y), 1, RGBColor(150, 150, 150).filled())))
+            .draw_series(
+                air.iter()
+                    .map(|p| Circle::new((p.x, p.y), 1, RGBColor(150, 150, 150).filled())),
+            )
             .map_err(text)?;
     }
     chart
@@ -439,11 +483,20 @@ fn depth_tilt(area: &Area, facts: &Facts, k: usize) -> Result<(), String> {
         .and_then(|a| a.best.as_ref())
         .filter(|(c, _, _)| c.camera == k)
         .map(|(c, _, _)| (c.distance_m, c.tilt_deg.abs()));
-    let (x0, x1) = padded(points.iter().map(|p| p.0).chain(advised.map(|a| a.0)).chain([0.0]));
+    let (x0, x1) = padded(
+        points
+            .iter()
+            .map(|p| p.0)
+            .chain(advised.map(|a| a.0))
+            .chain([0.0]),
+    );
     // Room for the advised view's label at the right.
     let x1 = x1 + 0.12 * (x1 - x0);
     let mut chart = ChartBuilder::on(area)
-        .caption(format!("{name}: frames by distance and tilt"), ("sans-serif", 18))
+        .caption(
+            format!("{name}: frames by distance and tilt"),
+            ("sans-serif", 18),
+        )
         .margin(10)
         .x_label_area_size(40)
         .y_label_area_size(50)
@@ -459,13 +512,15 @@ fn depth_tilt(area: &Area, facts: &Facts, k: usize) -> Result<(), String> {
         .draw()
         .map_err(text)?;
     chart
-        .draw_series(points.iter().map(|&(d, t)| Circle::new((d, t), 4, BLUE.filled())))
+        .draw_series(
+            points
+                .iter()
+                .map(|&(d, t)| Circle::new((d, t), 4, BLUE.filled())),
+        )
         .map_err(text)?;
     if let Some((d, t)) = advised {
         chart
-            .draw_series([
-                TriangleMarker::new((d, t), 10, RED.filled()),
-            ])
+            .draw_series([TriangleMarker::new((d, t), 10, RED.filled())])
             .map_err(text)?;
         chart
             .draw_series([Text::new(
@@ -517,11 +572,16 @@ fn frames_rms(area: &Area, facts: &Facts) -> Result<(), String> {
             .draw_series(facts.frame_rms.iter().enumerate().filter_map(|(f, rms)| {
                 let r = rms.get(k).copied().flatten()?;
                 let x = f as f64 + offset;
-                Some(Rectangle::new([(x, 0.0), (x + width, r)], colour(k).filled()))
+                Some(Rectangle::new(
+                    [(x, 0.0), (x + width, r)],
+                    colour(k).filled(),
+                ))
             }))
             .map_err(text)?
             .label(facts.input.rig.cameras()[k].name.clone())
-            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 10, y + 5)], colour(k).filled()));
+            .legend(move |(x, y)| {
+                Rectangle::new([(x, y - 5), (x + 10, y + 5)], colour(k).filled())
+            });
     }
     chart
         .configure_series_labels()
@@ -612,7 +672,11 @@ fn held_out(area: &Area, facts: &Facts) -> Result<(), String> {
         .draw()
         .map_err(text)?;
     chart
-        .draw_series(points.iter().map(|&p| Circle::new(p, 5, RGBColor(214, 39, 40).filled())))
+        .draw_series(
+            points
+                .iter()
+                .map(|&p| Circle::new(p, 5, RGBColor(214, 39, 40).filled())),
+        )
         .map_err(text)?;
     Ok(())
 }
@@ -626,7 +690,12 @@ fn clip(
 ) -> Option<((f64, f64), (f64, f64))> {
     let (dx, dy) = (b.0 - a.0, b.1 - a.1);
     let (mut t0, mut t1) = (0.0f64, 1.0f64);
-    for (p, q) in [(-dx, a.0 - x0), (dx, x1 - a.0), (-dy, a.1 - y0), (dy, y1 - a.1)] {
+    for (p, q) in [
+        (-dx, a.0 - x0),
+        (dx, x1 - a.0),
+        (-dy, a.1 - y0),
+        (dy, y1 - a.1),
+    ] {
         if p == 0.0 {
             if q < 0.0 {
                 return None;
@@ -703,7 +772,11 @@ fn rig_view(area: &Area, facts: &Facts, axes: (usize, usize, f64)) -> Result<(),
         .max_light_lines(0)
         .bold_line_style(RGBColor(225, 225, 225))
         .x_desc(format!("{} (m)", names[a]))
-        .y_desc(format!("{}{} (m)", if sign < 0.0 { "−" } else { "" }, names[b]))
+        .y_desc(format!(
+            "{}{} (m)",
+            if sign < 0.0 { "−" } else { "" },
+            names[b]
+        ))
         .label_style(("sans-serif", 12))
         .draw()
         .map_err(text)?;
@@ -755,16 +828,27 @@ fn rig_view(area: &Area, facts: &Facts, axes: (usize, usize, f64)) -> Result<(),
             .map_err(text)?;
     }
     chart
-        .draw_series(points.iter().map(|&p| Circle::new(p, 1, RGBColor(120, 120, 120).filled())))
+        .draw_series(
+            points
+                .iter()
+                .map(|&p| Circle::new(p, 1, RGBColor(120, 120, 120).filled())),
+        )
         .map_err(text)?;
     let axis_length = 0.08 * (x1 - x0).min(y1 - y0);
     for (k, camera) in rig.cameras().iter().enumerate() {
         let centre = centres[k];
         let master_from_cam = camera.cam_from_master.rotation.inverse();
-        for (axis, c) in [(Vector3::x(), RED), (Vector3::y(), GREEN), (Vector3::z(), BLUE)] {
+        for (axis, c) in [
+            (Vector3::x(), RED),
+            (Vector3::y(), GREEN),
+            (Vector3::z(), BLUE),
+        ] {
             let end = centre + master_from_cam * axis * axis_length;
             chart
-                .draw_series([PathElement::new(vec![project(&centre), project(&end)], c.stroke_width(2))])
+                .draw_series([PathElement::new(
+                    vec![project(&centre), project(&end)],
+                    c.stroke_width(2),
+                )])
                 .map_err(text)?;
         }
         chart
