@@ -40,9 +40,9 @@ figure img{max-width:100%;border:1px solid #ddd}figcaption{font-size:.85em;color
 const CHECK_SCRIPT: &str = "window.addEventListener('load',function(){var n=0,imgs=document.images;for(var i=0;i<imgs.length;i++){var im=imgs[i];im.setAttribute('data-natural',im.naturalWidth+'x'+im.naturalHeight);if(im.complete&&im.naturalWidth>0){n++;}}document.body.setAttribute('data-images-loaded',n+'/'+imgs.length);});";
 
 fn figure(out: &mut String, picture: &Picture) {
-    let _ = write!(
+    let _ = writeln!(
         out,
-        "<figure><img src=\"{}\" alt=\"{}\"><figcaption>{}</figcaption></figure>\n",
+        "<figure><img src=\"{}\" alt=\"{}\"><figcaption>{}</figcaption></figure>",
         escape(&picture.file),
         escape(&picture.caption),
         escape(&picture.caption)

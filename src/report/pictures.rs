@@ -298,25 +298,6 @@ fn image_chart<'a, 'b>(
     Ok(chart)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_line_is_clipped_to_the_chart_without_turning() {
-        let ((ax, ay), (bx, by)) =
-            clip((-10.0, -1.0), (10.0, 1.0), (-1.0, 1.0, -1.0, 1.0)).unwrap();
-        assert!((ax + 1.0).abs() < 1e-12 && (ay + 0.1).abs() < 1e-12);
-        assert!((bx - 1.0).abs() < 1e-12 && (by - 0.1).abs() < 1e-12);
-        assert!(clip((-10.0, 5.0), (10.0, 5.0), (-1.0, 1.0, -1.0, 1.0)).is_none());
-    }
-
-    #[test]
-    fn camera_names_become_file_names() {
-        assert_eq!(file_safe("cam 1/ü"), "cam_1__");
-    }
-}
-
 fn no_data(area: &Area) -> Result<(), String> {
     area.draw(&Text::new(
         "no corners",
@@ -709,12 +690,10 @@ fn clip(
             }
         }
     }
-    (t0 <= t1).then(|| {
-        (
-            (a.0 + t0 * dx, a.1 + t0 * dy),
-            (a.0 + t1 * dx, a.1 + t1 * dy),
-        )
-    })
+    (t0 <= t1).then_some((
+        (a.0 + t0 * dx, a.1 + t0 * dy),
+        (a.0 + t1 * dx, a.1 + t1 * dy),
+    ))
 }
 
 /// The rig projected on two master axes (`axes.0` across, `axes.1` up, times `axes.2`).
@@ -786,12 +765,12 @@ fn rig_view(area: &Area, facts: &Facts, axes: (usize, usize, f64)) -> Result<(),
         crate::model::Ports::Shared(_) => 1,
         crate::model::Ports::PerCamera(ports) => ports.len(),
     };
-    for k in 0..ports {
+    for (k, centre) in centres.iter().enumerate().take(ports) {
         let port = rig.port_in_master(k);
         let n = port.normal().into_inner();
         let origin = match rig.ports() {
             crate::model::Ports::Shared(_) => Point3::origin(),
-            crate::model::Ports::PerCamera(_) => centres[k],
+            crate::model::Ports::PerCamera(_) => *centre,
         };
         let np = Vector3::new(
             if a == 0 || b == 0 { n.x } else { 0.0 },
@@ -864,4 +843,23 @@ fn rig_view(area: &Area, facts: &Facts, axes: (usize, usize, f64)) -> Result<(),
             .map_err(text)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_line_is_clipped_to_the_chart_without_turning() {
+        let ((ax, ay), (bx, by)) =
+            clip((-10.0, -1.0), (10.0, 1.0), (-1.0, 1.0, -1.0, 1.0)).unwrap();
+        assert!((ax + 1.0).abs() < 1e-12 && (ay + 0.1).abs() < 1e-12);
+        assert!((bx - 1.0).abs() < 1e-12 && (by - 0.1).abs() < 1e-12);
+        assert!(clip((-10.0, 5.0), (10.0, 5.0), (-1.0, 1.0, -1.0, 1.0)).is_none());
+    }
+
+    #[test]
+    fn camera_names_become_file_names() {
+        assert_eq!(file_safe("cam 1/ü"), "cam_1__");
+    }
 }
