@@ -112,9 +112,11 @@ impl CandidateView {
         if self.tilt_deg == 0.0 {
             "facing the camera".into()
         } else {
+            // The board turned by +θ about the camera's x axis moves its lower edge (+y, down
+            // in the image) to +z, away; by +θ about y its right edge (+x) comes nearer.
             let towards = match (self.tilt_axis, self.tilt_deg > 0.0) {
-                ('x', true) => "its top edge away from the camera",
-                ('x', false) => "its bottom edge away from the camera",
+                ('x', true) => "its bottom edge away from the camera",
+                ('x', false) => "its top edge away from the camera",
                 (_, true) => "its left edge away from the camera",
                 (_, false) => "its right edge away from the camera",
             };
@@ -550,7 +552,7 @@ mod tests {
             view: SeenView::default(),
         };
         assert_eq!(c.place(), "upper left");
-        assert!(c.tilt_words().contains("top edge away"));
+        assert!(c.tilt_words().contains("bottom edge away"));
         let centre = CandidateView {
             region: (1, 1),
             tilt_deg: 0.0,
@@ -558,5 +560,57 @@ mod tests {
         };
         assert_eq!(centre.place(), "centre");
         assert_eq!(centre.tilt_words(), "facing the camera");
+    }
+
+    #[test]
+    fn the_tilt_in_words_is_the_edge_that_is_farther() {
+        let rig = crate::io::read_rig(std::path::Path::new("data/example_rig.json")).unwrap();
+        let target = Target::Board(crate::calib::problem::board::Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        });
+        let poses = [
+            Isometry3::translation(-0.16, -0.1, 0.5),
+            Isometry3::translation(-0.16, -0.1, 0.8),
+        ];
+        let candidates = candidate_views(&rig, &target, &poses);
+        let tilted: Vec<_> = candidates
+            .iter()
+            .filter(|c| c.camera == 0 && c.tilt_deg != 0.0)
+            .collect();
+        assert!(tilted.len() > 10, "{} tilted candidates", tilted.len());
+        let cam_from_master = rig.cameras()[0].cam_from_master;
+        for c in tilted {
+            let corners = c.view.corners_of(0).unwrap();
+            let depth = |i: usize| (cam_from_master * (c.master_from_target * target.point(i))).z;
+            // The corners at the image's extremes along the turn's direction.
+            let along = |p: &Point2<f64>| if c.tilt_axis == 'x' { p.y } else { p.x };
+            let low = corners
+                .iter()
+                .min_by(|a, b| along(&a.1).total_cmp(&along(&b.1)))
+                .unwrap();
+            let high = corners
+                .iter()
+                .max_by(|a, b| along(&a.1).total_cmp(&along(&b.1)))
+                .unwrap();
+            let far_edge = if depth(high.0) > depth(low.0) {
+                if c.tilt_axis == 'x' {
+                    "bottom"
+                } else {
+                    "right"
+                }
+            } else if c.tilt_axis == 'x' {
+                "top"
+            } else {
+                "left"
+            };
+            assert!(
+                c.tilt_words()
+                    .contains(&format!("its {far_edge} edge away")),
+                "{} but the {far_edge} edge is farther",
+                c.tilt_words()
+            );
+        }
     }
 }
