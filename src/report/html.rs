@@ -254,6 +254,7 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
         }
         out.push_str("</table>\n");
     }
+    depth_table(&mut out, facts);
     if !input.left_out.is_empty() {
         out.push_str("<h3>Left out of the fit</h3><ul>\n");
         for (what, why) in &input.left_out {
@@ -310,6 +311,54 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
     }
     out.push_str("<h2>Files</h2><p>The numbers: <a href=\"report.json\">report.json</a>, <a href=\"residuals.csv\">residuals.csv</a>, <a href=\"parameters.csv\">parameters.csv</a>, <a href=\"frames.csv\">frames.csv</a>.</p>\n</body></html>\n");
     out
+}
+
+/// Bins of the fitted corners' distance from their camera.
+const DEPTH_BINS: usize = 5;
+
+/// The fitted corners' RMS residual per camera over [`DEPTH_BINS`] equal bins of their distance
+/// from the camera (outliers left out).
+fn depth_table(out: &mut String, facts: &Facts) {
+    let corners: Vec<_> = facts
+        .corners
+        .iter()
+        .filter(|c| !c.outlier && c.depth_m.is_finite())
+        .collect();
+    let Some(low) = corners.iter().map(|c| c.depth_m).min_by(f64::total_cmp) else {
+        return;
+    };
+    let high = corners.iter().map(|c| c.depth_m).fold(low, f64::max);
+    let width = ((high - low) / DEPTH_BINS as f64).max(1e-9);
+    let cameras = facts.input.rig.cameras();
+    let mut sums = vec![vec![(0.0, 0usize); cameras.len()]; DEPTH_BINS];
+    for c in &corners {
+        let bin = (((c.depth_m - low) / width) as usize).min(DEPTH_BINS - 1);
+        sums[bin][c.camera].0 += c.residual.norm_squared() / 2.0;
+        sums[bin][c.camera].1 += 1;
+    }
+    out.push_str("<h3>Residuals by distance</h3>\n<table><tr><th class=\"l\">distance from the camera (m)</th>");
+    for c in cameras {
+        let _ = write!(out, "<th>{} RMS (px)</th><th>corners</th>", escape(&c.name));
+    }
+    out.push_str("</tr>\n");
+    for (b, row) in sums.iter().enumerate() {
+        let _ = write!(
+            out,
+            "<tr><td class=\"l\">{} – {}</td>",
+            number(low + b as f64 * width, 2),
+            number(low + (b + 1) as f64 * width, 2)
+        );
+        for &(sum, n) in row {
+            let rms = if n > 0 {
+                number((sum / n as f64).sqrt(), 3)
+            } else {
+                "—".into()
+            };
+            let _ = write!(out, "<td>{rms}</td><td>{n}</td>");
+        }
+        out.push_str("</tr>\n");
+    }
+    out.push_str("</table>\n");
 }
 
 /// `report.json` (the summary, the parameters and the advice), `residuals.csv`,

@@ -507,6 +507,7 @@ mod tests {
             "{page}"
         );
         assert!(page.contains("no frames were held out"));
+        assert!(page.contains("Residuals by distance"));
         let advice = written.advice.unwrap();
         assert!(advice.worst.is_some(), "{:?}", advice.text);
         assert!(dir.path().join("quiver_1_right.png").is_file());
