@@ -41,6 +41,27 @@ if ! command -v ffmpeg >/dev/null 2>&1 || ! command -v ffprobe >/dev/null 2>&1; 
         echo "  sudo apt-get install ffmpeg" >&2
     fi
 fi
+# Chromium for the report pages (tests/report_page.rs opens every route's index.html in headless
+# Chromium). Without it those tests say so and pass, except in CI (CI=true), where they fail.
+have_chromium() {
+    [ -n "${FLATPORT_CHROMIUM:-}" ] || command -v chromium >/dev/null 2>&1 \
+        || command -v chromium-browser >/dev/null 2>&1 || command -v google-chrome >/dev/null 2>&1
+}
+if ! have_chromium; then
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        echo "installing chromium for the report page tests..." >&2
+        export DEBIAN_FRONTEND=noninteractive
+        apt-get update -qq
+        apt-get install -y -qq chromium >/dev/null
+    elif [ "${CI:-}" = true ]; then
+        echo "error: Chromium not found (CI=true: the report page tests need it). Install it, e.g. on Debian/Ubuntu:" >&2
+        echo "  sudo apt-get install chromium   (or set FLATPORT_CHROMIUM to the browser's path)" >&2
+        exit 1
+    else
+        echo "warning: Chromium not found: the report pages will not be opened in a browser. Install it, e.g. on Debian/Ubuntu:" >&2
+        echo "  sudo apt-get install chromium   (or set FLATPORT_CHROMIUM to the browser's path)" >&2
+    fi
+fi
 # Mesa warns on headless machines unless this is set.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-$(mktemp -d)}"
 

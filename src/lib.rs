@@ -85,4 +85,6 @@ pub mod model;
 pub mod render;
 #[cfg(feature = "images")]
 pub mod runs;
+#[cfg(feature = "images")]
+pub mod report;
 pub mod stereo;

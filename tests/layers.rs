@@ -1,7 +1,7 @@
 //! The layers of docs/architecture.md hold: no module of `src/` uses a layer to its right.
 //!
 //! ```text
-//! base → model → gpu → engine → calib, stereo, render, detect → io → runs → cli
+//! base → model → gpu → engine → calib, stereo, render, detect → io → runs, report → cli
 //! ```
 //!
 //! The four algorithm layers stand side by side: none of them uses another. The check reads every
@@ -23,6 +23,7 @@ const LAYERS: &[(&str, usize)] = &[
     ("detect", 4),
     ("io", 5),
     ("runs", 6),
+    ("report", 6),
     ("cli", 7),
 ];
 

@@ -362,6 +362,7 @@ def calibrate(
     huber: Optional[float] = None,
     max_iterations: int = 200,
     max_rms_px: Optional[float] = None,
+    report_dir: Optional[Union[str, os.PathLike]] = None,
 ) -> CalibrationResult:
     """Calibrates a rig's port(s) (and, when asked, layer thicknesses and extrinsics) from views of
     a target, as ``flatport calibrate`` does.
@@ -376,7 +377,8 @@ def calibrate(
     consecutive method starts it, then maximum likelihood; the report lists every port and
     camera (``report["ports"]``, ``report["cameras"]``). ``method`` is ``consecutive``,
     ``simultaneous`` or ``auto``; ``device`` ``cpu``, ``gpu`` or ``auto`` (GPU kernels in f64,
-    for the consecutive method's cost batches).
+    for the consecutive method's cost batches). ``report_dir`` also writes the report page there
+    (``index.html`` with pictures, σ and which views to add), as ``--report-dir`` does.
 
     >>> scene = flatport.simulate(rig, views=15, noise=0.125, seed=3)             # doctest: +SKIP
     >>> result = flatport.calibrate(start_rig, scene.observations)                # doctest: +SKIP
@@ -391,6 +393,7 @@ def calibrate(
         rig._rig, _json_argument("observations", observations), ",".join(words), method, device, float(max_tilt_deg),
         float(grid_step_deg), None if huber is None else float(huber), int(max_iterations),
         None if max_rms_px is None else float(max_rms_px),
+        None if report_dir is None else os.fspath(report_dir),
     )
     report = json.loads(report)
     # The first port's (every port's is in report["ports"], every camera's in report["cameras"]).
@@ -505,6 +508,7 @@ def calibrate_images(
     max_iterations: int = 200,
     max_rms_px: Optional[float] = None,
     refine_intrinsics: str = "auto",
+    report_dir: Optional[Union[str, os.PathLike]] = None,
 ) -> ImagesCalibration:
     """A whole rig from images or videos of a board alone, as ``flatport calibrate --images DIR
     --board BOARD.json --port …`` (docs/images.md): every camera's lens from its in-air views,
@@ -522,7 +526,9 @@ def calibrate_images(
     under water where the held-out frames say it helps), ``"never"`` or ``"always"``. ``master``: the camera whose frame is the rig's (default the first folder
     by name). ``frame_step``: read every n-th frame; ``max_frames``: most frames used per camera
     (default 40 in air, 60 under water); ``holdout``: the share of underwater frames held out and
-    reported on. ``output`` and ``report`` write the rig and the report files as the CLI does.
+    reported on. ``output`` and ``report`` write the rig and the report files as the CLI does;
+    ``report_dir`` the report page (``index.html`` with pictures, σ and which views to add), as
+    ``--report-dir`` does.
     ``device``, ``max_tilt_deg``, ``huber``, ``max_iterations`` and ``max_rms_px`` are
     :func:`calibrate`'s. The detection and the fit release the GIL.
 
@@ -555,7 +561,7 @@ def calibrate_images(
         None if rig is None else rig._rig, rig_label, _optional_count("frame_step", frame_step, 1),
         _optional_count("max_frames", max_frames, 3), holdout, fspath(output), fspath(report), device,
         float(max_tilt_deg), None if huber is None else float(huber), int(max_iterations),
-        None if max_rms_px is None else float(max_rms_px), refine_intrinsics,
+        None if max_rms_px is None else float(max_rms_px), refine_intrinsics, fspath(report_dir),
     )
     full = json.loads(text)
     if refused is not None:

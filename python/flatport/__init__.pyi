@@ -83,6 +83,7 @@ def calibrate(
     huber: Optional[float] = None,
     max_iterations: int = 200,
     max_rms_px: Optional[float] = None,
+    report_dir: Union[str, os.PathLike[str], None] = None,
 ) -> CalibrationResult: ...
 
 class CalibrationRefused(ValueError):
@@ -118,6 +119,8 @@ def calibrate_images(
     huber: Optional[float] = None,
     max_iterations: int = 200,
     max_rms_px: Optional[float] = None,
+    refine_intrinsics: str = "auto",
+    report_dir: Union[str, os.PathLike[str], None] = None,
 ) -> ImagesCalibration: ...
 
 class TargetlessCalibration(NamedTuple):

@@ -501,7 +501,7 @@ fn stereo_data(rig: &Rig, observations_json: &str) -> PyResult<(StereoData, Vec<
 /// Calibrates what `estimate` names on any rig, as `flatport calibrate` does: (calibrated rig or
 /// None when the fit is refused, report JSON).
 #[pyfunction]
-#[pyo3(signature = (rig, observations_json, estimate, method, device, max_tilt_deg, grid_step_deg, huber, max_iterations, max_rms_px))]
+#[pyo3(signature = (rig, observations_json, estimate, method, device, max_tilt_deg, grid_step_deg, huber, max_iterations, max_rms_px, report_dir=None))]
 #[allow(clippy::too_many_arguments)] // the Python signature
 fn calibrate(
     py: Python<'_>,
@@ -515,6 +515,7 @@ fn calibrate(
     huber: Option<f64>,
     max_iterations: usize,
     max_rms_px: Option<f64>,
+    report_dir: Option<PathBuf>,
 ) -> PyResult<(Option<PyRig>, String)> {
     let method = Method::from_name(method)
         .ok_or_else(|| value_error(format!("method must be 'consecutive', 'simultaneous' or 'auto', got {method:?}")))?;
@@ -537,6 +538,10 @@ fn calibrate(
     };
     let calibration = py.detach(|| run_calibrate(&rig.rig, &observations, &options)).map_err(value_error)?;
     let report = report_to_json_string(&calibration.report);
+    if let Some(dir) = &report_dir {
+        let input = flatport::report::Input::from_observations("flatport.calibrate (Python)", &calibration.rig, &calibration.report, &observations, huber);
+        py.detach(|| flatport::report::write_report(dir, &input)).map_err(value_error)?;
+    }
     let calibrated = calibration.report.fits.then(|| PyRig::wrap(calibration.rig));
     Ok((calibrated, report))
 }
@@ -553,7 +558,7 @@ fn glass_rows(glass: Vec<(Option<String>, f64, f64)>) -> Vec<Glass> {
 /// calibrated rig, or None when it does not fit; the report JSON, `--report`'s; why it does not
 /// fit). `report` is written in either case, `output` only with a rig that fits.
 #[pyfunction]
-#[pyo3(signature = (images, board, port, glass, index_water, index_air, master, rig, rig_label, frame_step, max_frames, holdout, output, report, device, max_tilt_deg, huber, max_iterations, max_rms_px, refine_intrinsics))]
+#[pyo3(signature = (images, board, port, glass, index_water, index_air, master, rig, rig_label, frame_step, max_frames, holdout, output, report, device, max_tilt_deg, huber, max_iterations, max_rms_px, refine_intrinsics, report_dir=None))]
 #[allow(clippy::too_many_arguments)] // the Python signature
 fn calibrate_images(
     py: Python<'_>,
@@ -577,6 +582,7 @@ fn calibrate_images(
     max_iterations: usize,
     max_rms_px: Option<f64>,
     refine_intrinsics: &str,
+    report_dir: Option<PathBuf>,
 ) -> PyResult<(Option<PyRig>, String, Option<String>)> {
     let port = PortKind::from_name(port)
         .ok_or_else(|| value_error(format!("port must be 'surface', 'shared' or 'housings', got {port:?}")))?;
@@ -629,6 +635,8 @@ fn calibrate_images(
         }
         other => return Err(value_error(format!("device must be 'cpu', 'gpu' or 'auto', got {other:?}"))),
     };
+    let air_corners: Vec<Vec<_>> =
+        footage.cameras.iter().map(|c| c.air.iter().flat_map(|v| v.corners.iter().map(|(_, p)| *p)).collect()).collect();
     let settings = FitSettings { huber, max_iterations, max_rms_px, max_tilt_deg, holdout, refine_intrinsics };
     let options = boards_options(&settings, backend, &fits);
     let (result, _) = py
@@ -638,7 +646,20 @@ fn calibrate_images(
     if let Some(path) = &report {
         write_boards_report(path, &result, &names, &fits).map_err(value_error)?;
     }
-    if !result.calibration.report.fits {
+    if let Some(dir) = &report_dir {
+        let mut input = flatport::report::Input::from_boards(
+            "flatport.calibrate_images (Python)",
+            &result,
+            &names,
+            &grid,
+            &footage.water,
+            options.calibration.huber,
+        );
+        input.air = air_corners;
+        py.detach(|| flatport::report::write_report(dir, &input)).map_err(value_error)?;
+    }
+    let fit = &result.calibration.report;
+    if !fit.fits {
         let why = format!(
             "{} {}{}",
             refusal(&result),

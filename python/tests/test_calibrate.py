@@ -44,6 +44,20 @@ def test_calibrate_finds_the_true_port_with_its_sigma(scene):
     assert result.rig.cameras == start.cameras
 
 
+def test_calibrate_writes_the_report_page(scene, tmp_path):
+    # Issue 47: report_dir writes what `calibrate --report-dir` writes.
+    _, start, simulation = scene
+    report_dir = tmp_path / "report"
+    result = flatport.calibrate(start, simulation.observations, report_dir=report_dir)
+    assert result.report["fits"]
+    page = (report_dir / "index.html").read_text()
+    assert "What footage to add" in page and "The worst-determined parameter" in page
+    for name in ("rig_top.png", "rig_side.png", "quiver_0_left.png", "histogram.png"):
+        assert (report_dir / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+    numbers = json.loads((report_dir / "report.json").read_text())
+    assert numbers["advice"]["worst"] and numbers["advice"]["view"]["distance_m"] > 0
+
+
 def test_calibrate_takes_a_path_and_json_text(scene, tmp_path):
     _, start, simulation = scene
     path = tmp_path / "observations.json"

@@ -33,7 +33,7 @@ def rendered(tmp_path_factory):
     )
     result = flatport.calibrate_images(
         root / "set", BOARD, "shared", glass=GLASS, index_air=INDEX_AIR,
-        output=root / "python_rig.json", report=root / "python_report.json",
+        output=root / "python_rig.json", report=root / "python_report.json", report_dir=root / "python_page",
     )
     return root, result
 
@@ -43,7 +43,8 @@ def test_equal_to_the_cli(rendered):
     subprocess.run(
         [flatport_binary(), "calibrate", "--images", str(root / "set"), "--board", str(BOARD), "--port", "shared",
          "--glass", f"{GLASS[0]}:{GLASS[1]}", "--index-air", str(INDEX_AIR), "--device", "cpu", "-q",
-         "-o", str(root / "cli_rig.json"), "--report", str(root / "cli_report.json")],
+         "-o", str(root / "cli_rig.json"), "--report", str(root / "cli_report.json"),
+         "--report-dir", str(root / "cli_page")],
         check=True, capture_output=True,
     )
     cli_rig = (root / "cli_rig.json").read_text()
@@ -65,6 +66,10 @@ def test_equal_to_the_cli(rendered):
     assert isinstance(left["distortion"], np.ndarray) and left["distortion"].shape == (5,)
     assert left["view_rms_px"].shape == (8,)
     assert left["fx"] == cli_report["intrinsics"][0]["fx"]
+    # The report page (issue 47): the same numbers and advice, only the command line differs.
+    page = {k: v for k, v in json.loads((root / "python_page" / "report.json").read_text()).items() if k != "command"}
+    assert page == {k: v for k, v in json.loads((root / "cli_page" / "report.json").read_text()).items() if k != "command"}
+    assert page["advice"]["view"] and (root / "python_page" / "index.html").is_file()
 
 
 def test_recovers_the_rendered_rig(rendered):

@@ -65,6 +65,12 @@ pub struct CalibrateArgs {
     /// Also write the full report as JSON
     #[arg(long, value_name = "REPORT.json")]
     pub report: Option<PathBuf>,
+    /// Also write a report to read: DIR/index.html (one page, opens offline in any browser), its
+    /// pictures as PNG (the rig, per camera residual quivers, error maps and coverage, RMS per
+    /// frame, histogram, held-out frames by depth), the numbers as JSON and CSV, the verdict and
+    /// which views to add (every route), e.g. --report-dir report
+    #[arg(long, value_name = "DIR")]
+    pub report_dir: Option<PathBuf>,
     /// From images or videos alone: DIR holds water/<camera>/ (synchronized frames under water)
     /// and, where there are any, air/<camera>/ (each camera's in-air views of the board; without
     /// air/ and --rig the lenses come from the underwater frames); each folder images
@@ -382,6 +388,30 @@ fn check_grid_step(args: &CalibrateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The command as it was typed, for the report's page.
+pub fn command_line() -> String {
+    std::env::args().collect::<Vec<_>>().join(" ")
+}
+
+/// Writes the report page of `input` into `dir` and says where it is.
+pub fn written_report(
+    dir: &std::path::Path,
+    input: &flatport::report::Input,
+) -> anyhow::Result<()> {
+    let written = flatport::report::write_report(dir, input)?;
+    eprintln!(
+        "report: {} ({} files)",
+        written.index.display(),
+        written.files.len()
+    );
+    if let Some(advice) = &written.advice {
+        for line in &advice.text {
+            eprintln!("  {line}");
+        }
+    }
+    Ok(())
+}
+
 fn parse_estimate(text: &str) -> Result<Estimate, String> {
     Estimate::parse(text)
 }
@@ -434,6 +464,16 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
     let report = &calibration.report;
     if let Some(path) = &args.report {
         write_report(path, report)?;
+    }
+    if let Some(dir) = &args.report_dir {
+        let input = flatport::report::Input::from_observations(
+            &command_line(),
+            &calibration.rig,
+            report,
+            &observations,
+            options.huber,
+        );
+        written_report(dir, &input)?;
     }
     out!("{}", summary(report));
     if let Some(path) = &args.truth {

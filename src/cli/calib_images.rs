@@ -120,6 +120,18 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
         "underwater: the board in {with_board} of {read} frames ({by_two} seen by two or more cameras); {} frames used",
         footage.water.len()
     );
+    let frames = &footage.water;
+    // Each camera's in-air corners, for the report's coverage pictures.
+    let air_corners: Vec<Vec<nalgebra::Point2<f64>>> = footage
+        .cameras
+        .iter()
+        .map(|c| {
+            c.air
+                .iter()
+                .flat_map(|v| v.corners.iter().map(|(_, p)| *p))
+                .collect()
+        })
+        .collect();
     let setup = RigSetup {
         cameras,
         port,
@@ -198,6 +210,18 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
     }
     if let Some(path) = &args.report {
         write_boards_report(path, &result, &names, &fits)?;
+    }
+    if let Some(report_dir) = &args.report_dir {
+        let mut input = flatport::report::Input::from_boards(
+            &super::calib::command_line(),
+            &result,
+            &names,
+            &board,
+            frames,
+            options.calibration.huber,
+        );
+        input.air = air_corners;
+        super::calib::written_report(report_dir, &input)?;
     }
     let report = &result.calibration.report;
     if !report.fits {

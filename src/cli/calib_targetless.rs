@@ -102,6 +102,11 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
         let truth = read_rig(truth)?;
         println!("{}", rig_truth_errors(&result.rig, &truth));
     }
+    if let Some(report_dir) = &args.report_dir {
+        let input =
+            flatport::report::Input::from_targetless(&super::calib::command_line(), &result);
+        super::calib::written_report(report_dir, &input)?;
+    }
     let calibrated = result.confident_rig()?;
     write_rig(&args.output, calibrated)?;
     println!("wrote {}", args.output.display());

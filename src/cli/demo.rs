@@ -222,6 +222,7 @@ fn footage_story(rig: &Rig, dir: &Path, engine_args: &super::EngineArgs) -> anyh
         observations: None,
         output: dir.join("footage_rig.json"),
         report: Some(dir.join("footage_report.json")),
+        report_dir: None,
         images: Some(footage.clone()),
         board: Some(board_path),
         port: Some(super::calib::PortArg::Shared),

@@ -253,7 +253,13 @@ from the underwater frames with the ports. The result carries a verdict from the
 (good, usable or poor, and why); a poor one (RMS over 2 px, held-out frames or squares far off
 the fit's) writes no rig and exits 1.
   flatport calibrate --images footage --board board.json --port housings --glass 0.008:1.49 \\
-      --output rig.json --report report.json
+      --output rig.json --report report.json --report-dir report
+
+--report-dir DIR (every route) also writes DIR/index.html, a page to read offline with pictures
+(the rig from the top and the side; per camera the residual quiver, an error map and where the
+corners fell; RMS per frame; the error histogram; held-out frames by depth), every parameter's
+sigma and what it trades off with, the verdict, and which view to add: the board's distance, tilt
+and place in which camera's image that shrinks the worst-determined parameter's sigma most.
 
 With observations: the rig's cameras are calibrated in air (intrinsics, distortion, extrinsics); its ports (the shared
 interface, or each camera's own) are the start guess, and what --estimate does not name is known.

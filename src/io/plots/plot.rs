@@ -51,7 +51,7 @@ pub(crate) fn register_font() {
 }
 
 /// Viridis, sampled at 9 points (matplotlib's table) and interpolated linearly.
-fn viridis(t: f64) -> RGBColor {
+pub(crate) fn viridis(t: f64) -> RGBColor {
     const STOPS: [(u8, u8, u8); 9] = [
         (68, 1, 84),
         (71, 44, 122),
@@ -360,7 +360,11 @@ fn cell_of(edges: &[f64], v: f64) -> Option<usize> {
     Some(k.saturating_sub(1).min(n - 1))
 }
 
-fn encode(path: &Path, buffer: &[u8], (width, height): (u32, u32)) -> Result<(), IoError> {
+pub(crate) fn encode(
+    path: &Path,
+    buffer: &[u8],
+    (width, height): (u32, u32),
+) -> Result<(), IoError> {
     let err = |source| IoError::Write {
         path: path.to_path_buf(),
         source,
