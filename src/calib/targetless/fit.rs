@@ -14,7 +14,7 @@ use nalgebra::{DMatrix, DVector, Point2, Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
 use crate::calib::pipeline::bundle::{
-    Estimate, Parameter, State, difference_step, global_parameters, moved,
+    Estimate, MIN_START_AIR_M, Parameter, State, difference_step, global_parameters, moved,
 };
 use crate::calib::solvers::block::{POINT_PARAMETERS, view_share};
 pub use crate::calib::solvers::block::{PointBlock, PointNormalEquations};
@@ -117,6 +117,88 @@ impl<'a> PointsProblem<'a> {
             .map(|(t, point)| self.track_residuals(&cameras, t, point))
             .collect()
     }
+
+    /// The cameras at `state` and at `state` with each global moved by ± its difference step.
+    #[allow(clippy::type_complexity)] // (cameras, per global [+h, −h] cameras), used once below
+    fn cameras_and_shifted(
+        &self,
+        state: &PointsState,
+    ) -> Option<(Vec<RefractiveCamera>, Vec<[Vec<RefractiveCamera>; 2]>)> {
+        let cameras = state.rig.cameras(self.base)?;
+        let shifted = self
+            .globals
+            .iter()
+            .map(|&p| {
+                let h = difference_step(p);
+                Some([
+                    moved(&state.rig, p, h).cameras(self.base)?,
+                    moved(&state.rig, p, -h).cameras(self.base)?,
+                ])
+            })
+            .collect::<Option<_>>()?;
+        Some((cameras, shifted))
+    }
+
+    /// Track `t`'s share of the normal equations at `point`: `None` where its point does not
+    /// project into one of its cameras, at the state or a difference step away.
+    fn track_share(
+        &self,
+        cameras: &[RefractiveCamera],
+        shifted: &[[Vec<RefractiveCamera>; 2]],
+        t: usize,
+        point: &Point3<f64>,
+    ) -> Option<(DMatrix<f64>, DVector<f64>, f64)> {
+        let globals = self.globals.len();
+        let columns = globals + POINT_PARAMETERS;
+        let base = self.track_residuals(cameras, t, point)?;
+        let count = base.len();
+        let mut jacobian = vec![Vector2::zeros(); columns * count];
+        for (c, &parameter) in self.globals.iter().enumerate() {
+            let h = difference_step(parameter);
+            let only = parameter.camera(self.base);
+            for (i, (k, _)) in self.tracks[t].pixels.iter().enumerate() {
+                if only.is_some_and(|o| o != *k) {
+                    continue;
+                }
+                jacobian[c * count + i] = difference(
+                    shifted[c][0][*k].project(point).ok(),
+                    shifted[c][1][*k].project(point).ok(),
+                    base[i] + self.tracks[t].pixels[i].1.coords,
+                    h,
+                )?;
+            }
+        }
+        for axis in 0..3 {
+            let mut step = Vector3::zeros();
+            step[axis] = POINT_STEP_M;
+            for (i, (k, _)) in self.tracks[t].pixels.iter().enumerate() {
+                jacobian[(globals + axis) * count + i] = difference(
+                    cameras[*k].project(&(point + step)).ok(),
+                    cameras[*k].project(&(point - step)).ok(),
+                    base[i] + self.tracks[t].pixels[i].1.coords,
+                    POINT_STEP_M,
+                )?;
+            }
+        }
+        Some(view_share(&base, &jacobian, columns, self.huber))
+    }
+
+    /// The tracks whose residuals or derivatives are undefined at `state` (a point that does not
+    /// project into one of its cameras, there or a difference step away), or `None` where the
+    /// state's cameras themselves are not. Such a track makes the cost or the normal equations
+    /// undefined: the fit leaves it out rather than start where it cannot step.
+    pub fn undefined_tracks(&self, state: &PointsState) -> Option<Vec<usize>> {
+        let (cameras, shifted) = self.cameras_and_shifted(state)?;
+        Some(
+            state
+                .points
+                .par_iter()
+                .enumerate()
+                .filter(|(t, point)| self.track_share(&cameras, &shifted, *t, point).is_none())
+                .map(|(t, _)| t)
+                .collect(),
+        )
+    }
 }
 
 impl LeastSquares for PointsProblem<'_> {
@@ -127,7 +209,17 @@ impl LeastSquares for PointsProblem<'_> {
         self.globals.len() + POINT_PARAMETERS * state.points.len()
     }
 
+    /// Undefined, besides where a point does not project, where a camera comes within
+    /// [`MIN_START_AIR_M`] of its port: on degraded footage the likelihood can fall toward a
+    /// camera's air layer of zero (a shared port tilted 8° slid from 80 mm to 1 µm of one
+    /// camera of a pair), where the difference steps leave the air and the fit stops with no
+    /// σ. The bound keeps every step a rig whose derivatives exist; a fit that ends on it says
+    /// so through its σ.
     fn cost(&self, state: &PointsState) -> Option<f64> {
+        let cameras = state.rig.cameras(self.base)?;
+        if cameras.iter().any(|c| c.air_distance() < MIN_START_AIR_M) {
+            return None;
+        }
         let residuals = self.all_residuals(state)?;
         Some(
             residuals
@@ -139,59 +231,17 @@ impl LeastSquares for PointsProblem<'_> {
     }
 
     fn normal_equations(&self, state: &PointsState) -> Option<PointNormalEquations> {
-        let globals = self.globals.len();
-        let cameras = state.rig.cameras(self.base)?;
-        let shifted: Vec<[Vec<RefractiveCamera>; 2]> = self
-            .globals
-            .iter()
-            .map(|&p| {
-                let h = difference_step(p);
-                Some([
-                    moved(&state.rig, p, h).cameras(self.base)?,
-                    moved(&state.rig, p, -h).cameras(self.base)?,
-                ])
-            })
-            .collect::<Option<_>>()?;
-        let columns = globals + POINT_PARAMETERS;
+        let (cameras, shifted) = self.cameras_and_shifted(state)?;
         let shares: Vec<(DMatrix<f64>, DVector<f64>, f64)> = state
             .points
             .par_iter()
             .enumerate()
-            .map(|(t, point)| {
-                let base = self.track_residuals(&cameras, t, point)?;
-                let count = base.len();
-                let mut jacobian = vec![Vector2::zeros(); columns * count];
-                for (c, &parameter) in self.globals.iter().enumerate() {
-                    let h = difference_step(parameter);
-                    let only = parameter.camera(self.base);
-                    for (i, (k, _)) in self.tracks[t].pixels.iter().enumerate() {
-                        if only.is_some_and(|o| o != *k) {
-                            continue;
-                        }
-                        jacobian[c * count + i] = difference(
-                            shifted[c][0][*k].project(point).ok(),
-                            shifted[c][1][*k].project(point).ok(),
-                            base[i] + self.tracks[t].pixels[i].1.coords,
-                            h,
-                        )?;
-                    }
-                }
-                for axis in 0..3 {
-                    let mut step = Vector3::zeros();
-                    step[axis] = POINT_STEP_M;
-                    for (i, (k, _)) in self.tracks[t].pixels.iter().enumerate() {
-                        jacobian[(globals + axis) * count + i] = difference(
-                            cameras[*k].project(&(point + step)).ok(),
-                            cameras[*k].project(&(point - step)).ok(),
-                            base[i] + self.tracks[t].pixels[i].1.coords,
-                            POINT_STEP_M,
-                        )?;
-                    }
-                }
-                Some(view_share(&base, &jacobian, columns, self.huber))
-            })
+            .map(|(t, point)| self.track_share(&cameras, &shifted, t, point))
             .collect::<Option<_>>()?;
-        Some(PointNormalEquations::from_shares(globals, shares))
+        Some(PointNormalEquations::from_shares(
+            self.globals.len(),
+            shares,
+        ))
     }
 
     fn retract(&self, state: &PointsState, delta: &DVector<f64>) -> PointsState {

@@ -241,6 +241,7 @@ pub fn tracks_of(
     options: &MatchOptions,
     progress: &mut dyn FnMut(&str),
 ) -> (Vec<Track>, Vec<usize>) {
+    let options = &choose_matching(frames, options, progress);
     let cameras = frames.first().map_or(0, Vec::len);
     let mut per_camera = vec![0; cameras];
     let mut tracks = Vec::new();
@@ -269,6 +270,46 @@ pub fn tracks_of(
         tracks.extend(by_corner.into_values());
     }
     (tracks, per_camera)
+}
+
+/// The matching for `frames`: the first of [`matches::ladder`] that finds at least
+/// [`matches::ENOUGH_MATCHES`] between the master and the next camera in the middle frame, else
+/// the one that finds most. One matching for every frame and camera, so that a corner of the
+/// master is the same corner in each camera's matches (the tracks join on it).
+pub fn choose_matching(
+    frames: &[Vec<GreyImage>],
+    options: &MatchOptions,
+    progress: &mut dyn FnMut(&str),
+) -> MatchOptions {
+    let Some(frame) = frames.get(frames.len() / 2).filter(|f| f.len() >= 2) else {
+        return *options;
+    };
+    let mut best: Option<(usize, MatchOptions)> = None;
+    for (i, candidate) in matches::ladder(options).into_iter().enumerate() {
+        let found = match_pair(&frame[0], &frame[1], &candidate).len();
+        if i > 0 {
+            progress(&format!(
+                "  matching again on images smoothed by σ {:.1} px with {} px patches: {found} matches",
+                candidate.smooth_px,
+                2 * candidate.patch_radius + 1
+            ));
+        }
+        if best.is_none_or(|(n, _)| found > n) {
+            best = Some((found, candidate));
+        }
+        if found >= matches::ENOUGH_MATCHES {
+            break;
+        }
+        if i == 0 {
+            progress(&format!(
+                "  {found} matches in frame {} with {} px patches (fewer than {}): the footage may be blurred, noisy or low in contrast",
+                frames.len() / 2 + 1,
+                2 * candidate.patch_radius + 1,
+                matches::ENOUGH_MATCHES
+            ));
+        }
+    }
+    best.map_or(*options, |(_, o)| o)
 }
 
 fn median(values: &[f64]) -> f64 {
@@ -340,6 +381,7 @@ fn fit_rounds(
     };
     let factors: &[f64] = if brief { &[] } else { &[8.0, 5.0, 3.5] };
     let first = if brief { 15 } else { 100 };
+    (tracks, state) = without_undefined(rig, tracks, state, options, progress);
     {
         let problem = PointsProblem::new(rig, &tracks, options.estimate, Some(options.huber_px));
         let (s, _, _) = levenberg_marquardt(&problem, state, &lm(first));
@@ -370,6 +412,7 @@ fn fit_rounds(
             .unzip();
         tracks = t;
         state.points = p;
+        (tracks, state) = without_undefined(rig, tracks, state, options, progress);
         let problem = PointsProblem::new(rig, &tracks, options.estimate, Some(options.huber_px));
         let (s, _, _) = levenberg_marquardt(&problem, state, &lm(100));
         state = s;
@@ -396,6 +439,37 @@ fn fit_rounds(
         cost: report.final_cost,
         globals,
     }
+}
+
+/// `tracks` (and their points in `state`) less those whose cost or derivatives are undefined at
+/// `state` ([`PointsProblem::undefined_tracks`]): a point that a difference step of the port
+/// moves out of a camera's view. Left as they are where the state's cameras are undefined.
+fn without_undefined(
+    rig: &Rig,
+    tracks: Vec<Track>,
+    mut state: PointsState,
+    options: &TargetlessOptions,
+    progress: &mut dyn FnMut(&str),
+) -> (Vec<Track>, PointsState) {
+    let problem = PointsProblem::new(rig, &tracks, options.estimate, Some(options.huber_px));
+    let undefined = match problem.undefined_tracks(&state) {
+        Some(u) if !u.is_empty() => u,
+        _ => return (tracks, state),
+    };
+    progress(&format!(
+        "  left out {} of {} tracks whose point does not project into each of its cameras under the port (or a difference step from it)",
+        undefined.len(),
+        tracks.len()
+    ));
+    let (t, p): (Vec<Track>, Vec<Point3<f64>>) = tracks
+        .into_iter()
+        .zip(state.points)
+        .enumerate()
+        .filter(|(i, _)| undefined.binary_search(i).is_err())
+        .map(|(_, x)| x)
+        .unzip();
+    state.points = p;
+    (t, state)
 }
 
 /// The start `rig` with every port's axis moved by `offset` (radians in its tangent plane).
@@ -494,7 +568,8 @@ pub fn calibrate_targetless(
                 rig,
                 tilt_deg.to_radians(),
                 f64::from(step) * std::f64::consts::FRAC_PI_4,
-            ) {
+            ) && start::clear_of_the_port(&r)
+            {
                 starts.push(r);
             }
         }
@@ -529,7 +604,13 @@ pub fn calibrate_targetless(
         ));
         best = Some(fitted);
     }
-    if best.as_ref().is_none_or(|b| b.rms_px > options.max_rms_px) {
+    // A fit that could not take a step (its cost or derivatives undefined at its start) has not
+    // been tried: other starts are.
+    let stuck = |b: &Fitted| b.termination == Termination::InvalidStart;
+    if best
+        .as_ref()
+        .is_none_or(|b| b.rms_px > options.max_rms_px || stuck(b))
+    {
         progress("the guess does not fit: trying axes over a 20° cap");
         let mut brief: Vec<(f64, Rig)> = Vec::new();
         for start in &starts[1..] {
@@ -561,7 +642,10 @@ pub fn calibrate_targetless(
                     "fit from the best other start: {:.4} px RMS",
                     fitted.rms_px
                 ));
-                if best.as_ref().is_none_or(|b| fitted.rms_px < b.rms_px) {
+                if best
+                    .as_ref()
+                    .is_none_or(|b| stuck(b) || fitted.rms_px < b.rms_px)
+                {
                     best = Some(fitted);
                 }
             }

@@ -11,7 +11,7 @@
 use nalgebra::{Matrix3, Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
-use crate::calib::pipeline::bundle::Estimate;
+use crate::calib::pipeline::bundle::{Estimate, MIN_START_AIR_M};
 use crate::calib::solvers::search::tangent_step;
 use crate::calib::targetless::fit::Track;
 use crate::model::{Interface, Ports, RefractiveCamera, Rig, triangulate_rays};
@@ -20,6 +20,11 @@ use crate::model::{Interface, Ports, RefractiveCamera, Rig, triangulate_rays};
 const TRUNCATE_PX2: f64 = 16.0;
 /// Tracks the search evaluates (spread evenly over the tracks).
 const SEARCH_TRACKS: usize = 300;
+/// Whether every camera of `rig` is at least [`MIN_START_AIR_M`] (1 mm) from its port: a start
+/// closer than a difference step (1 µm) leaves the fit's derivatives undefined.
+pub fn clear_of_the_port(rig: &Rig) -> bool {
+    (0..rig.cameras().len()).all(|k| rig.refractive_camera(k).air_distance() >= MIN_START_AIR_M)
+}
 
 /// Track `t`'s least reprojection cost (px², truncated) over its point under `cameras`: the
 /// point triangulated from its first two rays, then four Gauss–Newton steps.
@@ -142,7 +147,11 @@ pub fn search_start(rig: &Rig, tracks: &[Track], estimate: Estimate) -> (Rig, f6
     let sample = spread(tracks, SEARCH_TRACKS);
     let n = sample.len().max(1) as f64;
     let mut best_rig = rig.clone();
-    let mut best = profile(rig, &sample);
+    let mut best = if clear_of_the_port(rig) {
+        profile(rig, &sample)
+    } else {
+        f64::INFINITY
+    };
     let mut evaluated = 1;
     let guesses = ports_of(rig);
     let mut offsets = vec![Vector2::zeros()];
@@ -174,7 +183,7 @@ pub fn search_start(rig: &Rig, tracks: &[Track], estimate: Estimate) -> (Rig, f6
                             guess.air_distance() * f,
                         )
                         .ok()?;
-                    with_port(&best_rig, p, port)
+                    with_port(&best_rig, p, port).filter(clear_of_the_port)
                 })
                 .collect();
             evaluated += candidates.len();
