@@ -565,7 +565,7 @@ mod tests {
     #[test]
     fn the_tilt_in_words_is_the_edge_that_is_farther() {
         let rig = crate::io::read_rig(std::path::Path::new("data/example_rig.json")).unwrap();
-        let target = Target::Board(crate::calib::problem::board::Board {
+        let target = Target::Board(crate::base::Board {
             rows: 6,
             cols: 9,
             square: 0.04,

@@ -3,6 +3,9 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
+/// The board's corner grid, at home in [`crate::base`] (render and detect use it too).
+pub use crate::base::Board;
+
 /// The rigid motion `master_from_board` that best maps board-frame points onto measured points
 /// (least squares, Kabsch/Umeyama without scale), with the RMS of the remaining distances.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -61,7 +64,6 @@ pub fn fit_rigid(model: &[Point3<f64>], measured: &[Point3<f64>]) -> Option<Rigi
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::base::Board;
 
     #[test]
     fn kabsch_recovers_a_known_motion() {
