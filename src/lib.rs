@@ -84,7 +84,7 @@ pub mod model;
 #[cfg(feature = "images")]
 pub mod render;
 #[cfg(feature = "images")]
-pub mod runs;
-#[cfg(feature = "images")]
 pub mod report;
+#[cfg(feature = "images")]
+pub mod runs;
 pub mod stereo;

@@ -21,12 +21,12 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Isometry3, Point2, Point3, Vector2, Vector3};
 
+use crate::base::Board;
 use crate::calib::pipeline::acceptance::Verdict;
 use crate::calib::pipeline::boards::{
     BoardsCalibration, WaterFrame, square_errors, triangulate_view, validate,
 };
 use crate::calib::pipeline::report::Report;
-use crate::base::Board;
 use crate::calib::problem::observations::{CameraKey, Image, Observations, View};
 use crate::calib::problem::target::Target;
 use crate::calib::targetless::TargetlessCalibration;

@@ -191,7 +191,7 @@ pub fn cameras_from_rig(
                     names.join(", ")
                 ))
             })?;
-            let intrinsics = rig.cameras()[k].intrinsics.clone();
+            let intrinsics = rig.cameras()[k].intrinsics;
             if (intrinsics.width, intrinsics.height) != (camera.width, camera.height) {
                 return Err(error(format!(
                     "camera '{}' is {}x{} pixels, its frames {}x{}",

@@ -14,7 +14,7 @@ use nalgebra::{DMatrix, DVector, Point2, Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
 use crate::calib::pipeline::bundle::{
-    Estimate, MIN_START_AIR_M, Parameter, State, difference_step, global_parameters, moved,
+    Estimate, Parameter, State, difference_step, global_parameters, moved,
 };
 use crate::calib::solvers::block::{POINT_PARAMETERS, view_share};
 pub use crate::calib::solvers::block::{PointBlock, PointNormalEquations};
@@ -58,6 +58,13 @@ pub struct PointsState {
     /// One point per track, master frame, metres.
     pub points: Vec<Point3<f64>>,
 }
+
+/// Least air (metres) between a camera and its port at any step of the fit: ten difference
+/// steps of a distance (1 µm), so that both sides of every difference are rigs. Below a start's
+/// 1 mm ([`crate::calib::pipeline::bundle::MIN_START_AIR_M`]): a fit may pass close to a camera
+/// on its way (the far plane of python/tests/test_calibrate_targetless.py does, from a start at
+/// 14 mm to 52 mm; bounded at 1 mm it stopped at its start).
+pub const MIN_FIT_AIR_M: f64 = 1e-5;
 
 /// The targetless problem: `tracks` seen by the cameras of `base`, estimating `globals`.
 pub struct PointsProblem<'a> {
@@ -210,14 +217,14 @@ impl LeastSquares for PointsProblem<'_> {
     }
 
     /// Undefined, besides where a point does not project, where a camera comes within
-    /// [`MIN_START_AIR_M`] of its port: on degraded footage the likelihood can fall toward a
+    /// [`MIN_FIT_AIR_M`] of its port: on degraded footage the likelihood can fall toward a
     /// camera's air layer of zero (a shared port tilted 8° slid from 80 mm to 1 µm of one
     /// camera of a pair), where the difference steps leave the air and the fit stops with no
     /// σ. The bound keeps every step a rig whose derivatives exist; a fit that ends on it says
     /// so through its σ.
     fn cost(&self, state: &PointsState) -> Option<f64> {
         let cameras = state.rig.cameras(self.base)?;
-        if cameras.iter().any(|c| c.air_distance() < MIN_START_AIR_M) {
+        if cameras.iter().any(|c| c.air_distance() < MIN_FIT_AIR_M) {
             return None;
         }
         let residuals = self.all_residuals(state)?;
