@@ -588,12 +588,9 @@ fn calibrate_images(
         .ok_or_else(|| value_error(format!("port must be 'surface', 'shared' or 'housings', got {port:?}")))?;
     let glass = glass_rows(glass);
     check_glass(&glass, port).map_err(value_error)?;
-    let refine_intrinsics = match refine_intrinsics {
-        "never" => RefineIntrinsics::Never,
-        "always" => RefineIntrinsics::Always,
-        "auto" => RefineIntrinsics::Auto,
-        other => return Err(value_error(format!("refine_intrinsics must be 'auto', 'never' or 'always', got {other:?}"))),
-    };
+    let refine_intrinsics = RefineIntrinsics::from_name(refine_intrinsics).ok_or_else(|| {
+        value_error(format!("refine_intrinsics must be 'auto', 'never' or 'always', got {refine_intrinsics:?}"))
+    })?;
     let spec = read_board(&board).map_err(value_error)?;
     let grid = spec.corner_grid();
     let source = LensSource::choose(&images, rig.is_some());
@@ -635,8 +632,6 @@ fn calibrate_images(
         }
         other => return Err(value_error(format!("device must be 'cpu', 'gpu' or 'auto', got {other:?}"))),
     };
-    let air_corners: Vec<Vec<_>> =
-        footage.cameras.iter().map(|c| c.air.iter().flat_map(|v| v.corners.iter().map(|(_, p)| *p)).collect()).collect();
     let settings = FitSettings { huber, max_iterations, max_rms_px, max_tilt_deg, holdout, refine_intrinsics };
     let options = boards_options(&settings, backend, &fits);
     let (result, _) = py
@@ -655,7 +650,7 @@ fn calibrate_images(
             &footage.water,
             options.calibration.huber,
         );
-        input.air = air_corners;
+        input.air = footage.air_corners();
         py.detach(|| flatport::report::write_report(dir, &input)).map_err(value_error)?;
     }
     let fit = &result.calibration.report;

@@ -122,16 +122,6 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
     );
     let frames = &footage.water;
     // Each camera's in-air corners, for the report's coverage pictures.
-    let air_corners: Vec<Vec<nalgebra::Point2<f64>>> = footage
-        .cameras
-        .iter()
-        .map(|c| {
-            c.air
-                .iter()
-                .flat_map(|v| v.corners.iter().map(|(_, p)| *p))
-                .collect()
-        })
-        .collect();
     let setup = RigSetup {
         cameras,
         port,
@@ -147,11 +137,7 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
         max_rms_px: args.max_rms_px,
         max_tilt_deg: args.max_tilt_deg,
         holdout: args.holdout,
-        refine_intrinsics: match args.refine_intrinsics.as_str() {
-            "never" => RefineIntrinsics::Never,
-            "always" => RefineIntrinsics::Always,
-            _ => RefineIntrinsics::Auto,
-        },
+        refine_intrinsics: RefineIntrinsics::from_name(&args.refine_intrinsics).unwrap_or_default(),
     };
     let options = boards_options(&settings, backend(engine), &fits);
     eprintln!(
@@ -220,7 +206,7 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
             frames,
             options.calibration.huber,
         );
-        input.air = air_corners;
+        input.air = footage.air_corners();
         super::calib::written_report(report_dir, &input)?;
     }
     let report = &result.calibration.report;

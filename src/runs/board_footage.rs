@@ -87,6 +87,20 @@ impl Footage {
     pub fn names(&self) -> Vec<String> {
         self.cameras.iter().map(|c| c.name.clone()).collect()
     }
+
+    /// Every camera's in-air corners (pixels), in [`Footage::cameras`]' order: where the board
+    /// fell in air, for the report's coverage pictures.
+    pub fn air_corners(&self) -> Vec<Vec<Point2<f64>>> {
+        self.cameras
+            .iter()
+            .map(|c| {
+                c.air
+                    .iter()
+                    .flat_map(|v| v.corners.iter().map(|(_, p)| *p))
+                    .collect()
+            })
+            .collect()
+    }
 }
 
 /// Reads the footage under `dir` and finds `spec` in every frame read; `progress(what, done,

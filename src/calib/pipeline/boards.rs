@@ -96,6 +96,18 @@ pub enum RefineIntrinsics {
 }
 
 impl RefineIntrinsics {
+    /// The choice named `name` (`auto`, `never`, `always`: `--refine-intrinsics`'s values).
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "auto" => Some(Self::Auto),
+            "never" => Some(Self::Never),
+            "always" => Some(Self::Always),
+            _ => None,
+        }
+    }
+}
+
+impl RefineIntrinsics {
     /// `auto`, `never` or `always`.
     pub fn name(self) -> &'static str {
         match self {

@@ -241,14 +241,19 @@ pub fn tracks_of(
     options: &MatchOptions,
     progress: &mut dyn FnMut(&str),
 ) -> (Vec<Track>, Vec<usize>) {
-    let options = &choose_matching(frames, options, progress);
+    let (options, mut chosen) = choose_matching(frames, options, progress);
+    let options = &options;
     let cameras = frames.first().map_or(0, Vec::len);
     let mut per_camera = vec![0; cameras];
     let mut tracks = Vec::new();
     for (f, frame) in frames.iter().enumerate() {
         let mut by_corner: BTreeMap<(u64, u64), Track> = BTreeMap::new();
         for k in 1..frame.len() {
-            let found = match_pair(&frame[0], &frame[k], options);
+            // The pair the choice matched already is not matched again.
+            let found = match chosen.take_if(|_| (f, k) == (frames.len() / 2, 1)) {
+                Some(found) => found,
+                None => match_pair(&frame[0], &frame[k], options),
+            };
             per_camera[k] += found.len();
             progress(&format!(
                 "frame {}/{}: camera {k}: {} matches with the master",
@@ -275,18 +280,20 @@ pub fn tracks_of(
 /// The matching for `frames`: the first of [`matches::ladder`] that finds at least
 /// [`matches::ENOUGH_MATCHES`] between the master and the next camera in the middle frame, else
 /// the one that finds most. One matching for every frame and camera, so that a corner of the
-/// master is the same corner in each camera's matches (the tracks join on it).
+/// master is the same corner in each camera's matches (the tracks join on it). Returns the
+/// matching and what it found in that pair (none without a frame of two cameras).
 pub fn choose_matching(
     frames: &[Vec<GreyImage>],
     options: &MatchOptions,
     progress: &mut dyn FnMut(&str),
-) -> MatchOptions {
+) -> (MatchOptions, Option<Vec<PixelMatch>>) {
     let Some(frame) = frames.get(frames.len() / 2).filter(|f| f.len() >= 2) else {
-        return *options;
+        return (*options, None);
     };
-    let mut best: Option<(usize, MatchOptions)> = None;
+    let mut best: Option<(Vec<PixelMatch>, MatchOptions)> = None;
     for (i, candidate) in matches::ladder(options).into_iter().enumerate() {
-        let found = match_pair(&frame[0], &frame[1], &candidate).len();
+        let pairs = match_pair(&frame[0], &frame[1], &candidate);
+        let found = pairs.len();
         if i > 0 {
             progress(&format!(
                 "  matching again on images smoothed by σ {:.1} px with {} px patches: {found} matches",
@@ -294,8 +301,8 @@ pub fn choose_matching(
                 2 * candidate.patch_radius + 1
             ));
         }
-        if best.is_none_or(|(n, _)| found > n) {
-            best = Some((found, candidate));
+        if best.as_ref().is_none_or(|(b, _)| found > b.len()) {
+            best = Some((pairs, candidate));
         }
         if found >= matches::ENOUGH_MATCHES {
             break;
@@ -309,7 +316,7 @@ pub fn choose_matching(
             ));
         }
     }
-    best.map_or(*options, |(_, o)| o)
+    best.map_or((*options, None), |(pairs, o)| (o, Some(pairs)))
 }
 
 fn median(values: &[f64]) -> f64 {
