@@ -330,3 +330,99 @@ fn the_swept_targetless_cost_is_least_at_the_true_port() {
         assert!(output.join(file).is_file(), "{file}");
     }
 }
+
+/// Issue 47, the advice on the targetless route: a plane 8 m away leaves the air distance
+/// undetermined (σ ≈ 10 mm). The report (`--report-dir`) must name it as the worst-determined
+/// parameter and advise texture at some distance over a part of the master's image. Following
+/// it — one more frame with a textured ball there, the far plane behind — and running again must
+/// shrink that σ at least 2×.
+#[test]
+fn the_report_advises_texture_that_pins_a_far_scene_down() {
+    let dir = tempfile::tempdir().unwrap();
+    let far_plane = r#"{"plane": {"point": [0, 0, 8], "normal": [0, 0, -1],
+       "texture": {"noise": {"scale": 0.6, "octaves": 4, "contrast": 3.0, "seed": 31}}}}"#;
+    let (shots, naive) = rendered(dir.path(), far_plane);
+    let calibrate = |report: &Path| {
+        let out = flatport(&[
+            "calibrate",
+            "--images",
+            shots.to_str().unwrap(),
+            "--rig",
+            naive.to_str().unwrap(),
+            "--targetless",
+            "-o",
+            dir.path().join("calibrated.json").to_str().unwrap(),
+            "--report-dir",
+            report.to_str().unwrap(),
+        ]);
+        eprintln!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let text = std::fs::read_to_string(report.join("report.json")).unwrap();
+        let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let page = std::fs::read_to_string(report.join("index.html")).unwrap();
+        (json, page)
+    };
+    let sigma_of = |json: &serde_json::Value, name: &str| -> f64 {
+        json["parameters"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["name"] == name)
+            .and_then(|p| p["sigma"].as_f64())
+            .unwrap_or_else(|| panic!("{name} in {}", json["parameters"]))
+    };
+    let (before, page) = calibrate(&dir.path().join("report"));
+    let advice = &before["advice"];
+    let worst = advice["worst"].as_str().unwrap().to_string();
+    assert!(worst.contains("air distance"), "{advice}");
+    assert_eq!(before["verdict"]["grade"], "poor", "{before}");
+    let view = &advice["view"];
+    assert_eq!(view["kind"], "texture", "{advice}");
+    let sigma_before = sigma_of(&before, &worst);
+    let predicted = view["sigma_after_one"].as_f64().unwrap();
+    assert!(
+        sigma_before > 3.0,
+        "σ {sigma_before} mm: the far plane pins the air"
+    );
+    assert!(predicted < sigma_before / 1.5, "{advice}");
+    assert!(page.contains("advised texture") || page.contains("Film textured scene"));
+    let place = view["place"].as_str().unwrap();
+    assert!(
+        advice["text"][1].as_str().unwrap().contains(place),
+        "{advice}"
+    );
+
+    // The advised texture as the second frame of the footage: the far plane again, with a
+    // textured ball at the advised place and distance, about a cell of the image across.
+    let centre: Vec<f64> = (0..3)
+        .map(|i| view["translation"][i].as_f64().unwrap())
+        .collect();
+    let radius = 0.15 * view["distance_m"].as_f64().unwrap();
+    let more = dir.path().join("more");
+    std::fs::create_dir(&more).unwrap();
+    let ball = format!(
+        r#"{far_plane}, {{"sphere": {{"centre": [{}, {}, {}], "radius": {radius},
+           "texture": {{"noise": {{"scale": 0.05, "octaves": 4, "contrast": 3.0, "seed": 32}}}}}}}}"#,
+        centre[0], centre[1], centre[2]
+    );
+    let (more_shots, _) = rendered(&more, &ball);
+    for camera in ["left", "right"] {
+        std::fs::copy(
+            more_shots.join(camera).join("frame_000.png"),
+            shots.join(camera).join("frame_001.png"),
+        )
+        .unwrap();
+    }
+    let (after, _) = calibrate(&dir.path().join("report_after"));
+    let sigma_after = sigma_of(&after, &worst);
+    eprintln!(
+        "{worst}: σ {sigma_before:.3} mm, predicted after one frame {predicted:.3} mm, after {sigma_after:.3} mm"
+    );
+    assert!(
+        sigma_after <= sigma_before / 2.0,
+        "{worst}: σ {sigma_before} → {sigma_after} mm"
+    );
+}

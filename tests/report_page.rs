@@ -303,4 +303,17 @@ fn the_targetless_route_writes_a_page_chromium_opens() {
     ]));
     let dom = check_page(&browser, &report, "targetless");
     assert!(dom.contains("air distance"), "the ports' σ on the page");
+    // The matches' residuals, their coverage and the advice (issue 47's targetless gap).
+    for picture in [
+        "quiver_0_left.png",
+        "coverage_1_right.png",
+        "depth_tilt_0_left.png",
+    ] {
+        assert!(dom.contains(picture), "{picture} on the page");
+    }
+    assert!(
+        dom.contains("Film textured scene"),
+        "the advice on the page"
+    );
+    assert!(dom.contains("worst-determined parameter"));
 }

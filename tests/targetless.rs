@@ -112,6 +112,7 @@ fn exact_tracks_give_the_true_port() {
                 continue;
             };
             tracks.push(Track {
+                frame: 0,
                 pixels: vec![(0, a), (1, b)],
             });
             points.push(p + Vector3::new(0.01, -0.01, 0.02));

@@ -24,6 +24,7 @@ use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::screen::screen;
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::lm::LeastSquares;
+use crate::calib::targetless::{PointsProblem, PointsState, TargetlessCalibration, Track};
 use crate::model::Rig;
 
 /// Tolerance of a port's axis (each tangent direction): a third of issue 38's 0.1°, radians.
@@ -73,9 +74,27 @@ impl ParameterSigma {
     }
 }
 
-/// A view the advice may propose: the board posed in front of one camera.
+/// What a candidate view shows.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CandidateKind {
+    /// The calibration's board, posed in front of a camera.
+    Board,
+    /// Texture (a targetless scene) over one cell of the master's image at one distance: a
+    /// [`TEXTURE_GRID`] × [`TEXTURE_GRID`] grid of points, weighed as `matches` matches.
+    Texture {
+        /// The grid's points, master frame, row by row.
+        points: Vec<Point3<f64>>,
+        /// The matches one frame of such texture gives, as the fit found them per cell.
+        matches: f64,
+    },
+}
+
+/// A view the advice may propose: the board posed in front of one camera, or texture at one
+/// distance over a part of the master's image (the targetless route).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CandidateView {
+    /// Board or texture.
+    pub kind: CandidateKind,
     /// The camera it is posed for (rig index).
     pub camera: usize,
     /// Distance of the board's centre from that camera's centre, metres.
@@ -88,9 +107,10 @@ pub struct CandidateView {
     pub region: (usize, usize),
     /// The pixel the board's centre is on, in that camera.
     pub pixel: Point2<f64>,
-    /// X_master = R·X_target + t.
+    /// X_master = R·X_target + t (texture: the translation to the grid's centre).
     pub master_from_target: Isometry3<f64>,
-    /// The cameras that see the whole board, with its exact corners.
+    /// The cameras that see the whole board, with its exact corners (texture: each camera's
+    /// pixels of the grid's points it sees, by point index).
     pub view: SeenView,
 }
 
@@ -109,7 +129,9 @@ impl CandidateView {
 
     /// The tilt in words.
     pub fn tilt_words(&self) -> String {
-        if self.tilt_deg == 0.0 {
+        if let CandidateKind::Texture { .. } = self.kind {
+            "texture, as it faces the camera".into()
+        } else if self.tilt_deg == 0.0 {
             "facing the camera".into()
         } else {
             // The board turned by +θ about the camera's x axis moves its lower edge (+y, down
@@ -338,6 +360,7 @@ pub fn candidate_views(rig: &Rig, target: &Target, poses: &[Isometry3<f64>]) -> 
                             continue;
                         }
                         out.push(CandidateView {
+                            kind: CandidateKind::Board,
                             camera: k,
                             distance_m: distance,
                             tilt_deg: tilt,
@@ -417,49 +440,35 @@ fn sigma_of(info: &DMatrix<f64>, j: usize, sigma_px: f64) -> Option<f64> {
     Some(sigma_px * column[j].max(0.0).sqrt())
 }
 
-/// The advice for the fit of `seen` (screened as the calibration screens them: [`as_fitted_views`]) (board poses `poses`) under the calibrated `rig`, estimating
-/// `estimate` with noise σ̂ = `sigma_px`: see the module documentation.
-pub fn advise(
-    rig: &Rig,
-    target: &Target,
-    seen: &[SeenView],
-    poses: &[Isometry3<f64>],
-    estimate: Estimate,
-    huber: Option<f64>,
-    sigma_px: f64,
-) -> Advice {
-    let mut advice = Advice {
+/// An advice with no parameter yet, saying `line`.
+fn bare(line: &str) -> Advice {
+    Advice {
         parameters: Vec::new(),
         worst: None,
         best: None,
         candidates: 0,
-        text: Vec::new(),
-    };
-    let fitted = as_fitted_views(rig, target, seen);
-    let Some((globals, info)) = information(rig, target, &fitted, poses, estimate, huber) else {
-        advice.text.push(
-            "No information matrix: the fitted views and their board poses are not at hand for this route."
-                .into(),
-        );
-        return advice;
-    };
-    let Some(parameters) = sigmas(rig, &globals, &info, sigma_px) else {
-        advice.text.push("The information matrix is singular: the views do not determine every estimated parameter (vary the board's distance and tilt).".into());
-        return advice;
-    };
-    let Some(worst) = parameters
+        text: vec![line.into()],
+    }
+}
+
+/// The advice's parameters (their σ from `info`, σ̂ = `sigma_px`), the worst of them and the
+/// sentence that names it; a bare advice saying why where `info` is singular or empty.
+fn weighed(
+    rig: &Rig,
+    globals: &[Parameter],
+    info: &DMatrix<f64>,
+    sigma_px: f64,
+    singular: &str,
+) -> Result<Advice, Advice> {
+    let parameters = sigmas(rig, globals, info, sigma_px).ok_or_else(|| bare(singular))?;
+    let worst = parameters
         .iter()
         .enumerate()
         .max_by(|a, b| a.1.relative().total_cmp(&b.1.relative()))
         .map(|(i, _)| i)
-    else {
-        advice.text.push("Nothing was estimated.".into());
-        return advice;
-    };
-    advice.parameters = parameters;
-    advice.worst = Some(worst);
-    let w = &advice.parameters[worst];
-    advice.text.push(format!(
+        .ok_or_else(|| bare("Nothing was estimated."))?;
+    let w = &parameters[worst];
+    let line = format!(
         "The worst-determined parameter is the {}: σ {:.4} {} against the {:.4} {} a good calibration needs ({:.1}×){}.",
         w.name,
         w.sigma * w.scale,
@@ -469,26 +478,37 @@ pub fn advise(
         w.relative(),
         w.correlations
             .first()
-            .map_or(String::new(), |(n, r)| format!("; it trades off with the {n} (ρ = {r:+.2})"))
-    ));
-    let candidates = candidate_views(rig, target, poses);
-    advice.candidates = candidates.len();
-    // Each candidate's σ after it is added, on every core; the first of the smallest wins.
+            .map_or(String::new(), |(n, r)| format!(
+                "; it trades off with the {n} (ρ = {r:+.2})"
+            ))
+    );
+    Ok(Advice {
+        parameters,
+        worst: Some(worst),
+        best: None,
+        candidates: 0,
+        text: vec![line],
+    })
+}
+
+/// Of `candidates`, the one whose information (`extra`, computed on every core) shrinks the σ of
+/// parameter `worst` most when added to `info`, with that σ after one such view and after
+/// [`REPEATS`] of them; the first of the smallest wins.
+fn best_of(
+    candidates: Vec<CandidateView>,
+    extra: impl Fn(&CandidateView) -> Option<DMatrix<f64>> + Sync,
+    info: &DMatrix<f64>,
+    worst: usize,
+    sigma_px: f64,
+) -> Option<(CandidateView, f64, f64)> {
     let scored: Vec<Option<(f64, DMatrix<f64>)>> = candidates
         .par_iter()
         .map(|candidate| {
-            let (_, extra) = information(
-                rig,
-                target,
-                std::slice::from_ref(&candidate.view),
-                std::slice::from_ref(&candidate.master_from_target),
-                estimate,
-                None,
-            )?;
-            Some((sigma_of(&(&info + &extra), worst, sigma_px)?, extra))
+            let extra = extra(candidate)?;
+            Some((sigma_of(&(info + &extra), worst, sigma_px)?, extra))
         })
         .collect();
-    let best = candidates
+    candidates
         .into_iter()
         .zip(scored)
         .filter_map(|(c, s)| s.map(|(after, extra)| (c, after, extra)))
@@ -501,13 +521,70 @@ pub fn advise(
         )
         .map(|(candidate, after, extra)| {
             let repeated =
-                sigma_of(&(&info + &extra * REPEATS as f64), worst, sigma_px).unwrap_or(after);
+                sigma_of(&(info + &extra * REPEATS as f64), worst, sigma_px).unwrap_or(after);
             (candidate, after, repeated)
-        });
-    match &best {
+        })
+}
+
+/// The closing sentence when the worst parameter already meets its tolerance.
+fn already_good(advice: &mut Advice) {
+    if let Some(w) = advice.worst
+        && advice.parameters[w].relative() <= 1.0
+    {
+        advice.text.push(
+            "Every parameter is already within what a good calibration needs; more views only refine it."
+                .into(),
+        );
+    }
+}
+
+/// The advice for the fit of `seen` (screened as the calibration screens them: [`as_fitted_views`]) (board poses `poses`) under the calibrated `rig`, estimating
+/// `estimate` with noise σ̂ = `sigma_px`: see the module documentation.
+pub fn advise(
+    rig: &Rig,
+    target: &Target,
+    seen: &[SeenView],
+    poses: &[Isometry3<f64>],
+    estimate: Estimate,
+    huber: Option<f64>,
+    sigma_px: f64,
+) -> Advice {
+    let fitted = as_fitted_views(rig, target, seen);
+    let Some((globals, info)) = information(rig, target, &fitted, poses, estimate, huber) else {
+        return bare(
+            "No information matrix: the fitted views and their board poses are not at hand for this route.",
+        );
+    };
+    let mut advice = match weighed(
+        rig,
+        &globals,
+        &info,
+        sigma_px,
+        "The information matrix is singular: the views do not determine every estimated parameter (vary the board's distance and tilt).",
+    ) {
+        Ok(advice) => advice,
+        Err(bare) => return bare,
+    };
+    let worst = advice.worst.unwrap_or_default();
+    let candidates = candidate_views(rig, target, poses);
+    advice.candidates = candidates.len();
+    let extra = |candidate: &CandidateView| {
+        information(
+            rig,
+            target,
+            std::slice::from_ref(&candidate.view),
+            std::slice::from_ref(&candidate.master_from_target),
+            estimate,
+            None,
+        )
+        .map(|(_, extra)| extra)
+    };
+    advice.best = best_of(candidates, extra, &info, worst, sigma_px);
+    let w = &advice.parameters[worst];
+    let line = match &advice.best {
         Some((c, after, repeated)) => {
             let name = &rig.cameras()[c.camera].name;
-            advice.text.push(format!(
+            format!(
                 "Add views with the board {:.2} m from camera {name}, {}, its centre in the {} of {name}'s image (marked on the coverage pictures): one such view takes the {}'s σ from {:.4} to {:.4} {}, {REPEATS} such views to {:.4} {}.",
                 c.distance_m,
                 c.tilt_words(),
@@ -518,20 +595,244 @@ pub fn advise(
                 w.unit,
                 repeated * w.scale,
                 w.unit,
-            ));
-            if w.relative() <= 1.0 {
-                advice.text.push(
-                    "Every parameter is already within what a good calibration needs; more views only refine it."
-                        .into(),
+            )
+        }
+        None => "No candidate view fits the board whole into a camera's image at the distances filmed; film the board farther away or use a ChArUco board.".into(),
+    };
+    advice.text.push(line);
+    if advice.best.is_some() {
+        already_good(&mut advice);
+    }
+    advice
+}
+
+/// Points on a side of a texture candidate's grid.
+pub const TEXTURE_GRID: usize = 5;
+/// The texture distances tried, as multiples of the nearest and farthest matched point's
+/// distance (5th and 95th percentile): well in front of the scene, in front of it, its near end,
+/// its middle, its far end. Nearer texture is what pins an air layer down.
+const TEXTURE_DISTANCE_FACTORS: [(f64, f64); 5] =
+    [(0.3, 0.0), (0.6, 0.0), (1.0, 0.0), (0.5, 0.5), (0.0, 1.0)];
+
+/// The matches one frame gives over a cell of a 3 × 3 grid of the master's image: the median
+/// over the (frame, cell) pairs that hold any of the fit's tracks (at least 1).
+fn matches_per_cell(result: &TargetlessCalibration) -> f64 {
+    let i = &result.rig.cameras()[0].intrinsics;
+    let (w, h) = (f64::from(i.width), f64::from(i.height));
+    let mut counts: std::collections::BTreeMap<(usize, usize, usize), usize> = Default::default();
+    for t in &result.tracks {
+        let Some((_, p)) = t.pixels.iter().find(|(k, _)| *k == 0) else {
+            continue;
+        };
+        let cell = |x: f64, size: f64| ((x / size * REGIONS as f64) as usize).min(REGIONS - 1);
+        *counts
+            .entry((t.frame, cell(p.x.max(0.0), w), cell(p.y.max(0.0), h)))
+            .or_default() += 1;
+    }
+    let mut values: Vec<usize> = counts.into_values().collect();
+    values.sort_unstable();
+    values
+        .get(values.len() / 2)
+        .map_or(1.0, |m| (*m).max(1) as f64)
+}
+
+/// The texture candidates of a targetless fit: for each cell of a 3 × 3 grid over the master's
+/// image and each distance from those of the fit's points ([`TEXTURE_DISTANCE_FACTORS`]), a [`TEXTURE_GRID`]² grid of points over the cell's middle at that distance
+/// from the master, kept where at least half of them are seen by the master and another camera.
+pub fn texture_candidates(rig: &Rig, points: &[Point3<f64>], matches: f64) -> Vec<CandidateView> {
+    let cameras: Vec<_> = (0..rig.cameras().len())
+        .map(|k| rig.refractive_camera(k))
+        .collect();
+    let master = &rig.cameras()[0];
+    let centre = master.centre_in_master();
+    let mut distances: Vec<f64> = points
+        .iter()
+        .map(|p| (p - centre).norm())
+        .filter(|d| d.is_finite())
+        .collect();
+    if distances.is_empty() {
+        return Vec::new();
+    }
+    distances.sort_by(f64::total_cmp);
+    let near = distances[distances.len() / 20];
+    let far = distances[distances.len() - 1 - distances.len() / 20];
+    let (w, h) = (
+        f64::from(master.intrinsics.width),
+        f64::from(master.intrinsics.height),
+    );
+    let mut out = Vec::new();
+    for &(a, b) in &TEXTURE_DISTANCE_FACTORS {
+        let distance = a * near + b * far;
+        for row in 0..REGIONS {
+            for column in 0..REGIONS {
+                let cell = |i: usize, across: usize, size: f64, index: usize| {
+                    // The middle 60 % of the cell.
+                    let t = 0.2 + 0.6 * i as f64 / (across - 1) as f64;
+                    (index as f64 + t) / REGIONS as f64 * size
+                };
+                let grid: Vec<Point3<f64>> = (0..TEXTURE_GRID * TEXTURE_GRID)
+                    .filter_map(|g| {
+                        let pixel = Point2::new(
+                            cell(g % TEXTURE_GRID, TEXTURE_GRID, w, column),
+                            cell(g / TEXTURE_GRID, TEXTURE_GRID, h, row),
+                        );
+                        let ray = cameras[0].backproject(&pixel).ok()?;
+                        let along = distance - (ray.origin - centre).norm();
+                        (along > 0.0).then(|| ray.origin + ray.dir.into_inner() * along)
+                    })
+                    .collect();
+                if grid.len() < TEXTURE_GRID * TEXTURE_GRID {
+                    continue;
+                }
+                let mut view = SeenView::default();
+                for (k, camera) in cameras.iter().enumerate() {
+                    let intrinsics = &rig.cameras()[k].intrinsics;
+                    let (cw, ch) = (f64::from(intrinsics.width), f64::from(intrinsics.height));
+                    let seen: Vec<(usize, Point2<f64>)> = grid
+                        .iter()
+                        .enumerate()
+                        .filter_map(|(i, p)| {
+                            let pixel = camera.project(p).ok()?;
+                            let inside = pixel.x >= MARGIN_PX
+                                && pixel.y >= MARGIN_PX
+                                && pixel.x <= cw - MARGIN_PX
+                                && pixel.y <= ch - MARGIN_PX;
+                            inside.then_some((i, pixel))
+                        })
+                        .collect();
+                    if !seen.is_empty() {
+                        view.cameras.push((k, seen));
+                        view.keys.push(rig.cameras()[k].name.clone());
+                    }
+                }
+                let tracked = texture_tracks(&view, &grid).0.len();
+                if 2 * tracked < grid.len() {
+                    continue;
+                }
+                let middle =
+                    grid.iter().fold(Vector3::zeros(), |a, p| a + p.coords) / grid.len() as f64;
+                let pixel = Point2::new(
+                    (column as f64 + 0.5) / REGIONS as f64 * w,
+                    (row as f64 + 0.5) / REGIONS as f64 * h,
                 );
+                out.push(CandidateView {
+                    kind: CandidateKind::Texture {
+                        points: grid,
+                        matches,
+                    },
+                    camera: 0,
+                    distance_m: distance,
+                    tilt_deg: 0.0,
+                    tilt_axis: 'x',
+                    region: (column, row),
+                    pixel,
+                    master_from_target: Isometry3::translation(middle.x, middle.y, middle.z),
+                    view,
+                });
             }
         }
-        None => advice.text.push(
-            "No candidate view fits the board whole into a camera's image at the distances filmed; film the board farther away or use a ChArUco board."
-                .into(),
-        ),
     }
-    advice.best = best;
+    out
+}
+
+/// The tracks of a texture candidate: each grid point the master and at least one other camera
+/// see, with its point.
+fn texture_tracks(view: &SeenView, grid: &[Point3<f64>]) -> (Vec<Track>, Vec<Point3<f64>>) {
+    grid.iter()
+        .enumerate()
+        .filter_map(|(i, p)| {
+            let pixels: Vec<(usize, Point2<f64>)> = view
+                .cameras
+                .iter()
+                .filter_map(|(k, seen)| seen.iter().find(|(j, _)| *j == i).map(|(_, x)| (*k, *x)))
+                .collect();
+            (pixels.first().is_some_and(|(k, _)| *k == 0) && pixels.len() >= 2)
+                .then(|| (Track { frame: 0, pixels }, *p))
+        })
+        .unzip()
+}
+
+/// The information a texture candidate adds to a targetless fit of `rig` estimating `estimate`:
+/// its grid's tracks' JᵀJ (points eliminated) scaled to the matches one frame of it gives.
+fn texture_information(
+    rig: &Rig,
+    estimate: Estimate,
+    candidate: &CandidateView,
+) -> Option<DMatrix<f64>> {
+    let CandidateKind::Texture { points, matches } = &candidate.kind else {
+        return None;
+    };
+    let (tracks, points) = texture_tracks(&candidate.view, points);
+    if tracks.is_empty() {
+        return None;
+    }
+    let problem = PointsProblem::new(rig, &tracks, estimate, None);
+    let state = PointsState {
+        rig: State::of(rig, Vec::new()),
+        points,
+    };
+    let information = problem.normal_equations(&state)?.global_information()?;
+    Some(information * (matches / tracks.len() as f64))
+}
+
+/// The advice for a targetless calibration: each port parameter's σ from the fit's information
+/// (as the route computes it), the worst of them, and the texture — a part of the master's image
+/// at one distance ([`texture_candidates`]) — that, filmed in one more frame with as many matches
+/// as the fit found per cell, shrinks its σ most.
+pub fn advise_targetless(result: &TargetlessCalibration) -> Advice {
+    let rig = &result.rig;
+    let Some(info) = &result.information else {
+        return bare(
+            "The information matrix is singular: the matches do not determine the port at all; film a scene with texture at several distances across the whole image.",
+        );
+    };
+    let mut advice = match weighed(
+        rig,
+        &result.globals,
+        info,
+        result.sigma_px,
+        "The information matrix is singular: the matches do not determine the port at all; film a scene with texture at several distances across the whole image.",
+    ) {
+        Ok(advice) => advice,
+        Err(bare) => return bare,
+    };
+    let worst = advice.worst.unwrap_or_default();
+    let matches = matches_per_cell(result);
+    let candidates = texture_candidates(rig, &result.points, matches);
+    advice.candidates = candidates.len();
+    let extra = |candidate: &CandidateView| texture_information(rig, result.estimate, candidate);
+    advice.best = best_of(candidates, extra, info, worst, result.sigma_px);
+    let w = &advice.parameters[worst];
+    let master = &rig.cameras()[0].name;
+    let line = match &advice.best {
+        Some((c, after, repeated)) => {
+            let seen_by: Vec<&str> = c
+                .view
+                .cameras
+                .iter()
+                .map(|(k, _)| rig.cameras()[*k].name.as_str())
+                .collect();
+            format!(
+                "Film textured scene {:.2} m from camera {master}, filling the {} of its image (seen by {}; marked on the coverage pictures): one frame of it (about {matches:.0} matches there, as your footage gives per ninth of the image) takes the {}'s σ from {:.4} to {:.4} {}, {REPEATS} such frames to {:.4} {}.",
+                c.distance_m,
+                c.place(),
+                seen_by.join(", "),
+                w.name,
+                w.sigma * w.scale,
+                after * w.scale,
+                w.unit,
+                repeated * w.scale,
+                w.unit,
+            )
+        }
+        None => format!(
+            "No part of {master}'s image at the distances filmed is seen by another camera: check the rig's extrinsics."
+        ),
+    };
+    advice.text.push(line);
+    if advice.best.is_some() {
+        already_good(&mut advice);
+    }
     advice
 }
 
@@ -542,6 +843,7 @@ mod tests {
     #[test]
     fn places_and_tilts_read_as_words() {
         let c = CandidateView {
+            kind: CandidateKind::Board,
             camera: 0,
             distance_m: 1.0,
             tilt_deg: 35.0,

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde_json::json;
 
+use super::advice::CandidateKind;
 use super::pictures::{Picture, Pictures};
 use super::{Facts, ReportError};
 use crate::io::write_atomic;
@@ -96,9 +97,14 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
             for line in &a.text {
                 let _ = writeln!(out, "<p>{}</p>", escape(line));
             }
+            let what = if input.targetless.is_some() {
+                "patches of texture (5 distances × 9 places in the master's image, each seen as the calibrated rig sees it, weighed as the matches your footage gives there per frame)"
+            } else {
+                "views (the board at 5 distances × 5 tilts × 9 places in each camera's image, posed from the calibrated rig)"
+            };
             let _ = writeln!(
                 out,
-                "<p><small>From the fit's information matrix: {} candidate views (the board at 5 distances × 5 tilts × 9 places in each camera's image, posed from the calibrated rig) were each added to the normal equations; the one that shrinks the worst parameter's σ most is advised.</small></p>",
+                "<p><small>From the fit's information matrix: {} candidate {what} were each added to the normal equations; the one that shrinks the worst parameter's σ most is advised.</small></p>",
                 a.candidates
             );
         }
@@ -140,24 +146,34 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
                         .join(", ")
                 );
             }
-            out.push_str("</table>\n<p><small>σ from the fit's information matrix (board poses eliminated) times σ̂²; an axis is moved in its tangent plane (two directions); “needed”: a third of issue 38's bounds for the ports (0.1° of axis, 1.5 mm of air, 0.3 mm for a surface), 0.02° and 0.5 mm for the extrinsics.</small></p>\n");
-        }
-        None if !input.sigma_rows.is_empty() => {
-            out.push_str(
-                "<table><tr><th class=\"l\">parameter</th><th>value</th><th>σ</th></tr>\n",
+            let eliminated = if input.targetless.is_some() {
+                "the scene's points eliminated; σ̂² is the residual variance times the matches' patch overlap"
+            } else {
+                "board poses eliminated"
+            };
+            let _ = write!(
+                out,
+                "</table>\n<p><small>σ from the fit's information matrix ({eliminated}) times σ̂²;"
             );
-            for (n, v, s) in &input.sigma_rows {
-                let _ = writeln!(
-                    out,
-                    "<tr><td class=\"l\">{}</td><td>{}</td><td>{}</td></tr>",
-                    escape(n),
-                    escape(v),
-                    escape(s)
-                );
-            }
-            out.push_str("</table>\n");
+            out.push_str(" an axis is moved in its tangent plane (two directions); “needed”: a third of issue 38's bounds for the ports (0.1° of axis, 1.5 mm of air, 0.3 mm for a surface), 0.02° and 0.5 mm for the extrinsics.</small></p>\n");
         }
-        None => out.push_str("<p>No standard deviations on this route.</p>\n"),
+        None if input.sigma_rows.is_empty() => {
+            out.push_str("<p>No standard deviations on this route.</p>\n")
+        }
+        None => {}
+    }
+    if !input.sigma_rows.is_empty() {
+        out.push_str("<table><tr><th class=\"l\">port</th><th>value</th><th>σ</th></tr>\n");
+        for (n, v, s) in &input.sigma_rows {
+            let _ = writeln!(
+                out,
+                "<tr><td class=\"l\">{}</td><td>{}</td><td>{}</td></tr>",
+                escape(n),
+                escape(v),
+                escape(s)
+            );
+        }
+        out.push_str("</table>\n");
     }
     if let Some(report) = input.report {
         out.push_str("<table><tr><th class=\"l\">port</th><th>tilt (°)</th><th>azimuth (°)</th><th>air distance (mm)</th><th>layers (mm)</th></tr>\n");
@@ -209,6 +225,28 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
             report.noise_px.map_or("—".into(), |s| number(s, 3)),
             number(report.rms_px, 3)
         );
+    } else if !facts.corners.is_empty() {
+        out.push_str(
+            "<table><tr><th class=\"l\">camera</th><th>matches</th><th>RMS (px)</th></tr>\n",
+        );
+        for (k, c) in rig.cameras().iter().enumerate() {
+            let own: Vec<f64> = facts
+                .corners
+                .iter()
+                .filter(|x| x.camera == k)
+                .map(|x| x.residual.norm_squared())
+                .collect();
+            let rms = (!own.is_empty())
+                .then(|| (own.iter().sum::<f64>() / (2 * own.len()) as f64).sqrt());
+            let _ = writeln!(
+                out,
+                "<tr><td class=\"l\">{}</td><td>{}</td><td>{}</td></tr>",
+                escape(&c.name),
+                own.len(),
+                rms.map_or("—".into(), |r| number(r, 3))
+            );
+        }
+        out.push_str("</table>\n");
     }
     for (k, camera) in rig.cameras().iter().enumerate() {
         let _ = writeln!(out, "<h3>{}</h3>", escape(&camera.name));
@@ -225,7 +263,7 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
         figure(&mut out, p);
     }
     if !facts.frame_rms.is_empty() {
-        let labels: Vec<&str> = input.fitted.iter().map(|(l, _)| l.as_str()).collect();
+        let labels: Vec<&str> = facts.frame_labels.iter().map(String::as_str).collect();
         out.push_str("<table><tr><th class=\"l\">frame</th>");
         for c in rig.cameras() {
             let _ = write!(out, "<th>{} RMS (px)</th>", escape(&c.name));
@@ -381,12 +419,12 @@ pub(crate) fn write_numbers(
     for c in &facts.corners {
         let _ = writeln!(
             residuals,
-            "{},{},{},{:.4},{:.4},{:.5},{:.5},{:.4},{:.2},{}",
+            "{},{},{},{:.4},{:.4},{:.5},{:.5},{:.4},{},{}",
             rig.cameras()[c.camera].name,
-            input
-                .fitted
+            facts
+                .frame_labels
                 .get(c.frame)
-                .map_or("?", |(l, _)| l.as_str())
+                .map_or("?", String::as_str)
                 .replace(',', ";"),
             c.corner,
             c.observed.x,
@@ -394,7 +432,7 @@ pub(crate) fn write_numbers(
             c.residual.x,
             c.residual.y,
             c.depth_m,
-            c.tilt_deg,
+            c.tilt_deg.map_or(String::new(), |t| format!("{t:.2}")),
             c.outlier
         );
     }
@@ -455,6 +493,8 @@ pub(crate) fn write_numbers(
             "worst": a.worst.map(|w| a.parameters[w].name.clone()),
             "candidates": a.candidates,
             "view": a.best.as_ref().map(|(c, after, repeated)| json!({
+                "kind": match c.kind { CandidateKind::Board => "board", CandidateKind::Texture { .. } => "texture" },
+                "matches": match c.kind { CandidateKind::Texture { matches, .. } => Some(matches), CandidateKind::Board => None },
                 "camera": rig.cameras()[c.camera].name,
                 "distance_m": c.distance_m,
                 "tilt_deg": c.tilt_deg,

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Isometry3, Point2, Point3, Vector2, Vector3};
 
 use crate::base::Board;
-use crate::calib::pipeline::acceptance::Verdict;
+use crate::calib::pipeline::acceptance::{Grade, Verdict};
 use crate::calib::pipeline::boards::{
     BoardsCalibration, WaterFrame, square_errors, triangulate_view, validate,
 };
@@ -83,6 +83,8 @@ pub struct Input<'a> {
     pub notes: Vec<String>,
     /// The Huber threshold of the fit, pixels.
     pub huber: Option<f64>,
+    /// The targetless route's result (its tracks, points and information).
+    pub targetless: Option<&'a TargetlessCalibration>,
 }
 
 impl<'a> Input<'a> {
@@ -103,6 +105,7 @@ impl<'a> Input<'a> {
             sigma_rows: Vec::new(),
             notes: Vec::new(),
             huber: None,
+            targetless: None,
         }
     }
 
@@ -206,6 +209,25 @@ impl<'a> Input<'a> {
             "{} of {} tracks kept ({} observations), RMS {:.4} px",
             result.inliers, result.candidates, result.observations, result.rms_px
         ));
+        input.verdict = Some(if result.unpinned.is_empty() {
+            Verdict {
+                grade: Grade::Good,
+                why: vec![format!(
+                    "every port parameter's σ is within its limit; {} tracks fit to {:.3} px RMS",
+                    result.inliers, result.rms_px
+                )],
+            }
+        } else {
+            Verdict {
+                grade: Grade::Poor,
+                why: result
+                    .unpinned
+                    .iter()
+                    .map(|u| format!("not pinned down, no rig written: {}", u.reason))
+                    .collect(),
+            }
+        });
+        input.targetless = Some(result);
         input
     }
 }
@@ -246,8 +268,9 @@ pub(crate) struct Corner {
     pub residual: Vector2<f64>,
     /// Distance of the corner from the camera's centre, metres.
     pub depth_m: f64,
-    /// Angle between the board's normal and the camera's optical axis, degrees.
-    pub tilt_deg: f64,
+    /// Angle between the board's normal and the camera's optical axis, degrees (`None`: no
+    /// board, the targetless route).
+    pub tilt_deg: Option<f64>,
     pub outlier: bool,
 }
 
@@ -275,6 +298,8 @@ pub(crate) struct Facts<'a> {
     pub advice: Option<Advice>,
     /// Board poses of the fitted frames (master frame).
     pub poses: Vec<Isometry3<f64>>,
+    /// The label of each fitted frame, as `frame_rms`.
+    pub frame_labels: Vec<String>,
 }
 
 /// What was written.
@@ -320,7 +345,14 @@ fn gather<'a>(input: &'a Input<'a>) -> Facts<'a> {
         held_out_note: None,
         advice: None,
         poses: Vec::new(),
+        frame_labels: input.fitted.iter().map(|(l, _)| l.clone()).collect(),
     };
+    if let Some(result) = input.targetless {
+        targetless_corners(result, &mut facts);
+        facts.advice = Some(advice::advise_targetless(result));
+        facts.held_out_note = Some("this route holds no frames out".into());
+        return facts;
+    }
     let (Some(report), Some(target)) = (input.report, input.target.as_ref()) else {
         facts.held_out_note = Some("this route holds no frames out".into());
         return facts;
@@ -365,7 +397,7 @@ fn gather<'a>(input: &'a Input<'a>) -> Facts<'a> {
                         observed: *observed,
                         residual,
                         depth_m: (point - centre).norm(),
-                        tilt_deg,
+                        tilt_deg: Some(tilt_deg),
                         outlier: outliers.contains(&(v, camera.name.clone(), *i)),
                     });
                 }
@@ -410,6 +442,48 @@ fn gather<'a>(input: &'a Input<'a>) -> Facts<'a> {
         );
     }
     facts
+}
+
+/// The targetless fit's matches as corners (a track is a corner, its frame the frame it was
+/// matched in; no tilt, no outlier: the fit dropped those) and each frame's RMS per camera.
+fn targetless_corners(result: &TargetlessCalibration, facts: &mut Facts) {
+    let rig = &result.rig;
+    let cameras: Vec<_> = (0..rig.cameras().len())
+        .map(|k| rig.refractive_camera(k))
+        .collect();
+    let centres: Vec<_> = rig.cameras().iter().map(|c| c.centre_in_master()).collect();
+    let frames = result.tracks.iter().map(|t| t.frame + 1).max().unwrap_or(0);
+    let mut sums = vec![vec![(0.0, 0usize); cameras.len()]; frames];
+    for (t, (track, point)) in result.tracks.iter().zip(&result.points).enumerate() {
+        for (k, observed) in &track.pixels {
+            let Ok(projected) = cameras[*k].project(point) else {
+                continue;
+            };
+            let residual = projected - observed;
+            let sum = &mut sums[track.frame][*k];
+            sum.0 += residual.norm_squared();
+            sum.1 += 1;
+            facts.corners.push(Corner {
+                camera: *k,
+                frame: track.frame,
+                corner: t,
+                observed: *observed,
+                residual,
+                depth_m: (point - centres[*k]).norm(),
+                tilt_deg: None,
+                outlier: false,
+            });
+        }
+    }
+    facts.frame_rms = sums
+        .into_iter()
+        .map(|row| {
+            row.into_iter()
+                .map(|(sum, n)| (n > 0).then(|| (sum / (2 * n) as f64).sqrt()))
+                .collect()
+        })
+        .collect();
+    facts.frame_labels = (1..=frames).map(|f| format!("frame {f}")).collect();
 }
 
 /// The held-out frames through the calibrated rig, frame by frame.

@@ -9,6 +9,7 @@ use nalgebra::{Point3, Vector3};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use super::advice::{CandidateKind, CandidateView, TEXTURE_GRID};
 use super::{Facts, ReportError};
 use crate::io::plot::{encode, register_font, viridis};
 
@@ -196,10 +197,17 @@ pub(crate) fn draw_all(
         })?;
         own.push(Picture {
             file: coverage,
-            caption: format!(
-                "{}: where the corners fell over the image, in air (grey) and under water (blue); the advised view's board outlined in red.",
-                camera.name
-            ),
+            caption: if facts.input.targetless.is_some() {
+                format!(
+                    "{}: where the matches fell over the image; the advised texture outlined in red.",
+                    camera.name
+                )
+            } else {
+                format!(
+                    "{}: where the corners fell over the image, in air (grey) and under water (blue); the advised view's board outlined in red.",
+                    camera.name
+                )
+            },
         });
         let depth = format!("depth_tilt_{k}_{name}.png");
         picture(dir, &depth, (640, 480), files, |area| {
@@ -207,10 +215,17 @@ pub(crate) fn draw_all(
         })?;
         own.push(Picture {
             file: depth,
-            caption: format!(
-                "{}: the fitted frames by the board's distance and tilt from this camera; the advised view as a red star.",
-                camera.name
-            ),
+            caption: if facts.input.targetless.is_some() {
+                format!(
+                    "{}: the matched points by their distance from this camera; the advised texture's distance as a red triangle.",
+                    camera.name
+                )
+            } else {
+                format!(
+                    "{}: the fitted frames by the board's distance and tilt from this camera; the advised view as a red triangle.",
+                    camera.name
+                )
+            },
         });
         pictures.cameras.push(own);
     }
@@ -412,14 +427,21 @@ fn coverage_map(area: &Area, facts: &Facts, k: usize, w: f64, h: f64) -> Result<
     if let Some((candidate, _, _)) = facts.advice.as_ref().and_then(|a| a.best.as_ref())
         && let Some(corners) = candidate.view.corners_of(k)
     {
-        let outline = board_outline(facts, corners.iter().map(|(i, p)| (*i, (p.x, p.y))));
+        let outline = outline(
+            facts,
+            candidate,
+            corners.iter().map(|(i, p)| (*i, (p.x, p.y))),
+        );
         chart
             .draw_series([PathElement::new(outline, RED.stroke_width(3))])
             .map_err(text)?;
         if candidate.camera == k {
             chart
                 .draw_series([Text::new(
-                    "advised view",
+                    match candidate.kind {
+                        CandidateKind::Board => "advised view",
+                        CandidateKind::Texture { .. } => "advised texture",
+                    },
                     (candidate.pixel.x, candidate.pixel.y),
                     ("sans-serif", 16).into_font().color(&RED),
                 )])
@@ -429,17 +451,22 @@ fn coverage_map(area: &Area, facts: &Facts, k: usize, w: f64, h: f64) -> Result<
     Ok(())
 }
 
-/// The closed outline through a board's four outer corners, from its corners' pixels.
-fn board_outline(
+/// The closed outline of an advised view in one camera, from its corners' pixels: through the
+/// board's four outer corners, or the texture grid's.
+fn outline(
     facts: &Facts,
+    candidate: &CandidateView,
     corners: impl Iterator<Item = (usize, (f64, f64))>,
 ) -> Vec<(f64, f64)> {
     let all: Vec<(usize, (f64, f64))> = corners.collect();
-    let Some(board) = facts.input.target.as_ref().and_then(|t| t.board()) else {
-        return all.iter().map(|(_, p)| *p).collect();
+    let (cols, n) = match candidate.kind {
+        CandidateKind::Texture { .. } => (TEXTURE_GRID, TEXTURE_GRID * TEXTURE_GRID),
+        CandidateKind::Board => match facts.input.target.as_ref().and_then(|t| t.board()) {
+            Some(board) => (board.cols, board.corners()),
+            None => return all.iter().map(|(_, p)| *p).collect(),
+        },
     };
-    let n = board.corners();
-    let ids = [0, board.cols - 1, n - 1, n - board.cols, 0];
+    let ids = [0, cols - 1, n - 1, n - cols, 0];
     ids.iter()
         .filter_map(|id| all.iter().find(|(i, _)| i == id).map(|(_, p)| *p))
         .collect()
@@ -447,10 +474,15 @@ fn board_outline(
 
 /// Each fitted frame seen by camera `k`: its mean corner distance against the board's tilt.
 fn depth_tilt(area: &Area, facts: &Facts, k: usize) -> Result<(), String> {
+    if facts.input.targetless.is_some() {
+        return distances(area, facts, k);
+    }
     let name = &facts.input.rig.cameras()[k].name;
     let mut frames: std::collections::BTreeMap<usize, (f64, usize, f64)> = Default::default();
     for c in facts.corners.iter().filter(|c| c.camera == k) {
-        let e = frames.entry(c.frame).or_insert((0.0, 0, c.tilt_deg));
+        let e = frames
+            .entry(c.frame)
+            .or_insert((0.0, 0, c.tilt_deg.unwrap_or(0.0)));
         e.0 += c.depth_m;
         e.1 += 1;
     }
@@ -512,6 +544,75 @@ fn depth_tilt(area: &Area, facts: &Facts, k: usize) -> Result<(), String> {
             .map_err(text)?;
     }
     if points.is_empty() {
+        no_data(area)?;
+    }
+    Ok(())
+}
+
+/// Targetless: how far the matched points of camera `k` lie (a histogram of their distance from
+/// the camera); the advised texture's distance as a red triangle.
+fn distances(area: &Area, facts: &Facts, k: usize) -> Result<(), String> {
+    let name = &facts.input.rig.cameras()[k].name;
+    let depths: Vec<f64> = facts
+        .corners
+        .iter()
+        .filter(|c| c.camera == k)
+        .map(|c| c.depth_m)
+        .filter(|d| d.is_finite())
+        .collect();
+    let advised = facts
+        .advice
+        .as_ref()
+        .and_then(|a| a.best.as_ref())
+        .filter(|(c, _, _)| c.camera == k)
+        .map(|(c, _, _)| c.distance_m);
+    let (x0, x1) = padded(depths.iter().copied().chain(advised).chain([0.0]));
+    const BINS: usize = 30;
+    let step = (x1 - x0) / BINS as f64;
+    let mut counts = [0usize; BINS];
+    for d in &depths {
+        counts[(((d - x0) / step) as usize).min(BINS - 1)] += 1;
+    }
+    let top = counts.iter().copied().max().unwrap_or(1).max(1) as f64 * 1.25;
+    let mut chart = ChartBuilder::on(area)
+        .caption(
+            format!("{name}: matched points by distance"),
+            ("sans-serif", 18),
+        )
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(x0.max(0.0)..x1, 0.0..top)
+        .map_err(text)?;
+    chart
+        .configure_mesh()
+        .max_light_lines(0)
+        .bold_line_style(RGBColor(225, 225, 225))
+        .x_desc("distance from the camera (m)")
+        .y_desc("matches")
+        .label_style(("sans-serif", 12))
+        .draw()
+        .map_err(text)?;
+    chart
+        .draw_series(counts.iter().enumerate().map(|(i, &n)| {
+            let left = x0 + i as f64 * step;
+            Rectangle::new([(left, 0.0), (left + 0.9 * step, n as f64)], BLUE.filled())
+        }))
+        .map_err(text)?;
+    if let Some(d) = advised {
+        let y = top / 1.25;
+        chart
+            .draw_series([TriangleMarker::new((d, y), 10, RED.filled())])
+            .map_err(text)?;
+        chart
+            .draw_series([Text::new(
+                "advised",
+                (d, top / 1.1),
+                ("sans-serif", 14).into_font().color(&RED),
+            )])
+            .map_err(text)?;
+    }
+    if depths.is_empty() {
         no_data(area)?;
     }
     Ok(())

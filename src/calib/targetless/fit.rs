@@ -45,6 +45,8 @@ fn difference(
 /// One scene point's observations: (rig camera index, pixel) for every camera that saw it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Track {
+    /// The frame its matches came from (0-based, in the order the frames were given).
+    pub frame: usize,
     /// (camera, observed pixel), at least two cameras.
     pub pixels: Vec<(usize, Point2<f64>)>,
 }

@@ -218,6 +218,18 @@ pub struct TargetlessCalibration {
     pub unpinned: Vec<Unpinned>,
     /// Every track's final point, master frame (for a look at the scene).
     pub points: Vec<Point3<f64>>,
+    /// The tracks of the final fit, one per point of `points`.
+    pub tracks: Vec<Track>,
+    /// What was estimated.
+    pub estimate: Estimate,
+    /// The estimated parameters, in the order of `information`'s rows.
+    pub globals: Vec<Parameter>,
+    /// The information of `globals` at the fit (JᵀJ with the points eliminated, unit residual
+    /// variance); `None` where it is singular. The covariance is `sigma_px²`·`information`⁻¹.
+    pub information: Option<DMatrix<f64>>,
+    /// The σ of one residual the covariance is scaled by, pixels: the fit's residual σ times
+    /// √`overlap`.
+    pub sigma_px: f64,
     /// Mean count of matched patches covering a covered pixel of the master's image: the σ are
     /// scaled by its square root (overlapping patches share their matching errors).
     pub overlap: f64,
@@ -266,6 +278,7 @@ pub fn tracks_of(
                 by_corner
                     .entry(key)
                     .or_insert_with(|| Track {
+                        frame: f,
                         pixels: vec![(0, m.in_a)],
                     })
                     .pixels
@@ -498,6 +511,26 @@ fn tilted(rig: &Rig, tilt: f64, azimuth: f64) -> Option<Rig> {
     rig.with_new_ports(ports).ok()
 }
 
+/// Distinct minima of the start search refined briefly before the best is fitted in full.
+const SEARCH_STARTS: usize = 4;
+
+/// A brief fit of `tracks` from `start` (the tracks the ray-gap test keeps under it): its Huber
+/// cost per track and the rig it ends at; `None` with too few tracks or no valid rig.
+fn brief_fit(start: &Rig, tracks: &[Track], options: &TargetlessOptions) -> Option<(f64, Rig)> {
+    let (tracks, points) = screened(start, tracks);
+    if tracks.len() < options.min_tracks {
+        return None;
+    }
+    let state = PointsState {
+        rig: State::of(start, Vec::new()),
+        points,
+    };
+    let n = tracks.len() as f64;
+    let fitted = fit_rounds(start, tracks, state, options, true, &mut |_| {});
+    let rig = fitted.state.rig.rig(start)?;
+    Some((fitted.cost / n, rig))
+}
+
 /// Tracks kept by the loose ray-gap test under `rig`, with their starting points.
 fn screened(rig: &Rig, tracks: &[Track]) -> (Vec<Track>, Vec<Point3<f64>>) {
     let triangulated = triangulate(rig, tracks);
@@ -585,12 +618,41 @@ pub fn calibrate_targetless(
     let mut tried = 0;
     // The guess alone first; the other starts only when it fails, each fitted briefly and the
     // best of them fitted in full.
-    let (searched, profile_px2, evaluated) =
-        start::search_start(rig, &all_tracks, options.estimate);
+    let (searched, evaluated) =
+        start::search_starts(rig, &all_tracks, options.estimate, SEARCH_STARTS);
     progress(&format!(
         "start: {evaluated} candidate ports searched, best {:.3} px RMS (profile over a sample)",
-        (profile_px2 / 4.0).sqrt()
+        (searched[0].1 / 4.0).sqrt()
     ));
+    // The search's distinct grid minima, each fitted briefly: the best of them is fitted in full.
+    let searched = if searched.len() > 1 {
+        // Compared by the profile cost over one sample of every track (each brief fit keeps
+        // its own tracks).
+        let sample = start::spread(&all_tracks, 4 * start::SEARCH_TRACKS);
+        let n = sample.len().max(1) as f64;
+        let briefly: Vec<(f64, Rig)> = searched
+            .iter()
+            .filter_map(|(start, _)| brief_fit(start, &all_tracks, options))
+            .map(|(_, r)| (start::profile(&r, &sample) / n, r))
+            .collect();
+        progress(&format!(
+            "  {} distinct minima of the search fitted briefly: profile per track {} px²",
+            briefly.len(),
+            briefly
+                .iter()
+                .map(|(c, _)| format!("{c:.2e}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+        tried += briefly.len();
+        let first = searched[0].0.clone();
+        briefly
+            .into_iter()
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map_or(first, |(_, r)| r)
+    } else {
+        searched[0].0.clone()
+    };
     let (tracks, points) = screened(&searched, &all_tracks);
     progress(&format!(
         "{} of {candidates} tracks pass the ray-gap test under the start",
@@ -619,23 +681,11 @@ pub fn calibrate_targetless(
         .is_none_or(|b| b.rms_px > options.max_rms_px || stuck(b))
     {
         progress("the guess does not fit: trying axes over a 20° cap");
-        let mut brief: Vec<(f64, Rig)> = Vec::new();
-        for start in &starts[1..] {
-            let (tracks, points) = screened(start, &all_tracks);
-            if tracks.len() < options.min_tracks {
-                continue;
-            }
-            tried += 1;
-            let state = PointsState {
-                rig: State::of(start, Vec::new()),
-                points,
-            };
-            let n = tracks.len() as f64;
-            let fitted = fit_rounds(start, tracks, state, options, true, &mut |_| {});
-            if let Some(r) = fitted.state.rig.rig(start) {
-                brief.push((fitted.cost / n, r));
-            }
-        }
+        let mut brief: Vec<(f64, Rig)> = starts[1..]
+            .iter()
+            .filter_map(|start| brief_fit(start, &all_tracks, options))
+            .collect();
+        tried += brief.len();
         brief.sort_by(|a, b| a.0.total_cmp(&b.0));
         if let Some((_, start)) = brief.into_iter().next() {
             let (tracks, points) = screened(&start, &all_tracks);
@@ -694,6 +744,7 @@ pub fn calibrate_targetless(
     let dimension = fitted.globals.len() + 3 * fitted.tracks.len();
     let variance = fitted.cost / (2 * observations).saturating_sub(dimension).max(1) as f64;
     let overlap = patch_overlap(rig, &fitted.tracks, options.matching.patch_radius);
+    let information = fitted.normal.as_ref().and_then(|n| n.global_information());
     let covariance = fitted
         .normal
         .as_ref()
@@ -712,6 +763,11 @@ pub fn calibrate_targetless(
         termination: fitted.termination,
         unpinned,
         points: fitted.state.points,
+        tracks: fitted.tracks,
+        estimate: options.estimate,
+        globals: fitted.globals,
+        information,
+        sigma_px: (variance * overlap).sqrt(),
         overlap,
     })
 }

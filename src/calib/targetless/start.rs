@@ -19,7 +19,7 @@ use crate::model::{Interface, Ports, RefractiveCamera, Rig, triangulate_rays};
 /// Squared residual (px²) at which a track's profile cost is truncated.
 const TRUNCATE_PX2: f64 = 16.0;
 /// Tracks the search evaluates (spread evenly over the tracks).
-const SEARCH_TRACKS: usize = 300;
+pub const SEARCH_TRACKS: usize = 300;
 /// Whether every camera of `rig` is at least [`MIN_START_AIR_M`] (1 mm) from its port: a start
 /// closer than a difference step (1 µm) leaves the fit's derivatives undefined.
 pub fn clear_of_the_port(rig: &Rig) -> bool {
@@ -144,6 +144,46 @@ pub fn spread(tracks: &[Track], count: usize) -> Vec<Track> {
 /// The best start found from `rig` for `tracks`, with its profile cost per track, and the
 /// candidates evaluated.
 pub fn search_start(rig: &Rig, tracks: &[Track], estimate: Estimate) -> (Rig, f64, usize) {
+    let (mut starts, evaluated) = search_starts(rig, tracks, estimate, 1);
+    let (best, cost) = starts.swap_remove(0);
+    (best, cost, evaluated)
+}
+
+/// How far apart two starts are: the largest angle between their ports' axes (radians) and the
+/// largest |ln| of their air distances' ratio.
+fn apart(a: &Rig, b: &Rig) -> (f64, f64) {
+    ports_of(a)
+        .iter()
+        .zip(ports_of(b))
+        .map(|(p, q)| {
+            (
+                p.normal().dot(q.normal()).clamp(-1.0, 1.0).acos(),
+                (p.air_distance() / q.air_distance()).ln().abs(),
+            )
+        })
+        .fold((0.0, 0.0), |(x, y), (u, v)| {
+            (f64::max(x, u), f64::max(y, v))
+        })
+}
+
+/// Starts that count as distinct basins of the profile: axes more than 2° apart or air distances
+/// more than 1.4× apart.
+fn distinct(a: &Rig, b: &Rig) -> bool {
+    let (angle, ratio) = apart(a, b);
+    angle > 2f64.to_radians() || ratio > 1.4f64.ln()
+}
+
+/// The `count` best distinct starts found from `rig` for `tracks` (best first, each with its
+/// profile cost per track; at least one, `rig` itself when nothing better is found) and the
+/// candidates evaluated. The profile's grid minimum can lie in a neighbouring basin of the
+/// likelihood (a far scene with one near object makes its valley uneven): the fit refines a few
+/// distinct grid minima, not only the best.
+pub fn search_starts(
+    rig: &Rig,
+    tracks: &[Track],
+    estimate: Estimate,
+    count: usize,
+) -> (Vec<(Rig, f64)>, usize) {
     let sample = spread(tracks, SEARCH_TRACKS);
     let n = sample.len().max(1) as f64;
     let mut best_rig = rig.clone();
@@ -153,6 +193,8 @@ pub fn search_start(rig: &Rig, tracks: &[Track], estimate: Estimate) -> (Rig, f6
         f64::INFINITY
     };
     let mut evaluated = 1;
+    // Every candidate of the last port's last round, with its cost.
+    let mut last: Vec<(Rig, f64)> = vec![(rig.clone(), best)];
     let guesses = ports_of(rig);
     let mut offsets = vec![Vector2::zeros()];
     if estimate.axis {
@@ -194,7 +236,19 @@ pub fn search_start(rig: &Rig, tracks: &[Track], estimate: Estimate) -> (Rig, f6
                 best = *c;
                 best_rig = candidates[i].clone();
             }
+            last = candidates.into_iter().zip(costs).collect();
         }
     }
-    (best_rig, best / n, evaluated)
+    last.retain(|(_, c)| c.is_finite());
+    last.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let mut chosen: Vec<(Rig, f64)> = vec![(best_rig, best / n)];
+    for (candidate, cost) in last {
+        if chosen.len() >= count {
+            break;
+        }
+        if chosen.iter().all(|(c, _)| distinct(c, &candidate)) {
+            chosen.push((candidate, cost / n));
+        }
+    }
+    (chosen, evaluated)
 }
