@@ -72,10 +72,15 @@ fn chromium() -> Option<PathBuf> {
 /// Opens `dir/index.html` in headless Chromium: no console message, every picture decoded with
 /// a non-zero size; a screenshot into `target/tmp/report_page/NAME.png`. Returns the DOM.
 fn check_page(browser: &Path, dir: &Path, name: &str) -> String {
+    check_page_of(browser, dir, name, 7)
+}
+
+/// [`check_page`] of a page with at least `least` pictures.
+fn check_page_of(browser: &Path, dir: &Path, name: &str, least: usize) -> String {
     let index = dir.join("index.html");
     let html = std::fs::read_to_string(&index).unwrap();
     let images = html.matches("<img ").count();
-    assert!(images >= 7, "{images} pictures on the page");
+    assert!(images >= least, "{images} pictures on the page");
     // Self-contained: nothing from the network.
     for remote in ["http://", "https://", "//cdn"] {
         assert!(
@@ -316,4 +321,71 @@ fn the_targetless_route_writes_a_page_chromium_opens() {
         "the advice on the page"
     );
     assert!(dom.contains("worst-determined parameter"));
+}
+
+/// `flatport stereo --report-dir`: the chosen range and sampling, completeness, and the depth and
+/// confidence pictures, on a page Chromium opens; the table's range is the one summary.json says.
+#[test]
+fn the_stereo_run_writes_a_page_chromium_opens() {
+    let Some(browser) = chromium() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene.json");
+    std::fs::write(
+        &scene,
+        format!(
+            r#"{{"rig": {}, "background": 0.35, "surfaces": [
+            {{"height_field": {{"origin": [0, 0, 1.6], "normal": [0, 0, -1],
+               "relief": {{"amplitude": 0.05, "wavelength": 0.7, "waves": 6, "seed": 3}},
+               "texture": {{"noise": {{"scale": 0.15, "octaves": 4, "contrast": 3.0, "seed": 103}}}}}}}}]}}"#,
+            stereo_common::SHARED_PORT_PAIR
+        ),
+    )
+    .unwrap();
+    let shots = dir.path().join("shots");
+    ok(flatport(&[
+        "render",
+        "--scene",
+        p(&scene),
+        "--device",
+        "cpu",
+        "-o",
+        p(&shots),
+    ]));
+    let out = dir.path().join("out");
+    let report = dir.path().join("report");
+    let said = ok(flatport(&[
+        "stereo",
+        "--rig",
+        p(&shots.join("rig.json")),
+        "--images",
+        p(&shots),
+        "--output",
+        p(&out),
+        "--device",
+        "cpu",
+        "--report-dir",
+        p(&report),
+    ]));
+    assert!(said.contains("report: "), "{said}");
+    let dom = check_page_of(&browser, &report, "stereo", 4);
+    for picture in [
+        "completeness.png",
+        "ranges.png",
+        "depth_0_frame_000.png",
+        "confidence_0_frame_000.png",
+    ] {
+        assert!(dom.contains(picture), "{picture} on the page");
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let range = &summary["frames"][0]["depth_range_m"];
+    let shown = format!(
+        "{:.3} – {:.3}",
+        range[0].as_f64().unwrap(),
+        range[1].as_f64().unwrap()
+    );
+    assert!(dom.contains(&shown), "the range {shown} on the page");
+    assert!(dom.contains("found it from their own images"));
+    let csv = std::fs::read_to_string(report.join("frames.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 2, "{csv}");
 }

@@ -223,11 +223,13 @@ frame_NNNNNN, the index, for a video):
 and OUT/summary.json (hypotheses, depth_range_m and how they were chosen; per frame: valid
 fraction, seconds per stage, device, hypotheses, depth range), or a shard's
 OUT/summary-shard-I-of-N.json; after the shards, the same command with --resume and no --shard
-computes nothing again and writes summary.json.
+computes nothing again and writes summary.json. --report-dir DIR also writes DIR/index.html, a
+page to read offline: each frame's chosen range and sampling, completeness, depth and confidence.
 
 Examples:
   flatport render --scene data/scenes/seabed.json --noise 2 -o seabed
   flatport stereo --rig seabed/rig.json --images seabed --output seabed-stereo
+  flatport stereo --rig seabed/rig.json --images seabed --output seabed-stereo --report-dir report
   flatport stereo --rig seabed/rig.json --images seabed --output seabed-stereo --depth 0.8:2.5
   flatport stereo --rig rig.json --images shots --output out --reference right --hypotheses 96
   flatport stereo --rig rig.json --images videos --output out --frames 0:3000:10 --resume

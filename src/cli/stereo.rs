@@ -19,6 +19,7 @@ use flatport::io::sweep_shard::sha256_file;
 use flatport::io::write_atomic;
 use flatport::model::Rig;
 use flatport::render::GreyImage;
+use flatport::report::stereo::{StereoFrame, StereoInput, write_stereo_report};
 use flatport::runs::sequence::{Sequence, SequenceFrame};
 use flatport::stereo::fuse::{FuseOptions, FuseView, fuse};
 use flatport::stereo::gpu::GpuStereo;
@@ -98,6 +99,11 @@ pub struct StereoArgs {
     /// $FLATPORT_ADAPTER, else the best: discrete, integrated, then lavapipe)
     #[arg(long, value_name = "INDEX|NAME")]
     adapter: Option<String>,
+    /// Also write DIR/index.html, a page to read offline: the depth range and sampling each frame
+    /// chose and why, completeness per frame, and depth and confidence pictures (at most 12
+    /// frames spread over the run), with frames.csv
+    #[arg(long, value_name = "DIR")]
+    report_dir: Option<PathBuf>,
     /// No progress bar
     #[arg(long, short)]
     quiet: bool,
@@ -416,6 +422,27 @@ pub fn run(args: StereoArgs) -> anyhow::Result<()> {
         args.output.display(),
         if args.fuse { ", fused.ply" } else { "" }
     );
+    if let Some(dir) = &args.report_dir {
+        let input = StereoInput {
+            command: super::calib::command_line(),
+            reference: names[reference].to_string(),
+            device: device.clone(),
+            window: 2 * options.window_radius + 1,
+            min_confidence: options.min_confidence,
+            frames: document["frames"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .map(|record| report_frame(record, &args.output))
+                .collect(),
+        };
+        let written = write_stereo_report(dir, &input)?;
+        outln!(
+            "report: {} ({} files)",
+            written.index.display(),
+            written.files.len()
+        );
+    }
     Ok(())
 }
 
@@ -689,6 +716,32 @@ fn fuse_frame(
         ],
     )?;
     Ok(points.len())
+}
+
+/// A frame's summary entry as its report shows it; its maps are in `output`/FRAME.
+fn report_frame(record: &serde_json::Value, output: &Path) -> StereoFrame {
+    let name = record["frame"].as_str().unwrap_or("?").to_string();
+    let pair = |v: &serde_json::Value| Some((v.get(0)?.as_f64()?, v.get(1)?.as_f64()?));
+    let sampling = &record["sampling"];
+    StereoFrame {
+        folder: output.join(&name),
+        name,
+        valid_fraction: record["valid_fraction"].as_f64().unwrap_or(f64::NAN),
+        points: record["valid_points"].as_u64().unwrap_or(0) as usize,
+        seconds: record["seconds"].as_f64().unwrap_or(f64::NAN),
+        hypotheses: record["hypotheses"].as_u64().unwrap_or(0) as usize,
+        depth_range_m: pair(&record["depth_range_m"]).unwrap_or((f64::NAN, f64::NAN)),
+        range_how: sampling["depth_range"]["how"]
+            .as_str()
+            .unwrap_or("?")
+            .to_string(),
+        quantiles_m: pair(&sampling["depth_range"]["coarse_sweep"]["quantiles_m"]),
+        count_how: sampling["hypotheses"]["how"]
+            .as_str()
+            .unwrap_or("?")
+            .to_string(),
+        largest_step_px: sampling["hypotheses"]["rule"]["largest_step_px"].as_f64(),
+    }
 }
 
 /// How a frame's depth range and hypotheses were chosen, for summary.json.

@@ -12,7 +12,7 @@ use super::{Facts, ReportError};
 use crate::io::write_atomic;
 
 /// `s` with the HTML specials escaped.
-fn escape(s: &str) -> String {
+pub(crate) fn escape(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
@@ -20,7 +20,7 @@ fn escape(s: &str) -> String {
 }
 
 /// A number with `digits` decimals, `—` when not finite.
-fn number(x: f64, digits: usize) -> String {
+pub(crate) fn number(x: f64, digits: usize) -> String {
     if x.is_finite() {
         format!("{x:.digits$}")
     } else {
@@ -28,7 +28,7 @@ fn number(x: f64, digits: usize) -> String {
     }
 }
 
-const STYLE: &str = "body{font-family:sans-serif;max-width:1400px;margin:1em auto;padding:0 1em;color:#222}
+pub(crate) const STYLE: &str = "body{font-family:sans-serif;max-width:1400px;margin:1em auto;padding:0 1em;color:#222}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.6em}
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:.2em .5em;text-align:right}
 th{background:#f0f0f0}td.l,th.l{text-align:left}figure{display:inline-block;margin:.5em;vertical-align:top;max-width:660px}
@@ -38,9 +38,9 @@ figure img{max-width:100%;border:1px solid #ddd}figcaption{font-size:.85em;color
 
 /// A small script that writes each picture's decoded size into the page (`data-natural`), so a
 /// headless browser's DOM says whether every picture loaded.
-const CHECK_SCRIPT: &str = "window.addEventListener('load',function(){var n=0,imgs=document.images;for(var i=0;i<imgs.length;i++){var im=imgs[i];im.setAttribute('data-natural',im.naturalWidth+'x'+im.naturalHeight);if(im.complete&&im.naturalWidth>0){n++;}}document.body.setAttribute('data-images-loaded',n+'/'+imgs.length);});";
+pub(crate) const CHECK_SCRIPT: &str = "window.addEventListener('load',function(){var n=0,imgs=document.images;for(var i=0;i<imgs.length;i++){var im=imgs[i];im.setAttribute('data-natural',im.naturalWidth+'x'+im.naturalHeight);if(im.complete&&im.naturalWidth>0){n++;}}document.body.setAttribute('data-images-loaded',n+'/'+imgs.length);});";
 
-fn figure(out: &mut String, picture: &Picture) {
+pub(crate) fn figure(out: &mut String, picture: &Picture) {
     let _ = writeln!(
         out,
         "<figure><img src=\"{}\" alt=\"{}\"><figcaption>{}</figcaption></figure>",

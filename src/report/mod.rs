@@ -16,6 +16,7 @@
 pub mod advice;
 mod html;
 mod pictures;
+pub mod stereo;
 
 use std::path::{Path, PathBuf};
 

@@ -31,7 +31,7 @@ pub(crate) struct Pictures {
     pub overall: Vec<Picture>,
 }
 
-type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+pub(crate) type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
 /// Colours of the cameras, in rig order, cycling.
 const CAMERA_COLOURS: [RGBColor; 6] = [
@@ -61,7 +61,7 @@ pub(crate) fn file_safe(name: &str) -> String {
 }
 
 /// Draws a picture of `size` into `dir/file` by `draw` and encodes it.
-fn picture(
+pub(crate) fn picture(
     dir: &Path,
     file: &str,
     size: (u32, u32),
@@ -88,7 +88,7 @@ fn picture(
     Ok(())
 }
 
-fn text(e: impl std::fmt::Display) -> String {
+pub(crate) fn text(e: impl std::fmt::Display) -> String {
     e.to_string()
 }
 

@@ -132,6 +132,45 @@ pub fn read_npy(path: &Path) -> Result<(Vec<usize>, Vec<f64>), IoError> {
     NpyReader::open(path)?.read_to_end()
 }
 
+/// Reads a little-endian f32 `.npy` file in C order, as `flatport stereo` writes its depth and
+/// confidence maps: (shape, values). Errors name the file: unreadable, not f32 in C order, or
+/// data that do not match the shape.
+pub fn read_npy_f32(path: &Path) -> Result<(Vec<usize>, Vec<f32>), IoError> {
+    let invalid = |reason: String| IoError::Invalid {
+        path: path.to_path_buf(),
+        field: String::new(),
+        reason,
+    };
+    let bytes = std::fs::read(path).map_err(|source| IoError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let file = npyz::NpyFile::new(&bytes[..]).map_err(|e| {
+        invalid(format!(
+            "not a .npy file: {}",
+            e.to_string().lines().next().unwrap_or_default()
+        ))
+    })?;
+    if file.header().dtype().descr() != "'<f4'" || file.order() != npyz::Order::C {
+        return Err(invalid(format!(
+            "only little-endian f32 in C order is read here, the file holds {} ({:?} order)",
+            file.header().dtype().descr(),
+            file.order()
+        )));
+    }
+    let shape: Vec<usize> = file.shape().iter().map(|&d| d as usize).collect();
+    let values = file
+        .into_vec::<f32>()
+        .map_err(|e| invalid(format!("the data do not match the header: {e}")))?;
+    if values.len() != shape.iter().product::<usize>() {
+        return Err(invalid(format!(
+            "{} values for the shape {shape:?}",
+            values.len()
+        )));
+    }
+    Ok((shape, values))
+}
+
 /// Parses the bytes of a `.npy` file as [`read_npy`] does; `path` only labels errors.
 pub fn npy_from_bytes(bytes: &[u8], path: &Path) -> Result<(Vec<usize>, Vec<f64>), IoError> {
     NpyReader::from_reader(bytes, bytes.len() as u64, path)?.read_to_end()
@@ -284,6 +323,25 @@ impl<R: std::io::Read> NpyReader<R> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn f32_maps_read_back_and_f64_ones_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("d.npy");
+        let values = [1.5f32, f32::NAN, -2.0, 0.25, 7.0, 3.0];
+        crate::io::stereo_files::write_npy_f32(&path, &[2, 3], &values).unwrap();
+        let (shape, read) = read_npy_f32(&path).unwrap();
+        assert_eq!(shape, vec![2, 3]);
+        assert_eq!(read[0], 1.5);
+        assert!(read[1].is_nan());
+        assert_eq!(&read[2..], &values[2..]);
+        let other = dir.path().join("e.npy");
+        let mut writer = NpyWriter::create(&other, &[2]).unwrap();
+        writer.write(&[1.0, 2.0]).unwrap();
+        writer.finish().unwrap();
+        let error = read_npy_f32(&other).unwrap_err().to_string();
+        assert!(error.contains("e.npy") && error.contains("f8"), "{error}");
+    }
 
     #[test]
     fn short_and_overflowing_files_are_errors_not_panics() {

@@ -225,8 +225,7 @@ pub fn write_point_cloud_ply<P: CloudVertex>(
     out.finish()
 }
 
-/// Turbo-like colour of t ∈ [0, 1] (near = warm): viridis from matplotlib's table, reversed so
-/// that near surfaces are bright.
+/// Viridis (matplotlib's table) at 1 − t: t = 0 is the bright yellow end, t = 1 the dark one.
 fn colour_of(t: f64) -> RGBColor {
     const STOPS: [(u8, u8, u8); 9] = [
         (68, 1, 84),
@@ -251,7 +250,7 @@ fn colour_of(t: f64) -> RGBColor {
 const NO_DEPTH: RGBColor = RGBColor(0, 0, 0);
 
 /// Writes a depth map as a PNG: each pixel coloured by its depth between the 1st and 99th
-/// percentile of the depths (near bright, far dark; black where there is no depth), a colour bar
+/// percentile of the depths (near dark, far bright; black where there is no depth), a colour bar
 /// with its depths in metres at the right, `title` above it.
 ///
 /// Panics if `depth` is not `width · height` long.
@@ -262,20 +261,63 @@ pub fn write_depth_png(
     depth: &[f32],
     title: &str,
 ) -> Result<(), IoError> {
+    let values: Vec<f64> = depth.iter().map(|&d| f64::from(d)).collect();
+    write_map_png(
+        path,
+        width,
+        height,
+        &values,
+        title,
+        &MapScale {
+            label: "depth z",
+            unit: " m",
+            range: None,
+        },
+    )
+}
+
+/// How [`write_map_png`] colours its values.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapScale<'a> {
+    /// Above the colour bar (`depth z`, `confidence`).
+    pub label: &'a str,
+    /// After each tick's value (` m`, or empty).
+    pub unit: &'a str,
+    /// The values at the bar's ends; `None`: the 1st and 99th percentile of the finite values.
+    pub range: Option<(f64, f64)>,
+}
+
+/// Writes a map of one value per pixel as a PNG: each pixel coloured by viridis over `scale`'s
+/// range (low dark, high bright; black where the value is not finite), a colour bar with its
+/// values at the right, `title` above it.
+///
+/// Panics if `values` is not `width · height` long.
+pub fn write_map_png(
+    path: &Path,
+    width: u32,
+    height: u32,
+    values: &[f64],
+    title: &str,
+    scale: &MapScale,
+) -> Result<(), IoError> {
+    let depth = values;
     assert_eq!(
         depth.len(),
         width as usize * height as usize,
-        "a depth per pixel"
+        "a value per pixel"
     );
-    let mut finite: Vec<f32> = depth.iter().copied().filter(|d| d.is_finite()).collect();
-    finite.sort_by(f32::total_cmp);
-    let (low, high) = if finite.is_empty() {
-        (0.0, 1.0)
-    } else {
-        let at = |q: f64| f64::from(finite[((finite.len() - 1) as f64 * q).round() as usize]);
-        let (a, b) = (at(0.01), at(0.99));
-        if b > a { (a, b) } else { (a - 0.5, a + 0.5) }
+    let mut finite: Vec<f64> = depth.iter().copied().filter(|d| d.is_finite()).collect();
+    finite.sort_by(f64::total_cmp);
+    let (low, high) = match scale.range {
+        Some(range) => range,
+        None if finite.is_empty() => (0.0, 1.0),
+        None => {
+            let at = |q: f64| finite[((finite.len() - 1) as f64 * q).round() as usize];
+            let (a, b) = (at(0.01), at(0.99));
+            if b > a { (a, b) } else { (a - 0.5, a + 0.5) }
+        }
     };
+
     let bar_width = 150u32;
     let title_height = 30u32;
     let size = (width + bar_width, (height + title_height).max(260));
@@ -308,7 +350,7 @@ pub fn write_depth_png(
             let y0 = bar_bottom - ((bar_bottom - bar_top) as f64 * t0) as i32;
             let y1 =
                 bar_bottom - ((bar_bottom - bar_top) as f64 * (i + 1) as f64 / steps as f64) as i32;
-            // Bottom of the bar = far (high depth), top = near.
+            // Bottom of the bar = the low end of the values (dark), top = the high end.
             root.draw(&Rectangle::new(
                 [(bar_x, y1), (bar_x + 24, y0)],
                 colour_of(1.0 - t0).filled(),
@@ -328,11 +370,15 @@ pub fn write_depth_png(
                 .into_font()
                 .color(&BLACK)
                 .pos(Pos::new(HPos::Left, VPos::Center));
-            root.draw(&Text::new(format!("{value:.3} m"), (bar_x + 34, y), style))
-                .map_err(|e| err(draw_error(&e)))?;
+            root.draw(&Text::new(
+                format!("{value:.3}{}", scale.unit),
+                (bar_x + 34, y),
+                style,
+            ))
+            .map_err(|e| err(draw_error(&e)))?;
         }
         root.draw(&Text::new(
-            "depth z",
+            scale.label,
             (bar_x, bar_top - 16),
             ("sans-serif", 14).into_font().color(&BLACK),
         ))
@@ -345,7 +391,7 @@ pub fn write_depth_png(
         for u in 0..width as usize {
             let d = depth[v * width as usize + u];
             let c = if d.is_finite() {
-                colour_of(1.0 - (f64::from(d) - low) / (high - low))
+                colour_of(1.0 - (d - low) / (high - low))
             } else {
                 NO_DEPTH
             };
