@@ -6,7 +6,8 @@
 //!    magnifies by n_water / n_air (a ray at angle θ in water leaves the port at n·θ), so that fit's
 //!    focal length divided by the ratio starts the lens's; its principal point starts the lens's;
 //!    its k1, k2 (mostly the refraction's pincushion) are dropped. Views that do not determine
-//!    a focal length (fronto-parallel boards only) fail here, named by camera.
+//!    a focal length fail here, named by camera: boards that all face the camera (within
+//!    [`MIN_START_TILT_DEG`]), or a focal length σ above [`MAX_START_FOCAL_STD`].
 //! 2. **The one calibration** of [`calibrate_from_boards`] with every lens estimated together
 //!    with the ports, the extrinsics and the board poses (fx, fy, cx, cy and the lens terms of the
 //!    candidate), once per candidate of [`TERM_CANDIDATES`], simplest first; a richer candidate
@@ -41,6 +42,15 @@ pub const TERM_CANDIDATES: [LensTerms; 4] = [
 
 /// Relative fall of the held-out RMS a richer candidate must bring to be kept (0.02: 2 %).
 pub const TERM_MARGIN: f64 = 0.02;
+
+/// Views whose boards all stay within this tilt (degrees) from facing the camera do not start a
+/// lens: a fit to fronto-parallel boards through a port tilted 8° finds them 4° tilted and a
+/// focal length 16 % off.
+pub const MIN_START_TILT_DEG: f64 = 10.0;
+
+/// Largest σ of a start's focal length, as a share of it (the start fit has no port, so looser
+/// than [`MAX_FOCAL_STD`]): above it the views are named as not determining the lens.
+pub const MAX_START_FOCAL_STD: f64 = 0.05;
 
 /// Largest σ of a focal length, as a share of it, for a lens to count as determined.
 pub const MAX_FOCAL_STD: f64 = 0.01;
@@ -107,6 +117,30 @@ pub fn water_lens_start(
             views.len()
         ))
     })?;
+    // A focal length needs boards seen at a slant (Zhang's condition): boards that face the
+    // camera in every view leave it free along a valley, and the fit's end is arbitrary.
+    let largest_tilt = fit
+        .cam_from_board
+        .iter()
+        .flatten()
+        .map(|pose| {
+            (pose.rotation * nalgebra::Vector3::z())
+                .z
+                .abs()
+                .min(1.0)
+                .acos()
+                .to_degrees()
+        })
+        .fold(0.0, f64::max);
+    let focal_std = fit.std[0].max(fit.std[1]) / fit.camera.fx.min(fit.camera.fy);
+    if largest_tilt < MIN_START_TILT_DEG || !(focal_std <= MAX_START_FOCAL_STD) {
+        return Err(CalibError::NotDetermined(format!(
+            "camera '{name}': its {} underwater views of the board do not determine its lens (the board is tilted by at most {largest_tilt:.1}° from facing the camera; the focal length comes out {:.0} ± {:.0} px); without in-air views (air/{name}/) or a rig file (--rig), the board must be filmed under water tilted by 20–40° in several directions",
+            views.len(),
+            fit.camera.fx,
+            fit.std[0]
+        )));
+    }
     let ratio = index_water / index_air;
     let c = fit.camera;
     PinholeCamera::new(
@@ -265,5 +299,121 @@ fn undetermined_lenses(calibration: &BoardsCalibration) -> Result<(), CalibError
             100.0 * MAX_FOCAL_STD,
             100.0 * MAX_PRINCIPAL_STD
         )))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector3};
+
+    use super::*;
+    use crate::base::Rng;
+
+    /// Frames of the example rig's left camera (through its tilted port, glass and water) seeing
+    /// a 9 × 6 board at `poses` (camera frame), corners with 0.1 px of noise.
+    fn frames(poses: &[Isometry3<f64>]) -> (Vec<WaterFrame>, crate::model::Rig, Board) {
+        let rig = crate::io::read_rig(std::path::Path::new("data/example_rig.json")).unwrap();
+        let camera = rig.refractive_camera(0);
+        let board = Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        };
+        let mut rng = Rng::new(5);
+        let frames = poses
+            .iter()
+            .enumerate()
+            .map(|(v, pose)| {
+                let corners: Vec<(usize, Point2<f64>)> = (0..board.corners())
+                    .filter_map(|i| {
+                        let pixel = camera.project(&(pose * board.point_in_board(i))).ok()?;
+                        Some((
+                            i,
+                            pixel + 0.1 * nalgebra::Vector2::new(rng.normal(), rng.normal()),
+                        ))
+                    })
+                    .collect();
+                WaterFrame {
+                    label: format!("view {v}"),
+                    corners: vec![corners, Vec::new()],
+                }
+            })
+            .collect();
+        (frames, rig, board)
+    }
+
+    /// The board's centre at `(x, y, z)` in the camera, turned by `about_x` and `about_y` (°).
+    fn pose(x: f64, y: f64, z: f64, about_x: f64, about_y: f64) -> Isometry3<f64> {
+        let rotation = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), about_x.to_radians())
+            * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), about_y.to_radians());
+        let centre = Vector3::new(0.16, 0.1, 0.0);
+        Isometry3::from_parts(
+            Translation3::from(Vector3::new(x, y, z) - rotation * centre),
+            rotation,
+        )
+    }
+
+    /// Issue 45: boards that only ever face the camera do not determine a focal length (Zhang's
+    /// degenerate case: every view's homography is a scaled similarity); the start is refused
+    /// naming the camera and what to film. The same number of views tilted 20–35° in several
+    /// directions starts the lens within 3 % of the truth (the water's magnification divided
+    /// out; the port's refraction is not modelled in the start, so not closer).
+    #[test]
+    fn fronto_parallel_boards_are_refused_and_tilted_ones_start_the_lens() {
+        let facing: Vec<Isometry3<f64>> = (0..10)
+            .map(|v| {
+                let t = f64::from(v);
+                pose(
+                    0.08 * (t * 1.3).sin(),
+                    0.06 * (t * 0.7).cos(),
+                    0.6 + 0.05 * t,
+                    0.0,
+                    0.0,
+                )
+            })
+            .collect();
+        let (frames_facing, rig, board) = frames(&facing);
+        let size = (
+            rig.cameras()[0].intrinsics.width,
+            rig.cameras()[0].intrinsics.height,
+        );
+        let port = rig.port_in_master(0);
+        let n = (port.index_air(), port.index_water());
+        let refused =
+            water_lens_start("left", size, &board, &frames_facing, 0, n.0, n.1).unwrap_err();
+        let message = refused.to_string();
+        assert!(
+            matches!(refused, CalibError::NotDetermined(_)),
+            "{refused:?}"
+        );
+        assert!(
+            message.contains("camera 'left'") && message.contains("tilted"),
+            "{message}"
+        );
+
+        let tilted: Vec<Isometry3<f64>> = (0..10)
+            .map(|v| {
+                let t = f64::from(v);
+                let angle = 20.0 + 15.0 * (t * 0.9).sin().abs();
+                let (about_x, about_y) = match v % 4 {
+                    0 => (angle, 0.0),
+                    1 => (-angle, 0.0),
+                    2 => (0.0, angle),
+                    _ => (0.0, -angle),
+                };
+                pose(
+                    0.06 * (t * 1.3).sin(),
+                    0.05 * (t * 0.7).cos(),
+                    0.6 + 0.05 * t,
+                    about_x,
+                    about_y,
+                )
+            })
+            .collect();
+        let (frames_tilted, _, _) = frames(&tilted);
+        let start = water_lens_start("left", size, &board, &frames_tilted, 0, n.0, n.1).unwrap();
+        let truth = &rig.cameras()[0].intrinsics;
+        let off = (start.fx / truth.fx - 1.0).abs();
+        assert!(off < 0.03, "fx {} against {}: {off}", start.fx, truth.fx);
     }
 }
