@@ -414,13 +414,15 @@ pub fn camera_reports(
 
 /// The report's port and extrinsic σ with every camera's lens as uncertain as `lens_std` says
 /// (per camera, σ of [`INTRINSICS`](super::bundle::INTRINSICS): its in-air calibration's) instead
-/// of exact. A fit with the lenses held fixed reports σ conditional on them: a principal point
-/// known to 0.06 px turns a camera by 0.004°, ten times such a rotation σ. So the intrinsics join
-/// the normal equations at the result (`rig`, the report's poses over `seen`), each with a prior
-/// of its in-air σ, and the ports' and extrinsics' covariance is read from the whole:
-/// Σ = σ̂² (S + σ̂² P)⁻¹ with S the Schur complement over the globals and P = diag(1/σ_lens²).
-/// Returns false, the report unchanged, where that system cannot be formed (no σ̂, views that
-/// are not the report's, a singular system).
+/// of exact. The fit held the lenses fixed at their in-air values, so a lens off by δl moves the
+/// fitted ports and extrinsics p by δp = −S_pp⁻¹ S_pl δl (S the information of the fitted views
+/// over p and the lenses l at the result, board poses eliminated): their covariance is the
+/// "consider" covariance Σ_pp = σ̂² S_pp⁻¹ + A Σ_l Aᵀ with A = S_pp⁻¹ S_pl and Σ_l = diag(σ_lens²),
+/// not the posterior of a fit that re-estimates the lenses (which the underwater views would
+/// pin further, and which `tests/lens_uncertainty.rs` found 20× too small in variance against a
+/// Monte Carlo of the lenses). A principal point known to 0.06 px turns a camera by 0.004°, ten
+/// times such a rotation's σ. Returns false, the report unchanged, where that system cannot be
+/// formed (no σ̂, views that are not the report's, a singular S_pp).
 pub fn add_lens_uncertainty(
     report: &mut Report,
     rig: &Rig,
@@ -442,26 +444,54 @@ pub fn add_lens_uncertainty(
     };
     let bundle = Bundle::new(rig, target, seen, estimate, huber);
     let state = State::of(rig, report.poses.clone());
-    let Some(mut information) = bundle
+    let Some(information) = bundle
         .normal_equations(&state)
         .and_then(|n| n.global_information())
     else {
         return false;
     };
     let globals = bundle.globals().to_vec();
-    let sigma2 = sigma * sigma;
+    // The lenses (l) and the rest (p), with each lens parameter's prior σ.
+    let mut lenses = Vec::new();
+    let mut priors = Vec::new();
+    let mut rest = Vec::new();
     for (i, parameter) in globals.iter().enumerate() {
         if let Parameter::Intrinsic(k, j) = *parameter {
             let prior = lens_std[k][j];
             if !(prior > 0.0 && prior.is_finite()) {
                 return false;
             }
-            information[(i, i)] += sigma2 / (prior * prior);
+            lenses.push(i);
+            priors.push(prior);
+        } else {
+            rest.push(i);
         }
     }
-    let Some(covariance) = information.cholesky().map(|c| c.inverse() * sigma2) else {
+    let s_pp = information.select_rows(&rest).select_columns(&rest);
+    let s_pl = information.select_rows(&rest).select_columns(&lenses);
+    let Some(inverse) = s_pp.cholesky().map(|c| c.inverse()) else {
         return false;
     };
+    let a = &inverse * s_pl;
+    let lens_covariance = DMatrix::from_diagonal(&nalgebra::DVector::from_iterator(
+        priors.len(),
+        priors.iter().map(|s| s * s),
+    ));
+    let cov_pp = &inverse * (sigma * sigma) + &a * &lens_covariance * a.transpose();
+    let cov_pl = -(&a * &lens_covariance);
+    let mut covariance = DMatrix::zeros(globals.len(), globals.len());
+    for (r, &i) in rest.iter().enumerate() {
+        for (c, &j) in rest.iter().enumerate() {
+            covariance[(i, j)] = cov_pp[(r, c)];
+        }
+        for (c, &j) in lenses.iter().enumerate() {
+            covariance[(i, j)] = cov_pl[(r, c)];
+            covariance[(j, i)] = cov_pl[(r, c)];
+        }
+    }
+    for (c, &j) in lenses.iter().enumerate() {
+        covariance[(j, j)] = lens_covariance[(c, c)];
+    }
     let ports = port_reports(rig, &state, &globals, Some(&covariance));
     for (old, new) in report.ports.iter_mut().zip(ports) {
         old.tilt.std = new.tilt.std;
