@@ -364,4 +364,63 @@ mod tests {
         let v = verdict(report(2.5, Some(0.03)), None, None, 3.0);
         assert!(v.accepted(), "{v:?}");
     }
+
+    /// A good verdict on a port whose air layer or axis σ leaves 3σ over issue 38's bound turns
+    /// usable naming it; within the bound it stays good; a surface's bound is 0.3 mm; a poor
+    /// verdict stays poor.
+    #[test]
+    fn loose_ports_turn_a_good_verdict_usable_by_name() {
+        use crate::calib::pipeline::boards::PortKind;
+        use crate::calib::{Board, Options, SceneSpec, Target, calibrate, simulate};
+        let truth = crate::io::read_rig(std::path::Path::new("data/example_rig.json")).unwrap();
+        let target = Target::Board(Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        });
+        let scene = simulate(&truth, &SceneSpec::pair(target, 12, 0.1, 1, 0, 1)).unwrap();
+        let report = calibrate(&truth, &scene.observations, &Options::default())
+            .unwrap()
+            .report;
+        let good = || Verdict {
+            grade: Grade::Good,
+            why: vec!["fine".into()],
+        };
+        let with = |air_mm: f64, tilt_deg: f64| {
+            let mut r = report.clone();
+            r.ports[0].distance.std = Some(air_mm * 1e-3);
+            r.ports[0].tilt.std = Some(tilt_deg.to_radians());
+            r
+        };
+        // 0.45 mm and 0.03°: 3σ within 1.5 mm and 0.1°.
+        let mut v = good();
+        loose_ports(&mut v, &with(0.45, 0.03), PortKind::Shared);
+        assert_eq!(v.grade, Grade::Good, "{v:?}");
+        // 0.55 mm of air: 3σ over 1.5 mm.
+        let mut v = good();
+        loose_ports(&mut v, &with(0.55, 0.03), PortKind::Shared);
+        assert_eq!(v.grade, Grade::Usable);
+        assert!(
+            v.why[0].contains("port shared: air layer σ 0.55 mm"),
+            "{v:?}"
+        );
+        // 0.04° of axis: 3σ over 0.1°.
+        let mut v = good();
+        loose_ports(&mut v, &with(0.2, 0.04), PortKind::Shared);
+        assert_eq!(v.grade, Grade::Usable, "{v:?}");
+        // A surface: 0.3 mm, so 0.12 mm is loose.
+        let mut v = good();
+        loose_ports(&mut v, &with(0.12, 0.01), PortKind::Surface);
+        assert_eq!(v.grade, Grade::Usable, "{v:?}");
+        let mut v = good();
+        loose_ports(&mut v, &with(0.08, 0.01), PortKind::Surface);
+        assert_eq!(v.grade, Grade::Good, "{v:?}");
+        // Poor stays poor, with its own reasons.
+        let mut v = Verdict {
+            grade: Grade::Poor,
+            why: vec!["plainly wrong".into()],
+        };
+        loose_ports(&mut v, &with(5.0, 1.0), PortKind::Shared);
+        assert_eq!((v.grade, v.why[0].as_str()), (Grade::Poor, "plainly wrong"));
+    }
 }
