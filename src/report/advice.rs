@@ -378,6 +378,22 @@ pub fn candidate_views(rig: &Rig, target: &Target, poses: &[Isometry3<f64>]) -> 
     out
 }
 
+/// The pixel of `point` in `camera` (its lens `intrinsics`), where it is at least [`MARGIN_PX`]
+/// inside the image.
+fn pixel_inside(
+    camera: &crate::model::RefractiveCamera,
+    intrinsics: &crate::model::PinholeCamera,
+    point: &Point3<f64>,
+) -> Option<Point2<f64>> {
+    let pixel = camera.project(point).ok()?;
+    let (w, h) = (f64::from(intrinsics.width), f64::from(intrinsics.height));
+    let inside = pixel.x >= MARGIN_PX
+        && pixel.y >= MARGIN_PX
+        && pixel.x <= w - MARGIN_PX
+        && pixel.y <= h - MARGIN_PX;
+    inside.then_some(pixel)
+}
+
 /// The exact corners of `points` at `pose` in every camera that sees all of them ([`MARGIN_PX`]
 /// inside its image).
 fn exact_view(
@@ -389,18 +405,10 @@ fn exact_view(
     let mut view = SeenView::default();
     for (k, camera) in cameras.iter().enumerate() {
         let intrinsics = &rig.cameras()[k].intrinsics;
-        let (w, h) = (f64::from(intrinsics.width), f64::from(intrinsics.height));
         let corners: Option<Vec<(usize, Point2<f64>)>> = points
             .iter()
             .enumerate()
-            .map(|(i, p)| {
-                let pixel = camera.project(&(pose * p)).ok()?;
-                let inside = pixel.x >= MARGIN_PX
-                    && pixel.y >= MARGIN_PX
-                    && pixel.x <= w - MARGIN_PX
-                    && pixel.y <= h - MARGIN_PX;
-                inside.then_some((i, pixel))
-            })
+            .map(|(i, p)| Some((i, pixel_inside(camera, intrinsics, &(pose * p))?)))
             .collect();
         if let Some(corners) = corners {
             view.cameras.push((k, corners));
@@ -687,18 +695,10 @@ pub fn texture_candidates(rig: &Rig, points: &[Point3<f64>], matches: f64) -> Ve
                 let mut view = SeenView::default();
                 for (k, camera) in cameras.iter().enumerate() {
                     let intrinsics = &rig.cameras()[k].intrinsics;
-                    let (cw, ch) = (f64::from(intrinsics.width), f64::from(intrinsics.height));
                     let seen: Vec<(usize, Point2<f64>)> = grid
                         .iter()
                         .enumerate()
-                        .filter_map(|(i, p)| {
-                            let pixel = camera.project(p).ok()?;
-                            let inside = pixel.x >= MARGIN_PX
-                                && pixel.y >= MARGIN_PX
-                                && pixel.x <= cw - MARGIN_PX
-                                && pixel.y <= ch - MARGIN_PX;
-                            inside.then_some((i, pixel))
-                        })
+                        .filter_map(|(i, p)| Some((i, pixel_inside(camera, intrinsics, p)?)))
                         .collect();
                     if !seen.is_empty() {
                         view.cameras.push((k, seen));

@@ -281,7 +281,7 @@ fn arrow_scale(corners: &[&super::Corner], w: f64) -> f64 {
     }
 }
 
-type ImageChart<'a, 'b> = ChartContext<
+pub(crate) type ImageChart<'a, 'b> = ChartContext<
     'a,
     BitMapBackend<'b>,
     Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,

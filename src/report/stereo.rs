@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 
 use super::html::{CHECK_SCRIPT, STYLE, escape, figure, number};
-use super::pictures::{Area, Picture, file_safe, picture, text};
+use super::pictures::{Area, ImageChart, Picture, file_safe, picture, text};
 use super::{ReportError, Written};
 use crate::io::npy::read_npy_f32;
 use crate::io::stereo_files::{MapScale, write_map_png};
@@ -322,15 +322,20 @@ fn frame_label(x: &f64) -> String {
     }
 }
 
-/// Completeness per frame, as bars.
-fn completeness(area: &Area, input: &StereoInput) -> Result<(), String> {
-    let n = input.frames.len();
+/// A chart over `n` frames (x: the frame, labelled from 1) and 0..`top` (y), its mesh drawn.
+fn frames_chart<'a, 'b>(
+    area: &'a Area<'b>,
+    caption: &str,
+    n: usize,
+    top: f64,
+    y_desc: &str,
+) -> Result<ImageChart<'a, 'b>, String> {
     let mut chart = ChartBuilder::on(area)
-        .caption("Completeness per frame", ("sans-serif", 18))
+        .caption(caption, ("sans-serif", 18))
         .margin(10)
         .x_label_area_size(40)
         .y_label_area_size(50)
-        .build_cartesian_2d(-0.5..(n as f64 - 0.5), 0.0..100.0)
+        .build_cartesian_2d(-0.5..(n as f64 - 0.5), 0.0..top)
         .map_err(text)?;
     chart
         .configure_mesh()
@@ -339,10 +344,22 @@ fn completeness(area: &Area, input: &StereoInput) -> Result<(), String> {
         .x_labels((n + 1).min(21))
         .x_label_formatter(&frame_label)
         .x_desc("frame (in order, from 1)")
-        .y_desc("pixels with a point (%)")
+        .y_desc(y_desc)
         .label_style(("sans-serif", 12))
         .draw()
         .map_err(text)?;
+    Ok(chart)
+}
+
+/// Completeness per frame, as bars.
+fn completeness(area: &Area, input: &StereoInput) -> Result<(), String> {
+    let mut chart = frames_chart(
+        area,
+        "Completeness per frame",
+        input.frames.len(),
+        100.0,
+        "pixels with a point (%)",
+    )?;
     chart
         .draw_series(input.frames.iter().enumerate().map(|(i, f)| {
             let x = i as f64;
@@ -371,24 +388,13 @@ fn ranges(area: &Area, input: &StereoInput) -> Result<(), String> {
         .fold(0.0, f64::max)
         .max(1e-3)
         * 1.08;
-    let mut chart = ChartBuilder::on(area)
-        .caption("Depth range per frame", ("sans-serif", 18))
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d(-0.5..(n as f64 - 0.5), 0.0..high)
-        .map_err(text)?;
-    chart
-        .configure_mesh()
-        .max_light_lines(0)
-        .bold_line_style(RGBColor(225, 225, 225))
-        .x_labels((n + 1).min(21))
-        .x_label_formatter(&frame_label)
-        .x_desc("frame (in order, from 1)")
-        .y_desc("depth z in the reference camera (m)")
-        .label_style(("sans-serif", 12))
-        .draw()
-        .map_err(text)?;
+    let mut chart = frames_chart(
+        area,
+        "Depth range per frame",
+        n,
+        high,
+        "depth z in the reference camera (m)",
+    )?;
     chart
         .draw_series(input.frames.iter().enumerate().map(|(i, f)| {
             let x = i as f64;
