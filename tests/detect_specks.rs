@@ -452,3 +452,43 @@ fn leave_one_out() {
     println!("filled in:    {}", stats(&filled));
     println!("not refined:  {unrefined:?}");
 }
+
+/// `flatport detect` says which images had corners filled in (issue 45): a speck on corner 13 of
+/// one view in both cameras gives a `filled:` line per image, and the corners are written.
+#[test]
+fn the_command_names_the_images_with_filled_corners() {
+    let rig = example_rig();
+    let dir = tempfile::tempdir().unwrap();
+    let pose = poses(&BOARD, 1, 21)[0];
+    for (camera, name) in ["left", "right"].iter().enumerate() {
+        let (mut image, exact) = render(&rig, camera, &BOARD, &pose);
+        add_speck(&mut image, exact[13], 2.0, 180.0);
+        std::fs::create_dir_all(dir.path().join(name)).unwrap();
+        image
+            .save(dir.path().join(name).join("view_000.png"))
+            .unwrap();
+    }
+    let output = dir.path().join("obs.json");
+    let glob = |name: &str| format!("{name}={}/{name}/*.png", dir.path().display());
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_flatport"))
+        .args(["detect", "--board", "9x6@0.04", "--images"])
+        .arg(glob("left"))
+        .arg("--images")
+        .arg(glob("right"))
+        .arg("-o")
+        .arg(&output)
+        .arg("-q")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    for name in ["left", "right"] {
+        assert!(
+            stderr.contains(&format!(
+                "({name}): 1 corner(s) the grid missed, filled in from their neighbours and placed on the image"
+            )),
+            "{stderr}"
+        );
+    }
+    assert!(output.is_file());
+}

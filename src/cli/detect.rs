@@ -171,6 +171,31 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
     for line in &left_out {
         eprintln!("left out: {line}");
     }
+    // Corners the grid missed (a speck on a corner), filled in from their neighbours.
+    for v in 0..views {
+        for (k, name) in names.iter().enumerate() {
+            let Ok(found) = &results[v * names.len() + k].found else {
+                continue;
+            };
+            let filled = &found.detection.filled;
+            if filled.is_empty() {
+                continue;
+            }
+            let unrefined = filled.iter().filter(|f| f.unrefined.is_some()).count();
+            eprintln!(
+                "filled: {} ({name}): {} corner(s) the grid missed, filled in from their neighbours{}",
+                files[k][v].display(),
+                filled.len(),
+                if unrefined > 0 {
+                    format!(
+                        " ({unrefined} where the neighbours put them: the image did not place them)"
+                    )
+                } else {
+                    " and placed on the image".to_string()
+                }
+            );
+        }
+    }
     let per_camera: Vec<String> = names
         .iter()
         .enumerate()
