@@ -233,6 +233,37 @@ impl<'a> Input<'a> {
     }
 }
 
+/// Where the report's air-layer σ, which carries the in-air lenses' own σ (the fit held them
+/// fixed: `calib::pipeline::report::add_lens_uncertainty`), is well above the advice's (the
+/// views' information alone), a sentence saying so: more views under water shrink only the
+/// views' part.
+fn lens_share(advice: &mut Advice, report: &Report) {
+    let larger: Vec<String> = advice
+        .parameters
+        .iter()
+        .filter_map(|p| {
+            let crate::calib::pipeline::bundle::Parameter::Distance(port) = p.parameter else {
+                return None;
+            };
+            let reported = report.ports.get(port)?.distance.std?;
+            (reported > 1.5 * p.sigma).then(|| {
+                format!(
+                    "the {}'s σ is {:.3} mm with the lenses' σ, {:.3} mm from the views alone",
+                    p.name,
+                    reported * 1e3,
+                    p.sigma * 1e3
+                )
+            })
+        })
+        .collect();
+    if !larger.is_empty() {
+        advice.text.push(format!(
+            "The fit holds the lenses at their in-air calibration, and their own σ dominates: {}. More views under water shrink only the second figure; more in-air views of the board (sharper lenses), or --refine-intrinsics always, shrink the first.",
+            larger.join("; ")
+        ));
+    }
+}
+
 /// One underwater frame as a view of `board` (every camera that saw corners).
 fn water_view(frame: &WaterFrame, names: &[String], board: &Board) -> View {
     View {
@@ -413,7 +444,7 @@ fn gather<'a>(input: &'a Input<'a>) -> Facts<'a> {
             .or(report.noise_px)
             .filter(|s| *s > 0.0 && s.is_finite())
             .unwrap_or(report.rms_px.max(1e-3));
-        facts.advice = Some(advice::advise(
+        let mut advice = advice::advise(
             rig,
             target,
             &seen,
@@ -421,7 +452,9 @@ fn gather<'a>(input: &'a Input<'a>) -> Facts<'a> {
             report.estimate,
             input.huber,
             sigma,
-        ));
+        );
+        lens_share(&mut advice, report);
+        facts.advice = Some(advice);
     } else {
         facts.advice = Some(Advice {
             parameters: Vec::new(),
@@ -586,5 +619,47 @@ mod tests {
         let advice = written.advice.unwrap();
         assert!(advice.worst.is_some(), "{:?}", advice.text);
         assert!(dir.path().join("quiver_1_right.png").is_file());
+    }
+
+    #[test]
+    fn a_lens_share_that_dominates_the_air_sigma_is_said() {
+        let rig = example_rig();
+        let target = Target::Board(Board {
+            rows: 6,
+            cols: 9,
+            square: 0.04,
+        });
+        let scene = simulate(&rig, &SceneSpec::pair(target, 10, 0.1, 2, 0, 1)).unwrap();
+        let mut report = calibrate(&rig, &scene.observations, &Options::default())
+            .unwrap()
+            .report;
+        let parameter = advice::ParameterSigma {
+            parameter: crate::calib::pipeline::bundle::Parameter::Distance(0),
+            name: "shared air distance".into(),
+            unit: "mm",
+            scale: 1e3,
+            sigma: 0.5e-3,
+            tolerance: advice::DISTANCE_TOLERANCE_M,
+            correlations: Vec::new(),
+        };
+        let mut advice_with = |reported_m: f64| {
+            report.ports[0].distance.std = Some(reported_m);
+            let mut a = Advice {
+                parameters: vec![parameter.clone()],
+                worst: Some(0),
+                best: None,
+                candidates: 0,
+                text: Vec::new(),
+            };
+            lens_share(&mut a, &report);
+            a.text
+        };
+        let said = advice_with(2e-3);
+        assert_eq!(said.len(), 1, "{said:?}");
+        assert!(
+            said[0].contains("2.000 mm with the lenses' σ, 0.500 mm from the views alone"),
+            "{said:?}"
+        );
+        assert!(advice_with(0.6e-3).is_empty());
     }
 }
