@@ -109,7 +109,7 @@ pub fn run(args: &CalibrateArgs, dir: &Path) -> anyhow::Result<()> {
                 );
                 let fit = air_lens(&footage, k, &board)?;
                 print_intrinsics(name, &fit);
-                cameras.push(fit.camera.clone());
+                cameras.push(fit.camera);
                 fits.push((name.clone(), fit));
             }
             cameras

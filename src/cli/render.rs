@@ -603,7 +603,7 @@ pub fn render_set(
         let dry = Rig::new(
             vec![flatport::model::RigCamera::new(
                 &camera.name,
-                camera.intrinsics.clone(),
+                camera.intrinsics,
                 nalgebra::Matrix3::identity(),
                 nalgebra::Vector3::zeros(),
             )?],

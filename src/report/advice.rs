@@ -460,21 +460,26 @@ fn bare(line: &str) -> Advice {
 }
 
 /// The advice's parameters (their σ from `info`, σ̂ = `sigma_px`), the worst of them and the
-/// sentence that names it; a bare advice saying why where `info` is singular or empty.
+/// sentence that names it; a bare advice saying why (no worst parameter) where `info` is
+/// singular or empty.
 fn weighed(
     rig: &Rig,
     globals: &[Parameter],
     info: &DMatrix<f64>,
     sigma_px: f64,
     singular: &str,
-) -> Result<Advice, Advice> {
-    let parameters = sigmas(rig, globals, info, sigma_px).ok_or_else(|| bare(singular))?;
-    let worst = parameters
+) -> Advice {
+    let Some(parameters) = sigmas(rig, globals, info, sigma_px) else {
+        return bare(singular);
+    };
+    let Some(worst) = parameters
         .iter()
         .enumerate()
         .max_by(|a, b| a.1.relative().total_cmp(&b.1.relative()))
         .map(|(i, _)| i)
-        .ok_or_else(|| bare("Nothing was estimated."))?;
+    else {
+        return bare("Nothing was estimated.");
+    };
     let w = &parameters[worst];
     let line = format!(
         "The worst-determined parameter is the {}: σ {:.4} {} against the {:.4} {} a good calibration needs ({:.1}×){}.",
@@ -490,13 +495,13 @@ fn weighed(
                 "; it trades off with the {n} (ρ = {r:+.2})"
             ))
     );
-    Ok(Advice {
+    Advice {
         parameters,
         worst: Some(worst),
         best: None,
         candidates: 0,
         text: vec![line],
-    })
+    }
 }
 
 /// Of `candidates`, the one whose information (`extra`, computed on every core) shrinks the σ of
@@ -563,17 +568,16 @@ pub fn advise(
             "No information matrix: the fitted views and their board poses are not at hand for this route.",
         );
     };
-    let mut advice = match weighed(
+    let mut advice = weighed(
         rig,
         &globals,
         &info,
         sigma_px,
         "The information matrix is singular: the views do not determine every estimated parameter (vary the board's distance and tilt).",
-    ) {
-        Ok(advice) => advice,
-        Err(bare) => return bare,
+    );
+    let Some(worst) = advice.worst else {
+        return advice;
     };
-    let worst = advice.worst.unwrap_or_default();
     let candidates = candidate_views(rig, target, poses);
     advice.candidates = candidates.len();
     let extra = |candidate: &CandidateView| {
@@ -747,7 +751,7 @@ fn texture_tracks(view: &SeenView, grid: &[Point3<f64>]) -> (Vec<Track>, Vec<Poi
                 .filter_map(|(k, seen)| seen.iter().find(|(j, _)| *j == i).map(|(_, x)| (*k, *x)))
                 .collect();
             (pixels.first().is_some_and(|(k, _)| *k == 0) && pixels.len() >= 2)
-                .then(|| (Track { frame: 0, pixels }, *p))
+                .then_some((Track { frame: 0, pixels }, *p))
         })
         .unzip()
 }
@@ -786,17 +790,16 @@ pub fn advise_targetless(result: &TargetlessCalibration) -> Advice {
             "The information matrix is singular: the matches do not determine the port at all; film a scene with texture at several distances across the whole image.",
         );
     };
-    let mut advice = match weighed(
+    let mut advice = weighed(
         rig,
         &result.globals,
         info,
         result.sigma_px,
         "The information matrix is singular: the matches do not determine the port at all; film a scene with texture at several distances across the whole image.",
-    ) {
-        Ok(advice) => advice,
-        Err(bare) => return bare,
+    );
+    let Some(worst) = advice.worst else {
+        return advice;
     };
-    let worst = advice.worst.unwrap_or_default();
     let matches = matches_per_cell(result);
     let candidates = texture_candidates(rig, &result.points, matches);
     advice.candidates = candidates.len();
