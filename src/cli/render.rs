@@ -12,13 +12,11 @@ use nalgebra::{Isometry3, Point2};
 use flatport::calib::{SceneSpec, Target, simulate};
 use flatport::detect::BoardSpec;
 use flatport::engine::Engine;
-use flatport::io::stereo_files::read_grey_f32;
 use flatport::io::{
     DetectedView, Truth, read_rig, read_truth, write_detections, write_grey_png, write_grey16_png,
     write_rig, write_truth,
 };
 use flatport::model::Rig;
-use flatport::render::imaging::h264_round_trip;
 use flatport::render::{Imaging, RenderOptions, render_board_spec};
 
 use super::progress::Progress;
@@ -213,29 +211,6 @@ fn fraction(text: &str) -> Result<f64, String> {
     }
 }
 
-/// Replaces the PNG files of one camera's sequence, in order, by their H.264 round trip at
-/// `crf` ([`flatport::render::imaging::h264_round_trip`]), written back with `bits` per pixel.
-pub fn h264_sequence(paths: &[PathBuf], crf: u8, bits: u8) -> anyhow::Result<()> {
-    let frames = paths
-        .iter()
-        .map(|path| read_grey_f32(path).map_err(anyhow::Error::from))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let folder = paths
-        .first()
-        .and_then(|p| p.parent())
-        .map_or_else(String::new, |p| p.display().to_string());
-    let decoded = h264_round_trip(&frames, crf)
-        .with_context(|| format!("{folder}: H.264 of the camera's {} frames", frames.len()))?;
-    for (path, image) in paths.iter().zip(&decoded) {
-        if bits == 16 {
-            write_grey16_png(path, &image.to_u16(), image.width, image.height)?;
-        } else {
-            write_grey_png(path, &image.to_u8(), image.width, image.height)?;
-        }
-    }
-    Ok(())
-}
-
 /// `NEAR:FAR` in metres, 0 < NEAR < FAR.
 fn parse_distances(text: &str) -> Result<(f64, f64), String> {
     let (near, far) = text
@@ -394,7 +369,7 @@ pub fn render_scene(
     })?;
     if let Some(crf) = options.imaging.h264_crf {
         for camera in &paths {
-            h264_sequence(camera, crf, bits)?;
+            super::render_scene::h264_sequence(camera, crf, bits)?;
         }
     }
     Ok(paths)

@@ -1,12 +1,13 @@
 //! `flatport render --scene`: images and exact depth maps of a textured scene by every camera.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
 use flatport::io::scene_json::{read_scene, read_scene_without_rig};
-use flatport::io::stereo_files::write_npy_f32;
+use flatport::io::stereo_files::{read_grey_f32, write_npy_f32};
 use flatport::io::{read_rig, write_grey_png, write_grey16_png, write_rig};
+use flatport::render::imaging::h264_round_trip;
 use flatport::render::{RenderOptions, render_textured};
 
 use super::progress::Progress;
@@ -101,7 +102,7 @@ pub fn run(run: SceneRun) -> anyhow::Result<()> {
     }
     if let Some(crf) = run.options.imaging.h264_crf {
         for camera in &pngs {
-            super::render::h264_sequence(camera, crf, run.bits)?;
+            h264_sequence(camera, crf, run.bits)?;
         }
     }
     outln!(
@@ -112,5 +113,28 @@ pub fn run(run: SceneRun) -> anyhow::Result<()> {
         started.elapsed().as_secs_f64(),
         run.output.display()
     );
+    Ok(())
+}
+
+/// Replaces the PNG files of one camera's sequence, in order, by their H.264 round trip at
+/// `crf` ([`flatport::render::imaging::h264_round_trip`]), written back with `bits` per pixel.
+pub fn h264_sequence(paths: &[PathBuf], crf: u8, bits: u8) -> anyhow::Result<()> {
+    let frames = paths
+        .iter()
+        .map(|path| read_grey_f32(path).map_err(anyhow::Error::from))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let folder = paths
+        .first()
+        .and_then(|p| p.parent())
+        .map_or_else(String::new, |p| p.display().to_string());
+    let decoded = h264_round_trip(&frames, crf)
+        .with_context(|| format!("{folder}: H.264 of the camera's {} frames", frames.len()))?;
+    for (path, image) in paths.iter().zip(&decoded) {
+        if bits == 16 {
+            write_grey16_png(path, &image.to_u16(), image.width, image.height)?;
+        } else {
+            write_grey_png(path, &image.to_u8(), image.width, image.height)?;
+        }
+    }
     Ok(())
 }

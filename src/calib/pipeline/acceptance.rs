@@ -23,7 +23,6 @@
 //! residuals, and the verdict says so. A good fit whose views leave a port loose is usable
 //! ([`loose_ports`]).
 
-use super::boards::{PortKind, Validation};
 use super::report::Report;
 
 /// A good fit's worst camera RMS is within this many times the corner noise seen in the images...
@@ -52,6 +51,29 @@ pub const GOOD_SQUARE_FACTOR: f64 = 2.0;
 pub const GOOD_SQUARE_MARGIN_PERCENT: f64 = 0.05;
 /// Without a corner noise from the images, a good fit's RMS is at most this, pixels.
 pub const GOOD_RMS_PX: f64 = 0.5;
+
+/// The held-out frames' verdict on a calibration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Validation {
+    /// Frames held out (their labels).
+    pub frames: Vec<String>,
+    /// RMS reprojection error over their corners, the board poses fitted through the calibrated
+    /// rig, pixels.
+    pub rms_px: f64,
+    /// Neighbouring corner pairs triangulated from two or more cameras.
+    pub distances: usize,
+    /// Median |distance − square| of those pairs, metres.
+    pub median_error_m: f64,
+    /// The same as a share of the square, percent.
+    pub median_error_percent: f64,
+    /// RMS of distance − square, metres.
+    pub rms_error_m: f64,
+    /// Frames left out of the figures: no board pose from their corners, or corners that do not
+    /// project from it.
+    pub views_left_out: usize,
+    /// Corner images left out: far off the board's smooth shape in their image (misdetections).
+    pub corners_left_out: usize,
+}
 
 /// How a calibration is judged.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -226,13 +248,9 @@ pub fn verdict(
 /// A good verdict on ports the views leave loose becomes usable, naming them: an air layer or
 /// an axis whose σ is over a third of issue 38's bound for it (air 1.5 mm, a surface's height
 /// 0.3 mm, the axis 0.1°), so that 3σ would not meet the bound. Boards closer to the port, at
-/// more distances and tilts, pin them.
-pub fn loose_ports(verdict: &mut Verdict, report: &Report, port: PortKind) {
-    let air_bound_m = if port == PortKind::Surface {
-        0.3e-3
-    } else {
-        1.5e-3
-    };
+/// more distances and tilts, pin them. `surface`: the port is a bare water surface (no glass).
+pub fn loose_ports(verdict: &mut Verdict, report: &Report, surface: bool) {
+    let air_bound_m = if surface { 0.3e-3 } else { 1.5e-3 };
     let axis_bound = 0.1f64.to_radians();
     let loose: Vec<String> = report
         .ports
@@ -370,7 +388,6 @@ mod tests {
     /// verdict stays poor.
     #[test]
     fn loose_ports_turn_a_good_verdict_usable_by_name() {
-        use crate::calib::pipeline::boards::PortKind;
         use crate::calib::{Board, Options, SceneSpec, Target, calibrate, simulate};
         let truth = crate::io::read_rig(std::path::Path::new("data/example_rig.json")).unwrap();
         let target = Target::Board(Board {
@@ -394,11 +411,11 @@ mod tests {
         };
         // 0.45 mm and 0.03°: 3σ within 1.5 mm and 0.1°.
         let mut v = good();
-        loose_ports(&mut v, &with(0.45, 0.03), PortKind::Shared);
+        loose_ports(&mut v, &with(0.45, 0.03), false);
         assert_eq!(v.grade, Grade::Good, "{v:?}");
         // 0.55 mm of air: 3σ over 1.5 mm.
         let mut v = good();
-        loose_ports(&mut v, &with(0.55, 0.03), PortKind::Shared);
+        loose_ports(&mut v, &with(0.55, 0.03), false);
         assert_eq!(v.grade, Grade::Usable);
         assert!(
             v.why[0].contains("port shared: air layer σ 0.55 mm"),
@@ -406,21 +423,21 @@ mod tests {
         );
         // 0.04° of axis: 3σ over 0.1°.
         let mut v = good();
-        loose_ports(&mut v, &with(0.2, 0.04), PortKind::Shared);
+        loose_ports(&mut v, &with(0.2, 0.04), false);
         assert_eq!(v.grade, Grade::Usable, "{v:?}");
         // A surface: 0.3 mm, so 0.12 mm is loose.
         let mut v = good();
-        loose_ports(&mut v, &with(0.12, 0.01), PortKind::Surface);
+        loose_ports(&mut v, &with(0.12, 0.01), true);
         assert_eq!(v.grade, Grade::Usable, "{v:?}");
         let mut v = good();
-        loose_ports(&mut v, &with(0.08, 0.01), PortKind::Surface);
+        loose_ports(&mut v, &with(0.08, 0.01), true);
         assert_eq!(v.grade, Grade::Good, "{v:?}");
         // Poor stays poor, with its own reasons.
         let mut v = Verdict {
             grade: Grade::Poor,
             why: vec!["plainly wrong".into()],
         };
-        loose_ports(&mut v, &with(5.0, 1.0), PortKind::Shared);
+        loose_ports(&mut v, &with(5.0, 1.0), false);
         assert_eq!((v.grade, v.why[0].as_str()), (Grade::Poor, "plainly wrong"));
     }
 }

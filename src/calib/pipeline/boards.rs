@@ -12,6 +12,7 @@
 
 use nalgebra::{Matrix3, Point2, Point3, Vector3};
 
+pub use super::acceptance::Validation;
 use super::acceptance::{PLAIN_RMS_PX, Residuals, Verdict, loose_ports, verdict};
 use super::bundle::{Bundle, Estimate, MIN_START_AIR_M, State, shared_distance_floor};
 use super::extrinsics::{Link, extrinsics_start};
@@ -195,29 +196,6 @@ impl Default for BoardsOptions {
             lens_std: Vec::new(),
         }
     }
-}
-
-/// The held-out frames' verdict on a calibration.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Validation {
-    /// Frames held out (their labels).
-    pub frames: Vec<String>,
-    /// RMS reprojection error over their corners, the board poses fitted through the calibrated
-    /// rig, pixels.
-    pub rms_px: f64,
-    /// Neighbouring corner pairs triangulated from two or more cameras.
-    pub distances: usize,
-    /// Median |distance − square| of those pairs, metres.
-    pub median_error_m: f64,
-    /// The same as a share of the square, percent.
-    pub median_error_percent: f64,
-    /// RMS of distance − square, metres.
-    pub rms_error_m: f64,
-    /// Frames left out of the figures: no board pose from their corners, or corners that do not
-    /// project from it.
-    pub views_left_out: usize,
-    /// Corner images left out: far off the board's smooth shape in their image (misdetections).
-    pub corners_left_out: usize,
 }
 
 /// A rig calibrated from boards.
@@ -600,7 +578,11 @@ pub fn calibrate_from_boards(
         validation.as_ref(),
         rms_bound,
     );
-    loose_ports(&mut verdict, &calibration.report, setup.port);
+    loose_ports(
+        &mut verdict,
+        &calibration.report,
+        setup.port == PortKind::Surface,
+    );
     let report = &mut calibration.report;
     report.fits = verdict.accepted();
     if !report.fits {
