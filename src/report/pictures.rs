@@ -287,6 +287,46 @@ pub(crate) type ImageChart<'a, 'b> = ChartContext<
     Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
 >;
 
+/// A chart of `caption` over `x` × `y` with its light grid and axis names drawn. With
+/// `frames: Some(n)`, x is n frames at 0, 1, …, labelled from 1.
+pub(crate) fn plot_chart<'a, 'b>(
+    area: &'a Area<'b>,
+    caption: &str,
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+    (x_desc, y_desc): (&str, &str),
+    frames: Option<usize>,
+) -> Result<ImageChart<'a, 'b>, String> {
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 18))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(55)
+        .build_cartesian_2d(x, y)
+        .map_err(text)?;
+    let mut mesh = chart.configure_mesh();
+    mesh.max_light_lines(0)
+        .bold_line_style(RGBColor(225, 225, 225))
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style(("sans-serif", 12));
+    if let Some(n) = frames {
+        mesh.x_labels((n + 1).min(21))
+            .x_label_formatter(&frame_label);
+    }
+    mesh.draw().map_err(text)?;
+    Ok(chart)
+}
+
+/// An x tick of a chart over frames: the 1-based frame at whole positions, nothing between.
+fn frame_label(x: &f64) -> String {
+    if (x - x.round()).abs() < 1e-6 && *x >= 0.0 {
+        format!("{}", x.round() as i64 + 1)
+    } else {
+        String::new()
+    }
+}
+
 /// A chart over an image: u across, v down, the image's border drawn.
 fn image_chart<'a, 'b>(
     area: &'a Area<'b>,
@@ -505,25 +545,14 @@ fn depth_tilt(area: &Area, facts: &Facts, k: usize) -> Result<(), String> {
     );
     // Room for the advised view's label at the right.
     let x1 = x1 + 0.12 * (x1 - x0);
-    let mut chart = ChartBuilder::on(area)
-        .caption(
-            format!("{name}: frames by distance and tilt"),
-            ("sans-serif", 18),
-        )
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d(x0.max(0.0)..x1, 0.0..70.0)
-        .map_err(text)?;
-    chart
-        .configure_mesh()
-        .max_light_lines(0)
-        .bold_line_style(RGBColor(225, 225, 225))
-        .x_desc("distance from the camera (m)")
-        .y_desc("board tilt (°)")
-        .label_style(("sans-serif", 12))
-        .draw()
-        .map_err(text)?;
+    let mut chart = plot_chart(
+        area,
+        &format!("{name}: frames by distance and tilt"),
+        x0.max(0.0)..x1,
+        0.0..70.0,
+        ("distance from the camera (m)", "board tilt (°)"),
+        None,
+    )?;
     chart
         .draw_series(
             points
@@ -574,25 +603,14 @@ fn distances(area: &Area, facts: &Facts, k: usize) -> Result<(), String> {
         counts[(((d - x0) / step) as usize).min(BINS - 1)] += 1;
     }
     let top = counts.iter().copied().max().unwrap_or(1).max(1) as f64 * 1.25;
-    let mut chart = ChartBuilder::on(area)
-        .caption(
-            format!("{name}: matched points by distance"),
-            ("sans-serif", 18),
-        )
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d(x0.max(0.0)..x1, 0.0..top)
-        .map_err(text)?;
-    chart
-        .configure_mesh()
-        .max_light_lines(0)
-        .bold_line_style(RGBColor(225, 225, 225))
-        .x_desc("distance from the camera (m)")
-        .y_desc("matches")
-        .label_style(("sans-serif", 12))
-        .draw()
-        .map_err(text)?;
+    let mut chart = plot_chart(
+        area,
+        &format!("{name}: matched points by distance"),
+        x0.max(0.0)..x1,
+        0.0..top,
+        ("distance from the camera (m)", "matches"),
+        None,
+    )?;
     chart
         .draw_series(counts.iter().enumerate().map(|(i, &n)| {
             let left = x0 + i as f64 * step;
@@ -630,22 +648,14 @@ fn frames_rms(area: &Area, facts: &Facts) -> Result<(), String> {
         .fold(0.0, f64::max)
         .max(1e-3)
         * 1.1;
-    let mut chart = ChartBuilder::on(area)
-        .caption("RMS per fitted frame", ("sans-serif", 18))
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d(-0.5..frames as f64 - 0.5, 0.0..high)
-        .map_err(text)?;
-    chart
-        .configure_mesh()
-        .max_light_lines(0)
-        .bold_line_style(RGBColor(225, 225, 225))
-        .x_desc("frame (report order)")
-        .y_desc("RMS (px)")
-        .label_style(("sans-serif", 12))
-        .draw()
-        .map_err(text)?;
+    let mut chart = plot_chart(
+        area,
+        "RMS per fitted frame",
+        -0.5..frames as f64 - 0.5,
+        0.0..high,
+        ("frame (report order)", "RMS (px)"),
+        None,
+    )?;
     let cameras = facts.input.rig.cameras().len();
     for k in 0..cameras {
         let width = 0.8 / cameras as f64;
@@ -691,22 +701,17 @@ fn histogram(area: &Area, facts: &Facts) -> Result<(), String> {
         counts[((l / high * BINS as f64) as usize).min(BINS - 1)] += 1;
     }
     let top = counts.iter().copied().max().unwrap_or(1).max(1) as f64 * 1.1;
-    let mut chart = ChartBuilder::on(area)
-        .caption("Residual lengths", ("sans-serif", 18))
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d(0.0..high, 0.0..top)
-        .map_err(text)?;
-    chart
-        .configure_mesh()
-        .max_light_lines(0)
-        .bold_line_style(RGBColor(225, 225, 225))
-        .x_desc("|residual| (px; the last bin holds everything beyond)")
-        .y_desc("corners")
-        .label_style(("sans-serif", 12))
-        .draw()
-        .map_err(text)?;
+    let mut chart = plot_chart(
+        area,
+        "Residual lengths",
+        0.0..high,
+        0.0..top,
+        (
+            "|residual| (px; the last bin holds everything beyond)",
+            "corners",
+        ),
+        None,
+    )?;
     let step = high / BINS as f64;
     chart
         .draw_series(counts.iter().enumerate().map(|(i, &n)| {
@@ -737,22 +742,17 @@ fn held_out(area: &Area, facts: &Facts) -> Result<(), String> {
         .collect();
     let (x0, x1) = padded(points.iter().map(|p| p.0));
     let high = points.iter().map(|p| p.1).fold(0.0, f64::max).max(1e-3) * 1.2;
-    let mut chart = ChartBuilder::on(area)
-        .caption("Held-out frames: squares by distance", ("sans-serif", 18))
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(x0..x1, 0.0..high)
-        .map_err(text)?;
-    chart
-        .configure_mesh()
-        .max_light_lines(0)
-        .bold_line_style(RGBColor(225, 225, 225))
-        .x_desc("distance from the master camera (m)")
-        .y_desc("RMS square error (mm)")
-        .label_style(("sans-serif", 12))
-        .draw()
-        .map_err(text)?;
+    let mut chart = plot_chart(
+        area,
+        "Held-out frames: squares by distance",
+        x0..x1,
+        0.0..high,
+        (
+            "distance from the master camera (m)",
+            "RMS square error (mm)",
+        ),
+        None,
+    )?;
     chart
         .draw_series(
             points
@@ -840,26 +840,17 @@ fn rig_view(area: &Area, facts: &Facts, axes: (usize, usize, f64)) -> Result<(),
     } else {
         "The rig from the side"
     };
-    let mut chart = ChartBuilder::on(area)
-        .caption(title, ("sans-serif", 18))
-        .margin(10)
-        .x_label_area_size(30)
-        .y_label_area_size(50)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(text)?;
-    chart
-        .configure_mesh()
-        .max_light_lines(0)
-        .bold_line_style(RGBColor(225, 225, 225))
-        .x_desc(format!("{} (m)", names[a]))
-        .y_desc(format!(
-            "{}{} (m)",
-            if sign < 0.0 { "−" } else { "" },
-            names[b]
-        ))
-        .label_style(("sans-serif", 12))
-        .draw()
-        .map_err(text)?;
+    let mut chart = plot_chart(
+        area,
+        &title,
+        x0..x1,
+        y0..y1,
+        (
+            &format!("{} (m)", names[a]),
+            &format!("{}{} (m)", if sign < 0.0 { "−" } else { "" }, names[b]),
+        ),
+        None,
+    )?;
     // Ports: each plane's trace across the picture, the first interface and the water side.
     let span = 2.0 * (x1 - x0).max(y1 - y0);
     let ports = match rig.ports() {

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 
 use super::html::{CHECK_SCRIPT, STYLE, escape, figure, number};
-use super::pictures::{Area, ImageChart, Picture, file_safe, picture, text};
+use super::pictures::{Area, ImageChart, Picture, file_safe, picture, plot_chart, text};
 use super::{ReportError, Written};
 use crate::io::npy::read_npy_f32;
 use crate::io::stereo_files::{MapScale, write_map_png};
@@ -313,15 +313,6 @@ fn page(input: &StereoInput, overall: &[Picture], per_frame: &[(usize, Vec<Pictu
     out
 }
 
-/// An x tick of the frame charts: the 1-based frame at whole positions, nothing between.
-fn frame_label(x: &f64) -> String {
-    if (x - x.round()).abs() < 1e-6 && *x >= 0.0 {
-        format!("{}", x.round() as i64 + 1)
-    } else {
-        String::new()
-    }
-}
-
 /// A chart over `n` frames (x: the frame, labelled from 1) and 0..`top` (y), its mesh drawn.
 fn frames_chart<'a, 'b>(
     area: &'a Area<'b>,
@@ -330,25 +321,14 @@ fn frames_chart<'a, 'b>(
     top: f64,
     y_desc: &str,
 ) -> Result<ImageChart<'a, 'b>, String> {
-    let mut chart = ChartBuilder::on(area)
-        .caption(caption, ("sans-serif", 18))
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(50)
-        .build_cartesian_2d(-0.5..(n as f64 - 0.5), 0.0..top)
-        .map_err(text)?;
-    chart
-        .configure_mesh()
-        .max_light_lines(0)
-        .bold_line_style(RGBColor(225, 225, 225))
-        .x_labels((n + 1).min(21))
-        .x_label_formatter(&frame_label)
-        .x_desc("frame (in order, from 1)")
-        .y_desc(y_desc)
-        .label_style(("sans-serif", 12))
-        .draw()
-        .map_err(text)?;
-    Ok(chart)
+    plot_chart(
+        area,
+        caption,
+        -0.5..(n as f64 - 0.5),
+        0.0..top,
+        ("frame (in order, from 1)", y_desc),
+        Some(n),
+    )
 }
 
 /// Completeness per frame, as bars.
