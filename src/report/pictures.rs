@@ -842,7 +842,7 @@ fn rig_view(area: &Area, facts: &Facts, axes: (usize, usize, f64)) -> Result<(),
     };
     let mut chart = plot_chart(
         area,
-        &title,
+        title,
         x0..x1,
         y0..y1,
         (
