@@ -136,6 +136,19 @@ pub(crate) fn draw_all(
             caption: caption.into(),
         });
     }
+    // What the coverage and distance pictures show: the kept matches on the targetless route,
+    // the corners and board poses otherwise.
+    let (coverage_says, depth_says) = if facts.input.targetless.is_some() {
+        (
+            "where the matches fell over the image; the advised texture outlined in red.",
+            "the matched points by their distance from this camera; the advised texture's distance as a red triangle.",
+        )
+    } else {
+        (
+            "where the corners fell over the image, in air (grey) and under water (blue); the advised view's board outlined in red.",
+            "the fitted frames by the board's distance and tilt from this camera; the advised view as a red triangle.",
+        )
+    };
     for (k, camera) in facts.input.rig.cameras().iter().enumerate() {
         let name = file_safe(&camera.name);
         let mut own = Vec::new();
@@ -197,17 +210,7 @@ pub(crate) fn draw_all(
         })?;
         own.push(Picture {
             file: coverage,
-            caption: if facts.input.targetless.is_some() {
-                format!(
-                    "{}: where the matches fell over the image; the advised texture outlined in red.",
-                    camera.name
-                )
-            } else {
-                format!(
-                    "{}: where the corners fell over the image, in air (grey) and under water (blue); the advised view's board outlined in red.",
-                    camera.name
-                )
-            },
+            caption: format!("{}: {coverage_says}", camera.name),
         });
         let depth = format!("depth_tilt_{k}_{name}.png");
         picture(dir, &depth, (640, 480), files, |area| {
@@ -215,17 +218,7 @@ pub(crate) fn draw_all(
         })?;
         own.push(Picture {
             file: depth,
-            caption: if facts.input.targetless.is_some() {
-                format!(
-                    "{}: the matched points by their distance from this camera; the advised texture's distance as a red triangle.",
-                    camera.name
-                )
-            } else {
-                format!(
-                    "{}: the fitted frames by the board's distance and tilt from this camera; the advised view as a red triangle.",
-                    camera.name
-                )
-            },
+            caption: format!("{}: {depth_says}", camera.name),
         });
         pictures.cameras.push(own);
     }

@@ -616,8 +616,8 @@ pub fn calibrate_targetless(
     }
     let mut best: Option<Fitted> = None;
     let mut tried = 0;
-    // The guess alone first; the other starts only when it fails, each fitted briefly and the
-    // best of them fitted in full.
+    // The search's best distinct nodes first; the axes over the cap only when none fits, each
+    // fitted briefly and the best of them fitted in full.
     let (searched, evaluated) =
         start::search_starts(rig, &all_tracks, options.estimate, SEARCH_STARTS);
     progress(&format!(
