@@ -664,22 +664,23 @@ pub fn validate(
     let mut notes = Vec::new();
     let screening = super::checks::screen_gross_errors(rig, board, &seen, &mut notes);
     let clean = screening.without_suspects(&seen).unwrap_or(seen);
-    // Each frame's board pose alone (its pinhole start, then fitted through the rig); a frame
-    // whose corners do not all project from its start is left out, not an infinite RMS.
+    // Each frame's board pose alone (the pinhole pose of its corners' directions in the water,
+    // else of the pixels', then fitted through the rig); a frame whose corners do not all
+    // project from either start is left out, not an infinite RMS.
     let (mut squares, mut corners, mut views_left_out) = (0.0, 0usize, 0usize);
     let mut used = Vec::new();
     for view in &clean {
         let one = std::slice::from_ref(view);
-        let Ok(start) = poses::initial_poses(rig, &target, one) else {
+        let pose_only = Bundle::new(rig, &target, one, Estimate::NOTHING, None);
+        let start = [poses::water_poses, poses::initial_poses]
+            .iter()
+            .filter_map(|poses| poses(rig, &target, one).ok())
+            .map(|poses| State::of(rig, poses))
+            .find(|start| pose_only.cost(start).is_some_and(f64::is_finite));
+        let Some(start) = start else {
             views_left_out += 1;
             continue;
         };
-        let pose_only = Bundle::new(rig, &target, one, Estimate::NOTHING, None);
-        let start = State::of(rig, start);
-        if pose_only.cost(&start).is_none() {
-            views_left_out += 1;
-            continue;
-        }
         let fitted = fit_briefly(&pose_only, start, 50);
         match pose_only.cost(&fitted) {
             Some(cost) if cost.is_finite() => {

@@ -9,7 +9,7 @@ use nalgebra::{
 use crate::calib::error::CalibError;
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::target::Target;
-use crate::model::Rig;
+use crate::model::{Interface, Ports, Rig};
 
 /// Each view's target pose (master frame) from the camera that saw most of it: the pinhole pose of
 /// its undistorted corners (homography for a planar target, DLT for a 3-D one).
@@ -18,16 +18,49 @@ pub fn initial_poses(
     target: &Target,
     views: &[SeenView],
 ) -> Result<Vec<Isometry3<f64>>, CalibError> {
+    view_poses(rig, target, views, false)
+}
+
+/// As [`initial_poses`], each corner's direction first bent into the water at its camera's port
+/// ([`bent_into_water`], the port's axis in that camera's frame through the rig's extrinsics):
+/// the start of a rig whose ports are calibrated, where the pixels' own directions place the
+/// apparent board.
+pub fn water_poses(
+    rig: &Rig,
+    target: &Target,
+    views: &[SeenView],
+) -> Result<Vec<Isometry3<f64>>, CalibError> {
+    view_poses(rig, target, views, true)
+}
+
+fn view_poses(
+    rig: &Rig,
+    target: &Target,
+    views: &[SeenView],
+    in_water: bool,
+) -> Result<Vec<Isometry3<f64>>, CalibError> {
     views
         .iter()
         .enumerate()
         .map(|(v, view)| {
             let (k, corners) = view.cameras.iter().max_by_key(|(_, c)| c.len()).expect("a resolved view has a camera");
             let camera = &rig.cameras()[*k];
+            let port = port_of(rig, *k);
+            let axis = match rig.ports() {
+                Ports::Shared(port) => camera.cam_from_master.rotation * port.normal().into_inner(),
+                Ports::PerCamera(_) => port.normal().into_inner(),
+            };
+            let ratio = port.index_air() / port.index_water();
             let mut object = Vec::with_capacity(corners.len());
             let mut image = Vec::with_capacity(corners.len());
             for (i, pixel) in corners {
                 let Some(x) = camera.intrinsics.normalized_from_img(pixel) else { continue };
+                let x = if in_water {
+                    let Some(x) = bent_into_water(&x, &axis, ratio) else { continue };
+                    x
+                } else {
+                    x
+                };
                 object.push(target.point(*i));
                 image.push(x);
             }
@@ -38,6 +71,48 @@ pub fn initial_poses(
             Ok(camera.cam_from_master.inverse() * cam_from_target)
         })
         .collect()
+}
+
+/// Camera `k`'s port: the shared one, or its own.
+pub fn port_of(rig: &Rig, k: usize) -> &Interface {
+    match rig.ports() {
+        Ports::Shared(port) => port,
+        Ports::PerCamera(ports) => &ports[k],
+    }
+}
+
+/// The direction in the water of a ray that leaves the camera at undistorted normalised
+/// coordinates `x` (through (x, y, 1)) and crosses a flat port with unit axis `normal` (camera
+/// frame, pointing into the water), as normalised coordinates again: Snell's law with
+/// sin θ_water = `ratio` · sin θ_air (`ratio` = n_air / n_water; the layers between change no
+/// direction), the azimuth about the axis kept. `None` for a ray that does not reach the port or
+/// that leaves it backwards.
+///
+/// The pinhole pose of these directions places a board where the port's rays go (up to their
+/// offset of a few millimetres); that of the pixels themselves places the *apparent* board,
+/// nearer by about n_water / n_air and off by more the farther a corner is from the axis.
+pub fn bent_into_water(
+    x: &Vector2<f64>,
+    normal: &Vector3<f64>,
+    ratio: f64,
+) -> Option<Vector2<f64>> {
+    let d = Vector3::new(x.x, x.y, 1.0).normalize();
+    let cos_air = d.dot(normal);
+    if !(cos_air > 0.0) {
+        return None;
+    }
+    let across = d - normal * cos_air;
+    let sin_air = across.norm();
+    let sin_water = ratio * sin_air;
+    if !(sin_water < 1.0) {
+        return None;
+    }
+    let water = if sin_air > 0.0 {
+        normal * (1.0 - sin_water * sin_water).sqrt() + across * (sin_water / sin_air)
+    } else {
+        d
+    };
+    (water.z > 0.0).then(|| Vector2::new(water.x / water.z, water.y / water.z))
 }
 
 /// The pinhole pose cam_from_target of `object` points seen at undistorted normalised `image`
@@ -162,4 +237,47 @@ fn orthonormal(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
         r = u * v_t;
     }
     r.iter().all(|x| x.is_finite()).then_some(r)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{Layer, PinholeCamera, RefractiveCamera};
+    use nalgebra::Unit;
+
+    /// The direction [`bent_into_water`] gives is the one a ray traced through the port's
+    /// interfaces ([`RefractiveCamera::trace_ray_in_water`], Snell at each) leaves in, for ports
+    /// tilted 0–25° and rays up to 50° off the camera's axis.
+    #[test]
+    fn the_bent_direction_is_the_traced_rays() {
+        let intrinsics =
+            PinholeCamera::new("c", 640, 480, 500.0, 500.0, 320.0, 240.0, [0.0; 5]).unwrap();
+        for (tilt_deg, azimuth_deg) in [(0.0f64, 0.0f64), (8.0, 30.0), (25.0, -120.0)] {
+            let (t, a) = (tilt_deg.to_radians(), azimuth_deg.to_radians());
+            let normal = Vector3::new(t.sin() * a.cos(), t.sin() * a.sin(), t.cos());
+            let port = Interface::new(
+                normal,
+                0.02,
+                vec![Layer {
+                    thickness: 0.01,
+                    index: 1.49,
+                }],
+                1.0,
+                1.333,
+            )
+            .unwrap();
+            let camera = RefractiveCamera::new(intrinsics, &Isometry3::identity(), &port);
+            for (x, y) in [(0.0, 0.0), (0.3, -0.2), (-0.9, 0.5), (1.1, 0.4)] {
+                let x = Vector2::new(x, y);
+                let air = Unit::new_normalize(Vector3::new(x.x, x.y, 1.0));
+                let traced = camera.trace_ray_in_water(&air).unwrap().dir;
+                let bent = bent_into_water(&x, &normal, 1.0 / 1.333).unwrap();
+                let bent = Vector3::new(bent.x, bent.y, 1.0).normalize();
+                assert!(
+                    (bent - traced.into_inner()).norm() < 1e-12,
+                    "tilt {tilt_deg}°, x {x:?}: bent {bent:?}, traced {traced:?}"
+                );
+            }
+        }
+    }
 }

@@ -2,11 +2,11 @@
 //! camera, a 3-D target): a global search over each port's axis in which every cell fits the air
 //! distance and the target poses by a few Levenberg–Marquardt steps.
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Vector3};
 
 use super::bundle::{Bundle, Estimate, Parameter, State};
 use super::extrinsics::MIN_LINK_CORNERS;
-use super::poses::pinhole_pose;
+use super::poses::{bent_into_water, pinhole_pose};
 use super::{Options, fit_briefly, rms};
 use crate::calib::error::CalibError;
 use crate::calib::problem::observations::SeenView;
@@ -108,6 +108,10 @@ pub fn search_axis(
         .map(|axis| {
             let mut cell = state.clone();
             cell.ports[p].normal = *axis;
+            // A tilted shared port may reach a camera set off across the start's axis (a wide
+            // baseline): the port moves out past it, so that the cell starts where its cost is
+            // defined.
+            let (cell, _) = cell.feasible();
             let cell = fit_briefly(&bundle, cell, CELL_ITERATIONS);
             (rms(&bundle, &cell), cell)
         })
@@ -157,9 +161,9 @@ pub fn search_axis(
 /// camera p's port cannot see it. The pinhole pose of the pixels is that of the *apparent*
 /// board: a corner a wide lens sees 45° off its axis lies, so placed, 45° off in the water,
 /// where only a ray 70° off in air would reach it, outside the lens (or beyond 90°). Each
-/// corner's direction bent into the water instead (Snell's law at a port across the camera's
-/// z axis, sin θ_water = sin θ_air · n_air / n_water; the layers between change no direction)
-/// places the board where the port's rays go, up to their offset of a few millimetres.
+/// corner's direction bent into the water instead ([`bent_into_water`], at a port across the
+/// camera's z axis) places the board where the port's rays go, up to their offset of a few
+/// millimetres.
 fn own_start_pose(
     rig: &Rig,
     target: &Target,
@@ -180,17 +184,7 @@ fn own_start_pose(
         .unzip();
     let in_water: Vec<_> = in_air
         .iter()
-        .map(|x| {
-            // tan θ_air = |x|; the direction in water keeps the azimuth.
-            let tan_air = x.norm();
-            let sin_water = ratio * tan_air / (1.0 + tan_air * tan_air).sqrt();
-            let tan_water = sin_water / (1.0 - sin_water * sin_water).sqrt();
-            if tan_air > 0.0 {
-                x * (tan_water / tan_air)
-            } else {
-                *x
-            }
-        })
+        .map(|x| bent_into_water(x, &Vector3::z(), ratio).unwrap_or(*x))
         .collect();
     let views = std::slice::from_ref(own);
     let bundle = Bundle::new(rig, target, views, Estimate::NOTHING, None);
