@@ -408,6 +408,8 @@ pub fn calibrate_from_boards(
         let keep: Vec<bool> = frame_rms.iter().map(|r| !(*r > bound)).collect();
         let kept = keep.iter().filter(|k| **k).count();
         let drop_frames = kept < fitted.len() && kept >= super::MIN_VIEWS;
+        // Corners dropped per (frame, image).
+        let mut outliers_in = std::collections::HashMap::<(String, String), usize>::new();
         for outlier in &calibration.report.outliers {
             if drop_frames && !keep[outlier.view] {
                 continue;
@@ -418,6 +420,9 @@ pub fn calibrate_from_boards(
                 && corner.take().is_some()
             {
                 again = true;
+                *outliers_in
+                    .entry((label.clone(), outlier.image.clone()))
+                    .or_insert(0) += 1;
                 dropped_corners.push(format!(
                     "frame {label}, camera '{}', corner {}: residual {:.2} px",
                     outlier.camera, outlier.corner, outlier.residual_px
@@ -442,6 +447,42 @@ pub fn calibrate_from_boards(
             fitted = next;
             again = true;
         }
+        // An image whose outliers leave it without a pose of the board (too few corners, or all
+        // on one line), or whose corners are mostly outliers (a misread board), is left out whole,
+        // and a frame left without images with it.
+        for (label, view) in &mut fitted {
+            view.images.retain(|image| {
+                let kept: Vec<usize> = image
+                    .corners
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, c)| c.map(|_| i))
+                    .collect();
+                let outliers = outliers_in
+                    .get(&(label.clone(), image.key.clone()))
+                    .copied()
+                    .unwrap_or(0);
+                let why = unusable_image(&target, &kept).or_else(|| {
+                    (2 * outliers > kept.len() + outliers).then(|| {
+                        format!(
+                            "{outliers} of its {} corners are outliers",
+                            kept.len() + outliers
+                        )
+                    })
+                });
+                match why {
+                    None => true,
+                    Some(why) => {
+                        dropped_corners.push(format!(
+                            "frame {label}, camera '{}': the whole image left out ({why})",
+                            image.key
+                        ));
+                        false
+                    }
+                }
+            });
+        }
+        fitted.retain(|(_, view)| !view.images.is_empty());
     }
     if again {
         // From the first fit: its extrinsics are far nearer than the co-observations' start, so
