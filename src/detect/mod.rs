@@ -829,24 +829,20 @@ fn board_region(image: &GrayImage) -> Region {
         return whole;
     }
     let margin = 3.0 * spacing + 16.0;
-    let (w, h) = (f64::from(image.width()), f64::from(image.height()));
-    let low = |v: f64| v.max(0.0).floor() as u32;
-    let x0 = low(clustered.iter().map(|c| c.0).fold(f64::INFINITY, f64::min) - margin);
-    let y0 = low(clustered.iter().map(|c| c.1).fold(f64::INFINITY, f64::min) - margin);
-    let x1 = (clustered
-        .iter()
-        .map(|c| c.0)
-        .fold(f64::NEG_INFINITY, f64::max)
-        + margin)
-        .min(w)
-        .ceil() as u32;
-    let y1 = (clustered
-        .iter()
-        .map(|c| c.1)
-        .fold(f64::NEG_INFINITY, f64::max)
-        + margin)
-        .min(h)
-        .ceil() as u32;
+    // The clustered corners' extent along one axis, grown by the margin, within 0..size.
+    let span = |along: fn(&(f64, f64)) -> f64, size: u32| {
+        let (low, high) = clustered
+            .iter()
+            .map(along)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                (lo.min(v), hi.max(v))
+            });
+        let start = (low - margin).max(0.0).floor() as u32;
+        let end = (high + margin).min(f64::from(size)).ceil() as u32;
+        (start, end)
+    };
+    let (x0, x1) = span(|c| c.0, image.width());
+    let (y0, y1) = span(|c| c.1, image.height());
     if x1 <= x0 || y1 <= y0 {
         return whole;
     }
