@@ -110,8 +110,10 @@ def main(set_dir, board):
     for cam in cameras:
         command += ["--images", f"{cam}={images_dir / cam}/view_*.png"]
     started = time.perf_counter()
-    subprocess.run(command, check=True, capture_output=True)
+    run = subprocess.run(command, capture_output=True, text=True)
     ours_s = time.perf_counter() - started
+    if run.returncode != 0:
+        print(f"flatport detect over the whole set exited with {run.returncode}: {run.stderr.strip()[-300:]}")
     started = time.perf_counter()
     for cam in cameras:
         for gray in grays[cam]:
