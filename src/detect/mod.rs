@@ -1065,6 +1065,51 @@ pub fn corners_by_id(corners: &[(usize, Point2<f64>)], count: usize) -> Vec<Opti
 mod tests {
     use super::*;
 
+    /// A patch of 12 px squares in one corner of a grey image with scattered specks: the
+    /// region holds every inner corner of the patch with a margin and is a small part of the
+    /// image; a blank image gives the whole image.
+    #[test]
+    fn the_region_is_where_the_corners_cluster() {
+        let (x0, y0, side, n) = (420u32, 300u32, 12u32, 8u32);
+        let mut image = GrayImage::from_pixel(640, 480, image::Luma([128]));
+        for y in y0..y0 + n * side {
+            for x in x0..x0 + n * side {
+                let dark = ((x - x0) / side + (y - y0) / side) % 2 == 0;
+                image.put_pixel(x, y, image::Luma([if dark { 30 } else { 225 }]));
+            }
+        }
+        // Specks: isolated dark dots far from the patch.
+        for (sx, sy) in [(40u32, 40u32), (200, 90), (90, 300), (300, 420), (600, 60)] {
+            for dy in 0..3 {
+                for dx in 0..3 {
+                    image.put_pixel(sx + dx, sy + dy, image::Luma([20]));
+                }
+            }
+        }
+        let (rx, ry, rw, rh) = board_region(&image);
+        let inner = (
+            x0 + side,
+            y0 + side,
+            x0 + (n - 1) * side,
+            y0 + (n - 1) * side,
+        );
+        assert!(
+            rx + side <= inner.0
+                && ry + side <= inner.1
+                && rx + rw >= inner.2 + side
+                && ry + rh >= inner.3 + side,
+            "region {:?} does not hold the patch's inner corners {inner:?} with a square's margin",
+            (rx, ry, rw, rh)
+        );
+        assert!(
+            u64::from(rw) * u64::from(rh) * 4 < 640 * 480,
+            "region {:?} is over a quarter of the image",
+            (rx, ry, rw, rh)
+        );
+        let blank = GrayImage::from_pixel(320, 240, image::Luma([128]));
+        assert_eq!(board_region(&blank), (0, 0, 320, 240));
+    }
+
     #[test]
     fn the_colour_decides_on_boards_with_an_odd_number_of_squares() {
         assert!(colour_decides(&Board {
