@@ -780,22 +780,20 @@ fn median_side_px(corners: &[(usize, Point2<f64>)], cols: usize) -> Option<f64> 
 /// A rectangle of an image: x, y of its top-left pixel, width, height.
 type Region = (u32, u32, u32, u32);
 
-/// The part of `image` the upscaled passes of [`detect_charuco`] search: the bounding box of
-/// the image's own ChESS corners (after the pre-blur) that have two others within 1.8 times
-/// the corners' median nearest-neighbour distance (a board's corners and its markers', not
-/// isolated specks), grown by 3 such distances and 16 px, within the image; the whole image
-/// when fewer than 4 corners are so placed, or more than [`REGION_MAX_CORNERS`] were found (a
-/// cluttered image, searched whole). On the zoo's rig of seed 7 a board with a square's margin
-/// fills a fifth of its image, on the example rig's small squares a fiftieth: the upscaled
-/// passes cost that much less.
-fn board_region(image: &GrayImage) -> Region {
-    let whole = (0, 0, image.width(), image.height());
-    let smoothed = calib_targets::detect::preprocess(image, PRE_BLUR_PX);
-    let corners: Vec<(f64, f64)> =
-        calib_targets::detect::detect_corners(&smoothed, &chess_config())
-            .iter()
-            .map(|c| (f64::from(c.position.x), f64::from(c.position.y)))
-            .collect();
+/// The part of an image the upscaled passes of [`detect_charuco`] search, from the image after
+/// the pre-blur (`smoothed`, [`PRE_BLUR_PX`]): the bounding box of its ChESS corners that have
+/// two others within 1.8 times the corners' median nearest-neighbour distance (a board's
+/// corners and its markers', not isolated specks), grown by 3 such distances and 16 px, within
+/// the image; the whole image when fewer than 4 corners are so placed, or more than
+/// [`REGION_MAX_CORNERS`] were found (a cluttered image, searched whole). On the zoo's rig of
+/// seed 7 a board with a square's margin fills a fifth of its image, on the example rig's small
+/// squares a fiftieth: the upscaled passes cost that much less.
+fn board_region(smoothed: &GrayImage) -> Region {
+    let whole = (0, 0, smoothed.width(), smoothed.height());
+    let corners: Vec<(f64, f64)> = calib_targets::detect::detect_corners(smoothed, &chess_config())
+        .iter()
+        .map(|c| (f64::from(c.position.x), f64::from(c.position.y)))
+        .collect();
     if corners.len() < 4 || corners.len() > REGION_MAX_CORNERS {
         return whole;
     }
@@ -841,8 +839,8 @@ fn board_region(image: &GrayImage) -> Region {
         let end = (high + margin).min(f64::from(size)).ceil() as u32;
         (start, end)
     };
-    let (x0, x1) = span(|c| c.0, image.width());
-    let (y0, y1) = span(|c| c.1, image.height());
+    let (x0, x1) = span(|c| c.0, smoothed.width());
+    let (y0, y1) = span(|c| c.1, smoothed.height());
     if x1 <= x0 || y1 <= y0 {
         return whole;
     }
@@ -861,9 +859,6 @@ fn upscaled(image: &GrayImage, k: u32, blur: f32) -> Option<GrayImage> {
     use fast_image_resize::{
         FilterType, PixelType, ResizeAlg, ResizeOptions, Resizer, images::Image,
     };
-    if k == 1 {
-        return Some(calib_targets::detect::preprocess(image, blur));
-    }
     let smoothed = calib_targets::detect::preprocess(image, blur / k as f32);
     let (width, height) = smoothed.dimensions();
     let source = Image::from_vec_u8(width, height, smoothed.into_raw(), PixelType::U8).ok()?;
@@ -873,18 +868,17 @@ fn upscaled(image: &GrayImage, k: u32, blur: f32) -> Option<GrayImage> {
     GrayImage::from_raw(width * k, height * k, target.into_vec())
 }
 
-/// The passes of [`detect_charuco`], in order: (upscaling factor, blur in the upscaled image's
-/// pixels). The first is the image as it is; the others read small squares, where ChESS's ring
-/// (radius 5 px) spans a whole square and a marker's cells are a pixel or two wide, so that
-/// calib-targets finds the corners but decodes no marker, or misses the grid. No one pass reads
-/// every small board (a light blur keeps the cells of clean images, a heavier one the grid of
-/// noisy ones), so each factor is tried with both. The search stops at the first pass that
-/// reads enough of the board ([`UPSCALE_BELOW_SIDE_PX`]), or no more of it than the best pass
-/// before: on the zoo's 8-camera rig of seed 7 (192 images, 9 × 4 corners, squares 12–30 px)
-/// that keeps every board and 95 % of the corners of running every pass, in a quarter of the
+/// The upscaled passes of [`detect_charuco`], in order, after its search of the image as it is:
+/// (upscaling factor, blur in the upscaled image's pixels). They read small squares, where
+/// ChESS's ring (radius 5 px) spans a whole square and a marker's cells are a pixel or two wide,
+/// so that calib-targets finds the corners but decodes no marker, or misses the grid. No one
+/// pass reads every small board (a light blur keeps the cells of clean images, a heavier one the
+/// grid of noisy ones), so each factor is tried with both. The search stops at the first pass
+/// that reads enough of the board ([`UPSCALE_BELOW_SIDE_PX`]), or no more of it than the best
+/// pass before: on the zoo's 8-camera rig of seed 7 (192 images, 9 × 4 corners, squares 12–30
+/// px) that keeps every board and 95 % of the corners of running every pass, in a quarter of the
 /// time. Measured against OpenCV's CharucoDetector in docs/images.md, "Small squares".
-pub const CHARUCO_PASSES: [(u32, f32); 6] = [
-    (1, PRE_BLUR_PX),
+pub const UPSCALED_PASSES: [(u32, f32); 5] = [
     (2, PRE_BLUR_PX),
     (2, 2.0 * PRE_BLUR_PX),
     (3, PRE_BLUR_PX),
@@ -938,21 +932,15 @@ pub fn detect_charuco(
                 params.with_advanced(tuning)
             })
             .collect();
-    // One pass: the part `region` of the image (x, y, width, height), upscaled k times
-    // (bicubic) and blurred by `blur` of its pixels, searched; the corners in the image's own
-    // pixels (x + (u + ½)/k − ½: pixel centres at integers, at either scale), with the decoded
-    // markers' count.
-    let pass = |k: u32, blur: f32, region: Region| -> Option<(usize, Vec<(usize, Point2<f64>)>)> {
-        let (x0, y0, width, height) = region;
-        let part = if (width, height) == image.dimensions() {
-            std::borrow::Cow::Borrowed(image)
-        } else {
-            std::borrow::Cow::Owned(
-                image::imageops::crop_imm(image, x0, y0, width, height).to_image(),
-            )
-        };
-        let smoothed = upscaled(&part, k, blur)?;
-        let detection = calib_targets::detect::detect_charuco_best(&smoothed, &configs).ok()?;
+    // One search of a prepared image: `image` at its own scale (k = 1) or a part of it, upscaled
+    // k times, with its top-left pixel at `origin`; the corners in the image's own pixels
+    // (x + (u + ½)/k − ½: pixel centres at integers, at either scale), with the decoded markers'
+    // count.
+    let search = |prepared: &GrayImage,
+                  k: u32,
+                  (x0, y0): (u32, u32)|
+     -> Option<(usize, Vec<(usize, Point2<f64>)>)> {
+        let detection = calib_targets::detect::detect_charuco_best(prepared, &configs).ok()?;
         // One decoded marker is too little evidence for the board's labels: a misread one
         // places every corner squares off.
         if detection.markers.len() < MIN_CHARUCO_MARKERS {
@@ -986,28 +974,36 @@ pub fn detect_charuco(
         })
     };
     let score = |found: &Option<(usize, Vec<_>)>| found.as_ref().map(|(m, c)| (*m, c.len()));
-    let whole = (0, 0, image.width(), image.height());
-    let mut region = None;
-    let mut best = None;
-    for &(k, blur) in &CHARUCO_PASSES {
-        let part = if k == 1 {
-            whole
+    // The image as it is, after the pre-blur: the first search, and where the upscaled passes'
+    // region comes from.
+    let own_scale = calib_targets::detect::preprocess(image, PRE_BLUR_PX);
+    let mut best = search(&own_scale, 1, (0, 0));
+    if !enough(&best) {
+        let (x0, y0, width, height) = board_region(&own_scale);
+        let part = if (width, height) == image.dimensions() {
+            std::borrow::Cow::Borrowed(image)
         } else {
-            *region.get_or_insert_with(|| board_region(image))
+            std::borrow::Cow::Owned(
+                image::imageops::crop_imm(image, x0, y0, width, height).to_image(),
+            )
         };
-        if k > 1 && u64::from(part.2) * u64::from(part.3) * u64::from(k * k) > UPSCALED_MAX_PIXELS {
-            continue;
-        }
-        let found = pass(k, blur, part);
-        // A pass that reads no more of the board than the best so far: finer passes rarely do.
-        if best.is_some() && score(&found) <= score(&best) {
-            break;
-        }
-        if score(&found) > score(&best) {
-            best = found;
-        }
-        if enough(&best) {
-            break;
+        let pixels = u64::from(width) * u64::from(height);
+        for &(k, blur) in &UPSCALED_PASSES {
+            if pixels * u64::from(k * k) > UPSCALED_MAX_PIXELS {
+                continue;
+            }
+            let found =
+                upscaled(&part, k, blur).and_then(|prepared| search(&prepared, k, (x0, y0)));
+            // A pass that reads no more of the board than the best so far: finer passes rarely do.
+            if best.is_some() && score(&found) <= score(&best) {
+                break;
+            }
+            if score(&found) > score(&best) {
+                best = found;
+            }
+            if enough(&best) {
+                break;
+            }
         }
     }
     let mut corners = best.map(|(_, corners)| corners).unwrap_or_default();
@@ -1086,7 +1082,8 @@ mod tests {
                 }
             }
         }
-        let (rx, ry, rw, rh) = board_region(&image);
+        let (rx, ry, rw, rh) =
+            board_region(&calib_targets::detect::preprocess(&image, PRE_BLUR_PX));
         let inner = (
             x0 + side,
             y0 + side,
@@ -1107,7 +1104,10 @@ mod tests {
             (rx, ry, rw, rh)
         );
         let blank = GrayImage::from_pixel(320, 240, image::Luma([128]));
-        assert_eq!(board_region(&blank), (0, 0, 320, 240));
+        assert_eq!(
+            board_region(&calib_targets::detect::preprocess(&blank, PRE_BLUR_PX)),
+            (0, 0, 320, 240)
+        );
     }
 
     #[test]

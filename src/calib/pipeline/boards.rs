@@ -452,12 +452,7 @@ pub fn calibrate_from_boards(
         // and a frame left without images with it.
         for (label, view) in &mut fitted {
             view.images.retain(|image| {
-                let kept: Vec<usize> = image
-                    .corners
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, c)| c.map(|_| i))
-                    .collect();
+                let kept = image.seen_corners();
                 let outliers = outliers_in
                     .get(&(label.clone(), image.key.clone()))
                     .copied()

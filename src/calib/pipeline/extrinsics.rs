@@ -10,7 +10,7 @@
 //! through one window, three cameras 0.3 m apart came out at half their distances. So the links
 //! are made twice: first from the apparent boards, for the rotations, then from the corners'
 //! directions bent into the water at the port's axis in each camera's frame
-//! ([`bent_into_water`]; a shared port's axis carried into each camera by the first link's
+//! ([`corner_direction`]; a shared port's axis carried into each camera by the first link's
 //! rotation), which place the boards where the port's rays go, up to their offset of a few
 //! millimetres. Either way it is only the start of the maximum-likelihood fit, which estimates
 //! the extrinsics with the ports.
@@ -21,11 +21,11 @@
 
 use nalgebra::{Isometry3, Point3, Vector2, Vector3};
 
-use super::poses::{bent_into_water, pinhole_pose, port_of};
+use super::poses::{corner_direction, pinhole_pose, port_axis};
 use crate::calib::error::CalibError;
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::target::Target;
-use crate::model::{Ports, Rig};
+use crate::model::Rig;
 
 /// Fewest corners of an image for its board pose to take part in a link.
 pub const MIN_LINK_CORNERS: usize = 6;
@@ -52,21 +52,7 @@ pub fn extrinsics_start(
     views: &[SeenView],
 ) -> Result<(Vec<Isometry3<f64>>, Vec<Link>), CalibError> {
     let n = rig.cameras().len();
-    // cam_from_target of every (view, camera) with a pose, each corner's direction bent into
-    // the water at the port's axis in that camera's frame (`None`: the pixels' own directions).
-    let poses_of = |axes: &[Option<Vector3<f64>>]| -> Vec<Vec<Option<Isometry3<f64>>>> {
-        views
-            .iter()
-            .map(|view| {
-                let mut row = vec![None; n];
-                for (k, corners) in &view.cameras {
-                    row[*k] = image_pose(rig, target, *k, corners, axes[*k]);
-                }
-                row
-            })
-            .collect()
-    };
-    let poses = poses_of(&vec![None; n]);
+    let poses = image_poses(rig, target, views, &vec![None; n]);
     let (apparent, linked) = link_poses(&poses, n);
     let missing: Vec<usize> = (0..n).filter(|&k| linked[k].is_none()).collect();
     if let Some(&k) = missing.first() {
@@ -93,12 +79,9 @@ pub fn extrinsics_start(
     // Again with the corners' directions in the water: the port's axis in each camera's frame
     // (a shared port's from the apparent link's rotation, which the refraction moves little).
     let axes: Vec<Option<Vector3<f64>>> = (0..n)
-        .map(|k| match rig.ports() {
-            Ports::Shared(port) => Some(apparent[k].rotation * port.normal().into_inner()),
-            Ports::PerCamera(ports) => ports.get(k).map(|port| port.normal().into_inner()),
-        })
+        .map(|k| Some(port_axis(rig, k, &apparent[k].rotation)))
         .collect();
-    let (in_water, linked_in_water) = link_poses(&poses_of(&axes), n);
+    let (in_water, linked_in_water) = link_poses(&image_poses(rig, target, views, &axes), n);
     if linked_in_water.iter().all(Option::is_some) {
         return Ok((in_water, linked_in_water.into_iter().flatten().collect()));
     }
@@ -175,30 +158,41 @@ pub fn link_poses(
     (cam_from_master, linked)
 }
 
+/// cam_from_target of every (view, camera) with a pose ([`image_pose`]), each corner's direction
+/// bent into the water at `axes[camera]` (the port's axis in that camera's frame; `None`: the
+/// pixels' own directions).
+fn image_poses(
+    rig: &Rig,
+    target: &Target,
+    views: &[SeenView],
+    axes: &[Option<Vector3<f64>>],
+) -> Vec<Vec<Option<Isometry3<f64>>>> {
+    views
+        .iter()
+        .map(|view| {
+            let mut row = vec![None; rig.cameras().len()];
+            for (k, corners) in &view.cameras {
+                row[*k] = image_pose(rig, target, *k, corners, axes[*k].as_ref());
+            }
+            row
+        })
+        .collect()
+}
+
 /// The pinhole pose cam_from_target of one image, when it has enough corners off one line.
 fn image_pose(
     rig: &Rig,
     target: &Target,
     k: usize,
     corners: &[(usize, nalgebra::Point2<f64>)],
-    axis: Option<Vector3<f64>>,
+    axis: Option<&Vector3<f64>>,
 ) -> Option<Isometry3<f64>> {
     if corners.len() < MIN_LINK_CORNERS {
         return None;
     }
-    let intrinsics = &rig.cameras()[k].intrinsics;
-    let port = port_of(rig, k);
-    let ratio = port.index_air() / port.index_water();
     let (object, image): (Vec<Point3<f64>>, Vec<Vector2<f64>>) = corners
         .iter()
-        .filter_map(|(i, pixel)| {
-            let x = intrinsics.normalized_from_img(pixel)?;
-            let x = match &axis {
-                Some(axis) => bent_into_water(&x, axis, ratio)?,
-                None => x,
-            };
-            Some((target.point(*i), x))
-        })
+        .filter_map(|(i, pixel)| Some((target.point(*i), corner_direction(rig, k, pixel, axis)?)))
         .unzip();
     let pose = pinhole_pose(&object, &image)?;
     // In front of the camera, and finite.
@@ -237,6 +231,7 @@ mod tests {
     use super::*;
     use crate::base::Board;
     use crate::calib::simulate::{Cameras, SceneSpec, simulate};
+    use crate::model::Ports;
 
     /// Cameras linked only through a chain of frames (tl–tr in some views, tr–bl–br in others;
     /// tl never with bl or br) get their extrinsics exactly from noise-free views of a rig in
@@ -335,16 +330,7 @@ mod tests {
             .unwrap();
         let seen = scene.observations.resolve(&naive).unwrap();
         let (found, _) = extrinsics_start(&naive, &board, &seen).unwrap();
-        let pinhole_poses: Vec<Vec<Option<Isometry3<f64>>>> = seen
-            .iter()
-            .map(|view| {
-                let mut row = vec![None; 3];
-                for (k, corners) in &view.cameras {
-                    row[*k] = image_pose(&naive, &board, *k, corners, None);
-                }
-                row
-            })
-            .collect();
+        let pinhole_poses = image_poses(&naive, &board, &seen, &[None; 3]);
         let (pinhole, _) = link_poses(&pinhole_poses, 3);
         for (k, camera) in rig.cameras().iter().enumerate().skip(1) {
             let truth = camera.cam_from_master.inverse().translation.vector;

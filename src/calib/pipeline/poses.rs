@@ -45,22 +45,11 @@ fn view_poses(
         .map(|(v, view)| {
             let (k, corners) = view.cameras.iter().max_by_key(|(_, c)| c.len()).expect("a resolved view has a camera");
             let camera = &rig.cameras()[*k];
-            let port = port_of(rig, *k);
-            let axis = match rig.ports() {
-                Ports::Shared(port) => camera.cam_from_master.rotation * port.normal().into_inner(),
-                Ports::PerCamera(_) => port.normal().into_inner(),
-            };
-            let ratio = port.index_air() / port.index_water();
+            let axis = in_water.then(|| port_axis(rig, *k, &camera.cam_from_master.rotation));
             let mut object = Vec::with_capacity(corners.len());
             let mut image = Vec::with_capacity(corners.len());
             for (i, pixel) in corners {
-                let Some(x) = camera.intrinsics.normalized_from_img(pixel) else { continue };
-                let x = if in_water {
-                    let Some(x) = bent_into_water(&x, &axis, ratio) else { continue };
-                    x
-                } else {
-                    x
-                };
+                let Some(x) = corner_direction(rig, *k, pixel, axis.as_ref()) else { continue };
                 object.push(target.point(*i));
                 image.push(x);
             }
@@ -78,6 +67,34 @@ pub fn port_of(rig: &Rig, k: usize) -> &Interface {
     match rig.ports() {
         Ports::Shared(port) => port,
         Ports::PerCamera(ports) => &ports[k],
+    }
+}
+
+/// The axis of camera `k`'s port in that camera's frame: its housing's, or the shared port's
+/// (master frame) turned by the camera's `cam_from_master` rotation.
+pub fn port_axis(rig: &Rig, k: usize, cam_from_master: &UnitQuaternion<f64>) -> Vector3<f64> {
+    match rig.ports() {
+        Ports::Shared(port) => cam_from_master * port.normal().into_inner(),
+        Ports::PerCamera(ports) => ports[k].normal().into_inner(),
+    }
+}
+
+/// A corner at `pixel` of camera `k` as undistorted normalised coordinates, bent into the water
+/// at its port's `axis` (camera frame, [`port_axis`]) where given ([`bent_into_water`]); `None`
+/// where the lens or the port gives it no direction.
+pub fn corner_direction(
+    rig: &Rig,
+    k: usize,
+    pixel: &nalgebra::Point2<f64>,
+    axis: Option<&Vector3<f64>>,
+) -> Option<Vector2<f64>> {
+    let x = rig.cameras()[k].intrinsics.normalized_from_img(pixel)?;
+    match axis {
+        Some(axis) => {
+            let port = port_of(rig, k);
+            bent_into_water(&x, axis, port.index_air() / port.index_water())
+        }
+        None => Some(x),
     }
 }
 

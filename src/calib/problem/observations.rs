@@ -33,6 +33,17 @@ pub struct Image {
     pub corners: Vec<Option<Point2<f64>>>,
 }
 
+impl Image {
+    /// The target indices of the corners this image holds, in order.
+    pub fn seen_corners(&self) -> Vec<usize> {
+        self.corners
+            .iter()
+            .enumerate()
+            .filter_map(|(i, c)| c.map(|_| i))
+            .collect()
+    }
+}
+
 /// One view: the images of the cameras that saw it.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct View {
@@ -211,13 +222,7 @@ impl Observations {
         for (v, view) in self.views.iter().enumerate() {
             let mut images = Vec::with_capacity(view.images.len());
             for image in &view.images {
-                let corners: Vec<usize> = image
-                    .corners
-                    .iter()
-                    .enumerate()
-                    .filter_map(|(i, c)| c.map(|_| i))
-                    .collect();
-                let why = unusable_image(&self.target, &corners);
+                let why = unusable_image(&self.target, &image.seen_corners());
                 match why {
                     Some(why) => warnings.push(format!(
                         "view {v}: the {} image is left out ({why}: no pose of the target from it)",
