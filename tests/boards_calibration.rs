@@ -113,7 +113,7 @@ fn setup(rig: &Rig, port: PortKind) -> (Vec<String>, RigSetup) {
     (
         rig.cameras().iter().map(|c| c.name.clone()).collect(),
         RigSetup {
-            cameras: rig.cameras().iter().map(|c| c.intrinsics.clone()).collect(),
+            cameras: rig.cameras().iter().map(|c| c.intrinsics).collect(),
             port,
             glass,
             index_air: first.index_air(),

@@ -210,7 +210,7 @@ fn a_volume_over_the_adapter_limits_is_refused_by_name() {
     // D. One exactly at the cap fits; one word a pixel (two hypotheses) more does not.
     let (w, h) = (1024, 1024);
     let d = cap / (w * h * 2);
-    if (3..=1024).contains(&d) && d % 2 == 0 {
+    if (3..=1024).contains(&d) && d.is_multiple_of(2) {
         assert!(device.refuses(w, h, d, 1).is_none(), "{d} hypotheses fit");
     }
     let d = d + 2;

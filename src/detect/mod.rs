@@ -780,6 +780,10 @@ fn median_side_px(corners: &[(usize, Point2<f64>)], cols: usize) -> Option<f64> 
 /// A rectangle of an image: x, y of its top-left pixel, width, height.
 type Region = (u32, u32, u32, u32);
 
+/// What one search of [`detect_charuco`] read: the decoded markers' count and the labelled
+/// corners (id, pixel), by id.
+type Reading = (usize, Vec<(usize, Point2<f64>)>);
+
 /// The part of an image the upscaled passes of [`detect_charuco`] search, from the image after
 /// the pre-blur (`smoothed`, [`PRE_BLUR_PX`]): the bounding box of its ChESS corners that have
 /// two others within 1.8 times the corners' median nearest-neighbour distance (a board's
@@ -936,10 +940,7 @@ pub fn detect_charuco(
     // k times, with its top-left pixel at `origin`; the corners in the image's own pixels
     // (x + (u + ½)/k − ½: pixel centres at integers, at either scale), with the decoded markers'
     // count.
-    let search = |prepared: &GrayImage,
-                  k: u32,
-                  (x0, y0): (u32, u32)|
-     -> Option<(usize, Vec<(usize, Point2<f64>)>)> {
+    let search = |prepared: &GrayImage, k: u32, (x0, y0): (u32, u32)| -> Option<Reading> {
         let detection = calib_targets::detect::detect_charuco_best(prepared, &configs).ok()?;
         // One decoded marker is too little evidence for the board's labels: a misread one
         // places every corner squares off.
@@ -967,7 +968,7 @@ pub fn detect_charuco(
     // Enough of the board read: squares of UPSCALE_BELOW_SIDE_PX or more, or three quarters of
     // its markers decoded.
     let markers = spec.marker_count();
-    let enough = |found: &Option<(usize, Vec<(usize, Point2<f64>)>)>| {
+    let enough = |found: &Option<Reading>| {
         found.as_ref().is_some_and(|(decoded, corners)| {
             4 * decoded >= 3 * markers
                 || median_side_px(corners, cols).is_some_and(|side| side >= UPSCALE_BELOW_SIDE_PX)

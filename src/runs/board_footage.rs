@@ -376,6 +376,9 @@ pub fn corners_in(
     }
 }
 
+/// A frame's index and its labelled corners (id, pixel).
+type FrameCorners = (usize, Vec<(usize, Point2<f64>)>);
+
 /// Reads `source`'s `selection` and finds the board in each frame, a batch of frames at a time
 /// on every core (a video decodes in order); `done(n)` after each batch of n.
 fn detect_frames(
@@ -385,12 +388,12 @@ fn detect_frames(
     board: &Board,
     name: &str,
     done: &mut dyn FnMut(usize),
-) -> Result<Vec<(usize, Vec<(usize, Point2<f64>)>)>, IoError> {
+) -> Result<Vec<FrameCorners>, IoError> {
     let batch = 2 * rayon::current_num_threads().max(1);
     let mut out = Vec::new();
     let mut pending: Vec<(usize, GrayImage)> = Vec::with_capacity(batch);
     let mut flush = |pending: &mut Vec<(usize, GrayImage)>, out: &mut Vec<_>| {
-        let found: Vec<(usize, Vec<(usize, Point2<f64>)>)> = pending
+        let found: Vec<FrameCorners> = pending
             .par_iter()
             .map(|(i, image)| (*i, corners_in(image, spec, board, name)))
             .collect();

@@ -21,6 +21,9 @@ const SEARCH_SPACING_DEG: f64 = 4.0;
 const CELL_ITERATIONS: usize = 30;
 pub(super) const POSE_ITERATIONS: usize = 30;
 
+/// A board pose cam_from_target per view, where one was found.
+pub(super) type ViewPoses = Vec<Option<Isometry3<f64>>>;
+
 /// A global search over port `p`'s axis (within the tilt cap about its frame's z axis): each cell
 /// fits the air distance and the poses by a few LM steps; the best cell (and the start, if
 /// better) is kept.
@@ -40,7 +43,7 @@ pub fn search_axis(
     state: State,
     p: usize,
     options: &Options,
-) -> Result<(State, Vec<Option<Isometry3<f64>>>), CalibError> {
+) -> Result<(State, ViewPoses), CalibError> {
     let mut own_poses_found = vec![None; views.len()];
     let distance_only = Estimate {
         distance: options.estimate.distance,
