@@ -322,16 +322,16 @@ fn seeds(spec: &str) -> Vec<u64> {
 
 /// A fixed handful of zoo rigs (a tank wall with one camera, six cameras above a surface, two
 /// housings, eight cameras behind a shared window, three cameras 0.3 m apart converging through
-/// one window) calibrate with default options: a rig is written, every estimate within 3σ of the
-/// truth and within issue 38's bounds. Then one that was refused, two housings with a
-/// colour-symmetric chessboard read end for end in two images: written and within 3σ (its 26 mm
-/// squares at 0.48 m leave the air layers ±0.9 and ±1.3 mm and the centres about 1 mm off, over
-/// the bounds' 1 mm; the data, not the fit, sets that).
+/// one window, two housings and seven cameras behind a window with colour-symmetric chessboards
+/// whose images number the corners from either end) calibrate with default options: a rig is
+/// written, every estimate within 3σ of the truth and within issue 38's bounds. Before the
+/// images' corner orders were made to agree across the cameras (calib::pipeline::turns) seed 60
+/// was refused at 85 px, and seed 13 written with two images left out, its centres 1.1 mm off.
 #[test]
 fn seeded_subset() {
-    let bounded = [1u64, 2, 5, 8, 12];
+    let subset = [1u64, 2, 5, 8, 12, 13, 60];
     let mut rows = Vec::new();
-    for seed in bounded.into_iter().chain([13]) {
+    for seed in subset {
         let zoo = zoo_rig(seed).unwrap();
         let row = run(&zoo, 0.0, false, &out_dir(&format!("seed_{seed}")));
         eprintln!("{}", row.markdown());
@@ -339,12 +339,12 @@ fn seeded_subset() {
     }
     let t = table(&rows);
     eprintln!("{t}");
-    for (row, seed) in rows.iter().zip(bounded.into_iter().chain([13])) {
+    for row in &rows {
         assert!(row.refused.is_none(), "{t}");
         // Every estimate within 3σ of the truth (the extrinsics' σ carries the in-air lenses'
         // uncertainty: report::add_lens_uncertainty) and within issue 38's bounds.
         assert!(row.within_3_sigma(), "{t}");
-        assert!(!bounded.contains(&seed) || row.within_bounds(), "{t}");
+        assert!(row.within_bounds(), "{t}");
     }
 }
 

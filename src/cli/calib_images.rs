@@ -276,6 +276,9 @@ fn print_intrinsics(name: &str, fit: &IntrinsicsFit) {
 }
 
 fn print_result(result: &BoardsCalibration, names: &[String]) {
+    for line in &result.turned {
+        eprintln!("{line}");
+    }
     for link in &result.links {
         if link.camera != 0 {
             eprintln!(

@@ -18,7 +18,9 @@
 //! colour-symmetric board (both ends alike, e.g. 8×6 or 9×7) the colour cannot decide: with a rig,
 //! the other cameras of a view take the ordering whose rays meet those of the first camera; without
 //! one, each image takes the ordering whose rows run most nearly left to right in the image, and a
-//! view where some image's rows run too close to vertical for that is reported, not guessed.
+//! view where some image's rows run too close to vertical for that is reported, not guessed
+//! (`calibrate --images`, which orders each image alone, makes the orders agree across the
+//! cameras once their lenses are known: [`crate::calib::pipeline::turns`]).
 //! Chirality is fixed: with the rows running right in the image, the next row lies below, so the
 //! board frame's z axis (row direction × column direction) points away from the camera, as in
 //! the calibration's board model.

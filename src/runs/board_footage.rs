@@ -80,6 +80,10 @@ pub struct Footage {
     pub water_read: (usize, usize, usize),
     /// What was chosen and why, a line each (frame steps, caps), for the caller to show.
     pub notes: Vec<String>,
+    /// Whether each image numbered the board's corners on its own, so that the cameras of a
+    /// frame may start from different ends (a chessboard; ChArUco corners carry their ids):
+    /// [`BoardsOptions::turnable`](crate::calib::pipeline::boards::BoardsOptions::turnable).
+    pub turnable: bool,
 }
 
 impl Footage {
@@ -228,6 +232,7 @@ pub fn read_board_footage(
         water: chosen.into_iter().map(|f| frames[f].clone()).collect(),
         water_read,
         notes,
+        turnable: matches!(spec, BoardSpec::Chessboard(_)),
     })
 }
 

@@ -299,6 +299,10 @@ pub fn calibrate(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<(BoardsCalibration, Option<String>), ImagesError> {
     let frames = &footage.water;
+    let options = &BoardsOptions {
+        turnable: footage.turnable,
+        ..options.clone()
+    };
     Ok(match source {
         LensSource::Water => {
             let w = calibrate_lenses_under_water(names, setup, board, frames, options, progress)?;

@@ -17,6 +17,7 @@ use super::acceptance::{PLAIN_RMS_PX, Residuals, Verdict, loose_ports, verdict};
 use super::bundle::{Bundle, Estimate, MIN_START_AIR_M, State, shared_distance_floor};
 use super::extrinsics::{Link, extrinsics_start};
 use super::report::add_lens_uncertainty;
+use super::turns::agree_turns;
 use super::{
     Calibration, Options, Progress, calibrate_unjudged, diagnose_misfit, fit_briefly, poses,
 };
@@ -181,6 +182,10 @@ pub struct BoardsOptions {
     /// extrinsics' σ then carry the lenses' uncertainty ([`add_lens_uncertainty`]) instead of
     /// taking the lenses as exact.
     pub lens_std: Vec<[f64; 9]>,
+    /// Whether each image's corner order was chosen on its own, so that the cameras of a frame
+    /// may number the corners from different ends (a chessboard detected without a rig): the
+    /// orders are made to agree ([`agree_turns`]) before the fit.
+    pub turnable: bool,
 }
 
 impl Default for BoardsOptions {
@@ -194,6 +199,7 @@ impl Default for BoardsOptions {
             drop_outliers: true,
             refine_intrinsics: RefineIntrinsics::Auto,
             lens_std: Vec::new(),
+            turnable: false,
         }
     }
 }
@@ -216,6 +222,9 @@ pub struct BoardsCalibration {
     pub dropped_corners: Vec<String>,
     /// Images left out before the fit (too few corners, corners on a line), with why.
     pub left_out: Vec<String>,
+    /// Cameras whose images' corner order was turned to agree with the other cameras of their
+    /// frames ([`BoardsOptions::turnable`]), a line each.
+    pub turned: Vec<String>,
     /// The held-out frames' verdict (`None` when there were too few frames to hold any out).
     pub validation: Option<Validation>,
     /// Whether the intrinsics were refined and the held-out RMS of both fits (`None` with
@@ -282,10 +291,24 @@ pub fn calibrate_from_boards(
 ) -> Result<BoardsCalibration, CalibError> {
     let target = Target::Board(*board);
     let base = start_rig(names, setup)?;
+    // A chessboard's corners numbered alike in every camera of a frame.
+    let mut turned = Vec::new();
+    let frames = if options.turnable && names.len() > 1 {
+        let mut frames = frames.to_vec();
+        for t in agree_turns(&base, board, &mut frames) {
+            turned.push(format!(
+                "camera '{}': the corner order of {} of its {} images turned to agree with the other cameras of their frames (the board looks alike turned)",
+                names[t.camera], t.turned, t.images
+            ));
+        }
+        std::borrow::Cow::Owned(frames)
+    } else {
+        std::borrow::Cow::Borrowed(frames)
+    };
     // Every image with enough corners off one line; frames with none left out.
     let mut left_out = Vec::new();
     let mut usable: Vec<(String, View)> = Vec::new();
-    for frame in frames {
+    for frame in frames.iter() {
         let mut images = Vec::new();
         for (k, corners) in frame.corners.iter().enumerate() {
             if corners.is_empty() {
@@ -637,6 +660,7 @@ pub fn calibrate_from_boards(
         dropped,
         dropped_corners,
         left_out,
+        turned,
         validation,
         intrinsics,
         verdict,

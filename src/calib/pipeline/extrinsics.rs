@@ -180,7 +180,7 @@ fn image_poses(
 }
 
 /// The pinhole pose cam_from_target of one image, when it has enough corners off one line.
-fn image_pose(
+pub(super) fn image_pose(
     rig: &Rig,
     target: &Target,
     k: usize,

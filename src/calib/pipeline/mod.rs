@@ -39,6 +39,7 @@ pub mod poses;
 pub mod report;
 pub mod search;
 pub mod selection;
+pub mod turns;
 pub mod water_lenses;
 
 pub(crate) use estimate::{fit_briefly, rms};
