@@ -323,13 +323,16 @@ fn seeds(spec: &str) -> Vec<u64> {
 /// A fixed handful of zoo rigs (a tank wall with one camera, six cameras above a surface, two
 /// housings, eight cameras behind a shared window, three cameras 0.3 m apart converging through
 /// one window, two housings and seven cameras behind a window with colour-symmetric chessboards
-/// whose images number the corners from either end) calibrate with default options: a rig is
-/// written, every estimate within 3σ of the truth and within issue 38's bounds. Before the
-/// images' corner orders were made to agree across the cameras (calib::pipeline::turns) seed 60
-/// was refused at 85 px, and seed 13 written with two images left out, its centres 1.1 mm off.
+/// whose images number the corners from either end, one wide lens in a housing) calibrate with
+/// default options: a rig is written, every estimate within 3σ of the truth and within issue 38's
+/// bounds. Before the images' corner orders were made to agree across the cameras
+/// (calib::pipeline::turns) seed 60 was refused at 85 px, and seed 13 written with two images
+/// left out, its centres 1.1 mm off; before views the start port carries outside the lens were
+/// placed again (estimate.rs, `with_defined_poses`) seed 41 was refused: "no start explains
+/// every corner".
 #[test]
 fn seeded_subset() {
-    let subset = [1u64, 2, 5, 8, 12, 13, 60];
+    let subset = [1u64, 2, 5, 8, 12, 13, 41, 60];
     let mut rows = Vec::new();
     for seed in subset {
         let zoo = zoo_rig(seed).unwrap();

@@ -298,14 +298,21 @@ fn print_result(result: &BoardsCalibration, names: &[String]) {
     }
     out!("{}", summary(&result.calibration.report));
     if let Some(v) = &result.validation {
+        let squares = if v.distances > 0 {
+            format!(
+                "{} neighbouring corners triangulated: median error {:.3} mm ({:.3} % of the square), RMS {:.3} mm",
+                v.distances,
+                v.median_error_m * 1e3,
+                v.median_error_percent,
+                v.rms_error_m * 1e3
+            )
+        } else {
+            "no corner seen by two cameras to triangulate".to_string()
+        };
         outln!(
-            "held out {} frames: reprojection RMS {:.3} px; {} neighbouring corners triangulated: median error {:.3} mm ({:.3} % of the square), RMS {:.3} mm",
+            "held out {} frames: reprojection RMS {:.3} px; {squares}",
             v.frames.len(),
             v.rms_px,
-            v.distances,
-            v.median_error_m * 1e3,
-            v.median_error_percent,
-            v.rms_error_m * 1e3
         );
         if v.views_left_out + v.corners_left_out > 0 {
             outln!(

@@ -538,6 +538,27 @@ impl<'a> Bundle<'a> {
         Some(())
     }
 
+    /// The views of `state` some of whose corners its rig cannot project (a target pose the
+    /// port carries outside the lens, or behind a camera); `None` when the state is not a valid
+    /// rig.
+    pub fn undefined_views(&self, state: &State) -> Option<Vec<usize>> {
+        let cameras = self.cameras(state)?;
+        let mut scratch = Vec::new();
+        Some(
+            state
+                .poses
+                .iter()
+                .enumerate()
+                .filter(|(v, pose)| {
+                    scratch.clear();
+                    self.view_residuals(&cameras, *v, pose, None, &mut scratch)
+                        .is_none()
+                })
+                .map(|(v, _)| v)
+                .collect(),
+        )
+    }
+
     /// Every residual at `state`, views in order.
     pub fn all_residuals(&self, state: &State) -> Option<Vec<Vec<Vector2<f64>>>> {
         if let Some(backend) = self.backend {

@@ -353,6 +353,48 @@ fn relinked(state: &State, cam_from_target: &[Vec<Option<Isometry3<f64>>>]) -> O
     Some(next)
 }
 
+/// `state` with the target pose of every view whose corners it cannot project placed again:
+/// the pinhole pose of the corners' directions bent into the water at the state's own ports
+/// ([`poses::water_poses`]), then every pose fitted briefly; with how many views were placed.
+///
+/// A view's pose comes from the pinhole pose of its pixels (the *apparent* board, nearer and
+/// wider than the board in the water), fitted through the start port; where that port carries a
+/// corner outside the lens (a wide lens seeing the board near its edge: zoo seed 41, k1 = −0.21)
+/// no fit can start, and every start of the maximum likelihood would be undefined. The state is
+/// returned as it was when every view is defined, or when placing them again does not make the
+/// cost defined.
+fn with_defined_poses(steps: &Steps, state: State) -> (State, usize) {
+    let pose_only = Bundle::new(
+        steps.rig,
+        steps.target,
+        steps.views,
+        Estimate::NOTHING,
+        steps.options.huber,
+    )
+    .on(steps.residuals);
+    let undefined = match pose_only.undefined_views(&state) {
+        Some(views) if !views.is_empty() => views,
+        _ => return (state, 0),
+    };
+    let Some(Ok(in_water)) = state
+        .rig(steps.rig)
+        .map(|rig| poses::water_poses(&rig, steps.target, steps.views))
+    else {
+        return (state, 0);
+    };
+    let mut placed = state.clone();
+    for &v in &undefined {
+        placed.poses[v] = in_water[v];
+    }
+    if pose_only.cost(&placed).is_none_or(|c| !c.is_finite()) {
+        return (state, 0);
+    }
+    (
+        fit_briefly(&pose_only, placed, search::POSE_ITERATIONS),
+        undefined.len(),
+    )
+}
+
 /// Step 5: maximum likelihood from each named start; the lowest cost wins. A start that does not
 /// explain every corner is skipped with a warning; one that ends nearly as low far away, and a
 /// fit that stops early, are warnings.
@@ -387,6 +429,14 @@ fn maximum_likelihood(
             )
         } else {
             name.clone()
+        };
+        let (start, placed) = with_defined_poses(steps, start);
+        let name = if placed > 0 {
+            format!(
+                "{name} ({placed} view(s) placed again by their corners' directions in the water)"
+            )
+        } else {
+            name
         };
         let start = &start;
         if full.cost(start).is_none_or(|c| !c.is_finite()) {
