@@ -194,22 +194,25 @@ mod tests {
     use super::*;
     use crate::calib::simulate::{Cameras, SceneSpec, simulate};
 
+    /// A colour-symmetric board (8 + 6 corners: 9 × 7 squares) and a square one.
+    const BOARDS: [Board; 2] = [
+        Board {
+            rows: 6,
+            cols: 8,
+            square: 0.03,
+        },
+        Board {
+            rows: 5,
+            cols: 5,
+            square: 0.04,
+        },
+    ];
+
     /// Each turn is a rotation of the board's points about its centre (a permutation, distances
     /// kept, not a mirror image).
     #[test]
     fn the_turns_are_rotations_of_the_grid() {
-        for board in [
-            Board {
-                rows: 6,
-                cols: 8,
-                square: 0.03,
-            },
-            Board {
-                rows: 5,
-                cols: 5,
-                square: 0.03,
-            },
-        ] {
+        for board in BOARDS {
             let turns = board_turns(&board);
             assert_eq!(turns.len(), if board.rows == board.cols { 4 } else { 2 });
             let target = Target::Board(board);
@@ -239,8 +242,8 @@ mod tests {
         }
     }
 
-    /// The example rig's cameras (one of them rolled by 180° here) see a colour-symmetric 8 × 6
-    /// board, and a square 5 × 5 one, in 12 frames; a third of the images are renumbered by
+    /// A 2 × 2 array's cameras (one of them rolled by 180° here) see each of [`BOARDS`] in 12
+    /// frames; a third of the images are renumbered by
     /// each of the board's turns, as a detector choosing each image's corner 0 on its own would.
     /// After [`agree_turns`] every image of a frame numbers its corners as the first camera
     /// does (checked against the simulation's own numbering, up to one turn per frame).
@@ -251,18 +254,7 @@ mod tests {
         let roll = nalgebra::Isometry3::rotation(nalgebra::Vector3::z() * std::f64::consts::PI);
         cameras[2].cam_from_master = roll * cameras[2].cam_from_master;
         let rig = Rig::with_ports(cameras, rig.ports().clone()).unwrap();
-        for board in [
-            Board {
-                rows: 6,
-                cols: 8,
-                square: 0.03,
-            },
-            Board {
-                rows: 5,
-                cols: 5,
-                square: 0.04,
-            },
-        ] {
+        for board in BOARDS {
             let mut spec = SceneSpec::new(Target::Board(board), 12, 0.0, 11);
             spec.cameras = Cameras::Any {
                 required: vec![0, 1, 2, 3],
