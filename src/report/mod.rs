@@ -152,7 +152,12 @@ impl<'a> Input<'a> {
                 )
             }))
             .collect();
-        input.notes = result.calibration.report.warnings.clone();
+        input.notes = result
+            .turned
+            .iter()
+            .chain(&result.calibration.report.warnings)
+            .cloned()
+            .collect();
         input.huber = huber;
         input
     }

@@ -790,8 +790,9 @@ pub fn write_report(path: &Path, report: &Report) -> Result<(), IoError> {
 /// keys), and beside them `intrinsics` (each camera's in-air fit: its values, σ, RMS, views
 /// used and left out, the lens terms chosen and why), `held_out` (the held-out frames'
 /// reprojection RMS and triangulated corner distances), `dropped_frames`, `dropped_corners` (the
-/// corners left out after the first fit, a line each), `left_out_images`,
-/// `frames` (the labels of the frames fitted, in the report's view order) and `links` (how each
+/// corners left out after the first fit, a line each), `left_out_images`, `turned_images` (each
+/// camera whose images' chessboard corner order was turned to agree with the other cameras of
+/// their frames, a line each), `frames` (the labels of the frames fitted, in the report's view order) and `links` (how each
 /// camera's extrinsics were started).
 pub fn write_boards_report(
     path: &Path,
@@ -856,6 +857,7 @@ pub fn boards_report_to_json_string(
         "dropped_frames": result.dropped.iter().map(|(f, why)| json!({"frame": f, "why": why})).collect::<Vec<_>>(),
         "dropped_corners": result.dropped_corners,
         "left_out_images": result.left_out,
+        "turned_images": result.turned,
         "frames": result.fitted,
         "links": result.links.iter().map(|l| json!({"camera": names[l.camera], "via": names[l.via], "frames": l.frames})).collect::<Vec<_>>(),
     });
