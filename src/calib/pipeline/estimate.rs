@@ -430,16 +430,23 @@ fn maximum_likelihood(
         } else {
             name.clone()
         };
-        let (start, placed) = with_defined_poses(steps, start);
-        let name = if placed > 0 {
-            format!(
-                "{name} ({placed} view(s) placed again by their corners' directions in the water)"
-            )
+        let defined = |state: &State| full.cost(state).is_some_and(f64::is_finite);
+        // Only an undefined start has views to place again (one residual pass otherwise).
+        let (start, name) = if defined(&start) {
+            (start, name)
         } else {
-            name
+            match with_defined_poses(steps, start) {
+                (start, 0) => (start, name),
+                (start, placed) => (
+                    start,
+                    format!(
+                        "{name} ({placed} view(s) placed again by their corners' directions in the water)"
+                    ),
+                ),
+            }
         };
         let start = &start;
-        if full.cost(start).is_none_or(|c| !c.is_finite()) {
+        if !defined(start) {
             // Other starts follow (and no start at all is an error below): a stage, not a warning.
             let port = first_port(start);
             steps.stages.push(Stage {
