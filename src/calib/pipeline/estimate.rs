@@ -372,13 +372,25 @@ fn with_defined_poses(steps: &Steps, state: State) -> (State, usize) {
         steps.options.huber,
     )
     .on(steps.residuals);
+    place_undefined_views(&pose_only, steps.rig, steps.target, steps.views, state)
+}
+
+/// [`with_defined_poses`] over any views: `pose_only` is the poses-only bundle of `views`
+/// (cameras of `rig`, target `target`).
+pub(super) fn place_undefined_views(
+    pose_only: &Bundle,
+    rig: &Rig,
+    target: &Target,
+    views: &[SeenView],
+    state: State,
+) -> (State, usize) {
     let undefined = match pose_only.undefined_views(&state) {
         Some(views) if !views.is_empty() => views,
         _ => return (state, 0),
     };
     let Some(Ok(in_water)) = state
-        .rig(steps.rig)
-        .map(|rig| poses::water_poses(&rig, steps.target, steps.views))
+        .rig(rig)
+        .map(|rig| poses::water_poses(&rig, target, views))
     else {
         return (state, 0);
     };
@@ -390,7 +402,7 @@ fn with_defined_poses(steps: &Steps, state: State) -> (State, usize) {
         return (state, 0);
     }
     (
-        fit_briefly(&pose_only, placed, search::POSE_ITERATIONS),
+        fit_briefly(pose_only, placed, search::POSE_ITERATIONS),
         undefined.len(),
     )
 }
@@ -421,14 +433,25 @@ fn maximum_likelihood(
     let mut finals = Vec::new();
     for (name, start) in starts {
         // A start is a guess: where it leaves a camera without air, the port moves out to it.
-        let (start, raised) = start.clone().feasible();
-        let name = if raised {
-            format!(
-                "{name} (its port moved out to {:.1} mm of air, to leave every camera in the air)",
-                first_port(&start).air_distance * 1e3
-            )
-        } else {
+        let (raised, _) = start.clone().feasible();
+        let moved: Vec<String> = (raised.ports.iter().zip(&start.ports).enumerate())
+            .filter(|(_, (a, b))| a.distance != b.distance)
+            .map(|(p, (a, _))| {
+                let port = match steps.rig.ports() {
+                    Ports::Shared(_) => "its port".to_string(),
+                    Ports::PerCamera(_) => format!("port {}", steps.rig.cameras()[p].name),
+                };
+                format!("{port} moved out to {:.1} mm of air", a.distance * 1e3)
+            })
+            .collect();
+        let start = raised;
+        let name = if moved.is_empty() {
             name.clone()
+        } else {
+            format!(
+                "{name} ({}, to leave every camera in the air)",
+                moved.join(", ")
+            )
         };
         let defined = |state: &State| full.cost(state).is_some_and(f64::is_finite);
         // Only an undefined start has views to place again (one residual pass otherwise).

@@ -5,6 +5,7 @@
 use nalgebra::{Isometry3, Vector3};
 
 use super::bundle::{Bundle, Estimate, Parameter, State};
+use super::estimate::place_undefined_views;
 use super::extrinsics::MIN_LINK_CORNERS;
 use super::poses::{bent_into_water, pinhole_pose};
 use super::{Options, fit_briefly, rms};
@@ -20,6 +21,14 @@ const SEARCH_SPACING_DEG: f64 = 4.0;
 /// Levenberg–Marquardt steps of a search cell, and of the poses alone.
 const CELL_ITERATIONS: usize = 30;
 pub(super) const POSE_ITERATIONS: usize = 30;
+/// Levenberg–Marquardt steps of a port per camera refined from its best cell, with its own
+/// images alone (axis, air distance and board poses).
+const REFINE_ITERATIONS: usize = 100;
+/// Air layers (metres) a port per camera is also refined from, at its cell's axis: the span of
+/// real housings (2–40 mm), a factor of about three apart.
+const REFINE_AIR_M: [f64; 3] = [0.003, 0.01, 0.03];
+/// How many of the search's best cells a port per camera is refined from.
+const REFINE_CELLS: usize = 3;
 
 /// A board pose cam_from_target per view, where one was found.
 pub(super) type ViewPoses = Vec<Option<Isometry3<f64>>>;
@@ -28,7 +37,9 @@ pub(super) type ViewPoses = Vec<Option<Isometry3<f64>>>;
 /// fits the air distance and the poses by a few LM steps; the best cell (and the start, if
 /// better) is kept.
 /// With a port per camera only that camera's images take part (the other ports are still at
-/// their start and would pull the search their way).
+/// their start and would pull the search their way), and the port kept is refined from its cell
+/// (axis, air distance and poses) by those images alone, from the [`REFINE_CELLS`] best cells,
+/// each also at the air layers of [`REFINE_AIR_M`], and from the start's port; the lowest kept.
 ///
 /// Returns the state with port `p` replaced and, with a port per camera, camera `p`'s board pose
 /// cam_from_target in every view where it saw [`MIN_LINK_CORNERS`] or more corners, fitted to its
@@ -92,8 +103,9 @@ pub fn search_axis(
     // These images' residual stencils on the options' device (a device error falls back to the
     // CPU, as in the rest of the pipeline).
     let residuals = options.backend.bundle_residuals(&pose_only);
+    let pose_only = pose_only.on(residuals.as_deref());
     let state = fit_briefly(
-        &pose_only.on(residuals.as_deref()),
+        &pose_only,
         State {
             poses: own_poses,
             ..whole.clone()
@@ -115,23 +127,74 @@ pub fn search_axis(
             // baseline): the port moves out past it, so that the cell starts where its cost is
             // defined.
             let (cell, _) = cell.feasible();
+            // A view whose apparent-board pose this cell's port cannot project (a wide lens:
+            // zoo seed 75, k1 = −0.26, every cell and the start undefined) is placed again by
+            // its corners' directions bent into the water at the cell's port.
+            let (cell, _) = place_undefined_views(&pose_only, rig, target, views, cell);
             let cell = fit_briefly(&bundle, cell, CELL_ITERATIONS);
             (rms(&bundle, &cell), cell)
         })
         .collect();
-    let (cost, best) = cells
-        .into_iter()
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .expect("the cap grid holds the z axis");
+    // Lowest cost first (an undefined cell last).
+    let mut cells = cells;
+    cells.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let cost = cells.first().map_or(f64::INFINITY, |(c, _)| *c);
     if cost.is_finite() || start_cost.is_finite() {
         // The port found; the poses are refitted over every camera afterwards.
+        let start_port = whole.ports[p].clone();
         let mut result = whole;
-        let found = if cost <= start_cost {
-            result.ports[p] = best.ports[p].clone();
-            best
+        let mut found = if cost <= start_cost
+            && let Some((_, best)) = cells.first()
+        {
+            best.clone()
         } else {
-            start_fit
+            start_fit.clone()
         };
+        if per_camera && options.estimate.axis {
+            // A cell is up to half a spacing (2°) off, its air distance fitted at that axis
+            // tens of millimetres off: six housings' ports each so far off, and the extrinsics
+            // linked through them, start the joint fit where it stops at a wrong minimum (zoo
+            // seed 70: 0.65 px against a noise of 0.011). The port fitted to its own camera's
+            // images alone, as for one camera, comes to the truth from a cell near it.
+            let own = Estimate {
+                axis: true,
+                ..distance_only
+            };
+            let refine = Bundle::new(rig, target, views, own, options.huber)
+                .keeping(|g| matches!(g, Parameter::Axis(q, _) | Parameter::Distance(q) if q == p))
+                .on(residuals.as_deref());
+            // From the best few cells, each also at several air layers, and from the start's
+            // port: a cell's air fitted at an axis degrees off may have collapsed to nothing, a
+            // bound the fit does not leave again, and the truth may lie between two cells (zoo
+            // seed 70's 2.5 mm housing: the best cell 1.6° off with 4e-7 m of air, the second
+            // 2° off the other way with 68 mm).
+            let mut starts = Vec::new();
+            for (_, cell) in cells
+                .iter()
+                .take(REFINE_CELLS)
+                .filter(|(c, _)| c.is_finite())
+            {
+                starts.push(cell.clone());
+                for air in REFINE_AIR_M {
+                    let mut start = cell.clone();
+                    start.ports[p].distance = air;
+                    starts.push(start);
+                }
+            }
+            let mut start = start_fit;
+            start.ports[p] = start_port;
+            starts.push(start);
+            let mut best_cost = rms(&refine, &found);
+            for start in starts {
+                let refined = fit_briefly(&refine, start, REFINE_ITERATIONS);
+                let cost = rms(&refine, &refined);
+                if cost < best_cost {
+                    best_cost = cost;
+                    found = refined;
+                }
+            }
+        }
+        result.ports[p] = found.ports[p].clone();
         if per_camera {
             // Camera p's own board poses (master_from_target through its start extrinsics).
             let cam_from_master = found.extrinsics[p];
