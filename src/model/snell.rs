@@ -1,6 +1,6 @@
 //! Snell's law in vector form.
 
-use nalgebra::{Unit, Vector3};
+use nalgebra::{Unit, Vector2, Vector3};
 
 /// Refracts the unit direction `dir` at a surface with unit normal `normal`, going from a medium of
 /// index μ1 into one of index μ2, with `ratio` r = μ1/μ2.
@@ -27,6 +27,40 @@ pub fn refract(
     let t = dir.into_inner() * ratio + normal.into_inner() * ((1.0 - s2).sqrt() - ratio * c);
     // |t| = 1 analytically; renormalising only removes rounding.
     Some(Unit::new_normalize(t))
+}
+
+/// The direction in the water of a ray that leaves the camera at undistorted normalised
+/// coordinates `x` (through (x, y, 1)) and crosses a flat port with unit axis `normal` (camera
+/// frame, pointing into the water), as normalised coordinates again: Snell's law with
+/// sin θ_water = `ratio` · sin θ_air (`ratio` = n_air / n_water; the layers between change no
+/// direction), the azimuth about the axis kept. `None` for a ray that does not reach the port or
+/// that leaves it backwards.
+///
+/// The pinhole pose of these directions places a board where the port's rays go (up to their
+/// offset of a few millimetres); that of the pixels themselves places the *apparent* board,
+/// nearer by about n_water / n_air and off by more the farther a corner is from the axis.
+pub fn bent_into_water(
+    x: &Vector2<f64>,
+    normal: &Vector3<f64>,
+    ratio: f64,
+) -> Option<Vector2<f64>> {
+    let d = Vector3::new(x.x, x.y, 1.0).normalize();
+    let cos_air = d.dot(normal);
+    if !(cos_air > 0.0) {
+        return None;
+    }
+    let across = d - normal * cos_air;
+    let sin_air = across.norm();
+    let sin_water = ratio * sin_air;
+    if !(sin_water < 1.0) {
+        return None;
+    }
+    let water = if sin_air > 0.0 {
+        normal * (1.0 - sin_water * sin_water).sqrt() + across * (sin_water / sin_air)
+    } else {
+        d
+    };
+    (water.z > 0.0).then(|| Vector2::new(water.x / water.z, water.y / water.z))
 }
 
 #[cfg(test)]
