@@ -168,8 +168,8 @@ pub fn agree_turns(rig: &Rig, board: &Board, frames: &mut [WaterFrame]) -> Vec<T
     for k in 0..n {
         let images = (0..frames.len()).filter(|&f| seen(f, k).is_some()).count();
         let mut turned = 0;
-        for (f, frame) in frames.iter_mut().enumerate() {
-            let t = choice[f][k];
+        for (frame, row) in frames.iter_mut().zip(&choice) {
+            let t = row[k];
             if t != 0
                 && let Some(corners) = frame.corners.get_mut(k)
             {
