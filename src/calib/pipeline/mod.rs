@@ -327,8 +327,23 @@ pub fn calibrate_with_progress(
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<Calibration, CalibError> {
     let started = Instant::now();
+    // A chessboard's corners numbered alike in every camera of a view (a detector that numbers
+    // each image on its own may start a colour-symmetric board at either end).
+    let mut agreed = observations.clone();
+    let turned = turns::agree_observation_turns(rig, &mut agreed);
+    let observations = if turned.is_empty() {
+        observations
+    } else {
+        &agreed
+    };
     let mut calibration = calibrate_unjudged(rig, observations, options, progress)?;
     let report = &mut calibration.report;
+    for (name, t) in &turned {
+        report.warnings.push(format!(
+            "camera '{name}': the corner order of {} of its {} images was turned to agree with the other cameras of their views (the board looks alike turned; the observations number its corners from another end)",
+            t.turned, t.images
+        ));
+    }
     let worst = report.worst_inlier_rms_px();
     // Only a maximum-likelihood fit is expected to come down to the noise; the consecutive result
     // (no fit of the images) is held to the bound alone.

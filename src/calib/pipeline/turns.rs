@@ -20,6 +20,7 @@ use nalgebra::{Point2, UnitQuaternion};
 use super::boards::WaterFrame;
 use super::extrinsics::image_pose;
 use crate::base::Board;
+use crate::calib::problem::observations::{CameraKey, Observations};
 use crate::calib::problem::target::Target;
 use crate::model::Rig;
 
@@ -189,6 +190,73 @@ pub fn agree_turns(rig: &Rig, board: &Board, frames: &mut [WaterFrame]) -> Vec<T
     changed
 }
 
+/// [`agree_turns`] over observations of a chessboard by the cameras of `rig` (the observations
+/// route: a file written by a detector that numbers each image on its own, as
+/// `cv::findChessboardCorners` does on a colour-symmetric board). Each image's corners are
+/// renumbered in place where its camera's turn says so; images whose camera the rig does not
+/// have are left to [`Observations::resolve`]'s error. Returns, per camera turned, its name
+/// and what changed. Nothing is done for a 3-D target or one camera.
+pub fn agree_observation_turns(
+    rig: &Rig,
+    observations: &mut Observations,
+) -> Vec<(String, Turned)> {
+    let Some(board) = observations.target.board().copied() else {
+        return Vec::new();
+    };
+    let n = rig.cameras().len();
+    if n < 2 {
+        return Vec::new();
+    }
+    let camera_of = |key: &CameraKey| match key {
+        CameraKey::Name(name) => rig.cameras().iter().position(|c| &c.name == name),
+        CameraKey::Position(k) => (*k < n).then_some(*k),
+    };
+    let mut frames: Vec<WaterFrame> = observations
+        .views
+        .iter()
+        .enumerate()
+        .map(|(v, view)| {
+            let mut corners = vec![Vec::new(); n];
+            for image in &view.images {
+                if let Some(k) = camera_of(&image.camera) {
+                    corners[k] = image
+                        .corners
+                        .iter()
+                        .enumerate()
+                        .filter_map(|(i, p)| Some((i, (*p)?)))
+                        .collect();
+                }
+            }
+            WaterFrame {
+                label: format!("view {v}"),
+                corners,
+            }
+        })
+        .collect();
+    let turned = agree_turns(rig, &board, &mut frames);
+    if turned.is_empty() {
+        return Vec::new();
+    }
+    for (view, frame) in observations.views.iter_mut().zip(&frames) {
+        for image in &mut view.images {
+            let Some(k) = camera_of(&image.camera) else {
+                continue;
+            };
+            let mut corners = vec![None; image.corners.len()];
+            for &(i, p) in &frame.corners[k] {
+                if let Some(slot) = corners.get_mut(i) {
+                    *slot = Some(p);
+                }
+            }
+            image.corners = corners;
+        }
+    }
+    turned
+        .into_iter()
+        .map(|t| (rig.cameras()[t.camera].name.clone(), t))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -311,5 +379,35 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Observations whose second camera numbers every other view from the far end (as
+    /// `cv::findChessboardCorners` may on a colour-symmetric board) come back numbered as the
+    /// simulation numbered them, camera 1 named as turned.
+    #[test]
+    fn observations_numbered_from_either_end_are_agreed() {
+        let rig = crate::io::read_rig("data/example_rig.json".as_ref()).unwrap();
+        let board = BOARDS[0];
+        let spec = SceneSpec::pair(Target::Board(board), 12, 0.1, 3, 0, 1);
+        let truth = simulate(&rig, &spec).unwrap().observations;
+        let half = &board_turns(&board)[1];
+        let mut observations = truth.clone();
+        for view in observations.views.iter_mut().step_by(2) {
+            let image = &mut view.images[1];
+            let mut corners = vec![None; image.corners.len()];
+            for (i, p) in image.corners.iter().enumerate() {
+                corners[half[i]] = *p;
+            }
+            image.corners = corners;
+        }
+        assert_ne!(observations, truth);
+        let changed = agree_observation_turns(&rig, &mut observations);
+        assert_eq!(changed.len(), 1, "{changed:?}");
+        assert_eq!(changed[0].0, rig.cameras()[1].name);
+        assert_eq!(changed[0].1.turned, 6);
+        assert_eq!(observations, truth);
+        // Agreed observations stay as they are.
+        assert!(agree_observation_turns(&rig, &mut observations).is_empty());
+        assert_eq!(observations, truth);
     }
 }
