@@ -104,10 +104,13 @@ pub enum Unrefined {
     },
     /// The fit did not settle in 40 iterations.
     NoConvergence,
-    /// It moved farther than [`MAX_REFINE_SHIFT_PX`] from the prediction.
+    /// It moved farther than [`Window::max_shift_px`] ([`MAX_REFINE_SHIFT_PX`] for a filled
+    /// corner) from the prediction.
     Moved {
         /// The move, pixels.
         px: f64,
+        /// The farthest it was allowed to move, pixels.
+        limit_px: f64,
     },
 }
 
@@ -120,9 +123,9 @@ impl std::fmt::Display for Unrefined {
                 "the image around it fixes it to {sigma_px:.2} px only (over {MAX_REFINE_SIGMA_PX} px)"
             ),
             Unrefined::NoConvergence => write!(f, "the refinement did not converge"),
-            Unrefined::Moved { px } => write!(
+            Unrefined::Moved { px, limit_px } => write!(
                 f,
-                "the refinement moved it {px:.2} px (over {MAX_REFINE_SHIFT_PX} px) from the prediction"
+                "the refinement moved it {px:.2} px (over {limit_px} px) from the prediction"
             ),
         }
     }
@@ -263,29 +266,48 @@ pub fn predict(
 /// +i+j and −i−j are (−1 for the other diagonal), and the contrast (grey levels, the darker
 /// light square less the lighter dark one); `None` when that contrast is below
 /// [`MIN_CONTRAST`] (no alternating squares: not a chessboard corner). Each square's grey is the
-/// median of 25 samples over its middle (0.3 … 0.7 of a side from the corner along each axis).
+/// median of 25 samples over its middle (0.3 … 0.7 of a side from the corner along each axis),
+/// of those inside the image: by the image's edge a square with fewer than 5 there is left out,
+/// and one square of each diagonal decides.
 pub fn corner_pattern(
     image: &GrayImage,
     corner: Point2<f64>,
     along_i: Vector2<f64>,
     along_j: Vector2<f64>,
 ) -> Option<Pattern> {
+    // A square's grey from its samples inside the image (a corner by the image's edge has
+    // squares partly outside it); `None` with fewer than 5 of its 25.
     let square = |si: f64, sj: f64| -> Option<f64> {
         let mut values = Vec::with_capacity(25);
         for a in 0..5 {
             for b in 0..5 {
                 let (u, v) = (0.3 + 0.1 * a as f64, 0.3 + 0.1 * b as f64);
                 let p = corner + along_i * (si * u) + along_j * (sj * v);
-                values.push(bilinear(image, p.x, p.y)?);
+                values.extend(bilinear(image, p.x, p.y));
             }
+        }
+        if values.len() < 5 {
+            return None;
         }
         values.sort_by(f64::total_cmp);
         Some(values[values.len() / 2])
     };
-    let (pp, mm) = (square(1.0, 1.0)?, square(-1.0, -1.0)?);
-    let (pm, mp) = (square(1.0, -1.0)?, square(-1.0, 1.0)?);
-    let plus_light = pp.min(mm) - pm.max(mp);
-    let minus_light = pm.min(mp) - pp.max(mm);
+    // The squares of each diagonal that the image shows (at least one of each).
+    let plus: Vec<f64> = [square(1.0, 1.0), square(-1.0, -1.0)]
+        .into_iter()
+        .flatten()
+        .collect();
+    let minus: Vec<f64> = [square(1.0, -1.0), square(-1.0, 1.0)]
+        .into_iter()
+        .flatten()
+        .collect();
+    if plus.is_empty() || minus.is_empty() {
+        return None;
+    }
+    let lowest = |v: &[f64]| v.iter().copied().fold(f64::INFINITY, f64::min);
+    let highest = |v: &[f64]| v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let plus_light = lowest(&plus) - highest(&minus);
+    let minus_light = lowest(&minus) - highest(&plus);
     let (light, contrast) = if plus_light >= minus_light {
         (1.0, plus_light)
     } else {
@@ -384,6 +406,35 @@ pub fn refine_corner(
     along_j: Vector2<f64>,
     pattern: Pattern,
 ) -> Result<Point2<f64>, Unrefined> {
+    let plain = Window {
+        max_shift_px: MAX_REFINE_SHIFT_PX,
+        marker_margin: None,
+    };
+    refine_corner_in(raw, smoothed, predicted, along_i, along_j, pattern, &plain)
+}
+
+/// What [`refine_corner_in`] reads of the window around a corner and how far it lets it move.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Window {
+    /// Farthest the corner may move from its prediction (pixels), else [`Unrefined::Moved`].
+    pub max_shift_px: f64,
+    /// A ChArUco board's white margin around each marker, as a fraction of a side: the light
+    /// squares' pixels farther than that from both of the square's edges through the corner
+    /// (the marker, less 1.5 px) are left out of the fit, which models four plain squares.
+    pub marker_margin: Option<f64>,
+}
+
+/// [`refine_corner`] with the window's rules given: how far the corner may move, and a ChArUco
+/// board's markers left out ([`Window`]).
+pub fn refine_corner_in(
+    raw: &GrayImage,
+    smoothed: &GrayImage,
+    predicted: Point2<f64>,
+    along_i: Vector2<f64>,
+    along_j: Vector2<f64>,
+    pattern: Pattern,
+    rules: &Window,
+) -> Result<Point2<f64>, Unrefined> {
     let side = along_i.norm().min(along_j.norm());
     let radius = (REFINE_WINDOW_REL * side).clamp(MIN_REFINE_WINDOW_PX, MAX_REFINE_WINDOW_PX);
     let no_saddle = Unrefined::Weak {
@@ -408,9 +459,16 @@ pub fn refine_corner(
                 continue;
             }
             let (xu, yu) = (x as u32, y as u32);
+            let uv = to_board * (p - predicted);
+            let on_light = uv.x.signum() * uv.y.signum() == pattern.light;
+            if let Some(margin) = rules.marker_margin {
+                let beyond = |t: f64, along: &Vector2<f64>| t.abs() > margin - 1.5 / along.norm();
+                if on_light && beyond(uv.x, &along_i) && beyond(uv.y, &along_j) {
+                    continue;
+                }
+            }
             window.push((p, f64::from(smoothed.get_pixel(xu, yu).0[0])));
             // Away from the edge lines (1.5 px), a dark square's pixel.
-            let uv = to_board * (p - predicted);
             let off_edges =
                 (uv.x * along_i.norm()).abs() > 1.5 && (uv.y * along_j.norm()).abs() > 1.5;
             if off_edges && uv.x.signum() * uv.y.signum() != pattern.light {
@@ -541,8 +599,11 @@ pub fn refine_corner(
     }
     let q = Point2::new(params[0], params[1]);
     let moved = (q - predicted).norm();
-    if moved > MAX_REFINE_SHIFT_PX {
-        return Err(Unrefined::Moved { px: moved });
+    if moved > rules.max_shift_px {
+        return Err(Unrefined::Moved {
+            px: moved,
+            limit_px: rules.max_shift_px,
+        });
     }
     Ok(q)
 }
@@ -550,6 +611,27 @@ pub fn refine_corner(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A corner 3 px from the image's top edge (the zoo's chessboards reach it): the squares
+    /// above it are all but outside the image, those below decide, the light diagonal read the
+    /// right way round; a corner with no square of one diagonal inside is none.
+    #[test]
+    fn a_corner_by_the_images_edge_is_judged_by_the_squares_inside() {
+        let corner = Point2::new(60.0, 3.0);
+        // Squares of 20 px: light where (x − 60)·(y − 3) > 0.
+        let image = GrayImage::from_fn(120, 60, |x, y| {
+            let (u, v) = (f64::from(x) - corner.x, f64::from(y) - corner.y);
+            image::Luma([if u * v > 0.0 { 200 } else { 40 }])
+        });
+        let (along_i, along_j) = (Vector2::new(20.0, 0.0), Vector2::new(0.0, 20.0));
+        let pattern = corner_pattern(&image, corner, along_i, along_j).expect("a corner");
+        assert_eq!(pattern.light, 1.0);
+        assert!(pattern.contrast > 150.0, "{pattern:?}");
+        // By a corner of the image only the square at +i+j is inside: no square of the other
+        // diagonal to compare with, so no corner.
+        let flat = corner_pattern(&image, Point2::new(2.0, 2.0), along_i, along_j);
+        assert_eq!(flat, None);
+    }
 
     #[test]
     fn the_corner_models_derivatives_match_central_differences() {

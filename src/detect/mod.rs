@@ -6,7 +6,8 @@
 //!
 //! The corners come from the `calib-targets` crate (ChESS corners, its chessboard grid, the
 //! saddle-point sub-pixel refiner); the few inner corners a grid of the board's shape misses
-//! (a backscatter speck on a corner) are filled in by [`fill`]. The grid's labels say which
+//! (a backscatter speck on a corner) are filled in by [`fill`]. A ChArUco board the grid does
+//! not find is found from its markers ([`markers`]). The grid's labels say which
 //! corner is next to which, not which end of the board is corner 0: a chessboard looks the same
 //! turned by 180° (and by 90° when it is square), up to the colours of its squares. [`Detection::orderings`] holds every ordering the
 //! image allows; [`colour_rule`], [`image_rule`] and [`pair_by_rays`] choose among them.
@@ -26,6 +27,7 @@
 //! the calibration's board model.
 
 pub mod fill;
+pub mod markers;
 
 pub use crate::base::{BoardError, BoardSpec, CharucoSpec};
 pub use fill::{FilledCorner, Unrefined};
@@ -922,7 +924,9 @@ pub const MIN_CHARUCO_CORNERS: usize = 4;
 /// grid to the board by them (its three chessboard parameter sets, the richest answer wins).
 /// Its two stages that move corners by a global model are off (`charuco_tuning`); instead every
 /// corner must agree with the local homography of its grid neighbours, else it is dropped
-/// ([`inconsistent_charuco_corners`]).
+/// ([`inconsistent_charuco_corners`]). Where no pass gives a board (a steep slant, large squares
+/// cut by the image's edge: corners the grid cannot join), the markers are found first and the
+/// corners beside them refined on the image ([`markers`], OpenCV's route), then checked alike.
 pub fn detect_charuco(
     image: &GrayImage,
     spec: &CharucoSpec,
@@ -1009,7 +1013,34 @@ pub fn detect_charuco(
             }
         }
     }
-    let mut corners = best.map(|(_, corners)| corners).unwrap_or_default();
+    let from_grid = checked_charuco_corners(best.map(|(_, c)| c).unwrap_or_default(), cols);
+    if from_grid.is_ok() {
+        return from_grid;
+    }
+    // No board from the grid: the markers first (a steep slant, large squares cut by the edge).
+    let found = markers::find_markers(&own_scale, spec);
+    if found.len() < MIN_CHARUCO_MARKERS {
+        return from_grid;
+    }
+    let corners = markers::corners_from_markers(image, &own_scale, spec, &found);
+    match (checked_charuco_corners(corners, cols), from_grid) {
+        (Ok(corners), _) => Ok(corners),
+        // The grid's miss unless the markers read more of the board.
+        (Err(Miss::Sparse { found }), Err(Miss::Sparse { found: before })) if found > before => {
+            Err(Miss::Sparse { found })
+        }
+        (Err(Miss::Sparse { found }), Err(Miss::NoBoard)) => Err(Miss::Sparse { found }),
+        (Err(_), from_grid) => from_grid,
+    }
+}
+
+/// `corners` (by id) without those [`inconsistent_charuco_corners`] finds misplaced, or why
+/// they are not a board: none ([`Miss::NoBoard`]), fewer than [`MIN_CHARUCO_CORNERS`] or all on
+/// one row or column ([`Miss::Sparse`]).
+fn checked_charuco_corners(
+    mut corners: Vec<(usize, Point2<f64>)>,
+    cols: usize,
+) -> Result<Vec<(usize, Point2<f64>)>, Miss> {
     if corners.is_empty() {
         return Err(Miss::NoBoard);
     }
