@@ -301,8 +301,8 @@ mod tests {
                 );
                 let angle = ta.y.atan2(ta.x) - a.y.atan2(a.x);
                 let (s, c) = angle.sin_cos();
-                for i in 0..board.corners() {
-                    let (p, q) = (offset(i), offset(turn[i]));
+                for (i, &to) in turn.iter().enumerate().take(board.corners()) {
+                    let (p, q) = (offset(i), offset(to));
                     let rotated = (c * p.x - s * p.y, s * p.x + c * p.y);
                     assert!((rotated.0 - q.x).abs() < 1e-12 && (rotated.1 - q.y).abs() < 1e-12);
                 }
