@@ -192,8 +192,21 @@ pub(super) fn fill_missing(
             return None;
         }
         let (predicted, along_i, along_j) = predict(&pairs, Point2::new(i as f64, j as f64))?;
+        // A corner outside the image is not in view: the board is not whole.
+        if !inside(raw, predicted) {
+            return None;
+        }
         let pattern = corner_pattern(smoothed, predicted, along_i, along_j)?;
-        let refined = refine_corner(raw, smoothed, predicted, along_i, along_j, pattern);
+        let refined =
+            refine_corner(raw, smoothed, predicted, along_i, along_j, pattern).and_then(|p| {
+                if inside(raw, p) {
+                    Ok(p)
+                } else {
+                    Err(Unrefined::Weak {
+                        sigma_px: f64::INFINITY,
+                    })
+                }
+            });
         filled.push((k, predicted, refined));
     }
     Some(
@@ -217,6 +230,14 @@ pub(super) fn fill_missing(
             })
             .collect(),
     )
+}
+
+/// Whether pixel `p` lies within `image` (pixel centres at whole coordinates, 0 … size − 1).
+pub(super) fn inside(image: &GrayImage, p: Point2<f64>) -> bool {
+    p.x >= 0.0
+        && p.y >= 0.0
+        && p.x <= f64::from(image.width()) - 1.0
+        && p.y <= f64::from(image.height()) - 1.0
 }
 
 /// Fewest neighbours for the quadratic correction of [`predict`] (6 coefficients per coordinate).
@@ -611,6 +632,41 @@ pub fn refine_corner_in(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A grid whose missing corner lies outside the image (5 px left of it) is not a whole
+    /// board: nothing is filled in (zoo seed 1, degraded: a filled corner at y = 783 of 768
+    /// refused the calibration).
+    #[test]
+    fn a_missing_corner_outside_the_image_is_not_filled() {
+        // Squares of 20 px, corner (i, j) at (−5 + 20 i, 30 + 20 j).
+        let image = GrayImage::from_fn(100, 100, |x, y| {
+            let (u, v) = ((f64::from(x) + 5.0) / 20.0, (f64::from(y) - 30.0) / 20.0);
+            let dark = (u.floor() as i64 + v.floor() as i64).rem_euclid(2) == 0;
+            image::Luma([if dark { 40 } else { 200 }])
+        });
+        let (w, h) = (4, 3);
+        let mut grid: Vec<Option<Point2<f64>>> = (0..w * h)
+            .map(|k| {
+                let (i, j) = ((k % w) as f64, (k / w) as f64);
+                Some(Point2::new(-5.0 + 20.0 * i, 30.0 + 20.0 * j))
+            })
+            .collect();
+        grid[0] = None;
+        let before = grid.clone();
+        assert_eq!(fill_missing(&mut grid, w, h, &image, &image), None);
+        assert_eq!(grid, before);
+        // The same grid one square to the right is inside: filled, at the corner.
+        let mut shifted: Vec<Option<Point2<f64>>> = before
+            .iter()
+            .map(|p| p.map(|p| p + Vector2::new(20.0, 0.0)))
+            .collect();
+        let filled = fill_missing(&mut shifted, w, h, &image, &image).expect("filled");
+        assert_eq!(filled.len(), 1);
+        assert!(
+            (filled[0].pixel - Point2::new(15.0, 30.0)).norm() < 0.2,
+            "{filled:?}"
+        );
+    }
 
     /// A corner 3 px from the image's top edge (the zoo's chessboards reach it): the squares
     /// above it are all but outside the image, those below decide, the light diagonal read the

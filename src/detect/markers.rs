@@ -424,6 +424,7 @@ pub fn corners_from_markers(
         };
         if let Ok(p) =
             fill::refine_corner_in(raw, smoothed, predicted, along_i, along_j, pattern, &rules)
+            && fill::inside(raw, p)
         {
             corners.push((id, p));
         }
