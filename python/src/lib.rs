@@ -535,6 +535,7 @@ fn calibrate(
         max_iterations,
         max_rms_px,
         backend,
+        lens_prior: None,
     };
     let calibration = py.detach(|| run_calibrate(&rig.rig, &observations, &options)).map_err(value_error)?;
     let report = report_to_json_string(&calibration.report);

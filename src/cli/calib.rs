@@ -443,6 +443,7 @@ pub fn run_calibrate(args: CalibrateArgs) -> anyhow::Result<()> {
         max_iterations: args.max_iterations,
         max_rms_px: args.max_rms_px,
         backend: backend(engine),
+        lens_prior: None,
     };
     eprintln!(
         "calibrating {} camera(s) ({}) from {} views, estimating {}, method {}...",

@@ -14,7 +14,9 @@ use nalgebra::{Matrix3, Point2, Point3, Vector3};
 
 pub use super::acceptance::Validation;
 use super::acceptance::{PLAIN_RMS_PX, Residuals, Verdict, loose_ports, verdict};
-use super::bundle::{Bundle, Estimate, MIN_START_AIR_M, State, shared_distance_floor};
+use super::bundle::{
+    Bundle, Estimate, LensPrior, MIN_START_AIR_M, State, intrinsic_values, shared_distance_floor,
+};
 use super::extrinsics::{Link, extrinsics_start};
 use super::report::add_lens_uncertainty;
 use super::turns::agree_turns;
@@ -531,11 +533,32 @@ pub fn calibrate_from_boards(
     };
     if refine && !calibration_options.estimate.intrinsics {
         // The same frames again, the intrinsics estimated too, from the fixed fit's rig.
+        // The lenses calibrated in air stay in the fit as a prior with their σ: under water a
+        // principal point and a port's tilt move the corners nearly alike, and without the
+        // prior the pair drifts together (zoo seeds 62 and 70 on degraded footage: cx and cy 3-5
+        // px off where the in-air σ is 0.4 px, the ports' axes 0.3-0.5° off).
+        let lens_prior = (options.lens_std.len() == names.len())
+            .then(|| {
+                let corner_sigma_px = calibration.report.sigma_px?;
+                Some(LensPrior {
+                    means: calibration
+                        .rig
+                        .cameras()
+                        .iter()
+                        .map(|c| intrinsic_values(&c.intrinsics))
+                        .collect(),
+                    std: options.lens_std.clone(),
+                    corner_sigma_px,
+                })
+            })
+            .flatten();
+        let with_prior = lens_prior.is_some();
         let refined_options = Options {
             estimate: Estimate {
                 intrinsics: true,
                 ..calibration_options.estimate
             },
+            lens_prior,
             ..calibration_options.clone()
         };
         let refined = calibrate_unjudged(
@@ -593,6 +616,11 @@ pub fn calibrate_from_boards(
                     ),
                 )
             }
+        };
+        let reason = if with_prior {
+            format!("{reason}; refined with the in-air lenses as a prior (their σ)")
+        } else {
+            reason
         };
         intrinsics = Some(IntrinsicsChoice {
             refined: keep,

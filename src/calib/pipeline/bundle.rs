@@ -25,7 +25,7 @@ use crate::calib::problem::target::Target;
 use crate::calib::solvers::block::{
     BlockNormalEquations, POSE_PARAMETERS, move_pose, robust, view_share,
 };
-use crate::calib::solvers::lm::LeastSquares;
+use crate::calib::solvers::lm::{LeastSquares, LmOptions, levenberg_marquardt};
 use crate::calib::solvers::search::tangent_step;
 use crate::engine::cpu::lanes;
 use crate::model::{Interface, PinholeCamera, Ports, RefractiveCamera, Rig};
@@ -262,6 +262,23 @@ impl State {
     }
 }
 
+/// Levenberg–Marquardt for at most `iterations` steps: the short fits of the poses and the search.
+pub fn fit_briefly(bundle: &Bundle, state: State, iterations: usize) -> State {
+    let options = LmOptions {
+        max_iterations: iterations,
+        ..LmOptions::default()
+    };
+    levenberg_marquardt(bundle, state, &options).0
+}
+
+/// RMS reprojection error (the residual vector's length) of `state` under `bundle`, pixels (+∞
+/// when it has none).
+pub fn rms(bundle: &Bundle, state: &State) -> f64 {
+    bundle.cost(state).map_or(f64::INFINITY, |c| {
+        (2.0 * c / bundle.residuals() as f64).sqrt()
+    })
+}
+
 /// Fewest metres of air that a start leaves between a camera and its port
 /// ([`State::feasible`]): far above the central-difference step of the distance (1 µm), so that
 /// both sides of every difference are rigs, and below any real port's air (2 mm and more).
@@ -418,6 +435,34 @@ pub struct Bundle<'a> {
     points: Vec<[f64; 3]>,
     /// Where whole stencils are evaluated; `None`: the bundle's own CPU code.
     backend: Option<&'a dyn ResidualBackend>,
+    /// A prior on the estimated intrinsics ([`Bundle::with_lens_prior`]).
+    lens_prior: Option<&'a LensPrior>,
+}
+
+/// A Gaussian prior on every camera's intrinsics: the lenses calibrated in air, with their σ,
+/// for a fit that estimates the intrinsics again under water ([`Bundle::with_lens_prior`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LensPrior {
+    /// Per rig camera, the prior's mean of each value of [`INTRINSICS`].
+    pub means: Vec<[f64; 9]>,
+    /// Per rig camera, the prior's σ of each value (0 or not finite: no prior on it).
+    pub std: Vec<[f64; 9]>,
+    /// σ of a corner, pixels: the prior's terms are weighed against the corners' residuals
+    /// (pixels, unit weight) by it, (σ_px/σ_j)·(θ_j − μ_j), which makes the least squares the
+    /// maximum a posteriori estimate under both.
+    pub corner_sigma_px: f64,
+}
+
+impl LensPrior {
+    /// The weight σ_px/σ_j of camera `k`'s value `j`, 0 without a prior on it.
+    fn weight(&self, k: usize, j: usize) -> f64 {
+        let std = self.std.get(k).map_or(0.0, |s| s[j]);
+        if std > 0.0 && std.is_finite() && self.corner_sigma_px > 0.0 {
+            self.corner_sigma_px / std
+        } else {
+            0.0
+        }
+    }
 }
 
 impl<'a> Bundle<'a> {
@@ -441,7 +486,47 @@ impl<'a> Bundle<'a> {
             huber,
             points,
             backend: None,
+            lens_prior: None,
         }
+    }
+
+    /// The same problem with a Gaussian prior on the estimated intrinsics (`None`: none): its
+    /// terms join the cost and the normal equations (unit weight: they are already in pixels).
+    pub fn with_lens_prior(mut self, prior: Option<&'a LensPrior>) -> Self {
+        self.lens_prior = prior;
+        self
+    }
+
+    /// The prior's terms: (global index, residual r = w·(θ − μ), weight w) for every estimated
+    /// intrinsic with a prior.
+    fn prior_terms(&self, state: &State) -> Vec<(usize, f64, f64)> {
+        let Some(prior) = self.lens_prior else {
+            return Vec::new();
+        };
+        self.globals
+            .iter()
+            .enumerate()
+            .filter_map(|(g, &parameter)| {
+                let Parameter::Intrinsic(k, j) = parameter else {
+                    return None;
+                };
+                let w = prior.weight(k, j);
+                let mean = prior.means.get(k)?[j];
+                let value = intrinsic_values(state.intrinsics.get(k)?)[j];
+                (w > 0.0).then_some((g, w * (value - mean), w))
+            })
+            .collect()
+    }
+
+    /// `normal` with the prior's terms added: each adds r² to the cost, w² to its diagonal and
+    /// w·r to its gradient (J = w).
+    fn with_prior(&self, state: &State, mut normal: BlockNormalEquations) -> BlockNormalEquations {
+        for (g, r, w) in self.prior_terms(state) {
+            normal.cost += r * r;
+            normal.global[(g, g)] += w * w;
+            normal.global_gradient[g] += w * r;
+        }
+        normal
     }
 
     /// The same problem with its residuals evaluated by `backend` (made for
@@ -723,7 +808,7 @@ impl<'a> Bundle<'a> {
                 view_share(&residuals[0][range], &jacobian, columns, self.huber)
             })
             .collect();
-        Some(BlockNormalEquations::from_shares(globals, shares))
+        Some(self.with_prior(state, BlockNormalEquations::from_shares(globals, shares)))
     }
 
     fn moved(&self, state: &State, parameter: Parameter, delta: f64) -> State {
@@ -766,12 +851,14 @@ impl LeastSquares for Bundle<'_> {
 
     fn cost(&self, state: &State) -> Option<f64> {
         let residuals = self.all_residuals(state)?;
+        let prior: f64 = self.prior_terms(state).iter().map(|(_, r, _)| r * r).sum();
         Some(
             residuals
                 .iter()
                 .flatten()
                 .map(|r| robust(self.huber, r.norm_squared()).0)
-                .sum(),
+                .sum::<f64>()
+                + prior,
         )
     }
 
@@ -858,7 +945,7 @@ impl LeastSquares for Bundle<'_> {
                 Some(view_share(&base, &jacobian, columns, self.huber))
             })
             .collect::<Option<_>>()?;
-        Some(BlockNormalEquations::from_shares(globals, shares))
+        Some(self.with_prior(state, BlockNormalEquations::from_shares(globals, shares)))
     }
 
     fn retract(&self, state: &State, delta: &DVector<f64>) -> State {
@@ -894,9 +981,9 @@ impl LeastSquares for Bundle<'_> {
 
 #[cfg(test)]
 mod tests {
+    use super::rms;
     use super::*;
     use crate::base::Board;
-    use crate::calib::pipeline::rms;
     use crate::model::{Layer, PinholeCamera, RigCamera};
     use nalgebra::{Matrix3, Point2};
 
@@ -1353,6 +1440,137 @@ mod tests {
             "axis {axis}°, air {air} m, baseline {baseline} m"
         );
         assert!(rms(&bundle, &found) < 1e-7, "{}", rms(&bundle, &found));
+    }
+
+    /// The lens prior's terms in the normal equations are those of its cost: with the prior
+    /// on (and 0.1 px of noise, the start 2 px and 0.4 % off), the gradient Jᵀr of every
+    /// intrinsic equals half the central difference of the cost, and the cost grows by exactly
+    /// Σ (σ_px/σ_j)²(θ_j − μ_j)² over the bundle without it.
+    #[test]
+    fn the_lens_priors_terms_are_its_cost_s_derivatives() {
+        let truth = lens_rig();
+        let (target, seen, poses) = lens_views(&truth, 0.1, 5);
+        let estimate = Estimate::parse("intrinsics").unwrap();
+        let prior = LensPrior {
+            means: truth
+                .cameras()
+                .iter()
+                .map(|c| intrinsic_values(&c.intrinsics))
+                .collect(),
+            std: vec![[0.5, 0.5, 0.4, 0.4, 1e-3, 2e-3, 1e-4, 1e-4, 0.0]; 2],
+            corner_sigma_px: 0.1,
+        };
+        let plain = Bundle::new(&truth, &target, &seen, estimate, None);
+        let bundle =
+            Bundle::new(&truth, &target, &seen, estimate, None).with_lens_prior(Some(&prior));
+        let mut state = State::of(&truth, poses);
+        state.intrinsics[0].cx += 2.0;
+        state.intrinsics[1].fx *= 1.004;
+        let expected: f64 = (0..2)
+            .flat_map(|k| (0..8).map(move |j| (k, j)))
+            .map(|(k, j)| {
+                let d = intrinsic_values(&state.intrinsics[k])[j] - prior.means[k][j];
+                (0.1 / prior.std[k][j] * d).powi(2)
+            })
+            .sum();
+        let added = bundle.cost(&state).unwrap() - plain.cost(&state).unwrap();
+        assert!(
+            (added - expected).abs() < 1e-9 * expected,
+            "{added} vs {expected}"
+        );
+        let normal = bundle.normal_equations(&state).unwrap();
+        assert!((normal.cost - bundle.cost(&state).unwrap()).abs() < 1e-9 * normal.cost);
+        for (g, &parameter) in bundle.globals().iter().enumerate() {
+            let h = if matches!(parameter, Parameter::Intrinsic(_, j) if j < 4) {
+                1e-3
+            } else {
+                1e-7
+            };
+            let up = bundle.cost(&bundle.moved(&state, parameter, h)).unwrap();
+            let down = bundle.cost(&bundle.moved(&state, parameter, -h)).unwrap();
+            let slope = (up - down) / (2.0 * h) / 2.0;
+            let scale = slope.abs().max(normal.global_gradient[g].abs()).max(1e-6);
+            assert!(
+                (slope - normal.global_gradient[g]).abs() < 1e-4 * scale,
+                "{parameter:?}: Jᵀr {} against the cost's slope {slope}",
+                normal.global_gradient[g]
+            );
+        }
+    }
+
+    /// A prior pulls each estimated value toward its mean as the posterior does: on noise-free
+    /// views whose truth has cx 3 px above the prior's mean, a prior σ equal to the data's own
+    /// σ of cx leaves it half way, a prior 100 times tighter at the mean, and without one at the
+    /// truth (the other values held by the data alone, their prior σ unset).
+    #[test]
+    fn a_lens_prior_holds_a_value_as_its_sigma_against_the_datas_says() {
+        use crate::calib::solvers::lm::{LmOptions, levenberg_marquardt};
+        let truth = lens_rig();
+        let (target, seen, poses) = lens_views(&truth, 0.0, 9);
+        let estimate = Estimate::parse("intrinsics").unwrap();
+        let bundle = Bundle::new(&truth, &target, &seen, estimate, None)
+            .keeping(|g| g == Parameter::Intrinsic(0, 2));
+        let state = State::of(&truth, poses);
+        // The data's σ of cx at unit corner σ: the inverse of the information about cx, with the
+        // poses eliminated.
+        let information = bundle
+            .normal_equations(&state)
+            .unwrap()
+            .global_information()
+            .unwrap();
+        let data_std = information[(0, 0)].recip().sqrt();
+        let options = LmOptions {
+            max_iterations: 200,
+            ..LmOptions::default()
+        };
+        let truth_cx = truth.cameras()[0].intrinsics.cx;
+        let fitted_cx = |prior_std: Option<f64>| {
+            let prior = LensPrior {
+                means: (0..2)
+                    .map(|k| {
+                        let mut values = intrinsic_values(&truth.cameras()[k].intrinsics);
+                        values[2] -= 3.0;
+                        values
+                    })
+                    .collect(),
+                std: vec![
+                    [
+                        0.0,
+                        0.0,
+                        prior_std.unwrap_or(0.0),
+                        0.0,
+                        0.0,
+                        0.0,
+                        0.0,
+                        0.0,
+                        0.0
+                    ];
+                    2
+                ],
+                corner_sigma_px: 1.0,
+            };
+            let with = Bundle::new(&truth, &target, &seen, estimate, None)
+                .keeping(|g| g == Parameter::Intrinsic(0, 2))
+                .with_lens_prior(prior_std.map(|_| &prior));
+            let (found, report, _) = levenberg_marquardt(&with, state.clone(), &options);
+            assert!(report.termination.converged(), "{report:?}");
+            found.intrinsics[0].cx - truth_cx
+        };
+        let none = fitted_cx(None);
+        let equal = fitted_cx(Some(data_std));
+        let tight = fitted_cx(Some(data_std / 100.0));
+        assert!(
+            none.abs() < 1e-6,
+            "without a prior: {none} px from the truth"
+        );
+        assert!(
+            (equal + 1.5).abs() < 0.01,
+            "equal σ: {equal} px (half way is -1.5)"
+        );
+        assert!(
+            (tight + 3.0).abs() < 0.01,
+            "tight prior: {tight} px (the mean is -3)"
+        );
     }
 
     /// With 0.2 px of noise the calibration reports σ of every estimated intrinsic, and the truth

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use nalgebra::Isometry3;
 
-use super::bundle::{Bundle, Estimate, Parameter, State};
+use super::bundle::{Bundle, Estimate, Parameter, State, fit_briefly, rms};
 use super::{MIN_VIEWS, Method, Options, Progress, consecutive, poses, search};
 use crate::calib::backends::residuals::ResidualBackend;
 use crate::calib::costs::SceneFit;
@@ -14,9 +14,7 @@ use crate::calib::problem::data::{CameraPair, Candidate, StereoData};
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::target::Target;
 use crate::calib::solvers::block::BlockNormalEquations;
-use crate::calib::solvers::lm::{
-    LeastSquares, LmOptions, LmReport, levenberg_marquardt, levenberg_marquardt_observed,
-};
+use crate::calib::solvers::lm::{LeastSquares, LmOptions, LmReport, levenberg_marquardt_observed};
 use crate::model::{Ports, Rig};
 
 /// One stage of a calibration.
@@ -80,23 +78,6 @@ pub(super) fn shared_board_pairs(
         }
     }
     Ok(pairs)
-}
-
-/// Levenberg–Marquardt for at most `iterations` steps: the short fits of the poses and the search.
-pub(crate) fn fit_briefly(bundle: &Bundle, state: State, iterations: usize) -> State {
-    let options = LmOptions {
-        max_iterations: iterations,
-        ..LmOptions::default()
-    };
-    levenberg_marquardt(bundle, state, &options).0
-}
-
-/// RMS reprojection error (the residual vector's length) of `state` under `bundle`, pixels (+∞
-/// when it has none).
-pub(crate) fn rms(bundle: &Bundle, state: &State) -> f64 {
-    bundle.cost(state).map_or(f64::INFINITY, |c| {
-        (2.0 * c / bundle.residuals() as f64).sqrt()
-    })
 }
 
 /// The maximum-likelihood fit that ended a method: the optimiser's report, the normal equations
@@ -173,13 +154,13 @@ fn target_poses(steps: &mut Steps) -> Result<(State, State), CalibError> {
     let pinhole = State::of(rig, poses::initial_poses(rig, target, views)?);
     let pose_only =
         Bundle::new(rig, target, views, Estimate::NOTHING, steps.options.huber).on(steps.residuals);
-    let rig_start = fit_briefly(&pose_only, pinhole.clone(), search::POSE_ITERATIONS);
+    let rig_start = fit_briefly(&pose_only, pinhole.clone(), poses::POSE_ITERATIONS);
     steps.stages.push(Stage {
         name: "target poses (pinhole, then through the start port)".into(),
         port: None,
         cost: rms(&pose_only, &rig_start),
         unit: "px",
-        iterations: search::POSE_ITERATIONS,
+        iterations: poses::POSE_ITERATIONS,
         seconds: clock.elapsed().as_secs_f64(),
     });
     Ok((pinhole, rig_start))
@@ -283,7 +264,7 @@ fn axis_search(steps: &mut Steps, start: State) -> Result<State, CalibError> {
     }
     let pose_only =
         Bundle::new(rig, target, views, Estimate::NOTHING, options.huber).on(steps.residuals);
-    let mut state = fit_briefly(&pose_only, state, search::POSE_ITERATIONS);
+    let mut state = fit_briefly(&pose_only, state, poses::POSE_ITERATIONS);
     let searched = rms(&pose_only, &state);
     steps.stages.push(Stage {
         name: "global axis search".into(),
@@ -298,7 +279,7 @@ fn axis_search(steps: &mut Steps, start: State) -> Result<State, CalibError> {
         && let Some(relinked) = relinked(&state, &own_poses)
     {
         let clock = Instant::now();
-        let relinked = fit_briefly(&pose_only, relinked, search::POSE_ITERATIONS);
+        let relinked = fit_briefly(&pose_only, relinked, poses::POSE_ITERATIONS);
         let cost = rms(&pose_only, &relinked);
         // Kept where it explains the corners better than the start's extrinsics.
         if cost < searched || (cost.is_finite() && !searched.is_finite()) {
@@ -307,7 +288,7 @@ fn axis_search(steps: &mut Steps, start: State) -> Result<State, CalibError> {
                 port: Some(first_port(&relinked)),
                 cost,
                 unit: "px",
-                iterations: search::POSE_ITERATIONS,
+                iterations: poses::POSE_ITERATIONS,
                 seconds: clock.elapsed().as_secs_f64(),
             });
             state = relinked;
@@ -372,39 +353,7 @@ fn with_defined_poses(steps: &Steps, state: State) -> (State, usize) {
         steps.options.huber,
     )
     .on(steps.residuals);
-    place_undefined_views(&pose_only, steps.rig, steps.target, steps.views, state)
-}
-
-/// [`with_defined_poses`] over any views: `pose_only` is the poses-only bundle of `views`
-/// (cameras of `rig`, target `target`).
-pub(super) fn place_undefined_views(
-    pose_only: &Bundle,
-    rig: &Rig,
-    target: &Target,
-    views: &[SeenView],
-    state: State,
-) -> (State, usize) {
-    let undefined = match pose_only.undefined_views(&state) {
-        Some(views) if !views.is_empty() => views,
-        _ => return (state, 0),
-    };
-    let Some(Ok(in_water)) = state
-        .rig(rig)
-        .map(|rig| poses::water_poses(&rig, target, views))
-    else {
-        return (state, 0);
-    };
-    let mut placed = state.clone();
-    for &v in &undefined {
-        placed.poses[v] = in_water[v];
-    }
-    if pose_only.cost(&placed).is_none_or(|c| !c.is_finite()) {
-        return (state, 0);
-    }
-    (
-        fit_briefly(pose_only, placed, search::POSE_ITERATIONS),
-        undefined.len(),
-    )
+    poses::place_undefined_views(&pose_only, steps.rig, steps.target, steps.views, state)
 }
 
 /// Step 5: maximum likelihood from each named start; the lowest cost wins. A start that does not
@@ -422,7 +371,8 @@ fn maximum_likelihood(
         options.estimate,
         options.huber,
     )
-    .on(steps.residuals);
+    .on(steps.residuals)
+    .with_lens_prior(options.lens_prior.as_ref());
     let lm = LmOptions {
         max_iterations: options.max_iterations,
         ..LmOptions::default()
@@ -579,7 +529,7 @@ fn consecutive_start(
                 state.poses[v] = pose;
             }
         }
-        fit_briefly(&pose_only, state, search::POSE_ITERATIONS)
+        fit_briefly(&pose_only, state, poses::POSE_ITERATIONS)
     };
     let mut best: Option<(f64, State, usize)> = None;
     let mut last_error = None;

@@ -42,7 +42,7 @@ pub mod selection;
 pub mod turns;
 pub mod water_lenses;
 
-pub(crate) use estimate::{fit_briefly, rms};
+pub(crate) use bundle::fit_briefly;
 
 #[cfg(feature = "gpu")]
 use std::sync::Arc;
@@ -206,6 +206,9 @@ pub struct Options {
     pub max_rms_px: Option<f64>,
     /// Where the consecutive method's cost batches run.
     pub backend: Backend,
+    /// A Gaussian prior on the intrinsics where they are estimated (the lenses calibrated in
+    /// air, refined under water: [`boards`]); `None`: none.
+    pub lens_prior: Option<bundle::LensPrior>,
 }
 
 /// Default of [`Options::max_rms_px`], pixels.
@@ -240,6 +243,7 @@ impl Default for Options {
             max_iterations: 200,
             max_rms_px: None,
             backend: Backend::Cpu,
+            lens_prior: None,
         }
     }
 }
@@ -329,13 +333,19 @@ pub fn calibrate_with_progress(
     let started = Instant::now();
     // A chessboard's corners numbered alike in every camera of a view (a detector that numbers
     // each image on its own may start a colour-symmetric board at either end).
-    let mut agreed = observations.clone();
-    let turned = turns::agree_observation_turns(rig, &mut agreed);
-    let observations = if turned.is_empty() {
-        observations
+    // (Copied only where there is something to agree: a board seen by two or more cameras.)
+    let mut agreed = None;
+    let turned = if observations.target.board().is_some() && rig.cameras().len() >= 2 {
+        let mut copy = observations.clone();
+        let turned = turns::agree_observation_turns(rig, &mut copy);
+        if !turned.is_empty() {
+            agreed = Some(copy);
+        }
+        turned
     } else {
-        &agreed
+        Vec::new()
     };
+    let observations = agreed.as_ref().unwrap_or(observations);
     let mut calibration = calibrate_unjudged(rig, observations, options, progress)?;
     let report = &mut calibration.report;
     for (name, t) in &turned {

@@ -6,9 +6,11 @@ use nalgebra::{
     DMatrix, Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3,
 };
 
+use super::bundle::{Bundle, State, fit_briefly};
 use crate::calib::error::CalibError;
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::target::Target;
+use crate::calib::solvers::lm::LeastSquares;
 pub use crate::model::snell::bent_into_water;
 use crate::model::{Interface, Ports, Rig};
 
@@ -32,6 +34,42 @@ pub fn water_poses(
     views: &[SeenView],
 ) -> Result<Vec<Isometry3<f64>>, CalibError> {
     view_poses(rig, target, views, true)
+}
+
+/// Levenberg–Marquardt steps of the fits of the board poses alone.
+pub(super) const POSE_ITERATIONS: usize = 30;
+
+/// `state` with the target pose of every view whose corners it cannot project placed again by
+/// [`water_poses`] through the state's own ports, then every pose fitted briefly, with how many
+/// views were placed (the maximum likelihood's starts and the axis search's cells use it):
+/// `pose_only` is the poses-only bundle of `views` (cameras of `rig`, target `target`). The
+/// state comes back as it was when every view is defined, or when placing them again does not
+/// make the cost defined.
+pub(super) fn place_undefined_views(
+    pose_only: &Bundle,
+    rig: &Rig,
+    target: &Target,
+    views: &[SeenView],
+    state: State,
+) -> (State, usize) {
+    let undefined = match pose_only.undefined_views(&state) {
+        Some(views) if !views.is_empty() => views,
+        _ => return (state, 0),
+    };
+    let Some(Ok(in_water)) = state.rig(rig).map(|rig| water_poses(&rig, target, views)) else {
+        return (state, 0);
+    };
+    let mut placed = state.clone();
+    for &v in &undefined {
+        placed.poses[v] = in_water[v];
+    }
+    if pose_only.cost(&placed).is_none_or(|c| !c.is_finite()) {
+        return (state, 0);
+    }
+    (
+        fit_briefly(pose_only, placed, POSE_ITERATIONS),
+        undefined.len(),
+    )
 }
 
 fn view_poses(

@@ -4,11 +4,11 @@
 
 use nalgebra::{Isometry3, Vector3};
 
+use super::Options;
 use super::bundle::{Bundle, Estimate, Parameter, State};
-use super::estimate::place_undefined_views;
+use super::bundle::{fit_briefly, rms};
 use super::extrinsics::MIN_LINK_CORNERS;
-use super::poses::{bent_into_water, pinhole_pose};
-use super::{Options, fit_briefly, rms};
+use super::poses::{POSE_ITERATIONS, bent_into_water, pinhole_pose, place_undefined_views};
 use crate::calib::error::CalibError;
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::target::Target;
@@ -18,9 +18,8 @@ use crate::model::{Ports, Rig};
 
 /// Spacing of the global axis search, radians.
 const SEARCH_SPACING_DEG: f64 = 4.0;
-/// Levenberg–Marquardt steps of a search cell, and of the poses alone.
+/// Levenberg–Marquardt steps of a search cell.
 const CELL_ITERATIONS: usize = 30;
-pub(super) const POSE_ITERATIONS: usize = 30;
 /// Levenberg–Marquardt steps of a port per camera refined from its best cell, with its own
 /// images alone (axis, air distance and board poses).
 const REFINE_ITERATIONS: usize = 100;
@@ -181,6 +180,8 @@ pub fn search_axis(
                     starts.push(start);
                 }
             }
+            // The start's port as given, not as `start_fit` left it: its air, fitted at the start's
+            // axis, may have collapsed as a cell's does.
             let mut start = start_fit;
             start.ports[p] = start_port;
             starts.push(start);
