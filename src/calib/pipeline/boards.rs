@@ -10,7 +10,7 @@
 //! What `flatport calibrate --images DIR --board BOARD.json --port …` runs once the boards are
 //! detected (no I/O here: frames come as corners).
 
-use nalgebra::{Matrix3, Point2, Point3, Vector3};
+use nalgebra::{Matrix3, Point3, Vector3};
 
 pub use super::acceptance::Validation;
 use super::acceptance::{PLAIN_RMS_PX, Residuals, Verdict, loose_ports, verdict};
@@ -25,6 +25,7 @@ use super::{
 };
 use crate::base::Board;
 use crate::calib::error::CalibError;
+pub use crate::calib::problem::observations::WaterFrame;
 use crate::calib::problem::observations::{
     CameraKey, Image, Observations, SeenView, View, unusable_image,
 };
@@ -154,16 +155,6 @@ pub struct RigSetup {
     pub index_air: f64,
     /// Index of the water.
     pub index_water: f64,
-}
-
-/// One synchronized frame under water: per rig camera, the board corners it saw ((corner
-/// index, raw pixel); empty when it did not see the board).
-#[derive(Debug, Clone, PartialEq)]
-pub struct WaterFrame {
-    /// A name for messages (the frame's index or file).
-    pub label: String,
-    /// Per rig camera, in rig order.
-    pub corners: Vec<Vec<(usize, Point2<f64>)>>,
 }
 
 /// How to calibrate from boards.

@@ -17,10 +17,9 @@
 
 use nalgebra::{Point2, UnitQuaternion};
 
-use super::boards::WaterFrame;
 use super::extrinsics::image_pose;
 use crate::base::Board;
-use crate::calib::problem::observations::{CameraKey, Observations};
+use crate::calib::problem::observations::{CameraKey, Observations, WaterFrame};
 use crate::calib::problem::target::Target;
 use crate::model::Rig;
 

@@ -13,6 +13,16 @@ use crate::calib::error::CalibError;
 use crate::calib::problem::target::Target;
 use crate::model::Rig;
 
+/// One synchronized frame under water: per rig camera, the board corners it saw ((corner
+/// index, raw pixel); empty when it did not see the board).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WaterFrame {
+    /// A name for messages (the frame's index or file).
+    pub label: String,
+    /// Per rig camera, in rig order.
+    pub corners: Vec<Vec<(usize, Point2<f64>)>>,
+}
+
 /// Which rig camera took an image.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum CameraKey {
