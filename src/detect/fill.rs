@@ -112,6 +112,8 @@ pub enum Unrefined {
         /// The farthest it was allowed to move, pixels.
         limit_px: f64,
     },
+    /// The fit put it outside the image.
+    Outside,
 }
 
 impl std::fmt::Display for Unrefined {
@@ -127,6 +129,7 @@ impl std::fmt::Display for Unrefined {
                 f,
                 "the refinement moved it {px:.2} px (over {limit_px} px) from the prediction"
             ),
+            Unrefined::Outside => write!(f, "the refinement put it outside the image"),
         }
     }
 }
@@ -197,16 +200,7 @@ pub(super) fn fill_missing(
             return None;
         }
         let pattern = corner_pattern(smoothed, predicted, along_i, along_j)?;
-        let refined =
-            refine_corner(raw, smoothed, predicted, along_i, along_j, pattern).and_then(|p| {
-                if inside(raw, p) {
-                    Ok(p)
-                } else {
-                    Err(Unrefined::Weak {
-                        sigma_px: f64::INFINITY,
-                    })
-                }
-            });
+        let refined = refine_corner(raw, smoothed, predicted, along_i, along_j, pattern);
         filled.push((k, predicted, refined));
     }
     Some(
@@ -233,7 +227,7 @@ pub(super) fn fill_missing(
 }
 
 /// Whether pixel `p` lies within `image` (pixel centres at whole coordinates, 0 … size − 1).
-pub(super) fn inside(image: &GrayImage, p: Point2<f64>) -> bool {
+fn inside(image: &GrayImage, p: Point2<f64>) -> bool {
     p.x >= 0.0
         && p.y >= 0.0
         && p.x <= f64::from(image.width()) - 1.0
@@ -418,7 +412,7 @@ fn corner_model(params: &Params, origin: Point2<f64>, p: Point2<f64>) -> (f64, P
 /// the robust residual scale) exceeds [`MAX_REFINE_SIGMA_PX`] or whose fitted saddle lost its
 /// contrast (|c| below a quarter of the pattern's half-contrast, or the other diagonal light)
 /// or its blur (b outside 0.2 px … the window), a move of more than [`MAX_REFINE_SHIFT_PX`]
-/// from the prediction. Pixel centres are at whole coordinates.
+/// from the prediction, a corner outside the image. Pixel centres are at whole coordinates.
 pub fn refine_corner(
     raw: &GrayImage,
     smoothed: &GrayImage,
@@ -625,6 +619,9 @@ pub fn refine_corner_in(
             px: moved,
             limit_px: rules.max_shift_px,
         });
+    }
+    if !inside(raw, q) {
+        return Err(Unrefined::Outside);
     }
     Ok(q)
 }

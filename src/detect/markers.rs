@@ -158,8 +158,7 @@ pub fn marker_quads(smoothed: &GrayImage, cells: usize) -> Vec<[Point2<f64>; 4]>
                 continue;
             }
             // Clockwise in the image: (q1 − q0) × (q3 − q0) > 0 with y down.
-            let (a, b) = (quad[1] - quad[0], quad[3] - quad[0]);
-            if a.x * b.y - a.y * b.x < 0.0 {
+            if (quad[1] - quad[0]).perp(&(quad[3] - quad[0])) < 0.0 {
                 quad.swap(1, 3);
             }
             quads.push(quad);
@@ -172,11 +171,8 @@ pub fn marker_quads(smoothed: &GrayImage, cells: usize) -> Vec<[Point2<f64>; 4]>
 fn convex(quad: &[Point2<f64>; 4]) -> bool {
     let turns: Vec<f64> = (0..4)
         .map(|k| {
-            let (a, b) = (
-                quad[(k + 1) % 4] - quad[k],
-                quad[(k + 2) % 4] - quad[(k + 1) % 4],
-            );
-            a.x * b.y - a.y * b.x
+            let (a, b) = (quad[k], quad[(k + 1) % 4]);
+            (b - a).perp(&(quad[(k + 2) % 4] - b))
         })
         .collect();
     turns.iter().all(|&t| t > 0.0) || turns.iter().all(|&t| t < 0.0)
@@ -214,12 +210,11 @@ fn refined_quad(points: &[Point2<f64>], vertices: &[usize]) -> Option<[Point2<f6
         lines.push((Point2::from(mean), Vector2::new(angle.cos(), angle.sin())));
     }
     let meet = |(p, u): (Point2<f64>, Vector2<f64>), (q, v): (Point2<f64>, Vector2<f64>)| {
-        let det = u.x * v.y - u.y * v.x;
+        let det = u.perp(&v);
         if det.abs() < 1e-3 {
             return None;
         }
-        let w = q - p;
-        let t = (w.x * v.y - w.y * v.x) / det;
+        let t = (q - p).perp(&v) / det;
         Some(p + u * t)
     };
     let mut quad = [Point2::origin(); 4];
@@ -424,7 +419,6 @@ pub fn corners_from_markers(
         };
         if let Ok(p) =
             fill::refine_corner_in(raw, smoothed, predicted, along_i, along_j, pattern, &rules)
-            && fill::inside(raw, p)
         {
             corners.push((id, p));
         }

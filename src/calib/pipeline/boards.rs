@@ -528,21 +528,20 @@ pub fn calibrate_from_boards(
         // principal point and a port's tilt move the corners nearly alike, and without the
         // prior the pair drifts together (zoo seeds 62 and 70 on degraded footage: cx and cy 3-5
         // px off where the in-air σ is 0.4 px, the ports' axes 0.3-0.5° off).
-        let lens_prior = (options.lens_std.len() == names.len())
-            .then(|| {
-                let corner_sigma_px = calibration.report.sigma_px?;
-                Some(LensPrior {
-                    means: calibration
-                        .rig
-                        .cameras()
-                        .iter()
-                        .map(|c| intrinsic_values(&c.intrinsics))
-                        .collect(),
-                    std: options.lens_std.clone(),
-                    corner_sigma_px,
-                })
-            })
-            .flatten();
+        let lens_prior = calibration
+            .report
+            .sigma_px
+            .filter(|_| options.lens_std.len() == names.len())
+            .map(|corner_sigma_px| LensPrior {
+                means: calibration
+                    .rig
+                    .cameras()
+                    .iter()
+                    .map(|c| intrinsic_values(&c.intrinsics))
+                    .collect(),
+                std: options.lens_std.clone(),
+                corner_sigma_px,
+            });
         let with_prior = lens_prior.is_some();
         let refined_options = Options {
             estimate: Estimate {

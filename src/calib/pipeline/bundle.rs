@@ -1504,7 +1504,6 @@ mod tests {
     /// truth (the other values held by the data alone, their prior σ unset).
     #[test]
     fn a_lens_prior_holds_a_value_as_its_sigma_against_the_datas_says() {
-        use crate::calib::solvers::lm::{LmOptions, levenberg_marquardt};
         let truth = lens_rig();
         let (target, seen, poses) = lens_views(&truth, 0.0, 9);
         let estimate = Estimate::parse("intrinsics").unwrap();
@@ -1533,18 +1532,13 @@ mod tests {
                         values
                     })
                     .collect(),
+                // A σ on cx alone (0: no prior on the other values).
                 std: vec![
-                    [
-                        0.0,
-                        0.0,
-                        prior_std.unwrap_or(0.0),
-                        0.0,
-                        0.0,
-                        0.0,
-                        0.0,
-                        0.0,
+                    std::array::from_fn(|j| if j == 2 {
+                        prior_std.unwrap_or(0.0)
+                    } else {
                         0.0
-                    ];
+                    });
                     2
                 ],
                 corner_sigma_px: 1.0,

@@ -333,17 +333,9 @@ pub fn calibrate_with_progress(
     let started = Instant::now();
     // A chessboard's corners numbered alike in every camera of a view (a detector that numbers
     // each image on its own may start a colour-symmetric board at either end).
-    // (Copied only where there is something to agree: a board seen by two or more cameras.)
-    let mut agreed = None;
-    let turned = if observations.target.board().is_some() && rig.cameras().len() >= 2 {
-        let mut copy = observations.clone();
-        let turned = turns::agree_observation_turns(rig, &mut copy);
-        if !turned.is_empty() {
-            agreed = Some(copy);
-        }
-        turned
-    } else {
-        Vec::new()
+    let (agreed, turned) = match turns::agree_observation_turns(rig, observations) {
+        Some((agreed, turned)) => (Some(agreed), turned),
+        None => (None, Vec::new()),
     };
     let observations = agreed.as_ref().unwrap_or(observations);
     let mut calibration = calibrate_unjudged(rig, observations, options, progress)?;

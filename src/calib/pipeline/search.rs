@@ -5,8 +5,7 @@
 use nalgebra::{Isometry3, Vector3};
 
 use super::Options;
-use super::bundle::{Bundle, Estimate, Parameter, State};
-use super::bundle::{fit_briefly, rms};
+use super::bundle::{Bundle, Estimate, Parameter, State, fit_briefly, rms};
 use super::extrinsics::MIN_LINK_CORNERS;
 use super::poses::{POSE_ITERATIONS, bent_into_water, pinhole_pose, place_undefined_views};
 use crate::calib::error::CalibError;

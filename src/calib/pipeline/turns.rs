@@ -191,20 +191,19 @@ pub fn agree_turns(rig: &Rig, board: &Board, frames: &mut [WaterFrame]) -> Vec<T
 
 /// [`agree_turns`] over observations of a chessboard by the cameras of `rig` (the observations
 /// route: a file written by a detector that numbers each image on its own, as
-/// `cv::findChessboardCorners` does on a colour-symmetric board). Each image's corners are
-/// renumbered in place where its camera's turn says so; images whose camera the rig does not
-/// have are left to [`Observations::resolve`]'s error. Returns, per camera turned, its name
-/// and what changed. Nothing is done for a 3-D target or one camera.
+/// `cv::findChessboardCorners` does on a colour-symmetric board). Where some camera's turn
+/// says so, returns a copy of `observations` with those images' corners renumbered, and per
+/// camera turned its name and what changed; `None` where nothing turns (nothing is copied).
+/// Images whose camera the rig does not have are left to [`Observations::resolve`]'s error.
+/// Nothing turns for a 3-D target or one camera.
 pub fn agree_observation_turns(
     rig: &Rig,
-    observations: &mut Observations,
-) -> Vec<(String, Turned)> {
-    let Some(board) = observations.target.board().copied() else {
-        return Vec::new();
-    };
+    observations: &Observations,
+) -> Option<(Observations, Vec<(String, Turned)>)> {
+    let board = observations.target.board().copied()?;
     let n = rig.cameras().len();
     if n < 2 {
-        return Vec::new();
+        return None;
     }
     let camera_of = |key: &CameraKey| match key {
         CameraKey::Name(name) => rig.cameras().iter().position(|c| &c.name == name),
@@ -234,9 +233,10 @@ pub fn agree_observation_turns(
         .collect();
     let turned = agree_turns(rig, &board, &mut frames);
     if turned.is_empty() {
-        return Vec::new();
+        return None;
     }
-    for (view, frame) in observations.views.iter_mut().zip(&frames) {
+    let mut agreed = observations.clone();
+    for (view, frame) in agreed.views.iter_mut().zip(&frames) {
         for image in &mut view.images {
             let Some(k) = camera_of(&image.camera) else {
                 continue;
@@ -250,10 +250,11 @@ pub fn agree_observation_turns(
             image.corners = corners;
         }
     }
-    turned
+    let named = turned
         .into_iter()
         .map(|t| (rig.cameras()[t.camera].name.clone(), t))
-        .collect()
+        .collect();
+    Some((agreed, named))
 }
 
 #[cfg(test)]
@@ -400,13 +401,12 @@ mod tests {
             image.corners = corners;
         }
         assert_ne!(observations, truth);
-        let changed = agree_observation_turns(&rig, &mut observations);
+        let (agreed, changed) = agree_observation_turns(&rig, &observations).expect("turned");
         assert_eq!(changed.len(), 1, "{changed:?}");
         assert_eq!(changed[0].0, rig.cameras()[1].name);
         assert_eq!(changed[0].1.turned, 6);
-        assert_eq!(observations, truth);
+        assert_eq!(agreed, truth);
         // Agreed observations stay as they are.
-        assert!(agree_observation_turns(&rig, &mut observations).is_empty());
-        assert_eq!(observations, truth);
+        assert_eq!(agree_observation_turns(&rig, &agreed), None);
     }
 }
