@@ -12,7 +12,9 @@
 //! This test is about the covariance, not the initialisation: every calibration starts from the
 //! true rig, with the global axis search kept to a 0.5° cap (it keeps the start when no cell
 //! explains the corners better) and no Huber loss, so that each scene ends in the maximum-
-//! likelihood optimum whose covariance σ̂²(JᵀJ)⁻¹ the report gives. Starting from the naive rig
+//! likelihood optimum whose covariance σ̂²(JᵀJ)⁻¹ the report gives (each σ raised where the
+//! views scatter more than chance explains: `report::widened`; on independent noise of one
+//! variance that is rare). Starting from the naive rig
 //! is the accuracy tests' business (`tests/rig_calibration.rs`).
 //!
 //! For each estimated quantity (each port's tilt, azimuth and air distance; the rotation and
@@ -32,7 +34,9 @@
 //! tolerance), the one-camera case gave 0.65 for the azimuth and 0.64 for the air distance: the
 //! estimates stayed near the start. The translation σ of estimated extrinsics is that of t in
 //! cam_from_master: a rotation step turns t as well (t ← exp(ω)·t + τ), so the σ of the step
-//! parameter τ alone was not t's.
+//! parameter τ alone was not t's. With σ raised by the views' scatter (issue 45) the four
+//! cameras' extrinsics fit went from 1.12 / 1.10 / 1.03 (tilt, azimuth, air) to 1.03 / 1.03 /
+//! 0.98, the one-camera azimuth from 0.86 to 0.83; no other ratio moved by more than 0.05.
 
 #[path = "common/rigs.rs"]
 mod rigs;

@@ -771,6 +771,11 @@ pub fn summary(report: &Report) -> String {
             " (corner noise seen in the images σ ≈ {s:.4} px)"
         ))
     );
+    if let Some((parameter, factor)) = &report.sigma_from_scatter {
+        text += &format!(
+            "  σ from the views' scatter where it exceeds σ̂'s: raised up to ×{factor:.2} ({parameter})\n"
+        );
+    }
     if let Some(scene) = &report.scene {
         text += &format!(
             "  3-D ({}–{}): board fit RMS {:.4} mm, square deviation RMS {:.4} mm\n",

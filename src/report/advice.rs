@@ -18,8 +18,8 @@ use nalgebra::{
 
 use rayon::prelude::*;
 
-use crate::calib::pipeline::bundle::{Bundle, Estimate, INTRINSICS, Parameter, State};
-use crate::calib::pipeline::report::port_names;
+use crate::calib::pipeline::bundle::{Bundle, Estimate, Parameter, State};
+use crate::calib::pipeline::report::{parameter_name, port_names};
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::screen::screen;
 use crate::calib::problem::target::Target;
@@ -190,49 +190,24 @@ pub fn information(
 
 /// The name, display unit, display factor and tolerance of `parameter` of `rig`.
 pub fn describe(rig: &Rig, parameter: Parameter) -> (String, &'static str, f64, f64) {
-    let ports = port_names(rig);
-    let cameras = rig.cameras();
-    let axis = ["x", "y", "z"];
+    let name = parameter_name(rig, parameter);
+    let degrees = 180.0 / std::f64::consts::PI;
     match parameter {
-        Parameter::Axis(p, a) => (
-            format!("{} axis (tangent {})", ports[p].0, a + 1),
-            "°",
-            180.0 / std::f64::consts::PI,
-            AXIS_TOLERANCE_RAD,
-        ),
+        Parameter::Axis(..) => (name, "°", degrees, AXIS_TOLERANCE_RAD),
         Parameter::Distance(p) => {
-            let surface = ports[p].1.layers().is_empty();
-            (
-                format!("{} air distance", ports[p].0),
-                "mm",
-                1e3,
-                if surface {
-                    SURFACE_TOLERANCE_M
-                } else {
-                    DISTANCE_TOLERANCE_M
-                },
-            )
+            let surface = port_names(rig)[p].1.layers().is_empty();
+            let tolerance = if surface {
+                SURFACE_TOLERANCE_M
+            } else {
+                DISTANCE_TOLERANCE_M
+            };
+            (name, "mm", 1e3, tolerance)
         }
-        Parameter::Thickness(p, i) => (
-            format!("{} layer {i} thickness", ports[p].0),
-            "mm",
-            1e3,
-            DISTANCE_TOLERANCE_M,
-        ),
-        Parameter::Rotation(k, a) => (
-            format!("{} rotation {}", cameras[k].name, axis[a]),
-            "°",
-            180.0 / std::f64::consts::PI,
-            ROTATION_TOLERANCE_RAD,
-        ),
-        Parameter::Translation(k, a) => (
-            format!("{} translation {}", cameras[k].name, axis[a]),
-            "mm",
-            1e3,
-            TRANSLATION_TOLERANCE_M,
-        ),
+        Parameter::Thickness(..) => (name, "mm", 1e3, DISTANCE_TOLERANCE_M),
+        Parameter::Rotation(..) => (name, "°", degrees, ROTATION_TOLERANCE_RAD),
+        Parameter::Translation(..) => (name, "mm", 1e3, TRANSLATION_TOLERANCE_M),
         Parameter::Intrinsic(k, j) => {
-            let c = &cameras[k].intrinsics;
+            let c = &rig.cameras()[k].intrinsics;
             let tolerance = match j {
                 0 => 1e-3 * c.fx,
                 1 => 1e-3 * c.fy,
@@ -240,12 +215,7 @@ pub fn describe(rig: &Rig, parameter: Parameter) -> (String, &'static str, f64, 
                 6 | 7 => 5e-4,
                 _ => 5e-3,
             };
-            (
-                format!("{} {}", cameras[k].name, INTRINSICS[j]),
-                if j < 4 { "px" } else { "" },
-                1.0,
-                tolerance,
-            )
+            (name, if j < 4 { "px" } else { "" }, 1.0, tolerance)
         }
     }
 }

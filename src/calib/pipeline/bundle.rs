@@ -524,6 +524,7 @@ impl<'a> Bundle<'a> {
         for (g, r, w) in self.prior_terms(state) {
             normal.cost += r * r;
             normal.global[(g, g)] += w * w;
+            normal.prior_information[g] += w * w;
             normal.global_gradient[g] += w * r;
         }
         normal

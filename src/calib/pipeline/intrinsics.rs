@@ -44,6 +44,7 @@ use nalgebra::{DVector, Isometry3, Matrix2x3, Matrix3, Point2, Point3, Vector2, 
 use crate::base::Board;
 use crate::calib::error::{CalibError, number};
 use crate::calib::pipeline::poses::pinhole_pose;
+use crate::calib::pipeline::report::widened;
 use crate::calib::solvers::block::{
     BlockNormalEquations, POSE_PARAMETERS, move_pose, robust, view_share,
 };
@@ -190,8 +191,14 @@ pub struct ModelSelection {
 pub struct IntrinsicsFit {
     /// The estimate (fixed lens coefficients are 0).
     pub camera: PinholeCamera,
-    /// Standard deviations of fx, fy, cx, cy, k1, k2, p1, p2, k3 (0 for fixed coefficients).
+    /// Standard deviations of fx, fy, cx, cy, k1, k2, p1, p2, k3 (0 for fixed coefficients):
+    /// [`std_classical`](Self::std_classical), each raised where the views scatter more than
+    /// σ̂ says (blurred or noisier views, corners of a view that err together:
+    /// [`widened`](super::report::widened)).
     pub std: [f64; INTRINSICS],
+    /// The same by OpenCV's formula (≥ 4.8): √diag((JᵀJ)⁻¹)·σ̂, which assumes every corner errs
+    /// independently with one variance.
+    pub std_classical: [f64; INTRINSICS],
     /// RMS of the corners' 2-D residual lengths over the views used, pixels.
     pub rms_px: f64,
     /// σ̂ = √(SSR / (2N − p)), the estimated corner noise per coordinate, pixels.
@@ -1116,11 +1123,18 @@ fn finish(
     let cost = fitted.normal.cost();
     let sigma2 = cost / (2 * corners).saturating_sub(parameters).max(1) as f64;
     let mut std = [0.0; INTRINSICS];
+    let mut std_classical = [0.0; INTRINSICS];
     if let Some(covariance) = fitted.normal.global_covariance() {
+        let classical = covariance * sigma2;
+        let raised = match fitted.normal.clustered_covariance(sigma2) {
+            Some(clustered) => widened(classical.clone(), &clustered).0,
+            None => classical.clone(),
+        };
         let mut column = 0;
         for (p, f) in free.iter().enumerate() {
             if *f {
-                std[p] = (covariance[(column, column)] * sigma2).max(0.0).sqrt();
+                std_classical[p] = classical[(column, column)].max(0.0).sqrt();
+                std[p] = raised[(column, column)].max(0.0).sqrt();
                 column += 1;
             }
         }
@@ -1131,6 +1145,7 @@ fn finish(
                 std[p] = 0.0;
             }
         }
+        std_classical = std;
     }
     let mut view_rms_px = vec![None; views.len()];
     let mut cam_from_board = vec![None; views.len()];
@@ -1175,6 +1190,7 @@ fn finish(
     Ok(IntrinsicsFit {
         camera,
         std,
+        std_classical,
         rms_px: (sum / corners as f64).sqrt(),
         sigma_px: sigma2.sqrt(),
         view_rms_px,

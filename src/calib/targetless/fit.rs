@@ -315,6 +315,7 @@ mod tests {
                     local: jp.transpose() * jp,
                     coupling: jg.transpose() * jp,
                     gradient: jp.transpose() * rp,
+                    global_gradient: jg.transpose() * rp,
                 }
             })
             .collect();
@@ -323,6 +324,7 @@ mod tests {
             global_gradient: jg.transpose() * &r,
             blocks,
             cost: r.norm_squared(),
+            prior_information: DVector::zeros(globals),
         };
         for (damping, floor) in [(0.0, 0.0), (1e-3, 1e-9), (5.0, 1.0)] {
             let step = block.solve_damped(damping, floor).unwrap();

@@ -38,7 +38,7 @@ use nalgebra::{DMatrix, Point3, SymmetricEigen, Unit, Vector3};
 
 use crate::base::GreyImage;
 use crate::calib::pipeline::bundle::{Estimate, Parameter, State};
-use crate::calib::pipeline::report::port_names;
+use crate::calib::pipeline::report::{parameter_name, port_names};
 use crate::calib::solvers::lm::{LmOptions, Termination, levenberg_marquardt};
 use crate::calib::solvers::search::tangent_step;
 use crate::model::{Interface, Ports, Rig, triangulate_rays};
@@ -803,17 +803,6 @@ fn patch_overlap(rig: &Rig, tracks: &[Track], radius: usize) -> f64 {
     }
 }
 
-fn parameter_name(names: &[(String, Interface)], parameter: Parameter) -> String {
-    match parameter {
-        Parameter::Axis(p, _) => format!("{} axis", names[p].0),
-        Parameter::Distance(p) => format!("{} distance", names[p].0),
-        Parameter::Thickness(p, i) => format!("{} layer {i} thickness", names[p].0),
-        Parameter::Rotation(k, a) => format!("camera {k} rotation {a}"),
-        Parameter::Translation(k, a) => format!("camera {k} translation {a}"),
-        Parameter::Intrinsic(k, j) => format!("camera {k} intrinsic {j}"),
-    }
-}
-
 /// Each port's σ and the parameters whose σ exceeds its limit, with the parameter each is most
 /// correlated with (the direction along which the cost is flat). A singular JᵀJ (`covariance`
 /// `None`) leaves every estimated parameter unpinned.
@@ -839,7 +828,7 @@ fn uncertainty(
         match best {
             Some((j, r)) => format!(
                 "it trades off with the {} (correlation {r:+.3}): the cost has a valley along them",
-                parameter_name(&names, globals[j])
+                parameter_name(rig, globals[j])
             ),
             None => "the cost is nearly flat along it".into(),
         }

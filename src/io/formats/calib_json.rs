@@ -600,6 +600,12 @@ struct StageFile<'a> {
 }
 
 #[derive(Debug, Serialize)]
+struct ScatterFile<'a> {
+    parameter: &'a str,
+    factor: f64,
+}
+
+#[derive(Debug, Serialize)]
 struct OutlierFile<'a> {
     view: usize,
     image: &'a str,
@@ -622,6 +628,7 @@ struct ReportFile<'a> {
     ports: Vec<PortReportFile<'a>>,
     cameras: Vec<CameraReportFile<'a>>,
     sigma_px: Option<f64>,
+    sigma_from_scatter: Option<ScatterFile<'a>>,
     noise_px: Option<f64>,
     rms_px: Vec<f64>,
     rms_px_all: f64,
@@ -656,7 +663,9 @@ struct ReportFile<'a> {
 /// - `ports` [{name, normal, tilt_deg, azimuth_deg, distance, thicknesses}, each value
 ///   `{value, std}`], `cameras` [{name, views, observations, rms_px, inlier_rms_px,
 ///   rotation_std_deg, translation_std_m}];
-/// - `sigma_px` (σ̂ of the fit), `noise_px` (corner noise seen in the images), `rms_px` and
+/// - `sigma_px` (σ̂ of the fit), `sigma_from_scatter` {parameter, factor} (where the views
+///   scatter more than σ̂ says, every σ is raised to what they say: the parameter raised most;
+///   null where none was), `noise_px` (corner noise seen in the images), `rms_px` and
 ///   `inlier_rms_px` per camera (rig order), `rms_px_all` over every corner image,
 ///   `rms_px_per_view` `[view][camera]` (null where a camera did not see a view);
 /// - `scene_cameras`, `scene_rms_m`, `square_deviation_rms_m`: the 3-D errors of one pair's
@@ -718,6 +727,13 @@ pub fn report_to_json_string(report: &Report) -> String {
             })
             .collect(),
         sigma_px: report.sigma_px,
+        sigma_from_scatter: report
+            .sigma_from_scatter
+            .as_ref()
+            .map(|(parameter, factor)| ScatterFile {
+                parameter,
+                factor: *factor,
+            }),
         noise_px: report.noise_px,
         rms_px: report.cameras.iter().map(|c| c.rms_px).collect(),
         rms_px_all: report.rms_px,
