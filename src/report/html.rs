@@ -220,10 +220,18 @@ pub(crate) fn page(facts: &Facts, pictures: &Pictures) -> String {
         out.push_str("</table>\n");
         let _ = writeln!(
             out,
-            "<p>σ̂ {} px; corner noise seen in the images {} px; RMS over every corner {} px.</p>",
+            "<p>σ̂ {} px; corner noise seen in the images {} px; RMS over every corner {} px.{}</p>",
             report.sigma_px.map_or("—".into(), |s| number(s, 3)),
             report.noise_px.map_or("—".into(), |s| number(s, 3)),
-            number(report.rms_px, 3)
+            number(report.rms_px, 3),
+            report
+                .sigma_from_scatter
+                .as_ref()
+                .map_or(String::new(), |(parameter, factor)| format!(
+                    " The views scatter more than σ̂ says: σ raised to what they say, up to ×{} ({}).",
+                    number(*factor, 2),
+                    escape(parameter)
+                ))
         );
     } else if !facts.corners.is_empty() {
         out.push_str(
@@ -481,6 +489,7 @@ pub(crate) fn write_numbers(
         "fits": input.report.map(|r| r.fits),
         "rms_px": input.report.map(|r| r.rms_px),
         "sigma_px": input.report.and_then(|r| r.sigma_px),
+        "sigma_from_scatter": input.report.and_then(|r| r.sigma_from_scatter.as_ref()).map(|(p, f)| json!({"parameter": p, "factor": f})),
         "parameters": advice.iter().flat_map(|a| &a.parameters).map(|p| json!({
             "name": p.name,
             "sigma": p.sigma * p.scale,
