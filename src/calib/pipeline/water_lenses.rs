@@ -132,13 +132,18 @@ pub fn water_lens_start(
                 .to_degrees()
         })
         .fold(0.0, f64::max);
-    let focal_std = fit.std[0].max(fit.std[1]) / fit.camera.fx.min(fit.camera.fy);
+    // The σ of the views' geometry (OpenCV's formula), not the one raised by how the views
+    // scatter: this pinhole fit of refracted corners misfits by design, and its scatter says so,
+    // not whether slanted boards pin a focal length (zoo seed 6's cam1, boards tilted up to
+    // 53°, was refused at 1550 ± 111 px with the raised σ).
+    let focal_std =
+        fit.std_classical[0].max(fit.std_classical[1]) / fit.camera.fx.min(fit.camera.fy);
     if largest_tilt < MIN_START_TILT_DEG || !(focal_std <= MAX_START_FOCAL_STD) {
         return Err(CalibError::NotDetermined(format!(
             "camera '{name}': its {} underwater views of the board do not determine its lens (the board is tilted by at most {largest_tilt:.1}° from facing the camera; the focal length comes out {:.0} ± {:.0} px); without in-air views (air/{name}/) or a rig file (--rig), the board must be filmed under water tilted by 20–40° in several directions",
             views.len(),
             fit.camera.fx,
-            fit.std[0]
+            fit.std_classical[0]
         )));
     }
     let ratio = index_water / index_air;
