@@ -188,7 +188,7 @@ pub fn run(args: DetectArgs) -> anyhow::Result<()> {
                 filled.len(),
                 if unrefined > 0 {
                     format!(
-                        " ({unrefined} where the neighbours put them: the image did not place them)"
+                        " ({unrefined} the image did not place: left out of the view, its other corners kept)"
                     )
                 } else {
                     " and placed on the image".to_string()
@@ -486,7 +486,7 @@ fn resolve_views(
                     .map(|(c, f)| {
                         c.and_then(|(o, _)| {
                             f.as_ref().map(|f| {
-                                f.detection.orderings[o].iter().copied().map(Some).collect()
+                                f.detection.observed(o)
                             })
                         })
                     })

@@ -90,8 +90,29 @@ pub struct Detection {
     pub orderings: Vec<Vec<Point2<f64>>>,
     /// The inner corners the grid missed (a speck on a corner hides it), filled in by
     /// [`fill`]; empty when the grid was whole. Those with [`FilledCorner::unrefined`] set sit
-    /// where their neighbours put them, not where the image does.
+    /// where their neighbours put them, not where the image does, and are no observation
+    /// ([`Detection::observed`]).
     pub filled: Vec<FilledCorner>,
+}
+
+impl Detection {
+    /// Ordering `o`'s corners as observations: `None` for a corner the image did not place (a
+    /// filled corner whose refinement failed: [`FilledCorner::unrefined`]). Its prediction from
+    /// the neighbours can be pixels off on a slanted, distorted board (zoo seed 43's cam0: one
+    /// such corner 2.5 px off in one in-air view moved the lens's fx by 2.5 px), and a guess is
+    /// not a measurement: the view keeps its other corners.
+    pub fn observed(&self, o: usize) -> Vec<Option<Point2<f64>>> {
+        self.orderings[o]
+            .iter()
+            .map(|&p| {
+                let guessed = self
+                    .filled
+                    .iter()
+                    .any(|f| f.unrefined.is_some() && f.pixel == p);
+                (!guessed).then_some(p)
+            })
+            .collect()
+    }
 }
 
 /// The ChESS front end: the workspace defaults of calib-targets with the saddle-point refiner,

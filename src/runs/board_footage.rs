@@ -369,10 +369,19 @@ pub fn corners_in(
         Ok(BoardCorners::Charuco(corners)) => corners,
         Ok(BoardCorners::Chessboard(detection)) => {
             let found = Found::new(image, board, detection);
-            let orderings = found.detection.orderings.clone();
+            // Each ordering as observations (corners the image did not place left out).
+            let observed: Vec<_> = (0..found.detection.orderings.len())
+                .map(|o| found.detection.observed(o))
+                .collect();
             match resolve_view(board, &[name.to_string()], None, &[Some(found)]) {
                 Ok(chosen) => chosen[0]
-                    .map(|(o, _)| orderings[o].iter().copied().enumerate().collect())
+                    .map(|(o, _)| {
+                        observed[o]
+                            .iter()
+                            .enumerate()
+                            .filter_map(|(i, p)| p.map(|p| (i, p)))
+                            .collect()
+                    })
                     .unwrap_or_default(),
                 Err(_) => Vec::new(),
             }
