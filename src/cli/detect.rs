@@ -483,13 +483,7 @@ fn resolve_views(
                 let view: DetectedView = chosen
                     .iter()
                     .zip(&found)
-                    .map(|(c, f)| {
-                        c.and_then(|(o, _)| {
-                            f.as_ref().map(|f| {
-                                f.detection.observed(o)
-                            })
-                        })
-                    })
+                    .map(|(c, f)| c.and_then(|(o, _)| f.as_ref().map(|f| f.detection.observed(o))))
                     .collect();
                 for (k, c) in chosen.iter().enumerate() {
                     resolved.chosen_per_image[v * names.len() + k] = *c;

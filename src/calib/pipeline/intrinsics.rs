@@ -194,7 +194,7 @@ pub struct IntrinsicsFit {
     /// Standard deviations of fx, fy, cx, cy, k1, k2, p1, p2, k3 (0 for fixed coefficients):
     /// [`std_classical`](Self::std_classical), each raised where the views scatter more than
     /// σ̂ says (blurred or noisier views, corners of a view that err together:
-    /// [`widened`](super::report::widened)).
+    /// [`widened`]).
     pub std: [f64; INTRINSICS],
     /// The same by OpenCV's formula (≥ 4.8): √diag((JᵀJ)⁻¹)·σ̂, which assumes every corner errs
     /// independently with one variance.

@@ -70,7 +70,7 @@ pub struct CameraReport {
     /// when its extrinsics were estimated.
     pub extrinsics_std: Option<([f64; 3], [f64; 3])>,
     /// Standard deviations of its intrinsics in the order of
-    /// [`INTRINSICS`](super::bundle::INTRINSICS) (fx, fy, cx, cy in pixels; k1, k2, p1, p2, k3),
+    /// [`INTRINSICS`] (fx, fy, cx, cy in pixels; k1, k2, p1, p2, k3),
     /// when they were estimated; `None` for a lens term held at 0.
     pub intrinsics_std: Option<[Option<f64>; 9]>,
 }
@@ -418,7 +418,7 @@ pub fn camera_reports(
 }
 
 /// The report's port and extrinsic σ with every camera's lens as uncertain as `lens_std` says
-/// (per camera, σ of [`INTRINSICS`](super::bundle::INTRINSICS): its in-air calibration's) instead
+/// (per camera, σ of [`INTRINSICS`]: its in-air calibration's) instead
 /// of exact. The fit held the lenses fixed at their in-air values, so a lens off by δl moves the
 /// fitted ports and extrinsics p by δp = −S_pp⁻¹ S_pl δl (S the information of the fitted views
 /// over p and the lenses l at the result, board poses eliminated): their covariance is the
@@ -795,7 +795,7 @@ fn uncertainty(
 /// and the larger of two estimates overstates the σ of a fit whose corners are plain noise
 /// (by 10-20 % on 20-60 views: `tests/calibration_uncertainty.rs`). Also returns the largest
 /// D_ii and its index (none raised: `None`).
-pub(crate) fn widened(
+pub fn widened(
     mut covariance: DMatrix<f64>,
     (clustered, informing): &(DMatrix<f64>, Vec<usize>),
 ) -> (DMatrix<f64>, Option<(usize, f64)>) {
