@@ -369,18 +369,13 @@ pub fn corners_in(
         Ok(BoardCorners::Charuco(corners)) => corners,
         Ok(BoardCorners::Chessboard(detection)) => {
             let found = Found::new(image, board, detection);
-            // Each ordering as observations (corners the image did not place left out).
-            let observed: Vec<_> = (0..found.detection.orderings.len())
-                .map(|o| found.detection.observed(o))
-                .collect();
+            let detection = found.detection.clone();
             match resolve_view(board, &[name.to_string()], None, &[Some(found)]) {
+                // The chosen ordering's corners, those the image did not place left out.
                 Ok(chosen) => chosen[0]
                     .map(|(o, _)| {
-                        observed[o]
-                            .iter()
-                            .enumerate()
-                            .filter_map(|(i, p)| p.map(|p| (i, p)))
-                            .collect()
+                        let observed = detection.observed(o).into_iter().enumerate();
+                        observed.filter_map(|(i, p)| p.map(|p| (i, p))).collect()
                     })
                     .unwrap_or_default(),
                 Err(_) => Vec::new(),

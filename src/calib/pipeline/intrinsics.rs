@@ -44,7 +44,7 @@ use nalgebra::{DVector, Isometry3, Matrix2x3, Matrix3, Point2, Point3, Vector2, 
 use crate::base::Board;
 use crate::calib::error::{CalibError, number};
 use crate::calib::pipeline::poses::pinhole_pose;
-use crate::calib::pipeline::report::widened;
+use crate::calib::pipeline::report::{Covariances, covariances};
 use crate::calib::solvers::block::{
     BlockNormalEquations, POSE_PARAMETERS, move_pose, robust, view_share,
 };
@@ -194,7 +194,7 @@ pub struct IntrinsicsFit {
     /// Standard deviations of fx, fy, cx, cy, k1, k2, p1, p2, k3 (0 for fixed coefficients):
     /// [`std_classical`](Self::std_classical), each raised where the views scatter more than
     /// σ̂ says (blurred or noisier views, corners of a view that err together:
-    /// [`widened`]).
+    /// [`widened`](crate::calib::pipeline::report::widened)).
     pub std: [f64; INTRINSICS],
     /// The same by OpenCV's formula (≥ 4.8): √diag((JᵀJ)⁻¹)·σ̂, which assumes every corner errs
     /// independently with one variance.
@@ -1124,12 +1124,10 @@ fn finish(
     let sigma2 = cost / (2 * corners).saturating_sub(parameters).max(1) as f64;
     let mut std = [0.0; INTRINSICS];
     let mut std_classical = [0.0; INTRINSICS];
-    if let Some(covariance) = fitted.normal.global_covariance() {
-        let classical = covariance * sigma2;
-        let raised = match fitted.normal.clustered_covariance(sigma2) {
-            Some(clustered) => widened(classical.clone(), &clustered).0,
-            None => classical.clone(),
-        };
+    if let Some(Covariances {
+        classical, raised, ..
+    }) = covariances(&fitted.normal, sigma2)
+    {
         let mut column = 0;
         for (p, f) in free.iter().enumerate() {
             if *f {

@@ -20,7 +20,7 @@ use crate::calib::problem::data::{CameraPair, StereoData};
 use crate::calib::problem::observations::SeenView;
 use crate::calib::problem::screen::Screening;
 use crate::calib::problem::target::Target;
-use crate::calib::solvers::block::POSE_PARAMETERS;
+use crate::calib::solvers::block::{BlockNormalEquations, POSE_PARAMETERS};
 use crate::calib::solvers::lm::{LeastSquares, LmReport, Termination};
 use crate::model::{Interface, Ports, Rig};
 
@@ -472,24 +472,19 @@ pub fn add_lens_uncertainty(
             rest.push(i);
         }
     }
-    let s_pp = information.select_rows(&rest).select_columns(&rest);
     let s_pl = information.select_rows(&rest).select_columns(&lenses);
-    let Some(inverse) = s_pp.cholesky().map(|c| c.inverse()) else {
+    // The fitted views' own share with the lenses held (S_pp⁻¹ σ̂²), each σ raised where the views
+    // scatter more than σ̂ says (as the fit's report did).
+    let Some(data) = covariances(&normal.restricted(&rest), sigma * sigma) else {
         return false;
     };
-    // The fitted views' own share, each σ raised where the views scatter more than σ̂ says (as
-    // the fit's report did).
-    let fixed_lenses = normal.restricted(&rest);
-    let data = match fixed_lenses.clustered_covariance(sigma * sigma) {
-        Some(clustered) => widened(&inverse * (sigma * sigma), &clustered).0,
-        None => &inverse * (sigma * sigma),
-    };
+    let inverse = &data.classical / (sigma * sigma);
     let a = &inverse * s_pl;
     let lens_covariance = DMatrix::from_diagonal(&nalgebra::DVector::from_iterator(
         priors.len(),
         priors.iter().map(|s| s * s),
     ));
-    let cov_pp = data + &a * &lens_covariance * a.transpose();
+    let cov_pp = data.raised + &a * &lens_covariance * a.transpose();
     let cov_pl = -(&a * &lens_covariance);
     let mut covariance = DMatrix::zeros(globals.len(), globals.len());
     for (r, &i) in rest.iter().enumerate() {
@@ -767,13 +762,8 @@ fn uncertainty(
     let (covariance, raised) = fit
         .normal
         .as_ref()
-        .and_then(|normal| {
-            let analytic = normal.global_covariance()? * sigma2;
-            Some(match normal.clustered_covariance(sigma2) {
-                Some(clustered) => widened(analytic, &clustered),
-                None => (analytic, None),
-            })
-        })
+        .and_then(|normal| covariances(normal, sigma2))
+        .map(|c| (c.raised, c.largest))
         .unzip();
     (
         covariance,
@@ -823,6 +813,34 @@ pub fn widened(
         .filter(|(_, f)| *f > 1.0)
         .max_by(|a, b| a.1.total_cmp(&b.1));
     (covariance, largest)
+}
+
+/// The covariance of `normal`'s globals at residual variance `sigma2`: σ²·S⁻¹ as it stands
+/// (`classical`), and with each σ raised where the views scatter more than chance explains
+/// ([`widened`]; `raised`, the parameter raised most and its factor in `largest`). `None` where S
+/// is singular.
+pub fn covariances(normal: &BlockNormalEquations, sigma2: f64) -> Option<Covariances> {
+    let classical = normal.global_covariance()? * sigma2;
+    let (raised, largest) = match normal.clustered_covariance(sigma2) {
+        Some(clustered) => widened(classical.clone(), &clustered),
+        None => (classical.clone(), None),
+    };
+    Some(Covariances {
+        classical,
+        raised,
+        largest,
+    })
+}
+
+/// What [`covariances`] gives.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Covariances {
+    /// σ²·S⁻¹: every corner independent, one variance.
+    pub classical: DMatrix<f64>,
+    /// `classical` with each σ raised to what the views' scatter says ([`widened`]).
+    pub raised: DMatrix<f64>,
+    /// The parameter whose σ was raised most (index into the globals) and by how much.
+    pub largest: Option<(usize, f64)>,
 }
 
 /// Warnings about what the standard deviations say: an undetermined azimuth, a singular or weak
